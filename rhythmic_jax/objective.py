@@ -1,0 +1,172 @@
+"""The one objective: squared-hinge L2-SVMs for every template of every period.
+
+Template ``j`` of period ``tau`` labels frame ``i`` with ``y = +1`` when
+``i mod tau == j`` and ``y = -1`` otherwise (paper Eq. 1, 0-based). Each template
+is a linear L2-SVM in liblinear's form (paper Eq. 2 with the squared hinge)::
+
+    f(w, b) = 0.5 * (||w||^2 + b^2) + C * sum_i max(0, 1 - y_i (w . x_i + b))^2
+
+with the bias treated as a constant-1 feature regularised like the weights and
+``C = log N`` by default. :func:`classifier_objective` is ONE classifier;
+:func:`objective` ``jax.vmap``-s it over every template of every candidate period
+(``p`` templates in all), which XLA lowers to one ``(n, d) x (d, p)`` product.
+
+Names: n frames, d features, p templates (sum of the periods), k periods.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "Templates",
+    "classifier_objective",
+    "default_c",
+    "objective",
+    "period_errors",
+    "period_offsets",
+    "phase_predictions",
+    "scores",
+    "squared_hinge",
+    "targets",
+    "total_objective",
+]
+
+
+class Templates(NamedTuple):
+    """Linear templates: ``w`` (d, p) weights and ``b`` (p,) biases."""
+
+    w: jax.Array
+    b: jax.Array
+
+
+def default_c(n: int) -> float:
+    """The paper's penalty ``C = log N`` (natural log, Sec. III-A)."""
+    return float(math.log(n))
+
+
+def period_offsets(periods: Sequence[int]) -> tuple[int, ...]:
+    """Column offset of each period's templates: ``(0, tau_1, tau_1 + tau_2, ...)``."""
+    return tuple(int(v) for v in np.concatenate([[0], np.cumsum(periods)[:-1]]))
+
+
+def targets(labels: np.ndarray | jax.Array, periods: Sequence[int]) -> jax.Array:
+    """±1 targets ``y[i, off_k + j] = +1 iff labels[i] mod tau_k == j``.
+
+    Args:
+      labels: (n,) int place index of every frame (several traversals of one route
+        share labels: multi-exemplar training).
+      periods: static tuple of k periods.
+
+    Returns:
+      (n, p) float32 array of ±1, p = sum(periods).
+    """
+    labels = jnp.asarray(labels)
+    cols = [
+        jnp.where(
+            (labels % t)[:, None] == jnp.arange(t)[None, :],
+            jnp.float32(1.0),
+            jnp.float32(-1.0),
+        )
+        for t in periods
+    ]
+    return jnp.concatenate(cols, axis=1)
+
+
+def squared_hinge(score: jax.Array, target: jax.Array) -> jax.Array:
+    """Per-element squared hinge ``max(0, 1 - target * score) ** 2`` (input's shape)."""
+    return jnp.square(jnp.maximum(0.0, 1.0 - target * score))
+
+
+def classifier_objective(
+    w: jax.Array,
+    b: jax.Array,
+    x: jax.Array,
+    y: jax.Array,
+    c: float,
+    frame_weight: jax.Array | float = 1.0,
+) -> jax.Array:
+    """Objective of ONE template: ``0.5 (||w||^2 + b^2) + C sum_i a_i h(w.x_i + b, y_i)``.
+
+    Args:
+      w: (d,) weights; b: () bias; x: (n, d) frames; y: (n,) ±1 targets.
+      c: the penalty C.
+      frame_weight: scalar or (n,) multiplier ``a_i`` of each frame's loss; a
+        minibatch of size m out of n uses ``n / m`` for an unbiased estimate.
+
+    Returns:
+      () the objective value.
+    """
+    loss = squared_hinge(x @ w + b, y)
+    return 0.5 * (jnp.vdot(w, w) + b * b) + c * jnp.sum(frame_weight * loss)
+
+
+def objective(
+    params: Templates,
+    x: jax.Array,
+    y: jax.Array,
+    c: float,
+    frame_weight: jax.Array | float = 1.0,
+) -> jax.Array:
+    """Every template's objective at once: :func:`classifier_objective` vmapped.
+
+    Args:
+      params: ``w`` (d, p), ``b`` (p,).
+      x: (n, d) frames; y: (n, p) ±1 targets from :func:`targets`.
+
+    Returns:
+      (p,) one objective per template. Their sum is the joint objective; the
+      templates share no parameters, so its optimum is every template's optimum.
+    """
+    per_template = jax.vmap(
+        classifier_objective, in_axes=(1, 0, None, 1, None, None), out_axes=0
+    )
+    return per_template(params.w, params.b, x, y, c, frame_weight)
+
+
+def total_objective(
+    params: Templates,
+    x: jax.Array,
+    y: jax.Array,
+    c: float,
+    frame_weight: jax.Array | float = 1.0,
+) -> jax.Array:
+    """Sum of :func:`objective` over templates: the scalar an optimiser minimises."""
+    return jnp.sum(objective(params, x, y, c, frame_weight))
+
+
+def scores(params: Templates, x: jax.Array) -> jax.Array:
+    """Decision values ``x @ w + b``: (n, d) -> (n, p)."""
+    return x @ params.w + params.b
+
+
+def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:
+    """Per-period argmax phase ``f(x | tau_k)`` (paper Eq. 3): (n, p) -> (n, k) int32."""
+    offs = period_offsets(periods)
+    return jnp.stack(
+        [
+            jnp.argmax(s[:, o : o + t], axis=1)
+            for o, t in zip(offs, periods, strict=True)
+        ],
+        axis=1,
+    ).astype(jnp.int32)
+
+
+def period_errors(s: jax.Array, labels: jax.Array, periods: Sequence[int]) -> jax.Array:
+    """Training error of every period: fraction of frames whose argmax phase is wrong.
+
+    Args:
+      s: (n, p) decision values of the frames; labels: (n,) place indices.
+
+    Returns:
+      (k,) error of each period (paper Sec. III-B, "training error e").
+    """
+    pred = phase_predictions(s, periods)
+    truth = jnp.stack([jnp.asarray(labels) % t for t in periods], axis=1)
+    return jnp.mean(pred != truth, axis=0)

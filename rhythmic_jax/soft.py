@@ -1,0 +1,272 @@
+"""Soft and top-m decoding: score every place by its summed phase scores.
+
+The paper localises a query by the argmax phase of every period and the Chinese
+remainder intersection of those phases (Sec. III-B, Eq. 5); one wrong argmax in any
+period gives a wrong place. Soft decoding keeps every phase score and scores place
+``i < n`` by
+
+    S(i) = sum_k s_k[i mod tau_k],
+
+returning ``argmax_i S(i)``: ``r * n`` gathers per query and no descriptor access.
+After :func:`calibrate` (a log-softmax over the phases of each period) ``S(i)`` is
+a sum of per-period log-likelihoods, so periods with flat scores weigh less.
+``S`` is separable over periods, so when every phase combination is a place
+(``n = prod(tau)``) its argmax is the per-period argmax: the soft index then equals
+the hard one. It differs, and rescues queries, when the hard combination falls at
+or beyond ``n`` (a "no match" of the paper), and it gives a runner-up score.
+
+Top-m decoding scores only the places whose phase is among the ``m`` best of every
+period: the ``prod_k min(m, tau_k)`` Chinese-remainder combinations (index
+``(sum_k T_k[j_k]) mod M`` with the tables of :func:`rhythmic_jax.periods.crt_tables`),
+combinations with index ``>= n`` dropped. ``m = 1`` is the paper's hard decode
+(no match when the argmax combination is ``>= n``); ``m >= max(tau)`` is exactly the
+soft decode (same sums in the same order, ties to the smaller index).
+
+Both return the best score and the runner-up: the best score among the other places
+(with ``exclude = e``, among places more than ``e`` frames from the best one, so that
+neighbours of the match, which look alike along a route, do not count as rivals).
+``confidence = best - runner_up`` (``inf`` with no rival, ``0`` for no match).
+
+Shapes: ``b`` queries, ``p = sum(periods)`` scores per query, ``n`` places.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.periods import crt_tables
+
+__all__ = ["Decoded", "calibrate", "check_scores", "soft_decode", "topm_decode"]
+
+_INT32_SAFE = 2**30  # running CRT sums stay below 2 M < 2**31
+
+
+class Decoded(NamedTuple):
+    """Result of a batch decode; every field has the queries' leading shape (b,).
+
+    index: int32 place, -1 for no match. score: best summed score (-inf for no
+    match). runner_up: best score of a rival place (-inf when there is none).
+    """
+
+    index: jax.Array
+    score: jax.Array
+    runner_up: jax.Array
+
+    @property
+    def confidence(self) -> jax.Array:
+        """``score - runner_up`` (``inf`` without a rival, ``0`` for no match)."""
+        return jnp.where(self.index >= 0, self.score - self.runner_up, 0.0)
+
+
+def check_scores(
+    scores: jax.Array | np.ndarray, periods: Sequence[int], n: int | None = None
+) -> tuple[tuple[int, ...], int]:
+    """Validate ``scores`` (..., p) against ``periods`` and ``n``.
+
+    Returns the periods as a tuple of Python ints and ``n`` (``prod(periods)`` when
+    ``n`` is None). Raises InputError with one line on any mismatch.
+    """
+    try:
+        per = tuple(int(t) for t in periods)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"periods must be a sequence of integers, got {periods!r}"
+        ) from None
+    if not per or min(per) < 1:
+        raise InputError(f"periods must be positive integers, got {per}")
+    crt_tables(per)  # raises InputError when not pairwise co-prime
+    total = math.prod(per)
+    n = total if n is None else n
+    if (
+        isinstance(n, bool)
+        or not isinstance(n, int | np.integer)
+        or not 1 <= n <= total
+    ):
+        raise InputError(f"n={n!r} must be an integer in [1, prod(periods)={total}]")
+    if not hasattr(scores, "shape"):
+        scores = np.asarray(scores)
+    shape = scores.shape
+    if len(shape) < 1 or shape[-1] != sum(per):
+        raise InputError(
+            f"scores must have shape (..., sum(periods)={sum(per)}) for periods {per}, "
+            f"got shape {shape}"
+        )
+    if not jnp.issubdtype(scores.dtype, jnp.floating):
+        raise InputError(f"scores must be floating point, got dtype {scores.dtype}")
+    return per, int(n)
+
+
+def _offsets(periods: tuple[int, ...]) -> tuple[int, ...]:
+    return tuple(int(x) for x in np.cumsum((0,) + periods[:-1]))
+
+
+def calibrate(scores: jax.Array, periods: Sequence[int]) -> jax.Array:
+    """Per-period log-softmax over phases: (..., p) -> (..., p).
+
+    ``c_k[j] = s_k[j] - log sum_j' exp(s_k[j'])``, so ``sum_k c_k[i mod tau_k]`` is a
+    sum of log-probabilities. Argmaxes (the hard decode) are unchanged.
+    """
+    per, _ = check_scores(scores, periods)
+    blocks = jnp.split(jnp.asarray(scores), np.cumsum(per)[:-1].tolist(), axis=-1)
+    return jnp.concatenate([jax.nn.log_softmax(b, axis=-1) for b in blocks], axis=-1)
+
+
+@functools.lru_cache(maxsize=64)
+def _place_columns(periods: tuple[int, ...], n: int) -> np.ndarray:
+    """(r, n) int32: column of place i in period k, ``off_k + i mod tau_k``."""
+    i = np.arange(n)
+    return np.stack(
+        [o + i % t for o, t in zip(_offsets(periods), periods, strict=True)]
+    ).astype(np.int32)
+
+
+def _best_two(
+    score: jax.Array, index: jax.Array, valid: jax.Array, exclude: int
+) -> Decoded:
+    """Best valid candidate (ties to the smaller index) and its best rival.
+
+    score, index, valid: (c,) candidates of one query.
+    """
+    neg = jnp.asarray(-jnp.inf, score.dtype)
+    masked = jnp.where(valid, score, neg)
+    best = jnp.max(masked)
+    big = jnp.iinfo(jnp.int32).max
+    top = jnp.min(jnp.where(valid & (masked == best), index, big))
+    found = jnp.any(valid)
+    top = jnp.where(found, top, -1).astype(jnp.int32)
+    rival = valid & (jnp.abs(index - top) > exclude)
+    runner = jnp.max(jnp.where(rival, score, neg))
+    return Decoded(top, jnp.where(found, best, neg), runner)
+
+
+def _soft_one(s: jax.Array, periods: tuple[int, ...], n: int, exclude: int) -> Decoded:
+    """One query: s (p,) -> scalars."""
+    cols = _place_columns(periods, n)
+    total = s[cols[0]]
+    for c in cols[1:]:
+        total = total + s[c]
+    index = jnp.arange(n, dtype=jnp.int32)
+    return _best_two(total, index, jnp.ones((n,), bool), exclude)
+
+
+def _topm_one(
+    s: jax.Array, periods: tuple[int, ...], n: int, m: int, exclude: int
+) -> Decoded:
+    """One query: s (p,) -> scalars, over prod_k min(m, tau_k) combinations."""
+    tables, big_m = crt_tables(periods)
+    score = index = None
+    for off, t, table in zip(_offsets(periods), periods, tables, strict=True):
+        val, phase = jax.lax.top_k(s[off : off + t], min(m, t))
+        part = jnp.asarray(table.astype(np.int32))[phase]
+        if score is None:
+            score, index = val, part
+        else:
+            score = (score[:, None] + val[None, :]).reshape(-1)
+            index = ((index[:, None] + part[None, :]) % big_m).reshape(-1)
+    return _best_two(score, index, index < n, exclude)
+
+
+def _batched(one, scores: jax.Array, batch_size: int, **static) -> Decoded:
+    """Apply a one-query decoder to scores (..., p), in batches of ``batch_size``."""
+    lead = scores.shape[:-1]
+    flat = scores.reshape((-1, scores.shape[-1]))
+    out = jax.lax.map(
+        functools.partial(one, **static), flat, batch_size=min(batch_size, len(flat))
+    )
+    return Decoded(*(x.reshape(lead) for x in out))
+
+
+@functools.partial(jax.jit, static_argnames=("periods", "n", "exclude", "batch_size"))
+def _soft_jit(scores, periods, n, exclude, batch_size):
+    return _batched(
+        _soft_one, scores, batch_size, periods=periods, n=n, exclude=exclude
+    )
+
+
+@functools.partial(
+    jax.jit, static_argnames=("periods", "n", "m", "exclude", "batch_size")
+)
+def _topm_jit(scores, periods, n, m, exclude, batch_size):
+    return _batched(
+        _topm_one, scores, batch_size, periods=periods, n=n, m=m, exclude=exclude
+    )
+
+
+def _check_int(value: int, name: str, low: int) -> int:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or value < low
+    ):
+        raise InputError(f"{name} must be an integer >= {low}, got {name}={value!r}")
+    return int(value)
+
+
+def _empty(lead: tuple[int, ...], dtype) -> Decoded:
+    neg = jnp.full(lead, -jnp.inf, dtype)
+    return Decoded(jnp.full(lead, -1, jnp.int32), neg, neg)
+
+
+def soft_decode(
+    scores: jax.Array,
+    periods: Sequence[int],
+    n: int,
+    *,
+    exclude: int = 0,
+    batch_size: int = 256,
+) -> Decoded:
+    """Exact score-sum decode of b queries: scores (..., p) -> Decoded with shape (...).
+
+    ``index = argmax_{i < n} sum_k s_k[i mod tau_k]`` (ties to the smaller index);
+    ``runner_up`` is the best score of a place more than ``exclude`` frames away
+    (``exclude = 0``: plain second best). Jit-compiled once per (periods, n,
+    exclude) and shape; ``batch_size`` queries are scored at a time, so memory is
+    ``O(batch_size * n)``.
+    """
+    per, n = check_scores(scores, periods, n)
+    exclude = _check_int(exclude, "exclude", 0)
+    batch_size = _check_int(batch_size, "batch_size", 1)
+    scores = jnp.asarray(scores)
+    if math.prod(scores.shape[:-1]) == 0:
+        return _empty(scores.shape[:-1], scores.dtype)
+    return _soft_jit(scores, per, n, exclude, batch_size)
+
+
+def topm_decode(
+    scores: jax.Array,
+    periods: Sequence[int],
+    n: int,
+    m: int,
+    *,
+    exclude: int = 0,
+    batch_size: int = 256,
+) -> Decoded:
+    """Top-m Chinese-remainder decode: scores (..., p) -> Decoded with shape (...).
+
+    Scores the ``prod_k min(m, tau_k)`` places whose phases are among the ``m`` best
+    of every period and keeps the best one below ``n`` (index -1 and score -inf when
+    every combination is ``>= n``). ``m = 1`` is the paper's hard decode; ``m >=
+    max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``m ** r``
+    instead of ``n``. Needs ``prod(periods) < 2**30`` (int32 index arithmetic).
+    """
+    per, n = check_scores(scores, periods, n)
+    m = _check_int(m, "m", 1)
+    exclude = _check_int(exclude, "exclude", 0)
+    batch_size = _check_int(batch_size, "batch_size", 1)
+    if math.prod(per) >= _INT32_SAFE:
+        raise InputError(
+            f"prod(periods)={math.prod(per)} is too large for top-m decoding "
+            f"(must be < 2**30)"
+        )
+    scores = jnp.asarray(scores)
+    if math.prod(scores.shape[:-1]) == 0:
+        return _empty(scores.shape[:-1], scores.dtype)
+    return _topm_jit(scores, per, n, m, exclude, batch_size)

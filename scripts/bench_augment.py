@@ -1,0 +1,127 @@
+"""Frames per second of each augmentation alone and of all seven in sequence.
+
+Usage: ``python scripts/bench_augment.py [--batch 32] [--repeats 7] [--threads 2]``
+
+Every operation runs with ``p = 1`` (each image transformed; kornia computes the
+transform for the whole batch at any ``p`` and then selects, so this is also the
+cost at ``p = 0.5``) on random float32 batches of 64x32, 224x112 and 224x224
+(width x height), with the parameter draws included. The elastic transform is
+timed with kornia's ``RandomElasticTransform`` and with the coarse-grid version
+(``AugmentConfig.elastic_impl="coarse"``), alone and inside the full sequence.
+Each figure is ``batch / time`` of the fastest and the median of ``--repeats``
+runs after one warm-up run. Writes ``reports/augment.json`` and
+``reports/augment.md`` and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from rhythmic_jax.augment import NAMES, AugmentConfig, augment
+
+SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
+
+
+def cases() -> list[tuple[str, AugmentConfig]]:
+    """(label, config) of every timed pipeline."""
+    out = [(name, AugmentConfig((name,), p=1.0)) for name in NAMES]
+    out.append(
+        ("elastic (coarse)", AugmentConfig(("elastic",), 1.0, elastic_impl="coarse"))
+    )
+    out.append(("all seven (kornia elastic)", AugmentConfig(("all",), p=1.0)))
+    out.append(
+        (
+            "all seven (coarse elastic)",
+            AugmentConfig(("all",), 1.0, elastic_impl="coarse"),
+        )
+    )
+    return out
+
+
+def time_case(batch: torch.Tensor, config: AugmentConfig, repeats: int) -> list[float]:
+    """Seconds per call of ``augment`` on ``batch``, one warm-up call excluded."""
+    augment(batch, config, seed=0)
+    times = []
+    for seed in range(1, repeats + 1):
+        start = time.perf_counter()
+        augment(batch, config, seed=seed)
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out-dir", type=Path, default=Path("reports"))
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    generator = torch.Generator().manual_seed(0)
+    rows = []
+    for h, w in SIZES:
+        batch = torch.rand(args.batch, 3, h, w, generator=generator)
+        for label, config in cases():
+            times = time_case(batch, config, args.repeats)
+            rows.append(
+                {
+                    "op": label,
+                    "size": f"{w}x{h}",
+                    "fps_best": args.batch / min(times),
+                    "fps_median": args.batch / statistics.median(times),
+                }
+            )
+            print(f"{w}x{h:<4} {label:<28} {rows[-1]['fps_best']:9.0f} frames/s")
+    report = {
+        "batch": args.batch,
+        "repeats": args.repeats,
+        "torch_threads": args.threads,
+        "cpu_count": os.cpu_count(),
+        "load_average": os.getloadavg(),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "rows": rows,
+    }
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    (args.out_dir / "augment.json").write_text(json.dumps(report, indent=2) + "\n")
+    table = markdown(report)
+    (args.out_dir / "augment.md").write_text(table)
+    print(table)
+    return report
+
+
+def markdown(report: dict) -> str:
+    """The report as a table: one row per operation, one column per size."""
+    sizes = [f"{w}x{h}" for h, w in SIZES]
+    fps = {(r["op"], r["size"]): r for r in report["rows"]}
+    ops = list(dict.fromkeys(r["op"] for r in report["rows"]))
+    lines = [
+        "# Augmentation throughput (frames/s, CPU)",
+        "",
+        f"Batch {report['batch']}, {report['torch_threads']} torch threads, "
+        f"p = 1, best (median) of {report['repeats']} runs; torch "
+        f"{report['torch']}, {report['cpu_count']} cores, load average at the end "
+        f"{report['load_average'][0]:.1f}. Command: `python scripts/bench_augment.py`.",
+        "",
+        "| operation | " + " | ".join(sizes) + " |",
+        "|---|" + "---|" * len(sizes),
+    ]
+    for op in ops:
+        cells = [
+            f"{fps[op, s]['fps_best']:.0f} ({fps[op, s]['fps_median']:.0f})"
+            for s in sizes
+        ]
+        lines.append(f"| {op} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,339 @@
+"""Image folders, tiles, GPS places and descriptor files against plain references."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+import skimage.io
+import skimage.transform
+from sklearn.cluster import KMeans
+from sklearn.metrics import adjusted_rand_score
+from sklearn.preprocessing import StandardScaler
+from threadpoolctl import threadpool_limits
+
+from rhythmic_jax.data import (
+    gps_places,
+    load_aerial_pair,
+    load_aerial_route,
+    load_descriptors,
+    load_route,
+    load_traversal,
+    natural_key,
+    nordland,
+    read_rgb,
+    save_descriptors,
+    tile_image,
+)
+from rhythmic_jax.errors import InputError
+
+RNG = np.random.default_rng(0)
+
+
+def _rgb(h: int, w: int) -> np.ndarray:
+    return RNG.integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+
+def _write(folder: Path, name: str, image: np.ndarray) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    skimage.io.imsave(folder / name, image, check_contrast=False)
+    return folder / name
+
+
+# ------------------------------------------------------------------- traversals
+
+
+def test_natural_order_and_non_images_ignored(tmp_path):
+    images = {f"img{i}.png": _rgb(6, 8) for i in (10, 2, 1, 33)}
+    for name, image in images.items():
+        _write(tmp_path, name, image)
+    (tmp_path / "notes.txt").write_text("not a frame")
+    t = load_traversal(tmp_path, progress=False)
+    assert t.names == ("img1.png", "img2.png", "img10.png", "img33.png")
+    assert t.images.shape == (4, 6, 8, 3) and t.images.dtype == np.uint8
+    for name, image in zip(t.names, t.images, strict=True):
+        np.testing.assert_array_equal(image, images[name])
+    assert natural_key("Img010.png") == natural_key("img10.jpg")
+    assert sorted(["a10", "a9", "a100"], key=natural_key) == ["a9", "a10", "a100"]
+
+
+def test_grey_rgba_and_16_bit_become_rgb(tmp_path):
+    grey = RNG.integers(0, 256, (5, 7), dtype=np.uint8)
+    rgba = np.dstack([_rgb(5, 7), np.full((5, 7), 255, np.uint8)])
+    half = rgba.copy()
+    half[..., 3] = 128
+    deep = (grey.astype(np.uint16) << 8) | 0x80  # 16-bit grey
+    for i, image in enumerate([grey, rgba, half, deep]):
+        _write(tmp_path, f"f{i}.png", image)
+    t = load_traversal(tmp_path, progress=False)
+    np.testing.assert_array_equal(t.images[0], np.repeat(grey[..., None], 3, axis=2))
+    np.testing.assert_array_equal(t.images[1], rgba[..., :3])
+    expected = np.rint(half[..., :3] * (128 / 255)).astype(np.uint8)
+    np.testing.assert_array_equal(t.images[2], expected)
+    np.testing.assert_array_equal(t.images[3], t.images[0])  # top byte kept
+
+
+def test_jpeg_frames_load(tmp_path):
+    image = np.full((16, 16, 3), (200, 40, 90), np.uint8)
+    _write(tmp_path, "a1.jpg", image)
+    _write(tmp_path, "a2.jpeg", image)
+    t = load_traversal(tmp_path, progress=False)
+    assert t.images.shape == (2, 16, 16, 3)
+    assert np.abs(t.images.astype(int) - image).max() <= 3  # lossy, flat colour
+
+
+def test_mixed_sizes_error_or_resize(tmp_path):
+    small, big = _rgb(6, 8), _rgb(12, 10)
+    _write(tmp_path, "f1.png", small)
+    _write(tmp_path, "f2.png", big)
+    with pytest.raises(InputError, match=r"f2\.png is 10x12 but f1\.png is 8x6"):
+        load_traversal(tmp_path, progress=False)
+    t = load_traversal(tmp_path, size=(8, 6), progress=False)
+    ref = skimage.transform.resize(
+        big, (6, 8), order=1, anti_aliasing=True, preserve_range=True
+    )
+    np.testing.assert_array_equal(t.images[0], small)
+    np.testing.assert_array_equal(t.images[1], np.rint(ref).astype(np.uint8))
+
+
+def test_bad_folders_and_files(tmp_path):
+    with pytest.raises(InputError, match="folder not found"):
+        load_traversal(tmp_path / "nowhere", progress=False)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="no PNG/JPG images"):
+        load_traversal(tmp_path / "empty", progress=False)
+    good = _write(tmp_path / "cut", "f1.png", _rgb(20, 20))
+    (tmp_path / "cut" / "f2.png").write_bytes(good.read_bytes()[:60])
+    with pytest.raises(InputError, match=r"cannot read image .*f2\.png"):
+        load_traversal(tmp_path / "cut", progress=False)
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "x1.png").write_bytes(b"not a png at all")
+    with pytest.raises(InputError, match=r"x1\.png"):
+        load_traversal(tmp_path / "junk", progress=False)
+
+
+@pytest.mark.parametrize(
+    ("names", "message"),
+    [
+        (("img1.png", "img01.png"), "name the same frame"),
+        (("img1.png", "IMG1.jpg"), "name the same frame"),
+        (("a1.png", "b2.png"), "different naming patterns"),
+        (("frame7.png", "frame7_b.png"), "different naming patterns"),
+    ],
+)
+def test_ambiguous_names(tmp_path, names, message):
+    for name in names:
+        _write(tmp_path, name, _rgb(4, 4))
+    with pytest.raises(InputError, match=message):
+        load_traversal(tmp_path, progress=False)
+
+
+def test_route_checks_counts_and_sizes(tmp_path):
+    for i in range(3):
+        _write(tmp_path / "day", f"{i}.png", _rgb(6, 8))
+        _write(tmp_path / "night", f"{i}.png", _rgb(6, 8))
+        _write(tmp_path / "big", f"{i}.png", _rgb(12, 16))
+    _write(tmp_path / "dusk", "0.png", _rgb(6, 8))
+    route = load_route([tmp_path / "day", tmp_path / "night"], progress=False)
+    assert [len(t) for t in route] == [3, 3]
+    with pytest.raises(InputError, match=r"dusk has 1 frames but .*day has 3"):
+        load_route([tmp_path / "day", tmp_path / "dusk"], progress=False)
+    with pytest.raises(InputError, match="pass size"):
+        load_route([tmp_path / "day", tmp_path / "big"], progress=False)
+    both = load_route([tmp_path / "day", tmp_path / "big"], size=(8, 6), progress=False)
+    assert both[1].images.shape == (3, 6, 8, 3)
+
+
+def test_nordland_frames_in_route_order(tmp_path, nordland_root):
+    """A quick slice of the real set: symlinks to 25 frames, read in order."""
+    sources = sorted((nordland_root / "summer").glob("*.png"))[:25]
+    for src in sources[::-1]:
+        (tmp_path / src.name).symlink_to(src)
+    t = load_traversal(tmp_path, progress=False)
+    assert t.names == tuple(p.name for p in sources)
+    assert t.images.shape == (25, 32, 64, 3)
+    np.testing.assert_array_equal(t.images[7], skimage.io.imread(sources[7])[..., :3])
+
+
+@pytest.mark.slow
+def test_nordland_both_seasons(nordland_root):
+    summer, winter = nordland(nordland_root, progress=False)
+    assert summer.images.shape == winter.images.shape == (3576, 32, 64, 3)
+    assert summer.names == winter.names
+    assert summer.names[0] == "images-00010.png"
+    assert summer.names[-1] == "images-35760.png"
+    assert not np.array_equal(summer.images[100], winter.images[100])
+
+
+# ------------------------------------------------------------------------ tiles
+
+
+@pytest.mark.parametrize(
+    ("h", "w", "size", "stride"),
+    [(100, 130, 32, 16), (64, 96, 32, 32), (50, 50, 50, 7)],
+)
+def test_tiles_match_slicing_loop(h, w, size, stride):
+    image = _rgb(h, w)
+    tiles = tile_image(image, size, stride)
+    ref, pos = [], []
+    for r in range(0, h - size + 1, stride):
+        for c in range(0, w - size + 1, stride):
+            ref.append(image[r : r + size, c : c + size])
+            pos.append((r, c))
+    np.testing.assert_array_equal(tiles.tiles, np.stack(ref))
+    np.testing.assert_array_equal(tiles.positions, np.array(pos))
+
+
+def test_tile_errors():
+    with pytest.raises(InputError, match="does not fit"):
+        tile_image(_rgb(20, 40), size=32)
+    with pytest.raises(InputError, match="uint8"):
+        tile_image(_rgb(40, 40).astype(np.float32), size=32)
+    with pytest.raises(InputError, match="positive integers"):
+        tile_image(_rgb(40, 40), size=32, stride=0)
+
+
+def test_aerial_pair_and_route(tmp_path, caplog):
+    a1, b1, a2, b2 = _rgb(96, 64), _rgb(96, 64), _rgb(64, 64), _rgb(63, 64)
+    for name, a, b in (("p1.png", a1, b1), ("p2.png", a2, b2)):
+        _write(tmp_path / "A", name, a)
+        _write(tmp_path / "B", name, b)
+    pair = load_aerial_pair(tmp_path / "A/p1.png", tmp_path / "B/p1.png", 32, 16)
+    np.testing.assert_array_equal(pair.map_tiles, tile_image(a1, 32, 16).tiles)
+    np.testing.assert_array_equal(pair.query_tiles, tile_image(b1, 32, 16).tiles)
+    assert len(pair) == 5 * 3
+    with pytest.raises(InputError, match=r"p2\.png is 64x64 but .*p2\.png is 64x63"):
+        load_aerial_pair(tmp_path / "A/p2.png", tmp_path / "B/p2.png", 32, 16)
+    route = load_aerial_route(tmp_path, 32, 16, progress=False)
+    assert "cropping p2.png" in caplog.text
+    assert route.names == ("p1.png", "p2.png")
+    assert len(route) == 15 + 2 * 3  # p2 cropped to 63 rows: 2 tile rows
+    np.testing.assert_array_equal(np.bincount(route.pair_index), [15, 6])
+    np.testing.assert_array_equal(route.query_tiles[15:], tile_image(b2, 32, 16).tiles)
+    with pytest.raises(InputError, match="the pair must cover the same pixels"):
+        load_aerial_route(tmp_path, 32, 16, crop=False, progress=False)
+    (tmp_path / "B/p2.png").unlink()
+    with pytest.raises(InputError, match=r"p2\.png is missing"):
+        load_aerial_route(tmp_path, 32, 16, progress=False)
+
+
+def test_real_aerial_routes(aerial_root):
+    levir = load_aerial_route(aerial_root / "samples_LEVIR", progress=False)
+    dsifn = load_aerial_route(aerial_root / "samples_DSIFN", progress=False)
+    assert len(levir) == 769 and len(dsifn) == 490
+    assert levir.map_tiles.shape == levir.query_tiles.shape == (769, 64, 64, 3)
+    a = read_rgb(aerial_root / "samples_DSIFN/A" / dsifn.names[3])
+    i = np.flatnonzero(dsifn.pair_index == 3)[10]
+    r, c = dsifn.positions[i]
+    np.testing.assert_array_equal(dsifn.map_tiles[i], a[r : r + 64, c : c + 64])
+    rgba = aerial_root / "samples_LEVIR"
+    with pytest.raises(InputError, match="test_113_0256"):
+        load_aerial_pair(rgba / "A/test_113_0256.png", rgba / "B/test_113_0256.png")
+
+
+# ------------------------------------------------------------------- GPS places
+
+
+def _loop(n_per_lap: int, laps: int, noise: float) -> np.ndarray:
+    """A 2 km x 200 m oval driven ``laps`` times (metres, UTM-like offsets)."""
+    t = np.tile(np.linspace(0, 2 * np.pi, n_per_lap, endpoint=False), laps)
+    xy = np.stack([5e5 + 1000 * np.cos(t), 5.7e6 + 100 * np.sin(t)], axis=1)
+    return xy + noise * RNG.standard_normal(xy.shape)
+
+
+def test_gps_places_route_order_and_laps():
+    coords = _loop(200, 2, noise=2.0)
+    labels = gps_places(coords, k=16, seed=0)
+    assert labels.shape == (400,) and set(labels) == set(range(16))
+    _, first = np.unique(labels, return_index=True)
+    np.testing.assert_array_equal(labels[np.sort(first)], np.arange(16))
+    lap1, lap2 = labels[:200], labels[200:]
+    assert lap1[0] == 0 and np.mean(lap1 == lap2) > 0.95  # same place, same label
+    changes = np.count_nonzero(np.diff(lap1))
+    assert changes <= 16 + 4  # contiguous arcs along the oval, few boundary flips
+    z = StandardScaler().fit_transform(coords)
+    with threadpool_limits(limits=1):
+        ref = KMeans(n_clusters=16, n_init=10, random_state=0).fit_predict(z)
+    assert adjusted_rand_score(labels, ref) == 1.0
+
+
+def test_gps_places_errors():
+    with pytest.raises(InputError, match=r"\(n, 2\)"):
+        gps_places(np.zeros((5, 3)), 2)
+    bad = _loop(10, 1, 0.0)
+    bad[4, 1] = np.nan
+    with pytest.raises(InputError, match="row 4"):
+        gps_places(bad, 2)
+    with pytest.raises(InputError, match="k must be"):
+        gps_places(_loop(10, 1, 0.0), 11)
+
+
+# ------------------------------------------------------------- descriptor files
+
+
+def test_descriptors_round_trip(tmp_path):
+    x = RNG.standard_normal((7, 5))
+    save_descriptors(tmp_path / "d.npy", x)
+    y = load_descriptors(tmp_path / "d.npy")
+    assert y.dtype == np.float32 and y.shape == (7, 5)
+    np.testing.assert_array_equal(y, x.astype(np.float32))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.npy"]
+
+
+def test_descriptors_refuse_bad_files(tmp_path):
+    objects = tmp_path / "objects.npy"
+    np.save(objects, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
+    with pytest.raises(InputError, match="contains Python objects; refusing"):
+        load_descriptors(objects)
+    pickled = tmp_path / "pickled.npy"
+    pickled.write_bytes(pickle.dumps(np.zeros((2, 2))))
+    with pytest.raises(InputError, match="contains Python objects; refusing"):
+        load_descriptors(pickled)
+    junk = tmp_path / "junk.npy"
+    junk.write_bytes(b"hello world, this is not numpy")
+    with pytest.raises(InputError, match="not a valid .npy"):
+        load_descriptors(junk)
+    full = tmp_path / "full.npy"
+    np.save(full, np.ones((50, 8), np.float32))
+    cut = tmp_path / "cut.npy"
+    cut.write_bytes(full.read_bytes()[:300])
+    with pytest.raises(InputError, match="not a valid .npy"):
+        load_descriptors(cut)
+    cases = {
+        "flat.npy": np.ones(4),
+        "empty.npy": np.ones((0, 3)),
+        "text.npy": np.array([["a", "b"]]),
+    }
+    for name, array in cases.items():
+        np.save(tmp_path / name, array)
+        with pytest.raises(InputError, match=name):
+            load_descriptors(tmp_path / name)
+    with pytest.raises(InputError, match="must be .npy"):
+        load_descriptors(tmp_path / "d.npz")
+    with pytest.raises(InputError, match="not found"):
+        load_descriptors(tmp_path / "missing.npy")
+
+
+def test_descriptors_non_finite_rows(tmp_path):
+    x = np.ones((6, 3))
+    x[3, 1], x[5, 0] = np.nan, np.inf
+    np.save(tmp_path / "nan.npy", x)
+    with pytest.raises(InputError, match="row 3 holds NaN or inf"):
+        load_descriptors(tmp_path / "nan.npy")
+    big = np.ones((2, 2))
+    big[1, 1] = 1e300  # overflows float32
+    np.save(tmp_path / "big.npy", big)
+    with pytest.raises(InputError, match="row 1"):
+        load_descriptors(tmp_path / "big.npy")
+
+
+def test_failed_save_leaves_old_file(tmp_path):
+    target = tmp_path / "d.npy"
+    save_descriptors(target, np.ones((2, 2)))
+    before = target.read_bytes()
+    with pytest.raises(InputError, match="row 0"):
+        save_descriptors(target, np.full((2, 2), np.nan))
+    assert target.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.npy"]
