@@ -25,7 +25,7 @@ import kornia.augmentation as K
 import numpy as np
 import torch
 import torch.nn.functional as F
-from kornia.filters import filter2d_separable, get_gaussian_kernel1d
+from kornia.filters import get_gaussian_kernel1d
 
 from rhythmic_jax.errors import InputError
 
@@ -96,8 +96,8 @@ class AugmentConfig:
     contrast: tuple[float, float] = (0.75, 1.5)
 
     def __post_init__(self):
-        if isinstance(self.names, str):
-            object.__setattr__(self, "names", (self.names,))
+        names = (self.names,) if isinstance(self.names, str) else tuple(self.names)
+        object.__setattr__(self, "names", names)  # hashable: pipelines are cached
         if not self.names:
             raise InputError("augmentation names are empty; known: " + ", ".join(NAMES))
         for name in self.names:
@@ -113,9 +113,10 @@ class AugmentConfig:
             ("crop_keep", self.crop_keep, 0.0, 1.0),
             ("contrast", self.contrast, 0.0, math.inf),
         )
-        for field, (lo, hi), low, high in checks:
-            if not low < lo <= hi <= high:
+        for field, pair, low, high in checks:
+            if len(pair) != 2 or not low < pair[0] <= pair[1] <= high:
                 raise InputError(f"{field} must satisfy {low} < lo <= hi <= {high}")
+            object.__setattr__(self, field, (float(pair[0]), float(pair[1])))
         if self.elastic_alpha < 0 or self.elastic_sigma <= 0:
             raise InputError("elastic_alpha must be >= 0 and elastic_sigma > 0")
 
@@ -141,7 +142,7 @@ class RandomLinearContrast(K.IntensityAugmentationBase2D):
 
     def apply_transform(self, input, params, flags, transform=None):
         a = params["factor"].to(input).view(-1, 1, 1, 1)
-        return (0.5 + a * (input - 0.5)).clamp(0.0, 1.0)
+        return (input - 0.5).mul_(a).add_(0.5).clamp_(0.0, 1.0)
 
 
 class RandomCropResize(K.AugmentationBase2D):
@@ -178,6 +179,20 @@ def _kernel_1d(sigma: float, size: int) -> torch.Tensor:
     return get_gaussian_kernel1d(2 * radius + 1, sigma)
 
 
+def _blur_matrix(kernel: torch.Tensor, n: int) -> torch.Tensor:
+    """(n, n) matrix M with ``M @ v`` = ``v`` filtered by ``kernel`` (1, 2r + 1).
+
+    Borders reflect without repeating the edge sample (torch's ``"reflect"``).
+    A matrix product is far cheaper on CPU than a depthwise convolution for the
+    small coarse fields it is used on.
+    """
+    radius = kernel.shape[-1] // 2
+    idx = (torch.arange(n)[:, None] + torch.arange(-radius, radius + 1)).abs()
+    idx = torch.where(idx > n - 1, 2 * (n - 1) - idx, idx)
+    m = torch.zeros(n, n, dtype=kernel.dtype)
+    return m.scatter_add_(1, idx, kernel.expand(n, -1).contiguous())
+
+
 def _noise_scale(alpha: float, ky: torch.Tensor, kx: torch.Tensor) -> float:
     """Factor giving smoothed U(-1, 1) noise a root-mean-square of ``alpha``."""
     return alpha / math.sqrt(float((ky**2).sum() * (kx**2).sum()) / 3.0)
@@ -189,8 +204,9 @@ class RandomCoarseElastic(K.AugmentationBase2D):
     kornia smooths full-resolution noise with a Gaussian of ``sigma_px`` pixels;
     a field that smooth is band-limited, so here the noise (params ``noise``
     (b, 2, h, w)) lives on a grid ``f = max(1, sigma_px // 2)`` times coarser, is
-    smoothed with sigma ``sigma_px / f`` (2 to 4 cells), upsampled bilinearly to
-    (H, W) and applied with ``grid_sample``, as kornia does.
+    smoothed with sigma ``sigma_px / f`` (2 to 4 cells; reflected borders, where
+    kornia pads the noise with zeros), upsampled bilinearly to (H, W) and
+    applied with ``grid_sample``, as kornia does.
     """
 
     def __init__(self, alpha: float, sigma: float, p: float):
@@ -208,11 +224,11 @@ class RandomCoarseElastic(K.AugmentationBase2D):
         return {"noise": 2.0 * torch.rand(shape[0], 2, hc, wc) - 1.0}
 
     def apply_transform(self, input, params, flags, transform=None):
-        b, _, h, w = input.shape
+        h, w = input.shape[2:]
         (hc, wc), (sy, sx) = self._grid(h, w)
         ky, kx = _kernel_1d(sy, hc), _kernel_1d(sx, wc)
-        noise = params["noise"].to(input)
-        field = filter2d_separable(noise, kx, ky, border_type="reflect")
+        my, mx = _blur_matrix(ky, hc).to(input), _blur_matrix(kx, wc).to(input)
+        field = my @ params["noise"].to(input) @ mx.T  # separable Gaussian
         field = field * _noise_scale(self.alpha, ky, kx)
         field = F.interpolate(field, size=(h, w), mode="bilinear", align_corners=False)
         ys = torch.linspace(-1 + 1 / h, 1 - 1 / h, h, dtype=input.dtype)

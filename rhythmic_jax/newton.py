@@ -75,11 +75,11 @@ def _cg(op, precond, rhs: jax.Array, x0: jax.Array, tol: float, max_iter: int):
     column's residual is below ``tol`` times its right-hand side. Returns the
     solution and the number of iterations taken.
     """
-    bnorm = jnp.maximum(jnp.linalg.norm(rhs, axis=0), 1e-30)
+    bnorm = jnp.maximum(jnp.linalg.norm(rhs, axis=0, keepdims=True), 1e-30)
     r = rhs - op(x0)
     z = precond(r)
-    rz = jnp.sum(r * z, axis=0)
-    rn = jnp.linalg.norm(r, axis=0)
+    rz = jnp.sum(r * z, axis=0, keepdims=True)
+    rn = jnp.linalg.norm(r, axis=0, keepdims=True)
 
     def cond(state):
         *_, rn, it = state
@@ -89,15 +89,15 @@ def _cg(op, precond, rhs: jax.Array, x0: jax.Array, tol: float, max_iter: int):
         x, r, d, rz, rn, it = state
         ad = op(d)
         live = rn > tol * bnorm
-        dad = jnp.sum(d * ad, axis=0)
+        dad = jnp.sum(d * ad, axis=0, keepdims=True)
         step = jnp.where(live, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
         x = x + step * d
         r = r - step * ad
         z = precond(r)
-        rz_new = jnp.sum(r * z, axis=0)
+        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
         beta = jnp.where(live, rz_new / jnp.where(rz > 0, rz, 1.0), 0.0)
         d = z + beta * d
-        return x, r, d, rz_new, jnp.linalg.norm(r, axis=0), it + 1
+        return x, r, d, rz_new, jnp.linalg.norm(r, axis=0, keepdims=True), it + 1
 
     x, *_, it = jax.lax.while_loop(cond, body, (x0, r, z, rz, rn, 0))
     return x, it
@@ -124,7 +124,7 @@ def _spectral_precond(vecs, vals, lam, rho):
     template's fraction of active frames (``Xa^T D Xa ~ rho Xa^T Xa``).
     """
     inv_top = 1.0 / (lam + rho[None, :] * vals[:, None])  # (k, p)
-    inv_tail = 1.0 / (lam + rho * vals[-1])  # (p,)
+    inv_tail = 1.0 / (lam + rho[None, :] * vals[-1])  # (1, p)
 
     def apply(v):
         coef = vecs.T @ v
@@ -138,25 +138,31 @@ def _line_search(m, u, y, a, b, cc, c, iters: int = 30):
 
     ``phi(t) = 0.5 (a + 2 t b + t^2 cc) + C sum_i max(0, 1 - y_i (m_i + t u_i))^2``
     is convex and piecewise quadratic; Newton's method on ``phi'`` from t = 0 lands
-    on the minimiser after a few pieces. Arrays: m, u, y (n, p); a, b, cc (p,).
+    on the minimiser after a few pieces. Arrays: m, u, y (n, p); a, b, cc (1, p).
+    Returns t (1, p) and phi(t) (p,).
     """
     yu = y * u
     slack0 = 1.0 - y * m
 
     def phi(t):
         h = jnp.maximum(0.0, slack0 - t * yu)
-        return 0.5 * (a + 2 * t * b + t * t * cc) + c * jnp.sum(h * h, axis=0)
+        quad = 0.5 * (a + 2 * t * b + t * t * cc)
+        return quad + c * jnp.sum(h * h, axis=0, keepdims=True)
 
     def body(_, t):
         slack = slack0 - t * yu
         act = slack > 0
-        g = b + t * cc - 2 * c * jnp.sum(jnp.where(act, yu * slack, 0.0), axis=0)
-        h = cc + 2 * c * jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0)
+        g = (
+            b
+            + t * cc
+            - 2 * c * jnp.sum(jnp.where(act, yu * slack, 0.0), 0, keepdims=True)
+        )
+        h = cc + 2 * c * jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0, keepdims=True)
         return jnp.maximum(t - g / jnp.maximum(h, 1e-300), 0.0)
 
     t = jax.lax.fori_loop(0, iters, body, jnp.zeros_like(a))
-    better = phi(t) <= phi(jnp.zeros_like(t))
-    return jnp.where(better, t, 0.0), phi(t)
+    t = jnp.where(phi(t) <= phi(jnp.zeros_like(t)), t, 0.0)
+    return t, phi(t)[0]
 
 
 @jax.jit
@@ -183,10 +189,10 @@ def _gram_step(k64, k32, vecs, vals, alpha, y, c, cg_tol, max_cg):
     )
     delta = beta.astype(alpha.dtype) - alpha
     u = k64 @ delta
-    a = jnp.sum(alpha * m, axis=0)
-    b = jnp.sum(alpha * u, axis=0)
-    cc = jnp.sum(delta * u, axis=0)
-    f0 = 0.5 * a + c * jnp.sum(jnp.square(jnp.maximum(0.0, 1.0 - y * m)), axis=0)
+    a = jnp.sum(alpha * m, axis=0, keepdims=True)
+    b = jnp.sum(alpha * u, axis=0, keepdims=True)
+    cc = jnp.sum(delta * u, axis=0, keepdims=True)
+    f0 = 0.5 * a[0] + c * jnp.sum(jnp.square(jnp.maximum(0.0, 1.0 - y * m)), axis=0)
     t, f1 = _line_search(m, u, y, a, b, cc, c)
     return alpha + t * delta, f0, f1, it
 
@@ -206,10 +212,10 @@ def _primal_step(xa64, xa32, vecs, vals, theta, y, c, cg_tol, max_cg):
     beta, it = _cg(op, precond, rhs, theta.astype(jnp.float32), cg_tol, max_cg)
     delta = beta.astype(theta.dtype) - theta
     u = xa64 @ delta
-    a = jnp.sum(theta * theta, axis=0)
-    b = jnp.sum(theta * delta, axis=0)
-    cc = jnp.sum(delta * delta, axis=0)
-    f0 = 0.5 * a + c * jnp.sum(jnp.square(jnp.maximum(0.0, 1.0 - y * m)), axis=0)
+    a = jnp.sum(theta * theta, axis=0, keepdims=True)
+    b = jnp.sum(theta * delta, axis=0, keepdims=True)
+    cc = jnp.sum(delta * delta, axis=0, keepdims=True)
+    f0 = 0.5 * a[0] + c * jnp.sum(jnp.square(jnp.maximum(0.0, 1.0 - y * m)), axis=0)
     t, f1 = _line_search(m, u, y, a, b, cc, c)
     return theta + t * delta, f0, f1, it
 

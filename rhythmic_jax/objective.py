@@ -143,7 +143,7 @@ def total_objective(
 
 def scores(params: Templates, x: jax.Array) -> jax.Array:
     """Decision values ``x @ w + b``: (n, d) -> (n, p)."""
-    return x @ params.w + params.b
+    return x @ params.w + params.b[None, :]
 
 
 def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:

@@ -99,13 +99,21 @@ def choose_periods(
     Returns the periods in increasing order.
 
     Raises:
-      InputError: when no subset of ``r`` candidates is pairwise co-prime with a
-        product of at least ``n``.
+      InputError: on bad arguments, or when no subset of ``r`` candidates is
+        pairwise co-prime with a product of at least ``n``.
     """
     if len(candidates) != len(errors):
         raise InputError(
             f"{len(candidates)} candidate periods but {len(errors)} training errors"
         )
+    for name, value in (("n", n), ("r", r), *(("candidate", t) for t in candidates)):
+        bad_type = isinstance(value, bool) or not isinstance(value, int | np.integer)
+        if bad_type or value < 1:
+            raise InputError(f"{name} must be a positive integer, got {value!r}")
+    if len(set(int(t) for t in candidates)) != len(candidates):
+        raise InputError(f"candidate periods {tuple(candidates)} repeat a period")
+    if not all(math.isfinite(float(e)) for e in errors):
+        raise InputError(f"training errors {tuple(errors)} must all be finite")
     err = {int(t): float(e) for t, e in zip(candidates, errors, strict=True)}
     best: tuple[float, int, tuple[int, ...]] | None = None
     for combo in itertools.combinations(sorted(err), r):

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.decode import hard_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.periods import crt_tables
 from rhythmic_jax.soft import Decoded, check_scores, soft_decode, topm_decode
@@ -204,35 +205,6 @@ def sequence_step(
     return _step_jit(state, scores_t, per, speed)
 
 
-def _hard_decode(scores: jax.Array, periods: tuple[int, ...], n: int) -> Decoded:
-    """Paper's decode of scores (T, p): argmax phase per period + CRT, -1 when >= n.
-
-    runner_up is the best combination that differs in one phase, i.e.
-    ``score - min_k (top1_k - top2_k)``.
-    """
-    tables, big_m = crt_tables(periods)
-    index = jnp.zeros(scores.shape[:1], jnp.int32)
-    score = jnp.zeros(scores.shape[:1], scores.dtype)
-    gap = jnp.full(scores.shape[:1], jnp.inf, scores.dtype)
-    start = 0
-    for t, table in zip(periods, tables, strict=True):
-        block = scores[:, start : start + t]
-        phase = jnp.argmax(block, axis=1)
-        top = jnp.max(block, axis=1)
-        index = (index + jnp.asarray(table.astype(np.int32))[phase]) % big_m
-        score = score + top
-        if t > 1:  # second best: mask the argmax (max/argmax beat top_k on XLA CPU)
-            hit = jnp.arange(t)[None, :] == phase[:, None]
-            second = jnp.max(jnp.where(hit, -jnp.inf, block), axis=1)
-            gap = jnp.minimum(gap, top - second)
-        start += t
-    found = index < n
-    neg = jnp.asarray(-jnp.inf, scores.dtype)
-    return Decoded(
-        jnp.where(found, index, -1), jnp.where(found, score, neg), score - gap
-    )
-
-
 @functools.partial(
     jax.jit,
     static_argnames=("periods", "n", "length", "speeds", "method", "m", "exclude"),
@@ -246,7 +218,7 @@ def _decode_jit(scores, periods, n, length, speeds, method, m, exclude):
         elif method == "topm":
             results.append(topm_decode(acc, periods, n, m, exclude=exclude))
         else:
-            results.append(_hard_decode(acc, periods, n))
+            results.append(hard_decode(acc, periods, n))
     # (S, T) per field: one row per speed
     stacked = Decoded(*(jnp.stack(x) for x in zip(*results, strict=True)))
     pick = jnp.argmax(stacked.score, axis=0)[None, :]

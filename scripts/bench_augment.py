@@ -8,9 +8,9 @@ cost at ``p = 0.5``) on random float32 batches of 64x32, 224x112 and 224x224
 (width x height), with the parameter draws included. The elastic transform is
 timed with kornia's ``RandomElasticTransform`` and with the coarse-grid version
 (``AugmentConfig.elastic_impl="coarse"``), alone and inside the full sequence.
-Each figure is ``batch / time`` of the fastest and the median of ``--repeats``
-runs after one warm-up run. Writes ``reports/augment.json`` and
-``reports/augment.md`` and prints the table.
+Each figure is ``batch / time per call`` of the fastest and the median of
+``--repeats`` runs (each long enough to last 0.2 s) after one warm-up call.
+Writes ``reports/augment.json`` and ``reports/augment.md`` and prints the table.
 """
 
 from __future__ import annotations
@@ -46,14 +46,23 @@ def cases() -> list[tuple[str, AugmentConfig]]:
     return out
 
 
-def time_case(batch: torch.Tensor, config: AugmentConfig, repeats: int) -> list[float]:
-    """Seconds per call of ``augment`` on ``batch``, one warm-up call excluded."""
-    augment(batch, config, seed=0)
+def time_case(
+    batch: torch.Tensor, config: AugmentConfig, repeats: int, min_s: float = 0.2
+) -> list[float]:
+    """Seconds per call of ``augment`` on ``batch``, one per repeat.
+
+    Each repeat times enough calls (new seeds) to last ``min_s`` seconds, so
+    that fast operations are not measured at the scale of scheduler ticks.
+    """
+    start = time.perf_counter()
+    augment(batch, config, seed=0)  # warm-up, also sizes the inner loop
+    calls = max(1, round(min_s / (time.perf_counter() - start)))
     times = []
-    for seed in range(1, repeats + 1):
+    for r in range(repeats):
         start = time.perf_counter()
-        augment(batch, config, seed=seed)
-        times.append(time.perf_counter() - start)
+        for i in range(calls):
+            augment(batch, config, seed=1 + r * calls + i)
+        times.append((time.perf_counter() - start) / calls)
     return times
 
 
@@ -107,7 +116,7 @@ def markdown(report: dict) -> str:
         "# Augmentation throughput (frames/s, CPU)",
         "",
         f"Batch {report['batch']}, {report['torch_threads']} torch threads, "
-        f"p = 1, best (median) of {report['repeats']} runs; torch "
+        f"p = 1, best (median) of {report['repeats']} runs of >= 0.2 s; torch "
         f"{report['torch']}, {report['cpu_count']} cores, load average at the end "
         f"{report['load_average'][0]:.1f}. Command: `python scripts/bench_augment.py`.",
         "",

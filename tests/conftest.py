@@ -33,3 +33,17 @@ def aerial_root() -> Path:
     if not AERIAL.is_dir():
         pytest.skip(f"real aerial pairs not found at {AERIAL} (set RHYTHMIC_DATA)")
     return AERIAL
+
+
+@pytest.fixture(scope="session")
+def nordland_patchnorm(nordland_root):
+    """Patch-normalised 64x32 descriptors of Nordland (summer, winter): 2 x (3576, 2048)."""
+    from rhythmic_jax.data import nordland
+    from rhythmic_jax.features import describe, get_descriptor
+
+    desc = get_descriptor("patchnorm")
+    summer, winter = nordland(nordland_root, progress=False)
+    return (
+        describe(summer.images, desc, progress=False),
+        describe(winter.images, desc, progress=False),
+    )

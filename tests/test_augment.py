@@ -9,10 +9,13 @@ import pytest
 import skimage.filters
 import skimage.transform
 import torch
+from kornia.filters import filter2d_separable
 
 from rhythmic_jax.augment import (
     NAMES,
     AugmentConfig,
+    _blur_matrix,
+    _kernel_1d,
     augment,
     augmented_batches,
     build_pipeline,
@@ -57,6 +60,9 @@ def test_config_rejects_unknown_names_and_bad_ranges():
     with pytest.raises(InputError, match="elastic_impl"):
         AugmentConfig(elastic_impl="fast")
     assert AugmentConfig(("all",)).ops == NAMES
+    listed = AugmentConfig(["hflip"], blur_sigma=[1, 2])  # lists become tuples
+    assert listed == AugmentConfig(("hflip",), blur_sigma=(1.0, 2.0))
+    assert hash(listed) == hash(AugmentConfig("hflip", blur_sigma=(1.0, 2.0)))
     assert AugmentConfig(("invert", "all")).ops == ("invert",) + NAMES
     assert len(build_pipeline(AugmentConfig(), 32, 48)) == 7
 
@@ -129,6 +135,17 @@ def test_elastic_displacement_size_and_identity(impl):
     assert step < 0.15 * rms.mean()
     still, _ = augment(ramp, _only("elastic", elastic_impl=impl, elastic_alpha=0.0), 1)
     torch.testing.assert_close(still, ramp, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("h", "w", "sigma"), [(28, 28, 2.2), (5, 9, 3.0), (7, 40, 1.0)]
+)
+def test_coarse_field_smoothing_matches_kornia_filter(h, w, sigma):
+    noise = torch.rand(3, 2, h, w, generator=torch.Generator().manual_seed(h))
+    ky, kx = _kernel_1d(sigma, h), _kernel_1d(sigma, w)
+    ref = filter2d_separable(noise, kx, ky, border_type="reflect")
+    out = _blur_matrix(ky, h) @ noise @ _blur_matrix(kx, w).T
+    torch.testing.assert_close(out, ref, rtol=0, atol=1e-6)
 
 
 @pytest.mark.parametrize("impl", ["kornia", "coarse"])

@@ -1,0 +1,120 @@
+"""Maps on disk: orbax-checkpoint arrays plus a JSON metadata file, saved atomically.
+
+A map folder holds ``arrays/`` (an orbax checkpoint of named arrays) and
+``map.json`` (format version, periods, n, d, C, dtype, descriptor and its
+settings, package version, candidate errors). Saving writes a hidden temporary
+folder beside the target and renames it into place, so a process killed during a
+save leaves the previous map loadable (if it dies between the two renames, the
+previous map is still found under its hidden backup name and :func:`load_map`
+takes it from there).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["FORMAT_VERSION", "load_map", "save_map"]
+
+FORMAT_VERSION = 1
+_META = "map.json"
+_ARRAYS = "arrays"
+log = logging.getLogger(__name__)
+
+
+def _orbax():
+    import orbax.checkpoint as ocp  # deferred: orbax is slow to import
+
+    return ocp
+
+
+def save_map(
+    path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict
+) -> Path:
+    """Write ``arrays`` and ``meta`` to the folder ``path``, replacing it atomically."""
+    target = Path(path).expanduser().absolute()
+    if target.exists() and not (target / _META).is_file():
+        raise InputError(
+            f"{target}: exists and is not a map folder; refusing to replace it"
+        )
+    arrays = {k: np.asarray(v) for k, v in arrays.items()}
+    for name, value in arrays.items():  # orbax fails on these, some after a mkdir
+        if value.dtype.kind not in "biufc" or value.size == 0:
+            raise InputError(
+                f"arrays[{name!r}]: cannot save a {value.dtype} array of shape "
+                f"{value.shape} (need a non-empty numeric array)"
+            )
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex[:8]}"
+    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
+    try:
+        ckpt = _orbax().StandardCheckpointer()
+        try:
+            ckpt.save(tmp / _ARRAYS, arrays)
+            ckpt.wait_until_finished()
+        finally:
+            ckpt.close()
+        body = json.dumps({"format_version": FORMAT_VERSION, **meta}, indent=2)
+        with open(tmp / _META, "w") as fh:
+            fh.write(body)
+            fh.flush()
+            os.fsync(fh.fileno())
+        if target.exists():
+            os.rename(target, old)
+        os.rename(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if old.exists() and not target.exists():
+            os.rename(old, target)  # put the previous map back
+        raise
+    # the previous map, and any copy left by an earlier interrupted save
+    for stale in target.parent.glob(f".{target.name}.old-*"):
+        shutil.rmtree(stale, ignore_errors=True)
+    return target
+
+
+def _resolve(target: Path) -> Path:
+    if target.is_dir():
+        return target
+    backups = sorted(target.parent.glob(f".{target.name}.old-*"))
+    if backups:
+        log.warning("%s: missing; loading the copy kept by an interrupted save", target)
+        return backups[-1]
+    raise InputError(f"{target}: no such map folder")
+
+
+def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Read a map folder: (arrays, metadata). Bad folders raise :class:`InputError`."""
+    folder = _resolve(Path(path).expanduser().absolute())
+    meta_file = folder / _META
+    try:
+        meta = json.loads(meta_file.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{folder}: not a map folder ({_META} is missing)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"{meta_file}: corrupt metadata ({err})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("format_version"), int):
+        raise InputError(f"{meta_file}: corrupt metadata (no format_version)")
+    if meta["format_version"] > FORMAT_VERSION:
+        raise InputError(
+            f"{folder}: map format {meta['format_version']} is newer than this "
+            f"rhythmic_jax reads ({FORMAT_VERSION}); upgrade the package"
+        )
+    ckpt = _orbax().StandardCheckpointer()
+    try:
+        raw = ckpt.restore(folder / _ARRAYS)
+    except Exception as err:  # noqa: BLE001 - orbax raises many kinds
+        msg = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise InputError(f"{folder}: arrays are missing or corrupt ({msg})") from None
+    finally:
+        ckpt.close()  # an unclosed checkpointer leaks its event loop
+    return {k: np.asarray(v) for k, v in raw.items()}, meta

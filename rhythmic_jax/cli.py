@@ -1,0 +1,270 @@
+"""The ``rhythmic-jax`` command line: a thin layer over the library.
+
+Every command parses its arguments and calls library functions; bad input ends
+with one line on stderr and exit status 2, and nothing half-written on disk.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import textwrap
+from pathlib import Path
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["main"]
+
+EXAMPLES = {
+    "fit": """
+      rhythmic-jax fit ref.npy --out route.map
+      rhythmic-jax fit summer/ winter/ --out route.map --descriptor patchnorm
+      rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
+    """,
+    "query": """
+      rhythmic-jax query route.map queries.npy --out pred.npy
+      rhythmic-jax query route.map winter/ --decode soft --sequence 10 --json
+    """,
+    "info": """
+      rhythmic-jax info route.map --json
+    """,
+    "evaluate": """
+      rhythmic-jax evaluate route.map winter/ --tolerance 1
+      rhythmic-jax evaluate route.map queries.npy --json
+    """,
+    "demo": """
+      rhythmic-jax demo
+      rhythmic-jax demo --out demo_report --quick
+    """,
+}
+
+
+def _quiet_logs(verbose: bool) -> None:
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    for name in ("absl", "jax", "orbax", "jax._src.xla_bridge"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def _add_source_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--descriptor",
+        default=None,
+        help="descriptor for image sources (patchnorm, hog, efficientnet_lite0, "
+        "vgg16_fc7); a map remembers its own",
+    )
+    p.add_argument("--tile", type=int, default=None, help="tile a large image: size")
+    p.add_argument(
+        "--stride", type=int, default=None, help="tile stride (default size/2)"
+    )
+    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rhythmic-jax",
+        description="Sub-linear-storage place recognition with rhythmic templates.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="run 'rhythmic-jax COMMAND --help' for examples",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def add(name: str, help_: str) -> argparse.ArgumentParser:
+        return sub.add_parser(
+            name,
+            help=help_,
+            description=help_,
+            epilog="examples:" + textwrap.dedent(EXAMPLES[name]),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+
+    p = add("fit", "fit a map on reference frames (.npy, image folders, or --tile)")
+    p.add_argument("sources", nargs="+", help="descriptor .npy, image folder(s), image")
+    p.add_argument("--out", required=True, help="map folder to write")
+    p.add_argument("--r", type=int, default=2, help="number of periods (default 2)")
+    p.add_argument("--level", type=int, default=1, help="period level c (c*N^(1/r))")
+    p.add_argument("--count", type=int, default=7, help="candidate periods (default 7)")
+    p.add_argument("--c", type=float, default=None, help="SVM penalty (default log N)")
+    p.add_argument("--solver", default="newton", choices=("newton", "lbfgs"))
+    p.add_argument("--json", action="store_true", help="print the map's info as JSON")
+    _add_source_options(p)
+
+    p = add("query", "localise queries against a map (-1 = no match)")
+    p.add_argument("map", help="map folder")
+    p.add_argument("source", help="query descriptors .npy, image folder or image")
+    p.add_argument("--out", default=None, help="write predictions to this .npy")
+    p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
+    p.add_argument("--sequence", type=int, default=None, help="sequence length L")
+    p.add_argument("--threshold", type=float, default=None, help="reject below this")
+    p.add_argument("--json", action="store_true", help="print predictions as JSON")
+    _add_source_options(p)
+
+    p = add("info", "describe a map: n, d, periods, storage, candidate errors")
+    p.add_argument("map", help="map folder")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+    p = add("evaluate", "accuracy, recall@K, storage and latency beside brute force")
+    p.add_argument("map", help="map folder")
+    p.add_argument("source", help="query descriptors .npy, image folder or image")
+    p.add_argument("--reference", default=None, help="reference source for brute force")
+    p.add_argument(
+        "--tolerance", type=int, default=0, help="frame tolerance (default 0)"
+    )
+    p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
+    p.add_argument("--sequence", type=int, default=None, help="sequence length L")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    _add_source_options(p)
+
+    p = add("demo", "fit and query a map on built-in photographs; write a report")
+    p.add_argument("--out", default="rhythmic_demo", help="report folder")
+    p.add_argument("--quick", action="store_true", help="a smaller route (CI)")
+    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    return parser
+
+
+def _cmd_fit(args) -> int:
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.sources import load_sources
+
+    feats = load_sources(
+        args.sources, args.descriptor, args.tile, args.stride, not args.no_progress
+    )
+    model = RhythmicMap(
+        r=args.r,
+        level=args.level,
+        count=args.count,
+        c=args.c,
+        solver=args.solver,
+        descriptor=feats.descriptor,
+        descriptor_settings=feats.settings,
+    )
+    model.fit(feats.x, feats.labels, progress=not args.no_progress)
+    model.extra.update(feats.extra)
+    model.save(args.out)
+    info = model.info()
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        print(
+            f"map {args.out}: n={info['n']} d={info['d']} periods={tuple(info['periods'])} "
+            f"storage={info['storage_bytes']:,} B "
+            f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
+        )
+    return 0
+
+
+def _load_queries(args):
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.sources import load_query_source
+
+    model = RhythmicMap.load(args.map)
+    feats = load_query_source(
+        args.source,
+        model,
+        args.descriptor,
+        args.tile,
+        args.stride,
+        not args.no_progress,
+    )
+    return model, feats
+
+
+def _cmd_query(args) -> int:
+    import numpy as np
+
+    model, feats = _load_queries(args)
+    pred = model.predict(
+        feats.x, args.decode, sequence=args.sequence, threshold=args.threshold
+    )
+    if args.out:
+        out = Path(args.out)
+        tmp = out.with_name(out.name + ".tmp.npy")
+        np.save(tmp, pred.astype(np.int64), allow_pickle=False)
+        os.replace(tmp, out)
+    if args.json:
+        print(json.dumps({"predictions": pred.tolist()}))
+    elif not args.out:
+        print("\n".join(str(int(v)) for v in pred))
+    else:
+        print(
+            f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {args.out}"
+        )
+    return 0
+
+
+def _cmd_info(args) -> int:
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    info = RhythmicMap.load(args.map).info()
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        for key in ("n", "d", "periods", "storage_bytes", "compression_ratio", "c"):
+            print(f"{key:>18}: {info[key]}")
+        for t, e in zip(info["candidates"], info["candidate_errors"], strict=True):
+            print(f"{'period ' + str(t):>18}: training error {e:.4f}")
+    return 0
+
+
+def _cmd_evaluate(args) -> int:
+    from rhythmic_jax.report import evaluate_map, format_evaluation
+
+    model, feats = _load_queries(args)
+    ref = None
+    if args.reference:
+        from rhythmic_jax.sources import load_query_source
+
+        ref = load_query_source(
+            args.reference, model, args.descriptor, args.tile, args.stride, False
+        ).x
+    result = evaluate_map(
+        model,
+        feats.x,
+        reference=ref,
+        tolerance=args.tolerance,
+        method=args.decode,
+        sequence=args.sequence,
+    )
+    print(json.dumps(result, indent=2) if args.json else format_evaluation(result))
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from rhythmic_jax.demo import run_demo
+
+    run_demo(args.out, quick=args.quick, progress=not args.no_progress)
+    return 0
+
+
+COMMANDS = {
+    "fit": _cmd_fit,
+    "query": _cmd_query,
+    "info": _cmd_info,
+    "evaluate": _cmd_evaluate,
+    "demo": _cmd_demo,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``rhythmic-jax``; returns the exit status."""
+    args = _parser().parse_args(argv)
+    _quiet_logs(args.verbose)
+    try:
+        return COMMANDS[args.command](args)
+    except InputError as err:
+        print(f"rhythmic-jax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rhythmic-jax {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

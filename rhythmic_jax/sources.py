@@ -1,0 +1,156 @@
+"""What a command-line SOURCE means: descriptor files, image folders or a tiled image.
+
+* ``ref.npy`` (one or several, one per traversal): ready descriptors (n, d).
+* a folder of images (one or several, one per condition of the same route): frames
+  in natural name order, described with the chosen descriptor (default
+  ``patchnorm``); several folders make a multi-exemplar map.
+* one large image with ``--tile SIZE [--stride S]``: tiles in raster order are the
+  places (the paper's aerial protocol).
+
+Several sources share place labels: row i of each is place i.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["Features", "describe_images", "load_query_source", "load_sources"]
+
+DEFAULT_DESCRIPTOR = "patchnorm"
+NPY_DESCRIPTOR = "features"
+
+
+@dataclass(frozen=True)
+class Features:
+    """Descriptors ``x`` (n, d) float32 with place ``labels`` (n,) and provenance."""
+
+    x: np.ndarray
+    labels: np.ndarray
+    descriptor: str
+    settings: dict
+    extra: dict = field(default_factory=dict)
+
+
+def _kind(path: Path, tile: int | None) -> str:
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    if path.is_dir():
+        return "folder"
+    if path.suffix.lower() == ".npy":
+        return "npy"
+    if tile is not None:
+        return "image"
+    raise InputError(
+        f"{path}: not a .npy descriptor file or an image folder "
+        "(to tile one large image, give --tile SIZE)"
+    )
+
+
+def describe_images(
+    images: np.ndarray, name: str, settings: dict, key: str, progress: bool
+) -> tuple[np.ndarray, dict]:
+    """Describe uint8 frames (n, H, W, 3) with a registered descriptor (cached)."""
+    from rhythmic_jax.features import cached_describe, get_descriptor
+
+    desc = get_descriptor(name, **settings)
+    x = cached_describe(images, desc, key=key, progress=progress)
+    return x, desc.settings()
+
+
+def _images(path: Path, kind: str, tile: int | None, stride: int | None, progress):
+    from rhythmic_jax import data
+
+    if kind == "folder":
+        return data.load_traversal(path, progress=progress).images
+    if tile is None or tile < 1:
+        raise InputError(f"--tile must be a positive size, got {tile}")
+    stride = stride or max(1, tile // 2)
+    return data.tile_image(data.read_rgb(path), tile, stride).tiles
+
+
+def _key(path: Path, tile, stride) -> str:
+    stat = path.stat()
+    raw = f"{path.resolve()}|{stat.st_mtime_ns}|{tile}|{stride}"
+    return f"{path.name}-{hashlib.sha1(raw.encode()).hexdigest()[:12]}"
+
+
+def _one(path: Path, kind: str, name: str, settings: dict, tile, stride, progress):
+    from rhythmic_jax.data import load_descriptors
+
+    if kind == "npy":
+        return load_descriptors(path), settings
+    images = _images(path, kind, tile, stride, progress)
+    return describe_images(images, name, settings, _key(path, tile, stride), progress)
+
+
+def load_sources(
+    sources: Sequence[str],
+    descriptor: str | None = None,
+    tile: int | None = None,
+    stride: int | None = None,
+    progress: bool = True,
+) -> Features:
+    """Reference features from one or several sources of the same kind."""
+    paths = [Path(s) for s in sources]
+    kinds = {_kind(p, tile) for p in paths}
+    if len(kinds) > 1:
+        raise InputError(f"mixed source kinds {sorted(kinds)}; give one kind at a time")
+    kind = kinds.pop()
+    if kind == "npy":
+        if descriptor is not None:
+            raise InputError(
+                "--descriptor applies to images; .npy files are descriptors"
+            )
+        name, settings = NPY_DESCRIPTOR, {}
+    else:
+        name, settings = descriptor or DEFAULT_DESCRIPTOR, {}
+    blocks = []
+    for p in paths:
+        x, settings = _one(p, kind, name, settings, tile, stride, progress)
+        blocks.append(x)
+    n, d = blocks[0].shape
+    for p, x in zip(paths, blocks, strict=True):
+        if x.shape != (n, d):
+            raise InputError(
+                f"{p}: {x.shape[0]} frames of {x.shape[1]}-d, but {paths[0]} has "
+                f"{n} of {d}-d; traversals of one route must match frame for frame"
+            )
+    if kind == "npy":
+        settings = {"dim": d}
+    labels = np.tile(np.arange(n), len(blocks))
+    return Features(np.concatenate(blocks), labels, name, settings)
+
+
+def load_query_source(
+    source: str,
+    model,
+    descriptor: str | None = None,
+    tile: int | None = None,
+    stride: int | None = None,
+    progress: bool = True,
+) -> Features:
+    """Query features described the way ``model`` (a fitted map) was built."""
+    path = Path(source)
+    kind = _kind(path, tile)
+    name, settings = model.config.descriptor, dict(model.config.descriptor_settings)
+    if descriptor is not None and descriptor != name:
+        raise InputError(
+            f"the map was built with descriptor {name!r}, not {descriptor!r}"
+        )
+    if kind != "npy" and name == NPY_DESCRIPTOR:
+        raise InputError(
+            f"{path}: the map was built from descriptor files; give queries as .npy"
+        )
+    x, _ = _one(path, kind, name, settings, tile, stride, progress)
+    if x.shape[1] != model.d:
+        raise InputError(
+            f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"
+        )
+    return Features(x, np.arange(len(x)), name, settings)

@@ -1,0 +1,61 @@
+"""Checks on user arrays: one clear :class:`InputError` line for each bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["check_features", "check_labels"]
+
+
+def check_features(x, name: str = "features", d: int | None = None) -> np.ndarray:
+    """Return ``x`` as a finite float32 (n, d) array, or raise :class:`InputError`.
+
+    Args:
+      x: array-like of shape (n, d).
+      name: what to call it in the message (a file name, "queries", ...).
+      d: the dimension it must have (a map's), when known.
+    """
+    try:
+        arr = np.asarray(x)
+    except Exception as err:  # noqa: BLE001 - ragged or exotic input
+        raise InputError(f"{name}: not an array ({err})") from None
+    if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+        raise InputError(f"{name}: expected numbers, got dtype {arr.dtype}")
+    if arr.ndim != 2:
+        raise InputError(
+            f"{name}: expected a 2-D array (frames x features), got shape {arr.shape}"
+        )
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise InputError(f"{name}: empty array of shape {arr.shape}")
+    if d is not None and arr.shape[1] != d:
+        raise InputError(
+            f"{name}: {arr.shape[1]}-d features but the map was built for {d}-d"
+        )
+    arr = arr.astype(np.float32, copy=False)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"{name}: {int(bad.sum())} rows hold NaN or inf (first: row {row})"
+        )
+    return arr
+
+
+def check_labels(labels, n: int) -> np.ndarray:
+    """Place labels (n,) as non-negative int64, every place 0 .. max present."""
+    lab = np.asarray(labels)
+    if lab.shape != (n,):
+        raise InputError(f"labels: expected shape ({n},), got {lab.shape}")
+    if not np.issubdtype(lab.dtype, np.integer):
+        raise InputError(f"labels: expected integers, got dtype {lab.dtype}")
+    if lab.min() < 0:
+        raise InputError("labels: place labels must be >= 0")
+    missing = np.setdiff1d(np.arange(int(lab.max()) + 1), lab)
+    if missing.size:
+        raise InputError(
+            f"labels: places must be numbered 0 .. {int(lab.max())} without gaps; "
+            f"{missing.size} missing (first: {int(missing[0])})"
+        )
+    return lab.astype(np.int64)

@@ -1,0 +1,210 @@
+"""The paper's hard decode, exhaustively against a brute-force loop over every index."""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from rhythmic_jax.decode import DECODERS, _hard_jit, decode, decode_scores, hard_decode
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.objective import Templates
+
+# (periods, n): n equal to and below the product; a period of 1; r = 2, 3, 4
+CASES = [
+    ((3, 4), 12),
+    ((3, 4), 7),
+    ((5, 7), 35),
+    ((5, 7), 20),
+    ((7, 9, 11), 693),
+    ((7, 9, 11), 500),
+    ((2, 3, 5, 7), 210),
+    ((2, 3, 5, 7), 101),
+    ((1, 5), 5),
+    ((1, 5), 3),
+]
+
+
+def _blocks(s: np.ndarray, periods):
+    offs = np.cumsum((0,) + tuple(periods[:-1]))
+    return [s[..., o : o + t] for o, t in zip(offs, periods, strict=True)]
+
+
+def encode(index: np.ndarray, periods, noise: float, seed: int) -> np.ndarray:
+    """(b, p) scores: one-hot phases of ``index`` in every period, plus noise."""
+    rng = np.random.default_rng(seed)
+    s = rng.normal(scale=noise, size=(len(index), sum(periods))).astype(np.float32)
+    for block, t in zip(_blocks(s, periods), periods, strict=True):
+        block[np.arange(len(index)), index % t] += 1.0
+    return s
+
+
+def brute_force(scores: np.ndarray, periods, n: int):
+    """Per row: argmax phases, then the j < n with j mod tau_k == phase_k for all k.
+
+    Returns index (-1 when no j), the sum of per-period maxima, and the confidence
+    min_k (top1_k - top2_k) over periods with at least two phases.
+    """
+    index, total, conf = [], [], []
+    for s in scores:
+        blocks = _blocks(s, periods)
+        ph = [int(np.argmax(b)) for b in blocks]
+        hits = [
+            j
+            for j in range(n)
+            if all(j % t == p for t, p in zip(periods, ph, strict=True))
+        ]
+        assert len(hits) <= 1  # co-prime periods: at most one frame per phase set
+        index.append(hits[0] if hits else -1)
+        total.append(sum(float(np.max(b)) for b in blocks))
+        margins = [float(np.sort(b)[-1] - np.sort(b)[-2]) for b in blocks if len(b) > 1]
+        conf.append(min(margins, default=np.inf))
+    return np.array(index), np.array(total), np.array(conf)
+
+
+def _check(got, scores, periods, n):
+    index, total, conf = brute_force(scores, periods, n)
+    np.testing.assert_array_equal(np.asarray(got.index), index)
+    found = index >= 0
+    score = np.asarray(got.score)
+    np.testing.assert_allclose(score[found], total[found], rtol=1e-5, atol=1e-5)
+    assert np.all(np.isneginf(score[~found]))
+    c = np.asarray(got.confidence)
+    np.testing.assert_allclose(c[found], conf[found], rtol=1e-4, atol=1e-5)
+    np.testing.assert_array_equal(c[~found], 0.0)
+    return index
+
+
+@pytest.mark.parametrize("periods,n", CASES)
+def test_hard_decode_exhaustive(periods, n):
+    m = math.prod(periods)
+    every = np.arange(m)  # every index below the product, encoded
+    clean = encode(every, periods, 0.1, seed=m + n)
+    rand = np.random.default_rng(n).normal(size=(64, sum(periods))).astype(np.float32)
+    scores = np.concatenate([clean, rand])
+    got = decode_scores(scores, periods, n)
+    index = _check(got, scores, periods, n)
+    # the encoded indices decode to themselves, or to "no match" at or beyond n
+    np.testing.assert_array_equal(index[:m], np.where(every < n, every, -1))
+    assert got.index.dtype == jnp.int32
+    # the undecorated function is the same computation
+    plain = hard_decode(jnp.asarray(scores), periods, n)
+    np.testing.assert_array_equal(np.asarray(plain.index), np.asarray(got.index))
+
+
+def test_confidence_is_weakest_margin():
+    periods = (3, 4)
+    s = np.array(
+        [
+            [0.0, 2.0, 1.5, 5.0, 1.0, 0.0, 0.0],  # margins 0.5, 4.0 -> 0.5
+            [3.0, 0.0, 0.0, 0.0, 1.0, 0.9, 0.0],  # margins 3.0, 0.1 -> 0.1
+            [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0],  # a tie: argmax takes phase 0
+        ],
+        np.float32,
+    )
+    got = decode_scores(s, periods, 12)
+    np.testing.assert_array_equal(np.asarray(got.index), [9, 4, 3])
+    np.testing.assert_allclose(np.asarray(got.confidence), [0.5, 0.1, 0.0], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(got.score), [7.0, 4.0, 3.0])
+
+
+def test_no_match_beyond_n():
+    s = encode(np.array([10, 11, 3]), (3, 4), 0.0, seed=0)
+    got = decode_scores(s, (3, 4), 10)
+    np.testing.assert_array_equal(np.asarray(got.index), [-1, -1, 3])
+    assert np.isneginf(np.asarray(got.score)[:2]).all()
+    np.testing.assert_array_equal(np.asarray(got.confidence), [0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("periods,n", [((5, 7), 35), ((7, 9, 11), 600)])
+def test_decode_templates_equals_decode_of_scores(periods, n):
+    rng = np.random.default_rng(3)
+    d, p = 8, sum(periods)
+    params = Templates(
+        jnp.asarray(rng.normal(size=(d, p)).astype(np.float32)),
+        jnp.asarray(rng.normal(size=(p,)).astype(np.float32)),
+    )
+    q = rng.normal(size=(300, d)).astype(np.float32)
+    got = decode(params, q, list(periods), n)
+    s = q @ np.asarray(params.w) + np.asarray(params.b)[None, :]
+    want = decode_scores(s, periods, n)
+    np.testing.assert_array_equal(np.asarray(got.index), np.asarray(want.index))
+    np.testing.assert_allclose(
+        np.asarray(got.score), np.asarray(want.score), rtol=1e-5, atol=1e-5
+    )
+    np.testing.assert_allclose(
+        np.asarray(got.confidence), np.asarray(want.confidence), rtol=1e-4, atol=1e-5
+    )
+    _check(got, s, periods, n)
+
+
+def test_unknown_method():
+    s = encode(np.arange(12), (3, 4), 0.1, seed=1)
+    with pytest.raises(InputError, match="unknown decode method 'nearest'"):
+        decode_scores(s, (3, 4), 12, method="nearest")
+    assert DECODERS == ("hard", "soft", "topm")
+
+
+@pytest.mark.parametrize("method", DECODERS)
+@pytest.mark.parametrize(
+    "periods,n,width",
+    [
+        ((4, 6), 20, 10),  # not co-prime
+        ((3, 4), 12, 8),  # too many columns
+        ((3, 4), 12, 6),  # too few
+        ((3, 4), 13, 7),  # n > prod(periods)
+        ((3, 4), 0, 7),
+    ],
+)
+def test_bad_arguments(method, periods, n, width):
+    s = np.zeros((5, width), np.float32)
+    with pytest.raises(InputError):
+        decode_scores(s, periods, n, method=method)
+
+
+@pytest.mark.parametrize("periods,n", [((3, 4), 12), ((5, 7), 35), ((7, 9, 11), 693)])
+def test_soft_and_topm_agree_with_hard_on_clean_scores(periods, n):
+    every = np.arange(math.prod(periods))
+    s = encode(every, periods, 0.0, seed=0)
+    hard = np.asarray(decode_scores(s, periods, n).index)
+    np.testing.assert_array_equal(hard, every)
+    for method, m in [("soft", 3), ("topm", 1), ("topm", 3)]:
+        got = np.asarray(decode_scores(s, periods, n, method=method, m=m).index)
+        np.testing.assert_array_equal(got, hard, err_msg=f"{method} m={m}")
+
+
+def test_soft_and_topm_below_product():
+    periods, n = (5, 7), 20
+    every = np.arange(35)
+    s = encode(every, periods, 0.0, seed=0)
+    hard = np.asarray(decode_scores(s, periods, n, "hard").index)
+    top1 = np.asarray(decode_scores(s, periods, n, "topm", m=1).index)
+    soft = np.asarray(decode_scores(s, periods, n, "soft").index)
+    np.testing.assert_array_equal(hard, np.where(every < n, every, -1))
+    np.testing.assert_array_equal(top1, hard)  # m = 1 is the paper's decode
+    np.testing.assert_array_equal(soft[:n], every[:n])
+    assert (soft[n:] >= 0).all() and (soft[n:] < n).all()  # soft always answers
+
+
+def test_leading_dims_and_empty_batch():
+    periods, n = (3, 4), 10
+    s = encode(np.arange(12), periods, 0.3, seed=4)
+    flat = decode_scores(s, periods, n)
+    got = decode_scores(s.reshape(3, 4, 7), periods, n)
+    assert got.index.shape == (3, 4)
+    for a, b in zip(got, flat, strict=True):
+        np.testing.assert_array_equal(np.asarray(a).ravel(), np.asarray(b))
+    one = decode_scores(s[5], periods, n)
+    assert one.index.shape == () and int(one.index) == int(flat.index[5])
+    empty = decode_scores(np.zeros((0, 7), np.float32), periods, n)
+    assert empty.index.shape == (0,)
+
+
+def test_hard_decode_does_not_recompile():
+    periods, n = (5, 7), 33
+    decode_scores(encode(np.arange(35), periods, 0.1, seed=5), periods, n)
+    size = _hard_jit._cache_size()
+    decode_scores(encode(np.arange(35), periods, 0.2, seed=6), list(periods), n)
+    assert _hard_jit._cache_size() == size
