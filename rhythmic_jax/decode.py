@@ -29,7 +29,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, period_offsets
 from rhythmic_jax.objective import scores as decision_values
 from rhythmic_jax.periods import crt_tables
-from rhythmic_jax.soft import Decoded, soft_decode, topm_decode
+from rhythmic_jax.soft import Decoded, check_scores, soft_decode, topm_decode
 
 __all__ = ["DECODERS", "decode", "decode_scores", "hard_decode"]
 
@@ -81,19 +81,23 @@ def decode_scores(
     method: str = "hard",
     m: int = 3,
 ) -> Decoded:
-    """Decode (b, p) decision values with ``method`` in ``"hard" | "soft" | "topm"``.
+    """Decode (..., p) decision values with ``method`` in ``"hard" | "soft" | "topm"``.
 
     ``topm`` keeps the ``m`` best phases of every period (see
-    :func:`rhythmic_jax.soft.topm_decode`).
+    :func:`rhythmic_jax.soft.topm_decode`). Every field of the result has the
+    scores' leading shape.
     """
-    periods = tuple(int(t) for t in periods)
-    if method == "hard":
-        return _hard_jit(jnp.asarray(scores), periods, int(n))
+    if method not in DECODERS:
+        raise InputError(f"unknown decode method {method!r}; choose one of {DECODERS}")
+    periods, n = check_scores(scores, periods, n)
     if method == "soft":
         return soft_decode(scores, periods, n)
     if method == "topm":
         return topm_decode(scores, periods, n, m)
-    raise InputError(f"unknown decode method {method!r}; choose one of {DECODERS}")
+    scores = jnp.asarray(scores)
+    lead = scores.shape[:-1]
+    out = _hard_jit(scores.reshape((-1, scores.shape[-1])), periods, n)
+    return Decoded(*(x.reshape(lead) for x in out))
 
 
 @functools.partial(jax.jit, static_argnames=("periods", "n"))

@@ -176,11 +176,11 @@ class VGG16(nn.Module):
             nn.Dropout(),
             nn.Linear(4096, num_classes),
         )
-        self.register_buffer("mean", torch.tensor(_IMAGENET_MEAN).view(1, 3, 1, 1))
-        self.register_buffer("std", torch.tensor(_IMAGENET_STD).view(1, 3, 1, 1))
 
     def _trunk(self, x: torch.Tensor) -> torch.Tensor:
-        y = self.features((x - self.mean) / self.std)
+        mean = x.new_tensor(_IMAGENET_MEAN).view(1, 3, 1, 1)
+        std = x.new_tensor(_IMAGENET_STD).view(1, 3, 1, 1)
+        y = self.features((x - mean) / std)
         return torch.flatten(self.avgpool(y), 1)
 
     def fc7(self, x: torch.Tensor) -> torch.Tensor:
@@ -192,12 +192,14 @@ class VGG16(nn.Module):
         return self.classifier(self._trunk(x))
 
 
-def load_state_dict_file(module: nn.Module, path: str | Path, what: str) -> None:
-    """Load a state-dict file into ``module`` (strict), safely (weights_only).
+def load_state_dict_file(
+    cls: type[nn.Module], path: str | Path, what: str
+) -> nn.Module:
+    """A ``cls()`` holding the weights of a state-dict file (strict, weights_only).
 
-    The normalisation buffers a module registers itself (``mean``, ``std``) are
-    not expected in the file. Raises InputError naming the file and the missing,
-    unexpected or mis-shaped keys.
+    The module is built on the meta device and takes the loaded tensors as its
+    parameters, so nothing is initialised twice. Raises InputError naming the
+    file and the missing, unexpected or mis-shaped keys.
     """
     path = Path(path)
     if not path.is_file():
@@ -208,7 +210,9 @@ def load_state_dict_file(module: nn.Module, path: str | Path, what: str) -> None
         raise InputError(f"{path}: not a readable torch state dict ({err})") from err
     if not isinstance(state, dict):
         raise InputError(f"{path}: expected a state dict, found {type(state)}")
-    own = {k: v for k, v in module.state_dict().items() if k not in ("mean", "std")}
+    with torch.device("meta"):
+        module = cls()
+    own = module.state_dict()
     missing = sorted(set(own) - set(state))
     extra = sorted(set(state) - set(own))
     if missing or extra:
@@ -223,9 +227,9 @@ def load_state_dict_file(module: nn.Module, path: str | Path, what: str) -> None
             f"{path}: {len(bad)} tensors have the wrong shape for {what}, e.g. {k}"
             f" {tuple(state[k].shape)} != {tuple(own[k].shape)}"
         )
-    full = dict(module.state_dict())
-    full.update(state)
-    module.load_state_dict(full, strict=True)
+    state = {k: v.float() if v.is_floating_point() else v for k, v in state.items()}
+    module.load_state_dict(state, strict=True, assign=True)
+    return module
 
 
 def _few(keys: list[str], limit: int = 6) -> str:
@@ -248,13 +252,13 @@ def lite0_weights_path() -> Path:
 
 def load_efficientnet_lite0(path: str | Path | None = None) -> EfficientNetLite0:
     """ImageNet EfficientNet-Lite0 in eval mode, channels-last (faster on CPU)."""
-    net = EfficientNetLite0()
-    load_state_dict_file(net, path or lite0_weights_path(), "EfficientNet-Lite0")
+    net = load_state_dict_file(
+        EfficientNetLite0, path or lite0_weights_path(), "EfficientNet-Lite0"
+    )
     return net.eval().to(memory_format=torch.channels_last)
 
 
 def load_vgg16(path: str | Path) -> VGG16:
     """VGG16 from a torchvision-format state-dict file, eval mode, channels-last."""
-    net = VGG16()
-    load_state_dict_file(net, path, "VGG16")
+    net = load_state_dict_file(VGG16, path, "VGG16")
     return net.eval().to(memory_format=torch.channels_last)

@@ -54,7 +54,7 @@ class NewtonConfig:
     cg_tol: float = 1e-5
     max_cg: int = 400
     form: str = "auto"
-    precond_rank: int = 128
+    precond_rank: int = 512
 
 
 @dataclass(frozen=True)

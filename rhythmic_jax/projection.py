@@ -13,6 +13,7 @@ Shapes: n frames, d input features, k output dimensions, c classes.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -42,12 +43,12 @@ class LDA(NamedTuple):
 
 
 def _as_matrix(x, name: str) -> jax.Array:
-    x = jnp.asarray(x, dtype=jnp.float32)
-    if x.ndim != 2 or x.shape[0] == 0 or x.shape[1] == 0:
-        raise InputError(f"{name}: expected a non-empty (n, d) array, got {x.shape}")
-    if not bool(jnp.all(jnp.isfinite(x))):
+    host = np.asarray(x, dtype=np.float32)
+    if host.ndim != 2 or host.shape[0] == 0 or host.shape[1] == 0:
+        raise InputError(f"{name}: expected a non-empty (n, d) array, got {host.shape}")
+    if not np.isfinite(host).all():
         raise InputError(f"{name}: contains NaN or infinite values")
-    return x
+    return jnp.asarray(host)
 
 
 def _right_singular(a: jax.Array, exact: bool = False) -> tuple[jax.Array, jax.Array]:
@@ -95,9 +96,14 @@ def fit_pca(x: jax.Array, k: int) -> PCA:
     n, d = x.shape
     if not isinstance(k, int) or not 1 <= k <= min(n - 1, d):
         raise InputError(f"pca k={k!r}: need 1 <= k <= min(n - 1, d) = {min(n - 1, d)}")
+    return PCA(*_pca(x, k))
+
+
+@functools.partial(jax.jit, static_argnames="k")
+def _pca(x: jax.Array, k: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     mean = x.mean(axis=0)
     s, v = _right_singular(x - mean[None, :])
-    return PCA(mean, v[:, :k].T, s[:k] ** 2 / (n - 1))
+    return mean, v[:, :k].T, s[:k] ** 2 / (x.shape[0] - 1)
 
 
 def fit_lda(x: jax.Array, labels, k: int = 64, tol: float = 1e-4) -> LDA:
@@ -124,20 +130,34 @@ def fit_lda(x: jax.Array, labels, k: int = 64, tol: float = 1e-4) -> LDA:
     if not isinstance(k, int) or not 1 <= k <= c - 1:
         raise InputError(f"lda k={k!r}: need 1 <= k <= classes - 1 = {c - 1}")
     y = jnp.asarray(y.ravel(), dtype=jnp.int32)
-    counts = jnp.asarray(np.bincount(np.asarray(y), minlength=c), jnp.float32)
-    means = jax.ops.segment_sum(x, y, num_segments=c) / counts[:, None]
-    mean = x.mean(axis=0)
-
-    s, v = _right_singular((x - means[y]) / np.sqrt(n), exact=True)
+    means, mean, counts, s, v = _lda_within(x, y, c)
     rank = int(jnp.sum(s > tol * s[0]))
-    white = v[:, :rank] / s[None, :rank]  # (d, r): white^T S_w white = I
-    between = jnp.sqrt(counts / (c - 1))[:, None] * (means - mean[None, :])
-    s2, v2 = _right_singular(jnp.matmul(between, white, precision="highest"))
+    components, ratio, s2 = _lda_between(means, mean, counts, s, v, rank, k)
     if int(jnp.sum(s2 > tol * s2[0])) < k:
         raise InputError(f"lda k={k}: the class means span fewer than {k} directions")
-    ratio = s2**2 / jnp.sum(s2**2)
+    return LDA(mean, components, ratio)
+
+
+@functools.partial(jax.jit, static_argnames="c")
+def _lda_within(x: jax.Array, y: jax.Array, c: int) -> tuple[jax.Array, ...]:
+    """Class means (c, d), mean (d,), counts (c,) and the singular pairs of the
+    within-class deviations / sqrt(n)."""
+    counts = jax.ops.segment_sum(jnp.ones_like(y, jnp.float32), y, num_segments=c)
+    means = jax.ops.segment_sum(x, y, num_segments=c) / counts[:, None]
+    s, v = _right_singular((x - means[y]) / jnp.sqrt(x.shape[0]), exact=True)
+    return means, x.mean(axis=0), counts, s, v
+
+
+@functools.partial(jax.jit, static_argnames=("rank", "k"))
+def _lda_between(means, mean, counts, s, v, rank: int, k: int):
+    """Components (k, d), their between-class variance ratios (k,), and all the
+    between-class singular values in the whitened space."""
+    white = v[:, :rank] / s[None, :rank]  # (d, r): white^T S_w white = I
+    c = means.shape[0]
+    between = jnp.sqrt(counts / (c - 1))[:, None] * (means - mean[None, :])
+    s2, v2 = _right_singular(jnp.matmul(between, white, precision="highest"))
     components = jnp.matmul(white, v2[:, :k], precision="highest").T
-    return LDA(mean, components, ratio[:k])
+    return components, (s2**2 / jnp.sum(s2**2))[:k], s2
 
 
 def project(model: PCA | LDA, x: jax.Array, normalize: bool = False) -> jax.Array:
@@ -148,7 +168,12 @@ def project(model: PCA | LDA, x: jax.Array, normalize: bool = False) -> jax.Arra
         raise InputError(
             f"project: expected (n, {model.mean.shape[0]}) features, got {x.shape}"
         )
-    y = jnp.matmul(x - model.mean[None, :], model.components.T, precision="highest")
+    return _project(model.mean, model.components, x, normalize)
+
+
+@functools.partial(jax.jit, static_argnames="normalize")
+def _project(mean, components, x, normalize: bool) -> jax.Array:
+    y = jnp.matmul(x - mean[None, :], components.T, precision="highest")
     if normalize:
         norm = jnp.linalg.norm(y, axis=1, keepdims=True)
         y = y / jnp.maximum(norm, 1e-12)

@@ -1,6 +1,6 @@
 """Frames per second of each augmentation alone and of all seven in sequence.
 
-Usage: ``python scripts/bench_augment.py [--batch 32] [--repeats 7] [--threads 2]``
+Usage: ``python scripts/bench_augment.py [--batch 64] [--repeats 5] [--threads 2 1]``
 
 Every operation runs with ``p = 1`` (each image transformed; kornia computes the
 transform for the whole batch at any ``p`` and then selects, so this is also the
@@ -68,27 +68,30 @@ def time_case(
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--repeats", type=int, default=7)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, nargs="+", default=[2])
     parser.add_argument("--out-dir", type=Path, default=Path("reports"))
     args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
     generator = torch.Generator().manual_seed(0)
     rows = []
-    for h, w in SIZES:
-        batch = torch.rand(args.batch, 3, h, w, generator=generator)
-        for label, config in cases():
-            times = time_case(batch, config, args.repeats)
-            rows.append(
-                {
-                    "op": label,
-                    "size": f"{w}x{h}",
-                    "fps_best": args.batch / min(times),
-                    "fps_median": args.batch / statistics.median(times),
-                }
-            )
-            print(f"{w}x{h:<4} {label:<28} {rows[-1]['fps_best']:9.0f} frames/s")
+    for threads in args.threads:
+        torch.set_num_threads(threads)
+        for h, w in SIZES:
+            batch = torch.rand(args.batch, 3, h, w, generator=generator)
+            for label, config in cases():
+                times = time_case(batch, config, args.repeats)
+                rows.append(
+                    {
+                        "op": label,
+                        "size": f"{w}x{h}",
+                        "threads": threads,
+                        "fps_best": args.batch / min(times),
+                        "fps_median": args.batch / statistics.median(times),
+                    }
+                )
+                fps = rows[-1]["fps_best"]
+                print(f"{threads}t {w}x{h:<4} {label:<28} {fps:9.0f} frames/s")
     report = {
         "batch": args.batch,
         "repeats": args.repeats,
@@ -108,27 +111,32 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 def markdown(report: dict) -> str:
-    """The report as a table: one row per operation, one column per size."""
+    """One table per thread count: a row per operation, a column per size."""
     sizes = [f"{w}x{h}" for h, w in SIZES]
-    fps = {(r["op"], r["size"]): r for r in report["rows"]}
+    fps = {(r["threads"], r["op"], r["size"]): r for r in report["rows"]}
     ops = list(dict.fromkeys(r["op"] for r in report["rows"]))
     lines = [
         "# Augmentation throughput (frames/s, CPU)",
         "",
-        f"Batch {report['batch']}, {report['torch_threads']} torch threads, "
-        f"p = 1, best (median) of {report['repeats']} runs of >= 0.2 s; torch "
-        f"{report['torch']}, {report['cpu_count']} cores, load average at the end "
-        f"{report['load_average'][0]:.1f}. Command: `python scripts/bench_augment.py`.",
-        "",
-        "| operation | " + " | ".join(sizes) + " |",
-        "|---|" + "---|" * len(sizes),
+        f"Batch {report['batch']}, p = 1, best (median) of {report['repeats']} runs "
+        f"of >= 0.2 s; torch {report['torch']}, {report['cpu_count']} cores, load "
+        f"average at the end {report['load_average'][0]:.1f} (a shared machine). "
+        "Command: `python scripts/bench_augment.py --threads "
+        + " ".join(map(str, report["torch_threads"]))
+        + "`.",
     ]
-    for op in ops:
-        cells = [
-            f"{fps[op, s]['fps_best']:.0f} ({fps[op, s]['fps_median']:.0f})"
-            for s in sizes
+    for threads in report["torch_threads"]:
+        lines += [
+            "",
+            f"## {threads} torch thread{'s' if threads > 1 else ''}",
+            "",
+            "| operation | " + " | ".join(sizes) + " |",
+            "|---|" + "---|" * len(sizes),
         ]
-        lines.append(f"| {op} | " + " | ".join(cells) + " |")
+        for op in ops:
+            cells = [fps[threads, op, s] for s in sizes]
+            text = [f"{c['fps_best']:.0f} ({c['fps_median']:.0f})" for c in cells]
+            lines.append(f"| {op} | " + " | ".join(text) + " |")
     return "\n".join(lines) + "\n"
 
 

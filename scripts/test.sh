@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# The test suite: the default run, then the slow real-data checks in a second,
+# bounded step. Run after `pip install -e ".[test]"`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export JAX_PLATFORMS=cpu TF_CPP_MIN_LOG_LEVEL=3
+python -m pytest -q
+timeout "${SLOW_TIMEOUT:-2700}" python -m pytest -q -m slow
