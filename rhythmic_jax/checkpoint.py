@@ -6,7 +6,7 @@ settings, package version, candidate errors). Saving writes a hidden temporary
 folder beside the target and renames it into place, so a process killed during a
 save leaves the previous map loadable (if it dies between the two renames, the
 previous map is still found under its hidden backup name and :func:`load_map`
-takes it from there).
+takes it from there; the next successful save removes what a killed one left).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["FORMAT_VERSION", "load_map", "save_map"]
+__all__ = ["FORMAT_VERSION", "check_target", "load_map", "save_map"]
 
 FORMAT_VERSION = 1
 _META = "map.json"
@@ -41,11 +41,7 @@ def save_map(
     path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict
 ) -> Path:
     """Write ``arrays`` and ``meta`` to the folder ``path``, replacing it atomically."""
-    target = Path(path).expanduser().absolute()
-    if target.exists() and not (target / _META).is_file():
-        raise InputError(
-            f"{target}: exists and is not a map folder; refusing to replace it"
-        )
+    target = check_target(path)
     arrays = {k: np.asarray(v) for k, v in arrays.items()}
     for name, value in arrays.items():  # orbax fails on these, some after a mkdir
         if value.dtype.kind not in "biufc" or value.size == 0:
@@ -53,7 +49,10 @@ def save_map(
                 f"arrays[{name!r}]: cannot save a {value.dtype} array of shape "
                 f"{value.shape} (need a non-empty numeric array)"
             )
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"{target}: cannot create its folder ({err})") from None
     tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex[:8]}"
     old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
     try:
@@ -76,9 +75,27 @@ def save_map(
         if old.exists() and not target.exists():
             os.rename(old, target)  # put the previous map back
         raise
-    # the previous map, and any copy left by an earlier interrupted save
-    for stale in target.parent.glob(f".{target.name}.old-*"):
-        shutil.rmtree(stale, ignore_errors=True)
+    # the previous map, and what earlier interrupted saves left behind
+    for pattern in (f".{target.name}.old-*", f".{target.name}.tmp-*"):
+        for stale in target.parent.glob(pattern):
+            shutil.rmtree(stale, ignore_errors=True)
+    return target
+
+
+def check_target(path: str | os.PathLike) -> Path:
+    """The absolute path a map may be saved to, or :class:`InputError` (checked
+    before a long fit): an existing path must be a map folder, and no parent of it
+    may be a file."""
+    target = Path(path).expanduser().absolute()
+    if target.exists() and not (target / _META).is_file():
+        raise InputError(
+            f"{target}: exists and is not a map folder; refusing to replace it"
+        )
+    for parent in target.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{target}: {parent} is a file, not a folder")
+            break
     return target
 
 
@@ -89,6 +106,8 @@ def _resolve(target: Path) -> Path:
     if backups:
         log.warning("%s: missing; loading the copy kept by an interrupted save", target)
         return backups[-1]
+    if target.exists():
+        raise InputError(f"{target}: not a map folder (it is a file)")
     raise InputError(f"{target}: no such map folder")
 
 
@@ -114,6 +133,7 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
         raw = ckpt.restore(folder / _ARRAYS)
     except Exception as err:  # noqa: BLE001 - orbax raises many kinds
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
+        msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's JSON spec
         raise InputError(f"{folder}: arrays are missing or corrupt ({msg})") from None
     finally:
         ckpt.close()  # an unclosed checkpointer leaks its event loop

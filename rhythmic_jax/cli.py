@@ -130,9 +130,11 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _cmd_fit(args) -> int:
+    from rhythmic_jax.checkpoint import check_target
     from rhythmic_jax.rhythmic_map import RhythmicMap
     from rhythmic_jax.sources import load_sources
 
+    check_target(args.out)  # before the fit, not after it
     feats = load_sources(
         args.sources, args.descriptor, args.tile, args.stride, not args.no_progress
     )
@@ -179,6 +181,8 @@ def _load_queries(args):
 def _cmd_query(args) -> int:
     import numpy as np
 
+    if args.out and not Path(args.out).parent.is_dir():
+        raise InputError(f"--out {args.out}: folder {Path(args.out).parent} not found")
     model, feats = _load_queries(args)
     pred = model.predict(
         feats.x, args.decode, sequence=args.sequence, threshold=args.threshold

@@ -129,7 +129,10 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
     try:
         image = np.asarray(skimage.io.imread(path))
     except Exception as exc:  # truncated, corrupt or not an image at all
-        raise InputError(f"cannot read image {path}: {exc}") from exc
+        reason = str(exc)
+        if "Could not find a backend" in reason:  # imageio adds pip advice
+            reason = "no image reader recognises its contents"
+        raise InputError(f"cannot read image {path}: {reason}") from exc
     if image.ndim == 2:
         image = image[:, :, None]
     if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4) or image.size == 0:

@@ -100,10 +100,12 @@ def _l2(x: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.normalize(x.float(), dim=1, eps=1e-12)
 
 
-def _check_batch(batch: torch.Tensor, name: str) -> None:
+def _fit(batch: torch.Tensor, d, to_grey: bool = False) -> torch.Tensor:
+    """Check a (b, 3, H, W) batch; resize it (grey first) to d.height x d.width."""
     if not isinstance(batch, torch.Tensor) or batch.ndim != 4 or batch.shape[1] != 3:
         shape = tuple(getattr(batch, "shape", ()))
-        raise InputError(f"{name}: expected a (b, 3, H, W) tensor, got {shape}")
+        raise InputError(f"{d.name}: expected a (b, 3, H, W) tensor, got {shape}")
+    return resize(grey(batch) if to_grey else batch, d.height, d.width)
 
 
 def _positive(**values: int) -> None:
@@ -157,15 +159,11 @@ class EfficientNetLite0Map:
         cells = -(-self.height // s) * -(-self.width // s)
         return net.block_channels(self.block) * cells
 
+    @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        _check_batch(batch, self.name)
-        net = _lite0(str(self._path()))
-        with torch.inference_mode():
-            x = resize(batch, self.height, self.width)
-            y = net.features(
-                x.contiguous(memory_format=torch.channels_last), self.block
-            )
-            return _l2(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
+        x = _fit(batch, self).contiguous(memory_format=torch.channels_last)
+        y = _lite0(str(self._path())).features(x, self.block)
+        return _l2(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
 
 
 @dataclass(frozen=True)
@@ -194,12 +192,10 @@ class VGG16Fc7:
     def dim(self) -> int:
         return 4096
 
+    @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        _check_batch(batch, self.name)
-        net = _vgg16(str(Path(self.weights).resolve()))
-        with torch.inference_mode():
-            x = resize(batch, self.height, self.width)
-            return _l2(net.fc7(x.contiguous(memory_format=torch.channels_last)))
+        x = _fit(batch, self).contiguous(memory_format=torch.channels_last)
+        return _l2(_vgg16(str(Path(self.weights).resolve())).fc7(x))
 
 
 @dataclass(frozen=True)
@@ -232,17 +228,16 @@ class PatchNorm:
     def dim(self) -> int:
         return self.width * self.height
 
+    @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        _check_batch(batch, self.name)
-        with torch.inference_mode():
-            g = resize(grey(batch), self.height, self.width)[:, 0]
-            b, p = g.shape[0], self.patch
-            tiles = g.reshape(b, self.height // p, p, self.width // p, p)
-            mean = tiles.mean(dim=(2, 4), keepdim=True)
-            std = tiles.std(dim=(2, 4), keepdim=True, unbiased=False)
-            flat = std > 1e-6
-            out = torch.where(flat, (tiles - mean) / torch.where(flat, std, 1.0), 0.0)
-            return _l2(out.reshape(b, -1))
+        g = _fit(batch, self, to_grey=True)[:, 0]
+        b, p = g.shape[0], self.patch
+        tiles = g.reshape(b, self.height // p, p, self.width // p, p)
+        mean = tiles.mean(dim=(2, 4), keepdim=True)
+        std = tiles.std(dim=(2, 4), keepdim=True, unbiased=False)
+        flat = std > 1e-6
+        out = torch.where(flat, (tiles - mean) / torch.where(flat, std, 1.0), 0.0)
+        return _l2(out.reshape(b, -1))
 
 
 @dataclass(frozen=True)
@@ -258,14 +253,8 @@ class Hog:
 
     def __post_init__(self):
         _positive(**dataclasses.asdict(self))
-        if self.height // self.pixels_per_cell < self.cells_per_block or (
-            self.width // self.pixels_per_cell < self.cells_per_block
-        ):
-            raise InputError(
-                f"hog: a {self.width}x{self.height} thumbnail has fewer than"
-                f" cells_per_block={self.cells_per_block} cells of"
-                f" pixels_per_cell={self.pixels_per_cell} per side"
-            )
+        if min(self.height, self.width) // self.pixels_per_cell < self.cells_per_block:
+            raise InputError(f"hog {self.settings()}: fewer cells than cells_per_block")
 
     def settings(self) -> dict:
         return dataclasses.asdict(self)
@@ -276,10 +265,9 @@ class Hog:
         blocks = (self.height // c - k + 1) * (self.width // c - k + 1)
         return blocks * k * k * self.orientations
 
+    @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        _check_batch(batch, self.name)
-        with torch.inference_mode():
-            g = resize(grey(batch), self.height, self.width)[:, 0].numpy()
+        g = _fit(batch, self, to_grey=True)[:, 0].numpy()
         c, k = self.pixels_per_cell, self.cells_per_block
         rows = [
             skimage_hog(im, self.orientations, (c, c), (k, k), feature_vector=True)
@@ -413,6 +401,7 @@ def cached_describe(
     try:
         with os.fdopen(fd, "wb") as f:
             np.save(f, x, allow_pickle=False)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

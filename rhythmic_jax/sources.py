@@ -41,10 +41,12 @@ class Features:
 def _kind(path: Path, tile: int | None) -> str:
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
-    if path.is_dir():
-        return "folder"
-    if path.suffix.lower() == ".npy":
-        return "npy"
+    kind = "folder" if path.is_dir() else "npy" if path.suffix.lower() == ".npy" else ""
+    if kind and tile is not None:
+        what = "a folder of frames" if kind == "folder" else "a descriptor file"
+        raise InputError(f"{path}: --tile cuts one large image, but this is {what}")
+    if kind:
+        return kind
     if tile is not None:
         return "image"
     raise InputError(

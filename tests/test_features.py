@@ -148,6 +148,10 @@ def test_registry():
         get_descriptor("vgg16_fc7", weights="/nonexistent/vgg16.pth")
     with pytest.raises(InputError, match="patch=5"):
         get_descriptor("patchnorm", patch=5)
+    with pytest.raises(InputError, match="fewer cells"):
+        get_descriptor("hog", pixels_per_cell=32)
+    with pytest.raises(InputError, match=r"\(b, 3, H, W\)"):
+        get_descriptor("hog")(torch.rand(2, 1, 32, 64))
     with pytest.raises(InputError, match="block=16"):
         get_descriptor("efficientnet_lite0", block=16)
     for name in ("efficientnet_lite0", "patchnorm", "hog"):
@@ -163,6 +167,8 @@ def test_to_jax_shares_memory():
     np.testing.assert_array_equal(np.asarray(a), t.numpy())
     assert a.unsafe_buffer_pointer() == t.data_ptr()  # zero copy on CPU
     np.testing.assert_array_equal(np.asarray(to_jax(t.T)), t.T.numpy())  # strided
+    y = get_descriptor("patchnorm")(torch.rand(2, 3, 32, 64))  # an inference tensor
+    np.testing.assert_array_equal(np.asarray(to_jax(y)), y.numpy())
 
 
 def test_cached_describe(tmp_path, monkeypatch):

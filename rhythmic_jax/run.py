@@ -1,0 +1,389 @@
+"""Resumable minibatch training runs, batches streamed from disk, a memory guard.
+
+:func:`train_run` takes optax Adam steps (:func:`rhythmic_jax.train.minibatch_step`)
+over the batches of every epoch and keeps orbax checkpoints of the whole state
+(templates, optimiser state, step) in a folder: every ``checkpoint_every`` steps,
+at the end, and when the run stops early (an exception, Ctrl-C). Started again
+on the same folder it restores the latest checkpoint and goes on from there: the
+epoch and the position within it follow from the step, so ``batches_for_epoch``
+must give the same batches every time it is called with the same epoch. A run
+killed at any moment (even SIGKILL) and resumed ends with the same templates as
+one that was never interrupted.
+
+When the frames do not fit in memory, :func:`check_memory` says so before a
+full-batch fit starts, and :func:`memmap_batches` streams shuffled batches from a
+memory-mapped ``.npy`` file instead::
+
+    batches = memmap_batches("ref.npy", labels, periods, batch_size=512, seed=0)
+    params = train_run(batches, ridge_start(x0, y0, c), c, n, RunConfig(), "run/")
+
+Names: n frames, d features, p templates (sum of the periods), m batch rows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import logging
+import os
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from tqdm.auto import tqdm
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.objective import Templates, targets
+from rhythmic_jax.train import TrainState, init_state, minibatch_step
+from rhythmic_jax.validate import check_labels
+
+__all__ = [
+    "RunConfig",
+    "available_memory",
+    "check_memory",
+    "fit_bytes",
+    "memmap_batches",
+    "train_run",
+]
+
+log = logging.getLogger(__name__)
+Batch = tuple[np.ndarray | jax.Array, np.ndarray | jax.Array]
+# settings that change the trajectory: a checkpoint only resumes a run that agrees
+_TRAJECTORY = ("batch_size", "learning_rate", "seed")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """A minibatch training run.
+
+    Attributes:
+      epochs: passes over the batches of :func:`train_run`'s ``batches_for_epoch``.
+      batch_size: rows per batch (recorded; :func:`memmap_batches` takes it too).
+      learning_rate: Adam's step size.
+      checkpoint_every: steps between checkpoints (one more is kept at the end).
+      seed: the batch order's seed (recorded; give the same to the batches).
+
+    ``RunConfig(epochs=2, batch_size=8, checkpoint_every=1)`` is the fault test's
+    run (``pytest tests/test_faults.py``): killed with SIGKILL and resumed, it ends
+    on the templates of an uninterrupted run.
+    """
+
+    epochs: int = 10
+    batch_size: int = 256
+    learning_rate: float = 1e-3
+    checkpoint_every: int = 100
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("epochs", "batch_size", "checkpoint_every"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise InputError(
+                    f"RunConfig.{name} must be an integer >= 1, got {value!r}"
+                )
+        if not (isinstance(self.learning_rate, int | float) and self.learning_rate > 0):
+            raise InputError(
+                f"RunConfig.learning_rate must be positive, got {self.learning_rate!r}"
+            )
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise InputError(f"RunConfig.seed must be an integer, got {self.seed!r}")
+
+
+# ------------------------------------------------------------------ checkpoints
+
+
+def _manager(ckpt_dir: Path):
+    import orbax.checkpoint as ocp  # deferred: orbax is slow to import
+
+    options = ocp.CheckpointManagerOptions(
+        max_to_keep=2,
+        create=True,
+        cleanup_tmp_directories=True,  # what a killed save left behind
+        enable_async_checkpointing=False,
+    )
+    return ocp.CheckpointManager(ckpt_dir, options=options)
+
+
+def _save(manager, state: TrainState, config: RunConfig) -> int:
+    import orbax.checkpoint as ocp
+
+    step = int(state.step)
+    args = ocp.args.Composite(
+        state=ocp.args.StandardSave(state),
+        config=ocp.args.JsonSave(dataclasses.asdict(config)),
+    )
+    manager.save(step, args=args, force=True)
+    manager.wait_until_finished()
+    log.debug("checkpoint at step %d", step)
+    return step
+
+
+def _restore(manager, ckpt_dir: Path, fresh: TrainState, config: RunConfig):
+    """The latest checkpoint's state, or None when the folder holds none."""
+    import orbax.checkpoint as ocp
+
+    step = manager.latest_step()
+    if step is None:
+        return None
+    abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, fresh)
+    args = ocp.args.Composite(
+        state=ocp.args.StandardRestore(abstract), config=ocp.args.JsonRestore()
+    )
+    try:
+        got = manager.restore(step, args=args)
+    except Exception as err:  # noqa: BLE001 - orbax raises many kinds
+        first = (str(err).splitlines() or [type(err).__name__])[0]
+        raise InputError(
+            f"{ckpt_dir}: checkpoint {step} does not fit this run "
+            f"(templates {tuple(fresh.params.w.shape)}): {first[:200]}"
+        ) from None
+    saved = got.config or {}
+    differ = [k for k in _TRAJECTORY if saved.get(k) != getattr(config, k)]
+    if differ:
+        was = ", ".join(f"{k}={saved.get(k)!r}" for k in differ)
+        now = ", ".join(f"{k}={getattr(config, k)!r}" for k in differ)
+        raise InputError(
+            f"{ckpt_dir}: checkpoints were written with {was}, this run has {now}; "
+            "resume with the same settings or give a new folder"
+        )
+    state = got.state
+    log.info("resuming from %s at step %d", ckpt_dir, int(state.step))
+    return TrainState(state.params, state.opt_state, jnp.asarray(state.step))
+
+
+# --------------------------------------------------------------------- the loop
+
+
+def _remaining(batches: Iterable[Batch], skip: int) -> tuple[Iterable[Batch], int]:
+    """Drop the first ``skip`` batches of an epoch: (what is left, still to skip)."""
+    if hasattr(batches, "__len__") and skip >= len(batches):
+        return (), skip - len(batches)  # the whole epoch is done: no reads
+    if isinstance(batches, Sequence):
+        return (batches[i] for i in range(skip, len(batches))), 0
+    it = iter(batches)
+    done = sum(1 for _ in itertools.islice(it, skip))
+    return it, skip - done
+
+
+def train_run(
+    batches_for_epoch: Callable[[int], Iterable[Batch]],
+    init: Templates,
+    c: float,
+    n: int,
+    config: RunConfig,
+    ckpt_dir: str | os.PathLike | None,
+    progress: bool = True,
+) -> Templates:
+    """Adam over ``config.epochs`` passes of minibatches, resumable from checkpoints.
+
+    Args:
+      batches_for_epoch: ``epoch -> iterable of (x (m, d), y (m, p))``; the same
+        batches for the same epoch on every call (a resume skips the ones done).
+        A sized sequence (such as :func:`memmap_batches`' epochs) is skipped
+        without reading it.
+      init: starting templates, w (d, p), b (p,) (e.g. ``ridge_start`` of a subset).
+      c: the penalty C; n: frames per epoch (each batch's loss is weighted n / m).
+      config: the run's settings.
+      ckpt_dir: folder of the orbax checkpoints (the last 2 are kept); None for no
+        checkpoints. A folder that holds a checkpoint resumes from its latest.
+      progress: show a progress bar over steps.
+
+    Returns:
+      The trained templates. On an exception or Ctrl-C the state reached is saved
+      first, then the exception propagates.
+    """
+    optimizer = optax.adam(config.learning_rate)
+    state = init_state(Templates(jnp.asarray(init.w), jnp.asarray(init.b)), optimizer)
+    log.info("train_run %s, C=%.4g, n=%d, devices %s", config, c, n, jax.devices())
+    manager = saved = None
+    if ckpt_dir is not None:
+        ckpt_dir = Path(ckpt_dir).expanduser().absolute()
+        manager = _manager(ckpt_dir)
+        restored = _restore(manager, ckpt_dir, state, config)
+        if restored is not None:
+            state = restored
+            saved = int(state.step)
+    skip = int(state.step)
+    first = batches_for_epoch(0)
+    per_epoch = len(first) if hasattr(first, "__len__") else None
+    total = per_epoch * config.epochs if per_epoch is not None else None
+    bar = tqdm(
+        total=total, initial=skip, desc="train", unit="step", disable=not progress
+    )
+    try:
+        for epoch in range(config.epochs):
+            batches = first if epoch == 0 else batches_for_epoch(epoch)
+            todo, skip = _remaining(batches, skip)
+            for xb, yb in todo:
+                xb = jnp.asarray(xb, jnp.float32)
+                yb = jnp.asarray(yb, jnp.float32)
+                scale = n / xb.shape[0]
+                state, loss = minibatch_step(state, xb, yb, c, scale, optimizer)
+                step = int(state.step)
+                bar.update(1)
+                if progress:
+                    bar.set_postfix(epoch=epoch, loss=f"{float(loss):.5g}")
+                if manager is not None and step % config.checkpoint_every == 0:
+                    saved = _save(manager, state, config)
+    except BaseException:
+        if manager is not None and saved != int(state.step):
+            try:  # keep what was reached; the original error matters more
+                _save(manager, state, config)
+            except Exception as err:  # noqa: BLE001
+                log.warning("could not save the last checkpoint: %s", err)
+        raise
+    else:
+        if manager is not None and saved != int(state.step):
+            _save(manager, state, config)
+    finally:
+        bar.close()
+        if manager is not None:
+            manager.close()
+    return state.params
+
+
+# -------------------------------------------------------------- streamed batches
+
+
+class _EpochBatches(Sequence):
+    """The batches of one epoch, read on access from a memory-mapped (n, d) array."""
+
+    def __init__(self, x, path: Path, labels, periods, batch_size: int, order):
+        self._x, self._path, self._labels = x, path, labels
+        self._periods, self._size, self._order = periods, batch_size, order
+
+    def __len__(self) -> int:
+        return -(-len(self._order) // self._size)
+
+    def __getitem__(self, i: int) -> tuple[np.ndarray, jax.Array]:
+        if not -len(self) <= i < len(self):
+            raise IndexError(i)
+        i %= len(self)
+        rows = np.sort(self._order[i * self._size : (i + 1) * self._size])
+        with np.errstate(over="ignore"):  # float64 beyond float32 -> inf, refused
+            x = np.asarray(self._x[rows], dtype=np.float32)
+        bad = ~np.isfinite(x).all(axis=1)
+        if bad.any():
+            row = int(rows[np.flatnonzero(bad)[0]])
+            raise InputError(f"{self._path}: row {row} holds NaN or inf (as float32)")
+        return x, targets(self._labels[rows], self._periods)
+
+
+def memmap_batches(
+    path: str | os.PathLike,
+    labels,
+    periods: Sequence[int],
+    batch_size: int,
+    seed: int,
+) -> Callable[[int], Sequence[tuple[np.ndarray, jax.Array]]]:
+    """Shuffled minibatches read from an (n, d) ``.npy`` file, for :func:`train_run`.
+
+    The file is opened with ``np.load(mmap_mode="r")`` (nothing is unpickled):
+    only the rows of a batch are read, when the batch is taken. Epoch ``e`` visits
+    every row once in the order of ``default_rng([seed, e]).permutation(n)``;
+    batch ``i`` holds the rows ``order[i*m : (i+1)*m]`` (sorted, for the disk),
+    the last batch the remainder.
+
+    Args:
+      path: float (n, d) descriptors; labels: (n,) place of every row;
+      periods: the template periods (targets ``y`` are (m, sum(periods)) ±1).
+
+    Returns:
+      ``epoch -> sequence of (x (m, d) float32, y (m, p) float32)``.
+    """
+    path = Path(path)
+    try:
+        x = np.load(path, mmap_mode="r", allow_pickle=False)
+    except FileNotFoundError:
+        raise InputError(f"descriptor file not found: {path}") from None
+    except (ValueError, OSError, EOFError) as err:  # pickles, text, truncation
+        raise InputError(f"{path}: not a readable .npy array ({err})") from None
+    if x.dtype.kind not in "fiu" or x.ndim != 2 or 0 in x.shape:
+        raise InputError(
+            f"{path}: expected a non-empty (n, d) real array, got {x.dtype} {x.shape}"
+        )
+    labels = check_labels(labels, len(x))
+    periods = tuple(int(t) for t in periods)
+    if not periods or min(periods) < 1:
+        raise InputError(f"periods must be positive integers, got {periods}")
+    if (
+        isinstance(batch_size, bool)
+        or not isinstance(batch_size, int)
+        or batch_size < 1
+    ):
+        raise InputError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+
+    def batches_for_epoch(epoch: int) -> _EpochBatches:
+        order = np.random.default_rng([seed, epoch]).permutation(len(x))
+        return _EpochBatches(x, path, labels, periods, batch_size, order)
+
+    return batches_for_epoch
+
+
+# ---------------------------------------------------------------- memory guard
+
+
+def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
+    """Peak bytes of a full-batch fit (:func:`rhythmic_jax.newton.newton_fit`).
+
+    The solver holds the features (``n d itemsize``), a float64 and a float32
+    copy of the design matrix ``[x, 1]`` (``12 n (d+1)``), its system matrix in
+    float64 and float32 (``12 q^2``, q = n in the Gram form used when
+    ``n < 2 (d+1)``, else d + 1) and about eight float64 (n, p) arrays (targets,
+    margins, steps, masks) beside five (q, p) arrays of conjugate gradients.
+    """
+    q = n if n < 2 * (d + 1) else d + 1
+    return {
+        "features": n * d * itemsize,
+        "design": 12 * n * (d + 1),
+        "system": 12 * q * q,
+        "templates": 8 * (8 * n + 5 * q) * p,
+    }
+
+
+def available_memory() -> int:
+    """Bytes available now: ``MemAvailable`` of /proc/meminfo, else physical RAM."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def _gib(v: float) -> str:
+    return f"{v / 2**30:.2f} GiB" if v >= 2**30 else f"{v / 2**20:.1f} MiB"
+
+
+def check_memory(
+    n: int, d: int, p: int, itemsize: int = 4, limit_bytes: int | None = None
+) -> int:
+    """Refuse (:class:`InputError`) a full-batch fit that would not fit in memory.
+
+    Args:
+      n: frames; d: features; p: templates trained (sum of the candidate periods).
+      itemsize: bytes per feature value.
+      limit_bytes: the memory to fit in (default :func:`available_memory`).
+
+    Returns:
+      The bytes needed (:func:`fit_bytes`, summed), when they fit.
+    """
+    parts = fit_bytes(n, d, p, itemsize)
+    need = sum(parts.values())
+    limit = available_memory() if limit_bytes is None else int(limit_bytes)
+    if need > limit:
+        raise InputError(
+            f"a full-batch fit of {n} frames x {d} features x {p} templates needs "
+            f"about {need:,} bytes ({_gib(need)}: features {_gib(parts['features'])},"
+            f" solver {_gib(need - parts['features'])}) but {limit:,} bytes "
+            f"({_gib(limit)}) are available; stream the frames instead: save them to "
+            "a .npy file and train with rhythmic_jax.run.train_run(memmap_batches("
+            "path, labels, periods, batch_size, seed), ...)"
+        )
+    return need

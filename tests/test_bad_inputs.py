@@ -1,0 +1,736 @@
+"""A catalogue of bad inputs: each ends with one line naming what was wrong.
+
+On the command line the line reads ``rhythmic-jax CMD: error: ...``, the exit
+status is 2 and nothing appears in the output folder (no map, no prediction
+file, no hidden temporary folder). Cases the command line cannot reach (weights
+files, in-memory arrays) go through the library and raise ``InputError``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import re
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+import torch
+from skimage.io import imsave
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.cli import main
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.features import Hog, describe, get_descriptor
+from rhythmic_jax.nets import VGG16, EfficientNetLite0
+from rhythmic_jax.run import RunConfig, memmap_batches
+
+RNG = np.random.default_rng(0)
+X = RNG.normal(size=(40, 8)).astype(np.float32)
+
+
+class Mkdir:
+    """An object whose unpickling creates a folder: proof that nothing unpickled."""
+
+    def __init__(self, path: Path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (os.mkdir, (self.path,))
+
+
+@pytest.fixture(scope="module")
+def maps(tmp_path_factory) -> dict[str, Path]:
+    """Two small fitted maps: from 8-d descriptor files, and from 'hog' images."""
+    root = tmp_path_factory.mktemp("maps")
+    RhythmicMap().fit(X, progress=False).save(root / "npy.map")
+    hog = Hog()
+    xh = RNG.normal(size=(30, hog.dim)).astype(np.float32)
+    model = RhythmicMap(descriptor="hog", descriptor_settings=hog.settings())
+    model.fit(xh, progress=False).save(root / "hog.map")
+    return {"npy": root / "npy.map", "hog": root / "hog.map"}
+
+
+# ---------------------------------------------------------------- input makers
+
+
+def npy(folder: Path, name: str, value) -> str:
+    np.save(folder / name, value)
+    return str(folder / name)
+
+
+def frames(folder: Path, n: int, size=(16, 12), pattern="img{}.png") -> str:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        pixels = RNG.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)
+        imsave(folder / pattern.format(i), pixels, check_contrast=False)
+    return str(folder)
+
+
+def empty_folder(src: Path) -> str:
+    (src / "none").mkdir()
+    return str(src / "none")
+
+
+def with_nan(src: Path) -> str:
+    x = X.copy()
+    x[3, 2] = np.nan
+    return npy(src, "nan.npy", x)
+
+
+def with_inf(src: Path) -> str:
+    x = X.copy()
+    x[5, 0] = np.inf
+    return npy(src, "inf.npy", x)
+
+
+def object_array(src: Path) -> str:
+    arr = np.empty(1, dtype=object)
+    arr[0] = Mkdir(src / "unpickled")
+    np.save(src / "obj.npy", arr, allow_pickle=True)
+    return str(src / "obj.npy")
+
+
+def raw_pickle(src: Path) -> str:
+    (src / "raw.npy").write_bytes(pickle.dumps(Mkdir(src / "unpickled")))
+    return str(src / "raw.npy")
+
+
+def text_file(src: Path, name: str = "text.npy") -> str:
+    (src / name).write_text("0.1 0.2 0.3\n0.4 0.5 0.6\n")
+    return str(src / name)
+
+
+def dup_frames(src: Path) -> str:
+    folder = frames(src / "dup", 3)
+    shutil.copy(src / "dup" / "img1.png", src / "dup" / "img01.png")
+    return folder
+
+
+def two_patterns(src: Path) -> str:
+    frames(src / "pat", 3)
+    return frames(src / "pat", 2, pattern="frame{}.png")
+
+
+def mixed_sizes(src: Path) -> str:
+    frames(src / "mixed", 3)
+    return frames(src / "mixed", 1, size=(30, 20), pattern="img{}0.png")
+
+
+def truncated(src: Path) -> str:
+    folder = frames(src / "trunc", 3)
+    png = src / "trunc" / "img1.png"
+    png.write_bytes(png.read_bytes()[: png.stat().st_size // 2])
+    return folder
+
+
+def not_an_image(src: Path) -> str:
+    folder = frames(src / "junk", 3)
+    (src / "junk" / "img2.png").write_bytes(b"these bytes are no picture")
+    return folder
+
+
+def copy_map(src: Path, maps, damage: Callable[[Path], None] | None = None) -> str:
+    path = src / "copy.map"
+    shutil.copytree(maps["npy"], path)
+    if damage is not None:
+        damage(path)
+    return str(path)
+
+
+def edit_meta(path: Path, edit: Callable[[dict], None]) -> None:
+    meta = json.loads((path / "map.json").read_text())
+    edit(meta)
+    (path / "map.json").write_text(json.dumps(meta))
+
+
+def cut_json(path: Path) -> None:
+    meta = path / "map.json"
+    meta.write_bytes(meta.read_bytes()[:60])
+
+
+def delete_data(path: Path) -> None:
+    for f in (path / "arrays").rglob("*"):
+        if f.is_file() and f.parent.name == "d":
+            f.unlink()
+
+
+# ------------------------------------------------------- the command-line cases
+
+
+class Case(NamedTuple):
+    id: str
+    argv: Callable  # (src folder, maps, out folder) -> argv
+    match: str  # regex searched in the error line
+
+
+def fit(*sources: Callable[[Path], str], extra=()) -> Callable:
+    def argv(src, maps, out):
+        paths = [s(src) for s in sources]
+        return ["fit", *paths, "--out", str(out / "route.map"), "--no-progress", *extra]
+
+    return argv
+
+
+def query(map_: Callable, source: Callable[[Path], str], extra=()) -> Callable:
+    def argv(src, maps, out):
+        pred = str(out / "pred.npy")
+        args = [map_(src, maps), source(src), "--out", pred, "--no-progress"]
+        return ["query", *args, *extra]
+
+    return argv
+
+
+def info(map_: Callable) -> Callable:
+    return lambda src, maps, out: ["info", map_(src, maps)]
+
+
+def ok(src):
+    return npy(src, "ok.npy", X)
+
+
+def npy_map(src, maps):
+    return str(maps["npy"])
+
+
+def hog_map(src, maps):
+    return str(maps["hog"])
+
+
+def damaged(damage):
+    return lambda src, maps: copy_map(src, maps, damage)
+
+
+CLI_CASES = [
+    Case("nan-features", fit(with_nan), r"nan\.npy row 3 holds NaN or inf"),
+    Case("inf-features", fit(with_inf), r"inf\.npy row 5 holds NaN or inf"),
+    Case(
+        "rank-1",
+        fit(lambda s: npy(s, "row.npy", X[0])),
+        r"row\.npy must be a non-empty \(n, d\) array, got \(8,\)",
+    ),
+    Case(
+        "rank-3",
+        fit(lambda s: npy(s, "cube.npy", X.reshape(4, 10, 8))),
+        r"cube\.npy must be a non-empty \(n, d\) array, got \(4, 10, 8\)",
+    ),
+    Case(
+        "empty-array",
+        fit(lambda s: npy(s, "empty.npy", np.zeros((0, 8), np.float32))),
+        r"empty\.npy must be a non-empty \(n, d\) array, got \(0, 8\)",
+    ),
+    Case(
+        "empty-folder",
+        fit(empty_folder),
+        r"no PNG/JPG images in traversal folder .*none",
+    ),
+    Case(
+        "one-frame",
+        fit(lambda s: npy(s, "one.npy", X[:1])),
+        r"a map needs at least 2 frames, got n=1",
+    ),
+    Case(
+        "r-1",
+        fit(ok, extra=["--r", "1"]),
+        r"r \(number of periods\) must be an integer >= 2, got r=1",
+    ),
+    Case(
+        "r-negative",
+        fit(ok, extra=["--r", "-3"]),
+        r"r \(number of periods\) must be an integer >= 2, got r=-3",
+    ),
+    Case(
+        "r-impossible",
+        fit(lambda s: npy(s, "six.npy", X[:6]), extra=["--r", "5"]),
+        r"no 5 pairwise co-prime periods among \(2, 3, 4, 5, 6, 7, 8\) have a "
+        r"product >= n=6",
+    ),
+    Case("level-0", fit(ok, extra=["--level", "0"]), r"level must be an integer >= 1"),
+    Case(
+        "level-negative",
+        fit(ok, extra=["--level", "-2"]),
+        r"level must be an integer >= 1, got level=-2",
+    ),
+    Case(
+        "count-below-r",
+        fit(ok, extra=["--count", "1"]),
+        r"count must be an integer >= r=2, got count=1",
+    ),
+    Case("c-zero", fit(ok, extra=["--c", "0"]), r"c must be positive, got 0\.0"),
+    Case(
+        "duplicate-frame-names",
+        fit(dup_frames),
+        r"'img01\.png' and 'img1\.png' in .*dup name the same frame",
+    ),
+    Case(
+        "unsortable-frame-names",
+        fit(two_patterns),
+        r"cannot order the frames of .*pat: 'frame0\.png' and 'img0\.png' follow "
+        r"different naming patterns",
+    ),
+    Case(
+        "condition-frame-count",
+        fit(lambda s: frames(s / "summer", 6), lambda s: frames(s / "winter", 5)),
+        r"winter: 5 frames of 2048-d, but .*summer has 6 of 2048-d; traversals of "
+        r"one route must match frame for frame",
+    ),
+    Case(
+        "truncated-image",
+        fit(truncated),
+        r"cannot read image .*img1\.png: image file is truncated",
+    ),
+    Case(
+        "unreadable-image",
+        fit(not_an_image),
+        r"cannot read image .*img2\.png: no image reader recognises its contents$",
+    ),
+    Case(
+        "mixed-image-sizes",
+        fit(mixed_sizes),
+        r"frame .*img00\.png is 30x20 but img0\.png is 16x12",
+    ),
+    Case(
+        "unknown-descriptor",
+        fit(lambda s: frames(s / "f", 3), extra=["--descriptor", "sift"]),
+        r"unknown descriptor 'sift'; known: \['efficientnet_lite0', 'hog', "
+        r"'patchnorm', 'vgg16_fc7'\]",
+    ),
+    Case(
+        "vgg16-without-weights",
+        fit(lambda s: frames(s / "f", 3), extra=["--descriptor", "vgg16_fc7"]),
+        r"descriptor vgg16_fc7: .*missing 1 required positional argument: 'weights'",
+    ),
+    Case(
+        "descriptor-option-on-npy",
+        fit(ok, extra=["--descriptor", "hog"]),
+        r"--descriptor applies to images; \.npy files are descriptors",
+    ),
+    Case(
+        "text-named-npy",
+        fit(text_file),
+        r"text\.npy is not a valid \.npy file: .*magic string",
+    ),
+    Case(
+        "pickled-object-array",
+        fit(object_array),
+        r"obj\.npy contains Python objects; refusing to unpickle",
+    ),
+    Case(
+        "raw-pickle-npy",
+        fit(raw_pickle),
+        r"raw\.npy contains Python objects; refusing to unpickle",
+    ),
+    Case(
+        "tile-on-text-file",
+        fit(lambda s: text_file(s, "notes.txt"), extra=["--tile", "8"]),
+        r"cannot read image .*notes\.txt",
+    ),
+    Case(
+        "tile-on-npy",
+        fit(ok, extra=["--tile", "8"]),
+        r"ok\.npy: --tile cuts one large image, but this is a descriptor file",
+    ),
+    Case(
+        "tile-on-folder",
+        fit(lambda s: frames(s / "f", 3), extra=["--tile", "8"]),
+        r"f: --tile cuts one large image, but this is a folder of frames",
+    ),
+    Case(
+        "tile-zero",
+        fit(lambda s: text_file(s, "big.png"), extra=["--tile", "0"]),
+        r"--tile must be a positive size, got 0",
+    ),
+    Case(
+        "not-a-source",
+        fit(lambda s: text_file(s, "notes.txt")),
+        r"notes\.txt: not a \.npy descriptor file or an image folder \(to tile one "
+        r"large image, give --tile SIZE\)",
+    ),
+    Case(
+        "mixed-source-kinds",
+        fit(ok, lambda s: frames(s / "f", 3)),
+        r"mixed source kinds \['folder', 'npy'\]; give one kind at a time",
+    ),
+    Case(
+        "missing-source",
+        fit(lambda s: str(s / "absent.npy")),
+        r"absent\.npy: no such file or folder",
+    ),
+    Case(
+        "out-is-a-file",
+        lambda src, maps, out: [
+            "fit",
+            ok(src),
+            "--out",
+            text_file(src, "taken.txt"),
+            "--no-progress",
+        ],
+        r"taken\.txt: exists and is not a map folder; refusing to replace it",
+    ),
+    Case(
+        "out-under-a-file",
+        lambda src, maps, out: [
+            "fit",
+            ok(src),
+            "--out",
+            str(Path(ok(src)) / "route.map"),
+            "--no-progress",
+        ],
+        r"route\.map: .*ok\.npy is a file, not a folder",
+    ),
+    Case(
+        "query-wrong-dimension",
+        query(npy_map, lambda s: npy(s, "q.npy", X[:5, :4])),
+        r"q\.npy: 4-d features but the map was built for 8-d",
+    ),
+    Case(
+        "query-nan",
+        query(npy_map, with_nan),
+        r"nan\.npy row 3 holds NaN or inf",
+    ),
+    Case(
+        "query-images-on-npy-map",
+        query(npy_map, lambda s: frames(s / "f", 3)),
+        r"f: the map was built from descriptor files; give queries as \.npy",
+    ),
+    Case(
+        "query-other-descriptor",
+        query(
+            hog_map, lambda s: frames(s / "f", 3), extra=["--descriptor", "patchnorm"]
+        ),
+        r"the map was built with descriptor 'hog', not 'patchnorm'",
+    ),
+    Case(
+        "query-hog-map-with-8d-npy",
+        query(hog_map, ok),
+        r"ok\.npy: 8-d features but the map was built for 756-d",
+    ),
+    Case(
+        "query-out-folder-missing",
+        lambda src, maps, out: [
+            "query",
+            npy_map(src, maps),
+            ok(src),
+            "--out",
+            str(out / "sub" / "pred.npy"),
+        ],
+        r"--out .*pred\.npy: folder .*sub not found",
+    ),
+    Case(
+        "map-missing",
+        info(lambda src, maps: str(src / "absent.map")),
+        r"absent\.map: no such map folder",
+    ),
+    Case(
+        "map-is-a-file",
+        info(lambda src, maps: ok(src)),
+        r"ok\.npy: not a map folder \(it is a file\)",
+    ),
+    Case(
+        "map-arrays-deleted",
+        info(damaged(lambda p: shutil.rmtree(p / "arrays"))),
+        r"copy\.map: arrays are missing or corrupt \(Checkpoint at .* not found",
+    ),
+    Case(
+        "map-data-files-deleted",
+        query(damaged(delete_data), ok),
+        r"copy\.map: arrays are missing or corrupt \(NOT_FOUND: .*\)$",
+    ),
+    Case(
+        "map-json-cut",
+        info(damaged(cut_json)),
+        r"copy\.map/map\.json: corrupt metadata \(",
+    ),
+    Case(
+        "map-json-missing",
+        info(damaged(lambda p: (p / "map.json").unlink())),
+        r"copy\.map: not a map folder \(map\.json is missing\)",
+    ),
+    Case(
+        "map-json-without-periods",
+        info(damaged(lambda p: edit_meta(p, lambda m: m.pop("periods")))),
+        r"copy\.map: corrupt map metadata \(KeyError\('periods'\)\)",
+    ),
+    Case(
+        "map-newer-format",
+        info(damaged(lambda p: edit_meta(p, lambda m: m.update(format_version=9)))),
+        r"copy\.map: map format 9 is newer than this rhythmic_jax reads \(1\); "
+        r"upgrade the package",
+    ),
+    Case(
+        "map-weights-do-not-fit-periods",
+        info(damaged(lambda p: edit_meta(p, lambda m: m.update(periods=[5, 6])))),
+        r"copy\.map: weights of shape \(8, 19\) do not fit periods \(5, 6\), d=8",
+    ),
+]
+
+
+def _listing(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+@pytest.mark.parametrize("case", CLI_CASES, ids=[c.id for c in CLI_CASES])
+def test_command_line_refuses(case, maps, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path / "cache"))
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    argv = case.argv(src, maps, out)
+    capsys.readouterr()
+    code = main(argv)
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert code == 2, captured
+    assert len(lines) == 1, lines
+    prefix = f"rhythmic-jax {argv[0]}: error: "
+    assert lines[0].startswith(prefix)
+    assert re.search(case.match, lines[0][len(prefix) :]), lines[0]
+    assert captured.out == ""
+    assert _listing(out) == []  # no map, no prediction, no hidden temporary
+    assert not (src / "unpickled").exists()  # nothing was unpickled
+
+
+def test_the_catalogue_is_broad():
+    assert len(CLI_CASES) >= 20
+    assert len({c.id for c in CLI_CASES}) == len(CLI_CASES)
+
+
+# --------------------------------------------------------- through a real process
+
+
+SUBPROCESS_CASES = ["nan-features", "query-wrong-dimension", "mixed-source-kinds"]
+
+
+def test_real_processes_exit_2_with_one_line(maps, tmp_path):
+    """The same lines from ``python -m rhythmic_jax.cli`` and ``rhythmic-jax``."""
+    script = shutil.which("rhythmic-jax")
+    env = {**os.environ, "RHYTHMIC_JAX_CACHE": str(tmp_path / "cache")}
+    by_id = {c.id: c for c in CLI_CASES}
+    runs = []
+    for i, name in enumerate(SUBPROCESS_CASES):
+        src, out = tmp_path / name / "in", tmp_path / name / "out"
+        src.mkdir(parents=True)
+        out.mkdir()
+        argv = by_id[name].argv(src, maps, out)
+        use_script = i == 1 and script is not None  # the installed entry point
+        cmd = [script] if use_script else [sys.executable, "-m", "rhythmic_jax.cli"]
+        proc = subprocess.Popen(
+            [*cmd, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env
+        )
+        runs.append((name, argv, out, proc))
+    for name, argv, out, proc in runs:  # started together: they share the wait
+        stdout, stderr = proc.communicate(timeout=180)
+        lines = stderr.decode().splitlines()
+        assert proc.returncode == 2, (name, stderr)
+        assert len(lines) == 1, lines
+        assert lines[0].startswith(f"rhythmic-jax {argv[0]}: error: ")
+        assert re.search(by_id[name].match, lines[0]), lines[0]
+        assert stdout == b"" and _listing(out) == []
+
+
+# ---------------------------------------------------- library-only cases: weights
+
+
+def _random_state(cls, drop: str | None = None, add: str | None = None, tiny=False):
+    with torch.device("meta"):
+        own = cls().state_dict()
+    gen = torch.Generator().manual_seed(0)
+    state = {
+        k: torch.randn(2 if tiny else tuple(v.shape), generator=gen)
+        if v.is_floating_point()
+        else torch.zeros(v.shape, dtype=v.dtype)
+        for k, v in own.items()
+    }
+    if drop:
+        del state[drop]
+    if add:
+        state[add] = torch.randn(3, generator=gen)
+    return state
+
+
+def _describe_with(name: str, path: Path):
+    images = RNG.integers(0, 256, (2, 32, 32, 3), dtype=np.uint8)
+    return describe(images, get_descriptor(name, weights=str(path)), progress=False)
+
+
+def vgg_missing_key(tmp: Path):
+    path = tmp / "vgg16_missing.pth"
+    torch.save(_random_state(VGG16, drop="classifier.3.weight", tiny=True), path)
+    return lambda: _describe_with("vgg16_fc7", path), (
+        r"vgg16_missing\.pth: keys do not fit VGG16: missing \[classifier\.3\.weight\],"
+        r" unexpected none"
+    )
+
+
+def vgg_extra_key(tmp: Path):
+    path = tmp / "vgg16_extra.pth"
+    torch.save(_random_state(VGG16, add="classifier.9.weight", tiny=True), path)
+    return lambda: _describe_with("vgg16_fc7", path), (
+        r"vgg16_extra\.pth: keys do not fit VGG16: missing none, unexpected "
+        r"\[classifier\.9\.weight\]"
+    )
+
+
+def lite0_missing_key(tmp: Path):
+    path = tmp / "lite0.pth"
+    torch.save(_random_state(EfficientNetLite0, drop="_fc.bias"), path)
+    return lambda: _describe_with("efficientnet_lite0", path), (
+        r"lite0\.pth: keys do not fit EfficientNet-Lite0: missing \[_fc\.bias\]"
+    )
+
+
+def lite0_wrong_shape(tmp: Path):
+    path = tmp / "lite0_shape.pth"
+    state = _random_state(EfficientNetLite0)
+    state["_fc.weight"] = torch.zeros(10, 1280)
+    torch.save(state, path)
+    return lambda: _describe_with("efficientnet_lite0", path), (
+        r"lite0_shape\.pth: 1 tensors have the wrong shape for EfficientNet-Lite0, "
+        r"e\.g\. _fc\.weight \(10, 1280\) != \(1000, 1280\)"
+    )
+
+
+def weights_not_a_dict(tmp: Path):
+    path = tmp / "list.pth"
+    torch.save([torch.zeros(3)], path)
+    return lambda: _describe_with("vgg16_fc7", path), (
+        r"list\.pth: expected a state dict, found <class 'list'>"
+    )
+
+
+def weights_pickled_object(tmp: Path):
+    path = tmp / "evil.pth"
+    torch.save({"features.0.weight": Mkdir(tmp / "unpickled")}, path)
+    return lambda: _describe_with("vgg16_fc7", path), (
+        r"evil\.pth: not a readable torch state dict \(Weights only load failed"
+    )
+
+
+def weights_missing_file(tmp: Path):
+    return lambda: get_descriptor("vgg16_fc7", weights=str(tmp / "none.pth")), (
+        r"vgg16_fc7 weights file not found: .*none\.pth"
+    )
+
+
+# ------------------------------------------------- library-only cases: arrays, maps
+
+
+def map_other_descriptor(tmp: Path, maps):
+    return lambda: RhythmicMap.load(maps["hog"], descriptor="patchnorm"), (
+        r"hog\.map: map built with descriptor 'hog', queries use 'patchnorm'"
+    )
+
+
+def map_other_settings(tmp: Path, maps):
+    settings = {**Hog().settings(), "orientations": 12}
+    return lambda: RhythmicMap.load(maps["hog"], descriptor_settings=settings), (
+        r"hog\.map: map built with hog settings \{.*'orientations': 9.*\}, queries "
+        r"use \{.*'orientations': 12.*\}"
+    )
+
+
+def fit_rank_3(tmp: Path, maps):
+    return lambda: RhythmicMap().fit(X.reshape(5, 8, 8), progress=False), (
+        r"reference features: expected a 2-D array \(frames x features\), got shape "
+        r"\(5, 8, 8\)"
+    )
+
+
+def fit_nan(tmp: Path, maps):
+    x = X.copy()
+    x[[7, 9]] = np.nan
+    return lambda: RhythmicMap().fit(x, progress=False), (
+        r"reference features: 2 rows hold NaN or inf \(first: row 7\)"
+    )
+
+
+def fit_label_gap(tmp: Path, maps):
+    labels = np.r_[np.arange(20), np.arange(21, 41)]
+    return lambda: RhythmicMap().fit(X, labels, progress=False), (
+        r"labels: places must be numbered 0 \.\. 40 without gaps; 1 missing "
+        r"\(first: 20\)"
+    )
+
+
+def predict_wrong_dimension(tmp: Path, maps):
+    model = RhythmicMap.load(maps["npy"])
+    return lambda: model.predict(X[:3, :5]), (
+        r"queries: 5-d features but the map was built for 8-d"
+    )
+
+
+def memmap_object_array(tmp: Path, maps):
+    path = object_array(tmp)
+    return lambda: memmap_batches(path, np.arange(1), (2, 3), 4, 0), (
+        r"obj\.npy: not a readable \.npy array \(.*allow_pickle=False"
+    )
+
+
+def run_config_zero_batch(tmp: Path, maps):
+    return lambda: RunConfig(batch_size=0), (
+        r"RunConfig\.batch_size must be an integer >= 1, got 0"
+    )
+
+
+WEIGHT_CASES = [
+    vgg_missing_key,
+    vgg_extra_key,
+    lite0_missing_key,
+    lite0_wrong_shape,
+    weights_not_a_dict,
+    weights_pickled_object,
+    weights_missing_file,
+]
+LIBRARY_CASES = [
+    map_other_descriptor,
+    map_other_settings,
+    fit_rank_3,
+    fit_nan,
+    fit_label_gap,
+    predict_wrong_dimension,
+    memmap_object_array,
+    run_config_zero_batch,
+]
+
+
+def _assert_one_line(call, match: str) -> None:
+    with pytest.raises(InputError) as err:
+        call()
+    message = str(err.value)
+    assert "\n" not in message
+    assert re.search(match, message), message
+
+
+@pytest.mark.parametrize("case", WEIGHT_CASES, ids=[c.__name__ for c in WEIGHT_CASES])
+def test_weights_files_are_refused(case, tmp_path):
+    call, match = case(tmp_path)
+    _assert_one_line(call, match)
+    assert not (tmp_path / "unpickled").exists()
+
+
+@pytest.mark.parametrize("case", LIBRARY_CASES, ids=[c.__name__ for c in LIBRARY_CASES])
+def test_library_refuses(case, maps, tmp_path):
+    call, match = case(tmp_path, maps)
+    _assert_one_line(call, match)
+    assert not (tmp_path / "unpickled").exists()
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=(KeyError, TypeError),
+    reason="RhythmicMap.load reads c and candidates outside its metadata check",
+)
+@pytest.mark.parametrize(
+    "edit",
+    [lambda m: m.pop("c"), lambda m: m.update(candidates=5)],
+    ids=["without-c", "candidates-not-a-list"],
+)
+def test_map_json_with_a_bad_field(edit, maps, tmp_path):
+    path = copy_map(tmp_path, maps, lambda p: edit_meta(p, edit))
+    _assert_one_line(lambda: RhythmicMap.load(path), r"copy\.map: corrupt map")

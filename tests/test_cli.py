@@ -1,0 +1,125 @@
+"""The command line on descriptor files, an image folder, and Nordland when present."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from skimage import data as skdata
+from skimage.io import imsave
+from skimage.transform import resize
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.cli import main
+
+
+def run(capsys, *argv):
+    code = main([*argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture()
+def npy_route(tmp_path):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(120, 300)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    q = x + 0.02 * rng.normal(size=x.shape).astype(np.float32)
+    np.save(tmp_path / "ref.npy", x)
+    np.save(tmp_path / "q.npy", q)
+    return tmp_path
+
+
+def test_fit_query_info_on_descriptor_files(npy_route, capsys):
+    out_map = npy_route / "route.map"
+    code, out, _ = run(capsys, "fit", str(npy_route / "ref.npy"), "--out", str(out_map),
+                       "--no-progress", "--json")  # fmt: skip
+    assert code == 0
+    info = json.loads(out)
+    model = RhythmicMap.load(out_map)
+    assert info["periods"] == list(model.periods) and info["n"] == 120
+    assert info["storage_bytes"] == model.storage_bytes
+    pred_file = npy_route / "pred.npy"
+    code, _, _ = run(capsys, "query", str(out_map), str(npy_route / "q.npy"),
+                     "--out", str(pred_file), "--no-progress")  # fmt: skip
+    assert code == 0
+    pred = np.load(pred_file)
+    np.testing.assert_array_equal(pred, model.predict(np.load(npy_route / "q.npy")))
+    assert (pred == np.arange(120)).mean() > 0.95
+    code, out, _ = run(capsys, "info", str(out_map), "--json")
+    assert code == 0 and json.loads(out)["candidate_errors"] == list(
+        model.candidate_errors
+    )
+    code, out, _ = run(capsys, "evaluate", str(out_map), str(npy_route / "q.npy"),
+                       "--reference", str(npy_route / "ref.npy"), "--json",
+                       "--tolerance", "1", "--no-progress")  # fmt: skip
+    assert code == 0
+    res = json.loads(out)
+    assert res["tolerance"] == 1
+    assert res["methods"]["map"]["accuracy"] == pytest.approx(
+        float((pred == np.arange(120)).mean())
+    )
+    assert res["methods"]["brute force"]["storage_bytes"] == 120 * 300 * 4
+
+
+def make_folder(path, images):
+    path.mkdir()
+    for i, img in enumerate(images):
+        imsave(path / f"frame{i}.png", img, check_contrast=False)
+
+
+def test_fit_and_query_image_folders(tmp_path, capsys):
+    photo = resize(skdata.astronaut(), (96, 640), anti_aliasing=True)
+    frames = [(photo[:, 8 * i : 8 * i + 64] * 255).astype(np.uint8) for i in range(72)]
+    make_folder(tmp_path / "a", frames)
+    make_folder(
+        tmp_path / "b", [np.clip(f * 0.9 + 10, 0, 255).astype(np.uint8) for f in frames]
+    )
+    out_map = tmp_path / "m"
+    code, out, err = run(capsys, "fit", str(tmp_path / "a"), str(tmp_path / "b"),
+                         "--out", str(out_map), "--no-progress")  # fmt: skip
+    assert code == 0, err
+    model = RhythmicMap.load(out_map)
+    assert model.config.descriptor == "patchnorm" and model.n == 72
+    code, out, err = run(capsys, "query", str(out_map), str(tmp_path / "b"), "--json",
+                         "--no-progress")  # fmt: skip
+    assert code == 0, err
+    pred = np.asarray(json.loads(out)["predictions"])
+    assert (np.abs(pred - np.arange(72)) <= 1).mean() > 0.9
+    code, _, err = run(capsys, "query", str(out_map), str(tmp_path / "b"),
+                       "--descriptor", "hog")  # fmt: skip
+    assert code == 2 and "patchnorm" in err and len(err.strip().splitlines()) == 1
+
+
+def test_bad_arguments_exit_2_without_a_map(npy_route, capsys):
+    bad = npy_route / "bad.npy"
+    np.save(bad, np.full((4, 3), np.inf, np.float32))
+    code, _, err = run(capsys, "fit", str(bad), "--out", str(npy_route / "x.map"))
+    assert code == 2 and "NaN or inf" in err
+    assert not (npy_route / "x.map").exists()
+    assert not [p for p in npy_route.iterdir() if p.name.startswith(".x.map")]
+    code, _, err = run(capsys, "info", str(npy_route / "nothing"))
+    assert code == 2 and "no such map" in err
+    with pytest.raises(SystemExit) as exc:
+        main(["fit"])
+    assert exc.value.code == 2
+
+
+def test_help_has_examples(capsys):
+    for cmd in ("fit", "query", "info", "evaluate", "demo"):
+        with pytest.raises(SystemExit):
+            main([cmd, "--help"])
+        assert "examples:" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_nordland_folders_end_to_end(nordland_root, tmp_path, capsys):
+    out_map = tmp_path / "nordland.map"
+    code, _, err = run(capsys, "fit", str(nordland_root / "summer"), "--out",
+                       str(out_map), "--no-progress")  # fmt: skip
+    assert code == 0, err
+    code, out, err = run(capsys, "evaluate", str(out_map), str(nordland_root / "summer"),
+                         "--json", "--no-progress")  # fmt: skip
+    assert code == 0, err
+    assert json.loads(out)["methods"]["map"]["accuracy"] >= 0.93

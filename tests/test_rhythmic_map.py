@@ -1,0 +1,135 @@
+"""The estimator: fit, period choice, predict, storage, save/load, refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import InputError, MapConfig, RhythmicMap
+from rhythmic_jax.objective import period_errors, scores, targets
+from rhythmic_jax.periods import candidate_periods, choose_periods, storage_bytes
+
+
+def wide(n=150, d=250, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, d)).astype(np.float32)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    x = wide()
+    return RhythmicMap(r=2, level=1).fit(x, progress=False), x
+
+
+def test_fit_chooses_coprime_candidates_and_keeps_only_them(fitted):
+    model, x = fitted
+    assert model.candidates == candidate_periods(150, 2, 1, 7)
+    assert set(model.periods) <= set(model.candidates)
+    assert model.periods == choose_periods(model.candidates, model.candidate_errors, 150)
+    assert model.params.w.shape == (250, sum(model.periods))
+    assert model.storage_bytes == storage_bytes(model.periods, 250) == sum(
+        model.periods
+    ) * 251 * 4
+    assert model.compression_ratio == pytest.approx(sum(model.periods) * 251 / (150 * 250))
+
+
+def test_candidate_errors_come_from_the_joint_fit(fitted):
+    model, x = fitted
+    err = period_errors(scores(model.params, x), np.arange(150), model.periods)
+    idx = [model.candidates.index(t) for t in model.periods]
+    np.testing.assert_allclose(
+        np.asarray(err), np.asarray(model.candidate_errors)[idx], atol=1e-6
+    )
+
+
+def test_self_query_is_exact_on_separable_frames(fitted):
+    model, x = fitted
+    np.testing.assert_array_equal(model.predict(x), np.arange(150))
+    for method in ("soft", "topm"):
+        np.testing.assert_array_equal(model.predict(x, method), np.arange(150))
+
+
+def test_threshold_rejects_low_confidence_queries(fitted):
+    model, x = fitted
+    noise = wide(50, 250, seed=7)
+    conf_in = np.asarray(model.decode(x).confidence)
+    thr = float(np.quantile(conf_in, 0.05))
+    kept = model.predict(x, threshold=thr)
+    assert (kept >= 0).mean() >= 0.94
+    rejected = model.predict(noise, threshold=thr)
+    assert (rejected == -1).mean() > (kept == -1).mean()
+
+
+def test_multi_exemplar_labels_share_templates():
+    base = wide(120, 200, seed=1)
+    rng = np.random.default_rng(2)
+    second = base + 0.3 * rng.normal(size=base.shape).astype(np.float32) / 20
+    x = np.concatenate([base, second])
+    labels = np.tile(np.arange(120), 2)
+    model = RhythmicMap().fit(x, labels, progress=False)
+    assert model.n == 120
+    assert (model.predict(second) == np.arange(120)).mean() > 0.95
+
+
+def test_lbfgs_solver_reaches_the_newton_map(fitted):
+    model, x = fitted
+    other = RhythmicMap(solver="lbfgs").fit(x, progress=False)
+    assert other.periods == model.periods
+    np.testing.assert_array_equal(other.predict(x), model.predict(x))
+
+
+def test_save_load_round_trip_and_refusals(fitted, tmp_path):
+    model, x = fitted
+    model.save(tmp_path / "m")
+    again = RhythmicMap.load(tmp_path / "m")
+    assert again.periods == model.periods and again.n == 150 and again.d == 250
+    np.testing.assert_array_equal(again.predict(x), model.predict(x))
+    assert again.info() == model.info()
+    with pytest.raises(InputError, match="descriptor 'features'"):
+        RhythmicMap.load(tmp_path / "m", descriptor="patchnorm")
+    with pytest.raises(InputError, match="250-d"):
+        RhythmicMap.load(tmp_path / "m", d=64)
+    with pytest.raises(InputError, match="250-d"):
+        again.predict(x[:, :64])
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((0, 5), np.float32), "empty"),
+        (np.zeros(5, np.float32), "2-D"),
+        (np.full((10, 5), np.nan, np.float32), "NaN or inf"),
+        (np.array([["a"]]), "numbers"),
+    ],
+)
+def test_bad_reference_features(bad, match):
+    with pytest.raises(InputError, match=match):
+        RhythmicMap().fit(bad, progress=False)
+
+
+def test_bad_configuration():
+    with pytest.raises(InputError, match="solver"):
+        MapConfig(solver="sgd")
+    with pytest.raises(InputError, match="r "):
+        RhythmicMap(r=1).fit(wide(20, 30), progress=False)
+    with pytest.raises(InputError, match="not fitted"):
+        RhythmicMap().predict(wide(2, 3))
+
+
+def test_targets_follow_labels_not_rows():
+    y = np.asarray(targets(np.array([0, 1, 0, 1]), (2, 3)))
+    np.testing.assert_array_equal(y[0], y[2])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("level, floor", [(1, 0.93), (4, 0.98)])
+def test_nordland_self_query_reaches_the_optimum_accuracy(
+    nordland_patchnorm, level, floor
+):
+    """The paper's Table 2 protocol on Nordland summer (3576 frames, patchnorm)."""
+    summer, _ = nordland_patchnorm
+    model = RhythmicMap(level=level).fit(summer, progress=False)
+    acc = float(np.mean(model.predict(summer) == np.arange(len(summer))))
+    assert acc >= floor, (level, model.periods, acc)
+    assert max(model.candidate_errors) < 0.06 if level == 1 else True

@@ -1,0 +1,83 @@
+"""Optax loops: ridge start, full-batch L-BFGS, minibatch steps."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from rhythmic_jax.newton import newton_fit
+from rhythmic_jax.objective import objective, targets
+from rhythmic_jax.train import (
+    fit_full_batch,
+    fit_minibatch,
+    init_state,
+    minibatch_step,
+    ridge_start,
+)
+
+
+def data(n, d, periods=(4, 5), seed=0):
+    x = np.random.default_rng(seed).normal(size=(n, d)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    return x, targets(np.arange(n), periods)
+
+
+@pytest.mark.parametrize("n, d", [(40, 10), (20, 60)])
+def test_ridge_start_is_the_closed_form_solution(n, d):
+    x, y = data(n, d)
+    c = 3.0
+    params = ridge_start(x, y, c)
+    xa = np.hstack([x, np.ones((n, 1), np.float32)]).astype(np.float64)
+    ref = np.linalg.solve(xa.T @ xa + np.eye(d + 1) / (2 * c), xa.T @ np.asarray(y))
+    np.testing.assert_allclose(np.asarray(params.w), ref[:-1], atol=2e-3)
+    np.testing.assert_allclose(np.asarray(params.b), ref[-1], atol=2e-3)
+
+
+def test_full_batch_lbfgs_reaches_the_newton_optimum():
+    x, y = data(60, 30)
+    c = 2.0
+    params, history = fit_full_batch(x, y, c, progress=False)
+    _, info = newton_fit(x, y, c, progress=False)
+    ours = np.asarray(objective(params, jnp.asarray(x), y, c))
+    np.testing.assert_allclose(ours, info.objective, rtol=1e-4)
+    assert np.all(np.diff(history) <= 1e-3 * abs(history[0]))
+
+
+def test_minibatch_steps_descend_and_do_not_recompile():
+    x, y = data(64, 16)
+    c = 1.0
+    opt = optax.adam(1e-2)
+    state = init_state(ridge_start(x, y, c), opt)
+    start = float(jnp.sum(objective(state.params, jnp.asarray(x), y, c)))
+    minibatch_step(state, x[:16], y[:16], c, 4.0, opt)  # compile once
+    with jax.log_compiles():
+        import logging
+
+        records = []
+        handler = logging.Handler()
+        handler.emit = records.append
+        logging.getLogger("jax").addHandler(handler)
+        try:
+            for i in range(4):
+                sl = slice(16 * i, 16 * (i + 1))
+                state, _ = minibatch_step(state, x[sl], y[sl], c, 4.0, opt)
+        finally:
+            logging.getLogger("jax").removeHandler(handler)
+    assert not [r for r in records if "Compiling" in r.getMessage()]
+    assert int(state.step) == 4
+    end = float(jnp.sum(objective(state.params, jnp.asarray(x), y, c)))
+    assert end < start
+
+
+def test_fit_minibatch_calls_back_every_step():
+    x, y = data(32, 8)
+    seen = []
+    batches = [(x[i : i + 8], y[i : i + 8]) for i in range(0, 32, 8)]
+    state = fit_minibatch(
+        batches, ridge_start(x, y, 1.0), 1.0, 32, on_step=lambda s, l: seen.append(l)
+    )
+    assert len(seen) == 4 and int(state.step) == 4
+    assert all(np.isfinite(seen))
