@@ -94,6 +94,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--c", type=float, default=None, help="SVM penalty (default log N)")
     p.add_argument("--solver", default="newton", choices=("newton", "lbfgs"))
     p.add_argument("--json", action="store_true", help="print the map's info as JSON")
+    p.add_argument(
+        "--augment",
+        default=None,
+        help="train over frames augmented on the fly (image sources): comma-"
+        "separated names from gaussian_blur, hflip, random_crop, elastic, "
+        "contrast, invert, grayscale, or 'all'",
+    )
+    p.add_argument("--epochs", type=int, default=3, help="augmented epochs (3)")
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -147,7 +155,10 @@ def _cmd_fit(args) -> int:
         descriptor=feats.descriptor,
         descriptor_settings=feats.settings,
     )
-    model.fit(feats.x, feats.labels, progress=not args.no_progress)
+    if args.augment:
+        _fit_augmented(model, feats, args)
+    else:
+        model.fit(feats.x, feats.labels, progress=not args.no_progress)
     model.extra.update(feats.extra)
     model.save(args.out)
     info = model.info()
@@ -155,11 +166,28 @@ def _cmd_fit(args) -> int:
         print(json.dumps(info, indent=2))
     else:
         print(
-            f"map {args.out}: n={info['n']} d={info['d']} periods={tuple(info['periods'])} "
+            f"map {args.out}: n={info['n']} d={info['d']} "
+            f"periods={tuple(info['periods'])} "
             f"storage={info['storage_bytes']:,} B "
             f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
         )
     return 0
+
+
+def _fit_augmented(model, feats, args) -> None:
+    from rhythmic_jax.augmented import AugmentedFit, fit_map_augmented
+    from rhythmic_jax.features import get_descriptor
+
+    if feats.images is None:
+        raise InputError("--augment needs image sources (folders or --tile), not .npy")
+    if args.epochs < 1:
+        raise InputError(f"--epochs must be >= 1, got {args.epochs}")
+    config = AugmentedFit(names=tuple(args.augment.split(",")), epochs=args.epochs)
+    descriptor = get_descriptor(feats.descriptor, **feats.settings)
+    fit_map_augmented(
+        model, feats.images, feats.x, descriptor, config, feats.labels,
+        progress=not args.no_progress,
+    )  # fmt: skip
 
 
 def _load_queries(args):

@@ -113,10 +113,16 @@ class RhythmicMap:
         self.extra: dict[str, np.ndarray] = {}
 
     # ------------------------------------------------------------------ fit
-    def fit(self, x, labels=None, *, progress: bool = True) -> RhythmicMap:
-        """Train on reference frames x (n_frames, d); ``labels`` (n_frames,) give
-        each frame's place (default: its row), so several traversals of one route
-        share templates (multi-exemplar map)."""
+    def fit(self, x, labels=None, *, progress: bool = True, refine=None) -> RhythmicMap:
+        """Train on reference frames x (n_frames, d).
+
+        Args:
+          labels: (n_frames,) place of each frame (default: its row), so several
+            traversals of one route share templates (multi-exemplar map).
+          refine: optional ``refine(params, candidates, c) -> params`` run after
+            the exact solve and before the period choice (e.g. minibatch steps
+            over augmented frames, :func:`rhythmic_jax.augmented.fit_augmented`).
+        """
         x = check_features(x, "reference features")
         labels = check_labels(np.arange(len(x)) if labels is None else labels, len(x))
         cfg = self.config
@@ -139,6 +145,8 @@ class RhythmicMap:
             params, _ = newton_fit(x, y, c, NewtonConfig(), progress=progress)
         else:
             params, _ = fit_full_batch(x, y, c, progress=progress)
+        if refine is not None:
+            params = refine(params, cands, c)
         s = scores(params, jnp.asarray(x))
         errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
         chosen = choose_periods(cands, errors, n, cfg.r)
@@ -281,7 +289,8 @@ class RhythmicMap:
             raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
         if w.shape != (dim, sum(periods)) or b.shape != (sum(periods),):
             raise InputError(
-                f"{path}: weights of shape {w.shape} do not fit periods {periods}, d={dim}"
+                f"{path}: weights of shape {w.shape} do not fit "
+                f"periods {periods}, d={dim}"
             )
         if descriptor is not None and descriptor != cfg.descriptor:
             raise InputError(

@@ -36,6 +36,7 @@ class Features:
     descriptor: str
     settings: dict
     extra: dict = field(default_factory=dict)
+    images: np.ndarray | None = None  # uint8 (n, H, W, 3) for image sources
 
 
 def _kind(path: Path, tile: int | None) -> str:
@@ -84,12 +85,14 @@ def _key(path: Path, tile, stride) -> str:
 
 
 def _one(path: Path, kind: str, name: str, settings: dict, tile, stride, progress):
+    """(descriptors, settings, images or None) of one source."""
     from rhythmic_jax.data import load_descriptors
 
     if kind == "npy":
-        return load_descriptors(path), settings
+        return load_descriptors(path), settings, None
     images = _images(path, kind, tile, stride, progress)
-    return describe_images(images, name, settings, _key(path, tile, stride), progress)
+    key = _key(path, tile, stride)
+    return (*describe_images(images, name, settings, key, progress), images)
 
 
 def load_sources(
@@ -113,10 +116,11 @@ def load_sources(
         name, settings = NPY_DESCRIPTOR, {}
     else:
         name, settings = descriptor or DEFAULT_DESCRIPTOR, {}
-    blocks = []
+    blocks, images = [], []
     for p in paths:
-        x, settings = _one(p, kind, name, settings, tile, stride, progress)
+        x, settings, imgs = _one(p, kind, name, settings, tile, stride, progress)
         blocks.append(x)
+        images.append(imgs)
     n, d = blocks[0].shape
     for p, x in zip(paths, blocks, strict=True):
         if x.shape != (n, d):
@@ -127,7 +131,18 @@ def load_sources(
     if kind == "npy":
         settings = {"dim": d}
     labels = np.tile(np.arange(n), len(blocks))
-    return Features(np.concatenate(blocks), labels, name, settings)
+    stacked = None if kind == "npy" else _stack_images(paths, images)
+    return Features(np.concatenate(blocks), labels, name, settings, images=stacked)
+
+
+def _stack_images(paths: list[Path], images: list[np.ndarray]) -> np.ndarray:
+    shapes = {im.shape[1:] for im in images}
+    if len(shapes) > 1:
+        raise InputError(
+            f"{paths[0]} and the other sources hold frames of different sizes "
+            f"{sorted(shapes)}; resize them to one size"
+        )
+    return np.concatenate(images)
 
 
 def load_query_source(
@@ -150,7 +165,7 @@ def load_query_source(
         raise InputError(
             f"{path}: the map was built from descriptor files; give queries as .npy"
         )
-    x, _ = _one(path, kind, name, settings, tile, stride, progress)
+    x, _, _ = _one(path, kind, name, settings, tile, stride, progress)
     if x.shape[1] != model.d:
         raise InputError(
             f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"

@@ -1,0 +1,65 @@
+"""Training over frames augmented on the fly; multi-exemplar maps on Nordland."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+from skimage import data as skdata
+from skimage.transform import resize
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.augmented import AugmentedFit, augmented_epoch, fit_map_augmented
+from rhythmic_jax.features import describe, get_descriptor
+
+
+@pytest.fixture(scope="module")
+def route():
+    photo = resize(skdata.coffee(), (64, 1200), anti_aliasing=True)
+    frames = np.stack(
+        [(photo[:, 10 * i : 10 * i + 64] * 255).astype(np.uint8) for i in range(90)]
+    )
+    desc = get_descriptor("patchnorm", width=32, height=32)
+    return frames, describe(frames, desc, progress=False), desc
+
+
+def test_epochs_hand_jax_arrays_and_fresh_augmentations(route):
+    frames, clean, desc = route
+    cfg = AugmentedFit(names=("contrast", "hflip"), batch_size=32, p=1.0)
+    periods = (9, 10)
+    first = list(augmented_epoch(frames, clean, np.arange(90), periods, desc, cfg, 0))
+    again = list(augmented_epoch(frames, clean, np.arange(90), periods, desc, cfg, 0))
+    other = list(augmented_epoch(frames, clean, np.arange(90), periods, desc, cfg, 1))
+    assert all(isinstance(x, jax.Array) for x, _ in first)
+    assert sum(x.shape[0] for x, _ in first) == 180  # augmented + clean exemplars
+    np.testing.assert_array_equal(np.asarray(first[0][0]), np.asarray(again[0][0]))
+    assert not np.allclose(np.asarray(first[0][0]), np.asarray(other[0][0]))
+    assert first[0][1].shape == (32, 19)
+
+
+def test_augmented_map_still_localises_its_route(route):
+    frames, clean, desc = route
+    model = RhythmicMap(descriptor="patchnorm", descriptor_settings=desc.settings())
+    cfg = AugmentedFit(names=("all",), epochs=1, batch_size=45)
+    fit_map_augmented(model, frames, clean, desc, cfg, progress=False)
+    assert model.timings["frames"] == 180
+    assert model.timings["frames_per_s"] > 0
+    assert (np.abs(model.predict(clean) - np.arange(90)) <= 1).mean() >= 0.9
+
+
+@pytest.mark.slow
+def test_multi_exemplar_map_covers_both_seasons(nordland_patchnorm):
+    summer, winter = nordland_patchnorm
+    n = 1200
+    s, w = summer[:n], winter[:n]
+    truth = np.arange(n)
+
+    def acc(model, q):
+        return float(np.mean(np.abs(model.predict(q, "soft") - truth) <= 1))
+
+    both = RhythmicMap().fit(np.concatenate([s, w]), np.tile(truth, 2), progress=False)
+    only_s = RhythmicMap().fit(s, progress=False)
+    only_w = RhythmicMap().fit(w, progress=False)
+    assert acc(both, s) >= acc(only_s, s) - 0.01
+    assert acc(both, w) >= acc(only_w, w) - 0.01
+    assert acc(both, w) > acc(only_s, w) + 0.5
