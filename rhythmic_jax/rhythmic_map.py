@@ -9,10 +9,10 @@ templates: ``sum(periods) * (d + 1)`` numbers instead of ``N * d``.
 Example (the README's ten lines)::
 
     import numpy as np, rhythmic_jax as rj
-    X = np.random.default_rng(0).normal(size=(500, 64)).astype("float32")
+    X = np.random.default_rng(0).normal(size=(500, 1000)).astype("float32")
     m = rj.RhythmicMap(r=2, level=1).fit(X)
     m.predict(X[:5])            # -> [0 1 2 3 4]
-    m.periods, m.storage_bytes  # -> (23, 24), 18,720
+    m.periods, m.storage_bytes  # -> (23, 24), 188,188
     m.save("route.map"); rj.RhythmicMap.load("route.map")
 """
 
