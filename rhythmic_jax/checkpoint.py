@@ -68,6 +68,7 @@ def save_map(
             fh.flush()
             os.fsync(fh.fileno())
         if target.exists():
+            _clean(target, "old")  # a killed clean-up's leftovers: keep one backup
             os.rename(target, old)
         os.rename(tmp, target)
     except BaseException:
@@ -75,11 +76,15 @@ def save_map(
         if old.exists() and not target.exists():
             os.rename(old, target)  # put the previous map back
         raise
-    # the previous map, and what earlier interrupted saves left behind
-    for pattern in (f".{target.name}.old-*", f".{target.name}.tmp-*"):
-        for stale in target.parent.glob(pattern):
-            shutil.rmtree(stale, ignore_errors=True)
+    _clean(target, "old", "tmp")  # the previous map, and killed saves' leftovers
     return target
+
+
+def _clean(target: Path, *kinds: str) -> None:
+    """Remove the hidden ``.<name>.<kind>-*`` folders beside ``target``."""
+    for kind in kinds:
+        for stale in target.parent.glob(f".{target.name}.{kind}-*"):
+            shutil.rmtree(stale, ignore_errors=True)
 
 
 def check_target(path: str | os.PathLike) -> Path:

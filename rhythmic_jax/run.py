@@ -23,6 +23,7 @@ Names: n frames, d features, p templates (sum of the periods), m batch rows.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import logging
 import os
@@ -105,7 +106,11 @@ def _manager(ckpt_dir: Path):
         cleanup_tmp_directories=True,  # what a killed save left behind
         enable_async_checkpointing=False,
     )
-    return ocp.CheckpointManager(ckpt_dir, options=options)
+    handlers = {
+        "state": ocp.StandardCheckpointHandler(),
+        "config": ocp.JsonCheckpointHandler(),
+    }
+    return ocp.CheckpointManager(ckpt_dir, options=options, item_handlers=handlers)
 
 
 def _save(manager, state: TrainState, config: RunConfig) -> int:
@@ -122,6 +127,37 @@ def _save(manager, state: TrainState, config: RunConfig) -> int:
     return step
 
 
+def _check_saved(manager, step: int, where: str, fresh: TrainState, config) -> None:
+    """Refuse a checkpoint of other templates or another batch order / step size."""
+    import orbax.checkpoint as ocp
+
+    try:
+        tree = manager.item_metadata(step)["state"].tree["params"]
+        shapes = (tuple(tree["w"].shape), tuple(tree["b"].shape))
+        saved = manager.restore(
+            step, args=ocp.args.Composite(config=ocp.args.JsonRestore())
+        ).config
+    except Exception as err:  # noqa: BLE001 - orbax raises many kinds
+        first = (str(err).splitlines() or [type(err).__name__])[0][:200]
+        raise InputError(
+            f"{where}: checkpoint {step} is not a training run's ({first})"
+        ) from None
+    want = (tuple(fresh.params.w.shape), tuple(fresh.params.b.shape))
+    if shapes != want:
+        raise InputError(
+            f"{where}: checkpoint {step} holds templates w, b of shapes {shapes}, "
+            f"this run has {want}; give a new folder"
+        )
+    differ = [k for k in _TRAJECTORY if saved.get(k) != getattr(config, k)]
+    if differ:
+        was = ", ".join(f"{k}={saved.get(k)!r}" for k in differ)
+        now = ", ".join(f"{k}={getattr(config, k)!r}" for k in differ)
+        raise InputError(
+            f"{where}: checkpoints were written with {was}, this run has {now}; "
+            "resume with the same settings or give a new folder"
+        )
+
+
 def _restore(manager, ckpt_dir: Path, fresh: TrainState, config: RunConfig):
     """The latest checkpoint's state, or None when the folder holds none."""
     import orbax.checkpoint as ocp
@@ -129,33 +165,21 @@ def _restore(manager, ckpt_dir: Path, fresh: TrainState, config: RunConfig):
     step = manager.latest_step()
     if step is None:
         return None
+    _check_saved(manager, step, str(ckpt_dir), fresh, config)
     abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, fresh)
-    args = ocp.args.Composite(
-        state=ocp.args.StandardRestore(abstract), config=ocp.args.JsonRestore()
-    )
-    try:
-        got = manager.restore(step, args=args)
-    except Exception as err:  # noqa: BLE001 - orbax raises many kinds
-        first = (str(err).splitlines() or [type(err).__name__])[0]
-        raise InputError(
-            f"{ckpt_dir}: checkpoint {step} does not fit this run "
-            f"(templates {tuple(fresh.params.w.shape)}): {first[:200]}"
-        ) from None
-    saved = got.config or {}
-    differ = [k for k in _TRAJECTORY if saved.get(k) != getattr(config, k)]
-    if differ:
-        was = ", ".join(f"{k}={saved.get(k)!r}" for k in differ)
-        now = ", ".join(f"{k}={getattr(config, k)!r}" for k in differ)
-        raise InputError(
-            f"{ckpt_dir}: checkpoints were written with {was}, this run has {now}; "
-            "resume with the same settings or give a new folder"
-        )
-    state = got.state
+    args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
+    state = manager.restore(step, args=args).state
     log.info("resuming from %s at step %d", ckpt_dir, int(state.step))
     return TrainState(state.params, state.opt_state, jnp.asarray(state.step))
 
 
 # --------------------------------------------------------------------- the loop
+
+
+@functools.lru_cache(maxsize=8)
+def _adam(learning_rate: float) -> optax.GradientTransformation:
+    """One optimiser object per step size: the jitted step compiles once for it."""
+    return optax.adam(learning_rate)
 
 
 def _remaining(batches: Iterable[Batch], skip: int) -> tuple[Iterable[Batch], int]:
@@ -196,7 +220,7 @@ def train_run(
       The trained templates. On an exception or Ctrl-C the state reached is saved
       first, then the exception propagates.
     """
-    optimizer = optax.adam(config.learning_rate)
+    optimizer = _adam(config.learning_rate)
     state = init_state(Templates(jnp.asarray(init.w), jnp.asarray(init.b)), optimizer)
     log.info("train_run %s, C=%.4g, n=%d, devices %s", config, c, n, jax.devices())
     manager = saved = None

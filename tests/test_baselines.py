@@ -159,3 +159,29 @@ def test_bad_input_raises_input_error():
         BruteForce().fit(np.full((3, 2), np.nan))
     with pytest.raises(InputError, match="rows"):
         OPQ(m=2, nbits=8).fit(X)
+
+
+@pytest.mark.slow
+def test_real_nordland_self_retrieval(nordland_root):
+    """The paper's Table 2 protocol on real frames (queries from the map itself),
+    SeqSLAM patch-normalised descriptors (2048-d): every baseline finds the
+    frame within one index, and the storage formulas hold at full size."""
+    import torch
+
+    from rhythmic_jax.data import load_traversal
+    from rhythmic_jax.features import PatchNorm
+
+    summer = load_traversal(nordland_root / "summer", progress=False)
+    batch = torch.from_numpy(summer.images).permute(0, 3, 1, 2).float() / 255
+    X = PatchNorm()(batch).numpy()
+    n, d = X.shape
+    sel = np.arange(0, n, 7)
+    bf_idx = BruteForce().fit(X).search(X[sel])[1]
+    kd_idx = KDTreeSearch().fit(X).search(X[sel])[1]
+    np.testing.assert_array_equal(kd_idx, bf_idx)
+    for b in (ITQ(256), OPQ(256, 8, niter=5)):
+        idx = b.fit(X).search(X[sel])[1][:, 0]
+        assert np.mean(np.abs(idx - sel) <= 1) >= 0.9, b.name
+        extra = len(faiss.serialize_index(b.index)) - b.storage_bytes
+        extra -= 256 * 256 * 4 if isinstance(b, ITQ) else 0
+        assert 0 <= extra <= HEADER_BOUND, b.name

@@ -245,7 +245,7 @@ def test_jitted_gradient_step_does_not_recompile(caplog):
     step = jax.jit(_gradient_step)
     x, labels, params = _problem(n=30, seed=10)
     y = targets(labels, PERIODS)
-    with caplog.at_level(logging.WARNING), jax.log_compiles():
+    with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
         new = step(params, jnp.asarray(x), y, 1.0, 0.01)
         first = sum(
             "Compiling jit(_gradient_step" in r.getMessage() for r in caplog.records

@@ -30,7 +30,7 @@ from rhythmic_jax.run import memmap_batches
 
 FAST = settings(max_examples=40, deadline=None, database=None)
 SLOW = settings(
-    max_examples=6,
+    max_examples=4,
     deadline=None,
     database=None,
     suppress_health_check=[HealthCheck.too_slow],
@@ -100,13 +100,13 @@ def _one_hot_scores(index: np.ndarray, periods, shift: np.ndarray) -> np.ndarray
     return out + shift[:, None]
 
 
-@FAST
+@settings(max_examples=20, deadline=None, database=None)
 @given(st.data())
 def test_hard_decode_of_one_hot_phases(data):
-    periods = data.draw(coprime_periods(most=3, largest=40, limit=20_000))
+    periods = data.draw(coprime_periods(most=3, largest=15, limit=5_000))
     m = math.prod(periods)
     n = data.draw(st.integers(1, m))
-    b = data.draw(st.integers(1, 12))
+    b = data.draw(st.integers(1, 6))
     index = np.asarray(
         data.draw(st.lists(st.integers(0, m - 1), min_size=b, max_size=b))
     )
@@ -122,14 +122,12 @@ def test_hard_decode_of_one_hot_phases(data):
 
 
 def _png_bytes() -> bytes:
-    from io import BytesIO
-
     from skimage.io import imsave
 
-    buf = BytesIO()
     pixels = np.random.default_rng(0).integers(0, 256, (6, 5, 3), dtype=np.uint8)
-    imsave(buf, pixels, format="png", check_contrast=False)
-    return buf.getvalue()
+    with tempfile.TemporaryDirectory() as tmp:
+        imsave(Path(tmp) / "f.png", pixels, check_contrast=False)
+        return (Path(tmp) / "f.png").read_bytes()
 
 
 def _npy_bytes() -> bytes:
@@ -141,6 +139,7 @@ def _npy_bytes() -> bytes:
 
 
 PNG, NPY = _png_bytes(), _npy_bytes()
+ROUTE = (36, 7)  # frames x features of every fitted map: one solver compilation
 
 
 def damaged(valid: bytes) -> st.SearchStrategy[bytes]:
@@ -195,7 +194,7 @@ def test_npy_readers_return_finite_2d_or_input_error(content):
 
 @pytest.fixture(scope="module")
 def small_map(tmp_path_factory) -> Path:
-    x = np.random.default_rng(1).normal(size=(30, 6)).astype(np.float32)
+    x = np.random.default_rng(1).normal(size=ROUTE).astype(np.float32)
     path = tmp_path_factory.mktemp("map") / "small.map"
     RhythmicMap().fit(x, progress=False).save(path)
     return path
@@ -224,7 +223,7 @@ KNOWN_GAPS = ("c", "candidates", "candidate_errors", "threshold")
     )
 )
 def test_map_loaders_load_or_raise_input_error(small_map, content):
-    q = np.random.default_rng(2).normal(size=(4, 6)).astype(np.float32)
+    q = np.random.default_rng(2).normal(size=(4, ROUTE[1])).astype(np.float32)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "m.map"
         shutil.copytree(small_map, path)
@@ -253,7 +252,7 @@ def test_map_loaders_load_or_raise_input_error(small_map, content):
 @SLOW
 @given(st.integers(0, 2**31 - 1))
 def test_save_load_preserves_every_prediction(seed):
-    n, d = 36, 7  # one shape: one solver compilation serves every example
+    n, d = ROUTE
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(n, d)).astype(np.float32)
     queries = np.concatenate([x, rng.normal(size=(20, d)).astype(np.float32)])

@@ -1,0 +1,203 @@
+"""SIGKILL at random moments: during a training run and during a map save.
+
+A killed training run resumes from its checkpoints and ends on the templates of
+an uninterrupted run; a map killed while being replaced still loads (from its
+path, or from the backup an interrupted save keeps) and predicts exactly as one
+of the two complete maps did.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.decode import hard_decode
+from rhythmic_jax.objective import scores, targets
+from rhythmic_jax.run import RunConfig, memmap_batches, train_run
+from rhythmic_jax.train import ridge_start
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs SIGKILL")
+
+TRAIN_CHILD = """
+import sys
+import numpy as np
+from rhythmic_jax.objective import Templates
+from rhythmic_jax.run import RunConfig, memmap_batches, train_run
+
+root = sys.argv[1]
+init = np.load(root + "/init.npz")
+config = RunConfig(**{CONFIG})
+batches = memmap_batches(root + "/x.npy", np.load(root + "/labels.npy"), {PERIODS},
+                         config.batch_size, config.seed)
+train_run(batches, Templates(init["w"], init["b"]), {C}, {N}, config,
+          root + "/ckpt", progress=False)
+print("finished", flush=True)
+"""
+
+SAVE_CHILD = """
+import sys
+from rhythmic_jax import RhythmicMap
+
+model = RhythmicMap.load(sys.argv[1])
+print("ready", flush=True)
+while True:
+    model.save(sys.argv[2])
+"""
+
+
+def _child(tmp_path: Path, name: str, code: str, *args: str) -> subprocess.Popen:
+    script = tmp_path / name
+    script.write_text(textwrap.dedent(code))
+    return subprocess.Popen(
+        [sys.executable, str(script), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    alive = proc.poll() is None
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert alive, f"the child ended before it was killed: {proc.stderr.read()}"
+    assert proc.returncode == -signal.SIGKILL
+
+
+# ------------------------------------------------------------------- training
+
+N, D, PERIODS, C = 48, 6, (7, 8), 2.0
+CONFIG = {"epochs": 3, "batch_size": 4, "learning_rate": 0.05, "checkpoint_every": 1}
+
+
+def test_sigkill_during_training_resumes_to_the_same_map(tmp_path, caplog):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(N, D)).astype(np.float32)
+    labels = np.arange(N)
+    init = ridge_start(x[:8], targets(labels[:8], PERIODS), C)
+    np.save(tmp_path / "x.npy", x)
+    np.save(tmp_path / "labels.npy", labels)
+    np.savez(tmp_path / "init.npz", w=np.asarray(init.w), b=np.asarray(init.b))
+    code = TRAIN_CHILD.format(CONFIG=CONFIG, PERIODS=PERIODS, C=C, N=N)
+    proc = _child(tmp_path, "train_child.py", code, str(tmp_path))
+    ckpt = tmp_path / "ckpt"
+    deadline = time.monotonic() + 120
+    while not (ckpt.is_dir() and any(p.name.isdigit() for p in ckpt.iterdir())):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "no checkpoint within two minutes"
+        time.sleep(0.02)
+    time.sleep(random.Random(0).uniform(0.0, 0.3))  # kill somewhere in the run
+    _kill(proc)
+
+    config = RunConfig(**CONFIG)
+    batches = memmap_batches(tmp_path / "x.npy", labels, PERIODS, 4, config.seed)
+    whole = train_run(batches, init, C, N, config, None, progress=False)
+    sparse = RunConfig(**{**CONFIG, "checkpoint_every": 1000})  # cadence may differ
+    with caplog.at_level(logging.INFO, logger="rhythmic_jax.run"):
+        resumed = train_run(batches, init, C, N, sparse, ckpt, progress=False)
+    assert "resuming from" in caplog.text  # it did pick up the killed run's steps
+    np.testing.assert_allclose(np.asarray(resumed.w), np.asarray(whole.w), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(resumed.b), np.asarray(whole.b), atol=1e-6)
+    pred = [
+        np.asarray(hard_decode(scores(p, jnp.asarray(x)), PERIODS, N).index)
+        for p in (resumed, whole)
+    ]
+    np.testing.assert_array_equal(pred[0], pred[1])
+
+
+# ------------------------------------------------------------------ map saves
+
+
+def test_sigkill_during_map_saves_leaves_a_loadable_map(tmp_path):
+    rng = np.random.default_rng(1)
+    queries = rng.normal(size=(50, 16)).astype(np.float32)
+    small = RhythmicMap().fit(queries[:40], progress=False)
+    other = rng.normal(size=(40, 16)).astype(np.float32)
+    large = RhythmicMap().fit(other, progress=False)
+    large.extra["padding"] = rng.normal(size=(1000, 1000)).astype(np.float32)
+    path, source = tmp_path / "route.map", tmp_path / "large.map"
+    small.save(path)
+    large.save(source)
+    expected = {
+        "small": (small.info(), small.predict(queries)),
+        "large": (large.info(), large.predict(queries)),
+    }
+    assert not np.array_equal(expected["small"][1], expected["large"][1])
+
+    moments = random.Random(2)
+    for _ in range(3):
+        proc = _child(tmp_path, "save_child.py", SAVE_CHILD, str(source), str(path))
+        assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
+        time.sleep(moments.uniform(0.0, 1.5))
+        _kill(proc)
+        back = RhythmicMap.load(path)
+        name = "large" if "padding" in back.extra else "small"
+        info, pred = expected[name]
+        assert back.info() == info
+        np.testing.assert_array_equal(back.predict(queries), pred)
+    small.save(path)  # a complete save afterwards clears what the kills left
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".route")]
+    assert leftovers == []
+    np.testing.assert_array_equal(
+        RhythmicMap.load(path).predict(queries), expected["small"][1]
+    )
+
+
+BETWEEN_RENAMES_CHILD = """
+import os
+import signal
+import sys
+from rhythmic_jax import RhythmicMap
+
+model = RhythmicMap.load(sys.argv[1])
+rename = os.rename
+
+def rename_then_die(src, dst):
+    rename(src, dst)
+    if ".old-" in str(dst):  # the old map is aside, the new one not yet in place
+        os.kill(os.getpid(), signal.SIGKILL)
+
+os.rename = rename_then_die
+model.save(sys.argv[2])
+"""
+
+
+def test_sigkill_between_the_renames_loads_the_backup(tmp_path, caplog):
+    """Killed with the old map moved aside and a half-deleted backup from an
+    earlier kill beside it: the intact backup is the one loaded."""
+    rng = np.random.default_rng(3)
+    queries = rng.normal(size=(40, 16)).astype(np.float32)
+    first = RhythmicMap().fit(queries, progress=False)
+    second = RhythmicMap().fit(queries[::-1].copy(), progress=False)
+    path, source = tmp_path / "route.map", tmp_path / "second.map"
+    first.save(path)
+    second.save(source)
+    stale = tmp_path / ".route.map.old-ffffffff"  # sorts after any other backup
+    (stale / "arrays").mkdir(parents=True)
+    (stale / "map.json").write_text((path / "map.json").read_text())
+    proc = _child(
+        tmp_path, "rename_child.py", BETWEEN_RENAMES_CHILD, str(source), str(path)
+    )
+    proc.wait(timeout=120)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
+    assert not path.exists()  # killed exactly between the two renames
+    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.checkpoint"):
+        back = RhythmicMap.load(path)
+    assert "loading the copy kept by an interrupted save" in caplog.text
+    np.testing.assert_array_equal(back.predict(queries), first.predict(queries))
+    second.save(path)  # the next save puts a map in place and clears the rest
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    np.testing.assert_array_equal(
+        RhythmicMap.load(path).predict(queries), second.predict(queries)
+    )
