@@ -31,6 +31,11 @@ from rhythmic_jax.periods import crt_tables as crt_tables
 from rhythmic_jax.periods import database_bytes as database_bytes
 from rhythmic_jax.periods import pairwise_coprime as pairwise_coprime
 from rhythmic_jax.periods import storage_bytes as storage_bytes
+from rhythmic_jax.projection import LDA as LDA
+from rhythmic_jax.projection import PCA as PCA
+from rhythmic_jax.projection import fit_lda as fit_lda
+from rhythmic_jax.projection import fit_pca as fit_pca
+from rhythmic_jax.projection import project as project
 from rhythmic_jax.rhythmic_map import MapConfig as MapConfig
 from rhythmic_jax.rhythmic_map import RhythmicMap as RhythmicMap
 from rhythmic_jax.seqslam import seqslam_decode as seqslam_decode

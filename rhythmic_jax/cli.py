@@ -102,6 +102,9 @@ def _parser() -> argparse.ArgumentParser:
         "contrast, invert, grayscale, or 'all'",
     )
     p.add_argument("--epochs", type=int, default=3, help="augmented epochs (3)")
+    p.add_argument(
+        "--pca", type=int, default=None, help="project descriptors to K dims (saved)"
+    )
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -144,7 +147,12 @@ def _cmd_fit(args) -> int:
 
     check_target(args.out)  # before the fit, not after it
     feats = load_sources(
-        args.sources, args.descriptor, args.tile, args.stride, not args.no_progress
+        args.sources,
+        args.descriptor,
+        args.tile,
+        args.stride,
+        not args.no_progress,
+        pca=args.pca,
     )
     model = RhythmicMap(
         r=args.r,
@@ -180,6 +188,8 @@ def _fit_augmented(model, feats, args) -> None:
 
     if feats.images is None:
         raise InputError("--augment needs image sources (folders or --tile), not .npy")
+    if "pca" in feats.settings:
+        raise InputError("--augment and --pca together are not supported")
     if args.epochs < 1:
         raise InputError(f"--epochs must be >= 1, got {args.epochs}")
     config = AugmentedFit(names=tuple(args.augment.split(",")), epochs=args.epochs)

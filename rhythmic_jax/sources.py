@@ -21,7 +21,13 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["Features", "describe_images", "load_query_source", "load_sources"]
+__all__ = [
+    "Features",
+    "apply_projection",
+    "describe_images",
+    "load_query_source",
+    "load_sources",
+]
 
 DEFAULT_DESCRIPTOR = "patchnorm"
 NPY_DESCRIPTOR = "features"
@@ -101,8 +107,14 @@ def load_sources(
     tile: int | None = None,
     stride: int | None = None,
     progress: bool = True,
+    pca: int | None = None,
 ) -> Features:
-    """Reference features from one or several sources of the same kind."""
+    """Reference features from one or several sources of the same kind.
+
+    ``pca=k`` projects the descriptors on the k leading principal axes of the
+    reference set (L2-normalised after); the projection is kept in ``extra`` so
+    the map saves it and queries are projected the same way.
+    """
     paths = [Path(s) for s in sources]
     kinds = {_kind(p, tile) for p in paths}
     if len(kinds) > 1:
@@ -132,7 +144,39 @@ def load_sources(
         settings = {"dim": d}
     labels = np.tile(np.arange(n), len(blocks))
     stacked = None if kind == "npy" else _stack_images(paths, images)
-    return Features(np.concatenate(blocks), labels, name, settings, images=stacked)
+    x, extra = np.concatenate(blocks), {}
+    if pca is not None:
+        x, extra = _fit_pca(x, pca)
+        settings = {**settings, "pca": int(pca)}
+    return Features(x, labels, name, settings, extra=extra, images=stacked)
+
+
+def _fit_pca(x: np.ndarray, k: int) -> tuple[np.ndarray, dict]:
+    from rhythmic_jax.projection import fit_pca, project
+
+    if not 1 <= k <= min(x.shape):
+        raise InputError(f"--pca must lie in [1, {min(x.shape)}], got {k}")
+    model = fit_pca(x, k)
+    extra = {
+        "pca_mean": np.asarray(model.mean),
+        "pca_components": np.asarray(model.components),
+    }
+    return np.asarray(project(model, x, normalize=True)), extra
+
+
+def apply_projection(x: np.ndarray, extra: dict) -> np.ndarray:
+    """Project descriptors (n, d) with a map's saved PCA, if it has one."""
+    if "pca_components" not in extra:
+        return x
+    from rhythmic_jax.projection import PCA, project
+
+    comps = np.asarray(extra["pca_components"])
+    if x.shape[1] != comps.shape[1]:
+        raise InputError(
+            f"{x.shape[1]}-d descriptors but the map's PCA expects {comps.shape[1]}-d"
+        )
+    model = PCA(np.asarray(extra["pca_mean"]), comps, np.zeros(len(comps)))
+    return np.asarray(project(model, x, normalize=True))
 
 
 def _stack_images(paths: list[Path], images: list[np.ndarray]) -> np.ndarray:
@@ -157,6 +201,7 @@ def load_query_source(
     path = Path(source)
     kind = _kind(path, tile)
     name, settings = model.config.descriptor, dict(model.config.descriptor_settings)
+    settings.pop("pca", None)
     if descriptor is not None and descriptor != name:
         raise InputError(
             f"the map was built with descriptor {name!r}, not {descriptor!r}"
@@ -166,6 +211,8 @@ def load_query_source(
             f"{path}: the map was built from descriptor files; give queries as .npy"
         )
     x, _, _ = _one(path, kind, name, settings, tile, stride, progress)
+    if kind != "npy" or "pca_components" in model.extra and x.shape[1] != model.d:
+        x = apply_projection(x, model.extra)
     if x.shape[1] != model.d:
         raise InputError(
             f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"

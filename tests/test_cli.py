@@ -90,6 +90,18 @@ def test_fit_and_query_image_folders(tmp_path, capsys):
     code, _, err = run(capsys, "query", str(out_map), str(tmp_path / "b"),
                        "--descriptor", "hog")  # fmt: skip
     assert code == 2 and "patchnorm" in err and len(err.strip().splitlines()) == 1
+    # a PCA fitted on the references is saved with the map and applied to queries
+    pca_map = tmp_path / "pca"
+    code, _, err = run(capsys, "fit", str(tmp_path / "a"), "--out", str(pca_map),
+                       "--pca", "40", "--no-progress")  # fmt: skip
+    assert code == 0, err
+    model = RhythmicMap.load(pca_map)
+    assert model.d == 40 and model.extra["pca_components"].shape == (40, 2048)
+    code, out, err = run(capsys, "query", str(pca_map), str(tmp_path / "b"), "--json",
+                         "--no-progress")  # fmt: skip
+    assert code == 0, err
+    pred = np.asarray(json.loads(out)["predictions"])
+    assert (np.abs(pred - np.arange(72)) <= 1).mean() > 0.8
 
 
 def test_bad_arguments_exit_2_without_a_map(npy_route, capsys):

@@ -100,14 +100,14 @@ def _fc7_reference(state: dict, x: torch.Tensor) -> torch.Tensor:
     std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
     y = (x - mean) / std
     convs = sorted({int(k.split(".")[1]) for k in state if k.startswith("features.")})
-    pools_after = {3, 8, 15, 22, 29}  # the conv indices followed by a max pool
+    pool_after = {2, 7, 14, 21, 28}  # last conv before each max pool (4, 9, ..., 30)
     for i in convs:
         y = F.relu(
             F.conv2d(
                 y, state[f"features.{i}.weight"], state[f"features.{i}.bias"], padding=1
             )
         )
-        if i + 2 in pools_after or i + 1 in pools_after:
+        if i in pool_after:
             y = F.max_pool2d(y, 2)
     y = F.adaptive_avg_pool2d(y, 7).flatten(1)
     y = F.relu(F.linear(y, state["classifier.0.weight"], state["classifier.0.bias"]))
