@@ -38,6 +38,11 @@ from rhythmic_jax.projection import fit_pca as fit_pca
 from rhythmic_jax.projection import project as project
 from rhythmic_jax.rhythmic_map import MapConfig as MapConfig
 from rhythmic_jax.rhythmic_map import RhythmicMap as RhythmicMap
+from rhythmic_jax.run import RunConfig as RunConfig
+from rhythmic_jax.run import check_memory as check_memory
+from rhythmic_jax.run import fit_bytes as fit_bytes
+from rhythmic_jax.run import memmap_batches as memmap_batches
+from rhythmic_jax.run import train_run as train_run
 from rhythmic_jax.seqslam import seqslam_decode as seqslam_decode
 from rhythmic_jax.sequence import SPEEDS as SPEEDS
 from rhythmic_jax.sequence import SequenceState as SequenceState

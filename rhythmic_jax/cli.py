@@ -59,6 +59,9 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
         help="descriptor for image sources (patchnorm, hog, efficientnet_lite0, "
         "vgg16_fc7); a map remembers its own",
     )
+    p.add_argument(
+        "--weights", default=None, help="weights file of vgg16_fc7 (a state dict)"
+    )
     p.add_argument("--tile", type=int, default=None, help="tile a large image: size")
     p.add_argument(
         "--stride", type=int, default=None, help="tile stride (default size/2)"
@@ -153,6 +156,7 @@ def _cmd_fit(args) -> int:
         args.stride,
         not args.no_progress,
         pca=args.pca,
+        weights=args.weights,
     )
     model = RhythmicMap(
         r=args.r,

@@ -140,7 +140,8 @@ def run_demo(
     tag = f"demo-{cfg.grid}x{cfg.photo}-{cfg.tile}-{cfg.stride}"
     x_ref, settings = describe_images(ref, "patchnorm", settings, tag + "-a", progress)
     x_qry, _ = describe_images(qry, "patchnorm", settings, tag + "-b", progress)
-    print(f"route: {len(ref)} places ({cfg.tile}-pixel tiles of a {mosaic.shape[1]}-pixel "
+    side = mosaic.shape[1]
+    print(f"route: {len(ref)} places ({cfg.tile}-pixel tiles of a {side}-pixel "
           f"mosaic), {x_ref.shape[1]}-d patchnorm descriptors")  # fmt: skip
     t1 = time.perf_counter()
     model = RhythmicMap(

@@ -207,7 +207,8 @@ def load_state_dict_file(
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for unreadable files
-        raise InputError(f"{path}: not a readable torch state dict ({err})") from err
+        first = str(err).strip().splitlines()[0][:160] if str(err).strip() else ""
+        raise InputError(f"{path}: not a readable torch state dict ({first})") from err
     if not isinstance(state, dict):
         raise InputError(f"{path}: expected a state dict, found {type(state)}")
     with torch.device("meta"):

@@ -13,8 +13,11 @@ with ``Xa = [X, 1]`` (the bias as a constant-1 feature), ``lam = 1 / (2 C)`` and
 ridge solve: the start. Each step solves the system by conjugate gradients for all
 p templates at once (float32 products), then takes an exact line search on the
 piecewise-quadratic objective along the step; objective, margins and line search
-run in float64. The Gram form is used when ``n < 2 (d + 1)`` (a CG product costs
-``n^2 p`` against ``2 n (d+1) p`` in the primal). This is the same objective as
+run in float64. The primal form is used when ``d + 1 <= n`` and the Gram form
+otherwise: a CG product costs ``2 n (d+1) p`` against ``n^2 p``, and the spectral
+preconditioner (top eigenvectors of ``Xa^T Xa``) fits the primal system better,
+so it needs several times fewer CG iterations there (measured on 3576 Nordland
+frames of 2048-d: 193 against 674). This is the same objective as
 :func:`rhythmic_jax.objective.objective`, solved to its optimum.
 """
 
@@ -249,7 +252,7 @@ def newton_fit(
     n, d = x.shape
     form = config.form
     if form == "auto":
-        form = "gram" if n < 2 * (d + 1) else "primal"
+        form = "gram" if n < d + 1 else "primal"
     if form not in ("gram", "primal"):
         raise ValueError(f"form must be 'auto', 'gram' or 'primal', got {form!r}")
     with jax.enable_x64(True):

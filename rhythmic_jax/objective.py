@@ -92,7 +92,7 @@ def classifier_objective(
     c: float,
     frame_weight: jax.Array | float = 1.0,
 ) -> jax.Array:
-    """Objective of ONE template: ``0.5 (||w||^2 + b^2) + C sum_i a_i h(w.x_i + b, y_i)``.
+    """ONE template's objective: ``0.5 (||w||^2 + b^2) + C sum_i a_i h(w.x_i+b, y_i)``.
 
     Args:
       w: (d,) weights; b: () bias; x: (n, d) frames; y: (n,) ±1 targets.
@@ -147,7 +147,7 @@ def scores(params: Templates, x: jax.Array) -> jax.Array:
 
 
 def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:
-    """Per-period argmax phase ``f(x | tau_k)`` (paper Eq. 3): (n, p) -> (n, k) int32."""
+    """Per-period argmax phase ``f(x | tau_k)`` (paper Eq. 3): (n, p) -> (n, k)."""
     offs = period_offsets(periods)
     return jnp.stack(
         [

@@ -28,13 +28,14 @@ KS = (1, 5, 10)
 @functools.partial(jax.jit, static_argnames=("periods", "n", "k"))
 def _ranked(scores: jax.Array, periods: tuple[int, ...], n: int, k: int) -> jax.Array:
     idx = np.arange(n)
-    cols = np.stack([o + idx % t for o, t in zip(period_offsets(periods), periods)])
+    offs = period_offsets(periods)
+    cols = np.stack([o + idx % t for o, t in zip(offs, periods, strict=True)])
     total = jnp.sum(scores[:, cols], axis=1)  # (b, n)
     return jax.lax.top_k(total, k)[1]
 
 
 def ranked_places(scores, periods, n: int, k: int = 10) -> np.ndarray:
-    """The k best places of each query by ``sum_k s_k[i mod tau_k]``: (b, p) -> (b, k)."""
+    """The k best places by ``sum_k s_k[i mod tau_k]``: (b, p) -> (b, k) indices."""
     periods = tuple(int(t) for t in periods)
     return np.asarray(_ranked(jnp.asarray(scores), periods, int(n), min(k, n)))
 

@@ -46,6 +46,7 @@ from rhythmic_jax.periods import (
     database_bytes,
     storage_bytes,
 )
+from rhythmic_jax.run import check_memory
 from rhythmic_jax.soft import Decoded
 from rhythmic_jax.train import fit_full_batch
 from rhythmic_jax.validate import check_features, check_labels
@@ -96,6 +97,8 @@ class MapConfig:
             raise InputError(f"decode must be one of {DECODERS}, got {self.decode!r}")
         if self.c is not None and not self.c > 0:
             raise InputError(f"c must be positive, got {self.c}")
+        if self.threshold is not None and not isinstance(self.threshold, int | float):
+            raise InputError(f"threshold must be a number, got {self.threshold!r}")
 
 
 class RhythmicMap:
@@ -128,10 +131,8 @@ class RhythmicMap:
         cfg = self.config
         n = int(labels.max()) + 1
         cands = candidate_periods(n, cfg.r, cfg.level, cfg.count)
-        if len(x) > 200_000 or len(x) * x.shape[1] * sum(cands) > 2e12:
-            log.warning(
-                "large fit: %d frames x %d dims x %d templates", *x.shape, sum(cands)
-            )
+        choose_periods(cands, [0.0] * len(cands), n, cfg.r)  # impossible r: say now
+        check_memory(len(x), x.shape[1], sum(cands))
         c = cfg.c if cfg.c is not None else default_c(n)
         y = targets(labels, cands)
         log.info(
@@ -284,6 +285,9 @@ class RhythmicMap:
             cfg = MapConfig(**meta["config"])
             periods = tuple(int(t) for t in meta["periods"])
             n, dim = int(meta["n"]), int(meta["d"])
+            c = float(meta["c"])
+            cands = tuple(int(t) for t in meta.get("candidates", ()))
+            errors = tuple(float(e) for e in meta.get("candidate_errors", ()))
             w, b = arrays["w"], arrays["b"]
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
@@ -312,9 +316,7 @@ class RhythmicMap:
         self = cls(cfg)
         self.params = Templates(w=jnp.asarray(w), b=jnp.asarray(b))
         self.periods, self.n, self.d = periods, n, dim
-        self.c = float(meta["c"])
-        self.candidates = tuple(meta.get("candidates", ()))
-        self.candidate_errors = tuple(meta.get("candidate_errors", ()))
+        self.c, self.candidates, self.candidate_errors = c, cands, errors
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
         return self
 

@@ -108,6 +108,7 @@ def load_sources(
     stride: int | None = None,
     progress: bool = True,
     pca: int | None = None,
+    weights: str | None = None,
 ) -> Features:
     """Reference features from one or several sources of the same kind.
 
@@ -128,6 +129,8 @@ def load_sources(
         name, settings = NPY_DESCRIPTOR, {}
     else:
         name, settings = descriptor or DEFAULT_DESCRIPTOR, {}
+        if weights is not None:
+            settings = {"weights": str(Path(weights).expanduser().absolute())}
     blocks, images = [], []
     for p in paths:
         x, settings, imgs = _one(p, kind, name, settings, tile, stride, progress)

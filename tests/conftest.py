@@ -37,7 +37,7 @@ def aerial_root() -> Path:
 
 @pytest.fixture(scope="session")
 def nordland_patchnorm(nordland_root):
-    """Patch-normalised 64x32 descriptors of Nordland (summer, winter): 2 x (3576, 2048)."""
+    """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048)."""
     from rhythmic_jax.data import nordland
     from rhythmic_jax.features import describe, get_descriptor
 

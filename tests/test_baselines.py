@@ -179,7 +179,7 @@ def test_real_nordland_self_retrieval(nordland_root):
     bf_idx = BruteForce().fit(X).search(X[sel])[1]
     kd_idx = KDTreeSearch().fit(X).search(X[sel])[1]
     np.testing.assert_array_equal(kd_idx, bf_idx)
-    for b in (ITQ(256), OPQ(256, 8, niter=5)):
+    for b in (ITQ(256), OPQ(256, 8, niter=2)):
         idx = b.fit(X).search(X[sel])[1][:, 0]
         assert np.mean(np.abs(idx - sel) <= 1) >= 0.9, b.name
         extra = len(faiss.serialize_index(b.index)) - b.storage_bytes

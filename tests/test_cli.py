@@ -131,7 +131,8 @@ def test_nordland_folders_end_to_end(nordland_root, tmp_path, capsys):
     code, _, err = run(capsys, "fit", str(nordland_root / "summer"), "--out",
                        str(out_map), "--no-progress")  # fmt: skip
     assert code == 0, err
-    code, out, err = run(capsys, "evaluate", str(out_map), str(nordland_root / "summer"),
+    summer = str(nordland_root / "summer")
+    code, out, err = run(capsys, "evaluate", str(out_map), summer,
                          "--json", "--no-progress")  # fmt: skip
     assert code == 0, err
     assert json.loads(out)["methods"]["map"]["accuracy"] >= 0.93

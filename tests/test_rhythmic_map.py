@@ -26,12 +26,16 @@ def test_fit_chooses_coprime_candidates_and_keeps_only_them(fitted):
     model, x = fitted
     assert model.candidates == candidate_periods(150, 2, 1, 7)
     assert set(model.periods) <= set(model.candidates)
-    assert model.periods == choose_periods(model.candidates, model.candidate_errors, 150)
+    errors = model.candidate_errors
+    assert model.periods == choose_periods(model.candidates, errors, 150)
     assert model.params.w.shape == (250, sum(model.periods))
-    assert model.storage_bytes == storage_bytes(model.periods, 250) == sum(
-        model.periods
-    ) * 251 * 4
-    assert model.compression_ratio == pytest.approx(sum(model.periods) * 251 / (150 * 250))
+    assert (
+        model.storage_bytes
+        == storage_bytes(model.periods, 250)
+        == sum(model.periods) * 251 * 4
+    )
+    ratio = sum(model.periods) * 251 / (150 * 250)
+    assert model.compression_ratio == pytest.approx(ratio)
 
 
 def test_candidate_errors_come_from_the_joint_fit(fitted):

@@ -186,7 +186,8 @@ def test_config_and_devices_are_logged(problem, caplog):
         ({"epochs": 0}, r"RunConfig\.epochs must be an integer >= 1, got 0"),
         ({"checkpoint_every": 1.5}, r"checkpoint_every must be an integer"),
         ({"learning_rate": -1.0}, r"learning_rate must be positive, got -1\.0"),
-        ({"seed": "a"}, r"seed must be an integer, got 'a'"),
+        ({"seed": "a"}, r"seed must be an integer >= 0, got 'a'"),
+        ({"seed": -1}, r"seed must be an integer >= 0, got -1"),
     ],
 )
 def test_bad_run_config(kwargs, match):
@@ -282,3 +283,53 @@ def test_memory_estimate_grows_with_every_size():
     for n, d, p in [(2000, 100, 70), (1000, 200, 70), (1000, 100, 140)]:
         assert sum(fit_bytes(n, d, p).values()) > base
     assert fit_bytes(1000, 100, 70, itemsize=8)["features"] == 8 * 10**5
+
+
+MEASURE = """
+import gc, sys, threading, time
+import numpy as np
+from rhythmic_jax import RhythmicMap
+
+n, d = int(sys.argv[1]), int(sys.argv[2])
+rng = np.random.default_rng(0)
+RhythmicMap().fit(rng.normal(size=(n, d)).astype(np.float32), progress=False)
+x = rng.normal(size=(n, d)).astype(np.float32)
+gc.collect()
+
+def rss():
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * 4096
+
+base, peak, done = rss(), [0], []
+
+def watch():
+    while not done:
+        peak[0] = max(peak[0], rss())
+        time.sleep(0.002)
+
+t = threading.Thread(target=watch)
+t.start()
+RhythmicMap().fit(x, progress=False)  # compiled already: the solver's own memory
+done.append(1)
+t.join()
+print(peak[0] - base + x.nbytes)
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n, d", [(3000, 128), (400, 1024)])  # primal, Gram form
+def test_memory_estimate_bounds_a_measured_fit(n, d):
+    import subprocess
+    import sys
+
+    from rhythmic_jax.periods import candidate_periods
+
+    out = subprocess.run(
+        [sys.executable, "-c", MEASURE, str(n), str(d)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    measured = int(out.stdout.split()[-1])
+    estimate = sum(fit_bytes(n, d, sum(candidate_periods(n))).values())
+    assert 0.9 * measured <= estimate <= 2 * measured, (measured, estimate)  # noise

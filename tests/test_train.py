@@ -77,7 +77,11 @@ def test_fit_minibatch_calls_back_every_step():
     seen = []
     batches = [(x[i : i + 8], y[i : i + 8]) for i in range(0, 32, 8)]
     state = fit_minibatch(
-        batches, ridge_start(x, y, 1.0), 1.0, 32, on_step=lambda s, l: seen.append(l)
+        batches,
+        ridge_start(x, y, 1.0),
+        1.0,
+        32,
+        on_step=lambda s, loss: seen.append(loss),
     )
     assert len(seen) == 4 and int(state.step) == 4
     assert all(np.isfinite(seen))
