@@ -5,4 +5,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export JAX_PLATFORMS=cpu TF_CPP_MIN_LOG_LEVEL=3
 python -m pytest -q
-timeout "${SLOW_TIMEOUT:-2700}" python -m pytest -q -m slow
+timeout "${SLOW_TIMEOUT:-3600}" python -m pytest -q -m slow

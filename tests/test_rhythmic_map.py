@@ -127,7 +127,7 @@ def test_targets_follow_labels_not_rows():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("level, floor", [(1, 0.93), (4, 0.98)])
+@pytest.mark.parametrize("level, floor", [(1, 0.93)])
 def test_nordland_self_query_reaches_the_optimum_accuracy(
     nordland_patchnorm, level, floor
 ):
@@ -136,4 +136,4 @@ def test_nordland_self_query_reaches_the_optimum_accuracy(
     model = RhythmicMap(level=level).fit(summer, progress=False)
     acc = float(np.mean(model.predict(summer) == np.arange(len(summer))))
     assert acc >= floor, (level, model.periods, acc)
-    assert max(model.candidate_errors) < 0.06 if level == 1 else True
+    assert 0.03 < min(model.candidate_errors) and max(model.candidate_errors) < 0.06
