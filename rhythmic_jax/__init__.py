@@ -10,10 +10,22 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from rhythmic_jax.baselines import ITQ as ITQ
+from rhythmic_jax.baselines import OPQ as OPQ
+from rhythmic_jax.baselines import BruteForce as BruteForce
+from rhythmic_jax.baselines import KDTreeSearch as KDTreeSearch
+from rhythmic_jax.baselines import default_baselines as default_baselines
 from rhythmic_jax.decode import decode as decode
 from rhythmic_jax.decode import decode_scores as decode_scores
 from rhythmic_jax.decode import hard_decode as hard_decode
 from rhythmic_jax.errors import InputError as InputError
+from rhythmic_jax.evaluate import RecallAtK as RecallAtK
+from rhythmic_jax.evaluate import accuracy as accuracy
+from rhythmic_jax.evaluate import pr_auc as pr_auc
+from rhythmic_jax.evaluate import pr_curve as pr_curve
+from rhythmic_jax.evaluate import recall_at_100_precision as recall_at_100_precision
+from rhythmic_jax.evaluate import recall_at_k as recall_at_k
+from rhythmic_jax.evaluate import storage_report as storage_report
 from rhythmic_jax.newton import NewtonConfig as NewtonConfig
 from rhythmic_jax.newton import newton_fit as newton_fit
 from rhythmic_jax.objective import Templates as Templates

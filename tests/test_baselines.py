@@ -176,9 +176,11 @@ def test_real_nordland_self_retrieval(nordland_root):
     X = PatchNorm()(batch).numpy()
     n, d = X.shape
     sel = np.arange(0, n, 7)
-    bf_idx = BruteForce().fit(X).search(X[sel])[1]
+    bf_sim = BruteForce().fit(X).search(X[sel])[0]
     kd_idx = KDTreeSearch().fit(X).search(X[sel])[1]
-    np.testing.assert_array_equal(kd_idx, bf_idx)
+    # equal up to ties: near-black tunnel frames share one descriptor
+    kd_sim = np.einsum("bd,bd->b", X[sel], X[kd_idx[:, 0]])
+    np.testing.assert_allclose(kd_sim, bf_sim[:, 0], atol=1e-5)
     for b in (ITQ(256), OPQ(256, 8, niter=2)):
         idx = b.fit(X).search(X[sel])[1][:, 0]
         assert np.mean(np.abs(idx - sel) <= 1) >= 0.9, b.name
