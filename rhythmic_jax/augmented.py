@@ -24,11 +24,10 @@ from dataclasses import dataclass, field
 
 import jax.numpy as jnp
 import numpy as np
-import optax
 from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates, targets
-from rhythmic_jax.train import init_state, minibatch_step
+from rhythmic_jax.train import adam, init_state, minibatch_step
 
 __all__ = ["AugmentedFit", "augmented_epoch", "fit_augmented"]
 
@@ -126,7 +125,7 @@ def fit_augmented(
       The templates and timings (seconds augmenting, describing, stepping; frames
       per second of the whole pipeline).
     """
-    optimizer = optax.adam(config.learning_rate)
+    optimizer = adam(config.learning_rate)
     state = init_state(init, optimizer)
     n_epoch = 2 * len(clean)  # an augmented and a clean exemplar of every frame
     timings: dict[str, float] = {}

@@ -19,7 +19,6 @@ Names: n frames, d features, p templates (sum of the periods), m batch rows.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import itertools
 import logging
 import os
@@ -30,12 +29,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from tqdm.auto import tqdm
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, targets
 from rhythmic_jax.train import TrainState, init_state, minibatch_step
+from rhythmic_jax.train import adam as _adam
 from rhythmic_jax.validate import check_labels
 
 __all__ = [
@@ -168,12 +167,6 @@ def _restore(manager, ckpt_dir: Path, fresh: TrainState, config: RunConfig):
 
 
 # --------------------------------------------------------------------- the loop
-
-
-@functools.lru_cache(maxsize=8)
-def _adam(learning_rate: float) -> optax.GradientTransformation:
-    """One optimiser object per step size: the jitted step compiles once for it."""
-    return optax.adam(learning_rate)
 
 
 def _remaining(batches: Iterable[Batch], skip: int) -> tuple[Iterable[Batch], int]:

@@ -65,6 +65,13 @@ def ridge_start(x: jax.Array, y: jax.Array, c: float) -> Templates:
     return Templates(w=theta[:-1], b=theta[-1])
 
 
+@functools.lru_cache(maxsize=32)
+def adam(learning_rate: float) -> optax.GradientTransformation:
+    """``optax.adam``, one object per learning rate: the jitted steps take the
+    optimiser as a static argument, so a fresh object would recompile them."""
+    return optax.adam(learning_rate)
+
+
 def init_state(
     params: Templates, optimizer: optax.GradientTransformation
 ) -> TrainState:
@@ -158,7 +165,7 @@ def fit_minibatch(
     ``on_step(state, loss)`` runs after every step (checkpointing, logging).
     Pass ``state`` to resume.
     """
-    optimizer = optimizer or optax.adam(1e-3)
+    optimizer = optimizer or adam(1e-3)
     state = state if state is not None else init_state(params, optimizer)
     for xb, yb in batches:
         xb = jnp.asarray(xb, jnp.float32)
