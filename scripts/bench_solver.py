@@ -369,7 +369,7 @@ def case_markdown(r: dict) -> str:
             f"Newton: {nw['steps']} steps, CG iterations {nw['cg_iterations']}"
             f" ({sum(nw['cg_iterations'])} in all, their products"
             f" {cg_flops(r) / 1e9:,.4g} GFLOP in float32, i.e."
-            f" {cg_flops(r) / 1e9 / nw['seconds']:.0f} GFLOP/s over the solve's"
+            f" {cg_flops(r) / 1e9 / nw['seconds']:.3g} GFLOP/s over the solve's"
             f" wall time); at the optimum"
             f" {100 * nw['active_fraction']:.1f} % of (frame, template) margins are"
             f" active (< 1). Warm-up call (setup, one CG iteration, compilation):"
