@@ -1,39 +1,51 @@
-"""Exact solver for the joint objective: ridge start + active-set Newton-CG.
+"""Exact solver for the joint objective: Newton-CG with a gap estimate.
 
-With the active set ``D = {i : y_i m_i < 1}`` held fixed, the squared hinge is a
-ridge problem (``(1 - y m)^2 = (y - m)^2`` for ``y = ±1``), so a Newton step is the
-ridge solution on the active frames (Chapelle, "Training a support vector machine
-in the primal", 2007)::
+Every template minimises ``f(theta) = 0.5 ||theta||^2 + C sum_i h_i^2`` with
+``h_i = max(0, 1 - y_i m_i)``, margins ``m = Xa theta`` and ``Xa = [X, 1]`` (the
+bias as a constant-1 feature); theta is (q,), q = d + 1.
 
-    primal:  (lam I + Xa^T D Xa) theta = Xa^T D y          theta = [w; b], (d+1, p)
-    Gram:    (K_DD + lam I) alpha_D = y_D,  alpha_~D = 0    K = Xa Xa^T, (n, n)
+- Newton steps (Chapelle, "Training a support vector machine in the primal",
+  2007): with the active set ``D = {i : h_i > 0}`` held fixed the objective is
+  quadratic and the step ``s`` solves ``(lam I + Xa^T D Xa) s = -g_lam``, with
+  ``lam = 1 / (2C)`` and ``g_lam = lam theta - Xa^T D (y - m)`` the scaled gradient.
+  The first step, from theta = 0 where every frame is active, is the ridge
+  solution. An exact line search on the piecewise-quadratic objective (float64)
+  follows each step; margins are updated from the products CG already made.
+- inexact solves: conjugate gradients in float32 for every template at once,
+  stopping per template at the forcing term ``||r|| <= eta ||g_lam||`` (relative
+  to the step's own gradient, so near the optimum CG still works).
+- preconditioner: the leading eigenvectors ``V`` of ``Xa^T Xa`` (subspace
+  iteration, float32). In their span the system is inverted exactly on the first
+  ``block`` directions (a small Cholesky per template: the largest eigenvalues,
+  where the active set couples directions most) and by its diagonal on the rest;
+  outside it, by a scalar per template.
+- stop: CG gives the Newton decrement ``C (-g . s)``, the gap of the quadratic
+  model, which estimates ``f - f*`` (exactly once the active set settles; it can
+  fall short while frames still leave it, so the fast setting keeps a margin). A
+  template whose estimate is below ``gap_tol * f`` takes that last step and
+  leaves; later steps run on the others only (gathered into a power-of-two
+  number of columns, so few shapes compile), until none is left.
 
-with ``Xa = [X, 1]`` (the bias as a constant-1 feature), ``lam = 1 / (2 C)`` and
-``w = Xa^T alpha`` in the Gram form. With every frame active this is a closed-form
-ridge solve: the start. Each step solves the system by conjugate gradients for all
-p templates at once (float32 products), then takes an exact line search on the
-piecewise-quadratic objective along the step; objective, margins and line search
-run in float64. The primal form is used when ``d + 1 <= n`` and the Gram form
-otherwise: a CG product costs ``2 n (d+1) p`` against ``n^2 p``, and the spectral
-preconditioner (top eigenvectors of ``Xa^T Xa``) fits the primal system better,
-so it needs several times fewer CG iterations there (measured on 3576 Nordland
-frames of 2048-d: 193 against 674). This is the same objective as
-:func:`rhythmic_jax.objective.objective`, solved to its optimum.
+Measured on 3576 Nordland frames of 2048-d, 441 templates: ``reports/solver.md``.
+This is the same objective as :func:`rhythmic_jax.objective.objective`; with the
+default (small) ``gap_tol`` it is solved to its optimum.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates
 
-__all__ = ["NewtonConfig", "NewtonInfo", "newton_fit"]
+__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
 
 log = logging.getLogger(__name__)
 
@@ -42,107 +54,166 @@ log = logging.getLogger(__name__)
 class NewtonConfig:
     """Settings of :func:`newton_fit`.
 
+    The default solves to the optimum (estimated relative gap <= 1e-7, CG to a
+    tenth of the gradient): objectives within 1e-5 of liblinear at a tight
+    tolerance and the same training errors (``tests/test_newton.py``).
+    ``FAST`` (estimated gap <= 5e-4, at most 6 CG iterations per step) is for a
+    0.1 % gap: ``scripts/bench_solver.py`` times it against LinearSVC and
+    measures its gap (``reports/solver.md``).
+
     Attributes:
-      tol: stop when no template's objective fell by more than ``tol`` (relative)
-        in the last step.
+      gap_tol: a template stops once its estimated gap (the Newton decrement) is
+        at most ``gap_tol`` times its objective; it takes that last step.
+      eta: CG forcing term: CG stops for a template when its residual is below
+        ``eta`` times its gradient (both scaled by 1 / (2C)).
       max_iter: most Newton steps.
-      cg_tol: relative residual at which CG stops.
       max_cg: most CG iterations per Newton step.
-      form: "auto", "primal" or "gram".
-      precond_rank: eigenvectors of the Gram matrix kept in the CG preconditioner.
+      rank: leading eigenvectors of ``Xa^T Xa`` in the preconditioner.
+      power_iters: subspace iterations that find them.
+      block: of those, the first ``block`` preconditioned exactly per template.
+      compact: run later steps on the templates not yet stopped only.
     """
 
-    tol: float = 1e-7
-    max_iter: int = 40
-    cg_tol: float = 1e-5
-    max_cg: int = 400
-    form: str = "auto"
-    precond_rank: int = 512
+    gap_tol: float = 1e-7
+    eta: float = 0.1
+    max_iter: int = 50
+    max_cg: int = 200
+    rank: int = 512
+    power_iters: int = 3
+    block: int = 32
+    compact: bool = True
+
+
+FAST = NewtonConfig(gap_tol=5e-4, max_cg=6)
 
 
 @dataclass(frozen=True)
 class NewtonInfo:
-    """What a solve did: form used, steps, CG iterations, per-template objective."""
+    """What a solve did.
 
-    form: str
+    Attributes:
+      steps: Newton steps taken.
+      cg_iterations: CG iterations of each step.
+      columns: templates (gathered columns, padding included) of each step.
+      objective: (p,) objective of each template at the end (float64).
+      gap_estimate: (p,) each template's last Newton decrement relative to its
+        objective: the estimated gap before its last step.
+    """
+
     steps: int
     cg_iterations: tuple[int, ...]
+    columns: tuple[int, ...]
     objective: np.ndarray
+    gap_estimate: np.ndarray
 
 
-def _cg(op, precond, rhs: jax.Array, x0: jax.Array, tol: float, max_iter: int):
-    """Batched preconditioned conjugate gradients: ``op(x) = rhs`` per column.
+# ---------------------------------------------------------------------- setup
 
-    ``op`` and ``precond`` map (q, p) -> (q, p), each symmetric positive definite
-    per column (``precond`` approximates the inverse of ``op``). Stops when every
-    column's residual is below ``tol`` times its right-hand side. Returns the
-    solution and the number of iterations taken.
+
+def _top_eigen(gram: jax.Array, k: int, iters: int):
+    """Leading eigenpairs of a symmetric PSD (q, q) matrix by subspace iteration.
+
+    Returns orthonormal vectors (q, k) and Rayleigh-Ritz values (k,), largest
+    first; a few iterations are enough for a preconditioner (any orthonormal
+    basis keeps it exact, only its quality depends on the subspace).
     """
-    bnorm = jnp.maximum(jnp.linalg.norm(rhs, axis=0, keepdims=True), 1e-30)
-    r = rhs - op(x0)
-    z = precond(r)
-    rz = jnp.sum(r * z, axis=0, keepdims=True)
-    rn = jnp.linalg.norm(r, axis=0, keepdims=True)
-
-    def cond(state):
-        *_, rn, it = state
-        return jnp.logical_and(it < max_iter, jnp.any(rn > tol * bnorm))
-
-    def body(state):
-        x, r, d, rz, rn, it = state
-        ad = op(d)
-        live = rn > tol * bnorm
-        dad = jnp.sum(d * ad, axis=0, keepdims=True)
-        step = jnp.where(live, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
-        x = x + step * d
-        r = r - step * ad
-        z = precond(r)
-        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
-        beta = jnp.where(live, rz_new / jnp.where(rz > 0, rz, 1.0), 0.0)
-        d = z + beta * d
-        return x, r, d, rz_new, jnp.linalg.norm(r, axis=0, keepdims=True), it + 1
-
-    x, *_, it = jax.lax.while_loop(cond, body, (x0, r, z, rz, rn, 0))
-    return x, it
-
-
-def _top_eigen(a: jax.Array, k: int, iters: int = 4, seed: int = 0):
-    """Top-k eigenpairs of a symmetric PSD (q, q) matrix by subspace iteration.
-
-    Returns eigenvectors (q, k) and eigenvalues (k,), largest first.
-    """
-    q = a.shape[0]
-    k = min(k, q)
-    basis = jax.random.normal(jax.random.PRNGKey(seed), (q, k), dtype=a.dtype)
+    q = gram.shape[0]
+    basis = jax.random.normal(jax.random.PRNGKey(0), (q, k), gram.dtype)
     for _ in range(iters):
-        basis, _ = jnp.linalg.qr(a @ basis)
-    vals, small = jnp.linalg.eigh(basis.T @ a @ basis)
-    return (basis @ small)[:, ::-1], vals[::-1]
+        basis, _ = jnp.linalg.qr(gram @ basis)
+    vals, small = jnp.linalg.eigh(basis.T @ gram @ basis)
+    return (basis @ small)[:, ::-1], jnp.maximum(vals[::-1], 0.0)
 
 
-def _spectral_precond(vecs, vals, lam, rho):
-    """Inverse of ``lam I + rho A`` with A replaced by its top-k part plus a floor.
+@partial(jax.jit, static_argnames=("rank", "iters"))
+def _setup(xa: jax.Array, rank: int, iters: int):
+    """Leading eigenvectors ``V`` (q, k) of ``Xa^T Xa``, ``F = Xa V`` (n, k), and
+    each frame's squared norm outside them, ``||xa_i||^2 - ||F_i||^2`` (n,)."""
+    vecs, _ = _top_eigen(xa.T @ xa, rank, iters)
+    lead = xa @ vecs
+    rest = jnp.sum(xa * xa, axis=1) - jnp.sum(lead * lead, axis=1)
+    return vecs, lead, jnp.maximum(rest, 0.0)
 
-    ``vecs`` (q, k), ``vals`` (k,) from :func:`_top_eigen`; ``rho`` (p,) is each
-    template's fraction of active frames (``Xa^T D Xa ~ rho Xa^T Xa``).
+
+# ------------------------------------------------------------------ pieces
+
+
+def _precond(vecs, lead, rest, mask, lam, block):
+    """Preconditioner of ``H_j = lam I + Xa^T diag(mask_j) Xa`` for every template.
+
+    In the leading eigen-directions ``V`` (q, k) of ``Xa^T Xa`` (``lead = Xa V``,
+    (n, k)): exact on the first ``block`` (a Cholesky per template), the diagonal
+    ``lam + sum_i mask_ij lead_il^2`` on the others; outside them a scalar per
+    template, ``lam`` plus the mean over the q - k remaining directions of
+    ``H_j``'s trace there (``rest`` (n,), each frame's squared norm outside V).
+    ``mask`` (n, p) float32. Returns ``apply`` mapping (q, p) -> (q, p).
     """
-    inv_top = 1.0 / (lam + rho[None, :] * vals[:, None])  # (k, p)
-    inv_tail = 1.0 / (lam + rho[None, :] * vals[-1])  # (1, p)
+    n, k = lead.shape
+    q = vecs.shape[0]
+    kb = min(block, k)
+    diag = lam + (lead * lead).T @ mask  # (k, p)
+    tail = lam + (rest[None, :] @ mask) / max(q - k, 1)  # (1, p)
+    top = lead[:, :kb]
+    outer = (top[:, :, None] * top[:, None, :]).reshape(n, kb * kb)
+    blocks = (outer.T @ mask).T.reshape(-1, kb, kb)
+    chol = jnp.linalg.cholesky(blocks + lam * jnp.eye(kb, dtype=lead.dtype)[None])
 
     def apply(v):
-        coef = vecs.T @ v
-        return vecs @ (coef * inv_top) + (v - vecs @ coef) * inv_tail
+        coef = vecs.T @ v  # (k, p)
+        head = jax.scipy.linalg.cho_solve((chol, True), coef[:kb].T[:, :, None])
+        inside = jnp.concatenate([head[:, :, 0].T, coef[kb:] / diag[kb:]], axis=0)
+        return vecs @ (inside - coef / tail) + v / tail
 
     return apply
+
+
+def _cg(xa, mask, lam, precond, r0, eta, max_iter):
+    """Preconditioned CG from 0 for ``(lam I + Xa^T D Xa) s = r0``, every column.
+
+    Column j stops when ``||r_j|| <= eta ||r0_j||``. Returns the step ``s``
+    (q, p), its margins ``Xa s`` (n, p) (accumulated from the products, no extra
+    product) and the number of iterations.
+    """
+    target = eta * jnp.linalg.norm(r0, axis=0, keepdims=True)
+    z = precond(r0)
+    rz = jnp.sum(r0 * z, axis=0, keepdims=True)
+    zero_s = jnp.zeros_like(r0)
+    zero_u = jnp.zeros((xa.shape[0], r0.shape[1]), r0.dtype)
+
+    def live(r):
+        return jnp.linalg.norm(r, axis=0, keepdims=True) > target
+
+    def cond(state):
+        *_, r, _, _, it = state
+        return jnp.logical_and(it < max_iter, jnp.any(live(r)))
+
+    def body(state):
+        s, u, r, d, rz, it = state
+        on = live(r)
+        xd = xa @ d
+        ad = xa.T @ (mask * xd) + lam * d
+        dad = jnp.sum(d * ad, axis=0, keepdims=True)
+        step = jnp.where(on, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
+        s, u, r = s + step * d, u + step * xd, r - step * ad
+        z = precond(r)
+        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
+        beta = rz_new / jnp.where(rz > 0, rz, 1.0)
+        d = jnp.where(on, z + beta * d, d)
+        return s, u, r, d, jnp.where(on, rz_new, rz), it + 1
+
+    s, u, *_, it = jax.lax.while_loop(
+        cond, body, (zero_s, zero_u, r0, z, rz, jnp.int32(0))
+    )
+    return s, u, it
 
 
 def _line_search(m, u, y, a, b, cc, c, iters: int = 30):
     """Exact minimiser over t >= 0 of the objective along a step, per template.
 
     ``phi(t) = 0.5 (a + 2 t b + t^2 cc) + C sum_i max(0, 1 - y_i (m_i + t u_i))^2``
-    is convex and piecewise quadratic; Newton's method on ``phi'`` from t = 0 lands
-    on the minimiser after a few pieces. Arrays: m, u, y (n, p); a, b, cc (1, p).
-    Returns t (1, p) and phi(t) (p,).
+    is convex and piecewise quadratic; Newton's method on ``phi'`` from t = 1 (the
+    Newton step) lands on the minimiser after a few pieces, and stops when t
+    settles. Arrays: m, u, y (n, p); a, b, cc (1, p). Returns t (1, p), phi(t) (p,).
     """
     yu = y * u
     slack0 = 1.0 - y * m
@@ -152,81 +223,66 @@ def _line_search(m, u, y, a, b, cc, c, iters: int = 30):
         quad = 0.5 * (a + 2 * t * b + t * t * cc)
         return quad + c * jnp.sum(h * h, axis=0, keepdims=True)
 
-    def body(_, t):
+    def update(t):
         slack = slack0 - t * yu
         act = slack > 0
-        g = (
-            b
-            + t * cc
-            - 2 * c * jnp.sum(jnp.where(act, yu * slack, 0.0), 0, keepdims=True)
-        )
-        h = cc + 2 * c * jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0, keepdims=True)
+        g = jnp.sum(jnp.where(act, yu * slack, 0.0), axis=0, keepdims=True)
+        h = jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0, keepdims=True)
+        g, h = b + t * cc - 2 * c * g, cc + 2 * c * h
         return jnp.maximum(t - g / jnp.maximum(h, 1e-300), 0.0)
 
-    t = jax.lax.fori_loop(0, iters, body, jnp.zeros_like(a))
+    def cond(state):
+        t, prev, it = state
+        return jnp.logical_and(it < iters, jnp.any(t != prev))
+
+    def body(state):
+        t, _, it = state
+        return update(t), t, it + 1
+
+    one = jnp.ones_like(a)
+    t, *_ = jax.lax.while_loop(cond, body, (update(one), one, 1))
     t = jnp.where(phi(t) <= phi(jnp.zeros_like(t)), t, 0.0)
     return t, phi(t)[0]
 
 
-@jax.jit
-def _gram_step(k64, k32, vecs, vals, alpha, y, c, cg_tol, max_cg):
+@partial(jax.jit, static_argnames=("block", "max_cg"))
+def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg):
+    """One Newton step of the templates ``cols`` (b,) of theta (q, p), m (n, p).
+
+    Returns the updated ``theta`` and ``m`` (other columns unchanged), and for the
+    gathered columns the objective before and after (b,), the Newton decrement
+    (b,) and the CG iterations.
+    """
+    tb, mb, yb = theta[:, cols], m[:, cols], y[:, cols]
     lam = 0.5 / c
-    m = k64 @ alpha
-    mask = (y * m < 1.0).astype(jnp.float32)
     lam32 = lam.astype(jnp.float32)
-    pre = _spectral_precond(vecs, vals, lam32, jnp.mean(mask, axis=0))
-
-    def op(v):
-        return mask * (k32 @ (mask * v)) + lam32 * v
-
-    def precond(r):
-        return mask * pre(mask * r)
-
-    beta, it = _cg(
-        op,
-        precond,
-        (mask * y).astype(jnp.float32),
-        (mask * alpha).astype(jnp.float32),
-        cg_tol,
-        max_cg,
-    )
-    delta = beta.astype(alpha.dtype) - alpha
-    u = k64 @ delta
-    a = jnp.sum(alpha * m, axis=0, keepdims=True)
-    b = jnp.sum(alpha * u, axis=0, keepdims=True)
-    cc = jnp.sum(delta * u, axis=0, keepdims=True)
-    f0 = 0.5 * a[0] + c * jnp.sum(jnp.square(jnp.maximum(0.0, 1.0 - y * m)), axis=0)
-    t, f1 = _line_search(m, u, y, a, b, cc, c)
-    return alpha + t * delta, f0, f1, it
+    h = jnp.maximum(0.0, 1.0 - yb * mb)
+    mask = (h > 0).astype(jnp.float32)
+    f0 = 0.5 * jnp.sum(tb * tb, axis=0) + c * jnp.sum(h * h, axis=0)
+    grad = lam * tb - (xa.T @ (yb * h).astype(jnp.float32)).astype(tb.dtype)
+    precond = _precond(vecs, lead, rest, mask, lam32, block)
+    s, u, it = _cg(xa, mask, lam32, precond, -grad.astype(jnp.float32), eta, max_cg)
+    s, u = s.astype(tb.dtype), u.astype(mb.dtype)
+    decrement = c * jnp.sum(-grad * s, axis=0)
+    a = jnp.sum(tb * tb, axis=0, keepdims=True)
+    b = jnp.sum(tb * s, axis=0, keepdims=True)
+    cc = jnp.sum(s * s, axis=0, keepdims=True)
+    t, f1 = _line_search(mb, u, yb, a, b, cc, c)
+    theta = theta.at[:, cols].set(tb + t * s)
+    m = m.at[:, cols].set(mb + t * u)
+    return theta, m, f0, f1, decrement, it
 
 
-@jax.jit
-def _primal_step(xa64, xa32, vecs, vals, theta, y, c, cg_tol, max_cg):
-    lam = 0.5 / c
-    m = xa64 @ theta
-    mask = (y * m < 1.0).astype(jnp.float32)
-    lam32 = lam.astype(jnp.float32)
-    precond = _spectral_precond(vecs, vals, lam32, jnp.mean(mask, axis=0))
-
-    def op(v):
-        return xa32.T @ (mask * (xa32 @ v)) + lam32 * v
-
-    rhs = xa32.T @ (mask * y).astype(jnp.float32)
-    beta, it = _cg(op, precond, rhs, theta.astype(jnp.float32), cg_tol, max_cg)
-    delta = beta.astype(theta.dtype) - theta
-    u = xa64 @ delta
-    a = jnp.sum(theta * theta, axis=0, keepdims=True)
-    b = jnp.sum(theta * delta, axis=0, keepdims=True)
-    cc = jnp.sum(delta * delta, axis=0, keepdims=True)
-    f0 = 0.5 * a[0] + c * jnp.sum(jnp.square(jnp.maximum(0.0, 1.0 - y * m)), axis=0)
-    t, f1 = _line_search(m, u, y, a, b, cc, c)
-    return theta + t * delta, f0, f1, it
+def _bucket(live: int, p: int) -> int:
+    """Columns to gather for ``live`` templates: p, or a power of two below it
+    (few distinct shapes, so few compilations)."""
+    size = 8
+    while size < live:
+        size *= 2
+    return min(size, p)
 
 
-def _ridge(g: jax.Array, rhs: jax.Array, lam: float) -> jax.Array:
-    """Solve ``(g + lam I) z = rhs`` by Cholesky (g symmetric PSD)."""
-    chol = jnp.linalg.cholesky(g + lam * jnp.eye(g.shape[0], dtype=g.dtype))
-    return jax.scipy.linalg.cho_solve((chol, True), rhs)
+# ---------------------------------------------------------------------- solve
 
 
 def newton_fit(
@@ -236,7 +292,7 @@ def newton_fit(
     config: NewtonConfig = NewtonConfig(),
     progress: bool = True,
 ) -> tuple[Templates, NewtonInfo]:
-    """Minimise the joint squared-hinge objective of p templates exactly.
+    """Minimise the joint squared-hinge objective of p templates.
 
     Args:
       x: (n, d) frames (float32).
@@ -250,60 +306,54 @@ def newton_fit(
       :class:`NewtonInfo`.
     """
     n, d = x.shape
-    form = config.form
-    if form == "auto":
-        form = "gram" if n < d + 1 else "primal"
-    if form not in ("gram", "primal"):
-        raise ValueError(f"form must be 'auto', 'gram' or 'primal', got {form!r}")
+    x32 = jnp.asarray(x, jnp.float32)
+    xa = jnp.concatenate([x32, jnp.ones((n, 1), jnp.float32)], axis=1)
+    rank = min(config.rank, d + 1)
+    with threadpool_limits(limits=1):  # LAPACK's threads wait on a busy machine
+        vecs, lead, rest = jax.block_until_ready(_setup(xa, rank, config.power_iters))
     with jax.enable_x64(True):
-        x64 = jnp.asarray(np.asarray(x, dtype=np.float64))
-        xa64 = jnp.concatenate([x64, jnp.ones((n, 1), jnp.float64)], axis=1)
         y64 = jnp.asarray(np.asarray(y, dtype=np.float64))
+        p = y64.shape[1]
         c64 = jnp.float64(c)
-        lam = 0.5 / float(c)
-        if form == "gram":
-            mat = gram = xa64 @ xa64.T
-            theta = _ridge(mat, y64, lam)
-            step = _gram_step
-        else:
-            mat = xa64
-            gram = xa64.T @ xa64
-            theta = _ridge(gram, xa64.T @ y64, lam)
-            step = _primal_step
-        mat32 = mat.astype(jnp.float32)
-        vecs, vals = _top_eigen(gram, config.precond_rank)
-        vecs, vals = vecs.astype(jnp.float32), vals.astype(jnp.float32)
+        theta = jnp.zeros((d + 1, p), jnp.float64)
+        m = jnp.zeros((n, p), jnp.float64)
+        objective = np.full(p, np.nan)
+        gap = np.full(p, np.inf)
+        todo = np.arange(p)
         cg_its: list[int] = []
-        f_prev = None
-        bar = tqdm(
-            range(config.max_iter), desc=f"newton ({form})", disable=not progress
-        )
-        steps = 0
-        for steps in bar:  # noqa: B007
-            theta, f0, f1, it = step(
-                mat, mat32, vecs, vals, theta, y64, c64, config.cg_tol, config.max_cg
-            )
+        widths: list[int] = []
+        bar = tqdm(range(config.max_iter), desc="newton", disable=not progress)
+        for _ in bar:
+            width = _bucket(len(todo), p) if config.compact else p
+            cols = todo if config.compact else np.arange(p)
+            cols = np.concatenate([cols, np.full(width - len(cols), cols[0])])
+            theta, m, f0, f1, dec, it = _newton_step(
+                xa, vecs, lead, rest, jnp.asarray(cols), theta, m, y64, c64,
+                config.eta, config.block, config.max_cg,
+            )  # fmt: skip
             cg_its.append(int(it))
-            rel = float(jnp.max((f0 - f1) / jnp.maximum(jnp.abs(f0), 1e-30)))
-            bar.set_postfix(objective=f"{float(jnp.sum(f1)):.6g}", rel=f"{rel:.1e}")
-            f_prev = f1
-            if rel <= config.tol:
+            widths.append(width)
+            f0, f1, dec = (np.asarray(v) for v in (f0, f1, dec))
+            # padding repeats a column: take each column's values once (all equal)
+            cols, first = np.unique(cols, return_index=True)
+            f0, f1, dec = f0[first], f1[first], dec[first]
+            objective[cols] = f1
+            gap[cols] = dec / np.maximum(np.abs(f0), 1e-300)
+            done = (gap[cols] <= config.gap_tol) | (f1 >= f0)
+            bar.set_postfix(
+                objective=f"{np.nansum(objective):.6g}", gap=f"{np.max(gap):.1e}"
+            )
+            todo = np.setdiff1d(todo, cols[done])
+            if len(todo) == 0 or (not config.compact and np.all(gap <= config.gap_tol)):
                 break
         bar.close()
-        if form == "gram":
-            w = x64.T @ theta
-            b = jnp.sum(theta, axis=0)
-        else:
-            w, b = theta[:-1], theta[-1]
-        params = Templates(
-            w=jnp.asarray(np.asarray(w, dtype=np.float32)),
-            b=jnp.asarray(np.asarray(b, dtype=np.float32)),
-        )
+        theta = theta.astype(jnp.float32)
         info = NewtonInfo(
-            form=form,
-            steps=steps + 1,
+            steps=len(cg_its),
             cg_iterations=tuple(cg_its),
-            objective=np.asarray(f_prev, dtype=np.float64),
+            columns=tuple(widths),
+            objective=objective,
+            gap_estimate=gap,
         )
-    log.debug("newton: %s form, %d steps, CG %s", form, info.steps, cg_its)
-    return params, info
+    log.debug("newton: %d steps, CG %s, columns %s", info.steps, cg_its, widths)
+    return Templates(w=theta[:-1], b=theta[-1]), info
