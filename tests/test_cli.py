@@ -113,6 +113,10 @@ def test_bad_arguments_exit_2_without_a_map(npy_route, capsys):
     assert not [p for p in npy_route.iterdir() if p.name.startswith(".x.map")]
     code, _, err = run(capsys, "info", str(npy_route / "nothing"))
     assert code == 2 and "no such map" in err
+    code, _, err = run(capsys, "fit", str(npy_route / "ref.npy"), "--out",
+                       str(npy_route / "g.map"), "--gap", "2")  # fmt: skip
+    assert code == 2 and "gap must be in (0, 1)" in err
+    assert not (npy_route / "g.map").exists()
     with pytest.raises(SystemExit) as exc:
         main(["fit"])
     assert exc.value.code == 2

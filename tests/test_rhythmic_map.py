@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
-from rhythmic_jax.objective import period_errors, scores, targets
+from rhythmic_jax.objective import objective, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, storage_bytes
 
 
@@ -81,6 +81,21 @@ def test_lbfgs_solver_reaches_the_newton_map(fitted):
     other = RhythmicMap(solver="lbfgs").fit(x, progress=False)
     assert other.periods == model.periods
     np.testing.assert_array_equal(other.predict(x), model.predict(x))
+
+
+def test_gap_setting_stops_near_the_optimum():
+    x = wide(400, 120, seed=3)
+    exact = RhythmicMap().fit(x, progress=False)
+    loose = RhythmicMap(gap=5e-4).fit(x, progress=False)
+    assert loose.periods == exact.periods
+    y = targets(np.arange(len(x)), exact.periods)
+    f_exact = np.asarray(objective(exact.params, x, y, exact.c), np.float64)
+    f_loose = np.asarray(objective(loose.params, x, y, loose.c), np.float64)
+    rel = (f_loose - f_exact) / f_exact
+    assert rel.max() <= 1e-3  # within 0.1 % of the optimum, template by template
+    assert rel.max() > 1e-7  # and it did stop early
+    with pytest.raises(InputError, match="gap"):
+        MapConfig(gap=0.0)
 
 
 def test_save_load_round_trip_and_refusals(fitted, tmp_path):
