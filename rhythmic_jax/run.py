@@ -339,22 +339,45 @@ def memmap_batches(
 def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
     """Peak bytes of a full-batch fit (:func:`rhythmic_jax.newton.newton_fit`).
 
-    The solver holds the features (``n d itemsize``), a float64 and a float32
-    copy of the design matrix ``[x, 1]`` (``12 n (d+1)``), its system matrix in
-    float64 and float32 with the k = min(512, q) eigenvectors of its
-    preconditioner (``12 q^2 + 40 q k``, q = n in the Gram form used when
-    ``n < 2 (d+1)``, else d + 1), and about twelve float64 (n, p) arrays (targets,
-    margins, steps, masks) beside five (q, p) arrays of conjugate gradients.
-    Measured peaks (RSS over a compiled second fit, r = 2; they vary by about
-    15 %): n=4000, d=256 needs 161 MiB (estimate 195); n=3000, d=128 needs 90-117
-    MiB (estimate 120); n=500, d=2048 needs 33 MiB (estimate 40).
+    With q = d + 1, k = min(512, q) leading eigenvectors and a b = min(32, k)
+    block, the solver holds:
+
+    - ``features``: the frames as given, ``n d itemsize``;
+    - ``design``: a float32 copy of the frames and the design matrix ``[x, 1]``
+      in float32, ``4 n d + 4 n q`` (no float64 copy);
+    - ``system``: ``Xa^T Xa`` in float32 (``4 q^2``), the subspace iteration's
+      (q, k) bases and eigenvectors (``12 q k``), the frames in the eigenvectors
+      ``Xa V`` (``4 n k``) and the (n, b^2) float32 outer products of their first
+      b coordinates that build the per-template blocks (``4 n b^2``, n x 1024);
+    - ``templates``: per template, about eleven float64 and float32 (n,) columns
+      (targets, margins and their update, hinge, mask, CG's margins, the line
+      search's slacks: ``80 n``), seven (q,) columns (theta, gradient, step, CG's
+      residual, direction and products: ``56 q``), the preconditioner's diagonal
+      and block (``4 k + 4 b^2``).
+
+    Wide frames (d > n) are solved in their span (:mod:`rhythmic_jax.rowspace`):
+    ``span`` counts a float64 copy of the frames, ``X X^T``, its shifted copy and
+    its Cholesky factor in float64 (``8 n d + 24 n^2``) and the lifted weights
+    (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
+    It is an upper estimate: XLA frees and fuses some of these.
     """
-    q = n if n < 2 * (d + 1) else d + 1
+    if d > n:
+        reduced = fit_bytes(n, n, p, 4)
+        return {
+            "features": n * d * itemsize,
+            "span": 8 * n * d + 24 * n * n + 8 * n * p + 12 * d * p,
+            "design": reduced["features"] + reduced["design"],
+            "system": reduced["system"],
+            "templates": reduced["templates"],
+        }
+    q = d + 1
+    k = min(512, q)
+    b = min(32, k)
     return {
         "features": n * d * itemsize,
-        "design": 12 * n * (d + 1),
-        "system": 12 * q * q + 40 * q * min(512, q),
-        "templates": (96 * n + 40 * q) * p,
+        "design": 4 * n * d + 4 * n * q,
+        "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
+        "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
     }
 
 

@@ -186,6 +186,7 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
             gap_tol=config.gap_tol,
             eta=config.eta,
             max_cg=config.max_cg,
+            cg_start=config.cg_start,
             rank=config.rank,
             block=config.block,
         ),
@@ -327,7 +328,8 @@ def _newton_line(label: str, nw: dict) -> str:
     cfg = nw["config"]
     return (
         f"Newton {label} (gap_tol {cfg['gap_tol']:g}, eta {cfg['eta']:g},"
-        f" max_cg {cfg['max_cg']}, rank {cfg['rank']}, block {cfg['block']}):"
+        f" max_cg {cfg['max_cg']}, cg_start {cfg.get('cg_start')}, rank {cfg['rank']},"
+        f" block {cfg['block']}):"
         f" {nw['steps']} steps, CG iterations {nw['cg_iterations']} over"
         f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their"
         f" products {nw['gflop']:,.4g} GFLOP in float32, i.e."

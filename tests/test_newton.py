@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.newton import FAST, NewtonConfig, _cg_cap, _line_search, newton_fit
 from rhythmic_jax.objective import (
     default_c,
     period_errors,
@@ -80,6 +80,61 @@ def test_fast_setting_stays_within_its_gap():
     assert np.all(info.gap_estimate <= FAST.gap_tol)
     assert gap_fast.max() > gap_tight.max()
     np.testing.assert_allclose(info.objective, ours(fast, x, y, c), rtol=1e-6)
+
+
+def test_line_search_finds_the_minimum_along_the_step():
+    """Against a fine grid on [0, 3]: the piecewise-quadratic objective along a
+    step, with many kinks (so Newton's method alone could cycle between pieces)."""
+    import jax
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(0)
+    n, p = 400, 16
+    y = np.where(rng.random((n, p)) < 0.1, 1.0, -1.0)
+    m = rng.normal(size=(n, p)) - 0.5 * y
+    u = rng.normal(size=(n, p)) * 2.0 + 0.7 * y
+    a, b, cc = (
+        rng.random((1, p)) * 50,
+        rng.normal(size=(1, p)) * 5,
+        rng.random((1, p)) * 3,
+    )
+    c = 1.7
+
+    def phi(t):  # t (k, 1, p) -> (k, p)
+        h = np.maximum(0.0, 1.0 - y * (m + t * u))
+        return 0.5 * (a + 2 * t * b + t * t * cc)[:, 0] + c * np.sum(h * h, axis=1)
+
+    with jax.enable_x64(True):
+        t, f = _line_search(*(jnp.asarray(v) for v in (m, u, y, a, b, cc)), c)
+        t, f = np.asarray(t), np.asarray(f)
+    grid = phi(np.linspace(0.0, 3.0, 30001)[:, None, None])
+    np.testing.assert_allclose(f, phi(t[None])[0], rtol=1e-12)
+    assert np.all(f <= grid.min(axis=0) + 1e-9 * np.abs(grid.min(axis=0)))
+    assert np.all(t > 0) and np.all(f < phi(np.zeros((1, 1, p)))[0])
+
+
+def test_cg_cap_grows_from_cg_start():
+    config = NewtonConfig(max_cg=8, cg_start=3)
+    assert [_cg_cap(config, k) for k in range(9)] == [3, 3, 4, 5, 6, 7, 8, 8, 8]
+    assert _cg_cap(NewtonConfig(max_cg=6), 5) == 6
+
+
+def test_span_of_wide_frames_gives_the_primal_optimum():
+    """d > n: the solve over the frames' span lands on the direct solve's optimum,
+    repeated frames (a stopped train) included."""
+    x = synthetic(90, 400, seed=7)
+    x[20:24] = x[19]
+    y = np.asarray(targets(np.arange(90), (9, 10, 11)))
+    c = default_c(90)
+    span, info = newton_fit(x, y, c, progress=False)
+    direct, _ = newton_fit(x, y, c, NewtonConfig(span=False), progress=False)
+    assert np.asarray(span.w).shape == (400, 30)
+    f_span, f_direct = ours(span, x, y, c), ours(direct, x, y, c)
+    np.testing.assert_allclose(f_span, f_direct, rtol=1e-6)
+    np.testing.assert_allclose(info.objective, f_span, rtol=1e-6)
+    np.testing.assert_allclose(
+        x @ np.asarray(span.w), x @ np.asarray(direct.w), atol=2e-3
+    )
 
 
 def test_compaction_does_not_change_the_optimum():
