@@ -355,13 +355,13 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
       residual, direction and products: ``56 q``), the preconditioner's diagonal
       and block (``4 k + 4 b^2``).
 
-    Wide frames (d > n) are solved in their span (:mod:`rhythmic_jax.rowspace`):
+    Wide frames (d > 2n) are solved in their span (:mod:`rhythmic_jax.rowspace`):
     ``span`` counts a float64 copy of the frames, ``X X^T``, its shifted copy and
     its Cholesky factor in float64 (``8 n d + 24 n^2``) and the lifted weights
     (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
     It is an upper estimate: XLA frees and fuses some of these.
     """
-    if d > n:
+    if d > 2 * n:
         reduced = fit_bytes(n, n, p, 4)
         return {
             "features": n * d * itemsize,

@@ -120,7 +120,7 @@ def test_cg_cap_grows_from_cg_start():
 
 
 def test_span_of_wide_frames_gives_the_primal_optimum():
-    """d > n: the solve over the frames' span lands on the direct solve's optimum,
+    """d > 2n: the solve over the frames' span lands on the direct solve's optimum,
     repeated frames (a stopped train) included."""
     x = synthetic(90, 400, seed=7)
     x[20:24] = x[19]
