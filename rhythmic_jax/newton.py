@@ -33,8 +33,8 @@ bias as a constant-1 feature); theta is (q,), q = d + 1.
 
 - wide frames (d > 2n, deep descriptors): the problem is solved over the
   n-dimensional span of the frames (:mod:`rhythmic_jax.rowspace`), the same
-  optimum at products of n instead of d per frame (measured on 3576 x 10976
-  EfficientNet-Lite0 frames, 441 templates: 35.5 s against 109.7 s).
+  optimum at products of n instead of d per frame (3576 x 10976
+  EfficientNet-Lite0 frames, 441 templates: ``reports/span.md``).
 
 Measured on 3576 Nordland frames of 2048-d, 441 templates: ``reports/solver.md``.
 This is the same objective as :func:`rhythmic_jax.objective.objective`; with the

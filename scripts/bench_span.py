@@ -1,0 +1,136 @@
+"""Wide frames: the joint solve over the frames' span against the direct solve.
+
+Deep descriptors are wider than a route is long (EfficientNet-Lite0 block 10 at
+224x112: 10976-d for 3576 Nordland frames). ``rhythmic_jax.newton`` then solves
+over the n-dimensional span of the frames (``rhythmic_jax.rowspace``); the peer
+in the same run is the same solver on the d-dimensional frames
+(``NewtonConfig(span=False)``). Both solve to the optimum (the default
+``NewtonConfig``), compilation included; the report gives wall and CPU seconds,
+their ratio, and the relative objective gap of the two answers, template by
+template.
+
+    python scripts/bench_span.py [--frames 3576] [--level 1]
+
+Writes reports/span.json and reports/span.md and prints the table. Descriptors
+are computed once and cached (``rhythmic_jax.features.cached_describe``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+import jax
+import numpy as np
+from _bench_common import (
+    DEFAULT_DATA,
+    REPO,
+    command_line,
+    environment,
+    header,
+    load_average,
+    set_threads,
+    stats,
+    table,
+    timed,
+    write_report,
+)
+
+from rhythmic_jax.data import nordland
+from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.newton import NewtonConfig, newton_fit
+from rhythmic_jax.objective import Templates, default_c, objective, targets
+from rhythmic_jax.periods import candidate_periods
+
+
+def objectives(params: Templates, x, y, c) -> np.ndarray:
+    """(p,) objective of every template in float64."""
+    with jax.enable_x64(True):
+        p64 = Templates(
+            np.asarray(params.w, np.float64), np.asarray(params.b, np.float64)
+        )
+        return np.asarray(
+            objective(p64, np.asarray(x, np.float64), np.asarray(y, np.float64), c)
+        )
+
+
+def markdown(report: dict) -> str:
+    rows = [
+        [r["solver"], r["wall_s"], r["cpu_s"], r["steps"], r["cg_iterations"]]
+        for r in report["rows"]
+    ]
+    gap = report["gap_span_vs_direct"]
+    return "\n".join(
+        header("Wide frames: solve in the frames' span vs directly", report)
+        + [
+            f"Nordland summer, {report['descriptor']} ({report['settings']}): "
+            f"n = {report['n']}, d = {report['d']}, level {report['level']}, "
+            f"p = {report['p']} templates, C = log N. Both to the optimum (default "
+            "NewtonConfig); each time includes its compilation (a few seconds).",
+            "",
+            table(["solver", "wall s", "CPU s", "Newton steps", "CG iterations"], rows),
+            "",
+            f"Span / direct: {report['speedup_wall']:.2f}x faster (wall), "
+            f"{report['speedup_cpu']:.2f}x (CPU). Relative objective gap, span "
+            f"minus direct, over all templates: max {gap['max']:+.2e}, median "
+            f"{gap['median']:+.2e}, min {gap['min']:+.2e}.",
+        ]
+    )
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=3576)
+    ap.add_argument("--level", type=int, default=1)
+    ap.add_argument("--descriptor", default="efficientnet_lite0")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default=str(REPO / "reports"))
+    args = ap.parse_args(argv)
+    threads = set_threads(args.threads)
+    desc = get_descriptor(args.descriptor)
+    summer = nordland(DEFAULT_DATA / "nordland_64x32", seasons=("summer",))[0]
+    x = cached_describe(summer.images, desc, "nordland64x32-summer")[: args.frames]
+    n, d = x.shape
+    cands = candidate_periods(n, 2, args.level, 7)
+    y, c = targets(np.arange(n), cands), default_c(n)
+    load0 = load_average()
+    rows, answers = [], {}
+    for name, cfg in (
+        ("span (n-dim)", NewtonConfig()),
+        ("direct (d-dim)", dataclasses.replace(NewtonConfig(), span=False)),
+    ):
+        (params, info), wall, cpu = timed(newton_fit, x, y, c, cfg, False)
+        answers[name] = objectives(params, x, y, c)
+        rows.append(
+            dict(
+                solver=name,
+                wall_s=wall,
+                cpu_s=cpu,
+                steps=info.steps,
+                cg_iterations=sum(info.cg_iterations),
+            )
+        )
+        print(rows[-1], flush=True)
+    span, direct = answers["span (n-dim)"], answers["direct (d-dim)"]
+    report = dict(
+        command=command_line("bench_span.py", argv),
+        environment=environment(threads),
+        load_average=dict(start=load0, end=load_average()),
+        descriptor=args.descriptor,
+        settings=desc.settings(),
+        n=n,
+        d=d,
+        level=args.level,
+        p=sum(cands),
+        rows=rows,
+        speedup_wall=rows[1]["wall_s"] / rows[0]["wall_s"],
+        speedup_cpu=rows[1]["cpu_s"] / rows[0]["cpu_s"],
+        gap_span_vs_direct=stats((span - direct) / direct),
+    )
+    write_report(args.out, "span", report, markdown(report))
+    return report
+
+
+if __name__ == "__main__":
+    sys.exit(main() and 0)
