@@ -8,7 +8,9 @@ load are pessimistic), and writes its report as JSON and Markdown atomically.
 
 from __future__ import annotations
 
+import argparse
 import json
+import logging
 import os
 import platform
 import sys
@@ -185,3 +187,22 @@ def rerender(json_path: Path, markdown) -> dict:
     report = json.loads(json_path.read_text())
     write_report(json_path.parent, json_path.stem, report, markdown(report))
     return report
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+    """The options every benchmark takes: --root, --out, --no-progress, --render."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--root", type=Path, default=DEFAULT_DATA, help="shared data")
+    ap.add_argument("--out", type=Path, default=REPO / "reports")
+    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    ap.add_argument("--render", type=Path, default=None, help=RENDER_HELP)
+    return ap
+
+
+def begin(log: logging.Logger) -> tuple[dict, list[float]]:
+    """Start a timed run: log to stderr, pin every pool to one thread per core,
+    log the environment. Returns it and the load average at the start."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    env = environment(set_threads(cores()))
+    log.info("environment %s", env)
+    return env, load_average()

@@ -30,7 +30,6 @@ on as many OpenMP threads as XLA has CPU threads (one per core).
 
 from __future__ import annotations
 
-import argparse
 import logging
 from pathlib import Path
 
@@ -38,16 +37,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from _bench_common import (
-    DEFAULT_DATA,
-    RENDER_HELP,
-    REPO,
+    begin,
     command_line,
     cores,
-    environment,
     header,
     load_average,
+    parser,
     rerender,
-    set_threads,
     table,
     write_report,
 )
@@ -216,25 +212,17 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=DEFAULT_DATA, help="shared data")
-    ap.add_argument("--out", type=Path, default=REPO / "reports")
+    ap = parser(__doc__)
     ap.add_argument("--repeats", type=int, default=None, help="timed batch calls")
     ap.add_argument("--singles", type=int, default=None, help="timed single queries")
     ap.add_argument("--quick", action="store_true", help="1 batch, 30 singles")
-    ap.add_argument("--no-progress", dest="progress", action="store_false")
-    ap.add_argument("--render", type=Path, default=None, help=RENDER_HELP)
     args = ap.parse_args(argv)
     if args.render:
         return rerender(args.render, markdown)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     repeats = args.repeats or (1 if args.quick else 5)
     singles = args.singles or (30 if args.quick else 300)
 
-    threads = set_threads(cores())
-    env = environment(threads)
-    log.info("environment %s", env)
-    load_start = load_average()
+    env, load_start = begin(log)
     kw = dict(repeats=repeats, singles=singles)
     refs, qry, src = random_features(10713, 4096, BATCH, seed=0)
     cases = [

@@ -101,7 +101,9 @@ def main() -> None:
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    stem = "pipeline" if args.descriptor == "patchnorm" else f"pipeline_{args.descriptor}"
+    stem = (
+        "pipeline" if args.descriptor == "patchnorm" else f"pipeline_{args.descriptor}"
+    )
     (out / f"{stem}.json").write_text(json.dumps(report, indent=2))
     lines = [
         "# Augmented training pipeline",

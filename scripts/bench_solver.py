@@ -39,7 +39,6 @@ deviation 0.3, rows L2-normalised, seeded.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import warnings
 from pathlib import Path
@@ -47,17 +46,14 @@ from pathlib import Path
 import numpy as np
 import optax
 from _bench_common import (
-    DEFAULT_DATA,
-    RENDER_HELP,
-    REPO,
+    begin,
     command_line,
     cores,
-    environment,
     header,
     load_average,
+    parser,
     plain,
     rerender,
-    set_threads,
     stats,
     table,
     timed,
@@ -479,28 +475,20 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=DEFAULT_DATA, help="shared data")
-    ap.add_argument("--out", type=Path, default=REPO / "reports")
+    ap = parser(__doc__)
     ap.add_argument("--frames", type=int, default=None, help="Nordland frames")
     ap.add_argument("--video-frames", type=int, default=None)
     ap.add_argument("--video-dim", type=int, default=4096)
     ap.add_argument("--samples", type=int, default=None, help="LinearSVC templates")
     ap.add_argument("--quick", action="store_true", help="800 frames, 4 templates")
-    ap.add_argument("--no-progress", dest="progress", action="store_false")
-    ap.add_argument("--render", type=Path, default=None, help=RENDER_HELP)
     args = ap.parse_args(argv)
     if args.render:
         return rerender(args.render, markdown)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     frames = args.frames or (800 if args.quick else 3576)
     video_frames = args.video_frames or (800 if args.quick else 3705)
     samples = args.samples or (4 if args.quick else 12)
 
-    threads = set_threads(cores())
-    env = environment(threads)
-    log.info("environment %s", env)
-    load_start = load_average()
+    env, load_start = begin(log)
     cases = []
     nordland_dir = args.root / "nordland_64x32"
     if nordland_dir.is_dir():
