@@ -284,6 +284,22 @@ def _line_search(m, u, y, a, b, cc, c, iters: int = 30):
     return t, phi(t)[0]
 
 
+REFRESH_AFTER = 20  # CG iterations after which a step's margins are recomputed
+
+
+@jax.jit
+def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
+    """Margins ``Xa theta`` (n, p) from scratch: float32 product, float64 result."""
+    return (xa @ theta.astype(jnp.float32)).astype(theta.dtype)
+
+
+@jax.jit
+def _objective(m: jax.Array, theta: jax.Array, y: jax.Array, c) -> jax.Array:
+    """(p,) objective of every template from its margins m (n, p)."""
+    h = jnp.maximum(0.0, 1.0 - y * m)
+    return 0.5 * jnp.sum(theta * theta, axis=0) + c * jnp.sum(h * h, axis=0)
+
+
 @partial(jax.jit, static_argnames=("block",))
 def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg):
     """One Newton step of the templates ``cols`` (b,) of theta (q, p), m (n, p);
@@ -301,7 +317,7 @@ def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg)
     lam32 = lam.astype(jnp.float32)
     h = jnp.maximum(0.0, 1.0 - yb * mb)
     mask = (h > 0).astype(jnp.float32)
-    f0 = 0.5 * jnp.sum(tb * tb, axis=0) + c * jnp.sum(h * h, axis=0)
+    f0 = _objective(mb, tb, yb, c)
     grad = lam * tb - (xa.T @ (yb * h).astype(jnp.float32)).astype(tb.dtype)
     precond = _precond(vecs, lead, rest, mask, lam32, block)
     s, u, it = _cg(xa, mask, lam32, precond, -grad.astype(jnp.float32), eta, max_cg)
@@ -317,22 +333,6 @@ def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg)
         theta = theta.at[:, cols].set(tb + t * s)
         m = m.at[:, cols].set(mb + t * u)
     return theta, m, f0, f1, decrement, it
-
-
-REFRESH_AFTER = 20  # CG iterations after which a step's margins are recomputed
-
-
-@jax.jit
-def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
-    """Margins ``Xa theta`` (n, p) from scratch: float32 product, float64 result."""
-    return (xa @ theta.astype(jnp.float32)).astype(theta.dtype)
-
-
-@jax.jit
-def _objective(m: jax.Array, theta: jax.Array, y: jax.Array, c) -> jax.Array:
-    """(p,) objective of every template from its margins m (n, p)."""
-    h = jnp.maximum(0.0, 1.0 - y * m)
-    return 0.5 * jnp.sum(theta * theta, axis=0) + c * jnp.sum(h * h, axis=0)
 
 
 def _cg_cap(config: NewtonConfig, step: int) -> int:
