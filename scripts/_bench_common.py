@@ -206,3 +206,13 @@ def begin(log: logging.Logger) -> tuple[dict, list[float]]:
     env = environment(set_threads(cores()))
     log.info("environment %s", env)
     return env, load_average()
+
+
+def run_record(script: str, argv: list[str] | None, env: dict, load_start) -> dict:
+    """The fields every report opens with: command, environment, load average
+    at the start (from :func:`begin`) and now."""
+    return dict(
+        command=command_line(script, argv),
+        environment=env,
+        load_average=dict(start=load_start, end=load_average()),
+    )

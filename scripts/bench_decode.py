@@ -38,12 +38,12 @@ import jax.numpy as jnp
 import numpy as np
 from _bench_common import (
     begin,
-    command_line,
     cores,
     header,
     load_average,
     parser,
     rerender,
+    run_record,
     table,
     write_report,
 )
@@ -240,9 +240,7 @@ def main(argv: list[str] | None = None) -> dict:
         refs, qry, src = random_features(n, 2048, BATCH, seed=0)
     cases.append(bench_case(name, refs, qry, src, periods, **kw))
     report = dict(
-        command=command_line("bench_decode.py", argv),
-        environment=env,
-        load_average=dict(start=load_start, end=load_average()),
+        **run_record("bench_decode.py", argv, env, load_start),
         jax_backend=jax.default_backend(),
         cases=cases,
     )

@@ -47,13 +47,13 @@ import numpy as np
 import optax
 from _bench_common import (
     begin,
-    command_line,
     cores,
     header,
     load_average,
     parser,
     plain,
     rerender,
+    run_record,
     stats,
     table,
     timed,
@@ -503,9 +503,7 @@ def main(argv: list[str] | None = None) -> dict:
     xv = video_like(video_frames, args.video_dim, **VIDEO)
     cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
     report = dict(
-        command=command_line("bench_solver.py", argv),
-        environment=env,
-        load_average=dict(start=load_start, end=load_average()),
+        **run_record("bench_solver.py", argv, env, load_start),
         aim=dict(speedup=AIM_SPEEDUP, gap=AIM_GAP),
         video_like=dict(**VIDEO, cosines=neighbour_cosines(xv)),
         cases=cases,

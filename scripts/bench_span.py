@@ -17,20 +17,18 @@ are computed once and cached (``rhythmic_jax.features.cached_describe``).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
+import logging
 import sys
 
 import jax
 import numpy as np
 from _bench_common import (
-    DEFAULT_DATA,
-    REPO,
-    command_line,
-    environment,
+    begin,
     header,
-    load_average,
-    set_threads,
+    parser,
+    rerender,
+    run_record,
     stats,
     table,
     timed,
@@ -42,6 +40,8 @@ from rhythmic_jax.features import cached_describe, get_descriptor
 from rhythmic_jax.newton import NewtonConfig, newton_fit
 from rhythmic_jax.objective import Templates, default_c, objective, targets
 from rhythmic_jax.periods import candidate_periods
+
+log = logging.getLogger("bench_span")
 
 
 def objectives(params: Templates, x, y, c) -> np.ndarray:
@@ -80,21 +80,24 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--frames", type=int, default=3576)
     ap.add_argument("--level", type=int, default=1)
     ap.add_argument("--descriptor", default="efficientnet_lite0")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default=str(REPO / "reports"))
     args = ap.parse_args(argv)
-    threads = set_threads(args.threads)
+    if args.render:
+        return rerender(args.render, markdown)
     desc = get_descriptor(args.descriptor)
-    summer = nordland(DEFAULT_DATA / "nordland_64x32", seasons=("summer",))[0]
-    x = cached_describe(summer.images, desc, "nordland64x32-summer")[: args.frames]
+    summer = nordland(
+        args.root / "nordland_64x32", seasons=("summer",), progress=args.progress
+    )[0]
+    x = cached_describe(
+        summer.images, desc, "nordland64x32-summer", progress=args.progress
+    )[: args.frames]
     n, d = x.shape
     cands = candidate_periods(n, 2, args.level, 7)
     y, c = targets(np.arange(n), cands), default_c(n)
-    load0 = load_average()
+    env, load0 = begin(log)
     rows, answers = [], {}
     for name, cfg in (
         ("span (n-dim)", NewtonConfig()),
@@ -114,9 +117,7 @@ def main(argv: list[str] | None = None) -> dict:
         print(rows[-1], flush=True)
     span, direct = answers["span (n-dim)"], answers["direct (d-dim)"]
     report = dict(
-        command=command_line("bench_span.py", argv),
-        environment=environment(threads),
-        load_average=dict(start=load0, end=load_average()),
+        **run_record("bench_span.py", argv, env, load0),
         descriptor=args.descriptor,
         settings=desc.settings(),
         n=n,
