@@ -34,8 +34,10 @@ __all__ = [
     "AugmentConfig",
     "Params",
     "augment",
+    "augmented_batch",
     "augmented_batches",
     "build_pipeline",
+    "epoch_order",
     "replay",
     "sample_params",
     "to_batch",
@@ -351,6 +353,33 @@ def to_images(batch: torch.Tensor) -> np.ndarray:
     return out.permute(0, 2, 3, 1).cpu().numpy()
 
 
+def epoch_order(n: int, seed: int, epoch: int, shuffle: bool = True) -> np.ndarray:
+    """The (n,) order in which epoch ``epoch`` visits the frames."""
+    if not shuffle:
+        return np.arange(n)
+    return np.random.default_rng([seed, epoch]).permutation(n)
+
+
+def augmented_batch(
+    images: np.ndarray,
+    order: np.ndarray,
+    config: AugmentConfig,
+    batch_size: int,
+    seed: int,
+    epoch: int,
+    i: int,
+) -> tuple[np.ndarray, torch.Tensor]:
+    """Batch ``i`` of an epoch: ``(indices (b,), augmented float32 (b, 3, H, W))``.
+
+    ``order`` is the epoch's :func:`epoch_order`; the draws are seeded by
+    ``(seed, epoch, i)``, so any batch can be made again on its own.
+    """
+    idx = order[i * batch_size : (i + 1) * batch_size]
+    batch_seed = np.random.SeedSequence([seed, epoch, i]).generate_state(1)[0]
+    out, _ = augment(to_batch(images[idx]), config, int(batch_seed))
+    return idx, out
+
+
 def augmented_batches(
     images: np.ndarray,
     config: AugmentConfig,
@@ -362,20 +391,14 @@ def augmented_batches(
     """Yield ``(indices (b,), augmented float32 (b, 3, H, W))`` over ``images``.
 
     One pass over uint8 (n, H, W, 3) ``images`` (in a random order when
-    ``shuffle``); each batch gets fresh draws seeded by ``(seed, epoch, batch)``,
-    so a given ``(seed, epoch)`` always yields the same batches and another epoch
-    yields new ones.
+    ``shuffle``); each batch gets fresh draws seeded by ``(seed, epoch, batch)``
+    (:func:`augmented_batch`), so a given ``(seed, epoch)`` always yields the
+    same batches and another epoch yields new ones.
     """
     if int(batch_size) != batch_size or batch_size < 1:
         raise InputError(f"batch_size must be a positive integer, got {batch_size}")
     images = np.asarray(images)
     to_batch(images[:0])  # shape and dtype check
-    n = len(images)
-    order = np.arange(n)
-    if shuffle:
-        order = np.random.default_rng([seed, epoch]).permutation(n)
-    for i, start in enumerate(range(0, n, batch_size)):
-        idx = order[start : start + batch_size]
-        batch_seed = np.random.SeedSequence([seed, epoch, i]).generate_state(1)[0]
-        out, _ = augment(to_batch(images[idx]), config, int(batch_seed))
-        yield idx, out
+    order = epoch_order(len(images), seed, epoch, shuffle)
+    for i in range(-(-len(images) // batch_size)):
+        yield augmented_batch(images, order, config, batch_size, seed, epoch, i)

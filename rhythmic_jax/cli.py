@@ -10,6 +10,7 @@ import argparse
 import json
 import logging
 import os
+import shutil
 import sys
 import textwrap
 from pathlib import Path
@@ -23,6 +24,8 @@ EXAMPLES = {
       rhythmic-jax fit ref.npy --out route.map
       rhythmic-jax fit summer/ winter/ --out route.map --descriptor patchnorm
       rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
+      rhythmic-jax fit summer/ --out route.map --augment all --epochs 5
+        (killed or stopped with Ctrl-C? run the same command again to resume)
     """,
     "query": """
       rhythmic-jax query route.map queries.npy --out pred.npy
@@ -113,6 +116,22 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--epochs", type=int, default=3, help="augmented epochs (3)")
     p.add_argument(
+        "--batch-size", type=int, default=128, help="augmented frames per step (128)"
+    )
+    p.add_argument(
+        "--checkpoint",
+        default=None,
+        help="checkpoint folder of an augmented fit (default OUT.ckpt, removed once "
+        "the map is saved); a killed or interrupted fit resumes from it when the "
+        "same command runs again",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=50,
+        help="steps between checkpoints of an augmented fit (50)",
+    )
+    p.add_argument(
         "--pca", type=int, default=None, help="project descriptors to K dims (saved)"
     )
     _add_source_options(p)
@@ -156,6 +175,7 @@ def _cmd_fit(args) -> int:
     from rhythmic_jax.sources import load_sources
 
     check_target(args.out)  # before the fit, not after it
+    augmented = _augmented_fit(args) if args.augment else None
     feats = load_sources(
         args.sources,
         args.descriptor,
@@ -175,12 +195,14 @@ def _cmd_fit(args) -> int:
         descriptor=feats.descriptor,
         descriptor_settings=feats.settings,
     )
-    if args.augment:
-        _fit_augmented(model, feats, args)
+    if augmented is not None:
+        _fit_augmented(model, feats, *augmented, progress=not args.no_progress)
     else:
         model.fit(feats.x, feats.labels, progress=not args.no_progress)
     model.extra.update(feats.extra)
     model.save(args.out)
+    if augmented is not None and args.checkpoint is None:
+        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     info = model.info()
     if args.json:
         print(json.dumps(info, indent=2))
@@ -194,22 +216,51 @@ def _cmd_fit(args) -> int:
     return 0
 
 
-def _fit_augmented(model, feats, args) -> None:
-    from rhythmic_jax.augmented import AugmentedFit, fit_map_augmented
+def _augmented_fit(args):
+    """The augmented fit's settings and checkpoint folder, checked before any work."""
+    from rhythmic_jax.augment import AugmentConfig
+    from rhythmic_jax.augmented import AugmentedFit
+
+    if args.pca is not None:
+        raise InputError("--augment and --pca together are not supported")
+    for flag in ("epochs", "batch_size", "checkpoint_every"):
+        if getattr(args, flag) < 1:
+            name = "--" + flag.replace("_", "-")
+            raise InputError(f"{name} must be >= 1, got {getattr(args, flag)}")
+    names = tuple(args.augment.split(","))
+    AugmentConfig(names=names)  # unknown names end here, not after describing
+    config = AugmentedFit(
+        names=names,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        checkpoint_every=args.checkpoint_every,
+    )
+    ckpt = Path(args.checkpoint or str(Path(args.out)) + ".ckpt").absolute()
+    if ckpt.exists() and not ckpt.is_dir():
+        raise InputError(f"--checkpoint {ckpt}: a file, not a folder")
+    return config, ckpt
+
+
+def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
+    """Fit over augmented frames, checkpointed in ``ckpt``."""
+    from rhythmic_jax.augmented import fit_map_augmented
     from rhythmic_jax.features import get_descriptor
 
     if feats.images is None:
         raise InputError("--augment needs image sources (folders or --tile), not .npy")
-    if "pca" in feats.settings:
-        raise InputError("--augment and --pca together are not supported")
-    if args.epochs < 1:
-        raise InputError(f"--epochs must be >= 1, got {args.epochs}")
-    config = AugmentedFit(names=tuple(args.augment.split(",")), epochs=args.epochs)
     descriptor = get_descriptor(feats.descriptor, **feats.settings)
-    fit_map_augmented(
-        model, feats.images, feats.x, descriptor, config, feats.labels,
-        progress=not args.no_progress,
-    )  # fmt: skip
+    try:
+        fit_map_augmented(
+            model, feats.images, feats.x, descriptor, config, feats.labels,
+            progress=progress, checkpoint=ckpt,
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        print(
+            f"rhythmic-jax fit: the augmented fit's checkpoint is kept in {ckpt}; "
+            "run the same command again to resume",
+            file=sys.stderr,
+        )
+        raise
 
 
 def _load_queries(args):

@@ -22,6 +22,7 @@ import dataclasses
 import itertools
 import logging
 import os
+import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +50,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 Batch = tuple[np.ndarray | jax.Array, np.ndarray | jax.Array]
 # settings that change the trajectory: a checkpoint only resumes a run that agrees
-_TRAJECTORY = ("batch_size", "learning_rate", "seed")
+_TRAJECTORY = ("batch_size", "learning_rate", "seed", "source")
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,8 @@ class RunConfig:
       learning_rate: Adam's step size.
       checkpoint_every: steps between checkpoints (one more is kept at the end).
       seed: the batch order's seed (recorded; give the same to the batches).
+      source: what the batches are (e.g. the augmentations and frames of an
+        augmented fit); recorded, and a checkpoint only resumes the same source.
 
     ``RunConfig(epochs=2, batch_size=8, checkpoint_every=1)`` is the fault test's
     run (``pytest tests/test_faults.py``): killed with SIGKILL and resumed, it ends
@@ -73,6 +76,7 @@ class RunConfig:
     learning_rate: float = 1e-3
     checkpoint_every: int = 100
     seed: int = 0
+    source: str = ""
 
     def __post_init__(self):
         for name in ("epochs", "batch_size", "checkpoint_every", "seed"):
@@ -80,6 +84,8 @@ class RunConfig:
         rate = self.learning_rate
         if isinstance(rate, bool) or not isinstance(rate, int | float) or rate <= 0:
             raise InputError(f"RunConfig.learning_rate must be positive, got {rate!r}")
+        if not isinstance(self.source, str):
+            raise InputError(f"RunConfig.source must be a string, got {self.source!r}")
 
 
 def _check_int(name: str, value, least: int) -> None:
@@ -188,6 +194,7 @@ def train_run(
     config: RunConfig,
     ckpt_dir: str | os.PathLike | None,
     progress: bool = True,
+    timings: dict[str, float] | None = None,
 ) -> Templates:
     """Adam over ``config.epochs`` passes of minibatches, resumable from checkpoints.
 
@@ -202,6 +209,8 @@ def train_run(
       ckpt_dir: folder of the orbax checkpoints (the last 2 are kept); None for no
         checkpoints. A folder that holds a checkpoint resumes from its latest.
       progress: show a progress bar over steps.
+      timings: when given, ``timings["step"]`` accumulates the seconds spent in
+        optimiser steps.
 
     Returns:
       The trained templates. On an exception or Ctrl-C the state reached is saved
@@ -236,8 +245,13 @@ def train_run(
                 xb = jnp.asarray(xb, jnp.float32)
                 yb = jnp.asarray(yb, jnp.float32)
                 scale = n / xb.shape[0]
+                t = time.perf_counter()
                 state, loss = minibatch_step(state, xb, yb, c, scale, optimizer)
                 step = int(state.step)
+                if timings is not None:
+                    loss.block_until_ready()
+                    seconds = time.perf_counter() - t
+                    timings["step"] = timings.get("step", 0.0) + seconds
                 bar.update(1)
                 if progress:
                     bar.set_postfix(epoch=epoch, loss=f"{float(loss):.5g}")

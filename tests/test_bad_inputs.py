@@ -297,6 +297,32 @@ CLI_CASES = [
         r"frame .*img3\.png is 30x20 but img0\.png is 16x12",
     ),
     Case(
+        "augment-unknown-name",
+        fit(lambda s: frames(s / "aug", 4), extra=["--augment", "hflip,sepia"]),
+        r"unknown augmentation 'sepia'; known: gaussian_blur, hflip, ",
+    ),
+    Case(
+        "augment-batch-size-0",
+        fit(
+            lambda s: frames(s / "aug", 4),
+            extra=["--augment", "all", "--batch-size", "0"],
+        ),
+        r"--batch-size must be >= 1, got 0",
+    ),
+    Case(
+        "augment-checkpoint-is-a-file",
+        fit(
+            lambda s: frames(s / "aug", 4),
+            extra=["--augment", "all", "--checkpoint", __file__],
+        ),
+        r"--checkpoint .*test_bad_inputs\.py: a file, not a folder",
+    ),
+    Case(
+        "augment-descriptor-files",
+        fit(ok, extra=["--augment", "all"]),
+        r"--augment needs image sources \(folders or --tile\), not \.npy",
+    ),
+    Case(
         "unknown-descriptor",
         fit(lambda s: frames(s / "f", 3), extra=["--descriptor", "sift"]),
         r"unknown descriptor 'sift'; known: \['efficientnet_lite0', 'hog', "

@@ -201,3 +201,79 @@ def test_sigkill_between_the_renames_loads_the_backup(tmp_path, caplog):
     np.testing.assert_array_equal(
         RhythmicMap.load(path).predict(queries), second.predict(queries)
     )
+
+
+# ------------------------------------------------------- augmented fits (CLI)
+
+AUGMENTED_ARGS = ["--augment", "all", "--epochs", "3", "--batch-size", "8",
+                  "--checkpoint-every", "1", "--no-progress"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def augmented_route(tmp_path_factory):
+    """40 frames in a folder and the map of an uninterrupted augmented fit."""
+    from skimage.io import imsave
+
+    from rhythmic_jax.cli import main
+
+    root = tmp_path_factory.mktemp("augmented")
+    rng = np.random.default_rng(4)
+    (root / "frames").mkdir()
+    for i in range(40):
+        pixels = rng.integers(0, 256, (16, 32, 3), dtype=np.uint8)
+        imsave(root / "frames" / f"{i:03d}.png", pixels, check_contrast=False)
+    assert main(["fit", str(root / "frames"), "--out", str(root / "whole.map"),
+                 *AUGMENTED_ARGS]) == 0  # fmt: skip
+    assert not (root / "whole.map.ckpt").exists()  # removed once the map is saved
+    assert main(["fit", str(root / "frames"), "--out", str(root / "plain.map"),
+                 "--no-progress"]) == 0  # fmt: skip
+    whole, plain = (RhythmicMap.load(root / m) for m in ("whole.map", "plain.map"))
+    moved = np.abs(np.asarray(whole.params.w) - np.asarray(plain.params.w)).max()
+    assert moved > 1e-3  # the augmented steps did change the templates
+    return root
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=lambda s: s.name)
+def test_a_stopped_augmented_fit_resumes_to_the_same_map(
+    augmented_route, sig, tmp_path, caplog, capsys
+):
+    """``rhythmic-jax fit --augment`` killed (or stopped with Ctrl-C) mid-run and
+    run again with the same command ends on the uninterrupted run's map."""
+    from rhythmic_jax.cli import main
+
+    frames, out = augmented_route / "frames", tmp_path / "route.map"
+    argv = ["fit", str(frames), "--out", str(out), *AUGMENTED_ARGS]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rhythmic_jax.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    ckpt = tmp_path / "route.map.ckpt"
+    deadline = time.monotonic() + 120
+    while not (ckpt.is_dir() and any(p.name.isdigit() for p in ckpt.iterdir())):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "no checkpoint within two minutes"
+        time.sleep(0.02)
+    time.sleep(random.Random(sig).uniform(0.0, 0.3))  # somewhere in the run
+    if sig == signal.SIGKILL:
+        _kill(proc)
+    else:
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert "run the same command again to resume" in err
+    assert not out.exists()  # no map from a stopped fit
+    steps = sorted(int(p.name) for p in ckpt.iterdir() if p.name.isdigit())
+    assert steps and steps[-1] < 30  # stopped before the last of 30 steps
+
+    with caplog.at_level(logging.INFO, logger="rhythmic_jax.run"):
+        assert main(argv) == 0
+    assert "resuming from" in caplog.text
+    assert not ckpt.exists()
+    whole, resumed = (RhythmicMap.load(p) for p in (augmented_route / "whole.map", out))
+    assert resumed.periods == whole.periods
+    for a, b in zip(resumed.params, whole.params, strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-5)
+    x = np.random.default_rng(5).normal(size=(64, whole.d)).astype(np.float32)
+    np.testing.assert_array_equal(resumed.predict(x), whole.predict(x))
