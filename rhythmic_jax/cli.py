@@ -36,6 +36,7 @@ EXAMPLES = {
     """,
     "evaluate": """
       rhythmic-jax evaluate route.map winter/ --tolerance 1
+      rhythmic-jax evaluate route.map winter/ --reference summer/ --json
       rhythmic-jax evaluate route.map queries.npy --json
     """,
     "demo": """
@@ -153,7 +154,12 @@ def _parser() -> argparse.ArgumentParser:
     p = add("evaluate", "accuracy, recall@K, storage and latency beside brute force")
     p.add_argument("map", help="map folder")
     p.add_argument("source", help="query descriptors .npy, image folder or image")
-    p.add_argument("--reference", default=None, help="reference source for brute force")
+    p.add_argument(
+        "--reference",
+        default=None,
+        help="reference source for the brute-force line (default: the sources the "
+        "map was fitted on, when they are still there)",
+    )
     p.add_argument(
         "--tolerance", type=int, default=0, help="frame tolerance (default 0)"
     )
@@ -200,6 +206,11 @@ def _cmd_fit(args) -> int:
     else:
         model.fit(feats.x, feats.labels, progress=not args.no_progress)
     model.extra.update(feats.extra)
+    model.reference = {
+        "sources": [str(Path(src).expanduser().absolute()) for src in args.sources],
+        "tile": args.tile,
+        "stride": args.stride,
+    }
     model.save(args.out)
     if augmented is not None and args.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
@@ -318,26 +329,61 @@ def _cmd_info(args) -> int:
     return 0
 
 
+def _reference(args, model):
+    """Brute force's reference: ``(x (m, d), labels (m,), note)`` or Nones.
+
+    ``--reference`` when given, else the sources the map was fitted on (their
+    paths are recorded in the map) when they are still there.
+    """
+    import numpy as np
+
+    from rhythmic_jax.sources import load_query_source
+
+    if args.reference:
+        sources, tile, stride = [args.reference], args.tile, args.stride
+        note = f"brute force over --reference {args.reference}"
+    else:
+        sources = model.reference.get("sources") or []
+        tile, stride = model.reference.get("tile"), model.reference.get("stride")
+        missing = [s for s in sources if not Path(s).exists()]
+        if not sources or missing:
+            why = f"{missing[0]} is gone" if missing else "the map names none"
+            return (
+                None,
+                None,
+                (
+                    f"no brute-force line: the map's reference frames are not at hand "
+                    f"({why}); give --reference SOURCE"
+                ),
+            )
+        note = "brute force over the map's reference " + ", ".join(sources)
+    blocks = [
+        load_query_source(src, model, args.descriptor, tile, stride, False).x
+        for src in sources
+    ]
+    labels = np.concatenate([np.arange(len(b)) for b in blocks])
+    return np.concatenate(blocks), labels, note
+
+
 def _cmd_evaluate(args) -> int:
     from rhythmic_jax.report import evaluate_map, format_evaluation
 
     model, feats = _load_queries(args)
-    ref = None
-    if args.reference:
-        from rhythmic_jax.sources import load_query_source
-
-        ref = load_query_source(
-            args.reference, model, args.descriptor, args.tile, args.stride, False
-        ).x
+    ref, labels, note = _reference(args, model)
     result = evaluate_map(
         model,
         feats.x,
         reference=ref,
+        reference_labels=labels,
         tolerance=args.tolerance,
         method=args.decode,
         sequence=args.sequence,
     )
-    print(json.dumps(result, indent=2) if args.json else format_evaluation(result))
+    result["reference_note"] = note
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(format_evaluation(result) + "\n" + note)
     return 0
 
 

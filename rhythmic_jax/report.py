@@ -55,6 +55,7 @@ def evaluate_map(
     queries: np.ndarray,
     *,
     reference: np.ndarray | None = None,
+    reference_labels: np.ndarray | None = None,
     gt: np.ndarray | None = None,
     tolerance: int = 0,
     method: str | None = None,
@@ -64,7 +65,9 @@ def evaluate_map(
     """Score a fitted :class:`~rhythmic_jax.RhythmicMap` on (b, d) queries.
 
     Args:
-      reference: the (n, d) reference descriptors, for the brute-force line.
+      reference: the (m, d) reference descriptors, for the brute-force line.
+      reference_labels: (m,) place of each reference row (several traversals);
+        default ``arange(m)``.
       gt: (b,) true place of each query (-1: not in the map); default ``arange``.
       tolerance: frames of slack for the tolerant accuracy and recall@K.
       method, sequence: decode options passed to ``predict``.
@@ -91,6 +94,8 @@ def evaluate_map(
 
         flat = BruteForce().fit(reference)
         _, top = flat.search(queries, max(ks))
+        if reference_labels is not None:
+            top = np.asarray(reference_labels)[top]
         rows["brute force"] = {
             "accuracy": accuracy(top[:, 0], gt, 0),
             "accuracy_tol": accuracy(top[:, 0], gt, tolerance),

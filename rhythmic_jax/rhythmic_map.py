@@ -120,6 +120,9 @@ class RhythmicMap:
         self.candidate_errors: tuple[float, ...] = ()
         self.c: float | None = None
         self.extra: dict[str, np.ndarray] = {}
+        # where the reference frames came from (paths, tiling), not the frames:
+        # ``rhythmic-jax evaluate`` reads them again for its brute-force line
+        self.reference: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ fit
     def fit(self, x, labels=None, *, progress: bool = True, refine=None) -> RhythmicMap:
@@ -264,6 +267,7 @@ class RhythmicMap:
             "descriptor": self.config.descriptor,
             "descriptor_settings": self.config.descriptor_settings,
             "config": {k: v for k, v in asdict(self.config).items()},
+            "reference": self.reference,
         }
 
     # ----------------------------------------------------------------- disk
@@ -326,6 +330,8 @@ class RhythmicMap:
         self.periods, self.n, self.d = periods, n, dim
         self.c, self.candidates, self.candidate_errors = c, cands, errors
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
+        reference = meta.get("reference", {})
+        self.reference = reference if isinstance(reference, dict) else {}
         return self
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from skimage import data as skdata
 from skimage.io import imsave
 from skimage.transform import resize
 
-from rhythmic_jax import RhythmicMap
+from rhythmic_jax import BruteForce, RhythmicMap
 from rhythmic_jax.cli import main
 
 
@@ -63,6 +64,30 @@ def test_fit_query_info_on_descriptor_files(npy_route, capsys):
     assert res["methods"]["brute force"]["storage_bytes"] == 120 * 300 * 4
 
 
+def test_evaluate_finds_the_maps_reference_or_says_why_not(npy_route, capsys):
+    """Without --reference, brute force reads the sources the map was fitted on."""
+    ref = npy_route / "ref_copy.npy"
+    shutil.copy(npy_route / "ref.npy", ref)
+    out_map = npy_route / "copy.map"
+    assert run(capsys, "fit", str(ref), "--out", str(out_map), "--no-progress")[0] == 0
+    assert RhythmicMap.load(out_map).reference["sources"] == [str(ref.absolute())]
+    query = str(npy_route / "q.npy")
+    code, out, err = run(capsys, "evaluate", str(out_map), query, "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    expected = BruteForce().fit(np.load(ref)).search(np.load(query), 1)[1][:, 0]
+    assert res["methods"]["brute force"]["accuracy"] == pytest.approx(
+        float((expected == np.arange(120)).mean())
+    )
+    assert str(ref.absolute()) in res["reference_note"]
+    ref.unlink()
+    code, out, err = run(capsys, "evaluate", str(out_map), query)
+    assert code == 0, err
+    rows = out.splitlines()[2:-1]  # below the heading and header, above the note
+    assert [row.split()[0] for row in rows] == ["map"]
+    assert out.strip().endswith("is gone); give --reference SOURCE")
+
+
 def make_folder(path, images):
     path.mkdir()
     for i, img in enumerate(images):
@@ -87,6 +112,13 @@ def test_fit_and_query_image_folders(tmp_path, capsys):
     assert code == 0, err
     pred = np.asarray(json.loads(out)["predictions"])
     assert (np.abs(pred - np.arange(72)) <= 1).mean() > 0.9
+    # brute force over both traversals the map was fitted on, as places
+    code, out, err = run(capsys, "evaluate", str(out_map), str(tmp_path / "b"),
+                         "--json", "--no-progress")  # fmt: skip
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["methods"]["brute force"]["accuracy"] == 1.0  # b is in the map
+    assert res["methods"]["brute force"]["storage_bytes"] == 2 * 72 * 2048 * 4
     code, _, err = run(capsys, "query", str(out_map), str(tmp_path / "b"),
                        "--descriptor", "hog")  # fmt: skip
     assert code == 2 and "patchnorm" in err and len(err.strip().splitlines()) == 1
@@ -139,4 +171,6 @@ def test_nordland_folders_end_to_end(nordland_root, tmp_path, capsys):
     code, out, err = run(capsys, "evaluate", str(out_map), summer,
                          "--json", "--no-progress")  # fmt: skip
     assert code == 0, err
-    assert json.loads(out)["methods"]["map"]["accuracy"] >= 0.93
+    methods = json.loads(out)["methods"]
+    assert methods["map"]["accuracy"] >= 0.93
+    assert methods["brute force"]["accuracy"] >= 0.99  # the map's own reference
