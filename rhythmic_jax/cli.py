@@ -182,6 +182,7 @@ def _cmd_fit(args) -> int:
 
     check_target(args.out)  # before the fit, not after it
     augmented = _augmented_fit(args) if args.augment else None
+    _check_fit_memory(args)
     feats = load_sources(
         args.sources,
         args.descriptor,
@@ -225,6 +226,25 @@ def _cmd_fit(args) -> int:
             f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
         )
     return 0
+
+
+def _check_fit_memory(args) -> None:
+    """Refuse descriptor files too large to fit in memory before reading them."""
+    from rhythmic_jax.data import descriptor_shape
+    from rhythmic_jax.periods import candidate_periods
+    from rhythmic_jax.run import check_memory
+
+    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in args.sources):
+        return  # reading the sources says what is wrong
+    shapes = [descriptor_shape(s) for s in args.sources]
+    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
+        return  # reading them says what is wrong
+    n, d = shapes[0]
+    try:
+        cands = candidate_periods(n, args.r, args.level, args.count)
+    except InputError:
+        return  # the map's settings say what is wrong
+    check_memory(n * len(shapes), d, sum(cands))
 
 
 def _augmented_fit(args):

@@ -38,6 +38,7 @@ __all__ = [
     "AerialRoute",
     "Tiles",
     "Traversal",
+    "descriptor_shape",
     "gps_places",
     "load_aerial_pair",
     "load_aerial_route",
@@ -430,11 +431,11 @@ def _check_descriptors(x: np.ndarray, where: str) -> np.ndarray:
     return x
 
 
-def load_descriptors(path: str | os.PathLike) -> np.ndarray:
-    """Read a float32 (n, d) descriptor matrix from a ``.npy`` file.
+def descriptor_shape(path: str | os.PathLike) -> tuple[int, ...]:
+    """The shape a ``.npy`` descriptor file declares, read from its header only.
 
-    Nothing is unpickled (``allow_pickle=False``); the array must be 2-D,
-    non-empty, numeric and finite.
+    Refuses (:class:`InputError`) a file that is missing, not ``.npy``, not a
+    valid header, or of Python objects; nothing is unpickled and no data is read.
     """
     path = Path(path)
     if path.suffix.lower() != ".npy":
@@ -452,11 +453,20 @@ def load_descriptors(path: str | os.PathLike) -> np.ndarray:
                 header = np.lib.format.read_array_header_1_0(f)
             else:
                 header = np.lib.format.read_array_header_2_0(f)
-            dtype = header[2]
         except Exception as exc:
             raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
-    if dtype.hasobject:
+    if header[2].hasobject:
         raise InputError(f"{path} contains Python objects; refusing to unpickle")
+    return tuple(int(k) for k in header[0])
+
+
+def load_descriptors(path: str | os.PathLike) -> np.ndarray:
+    """Read a float32 (n, d) descriptor matrix from a ``.npy`` file.
+
+    Nothing is unpickled (``allow_pickle=False``); the array must be 2-D,
+    non-empty, numeric and finite.
+    """
+    descriptor_shape(path)  # the header's checks, before any data is read
     try:
         x = np.load(path, allow_pickle=False)
     except Exception as exc:  # truncated data after a valid header

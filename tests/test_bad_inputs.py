@@ -108,6 +108,14 @@ def text_file(src: Path, name: str = "text.npy") -> str:
     return str(src / name)
 
 
+def header_only(src: Path) -> str:
+    """A .npy header declaring 10 million 4096-d rows, and no data behind it."""
+    header = {"descr": "<f4", "fortran_order": False, "shape": (10_000_000, 4096)}
+    with open(src / "huge.npy", "wb") as f:
+        np.lib.format.write_array_header_1_0(f, header)
+    return str(src / "huge.npy")
+
+
 def dup_frames(src: Path) -> str:
     folder = frames(src / "dup", 3)
     shutil.copy(src / "dup" / "img1.png", src / "dup" / "img01.png")
@@ -295,6 +303,13 @@ CLI_CASES = [
         "mixed-image-sizes",
         fit(mixed_sizes),
         r"frame .*img3\.png is 30x20 but img0\.png is 16x12",
+    ),
+    Case(
+        "features-exceed-memory",
+        fit(header_only),
+        r"a full-batch fit of 10000000 frames x 4096 features x \d+ templates needs "
+        r"about [\d,]+ bytes .* are available; stream the frames instead: .*"
+        r"memmap_batches",
     ),
     Case(
         "augment-unknown-name",
