@@ -139,6 +139,7 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
     except Exception as err:  # noqa: BLE001 - orbax raises many kinds
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's JSON spec
+        msg = msg.split(": Error reading")[0]  # the file, not the driver's chain
         raise InputError(f"{folder}: arrays are missing or corrupt ({msg})") from None
     finally:
         ckpt.close()  # an unclosed checkpointer leaks its event loop

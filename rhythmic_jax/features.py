@@ -293,10 +293,17 @@ def get_descriptor(name: str, **settings) -> Descriptor:
         raise InputError(
             f"descriptor {name}: unknown settings {unknown}; known: {sorted(fields)}"
         )
-    try:
-        return cls(**settings)
-    except TypeError as err:  # a required setting is absent
-        raise InputError(f"descriptor {name}: {err}") from err
+    required = sorted(
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+        and f.name not in settings
+    )
+    if required:
+        hint = " (a state-dict file: --weights PATH)" if "weights" in required else ""
+        raise InputError(f"descriptor {name} needs {', '.join(required)}{hint}")
+    return cls(**settings)
 
 
 @contextmanager

@@ -16,6 +16,7 @@ Both modules take images in the package convention, (b, 3, H, W) float32 in
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import torch
@@ -206,6 +207,13 @@ def load_state_dict_file(
         raise InputError(f"{what} weights file not found: {path}")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        if "Weights only load failed" not in str(err):
+            raise InputError(f"{path}: not a readable torch state dict") from err
+        raise InputError(  # weights_only refused a Python object
+            f"{path}: holds Python objects beyond tensors, which are not loaded "
+            "(weights_only); save the plain state dict instead"
+        ) from err
     except Exception as err:  # torch raises several types for unreadable files
         first = str(err).strip().splitlines()[0][:160] if str(err).strip() else ""
         raise InputError(f"{path}: not a readable torch state dict ({first})") from err

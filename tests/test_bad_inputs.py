@@ -346,7 +346,7 @@ CLI_CASES = [
     Case(
         "vgg16-without-weights",
         fit(lambda s: frames(s / "f", 3), extra=["--descriptor", "vgg16_fc7"]),
-        r"descriptor vgg16_fc7: .*missing 1 required positional argument: 'weights'",
+        r"descriptor vgg16_fc7 needs weights \(a state-dict file: --weights PATH\)$",
     ),
     Case(
         "descriptor-option-on-npy",
@@ -651,7 +651,8 @@ def weights_pickled_object(tmp: Path):
     path = tmp / "evil.pth"
     torch.save({"features.0.weight": Mkdir(tmp / "unpickled")}, path)
     return lambda: _describe_with("vgg16_fc7", path), (
-        r"evil\.pth: not a readable torch state dict \(Weights only load failed"
+        r"evil\.pth: holds Python objects beyond tensors, which are not loaded "
+        r"\(weights_only\); save the plain state dict instead$"
     )
 
 
