@@ -174,3 +174,10 @@ def test_nordland_folders_end_to_end(nordland_root, tmp_path, capsys):
     methods = json.loads(out)["methods"]
     assert methods["map"]["accuracy"] >= 0.93
     assert methods["brute force"]["accuracy"] >= 0.99  # the map's own reference
+    code, out, err = run(capsys, "query", str(out_map), summer, "--json",
+                         "--no-progress")  # fmt: skip
+    assert code == 0, err
+    pred = np.asarray(json.loads(out)["predictions"])
+    assert np.mean(pred == np.arange(len(pred))) == pytest.approx(
+        methods["map"]["accuracy"]
+    )
