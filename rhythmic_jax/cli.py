@@ -230,7 +230,7 @@ def _cmd_fit(args) -> int:
 
 def _check_fit_memory(args) -> None:
     """Refuse descriptor files too large to fit in memory before reading them."""
-    from rhythmic_jax.data import descriptor_shape
+    from rhythmic_jax.descriptor_files import descriptor_shape
     from rhythmic_jax.periods import candidate_periods
     from rhythmic_jax.run import check_memory
 

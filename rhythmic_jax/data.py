@@ -1,4 +1,4 @@
-"""Datasets: image-folder traversals, aerial tiles, GPS places, descriptor files.
+"""Routes from disk: image-folder traversals, Nordland, GPS places.
 
 Image convention: frames from disk are ``uint8`` arrays of shape ``(n, H, W, 3)``
 (RGB). A *traversal* is one folder of frames of a route under one condition
@@ -6,11 +6,10 @@ Image convention: frames from disk are ``uint8`` arrays of shape ``(n, H, W, 3)`
 frames are the route in order, and the same index is the same place in every
 condition of that route (the paper's Nordland protocol).
 
-The paper's other two protocols are here as well: "Aerial Brisbane" cuts a map
-image into ``224 x 224`` tiles with a 112-pixel stride (one tile = one place) and
-queries with the tiles of an image of the same ground taken at another date;
-RobotCar groups GPS positions into places with k-means on normalised
-coordinates.
+The paper's RobotCar protocol groups GPS positions into places with k-means on
+normalised coordinates (:func:`gps_places`). The aerial protocol (tiles of large
+images) is :mod:`rhythmic_jax.tiles`; descriptor files are
+:mod:`rhythmic_jax.descriptor_files`.
 """
 
 from __future__ import annotations
@@ -18,7 +17,6 @@ from __future__ import annotations
 import logging
 import os
 import re
-import tempfile
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -35,21 +33,14 @@ from tqdm.auto import tqdm
 from rhythmic_jax.errors import InputError
 
 __all__ = [
-    "AerialRoute",
-    "Tiles",
     "Traversal",
-    "descriptor_shape",
     "gps_places",
-    "load_aerial_pair",
-    "load_aerial_route",
-    "load_descriptors",
+    "list_images",
     "load_route",
     "load_traversal",
     "natural_key",
     "nordland",
     "read_rgb",
-    "save_descriptors",
-    "tile_image",
 ]
 
 log = logging.getLogger(__name__)
@@ -82,7 +73,7 @@ def natural_key(name: str) -> tuple[tuple[str, ...], tuple[int, ...]]:
     return tuple(parts[0::2]), tuple(int(p) for p in parts[1::2])
 
 
-def _list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]:
+def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]:
     """Image files of ``folder`` in natural order, no two with the same key.
 
     With ``one_pattern`` all names must share their text parts (``img#.png``):
@@ -194,7 +185,7 @@ def load_traversal(
     """
     folder = Path(folder)
     size = _check_size(size)
-    files = _list_images(folder, "traversal")
+    files = list_images(folder, "traversal")
     images = None
     for i, path in enumerate(tqdm(files, desc=folder.name, disable=not progress)):
         image = read_rgb(path)
@@ -253,130 +244,6 @@ def nordland(
     return load_route([Path(root) / s for s in seasons], progress=progress)
 
 
-# ------------------------------------------------------------------ aerial tiles
-
-
-@dataclass(frozen=True, eq=False)
-class Tiles:
-    """``tiles`` uint8 (n, size, size, 3); ``positions`` int64 (n, 2) top-left."""
-
-    tiles: np.ndarray
-    positions: np.ndarray
-
-
-def tile_image(image: np.ndarray, size: int = 224, stride: int = 112) -> Tiles:
-    """Cut uint8 (H, W, 3) into ``size x size`` tiles every ``stride`` pixels.
-
-    Tiles come in raster order (row by row); a tile that would cross the right or
-    bottom edge is dropped, giving ``((H - size) // stride + 1) *
-    ((W - size) // stride + 1)`` tiles (the paper: 224 / 112 on Aerial Brisbane).
-    """
-    image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise InputError(
-            f"image must be uint8 (H, W, 3), got {image.dtype} {image.shape}"
-        )
-    if int(size) != size or int(stride) != stride or size < 1 or stride < 1:
-        raise InputError(f"size and stride must be positive integers: {size}, {stride}")
-    h, w = image.shape[:2]
-    if size > h or size > w:
-        raise InputError(f"tile size {size} does not fit in a {w}x{h} image")
-    windows = skimage.util.view_as_windows(image, (size, size, 3), step=stride)
-    rows, cols = windows.shape[:2]
-    tiles = np.ascontiguousarray(windows.reshape(rows * cols, size, size, 3))
-    r, c = np.meshgrid(
-        np.arange(rows) * stride, np.arange(cols) * stride, indexing="ij"
-    )
-    positions = np.stack([r.ravel(), c.ravel()], axis=1).astype(np.int64)
-    return Tiles(tiles=tiles, positions=positions)
-
-
-@dataclass(frozen=True, eq=False)
-class AerialRoute:
-    """Places cut from co-registered image pairs; tile i is place i in both.
-
-    ``map_tiles`` (from A) and ``query_tiles`` (from B) are uint8
-    (n, size, size, 3); ``positions`` int64 (n, 2) is the tile's top-left
-    (row, col) in its image; ``pair_index`` int64 (n,) indexes ``names``.
-    """
-
-    map_tiles: np.ndarray
-    query_tiles: np.ndarray
-    positions: np.ndarray
-    pair_index: np.ndarray
-    names: tuple[str, ...]
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-
-def _pair_tiles(a_path: Path, b_path: Path, size: int, stride: int, crop: bool):
-    """Tiles of A and of B (see :func:`load_aerial_route` for ``crop``)."""
-    a, b = read_rgb(a_path), read_rgb(b_path)
-    if a.shape != b.shape:
-        if not crop:
-            raise InputError(
-                f"{a_path} is {a.shape[1]}x{a.shape[0]} but {b_path} is "
-                f"{b.shape[1]}x{b.shape[0]}; the pair must cover the same pixels"
-            )
-        log.warning("cropping %s: A is %s, B is %s", a_path.name, a.shape, b.shape)
-        h, w = min(a.shape[0], b.shape[0]), min(a.shape[1], b.shape[1])
-        a, b = a[:h, :w], b[:h, :w]
-    return tile_image(a, size, stride), tile_image(b, size, stride)
-
-
-def load_aerial_pair(
-    path_a: str | os.PathLike,
-    path_b: str | os.PathLike,
-    size: int = 224,
-    stride: int = 112,
-) -> AerialRoute:
-    """Map tiles from image A, query tiles from image B of the same ground.
-
-    Both images must have the same shape; tile i of A and tile i of B cover the
-    same pixels (see :func:`tile_image`).
-    """
-    path_a, path_b = Path(path_a), Path(path_b)
-    a, b = _pair_tiles(path_a, path_b, size, stride, crop=False)
-    index = np.zeros(len(a.tiles), np.int64)
-    return AerialRoute(a.tiles, b.tiles, a.positions, index, (path_a.name,))
-
-
-def load_aerial_route(
-    folder: str | os.PathLike,
-    size: int = 64,
-    stride: int = 32,
-    crop: bool = True,
-    progress: bool = True,
-) -> AerialRoute:
-    """Every pair ``folder/A/<name>``, ``folder/B/<name>`` tiled into one route.
-
-    Pairs are taken in natural name order and their tiles concatenated: A tiles
-    are the map, B tiles the queries. A pair whose images differ in shape is
-    cropped to the common top-left region with a logged warning (``crop=True``)
-    or raises. With the defaults ``aerial_pairs/samples_LEVIR`` gives 769
-    places (its 768x384 pair differs by one row) and ``samples_DSIFN`` 490.
-    """
-    folder = Path(folder)
-    files_a = _list_images(folder / "A", "aerial A", one_pattern=False)
-    names_b = {p.name for p in _list_images(folder / "B", "aerial B", False)}
-    missing = [p.name for p in files_a if p.name not in names_b]
-    if missing:
-        raise InputError(f"{folder / 'B' / missing[0]} is missing (it is in A)")
-    pairs = [
-        _pair_tiles(path, folder / "B" / path.name, size, stride, crop)
-        for path in tqdm(files_a, desc=folder.name, disable=not progress)
-    ]
-    index = [np.full(len(a.tiles), i, np.int64) for i, (a, _) in enumerate(pairs)]
-    return AerialRoute(
-        map_tiles=np.concatenate([a.tiles for a, _ in pairs]),
-        query_tiles=np.concatenate([b.tiles for _, b in pairs]),
-        positions=np.concatenate([a.positions for a, _ in pairs]),
-        pair_index=np.concatenate(index),
-        names=tuple(p.name for p in files_a),
-    )
-
-
 # -------------------------------------------------------------------- GPS places
 
 
@@ -413,81 +280,3 @@ def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
     rank = np.empty(int(labels.max()) + 1, np.int64)
     rank[labels[np.sort(first)]] = np.arange(len(first))
     return rank[labels]
-
-
-# -------------------------------------------------------------- descriptor files
-
-
-def _check_descriptors(x: np.ndarray, where: str) -> np.ndarray:
-    if x.dtype.kind not in "fiu":
-        raise InputError(f"{where} has dtype {x.dtype}; expected a real number array")
-    if x.ndim != 2 or x.shape[0] == 0 or x.shape[1] == 0:
-        raise InputError(f"{where} must be a non-empty (n, d) array, got {x.shape}")
-    with np.errstate(over="ignore"):  # too large for float32 -> inf, reported below
-        x = np.asarray(x, dtype=np.float32)
-    bad = np.flatnonzero(~np.isfinite(x).all(axis=1))
-    if bad.size:
-        raise InputError(f"{where} row {bad[0]} holds NaN or inf (as float32)")
-    return x
-
-
-def descriptor_shape(path: str | os.PathLike) -> tuple[int, ...]:
-    """The shape a ``.npy`` descriptor file declares, read from its header only.
-
-    Refuses (:class:`InputError`) a file that is missing, not ``.npy``, not a
-    valid header, or of Python objects; nothing is unpickled and no data is read.
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".npy":
-        raise InputError(f"descriptor file must be .npy, got {path}")
-    if not path.is_file():
-        raise InputError(f"descriptor file not found: {path}")
-    with open(path, "rb") as f:
-        head = f.read(6)
-        if head[:1] == b"\x80":
-            raise InputError(f"{path} contains Python objects; refusing to unpickle")
-        f.seek(0)
-        try:
-            version = np.lib.format.read_magic(f)
-            if version == (1, 0):
-                header = np.lib.format.read_array_header_1_0(f)
-            else:
-                header = np.lib.format.read_array_header_2_0(f)
-        except Exception as exc:
-            raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
-    if header[2].hasobject:
-        raise InputError(f"{path} contains Python objects; refusing to unpickle")
-    return tuple(int(k) for k in header[0])
-
-
-def load_descriptors(path: str | os.PathLike) -> np.ndarray:
-    """Read a float32 (n, d) descriptor matrix from a ``.npy`` file.
-
-    Nothing is unpickled (``allow_pickle=False``); the array must be 2-D,
-    non-empty, numeric and finite.
-    """
-    descriptor_shape(path)  # the header's checks, before any data is read
-    try:
-        x = np.load(path, allow_pickle=False)
-    except Exception as exc:  # truncated data after a valid header
-        raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
-    return _check_descriptors(x, str(path))
-
-
-def save_descriptors(path: str | os.PathLike, x: np.ndarray) -> None:
-    """Write float32 (n, d) ``x`` to ``path`` (.npy) atomically (temp + rename)."""
-    path = Path(path)
-    if path.suffix.lower() != ".npy":
-        raise InputError(f"descriptor file must be .npy, got {path}")
-    x = _check_descriptors(np.asarray(x), "descriptors")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, x, allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -74,14 +74,14 @@ def describe_images(
 
 
 def _images(path: Path, kind: str, tile: int | None, stride: int | None, progress):
-    from rhythmic_jax import data
+    from rhythmic_jax import data, tiles
 
     if kind == "folder":
         return data.load_traversal(path, progress=progress).images
     if tile is None or tile < 1:
         raise InputError(f"--tile must be a positive size, got {tile}")
     stride = stride or max(1, tile // 2)
-    return data.tile_image(data.read_rgb(path), tile, stride).tiles
+    return tiles.tile_image(data.read_rgb(path), tile, stride).tiles
 
 
 def _key(path: Path, tile, stride) -> str:
@@ -92,7 +92,7 @@ def _key(path: Path, tile, stride) -> str:
 
 def _one(path: Path, kind: str, name: str, settings: dict, tile, stride, progress):
     """(descriptors, settings, images or None) of one source."""
-    from rhythmic_jax.data import load_descriptors
+    from rhythmic_jax.descriptor_files import load_descriptors
 
     if kind == "npy":
         return load_descriptors(path), settings, None

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.baselines import BruteForce
-from rhythmic_jax.data import load_aerial_route, nordland
+from rhythmic_jax.data import nordland
 from rhythmic_jax.decode import decode_scores
 from rhythmic_jax.evaluate import accuracy, pr_auc, recall_at_100_precision
 from rhythmic_jax.features import cached_describe, get_descriptor
@@ -64,6 +64,7 @@ from rhythmic_jax.seqslam import (
 )
 from rhythmic_jax.sequence import SPEEDS, sequence_decode, sequence_scores
 from rhythmic_jax.soft import calibrate
+from rhythmic_jax.tiles import load_aerial_route
 
 log = logging.getLogger("bench_decoding")
 REPO = Path(__file__).resolve().parents[1]

@@ -429,8 +429,9 @@ def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
 def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """key -> (map images, map features, query features): Nordland summer ->
     winter, winter (for Table 2), aerial LEVIR A -> B."""
-    from rhythmic_jax.data import load_aerial_route, nordland
+    from rhythmic_jax.data import nordland
     from rhythmic_jax.features import cached_describe
+    from rhythmic_jax.tiles import load_aerial_route
 
     kw = dict(progress=run.progress)
     summer, winter = nordland(DATA / "nordland_64x32", progress=run.progress)

@@ -1,8 +1,7 @@
-"""Image folders, tiles, GPS places and descriptor files against plain references."""
+"""Image folders, Nordland and GPS places against plain references."""
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 
 import numpy as np
@@ -16,16 +15,10 @@ from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.data import (
     gps_places,
-    load_aerial_pair,
-    load_aerial_route,
-    load_descriptors,
     load_route,
     load_traversal,
     natural_key,
     nordland,
-    read_rgb,
-    save_descriptors,
-    tile_image,
 )
 from rhythmic_jax.errors import InputError
 
@@ -167,72 +160,6 @@ def test_nordland_both_seasons(nordland_root):
     assert not np.array_equal(summer.images[100], winter.images[100])
 
 
-# ------------------------------------------------------------------------ tiles
-
-
-@pytest.mark.parametrize(
-    ("h", "w", "size", "stride"),
-    [(100, 130, 32, 16), (64, 96, 32, 32), (50, 50, 50, 7)],
-)
-def test_tiles_match_slicing_loop(h, w, size, stride):
-    image = _rgb(h, w)
-    tiles = tile_image(image, size, stride)
-    ref, pos = [], []
-    for r in range(0, h - size + 1, stride):
-        for c in range(0, w - size + 1, stride):
-            ref.append(image[r : r + size, c : c + size])
-            pos.append((r, c))
-    np.testing.assert_array_equal(tiles.tiles, np.stack(ref))
-    np.testing.assert_array_equal(tiles.positions, np.array(pos))
-
-
-def test_tile_errors():
-    with pytest.raises(InputError, match="does not fit"):
-        tile_image(_rgb(20, 40), size=32)
-    with pytest.raises(InputError, match="uint8"):
-        tile_image(_rgb(40, 40).astype(np.float32), size=32)
-    with pytest.raises(InputError, match="positive integers"):
-        tile_image(_rgb(40, 40), size=32, stride=0)
-
-
-def test_aerial_pair_and_route(tmp_path, caplog):
-    a1, b1, a2, b2 = _rgb(96, 64), _rgb(96, 64), _rgb(64, 64), _rgb(63, 64)
-    for name, a, b in (("p1.png", a1, b1), ("p2.png", a2, b2)):
-        _write(tmp_path / "A", name, a)
-        _write(tmp_path / "B", name, b)
-    pair = load_aerial_pair(tmp_path / "A/p1.png", tmp_path / "B/p1.png", 32, 16)
-    np.testing.assert_array_equal(pair.map_tiles, tile_image(a1, 32, 16).tiles)
-    np.testing.assert_array_equal(pair.query_tiles, tile_image(b1, 32, 16).tiles)
-    assert len(pair) == 5 * 3
-    with pytest.raises(InputError, match=r"p2\.png is 64x64 but .*p2\.png is 64x63"):
-        load_aerial_pair(tmp_path / "A/p2.png", tmp_path / "B/p2.png", 32, 16)
-    route = load_aerial_route(tmp_path, 32, 16, progress=False)
-    assert "cropping p2.png" in caplog.text
-    assert route.names == ("p1.png", "p2.png")
-    assert len(route) == 15 + 2 * 3  # p2 cropped to 63 rows: 2 tile rows
-    np.testing.assert_array_equal(np.bincount(route.pair_index), [15, 6])
-    np.testing.assert_array_equal(route.query_tiles[15:], tile_image(b2, 32, 16).tiles)
-    with pytest.raises(InputError, match="the pair must cover the same pixels"):
-        load_aerial_route(tmp_path, 32, 16, crop=False, progress=False)
-    (tmp_path / "B/p2.png").unlink()
-    with pytest.raises(InputError, match=r"p2\.png is missing"):
-        load_aerial_route(tmp_path, 32, 16, progress=False)
-
-
-def test_real_aerial_routes(aerial_root):
-    levir = load_aerial_route(aerial_root / "samples_LEVIR", progress=False)
-    dsifn = load_aerial_route(aerial_root / "samples_DSIFN", progress=False)
-    assert len(levir) == 769 and len(dsifn) == 490
-    assert levir.map_tiles.shape == levir.query_tiles.shape == (769, 64, 64, 3)
-    a = read_rgb(aerial_root / "samples_DSIFN/A" / dsifn.names[3])
-    i = np.flatnonzero(dsifn.pair_index == 3)[10]
-    r, c = dsifn.positions[i]
-    np.testing.assert_array_equal(dsifn.map_tiles[i], a[r : r + 64, c : c + 64])
-    rgba = aerial_root / "samples_LEVIR"
-    with pytest.raises(InputError, match="test_113_0256"):
-        load_aerial_pair(rgba / "A/test_113_0256.png", rgba / "B/test_113_0256.png")
-
-
 # ------------------------------------------------------------------- GPS places
 
 
@@ -268,72 +195,3 @@ def test_gps_places_errors():
         gps_places(bad, 2)
     with pytest.raises(InputError, match="k must be"):
         gps_places(_loop(10, 1, 0.0), 11)
-
-
-# ------------------------------------------------------------- descriptor files
-
-
-def test_descriptors_round_trip(tmp_path):
-    x = RNG.standard_normal((7, 5))
-    save_descriptors(tmp_path / "d.npy", x)
-    y = load_descriptors(tmp_path / "d.npy")
-    assert y.dtype == np.float32 and y.shape == (7, 5)
-    np.testing.assert_array_equal(y, x.astype(np.float32))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.npy"]
-
-
-def test_descriptors_refuse_bad_files(tmp_path):
-    objects = tmp_path / "objects.npy"
-    np.save(objects, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
-    with pytest.raises(InputError, match="contains Python objects; refusing"):
-        load_descriptors(objects)
-    pickled = tmp_path / "pickled.npy"
-    pickled.write_bytes(pickle.dumps(np.zeros((2, 2))))
-    with pytest.raises(InputError, match="contains Python objects; refusing"):
-        load_descriptors(pickled)
-    junk = tmp_path / "junk.npy"
-    junk.write_bytes(b"hello world, this is not numpy")
-    with pytest.raises(InputError, match="not a valid .npy"):
-        load_descriptors(junk)
-    full = tmp_path / "full.npy"
-    np.save(full, np.ones((50, 8), np.float32))
-    cut = tmp_path / "cut.npy"
-    cut.write_bytes(full.read_bytes()[:300])
-    with pytest.raises(InputError, match="not a valid .npy"):
-        load_descriptors(cut)
-    cases = {
-        "flat.npy": np.ones(4),
-        "empty.npy": np.ones((0, 3)),
-        "text.npy": np.array([["a", "b"]]),
-    }
-    for name, array in cases.items():
-        np.save(tmp_path / name, array)
-        with pytest.raises(InputError, match=name):
-            load_descriptors(tmp_path / name)
-    with pytest.raises(InputError, match="must be .npy"):
-        load_descriptors(tmp_path / "d.npz")
-    with pytest.raises(InputError, match="not found"):
-        load_descriptors(tmp_path / "missing.npy")
-
-
-def test_descriptors_non_finite_rows(tmp_path):
-    x = np.ones((6, 3))
-    x[3, 1], x[5, 0] = np.nan, np.inf
-    np.save(tmp_path / "nan.npy", x)
-    with pytest.raises(InputError, match="row 3 holds NaN or inf"):
-        load_descriptors(tmp_path / "nan.npy")
-    big = np.ones((2, 2))
-    big[1, 1] = 1e300  # overflows float32
-    np.save(tmp_path / "big.npy", big)
-    with pytest.raises(InputError, match="row 1"):
-        load_descriptors(tmp_path / "big.npy")
-
-
-def test_failed_save_leaves_old_file(tmp_path):
-    target = tmp_path / "d.npy"
-    save_descriptors(target, np.ones((2, 2)))
-    before = target.read_bytes()
-    with pytest.raises(InputError, match="row 0"):
-        save_descriptors(target, np.full((2, 2), np.nan))
-    assert target.read_bytes() == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.npy"]

@@ -21,8 +21,9 @@ from hypothesis import strategies as st
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.checkpoint import load_map
-from rhythmic_jax.data import load_descriptors, read_rgb
+from rhythmic_jax.data import read_rgb
 from rhythmic_jax.decode import hard_decode
+from rhythmic_jax.descriptor_files import load_descriptors
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import period_offsets
 from rhythmic_jax.periods import candidate_periods, crt_tables, pairwise_coprime
