@@ -26,6 +26,8 @@ from rhythmic_jax.evaluate import pr_curve as pr_curve
 from rhythmic_jax.evaluate import recall_at_100_precision as recall_at_100_precision
 from rhythmic_jax.evaluate import recall_at_k as recall_at_k
 from rhythmic_jax.evaluate import storage_report as storage_report
+from rhythmic_jax.memory import check_memory as check_memory
+from rhythmic_jax.memory import fit_bytes as fit_bytes
 from rhythmic_jax.newton import NewtonConfig as NewtonConfig
 from rhythmic_jax.newton import newton_fit as newton_fit
 from rhythmic_jax.objective import Templates as Templates
@@ -51,8 +53,6 @@ from rhythmic_jax.projection import project as project
 from rhythmic_jax.rhythmic_map import MapConfig as MapConfig
 from rhythmic_jax.rhythmic_map import RhythmicMap as RhythmicMap
 from rhythmic_jax.run import RunConfig as RunConfig
-from rhythmic_jax.run import check_memory as check_memory
-from rhythmic_jax.run import fit_bytes as fit_bytes
 from rhythmic_jax.run import memmap_batches as memmap_batches
 from rhythmic_jax.run import train_run as train_run
 from rhythmic_jax.seqslam import seqslam_decode as seqslam_decode

@@ -231,8 +231,8 @@ def _cmd_fit(args) -> int:
 def _check_fit_memory(args) -> None:
     """Refuse descriptor files too large to fit in memory before reading them."""
     from rhythmic_jax.descriptor_files import descriptor_shape
+    from rhythmic_jax.memory import check_memory
     from rhythmic_jax.periods import candidate_periods
-    from rhythmic_jax.run import check_memory
 
     if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in args.sources):
         return  # reading the sources says what is wrong

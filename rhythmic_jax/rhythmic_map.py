@@ -30,6 +30,7 @@ import numpy as np
 from rhythmic_jax import checkpoint
 from rhythmic_jax.decode import DECODERS, decode_scores
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.memory import check_memory
 from rhythmic_jax.newton import NewtonConfig, newton_fit
 from rhythmic_jax.objective import (
     Templates,
@@ -46,7 +47,6 @@ from rhythmic_jax.periods import (
     database_bytes,
     storage_bytes,
 )
-from rhythmic_jax.run import check_memory
 from rhythmic_jax.soft import Decoded
 from rhythmic_jax.train import fit_full_batch
 from rhythmic_jax.validate import check_features, check_labels

@@ -1,4 +1,4 @@
-"""Resumable minibatch training runs, batches streamed from disk, a memory guard.
+"""Resumable minibatch training runs and batches streamed from disk.
 
 :func:`train_run` takes optax Adam steps (:func:`rhythmic_jax.train.minibatch_step`)
 over every epoch's batches and keeps orbax checkpoints of the whole state
@@ -7,7 +7,8 @@ and when the run stops early (an exception, Ctrl-C). Started again on the same
 folder it resumes from the latest one; the epoch and the position within it follow
 from the step, so ``batches_for_epoch(epoch)`` must be deterministic. A run killed
 at any moment (even SIGKILL) and resumed ends on the templates of an
-uninterrupted run. When the frames do not fit in memory (:func:`check_memory`),
+uninterrupted run. When the frames do not fit in memory
+(:func:`rhythmic_jax.memory.check_memory`),
 :func:`memmap_batches` streams them from a memory-mapped ``.npy`` file::
 
     batches = memmap_batches("ref.npy", labels, periods, batch_size=512, seed=0)
@@ -38,14 +39,7 @@ from rhythmic_jax.train import TrainState, init_state, minibatch_step
 from rhythmic_jax.train import adam as _adam
 from rhythmic_jax.validate import check_labels
 
-__all__ = [
-    "RunConfig",
-    "available_memory",
-    "check_memory",
-    "fit_bytes",
-    "memmap_batches",
-    "train_run",
-]
+__all__ = ["RunConfig", "memmap_batches", "train_run"]
 
 log = logging.getLogger(__name__)
 Batch = tuple[np.ndarray | jax.Array, np.ndarray | jax.Array]
@@ -345,95 +339,3 @@ def memmap_batches(
         return _EpochBatches(x, path, labels, periods, batch_size, order)
 
     return batches_for_epoch
-
-
-# ---------------------------------------------------------------- memory guard
-
-
-def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
-    """Peak bytes of a full-batch fit (:func:`rhythmic_jax.newton.newton_fit`).
-
-    With q = d + 1, k = min(512, q) leading eigenvectors and a b = min(32, k)
-    block, the solver holds:
-
-    - ``features``: the frames as given, ``n d itemsize``;
-    - ``design``: a float32 copy of the frames and the design matrix ``[x, 1]``
-      in float32, ``4 n d + 4 n q`` (no float64 copy);
-    - ``system``: ``Xa^T Xa`` in float32 (``4 q^2``), the subspace iteration's
-      (q, k) bases and eigenvectors (``12 q k``), the frames in the eigenvectors
-      ``Xa V`` (``4 n k``) and the (n, b^2) float32 outer products of their first
-      b coordinates that build the per-template blocks (``4 n b^2``, n x 1024);
-    - ``templates``: per template, about eleven float64 and float32 (n,) columns
-      (targets, margins and their update, hinge, mask, CG's margins, the line
-      search's slacks: ``80 n``), seven (q,) columns (theta, gradient, step, CG's
-      residual, direction and products: ``56 q``), the preconditioner's diagonal
-      and block (``4 k + 4 b^2``).
-
-    Wide frames (d > 2n) are solved in their span (:mod:`rhythmic_jax.rowspace`):
-    ``span`` counts a float64 copy of the frames, ``X X^T``, its shifted copy and
-    its Cholesky factor in float64 (``8 n d + 24 n^2``) and the lifted weights
-    (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
-    It is an upper estimate: XLA frees and fuses some of these.
-    """
-    if d > 2 * n:
-        reduced = fit_bytes(n, n, p, 4)
-        return {
-            "features": n * d * itemsize,
-            "span": 8 * n * d + 24 * n * n + 8 * n * p + 12 * d * p,
-            "design": reduced["features"] + reduced["design"],
-            "system": reduced["system"],
-            "templates": reduced["templates"],
-        }
-    q = d + 1
-    k = min(512, q)
-    b = min(32, k)
-    return {
-        "features": n * d * itemsize,
-        "design": 4 * n * d + 4 * n * q,
-        "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
-        "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
-    }
-
-
-def available_memory() -> int:
-    """Bytes available now: ``MemAvailable`` of /proc/meminfo, else physical RAM."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-
-
-def _gib(v: float) -> str:
-    return f"{v / 2**30:.2f} GiB" if v >= 2**30 else f"{v / 2**20:.1f} MiB"
-
-
-def check_memory(
-    n: int, d: int, p: int, itemsize: int = 4, limit_bytes: int | None = None
-) -> int:
-    """Refuse (:class:`InputError`) a full-batch fit that would not fit in memory.
-
-    Args:
-      n: frames; d: features; p: templates trained (sum of the candidate periods).
-      itemsize: bytes per feature value.
-      limit_bytes: the memory to fit in (default :func:`available_memory`).
-
-    Returns:
-      The bytes needed (:func:`fit_bytes`, summed), when they fit.
-    """
-    parts = fit_bytes(n, d, p, itemsize)
-    need = sum(parts.values())
-    limit = available_memory() if limit_bytes is None else int(limit_bytes)
-    if need > limit:
-        raise InputError(
-            f"a full-batch fit of {n} frames x {d} features x {p} templates needs "
-            f"about {need:,} bytes ({_gib(need)}: features {_gib(parts['features'])},"
-            f" solver {_gib(need - parts['features'])}) but {limit:,} bytes "
-            f"({_gib(limit)}) are available; stream the frames instead: save them to "
-            "a .npy file and train with rhythmic_jax.run.train_run(memmap_batches("
-            "path, labels, periods, batch_size, seed), ...)"
-        )
-    return need
