@@ -178,11 +178,11 @@ def _parser() -> argparse.ArgumentParser:
 def _cmd_fit(args) -> int:
     from rhythmic_jax.checkpoint import check_target
     from rhythmic_jax.rhythmic_map import RhythmicMap
-    from rhythmic_jax.sources import load_sources
+    from rhythmic_jax.sources import check_sources_memory, load_sources
 
     check_target(args.out)  # before the fit, not after it
     augmented = _augmented_fit(args) if args.augment else None
-    _check_fit_memory(args)
+    check_sources_memory(args.sources, args.r, args.level, args.count)
     feats = load_sources(
         args.sources,
         args.descriptor,
@@ -226,25 +226,6 @@ def _cmd_fit(args) -> int:
             f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
         )
     return 0
-
-
-def _check_fit_memory(args) -> None:
-    """Refuse descriptor files too large to fit in memory before reading them."""
-    from rhythmic_jax.descriptor_files import descriptor_shape
-    from rhythmic_jax.memory import check_memory
-    from rhythmic_jax.periods import candidate_periods
-
-    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in args.sources):
-        return  # reading the sources says what is wrong
-    shapes = [descriptor_shape(s) for s in args.sources]
-    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
-        return  # reading them says what is wrong
-    n, d = shapes[0]
-    try:
-        cands = candidate_periods(n, args.r, args.level, args.count)
-    except InputError:
-        return  # the map's settings say what is wrong
-    check_memory(n * len(shapes), d, sum(cands))
 
 
 def _augmented_fit(args):
@@ -349,47 +330,14 @@ def _cmd_info(args) -> int:
     return 0
 
 
-def _reference(args, model):
-    """Brute force's reference: ``(x (m, d), labels (m,), note)`` or Nones.
-
-    ``--reference`` when given, else the sources the map was fitted on (their
-    paths are recorded in the map) when they are still there.
-    """
-    import numpy as np
-
-    from rhythmic_jax.sources import load_query_source
-
-    if args.reference:
-        sources, tile, stride = [args.reference], args.tile, args.stride
-        note = f"brute force over --reference {args.reference}"
-    else:
-        sources = model.reference.get("sources") or []
-        tile, stride = model.reference.get("tile"), model.reference.get("stride")
-        missing = [s for s in sources if not Path(s).exists()]
-        if not sources or missing:
-            why = f"{missing[0]} is gone" if missing else "the map names none"
-            return (
-                None,
-                None,
-                (
-                    f"no brute-force line: the map's reference frames are not at hand "
-                    f"({why}); give --reference SOURCE"
-                ),
-            )
-        note = "brute force over the map's reference " + ", ".join(sources)
-    blocks = [
-        load_query_source(src, model, args.descriptor, tile, stride, False).x
-        for src in sources
-    ]
-    labels = np.concatenate([np.arange(len(b)) for b in blocks])
-    return np.concatenate(blocks), labels, note
-
-
 def _cmd_evaluate(args) -> int:
     from rhythmic_jax.report import evaluate_map, format_evaluation
+    from rhythmic_jax.sources import reference_features
 
     model, feats = _load_queries(args)
-    ref, labels, note = _reference(args, model)
+    ref, labels, note = reference_features(
+        model, args.reference, args.descriptor, args.tile, args.stride
+    )
     result = evaluate_map(
         model,
         feats.x,

@@ -24,9 +24,11 @@ from rhythmic_jax.errors import InputError
 __all__ = [
     "Features",
     "apply_projection",
+    "check_sources_memory",
     "describe_images",
     "load_query_source",
     "load_sources",
+    "reference_features",
 ]
 
 DEFAULT_DESCRIPTOR = "patchnorm"
@@ -221,3 +223,62 @@ def load_query_source(
             f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"
         )
     return Features(x, np.arange(len(x)), name, settings)
+
+
+def reference_features(
+    model,
+    source: str | None = None,
+    descriptor: str | None = None,
+    tile: int | None = None,
+    stride: int | None = None,
+) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.
+
+    ``source`` when given; else the sources the map was fitted on (the command
+    line records their paths and tiling in ``model.reference``), when they are
+    all still there. Otherwise ``(None, None, note)``, the note saying why.
+    """
+    if source:
+        sources = [source]
+        note = f"brute force over the reference {source}"
+    else:
+        sources = list(model.reference.get("sources") or [])
+        tile, stride = model.reference.get("tile"), model.reference.get("stride")
+        missing = [s for s in sources if not Path(s).exists()]
+        if not sources or missing:
+            why = f"{missing[0]} is gone" if missing else "the map names none"
+            note = (
+                "no brute-force line: the map's reference frames are not at hand "
+                f"({why}); give --reference SOURCE"
+            )
+            return None, None, note
+        note = "brute force over the map's reference " + ", ".join(sources)
+    blocks = [
+        load_query_source(s, model, descriptor, tile, stride, False).x for s in sources
+    ]
+    labels = np.concatenate([np.arange(len(b)) for b in blocks])
+    return np.concatenate(blocks), labels, note
+
+
+def check_sources_memory(sources: Sequence[str], r: int, level: int, count: int):
+    """Refuse descriptor files too large for a full-batch fit, from their headers.
+
+    Only ``.npy`` sources that exist are looked at (anything else is reported
+    when it is read); the map's settings ``r``, ``level``, ``count`` give the
+    templates. See :func:`rhythmic_jax.memory.check_memory`.
+    """
+    from rhythmic_jax.descriptor_files import descriptor_shape
+    from rhythmic_jax.memory import check_memory
+    from rhythmic_jax.periods import candidate_periods
+
+    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources):
+        return
+    shapes = [descriptor_shape(s) for s in sources]
+    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
+        return  # reading them says what is wrong
+    n, d = shapes[0]
+    try:
+        cands = candidate_periods(n, r, level, count)
+    except InputError:
+        return  # the map's settings say what is wrong
+    check_memory(n * len(shapes), d, sum(cands))
