@@ -50,6 +50,8 @@ def check_labels(labels, n: int) -> np.ndarray:
         raise InputError(f"labels: expected shape ({n},), got {lab.shape}")
     if not np.issubdtype(lab.dtype, np.integer):
         raise InputError(f"labels: expected integers, got dtype {lab.dtype}")
+    if lab.size == 0:
+        raise InputError("labels: empty; a map needs at least one frame per place")
     if lab.min() < 0:
         raise InputError("labels: place labels must be >= 0")
     missing = np.setdiff1d(np.arange(int(lab.max()) + 1), lab)

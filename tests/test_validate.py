@@ -1,0 +1,163 @@
+"""check_features and check_labels: what they return and each one-line refusal."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_features, check_labels
+
+
+# --------------------------------------------------------------- check_features
+@pytest.mark.parametrize("dtype", [np.float64, np.float16, np.int64, np.uint8])
+def test_features_become_float32_with_same_values(dtype):
+    x = (np.arange(12).reshape(3, 4) * 3).astype(dtype)
+    out = check_features(x)
+    assert out.dtype == np.float32 and out.shape == (3, 4)
+    np.testing.assert_array_equal(out, x.astype(np.float64))
+
+
+def test_features_from_nested_lists():
+    out = check_features([[1, 2.5], [3, -4]])
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, [[1.0, 2.5], [3.0, -4.0]])
+
+
+def test_float32_features_are_not_copied():
+    x = np.random.default_rng(0).standard_normal((5, 3)).astype(np.float32)
+    out = check_features(x, d=3)
+    assert out is x
+
+
+def test_features_not_an_array():
+    with pytest.raises(InputError, match=r"^features: not an array \(.+\)$") as err:
+        check_features([[1.0, 2.0], [3.0]])
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("x", "dtype"),
+    [
+        (np.array([["a", "b"], ["c", "d"]]), "<U1"),
+        (np.array([[1, None]], dtype=object), "object"),
+        (np.ones((2, 2), bool), "bool"),
+    ],
+)
+def test_features_must_be_numbers(x, dtype):
+    msg = f"^frames: expected numbers, got dtype {re.escape(dtype)}$"
+    with pytest.raises(InputError, match=msg):
+        check_features(x, "frames")
+
+
+@pytest.mark.parametrize("shape", [(4,), (2, 3, 4), ()])
+def test_features_must_be_2d(shape):
+    msg = re.escape(
+        f"queries: expected a 2-D array (frames x features), got shape {shape}"
+    )
+    with pytest.raises(InputError, match=f"^{msg}$"):
+        check_features(np.zeros(shape), "queries")
+
+
+@pytest.mark.parametrize("shape", [(0, 4), (3, 0)])
+def test_features_must_not_be_empty(shape):
+    msg = re.escape(f"ref.npy: empty array of shape {shape}")
+    with pytest.raises(InputError, match=f"^{msg}$"):
+        check_features(np.zeros(shape, np.float32), "ref.npy")
+
+
+def test_features_dimension_check():
+    x = np.zeros((2, 5), np.float32)
+    assert check_features(x, d=5) is x
+    msg = r"^queries: 5-d features but the map was built for 4-d$"
+    with pytest.raises(InputError, match=msg):
+        check_features(x, "queries", d=4)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_features_nan_or_inf_rows(bad):
+    x = np.ones((7, 3))
+    x[2, 1] = bad
+    x[5, 0] = bad
+    x[5, 2] = bad  # two bad entries, one row
+    msg = r"^features: 2 rows hold NaN or inf \(first: row 2\)$"
+    with pytest.raises(InputError, match=msg):
+        check_features(x)
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+def test_float64_overflow_to_float32_inf_is_refused():
+    x = np.ones((3, 2))
+    x[1, 1] = 1e300  # finite in float64, inf in float32
+    with pytest.raises(InputError, match=r"1 rows hold NaN or inf \(first: row 1\)"):
+        check_features(x)
+
+
+def test_dimension_checked_before_values():
+    x = np.full((2, 3), np.nan)
+    with pytest.raises(InputError, match="3-d features but the map was built for 2-d"):
+        check_features(x, d=2)
+
+
+# ----------------------------------------------------------------- check_labels
+def test_labels_valid_become_int64():
+    lab = np.array([2, 0, 1, 1, 0, 2], np.int32)
+    out = check_labels(lab, 6)
+    assert out.dtype == np.int64
+    np.testing.assert_array_equal(out, lab)
+    np.testing.assert_array_equal(check_labels(range(4), 4), np.arange(4))
+    np.testing.assert_array_equal(check_labels([0, 0, 0], 3), [0, 0, 0])
+
+
+@pytest.mark.parametrize(
+    ("labels", "n", "shape"),
+    [
+        ([0, 1, 2], 4, "(3,)"),
+        ([[0, 1], [1, 0]], 4, "(2, 2)"),
+        (np.arange(5), 4, "(5,)"),
+    ],
+)
+def test_labels_wrong_shape(labels, n, shape):
+    msg = re.escape(f"labels: expected shape ({n},), got {shape}")
+    with pytest.raises(InputError, match=f"^{msg}$"):
+        check_labels(labels, n)
+
+
+@pytest.mark.parametrize(
+    ("labels", "dtype"),
+    [(np.array([0.0, 1.0]), "float64"), (np.array([True, False]), "bool")],
+)
+def test_labels_must_be_integers(labels, dtype):
+    with pytest.raises(
+        InputError, match=f"^labels: expected integers, got dtype {dtype}$"
+    ):
+        check_labels(labels, 2)
+
+
+def test_labels_must_be_non_negative():
+    with pytest.raises(InputError, match=r"^labels: place labels must be >= 0$"):
+        check_labels([0, 1, -1, 2], 4)
+
+
+@pytest.mark.parametrize(
+    ("labels", "top", "count", "first"),
+    [
+        ([0, 0, 2, 5], 5, 3, 1),
+        ([1, 2, 3], 3, 1, 0),
+        ([0, 1, 3, 3, 1], 3, 1, 2),
+    ],
+)
+def test_labels_without_gaps(labels, top, count, first):
+    msg = re.escape(
+        f"labels: places must be numbered 0 .. {top} without gaps; "
+        f"{count} missing (first: {first})"
+    )
+    with pytest.raises(InputError, match=f"^{msg}$"):
+        check_labels(labels, len(labels))
+
+
+def test_empty_labels_are_refused_in_one_line():
+    with pytest.raises(InputError, match=r"^labels: empty; a map needs at least one"):
+        check_labels(np.array([], np.int64), 0)
