@@ -336,8 +336,9 @@ def _cmd_evaluate(args) -> int:
 
     model, feats = _load_queries(args)
     ref, labels, note = reference_features(
-        model, args.reference, args.descriptor, args.tile, args.stride
-    )
+        model, args.reference, args.descriptor, args.tile, args.stride,
+        not args.no_progress,
+    )  # fmt: skip
     result = evaluate_map(
         model,
         feats.x,

@@ -231,6 +231,7 @@ def reference_features(
     descriptor: str | None = None,
     tile: int | None = None,
     stride: int | None = None,
+    progress: bool = True,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.
 
@@ -254,7 +255,8 @@ def reference_features(
             return None, None, note
         note = "brute force over the map's reference " + ", ".join(sources)
     blocks = [
-        load_query_source(s, model, descriptor, tile, stride, False).x for s in sources
+        load_query_source(s, model, descriptor, tile, stride, progress).x
+        for s in sources
     ]
     labels = np.concatenate([np.arange(len(b)) for b in blocks])
     return np.concatenate(blocks), labels, note
