@@ -92,7 +92,8 @@ def changed_appearance(image: np.ndarray, seed: int = 0) -> np.ndarray:
     return np.clip(x * 255.0, 0, 255).astype(np.uint8)
 
 
-def _storage_plot(path: Path, d: int, r: int, level: int) -> None:
+def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
+    """Left: storage against N, map and brute force; right: the accuracies."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -103,14 +104,23 @@ def _storage_plot(path: Path, d: int, r: int, level: int) -> None:
     ns = np.unique(np.logspace(2, 8, 40).astype(int))
     brute = [database_bytes(n, d) for n in ns]
     ours = [storage_bytes(candidate_periods(int(n), r, level)[:r], d) for n in ns]
-    fig, ax = plt.subplots(figsize=(5.5, 4))
-    ax.loglog(ns, brute, label="brute force: N d floats")
-    ax.loglog(ns, ours, label=f"rhythmic map: r={r}, level {level}")
-    ax.set_xlabel("places N")
-    ax.set_ylabel("bytes")
-    ax.set_title(f"storage growth, d = {d}")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    left.loglog(ns, brute, label="brute force: N d floats")
+    left.loglog(ns, ours, label=f"rhythmic map: r={r}, level {level}")
+    left.set_xlabel("places N")
+    left.set_ylabel("bytes")
+    left.set_title(f"storage growth, d = {d}")
+    left.grid(True, which="both", alpha=0.3)
+    left.legend()
+    names = list(bars)
+    colours = ["grey" if "brute" in k else "tab:orange" for k in names]
+    right.barh(names, [bars[k] for k in names], color=colours)
+    for i, k in enumerate(names):
+        right.text(bars[k] + 0.01, i, f"{bars[k]:.3f}", va="center", fontsize=8)
+    right.invert_yaxis()
+    right.set_xlim(0, 1.1)
+    right.set_xlabel("accuracy (within the tolerance)")
+    right.set_title("localisation on this route")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -177,7 +187,13 @@ def run_demo(
         "changed_appearance_decodes": decodes,
     }
     (out / "report.json").write_text(json.dumps(result, indent=2))
-    _storage_plot(out / "storage.png", model.d, model.config.r, cfg.level)
+    bars = {
+        "same appearance: map": same["methods"]["map"]["accuracy_tol"],
+        "same appearance: brute force": same["methods"]["brute force"]["accuracy_tol"],
+        **{f"changed: map, {k}": v for k, v in decodes.items()},
+        "changed: brute force": changed["methods"]["brute force"]["accuracy_tol"],
+    }
+    _report_plot(out / "report.png", model.d, model.config.r, cfg.level, bars)
     text = [
         f"map: periods {model.periods}, {model.storage_bytes:,} bytes "
         f"= {model.compression_ratio:.4f} of the {same['database_bytes']:,}-byte "
@@ -196,10 +212,10 @@ def run_demo(
     (out / "report.md").write_text(
         "# rhythmic-jax demo\n\n```\n"
         + "\n".join(text)
-        + "\n```\n\n![storage](storage.png)\n"
+        + "\n```\n\n![storage growth and accuracy](report.png)\n"
     )
     print("\n".join(text))
     print(
-        f"\nreport: {out / 'report.md'} (plot {out / 'storage.png'}, map {out / 'map'})"
+        f"\nreport: {out / 'report.md'} (plot {out / 'report.png'}, map {out / 'map'})"
     )
     return result

@@ -30,5 +30,6 @@ def test_demo_reports_what_the_saved_map_holds(tmp_path, capsys):
     same = on_disk["same_appearance"]["methods"]
     assert same["brute force"]["accuracy"] == 1.0
     assert same["map"]["accuracy"] >= 0.9
-    assert (tmp_path / "storage.png").stat().st_size > 1000
+    assert (tmp_path / "report.png").stat().st_size > 1000
+    assert "report.png" in (tmp_path / "report.md").read_text()
     assert "report:" in printed
