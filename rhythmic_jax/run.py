@@ -141,9 +141,12 @@ def _check_saved(manager, step: int, where: str, fresh: TrainState, config) -> N
             f"{where}: checkpoint {step} holds templates w, b of shapes {shapes}, "
             f"this run has {want}; give a new folder"
         )
-    differ = [k for k in _TRAJECTORY if saved.get(k) != getattr(config, k)]
+    if not isinstance(saved, dict):
+        raise InputError(f"{where}: checkpoint {step} holds no run settings")
+    saved = {**dataclasses.asdict(RunConfig()), **saved}  # fields added since
+    differ = [k for k in _TRAJECTORY if saved[k] != getattr(config, k)]
     if differ:
-        was = ", ".join(f"{k}={saved.get(k)!r}" for k in differ)
+        was = ", ".join(f"{k}={saved[k]!r}" for k in differ)
         now = ", ".join(f"{k}={getattr(config, k)!r}" for k in differ)
         raise InputError(
             f"{where}: checkpoints were written with {was}, this run has {now}; "

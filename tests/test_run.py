@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import logging
 from pathlib import Path
 
@@ -162,6 +164,26 @@ def test_resume_refuses_other_settings_or_shapes(problem, tmp_path):
     with pytest.raises(InputError, match=r"holds templates w, b of shapes \(\(5, 12\)"):
         train_run(in_memory(x, labels), wider, C, N, CONFIG, ckpt, False)
     assert steps_saved(ckpt) == [3]  # refusals wrote nothing
+
+
+def test_resume_reads_settings_saved_before_a_field_existed(
+    problem, uninterrupted, tmp_path
+):
+    """A checkpoint whose settings lack a later field (``source``) still resumes,
+    and one of another source is refused."""
+    x, labels, _, init = problem
+    ckpt = tmp_path / "ckpt"
+    with pytest.raises(RuntimeError):
+        train_run(in_memory(x, labels, 3), init, C, N, CONFIG, ckpt, False)
+    meta = ckpt / "3" / "config" / "metadata"
+    saved = json.loads(meta.read_text())
+    assert saved.pop("source") == ""
+    meta.write_text(json.dumps(saved))
+    other = dataclasses.replace(CONFIG, source="augmented frames")
+    with pytest.raises(InputError, match=r"written with source='', this run has "):
+        train_run(in_memory(x, labels), init, C, N, other, ckpt, False)
+    resumed = train_run(in_memory(x, labels), init, C, N, CONFIG, ckpt, False)
+    assert_same_map(resumed, uninterrupted, x)
 
 
 def test_config_and_devices_are_logged(problem, caplog):
