@@ -1,9 +1,9 @@
 """Training over frames that kornia augments on the fly (paper Sec. III-D).
 
-Every epoch draws freshly augmented copies of the reference frames
-(:func:`rhythmic_jax.augment.augmented_batches`), describes them with the map's
-descriptor in torch, hands the descriptors to JAX through DLPack (no copy) and
-takes optax minibatch steps of the same vmapped objective
+Every epoch (:class:`AugmentedEpoch`) draws freshly augmented copies of the
+reference frames (:func:`rhythmic_jax.augment.augmented_batch`), describes them
+with the map's descriptor in torch, hands the descriptors to JAX through DLPack
+(no copy) and takes optax minibatch steps of the same vmapped objective
 (:func:`rhythmic_jax.train.minibatch_step`). The clean descriptors, from the
 cache, join every epoch as one more exemplar of each place, so the objective is
 that of a multi-exemplar map whose second traversal is drawn anew each epoch.
@@ -40,7 +40,6 @@ from rhythmic_jax.objective import Templates, targets
 __all__ = [
     "AugmentedEpoch",
     "AugmentedFit",
-    "augmented_epoch",
     "fit_augmented",
     "fit_map_augmented",
 ]
@@ -136,27 +135,6 @@ class AugmentedEpoch(Sequence):
             seconds = time.perf_counter() - t_aug
             self._timings["describe"] = self._timings.get("describe", 0.0) + seconds
         return x, targets(self._labels[idx], self._periods)
-
-
-def augmented_epoch(
-    images: np.ndarray,
-    clean: np.ndarray,
-    labels: np.ndarray,
-    periods: tuple[int, ...],
-    descriptor,
-    config: AugmentedFit,
-    epoch: int,
-    timings: dict[str, float] | None = None,
-) -> AugmentedEpoch:
-    """Batches ``(x (b, d), y (b, p))`` of one epoch: augmented frames, then clean.
-
-    ``images`` uint8 (n, H, W, 3); ``clean`` (n, d) cached descriptors; ``labels``
-    (n,) place of each frame. ``timings`` accumulates seconds spent augmenting
-    and describing. See :class:`AugmentedEpoch`.
-    """
-    return AugmentedEpoch(
-        images, clean, labels, periods, descriptor, config, epoch, timings
-    )
 
 
 def _source(images, descriptor, config: AugmentedFit) -> str:

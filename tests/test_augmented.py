@@ -5,12 +5,15 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
+import torch
 from skimage import data as skdata
 from skimage.transform import resize
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.augmented import AugmentedFit, augmented_epoch, fit_map_augmented
+from rhythmic_jax.augment import AugmentConfig, augmented_batches
+from rhythmic_jax.augmented import AugmentedEpoch, AugmentedFit, fit_map_augmented
 from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.objective import targets
 
 
 @pytest.fixture(scope="module")
@@ -27,14 +30,32 @@ def test_epochs_hand_jax_arrays_and_fresh_augmentations(route):
     frames, clean, desc = route
     cfg = AugmentedFit(names=("contrast", "hflip"), batch_size=32, p=1.0)
     periods = (9, 10)
-    first = list(augmented_epoch(frames, clean, np.arange(90), periods, desc, cfg, 0))
-    again = list(augmented_epoch(frames, clean, np.arange(90), periods, desc, cfg, 0))
-    other = list(augmented_epoch(frames, clean, np.arange(90), periods, desc, cfg, 1))
+    first = list(AugmentedEpoch(frames, clean, np.arange(90), periods, desc, cfg, 0))
+    again = list(AugmentedEpoch(frames, clean, np.arange(90), periods, desc, cfg, 0))
+    other = list(AugmentedEpoch(frames, clean, np.arange(90), periods, desc, cfg, 1))
     assert all(isinstance(x, jax.Array) for x, _ in first)
     assert sum(x.shape[0] for x, _ in first) == 180  # augmented + clean exemplars
     np.testing.assert_array_equal(np.asarray(first[0][0]), np.asarray(again[0][0]))
     assert not np.allclose(np.asarray(first[0][0]), np.asarray(other[0][0]))
     assert first[0][1].shape == (32, 19)
+
+
+def test_any_batch_is_made_on_its_own_as_in_the_stream(route):
+    """Batch i taken alone equals the i-th of the whole epoch's stream, so a
+    resumed run can skip batches without making them."""
+    frames, clean, desc = route
+    cfg = AugmentedFit(names=("all",), batch_size=32, seed=3)
+    epoch = AugmentedEpoch(frames, clean, np.arange(90), (9, 10), desc, cfg, 2)
+    stream = list(augmented_batches(frames, AugmentConfig(("all",)), 32, 3, 2))
+    assert len(epoch) == 2 * len(stream) == 6
+    for i in (2, 1):  # out of order
+        idx, batch = stream[i]
+        x, y = epoch[i]
+        with torch.inference_mode():
+            np.testing.assert_allclose(np.asarray(x), desc(batch).numpy(), atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(y), targets(idx, (9, 10)))
+    with pytest.raises(IndexError):
+        epoch[6]
 
 
 def test_augmented_map_still_localises_its_route(route):
