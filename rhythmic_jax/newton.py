@@ -19,11 +19,11 @@ bias as a constant-1 feature); theta is (q,), q = d + 1.
   on iterations that may grow from step to step (``cg_start``): the first steps
   after the ridge start mostly find the active set, and accurate solves of their
   quadratic models gain little (measured in ``reports/solver.md``).
-- preconditioner: the leading eigenvectors ``V`` of ``Xa^T Xa`` (subspace
-  iteration, float32). In their span the system is inverted exactly on the first
-  ``block`` directions (a small Cholesky per template: the largest eigenvalues,
-  where the active set couples directions most) and by its diagonal on the rest;
-  outside it, by a scalar per template.
+- preconditioner (:mod:`rhythmic_jax.precondition`): the leading eigenvectors
+  ``V`` of ``Xa^T Xa`` (subspace iteration, float32). In their span the system
+  is inverted exactly on the first ``block`` directions (a small Cholesky per
+  template: the largest eigenvalues, where the active set couples directions
+  most) and by its diagonal on the rest; outside it, by a scalar per template.
 - stop: CG gives the Newton decrement ``C (-g . s)``, the gap of the quadratic
   model, which estimates ``f - f*`` (exactly once the active set settles; it can
   fall short while frames still leave it, so the fast setting keeps a margin). A
@@ -55,6 +55,7 @@ from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates
+from rhythmic_jax.precondition import block_preconditioner, spectral_setup
 from rhythmic_jax.rowspace import lift, row_factor
 
 __all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
@@ -130,64 +131,7 @@ class NewtonInfo:
     gap_estimate: np.ndarray
 
 
-# ---------------------------------------------------------------------- setup
-
-
-def _top_eigen(gram: jax.Array, k: int, iters: int):
-    """Leading eigenpairs of a symmetric PSD (q, q) matrix by subspace iteration.
-
-    Returns orthonormal vectors (q, k) and Rayleigh-Ritz values (k,), largest
-    first; a few iterations are enough for a preconditioner (any orthonormal
-    basis keeps it exact, only its quality depends on the subspace).
-    """
-    q = gram.shape[0]
-    basis = jax.random.normal(jax.random.PRNGKey(0), (q, k), gram.dtype)
-    for _ in range(iters):
-        basis, _ = jnp.linalg.qr(gram @ basis)
-    vals, small = jnp.linalg.eigh(basis.T @ gram @ basis)
-    return (basis @ small)[:, ::-1], jnp.maximum(vals[::-1], 0.0)
-
-
-@partial(jax.jit, static_argnames=("rank", "iters"))
-def _setup(xa: jax.Array, rank: int, iters: int):
-    """Leading eigenvectors ``V`` (q, k) of ``Xa^T Xa``, ``F = Xa V`` (n, k), and
-    each frame's squared norm outside them, ``||xa_i||^2 - ||F_i||^2`` (n,)."""
-    vecs, _ = _top_eigen(xa.T @ xa, rank, iters)
-    lead = xa @ vecs
-    rest = jnp.sum(xa * xa, axis=1) - jnp.sum(lead * lead, axis=1)
-    return vecs, lead, jnp.maximum(rest, 0.0)
-
-
 # ------------------------------------------------------------------ pieces
-
-
-def _precond(vecs, lead, rest, mask, lam, block):
-    """Preconditioner of ``H_j = lam I + Xa^T diag(mask_j) Xa`` for every template.
-
-    In the leading eigen-directions ``V`` (q, k) of ``Xa^T Xa`` (``lead = Xa V``,
-    (n, k)): exact on the first ``block`` (a Cholesky per template), the diagonal
-    ``lam + sum_i mask_ij lead_il^2`` on the others; outside them a scalar per
-    template, ``lam`` plus the mean over the q - k remaining directions of
-    ``H_j``'s trace there (``rest`` (n,), each frame's squared norm outside V).
-    ``mask`` (n, p) float32. Returns ``apply`` mapping (q, p) -> (q, p).
-    """
-    n, k = lead.shape
-    q = vecs.shape[0]
-    kb = min(block, k)
-    diag = lam + (lead * lead).T @ mask  # (k, p)
-    tail = lam + (rest[None, :] @ mask) / max(q - k, 1)  # (1, p)
-    top = lead[:, :kb]
-    outer = (top[:, :, None] * top[:, None, :]).reshape(n, kb * kb)
-    blocks = (outer.T @ mask).T.reshape(-1, kb, kb)
-    chol = jnp.linalg.cholesky(blocks + lam * jnp.eye(kb, dtype=lead.dtype)[None])
-
-    def apply(v):
-        coef = vecs.T @ v  # (k, p)
-        head = jax.scipy.linalg.cho_solve((chol, True), coef[:kb].T[:, :, None])
-        inside = jnp.concatenate([head[:, :, 0].T, coef[kb:] / diag[kb:]], axis=0)
-        return vecs @ (inside - coef / tail) + v / tail
-
-    return apply
 
 
 def _cg(xa, mask, lam, precond, r0, eta, max_iter):
@@ -319,7 +263,7 @@ def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg)
     mask = (h > 0).astype(jnp.float32)
     f0 = _objective(mb, tb, yb, c)
     grad = lam * tb - (xa.T @ (yb * h).astype(jnp.float32)).astype(tb.dtype)
-    precond = _precond(vecs, lead, rest, mask, lam32, block)
+    precond = block_preconditioner(vecs, lead, rest, mask, lam32, block)
     s, u, it = _cg(xa, mask, lam32, precond, -grad.astype(jnp.float32), eta, max_cg)
     s, u = s.astype(tb.dtype), u.astype(mb.dtype)
     decrement = c * jnp.sum(-grad * s, axis=0)
@@ -388,7 +332,9 @@ def newton_fit(
     xa = jnp.concatenate([x32, jnp.ones((n, 1), jnp.float32)], axis=1)
     rank = min(config.rank, d + 1)
     with threadpool_limits(limits=1):  # LAPACK's threads wait on a busy machine
-        vecs, lead, rest = jax.block_until_ready(_setup(xa, rank, config.power_iters))
+        vecs, lead, rest = jax.block_until_ready(
+            spectral_setup(xa, rank, config.power_iters)
+        )
     with jax.enable_x64(True):
         y64 = jnp.asarray(np.asarray(y, dtype=np.float64))
         p = y64.shape[1]
