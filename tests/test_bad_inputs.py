@@ -8,6 +8,7 @@ files, in-memory arrays) go through the library and raise ``InputError``.
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import pickle
@@ -779,3 +780,41 @@ def test_map_json_with_a_bad_field(edit, maps, tmp_path):
     _assert_one_line(
         lambda: RhythmicMap.load(path).predict(X[:2]), r"copy\.map: corrupt map"
     )
+
+
+# ------------------------------------------------------- no pickle in load paths
+
+
+def _load_calls(tree):
+    """``(module alias, function, keywords, line)`` of every ``X.load(s)`` call."""
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr in ("load", "loads", "Unpickler")
+            and isinstance(node.func.value, ast.Name)
+        ):
+            keywords = {
+                k.arg: k.value.value
+                for k in node.keywords
+                if isinstance(k.value, ast.Constant)
+            }
+            yield node.func.value.id, node.func.attr, keywords, node.lineno
+
+
+def test_no_load_path_in_the_package_can_unpickle():
+    """Every numpy load refuses pickles, every torch load takes weights only, and
+    nothing calls pickle at all (the catalogue above feeds the payloads)."""
+    package = Path(__file__).resolve().parents[1] / "rhythmic_jax"
+    seen = {"np": 0, "torch": 0}
+    for path in sorted(package.glob("*.py")):
+        for module, name, keywords, line in _load_calls(ast.parse(path.read_text())):
+            where = f"{path.name}:{line} {module}.{name}"
+            assert module not in ("pickle", "cPickle", "dill"), where
+            if module in ("np", "numpy"):
+                assert keywords.get("allow_pickle") is False, where
+                seen["np"] += 1
+            if module == "torch":
+                assert keywords.get("weights_only") is True, where
+                seen["torch"] += 1
+    assert seen["np"] >= 3 and seen["torch"] >= 1  # the scan does find the loads
