@@ -29,6 +29,7 @@ import numpy as np
 
 from rhythmic_jax import checkpoint
 from rhythmic_jax.decode import DECODERS, decode_scores
+from rhythmic_jax.decode import decode as localise
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.memory import check_memory
 from rhythmic_jax.newton import NewtonConfig, newton_fit
@@ -188,6 +189,10 @@ class RhythmicMap:
 
     def decode(self, q, method: str | None = None, m: int | None = None) -> Decoded:
         """Decode queries (b, d): index (-1 no match), score, runner-up, confidence."""
+        if (method or self.config.decode) == "hard":  # one compiled call: scores and
+            self._check_fitted()  # decode fused, the latency of a single query
+            q = check_features(q, "queries", d=self.d)
+            return localise(self.params, q, self.periods, self.n)
         return decode_scores(
             self.scores(q),
             self.periods,

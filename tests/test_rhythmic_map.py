@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
+from rhythmic_jax.decode import decode_scores
 from rhythmic_jax.objective import objective, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, storage_bytes
 
@@ -152,3 +153,17 @@ def test_nordland_self_query_reaches_the_optimum_accuracy(
     acc = float(np.mean(model.predict(summer) == np.arange(len(summer))))
     assert acc >= floor, (level, model.periods, acc)
     assert 0.03 < min(model.candidate_errors) and max(model.candidate_errors) < 0.06
+
+
+def test_fused_hard_decode_equals_scores_then_decode(fitted):
+    """``decode`` runs scores and the hard decode in one compiled call; it gives
+    what decoding the map's scores gives, field by field."""
+    model, x = fitted
+    q = x[::3] + np.random.default_rng(1).normal(0, 0.5, x[::3].shape).astype("f4")
+    fused = model.decode(q)
+    apart = decode_scores(model.scores(q), model.periods, model.n, "hard", 1)
+    assert (np.asarray(fused.index) == -1).any() and (
+        np.asarray(fused.index) >= 0
+    ).any()
+    for a, b in zip(fused, apart, strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
