@@ -1,4 +1,5 @@
-"""Strict JAX for every test, and the location of the shared real data."""
+"""Strict JAX for every test, the location of the shared real data, and small
+images written to disk."""
 
 from __future__ import annotations
 
@@ -6,7 +7,9 @@ import os
 from pathlib import Path
 
 import jax
+import numpy as np
 import pytest
+import skimage.io
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
@@ -47,3 +50,22 @@ def nordland_patchnorm(nordland_root):
         describe(summer.images, desc, progress=False),
         describe(winter.images, desc, progress=False),
     )
+
+
+@pytest.fixture
+def rgb():
+    """``rgb(h, w)``: a random uint8 (h, w, 3) image (seeded per test)."""
+    rng = np.random.default_rng(0)
+    return lambda h, w: rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+
+@pytest.fixture
+def write_image():
+    """``write_image(folder, name, image) -> path``: save it, making the folder."""
+
+    def write(folder: Path, name: str, image: np.ndarray) -> Path:
+        folder.mkdir(parents=True, exist_ok=True)
+        skimage.io.imsave(folder / name, image, check_contrast=False)
+        return folder / name
+
+    return write

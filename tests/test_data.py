@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import skimage.io
@@ -25,23 +23,13 @@ from rhythmic_jax.errors import InputError
 RNG = np.random.default_rng(0)
 
 
-def _rgb(h: int, w: int) -> np.ndarray:
-    return RNG.integers(0, 256, (h, w, 3), dtype=np.uint8)
-
-
-def _write(folder: Path, name: str, image: np.ndarray) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    skimage.io.imsave(folder / name, image, check_contrast=False)
-    return folder / name
-
-
 # ------------------------------------------------------------------- traversals
 
 
-def test_natural_order_and_non_images_ignored(tmp_path):
-    images = {f"img{i}.png": _rgb(6, 8) for i in (10, 2, 1, 33)}
+def test_natural_order_and_non_images_ignored(tmp_path, rgb, write_image):
+    images = {f"img{i}.png": rgb(6, 8) for i in (10, 2, 1, 33)}
     for name, image in images.items():
-        _write(tmp_path, name, image)
+        write_image(tmp_path, name, image)
     (tmp_path / "notes.txt").write_text("not a frame")
     t = load_traversal(tmp_path, progress=False)
     assert t.names == ("img1.png", "img2.png", "img10.png", "img33.png")
@@ -52,14 +40,14 @@ def test_natural_order_and_non_images_ignored(tmp_path):
     assert sorted(["a10", "a9", "a100"], key=natural_key) == ["a9", "a10", "a100"]
 
 
-def test_grey_rgba_and_16_bit_become_rgb(tmp_path):
+def test_grey_rgba_and_16_bit_become_rgb(tmp_path, rgb, write_image):
     grey = RNG.integers(0, 256, (5, 7), dtype=np.uint8)
-    rgba = np.dstack([_rgb(5, 7), np.full((5, 7), 255, np.uint8)])
+    rgba = np.dstack([rgb(5, 7), np.full((5, 7), 255, np.uint8)])
     half = rgba.copy()
     half[..., 3] = 128
     deep = (grey.astype(np.uint16) << 8) | 0x80  # 16-bit grey
     for i, image in enumerate([grey, rgba, half, deep]):
-        _write(tmp_path, f"f{i}.png", image)
+        write_image(tmp_path, f"f{i}.png", image)
     t = load_traversal(tmp_path, progress=False)
     np.testing.assert_array_equal(t.images[0], np.repeat(grey[..., None], 3, axis=2))
     np.testing.assert_array_equal(t.images[1], rgba[..., :3])
@@ -68,19 +56,19 @@ def test_grey_rgba_and_16_bit_become_rgb(tmp_path):
     np.testing.assert_array_equal(t.images[3], t.images[0])  # top byte kept
 
 
-def test_jpeg_frames_load(tmp_path):
+def test_jpeg_frames_load(tmp_path, write_image):
     image = np.full((16, 16, 3), (200, 40, 90), np.uint8)
-    _write(tmp_path, "a1.jpg", image)
-    _write(tmp_path, "a2.jpeg", image)
+    write_image(tmp_path, "a1.jpg", image)
+    write_image(tmp_path, "a2.jpeg", image)
     t = load_traversal(tmp_path, progress=False)
     assert t.images.shape == (2, 16, 16, 3)
     assert np.abs(t.images.astype(int) - image).max() <= 3  # lossy, flat colour
 
 
-def test_mixed_sizes_error_or_resize(tmp_path):
-    small, big = _rgb(6, 8), _rgb(12, 10)
-    _write(tmp_path, "f1.png", small)
-    _write(tmp_path, "f2.png", big)
+def test_mixed_sizes_error_or_resize(tmp_path, rgb, write_image):
+    small, big = rgb(6, 8), rgb(12, 10)
+    write_image(tmp_path, "f1.png", small)
+    write_image(tmp_path, "f2.png", big)
     with pytest.raises(InputError, match=r"f2\.png is 10x12 but f1\.png is 8x6"):
         load_traversal(tmp_path, progress=False)
     t = load_traversal(tmp_path, size=(8, 6), progress=False)
@@ -91,13 +79,13 @@ def test_mixed_sizes_error_or_resize(tmp_path):
     np.testing.assert_array_equal(t.images[1], np.rint(ref).astype(np.uint8))
 
 
-def test_bad_folders_and_files(tmp_path):
+def test_bad_folders_and_files(tmp_path, rgb, write_image):
     with pytest.raises(InputError, match="folder not found"):
         load_traversal(tmp_path / "nowhere", progress=False)
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match="no PNG/JPG images"):
         load_traversal(tmp_path / "empty", progress=False)
-    good = _write(tmp_path / "cut", "f1.png", _rgb(20, 20))
+    good = write_image(tmp_path / "cut", "f1.png", rgb(20, 20))
     (tmp_path / "cut" / "f2.png").write_bytes(good.read_bytes()[:60])
     with pytest.raises(InputError, match=r"cannot read image .*f2\.png"):
         load_traversal(tmp_path / "cut", progress=False)
@@ -116,19 +104,19 @@ def test_bad_folders_and_files(tmp_path):
         (("frame7.png", "frame7_b.png"), "different naming patterns"),
     ],
 )
-def test_ambiguous_names(tmp_path, names, message):
+def test_ambiguous_names(tmp_path, names, message, rgb, write_image):
     for name in names:
-        _write(tmp_path, name, _rgb(4, 4))
+        write_image(tmp_path, name, rgb(4, 4))
     with pytest.raises(InputError, match=message):
         load_traversal(tmp_path, progress=False)
 
 
-def test_route_checks_counts_and_sizes(tmp_path):
+def test_route_checks_counts_and_sizes(tmp_path, rgb, write_image):
     for i in range(3):
-        _write(tmp_path / "day", f"{i}.png", _rgb(6, 8))
-        _write(tmp_path / "night", f"{i}.png", _rgb(6, 8))
-        _write(tmp_path / "big", f"{i}.png", _rgb(12, 16))
-    _write(tmp_path / "dusk", "0.png", _rgb(6, 8))
+        write_image(tmp_path / "day", f"{i}.png", rgb(6, 8))
+        write_image(tmp_path / "night", f"{i}.png", rgb(6, 8))
+        write_image(tmp_path / "big", f"{i}.png", rgb(12, 16))
+    write_image(tmp_path / "dusk", "0.png", rgb(6, 8))
     route = load_route([tmp_path / "day", tmp_path / "night"], progress=False)
     assert [len(t) for t in route] == [3, 3]
     with pytest.raises(InputError, match=r"dusk has 1 frames but .*day has 3"):

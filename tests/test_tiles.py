@@ -2,36 +2,20 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-import skimage.io
-import skimage.transform
 
 from rhythmic_jax.data import read_rgb
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.tiles import load_aerial_pair, load_aerial_route, tile_image
-
-RNG = np.random.default_rng(0)
-
-
-def _rgb(h: int, w: int) -> np.ndarray:
-    return RNG.integers(0, 256, (h, w, 3), dtype=np.uint8)
-
-
-def _write(folder: Path, name: str, image: np.ndarray) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    skimage.io.imsave(folder / name, image, check_contrast=False)
-    return folder / name
 
 
 @pytest.mark.parametrize(
     ("h", "w", "size", "stride"),
     [(100, 130, 32, 16), (64, 96, 32, 32), (50, 50, 50, 7)],
 )
-def test_tiles_match_slicing_loop(h, w, size, stride):
-    image = _rgb(h, w)
+def test_tiles_match_slicing_loop(h, w, size, stride, rgb):
+    image = rgb(h, w)
     tiles = tile_image(image, size, stride)
     ref, pos = [], []
     for r in range(0, h - size + 1, stride):
@@ -42,20 +26,20 @@ def test_tiles_match_slicing_loop(h, w, size, stride):
     np.testing.assert_array_equal(tiles.positions, np.array(pos))
 
 
-def test_tile_errors():
+def test_tile_errors(rgb):
     with pytest.raises(InputError, match="does not fit"):
-        tile_image(_rgb(20, 40), size=32)
+        tile_image(rgb(20, 40), size=32)
     with pytest.raises(InputError, match="uint8"):
-        tile_image(_rgb(40, 40).astype(np.float32), size=32)
+        tile_image(rgb(40, 40).astype(np.float32), size=32)
     with pytest.raises(InputError, match="positive integers"):
-        tile_image(_rgb(40, 40), size=32, stride=0)
+        tile_image(rgb(40, 40), size=32, stride=0)
 
 
-def test_aerial_pair_and_route(tmp_path, caplog):
-    a1, b1, a2, b2 = _rgb(96, 64), _rgb(96, 64), _rgb(64, 64), _rgb(63, 64)
+def test_aerial_pair_and_route(tmp_path, caplog, rgb, write_image):
+    a1, b1, a2, b2 = rgb(96, 64), rgb(96, 64), rgb(64, 64), rgb(63, 64)
     for name, a, b in (("p1.png", a1, b1), ("p2.png", a2, b2)):
-        _write(tmp_path / "A", name, a)
-        _write(tmp_path / "B", name, b)
+        write_image(tmp_path / "A", name, a)
+        write_image(tmp_path / "B", name, b)
     pair = load_aerial_pair(tmp_path / "A/p1.png", tmp_path / "B/p1.png", 32, 16)
     np.testing.assert_array_equal(pair.map_tiles, tile_image(a1, 32, 16).tiles)
     np.testing.assert_array_equal(pair.query_tiles, tile_image(b1, 32, 16).tiles)
