@@ -223,7 +223,7 @@ def train_run(
         try:
             restored = _restore(manager, ckpt_dir, state, config)
         except BaseException:
-            manager.close()
+            _close(manager)
             raise
         if restored is not None:
             state, saved = restored, int(restored.step)
@@ -267,8 +267,16 @@ def train_run(
     finally:
         bar.close()
         if manager is not None:
-            manager.close()
+            _close(manager)
     return state.params
+
+
+def _close(manager) -> None:
+    """Close orbax's manager without masking the error (or Ctrl-C) being raised."""
+    try:
+        manager.close()
+    except Exception as err:  # noqa: BLE001 - orbax raises many kinds
+        log.warning("could not close the checkpoint manager cleanly: %s", err)
 
 
 # -------------------------------------------------------------- streamed batches

@@ -75,6 +75,17 @@ def _kill(proc: subprocess.Popen) -> None:
     assert proc.returncode == -signal.SIGKILL
 
 
+def _wait_for_a_checkpoint(proc: subprocess.Popen, ckpt: Path, moment) -> None:
+    """Wait for the child's first checkpoint in ``ckpt``, then a random moment
+    more (``moment``: a seeded ``random.Random``), so a kill lands mid-run."""
+    deadline = time.monotonic() + 120
+    while not (ckpt.is_dir() and any(p.name.isdigit() for p in ckpt.iterdir())):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "no checkpoint within two minutes"
+        time.sleep(0.02)
+    time.sleep(moment.uniform(0.0, 0.3))
+
+
 # ------------------------------------------------------------------- training
 
 N, D, PERIODS, C = 48, 6, (7, 8), 2.0
@@ -92,12 +103,7 @@ def test_sigkill_during_training_resumes_to_the_same_map(tmp_path, caplog):
     code = TRAIN_CHILD.format(CONFIG=CONFIG, PERIODS=PERIODS, C=C, N=N)
     proc = _child(tmp_path, "train_child.py", code, str(tmp_path))
     ckpt = tmp_path / "ckpt"
-    deadline = time.monotonic() + 120
-    while not (ckpt.is_dir() and any(p.name.isdigit() for p in ckpt.iterdir())):
-        assert proc.poll() is None, proc.stderr.read()
-        assert time.monotonic() < deadline, "no checkpoint within two minutes"
-        time.sleep(0.02)
-    time.sleep(random.Random(0).uniform(0.0, 0.3))  # kill somewhere in the run
+    _wait_for_a_checkpoint(proc, ckpt, random.Random(0))
     _kill(proc)
 
     config = RunConfig(**CONFIG)
@@ -250,12 +256,7 @@ def test_a_stopped_augmented_fit_resumes_to_the_same_map(
         text=True,
     )
     ckpt = tmp_path / "route.map.ckpt"
-    deadline = time.monotonic() + 120
-    while not (ckpt.is_dir() and any(p.name.isdigit() for p in ckpt.iterdir())):
-        assert proc.poll() is None, proc.stderr.read()
-        assert time.monotonic() < deadline, "no checkpoint within two minutes"
-        time.sleep(0.02)
-    time.sleep(random.Random(sig).uniform(0.0, 0.3))  # somewhere in the run
+    _wait_for_a_checkpoint(proc, ckpt, random.Random(sig))
     if sig == signal.SIGKILL:
         _kill(proc)
     else:
