@@ -259,14 +259,15 @@ def test_a_stopped_augmented_fit_resumes_to_the_same_map(
     _wait_for_a_checkpoint(proc, ckpt, random.Random(sig))
     if sig == signal.SIGKILL:
         _kill(proc)
+        err = proc.stderr.read()
     else:
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, err
-        assert "run the same command again to resume" in err
-    assert not out.exists()  # no map from a stopped fit
+        assert "run the same command again to resume" in err, err
+    assert not out.exists(), err  # no map from a stopped fit
     steps = sorted(int(p.name) for p in ckpt.iterdir() if p.name.isdigit())
-    assert steps and steps[-1] < 30  # stopped before the last of 30 steps
+    assert steps and steps[-1] < 30, (steps, err)  # stopped before the last step
 
     with caplog.at_level(logging.INFO, logger="rhythmic_jax.run"):
         assert main(argv) == 0
