@@ -104,8 +104,8 @@ def _parser() -> argparse.ArgumentParser:
         "--gap",
         type=float,
         default=1e-7,
-        help="stop the solver at this relative objective gap (1e-7: the optimum; "
-        "5e-4: within 0.1 %%, about twice as fast)",
+        help="stop the solver at this estimated relative objective gap (default "
+        "1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
     )
     p.add_argument("--json", action="store_true", help="print the map's info as JSON")
     p.add_argument(
