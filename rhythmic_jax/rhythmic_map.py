@@ -181,18 +181,20 @@ class RhythmicMap:
         if self.params is None:
             raise InputError("this map is not fitted yet: call fit() or load() first")
 
+    def _queries(self, q) -> jax.Array:
+        """Checked (b, d) queries of a fitted map, as a JAX array."""
+        self._check_fitted()
+        return jnp.asarray(check_features(q, "queries", d=self.d))
+
     def scores(self, q) -> jax.Array:
         """Decision values of queries (b, d) -> (b, sum(periods))."""
-        self._check_fitted()
-        q = check_features(q, "queries", d=self.d)
-        return _scores(self.params, jnp.asarray(q))
+        return _scores(self.params, self._queries(q))
 
     def decode(self, q, method: str | None = None, m: int | None = None) -> Decoded:
         """Decode queries (b, d): index (-1 no match), score, runner-up, confidence."""
-        if (method or self.config.decode) == "hard":  # one compiled call: scores and
-            self._check_fitted()  # decode fused, the latency of a single query
-            q = check_features(q, "queries", d=self.d)
-            return localise(self.params, q, self.periods, self.n)
+        if (method or self.config.decode) == "hard":  # scores and decode in one
+            # compiled call: the latency of a single query
+            return localise(self.params, self._queries(q), self.periods, self.n)
         return decode_scores(
             self.scores(q),
             self.periods,
