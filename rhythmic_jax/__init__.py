@@ -66,12 +66,12 @@ from rhythmic_jax.soft import Decoded as Decoded
 from rhythmic_jax.soft import calibrate as calibrate
 from rhythmic_jax.soft import soft_decode as soft_decode
 from rhythmic_jax.soft import topm_decode as topm_decode
+from rhythmic_jax.split import NORDLAND_SPLIT as NORDLAND_SPLIT
+from rhythmic_jax.split import PlaceSplit as PlaceSplit
+from rhythmic_jax.split import pair_split as pair_split
+from rhythmic_jax.split import route_split as route_split
 from rhythmic_jax.train import TrainState as TrainState
 from rhythmic_jax.train import fit_full_batch as fit_full_batch
 from rhythmic_jax.train import fit_minibatch as fit_minibatch
 from rhythmic_jax.train import minibatch_step as minibatch_step
 from rhythmic_jax.train import ridge_start as ridge_start
-from rhythmic_jax.split import NORDLAND_SPLIT as NORDLAND_SPLIT
-from rhythmic_jax.split import PlaceSplit as PlaceSplit
-from rhythmic_jax.split import pair_split as pair_split
-from rhythmic_jax.split import route_split as route_split
