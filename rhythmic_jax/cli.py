@@ -64,7 +64,10 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
         "vgg16_fc7); a map remembers its own",
     )
     p.add_argument(
-        "--weights", default=None, help="weights file of vgg16_fc7 (a state dict)"
+        "--weights",
+        default=None,
+        help="weights file of vgg16_fc7 (a state dict); when querying a map, a "
+        "moved copy of the file it was fitted with (its sha256 is checked)",
     )
     p.add_argument("--tile", type=int, default=None, help="tile a large image: size")
     p.add_argument(
@@ -287,6 +290,7 @@ def _load_queries(args):
         args.tile,
         args.stride,
         not args.no_progress,
+        weights=args.weights,
     )
     return model, feats
 
@@ -337,7 +341,7 @@ def _cmd_evaluate(args) -> int:
     model, feats = _load_queries(args)
     ref, labels, note = reference_features(
         model, args.reference, args.descriptor, args.tile, args.stride,
-        not args.no_progress,
+        not args.no_progress, weights=args.weights,
     )  # fmt: skip
     result = evaluate_map(
         model,

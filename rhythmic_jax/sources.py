@@ -95,9 +95,11 @@ def _key(path: Path, tile, stride) -> str:
 def _one(path: Path, kind: str, name: str, settings: dict, tile, stride, progress):
     """(descriptors, settings, images or None) of one source."""
     from rhythmic_jax.descriptor_files import load_descriptors
+    from rhythmic_jax.features import get_descriptor
 
     if kind == "npy":
         return load_descriptors(path), settings, None
+    get_descriptor(name, **settings)  # bad settings or weights: before any reading
     images = _images(path, kind, tile, stride, progress)
     key = _key(path, tile, stride)
     return (*describe_images(images, name, settings, key, progress), images)
@@ -201,12 +203,19 @@ def load_query_source(
     tile: int | None = None,
     stride: int | None = None,
     progress: bool = True,
+    weights: str | None = None,
 ) -> Features:
-    """Query features described the way ``model`` (a fitted map) was built."""
+    """Query features described the way ``model`` (a fitted map) was built.
+
+    ``weights``: a copy of the descriptor's weights file at another path (checked
+    against the sha256 the map recorded).
+    """
     path = Path(source)
     kind = _kind(path, tile)
     name, settings = model.config.descriptor, dict(model.config.descriptor_settings)
     settings.pop("pca", None)
+    if weights is not None:
+        settings = _moved_weights(name, settings, weights)
     if descriptor is not None and descriptor != name:
         raise InputError(
             f"the map was built with descriptor {name!r}, not {descriptor!r}"
@@ -225,6 +234,17 @@ def load_query_source(
     return Features(x, np.arange(len(x)), name, settings)
 
 
+def _moved_weights(name: str, settings: dict, weights: str) -> dict:
+    """The map's descriptor settings with its weights file at ``weights``."""
+    if "weights" not in settings:
+        raise InputError(f"--weights: the map's descriptor {name!r} takes no weights")
+    settings = {k: v for k, v in settings.items() if k not in _PACKAGE_KEYS}
+    return settings | {"weights": str(Path(weights).expanduser().absolute())}
+
+
+_PACKAGE_KEYS = ("weights_package", "weights_version")
+
+
 def reference_features(
     model,
     source: str | None = None,
@@ -232,6 +252,7 @@ def reference_features(
     tile: int | None = None,
     stride: int | None = None,
     progress: bool = True,
+    weights: str | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.
 
@@ -255,7 +276,7 @@ def reference_features(
             return None, None, note
         note = "brute force over the map's reference " + ", ".join(sources)
     blocks = [
-        load_query_source(s, model, descriptor, tile, stride, progress).x
+        load_query_source(s, model, descriptor, tile, stride, progress, weights).x
         for s in sources
     ]
     labels = np.concatenate([np.arange(len(b)) for b in blocks])

@@ -69,3 +69,35 @@ def write_image():
         return folder / name
 
     return write
+
+
+@pytest.fixture(scope="session")
+def small_vgg16():
+    """``small_vgg16(path, seed=0) -> path``: a loadable VGG16 state dict of 0.7 MB.
+
+    Every weight matrix (rows x fan-in) is a strided view ``base[7 i + j]`` of a
+    short random vector (He-scaled), so the file stores the short vectors while
+    the network gets full-size, distinct, non-degenerate layers.
+    """
+    import torch
+
+    from rhythmic_jax.nets import VGG16
+
+    def make(path: Path, seed: int = 0) -> Path:
+        with torch.device("meta"):
+            own = VGG16().state_dict()
+        gen = torch.Generator().manual_seed(seed)
+        state = {}
+        for key, v in own.items():
+            if v.ndim == 1:
+                state[key] = 0.01 * torch.randn(v.shape, generator=gen)
+                continue
+            rows, cols = v.shape[0], v[0].numel()
+            base = torch.randn(7 * (rows - 1) + cols, generator=gen)
+            base *= (2.0 / cols) ** 0.5
+            state[key] = base.as_strided((rows, cols), (7, 1)).view(v.shape)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save(state, path)
+        return path
+
+    return make
