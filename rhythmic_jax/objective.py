@@ -24,13 +24,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.periods import period_offsets
+
 __all__ = [
     "Templates",
     "classifier_objective",
     "default_c",
     "objective",
     "period_errors",
-    "period_offsets",
     "phase_predictions",
     "scores",
     "squared_hinge",
@@ -49,11 +50,6 @@ class Templates(NamedTuple):
 def default_c(n: int) -> float:
     """The paper's penalty ``C = log N`` (natural log, Sec. III-A)."""
     return float(math.log(n))
-
-
-def period_offsets(periods: Sequence[int]) -> tuple[int, ...]:
-    """Column offset of each period's templates: ``(0, tau_1, tau_1 + tau_2, ...)``."""
-    return tuple(int(v) for v in np.concatenate([[0], np.cumsum(periods)[:-1]]))
 
 
 def targets(labels: np.ndarray | jax.Array, periods: Sequence[int]) -> jax.Array:

@@ -9,6 +9,7 @@ and a bias per template), so storage grows as ``r * n ** (1 / r)``.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Sequence
@@ -16,6 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_int
 
 __all__ = [
     "candidate_periods",
@@ -23,8 +25,11 @@ __all__ = [
     "compression_ratio",
     "crt_tables",
     "database_bytes",
+    "nominal_periods",
     "pairwise_coprime",
+    "period_offsets",
     "phases",
+    "place_columns",
     "storage_bytes",
 ]
 
@@ -48,14 +53,14 @@ def candidate_periods(
     ``level`` c = 2, 3, 4 gives the longer periods of its "T = c sqrt N" runs
     (Table 2, Fig. 8). E.g. ``candidate_periods(7403)`` is 87 .. 93.
     """
-    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
-        raise InputError(f"a map needs at least 2 frames, got n={n!r}")
-    if isinstance(r, bool) or not isinstance(r, int | np.integer) or r < 2:
-        raise InputError(f"r (number of periods) must be an integer >= 2, got r={r!r}")
-    if isinstance(level, bool) or not isinstance(level, int | np.integer) or level < 1:
-        raise InputError(f"level must be an integer >= 1, got level={level!r}")
-    if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < r:
-        raise InputError(f"count must be an integer >= r={r}, got count={count!r}")
+    check_int(n, "n", 2, msg=f"a map needs at least 2 frames, got n={n!r}")
+    check_int(
+        r, "r", 2, msg=f"r (number of periods) must be an integer >= 2, got r={r!r}"
+    )
+    check_int(level, "level", 1)
+    check_int(
+        count, "count", r, msg=f"count must be an integer >= r={r}, got count={count!r}"
+    )
     base = int(level) * _iroot_ceil(int(n), int(r))
     if base < 2:
         raise InputError(f"n={n} is too small for r={r} periods at level {level}")
@@ -107,9 +112,9 @@ def choose_periods(
             f"{len(candidates)} candidate periods but {len(errors)} training errors"
         )
     for name, value in (("n", n), ("r", r), *(("candidate", t) for t in candidates)):
-        bad_type = isinstance(value, bool) or not isinstance(value, int | np.integer)
-        if bad_type or value < 1:
-            raise InputError(f"{name} must be a positive integer, got {value!r}")
+        check_int(
+            value, name, 1, msg=f"{name} must be a positive integer, got {value!r}"
+        )
     if len(set(int(t) for t in candidates)) != len(candidates):
         raise InputError(f"candidate periods {tuple(candidates)} repeat a period")
     if not all(math.isfinite(float(e)) for e in errors):
@@ -160,3 +165,29 @@ def crt_tables(periods: Sequence[int]) -> tuple[tuple[np.ndarray, ...], int]:
         coef = (mk * pow(mk, -1, t)) % m if t > 1 else 0
         tables.append(np.array([(j * coef) % m for j in range(t)], dtype=np.int64))
     return tuple(tables), m
+
+
+def nominal_periods(
+    n: int, r: int = 2, level: int = 1, count: int = 7
+) -> tuple[int, ...]:
+    """The periods a map of ``n`` frames takes before any training error is known.
+
+    :func:`choose_periods` over :func:`candidate_periods` with equal errors: the
+    least-storage pairwise co-prime set (raises InputError when there is none).
+    """
+    cands = candidate_periods(n, r, level, count)
+    return choose_periods(cands, [0.0] * len(cands), n, r)
+
+
+def period_offsets(periods: Sequence[int]) -> tuple[int, ...]:
+    """Column offset of each period's templates: ``(0, tau_1, tau_1 + tau_2, ...)``."""
+    return tuple(int(v) for v in np.concatenate([[0], np.cumsum(periods)[:-1]]))
+
+
+@functools.lru_cache(maxsize=64)
+def place_columns(periods: tuple[int, ...], n: int) -> np.ndarray:
+    """(r, n) int32: column of place i in period k, ``off_k + i mod tau_k``."""
+    i = np.arange(n)
+    return np.stack(
+        [o + i % t for o, t in zip(period_offsets(periods), periods, strict=True)]
+    ).astype(np.int32)

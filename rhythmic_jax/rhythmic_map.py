@@ -27,17 +27,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax import checkpoint
-from rhythmic_jax.decode import DECODERS, decode_scores
-from rhythmic_jax.decode import decode as localise
+from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
+from rhythmic_jax.decoding.hard import Decoded
+from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.memory import check_memory
-from rhythmic_jax.newton import NewtonConfig, newton_fit
+from rhythmic_jax.io import checkpoint
 from rhythmic_jax.objective import (
     Templates,
     default_c,
     period_errors,
-    period_offsets,
     scores,
     targets,
 )
@@ -46,10 +44,13 @@ from rhythmic_jax.periods import (
     choose_periods,
     compression_ratio,
     database_bytes,
+    nominal_periods,
+    period_offsets,
     storage_bytes,
 )
-from rhythmic_jax.soft import Decoded
-from rhythmic_jax.train import fit_full_batch
+from rhythmic_jax.solvers.memory import check_memory
+from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
+from rhythmic_jax.solvers.optax_loops import fit_full_batch
 from rhythmic_jax.validate import check_features, check_labels
 
 __all__ = ["MapConfig", "RhythmicMap"]
@@ -134,14 +135,14 @@ class RhythmicMap:
             traversals of one route share templates (multi-exemplar map).
           refine: optional ``refine(params, candidates, c) -> params`` run after
             the exact solve and before the period choice (e.g. minibatch steps
-            over augmented frames, :func:`rhythmic_jax.augmented.fit_augmented`).
+            over augmented frames, :func:`rhythmic_jax.augment.stream.fit_augmented`).
         """
         x = check_features(x, "reference features")
         labels = check_labels(np.arange(len(x)) if labels is None else labels, len(x))
         cfg = self.config
         n = int(labels.max()) + 1
         cands = candidate_periods(n, cfg.r, cfg.level, cfg.count)
-        choose_periods(cands, [0.0] * len(cands), n, cfg.r)  # impossible r: say now
+        nominal_periods(n, cfg.r, cfg.level, cfg.count)  # impossible r: say now
         check_memory(len(x), x.shape[1], sum(cands))
         c = cfg.c if cfg.c is not None else default_c(n)
         y = targets(labels, cands)
@@ -219,13 +220,13 @@ class RhythmicMap:
           q: (b, d) queries (consecutive frames of a traversal when ``sequence``).
           method: "hard" (paper), "soft" or "topm"; default from the config.
           sequence: decode each frame with the L previous ones in the phase
-            domain (:mod:`rhythmic_jax.sequence`); None for single frames.
+            domain (:mod:`rhythmic_jax.decoding.sequence`); None for single frames.
           speeds: map frames per query frame tried by the sequence decode.
           threshold: reject queries whose confidence is below it.
         """
         method = method or self.config.decode
         if sequence is not None and sequence > 1:
-            from rhythmic_jax.sequence import sequence_decode
+            from rhythmic_jax.decoding.sequence import sequence_decode
 
             idx, conf = sequence_decode(
                 self.scores(q),
@@ -279,8 +280,8 @@ class RhythmicMap:
 
     # ----------------------------------------------------------------- disk
     def save(self, path: str | os.PathLike) -> None:
-        """Save to the folder ``path`` (atomic; see :mod:`rhythmic_jax.checkpoint`)."""
-        from rhythmic_jax import __version__
+        """Save to the folder ``path`` (atomic: :mod:`rhythmic_jax.io.checkpoint`)."""
+        from rhythmic_jax.version import __version__
 
         self._check_fitted()
         arrays = {"w": np.asarray(self.params.w), "b": np.asarray(self.params.b)}

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_int
 
 __all__ = ["NORDLAND_SPLIT", "PlaceSplit", "pair_split", "route_split"]
 
@@ -67,8 +68,8 @@ def route_split(n: int, train_end: int, gap: int) -> PlaceSplit:
         least ``gap + 1`` indices from every training place.
     """
     for name, value, low in (("n", n, 2), ("train_end", train_end, 1), ("gap", gap, 0)):
-        if isinstance(value, bool) or int(value) != value or value < low:
-            raise InputError(f"split: {name} must be an integer >= {low}, got {value}")
+        msg = f"split: {name} must be an integer >= {low}, got {value}"
+        check_int(value, name, low, msg=msg)
     if train_end + gap >= n:
         raise InputError(
             f"split: train_end + gap = {train_end + gap} leaves no test place of n={n}"

@@ -6,7 +6,33 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["check_features", "check_labels"]
+__all__ = ["check_features", "check_int", "check_labels", "is_int"]
+
+
+def is_int(value) -> bool:
+    """True for a Python or numpy integer (``bool`` is not one)."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def check_int(
+    value, name: str, low: int | None = None, high: int | None = None, msg: str = ""
+) -> int:
+    """``value`` as an ``int`` in ``[low, high]`` (bounds optional), else InputError.
+
+    ``msg`` replaces the default line ``"{name} must be an integer >= {low}, got
+    {name}={value!r}"`` when the caller has a clearer one.
+    """
+    ok = is_int(value) and (low is None or value >= low)
+    if ok and (high is None or value <= high):
+        return int(value)
+    if not msg:
+        if high is not None:
+            msg = f"{name} must be an integer in [{low}, {high}], got {name}={value!r}"
+        elif low is not None:
+            msg = f"{name} must be an integer >= {low}, got {name}={value!r}"
+        else:
+            msg = f"{name} must be an integer, got {name}={value!r}"
+    raise InputError(msg)
 
 
 def check_features(x, name: str = "features", d: int | None = None) -> np.ndarray:

@@ -14,7 +14,6 @@ import logging
 import os
 import platform
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -24,6 +23,8 @@ import jax
 import numpy as np
 import torch
 from threadpoolctl import threadpool_info, threadpool_limits
+
+from rhythmic_jax.io.atomic import write_file
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
@@ -158,26 +159,11 @@ def _cell(v: object) -> str:
     return str(v)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes the file owner-only
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_report(out_dir: Path, stem: str, report: dict, markdown: str) -> None:
     """Write ``<stem>.json`` and ``<stem>.md`` under ``out_dir`` and print the
     Markdown."""
-    _write_atomic(Path(out_dir) / f"{stem}.json", json.dumps(report, indent=2) + "\n")
-    _write_atomic(Path(out_dir) / f"{stem}.md", markdown + "\n")
+    write_file(Path(out_dir) / f"{stem}.json", json.dumps(report, indent=2) + "\n")
+    write_file(Path(out_dir) / f"{stem}.md", markdown + "\n")
     print(markdown)
 
 

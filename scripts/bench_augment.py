@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from rhythmic_jax.augment import NAMES, AugmentConfig, augment
+from rhythmic_jax.augment.kornia_ops import NAMES, AugmentConfig, augment
 
 SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
 

@@ -1,9 +1,9 @@
 """Batch and single-query decoding against exact search, on the same features.
 
 A rhythmic map answers a query with one ``(b, d) x (d, p)`` product, an argmax per
-period and a Chinese-remainder look-up (:func:`rhythmic_jax.decode.decode`,
+period and a Chinese-remainder look-up (:func:`rhythmic_jax.decoding.hard.decode`,
 jitted); exact search scores the query against all N references (faiss
-``IndexFlatIP`` through :class:`rhythmic_jax.baselines.BruteForce`). Per query the
+``IndexFlatIP`` through :class:`rhythmic_jax.eval.baselines.BruteForce`). Per query the
 products cost ``p d`` against ``N d`` multiply-adds, so ``N / p`` is the FLOP
 ratio the measured speed-up is set beside.
 
@@ -48,16 +48,15 @@ from _bench_common import (
     write_report,
 )
 
-from rhythmic_jax.baselines import BruteForce
-from rhythmic_jax.data import nordland
-from rhythmic_jax.decode import decode
-from rhythmic_jax.evaluate import time_batch, time_single_queries
+from rhythmic_jax.decoding.hard import decode
+from rhythmic_jax.eval.baselines import BruteForce
+from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.io.images import nordland
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import (
-    candidate_periods,
-    choose_periods,
     database_bytes,
+    nominal_periods,
     storage_bytes,
 )
 
@@ -230,7 +229,7 @@ def main(argv: list[str] | None = None) -> dict:
     ]
     del refs, qry
     n = 3576
-    periods = choose_periods(candidate_periods(n, 2, 1, 7), [0.0] * 7, n, 2)
+    periods = nominal_periods(n, 2, 1, 7)
     if (args.root / "nordland_64x32").is_dir():
         name = "Nordland summer map, winter queries, patchnorm"
         refs, qry, src = nordland_features(args.root, BATCH, args.progress)

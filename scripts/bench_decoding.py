@@ -1,7 +1,7 @@
 """Decoders beyond the paper: hard, soft, top-m and phase-domain sequence decoding.
 
 Two route protocols, with single-frame brute force (faiss ``IndexFlatIP``) and the
-SeqSLAM-style reference (:func:`rhythmic_jax.seqslam.seqslam_decode`, full
+SeqSLAM-style reference (:func:`rhythmic_jax.eval.seqslam.seqslam_decode`, full
 descriptors, same L) beside every rhythmic decode:
 
 - Nordland 64x32: summer frames are the map, winter frames the queries (same
@@ -43,28 +43,29 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.baselines import BruteForce
-from rhythmic_jax.data import nordland
-from rhythmic_jax.decode import decode_scores
-from rhythmic_jax.evaluate import accuracy, pr_auc, recall_at_100_precision
-from rhythmic_jax.features import cached_describe, get_descriptor
-from rhythmic_jax.objective import period_offsets
-from rhythmic_jax.outliers import (
+from rhythmic_jax.decoding.dispatch import decode_scores
+from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
+from rhythmic_jax.decoding.soft import calibrate
+from rhythmic_jax.eval.baselines import BruteForce
+from rhythmic_jax.eval.metrics import accuracy, pr_auc, recall_at_100_precision
+from rhythmic_jax.eval.outliers import (
     choose_threshold,
     decode_confidence,
     finite_confidence,
     holdout_split,
     reject,
 )
-from rhythmic_jax.rhythmic_map import RhythmicMap
-from rhythmic_jax.seqslam import (
+from rhythmic_jax.eval.seqslam import (
     enhance_contrast,
     seqslam_decode,
     sequence_similarity,
 )
-from rhythmic_jax.sequence import SPEEDS, sequence_decode, sequence_scores
-from rhythmic_jax.soft import calibrate
-from rhythmic_jax.tiles import load_aerial_route
+from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.io.atomic import write_file
+from rhythmic_jax.io.images import nordland
+from rhythmic_jax.io.tiles import load_aerial_route
+from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.rhythmic_map import RhythmicMap
 
 log = logging.getLogger("bench_decoding")
 REPO = Path(__file__).resolve().parents[1]
@@ -243,7 +244,7 @@ def place_sequence_decode(
 
     ``S[t, i] = sum_k s_k^t[i mod tau_k]`` (r gathers per place, no descriptors),
     local contrast over ``window`` places, diagonal sums over ``length`` frames
-    (:mod:`rhythmic_jax.seqslam`), best speed. Costs ``O((r + L) n)`` per frame
+    (:mod:`rhythmic_jax.eval.seqslam`), best speed. Costs ``O((r + L) n)`` per frame
     instead of the phase domain's ``O(L p + r n)``."""
     i = np.arange(n)
     cols = np.stack(
@@ -576,18 +577,6 @@ def markdown(report: dict) -> str:
     return "\n".join(parts)
 
 
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 # ---------------------------------------------------------------------- main
 
 
@@ -691,8 +680,8 @@ def main() -> None:
     )
     md = markdown(report)
     suffix = "_quick" if args.quick else ""
-    write_atomic(args.out / f"decoding{suffix}.json", json.dumps(report, indent=2))
-    write_atomic(args.out / f"decoding{suffix}.md", md + "\n")
+    write_file(args.out / f"decoding{suffix}.json", json.dumps(report, indent=2))
+    write_file(args.out / f"decoding{suffix}.md", md + "\n")
     print(md)
 
 

@@ -20,7 +20,6 @@ import json
 import logging
 import os
 import platform
-import tempfile
 import time
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from skimage.io import imread
 from tqdm.auto import tqdm
 
 from rhythmic_jax.features import cached_describe, describe, get_descriptor
+from rhythmic_jax.io.atomic import write_file
 from rhythmic_jax.projection import fit_pca, project
 
 log = logging.getLogger("bench_descriptors")
@@ -153,18 +153,6 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--root", type=Path, default=DEFAULT_ROOT, help="shared data dir")
@@ -205,8 +193,8 @@ def main() -> None:
         " start: other work on the machine slows these). Command:"
         " `python scripts/bench_descriptors.py`.\n\n" + table(rows) + "\n"
     )
-    write_atomic(args.out / "descriptors.json", json.dumps(report, indent=2) + "\n")
-    write_atomic(args.out / "descriptors.md", md)
+    write_file(args.out / "descriptors.json", json.dumps(report, indent=2) + "\n")
+    write_file(args.out / "descriptors.md", md)
     print(table(rows))
 
 

@@ -1,6 +1,6 @@
 """Frames per second of the augmented training pipeline, and where the time goes.
 
-One epoch of :func:`rhythmic_jax.augmented.fit_augmented` on Nordland summer
+One epoch of :func:`rhythmic_jax.augment.stream.fit_augmented` on Nordland summer
 frames: kornia augmentation (torch), the descriptor (torch), the DLPack hand-over
 and the optax minibatch step of the vmapped objective (JAX), for each
 augmentation alone and all seven merged, at the descriptor's native input size.
@@ -30,13 +30,13 @@ DATA = Path(os.environ.get("RHYTHMIC_DATA", ROOT.parent / "shared" / "data"))
 def main() -> None:
     import torch
 
-    from rhythmic_jax.augment import NAMES
-    from rhythmic_jax.augmented import AugmentedFit, fit_augmented
-    from rhythmic_jax.data import nordland
+    from rhythmic_jax.augment.kornia_ops import NAMES
+    from rhythmic_jax.augment.stream import AugmentedFit, fit_augmented
     from rhythmic_jax.features import cached_describe, get_descriptor
-    from rhythmic_jax.newton import newton_fit
+    from rhythmic_jax.io.images import nordland
     from rhythmic_jax.objective import default_c, targets
     from rhythmic_jax.periods import candidate_periods
+    from rhythmic_jax.solvers.newton import newton_fit
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=1024)

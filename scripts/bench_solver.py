@@ -4,12 +4,13 @@ The map's period search trains every template of 7 candidate periods
 (``candidate_periods(n, 2, level=1, count=7)``, p templates in all) jointly. This
 script times that solve three ways on the same features, in the same run:
 
-- Newton-CG (:func:`rhythmic_jax.newton.newton_fit`), all p templates at once,
-  twice: "0.1 % gap" (``rhythmic_jax.newton.FAST``: every template stops once its
-  estimated gap, the Newton decrement, is below 1e-3 of its objective) and "tight"
+- Newton-CG (:func:`rhythmic_jax.solvers.newton.newton_fit`), all p templates at once,
+  twice: "0.1 % gap" (``rhythmic_jax.solvers.newton.FAST``: every template stops once
+  its estimated gap, the Newton decrement, is below 1e-3 of its objective) and "tight"
   (the default ``NewtonConfig()``, estimated gap <= 1e-7, the exact optimum used
   by the map);
-- optax L-BFGS (:func:`rhythmic_jax.train.fit_full_batch`, default settings)
+- optax L-BFGS (:func:`rhythmic_jax.solvers.optax_loops.fit_full_batch`, default
+settings)
   from the ridge start, all p templates at once;
 - scikit-learn ``LinearSVC(loss="squared_hinge", dual=True, C=log N)`` (liblinear,
   default ``tol=1e-4``, ``max_iter=1000``), one template after another as the
@@ -62,18 +63,17 @@ from _bench_common import (
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.data import nordland
 from rhythmic_jax.features import cached_describe, get_descriptor
-from rhythmic_jax.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.io.images import nordland
 from rhythmic_jax.objective import (
     default_c,
     period_errors,
-    period_offsets,
     scores,
     targets,
 )
-from rhythmic_jax.periods import candidate_periods, choose_periods
-from rhythmic_jax.train import fit_full_batch
+from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
+from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.solvers.optax_loops import fit_full_batch
 
 log = logging.getLogger("bench_solver")
 

@@ -1,8 +1,8 @@
 """Wide frames: the joint solve over the frames' span against the direct solve.
 
 Deep descriptors are wider than a route is long (EfficientNet-Lite0 block 10 at
-224x112: 10976-d for 3576 Nordland frames). ``rhythmic_jax.newton`` then solves
-over the n-dimensional span of the frames (``rhythmic_jax.rowspace``); the peer
+224x112: 10976-d for 3576 Nordland frames). ``rhythmic_jax.solvers.newton`` then solves
+over the n-dimensional span of the frames (``rhythmic_jax.solvers.span``); the peer
 in the same run is the same solver on the d-dimensional frames
 (``NewtonConfig(span=False)``). Both solve to the optimum (the default
 ``NewtonConfig``), compilation included; the report gives wall and CPU seconds,
@@ -35,11 +35,11 @@ from _bench_common import (
     write_report,
 )
 
-from rhythmic_jax.data import nordland
 from rhythmic_jax.features import cached_describe, get_descriptor
-from rhythmic_jax.newton import NewtonConfig, newton_fit
+from rhythmic_jax.io.images import nordland
 from rhythmic_jax.objective import Templates, default_c, objective, targets
 from rhythmic_jax.periods import candidate_periods
+from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
 
 log = logging.getLogger("bench_span")
 

@@ -43,16 +43,21 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import rhythmic_jax
-from rhythmic_jax import figures
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.evaluate import accuracy, recall_at_k, time_batch, time_single_queries
+from rhythmic_jax.eval import figures
+from rhythmic_jax.eval.metrics import (
+    accuracy,
+    recall_at_k,
+    time_batch,
+    time_single_queries,
+)
+from rhythmic_jax.eval.report import ranked_places
+from rhythmic_jax.io.atomic import atomic_path, write_file
 from rhythmic_jax.periods import (
-    candidate_periods,
-    choose_periods,
     database_bytes,
+    nominal_periods,
     storage_bytes,
 )
-from rhythmic_jax.report import ranked_places
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 REPO = Path(__file__).resolve().parents[1]
@@ -278,25 +283,12 @@ def table1_markdown(paper: list[dict], here: list[dict]) -> str:
 # ------------------------------------------------------------------ helpers
 
 
-def write_atomic(path: Path, data: str | bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data.encode() if isinstance(data, str) else data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
     """Fewest candidates (at least ``count``) among which r periods are pairwise
     co-prime with product >= n (r = 5 at level 1 on 3576 frames needs 8)."""
     while True:
         try:
-            choose_periods(candidate_periods(n, r, level, count), [0.0] * count, n, r)
+            nominal_periods(n, r, level, count)
             return count
         except InputError:
             count += 1
@@ -341,7 +333,7 @@ class Run:
         if aug is None:
             model.fit(x, progress=self.progress)
         else:
-            from rhythmic_jax.augmented import fit_map_augmented
+            from rhythmic_jax.augment.stream import fit_map_augmented
 
             fit_map_augmented(model, images, x, self.desc, aug, progress=self.progress)
         timing = dict(
@@ -349,7 +341,7 @@ class Run:
         )
         self.cache_dir.mkdir(parents=True, exist_ok=True)
         model.save(path)
-        write_atomic(side, json.dumps(timing))
+        write_file(side, json.dumps(timing))
         return model, dict(map_path=str(path), cached=False, **timing)
 
     def fit_baseline(self, b, x: np.ndarray) -> float:
@@ -372,14 +364,14 @@ class Run:
         b.fit(x)
         fit_s = time.perf_counter() - start
         self.cache_dir.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, faiss.serialize_index(b.index).tobytes())
+        write_file(path, faiss.serialize_index(b.index).tobytes())
         scalars = (int, float, str, bool)
         attrs = {
             k: v
             for k, v in vars(b).items()
             if isinstance(v, scalars) and k != "n_threads"
         }
-        write_atomic(side, json.dumps(dict(attributes=attrs, fit_s=fit_s)))
+        write_file(side, json.dumps(dict(attributes=attrs, fit_s=fit_s)))
         return fit_s
 
     def score(self, key: str, pred, tol: int, ranked) -> dict[str, Any]:
@@ -429,9 +421,9 @@ def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
 def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """key -> (map images, map features, query features): Nordland summer ->
     winter, winter (for Table 2), aerial LEVIR A -> B."""
-    from rhythmic_jax.data import nordland
     from rhythmic_jax.features import cached_describe
-    from rhythmic_jax.tiles import load_aerial_route
+    from rhythmic_jax.io.images import nordland
+    from rhythmic_jax.io.tiles import load_aerial_route
 
     kw = dict(progress=run.progress)
     summer, winter = nordland(DATA / "nordland_64x32", progress=run.progress)
@@ -495,7 +487,7 @@ def timing(fn, q: np.ndarray, s: Settings) -> dict[str, float]:
 
 def table3(run: Run, data, fits) -> dict[str, Any]:
     """Paper Table 3 on Nordland: the map against the baselines, same queries."""
-    from rhythmic_jax.baselines import ITQ, OPQ, BruteForce, KDTreeSearch
+    from rhythmic_jax.eval.baselines import ITQ, OPQ, BruteForce, KDTreeSearch
 
     s = run.settings
     _, x, q = data["nordland"]
@@ -567,9 +559,9 @@ def by_level(run: Run, fits, key: str, q, tol: int) -> list[dict]:
 def appearance(run: Run, data, fits) -> dict[str, Any]:
     """Summer map, winter queries (±1): brute force and the map at each level on the
     whole route; the augmentation study on its first ``aug_frames`` frames."""
-    from rhythmic_jax.augment import NAMES
-    from rhythmic_jax.augmented import AugmentedFit
-    from rhythmic_jax.baselines import BruteForce
+    from rhythmic_jax.augment.kornia_ops import NAMES
+    from rhythmic_jax.augment.stream import AugmentedFit
+    from rhythmic_jax.eval.baselines import BruteForce
 
     s = run.settings
     images, x, q = data["nordland"]
@@ -601,7 +593,7 @@ def appearance(run: Run, data, fits) -> dict[str, Any]:
 
 def aerial(run: Run, data, fits) -> dict[str, Any]:
     """LEVIR pairs: A tiles are the map, B tiles the queries; exact index."""
-    from rhythmic_jax.baselines import BruteForce
+    from rhythmic_jax.eval.baselines import BruteForce
 
     _, xa, xb = data["aerial"]
     bf = run.score_search("aerial_bf", BruteForce(run.settings.threads).fit(xa), xb, 0)
@@ -728,7 +720,7 @@ DEVIATIONS = """\
   two seasons and is not reproduced.
 - **Solver.** The same objective (a squared-hinge L2-SVM per template, the bias
   regularised as a feature, C = log N) is solved to its optimum by active-set
-  Newton-CG in JAX (`rhythmic_jax.newton`), every template of every candidate at
+  Newton-CG in JAX (`rhythmic_jax.solvers.newton`), every template of every candidate at
   once, instead of liblinear's coordinate descent per template. The period choice
   keeps the r pairwise co-prime candidates with product >= N and the least summed
   training error (ties: least storage).
@@ -740,7 +732,7 @@ DEVIATIONS = """\
 - **Augmentation** uses kornia versions of the seven operations, drawn afresh each
   epoch (p = 0.5 each), trained by Adam minibatch steps from the exact optimum on
   the clean frames, which stay in every epoch as a second exemplar of each place
-  (`rhythmic_jax.augmented`). Each fit takes minutes on this machine, so the study
+  (`rhythmic_jax.augment.stream`). Each fit takes minutes on this machine, so the study
   runs on a contiguous part of the route, stated with its table.
 - **Timing**: Python 3.11 with faiss, scikit-learn and JAX on a shared 2-core
   machine (the paper: an i7-7700K, Python 3.6), whole calls from a (b, d) float32
@@ -1027,14 +1019,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     steps.update()
     res["meta"] = meta(argv, run, data, load_start, t0, preds)
     res["figures"] = draw(res, args.out)
-    preds.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=preds.parent, prefix=preds.stem, suffix=".npz")
-    with os.fdopen(fd, "wb") as f:
+    with atomic_path(preds) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **run.preds)
-    os.replace(tmp, preds)
     md = markdown(res)
-    write_atomic(args.out / "reproduction.json", json.dumps(res, indent=1))
-    write_atomic(args.out / "REPRODUCTION.md", md + "\n")
+    write_file(args.out / "reproduction.json", json.dumps(res, indent=1))
+    write_file(args.out / "REPRODUCTION.md", md + "\n")
     steps.update()
     steps.close()
     say(f"wrote {args.out / 'REPRODUCTION.md'} ({res['meta']['elapsed_min']:.1f} min)")

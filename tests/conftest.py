@@ -41,8 +41,8 @@ def aerial_root() -> Path:
 @pytest.fixture(scope="session")
 def nordland_patchnorm(nordland_root):
     """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048)."""
-    from rhythmic_jax.data import nordland
     from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.io.images import nordland
 
     desc = get_descriptor("patchnorm")
     summer, winter = nordland(nordland_root, progress=False)

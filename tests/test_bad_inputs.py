@@ -30,7 +30,7 @@ from rhythmic_jax.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.features import Hog, describe, get_descriptor
 from rhythmic_jax.nets import VGG16, EfficientNetLite0
-from rhythmic_jax.run import RunConfig, memmap_batches
+from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches
 
 RNG = np.random.default_rng(0)
 X = RNG.normal(size=(40, 18)).astype(np.float32)
@@ -807,7 +807,7 @@ def test_no_load_path_in_the_package_can_unpickle():
     nothing calls pickle at all (the catalogue above feeds the payloads)."""
     package = Path(__file__).resolve().parents[1] / "rhythmic_jax"
     seen = {"np": 0, "torch": 0}
-    for path in sorted(package.glob("*.py")):
+    for path in sorted(package.rglob("*.py")):
         for module, name, keywords, line in _load_calls(ast.parse(path.read_text())):
             where = f"{path.name}:{line} {module}.{name}"
             assert module not in ("pickle", "cPickle", "dill"), where

@@ -59,3 +59,40 @@ def test_library_messages_stay_one_line():
     assert str(err.value) == (
         "odd name.npy: expected a 2-D array (frames x features), got shape (2,)"
     )
+
+
+def test_a_setting_is_named_as_a_parameter_in_the_library_and_a_flag_on_the_cli():
+    err = InputError("{option} must be a positive size, got 0", option="tile")
+    assert str(err) == "tile must be a positive size, got 0"
+    assert err.as_flag() == "--tile must be a positive size, got 0"
+    plain = InputError("a {brace} with no option")
+    assert str(plain) == plain.as_flag() == "a {brace} with no option"
+    assert InputError("{option} x", option="max_iter").as_flag() == "--max-iter x"
+    two = InputError("{opt:augment} needs images (folders or {opt:tile})")
+    assert str(two) == "augment needs images (folders or tile)"
+    assert two.as_flag() == "--augment needs images (folders or --tile)"
+
+
+def test_library_errors_never_spell_a_flag():
+    """Every InputError raised outside the command line names settings by their
+    parameter names ({option}), never as --flags."""
+    import ast
+    import re
+
+    package = Path(__file__).resolve().parents[1] / "rhythmic_jax"
+    hits = []
+    for path in package.rglob("*.py"):
+        if path.name == "cli.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            name = getattr(getattr(node, "func", None), "id", None)
+            if isinstance(node, ast.Call) and name == "InputError":
+                text = " ".join(
+                    str(c.value)
+                    for arg in node.args
+                    for c in ast.walk(arg)
+                    if isinstance(c, ast.Constant)
+                )
+                if re.search(r"(^|\s|\()--[a-z]", text):
+                    hits.append(f"{path.name}:{node.lineno}")
+    assert not hits, hits

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decode import hard_decode
+from rhythmic_jax.decoding.hard import hard_decode
 from rhythmic_jax.objective import scores, targets
-from rhythmic_jax.run import RunConfig, memmap_batches, train_run
-from rhythmic_jax.train import ridge_start
+from rhythmic_jax.solvers.optax_loops import ridge_start
+from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches, train_run
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs SIGKILL")
 
@@ -33,7 +33,7 @@ TRAIN_CHILD = """
 import sys
 import numpy as np
 from rhythmic_jax.objective import Templates
-from rhythmic_jax.run import RunConfig, memmap_batches, train_run
+from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches, train_run
 
 root = sys.argv[1]
 init = np.load(root + "/init.npz")
@@ -110,7 +110,7 @@ def test_sigkill_during_training_resumes_to_the_same_map(tmp_path, caplog):
     batches = memmap_batches(tmp_path / "x.npy", labels, PERIODS, 4, config.seed)
     whole = train_run(batches, init, C, N, config, None, progress=False)
     sparse = RunConfig(**{**CONFIG, "checkpoint_every": 1000})  # cadence may differ
-    with caplog.at_level(logging.INFO, logger="rhythmic_jax.run"):
+    with caplog.at_level(logging.INFO, logger="rhythmic_jax.solvers.resumable"):
         resumed = train_run(batches, init, C, N, sparse, ckpt, progress=False)
     assert "resuming from" in caplog.text  # it did pick up the killed run's steps
     np.testing.assert_allclose(np.asarray(resumed.w), np.asarray(whole.w), atol=1e-6)
@@ -198,7 +198,7 @@ def test_sigkill_between_the_renames_loads_the_backup(tmp_path, caplog):
     proc.wait(timeout=120)
     assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
     assert not path.exists()  # killed exactly between the two renames
-    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.checkpoint"):
+    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.io.checkpoint"):
         back = RhythmicMap.load(path)
     assert "loading the copy kept by an interrupted save" in caplog.text
     np.testing.assert_array_equal(back.predict(queries), first.predict(queries))
@@ -269,7 +269,7 @@ def test_a_stopped_augmented_fit_resumes_to_the_same_map(
     steps = sorted(int(p.name) for p in ckpt.iterdir() if p.name.isdigit())
     assert steps and steps[-1] < 30, (steps, err)  # stopped before the last step
 
-    with caplog.at_level(logging.INFO, logger="rhythmic_jax.run"):
+    with caplog.at_level(logging.INFO, logger="rhythmic_jax.solvers.resumable"):
         assert main(argv) == 0
     assert "resuming from" in caplog.text
     assert not ckpt.exists()

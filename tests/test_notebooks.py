@@ -136,12 +136,12 @@ def test_notebook_defines_no_core_logic(path):
 @pytest.mark.parametrize(
     "source",
     [
-        "from rhythmic_jax.report import _ranked",
+        "from rhythmic_jax.eval.report import _ranked",
         "from rhythmic_jax.periods import no_such_name",
         "import rhythmic_jax as rj\nrj.objective.period_offsets\nrj._version",
         "from rhythmic_jax import features\nfeatures._l2",
-        "from rhythmic_jax.data import *",
-        "from rhythmic_jax.data import Path",  # imported there, not its own
+        "from rhythmic_jax.io.images import *",
+        "from rhythmic_jax.io.images import Path",  # imported there, not its own
     ],
 )
 def test_public_name_check_catches_private_or_missing_names(source):
@@ -151,10 +151,10 @@ def test_public_name_check_catches_private_or_missing_names(source):
 
 def test_public_name_check_follows_aliases_and_submodules():
     source = "import rhythmic_jax as rj\nfrom rhythmic_jax import data\n"
-    source += "rj.RhythmicMap\nrj.periods.phases\ndata.read_rgb\n"
+    source += "rj.RhythmicMap\nrj.periods.phases\nimages.read_rgb\n"
     assert check_public_names(ast.parse(source), "example") == {
-        "rj", "data", "rj.RhythmicMap", "rj.periods", "rj.periods.phases",
-        "data.read_rgb",
+        "rj", "images", "rj.RhythmicMap", "rj.periods", "rj.periods.phases",
+        "images.read_rgb",
     }  # fmt: skip
 
 

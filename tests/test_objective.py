@@ -17,13 +17,13 @@ from rhythmic_jax.objective import (
     default_c,
     objective,
     period_errors,
-    period_offsets,
     phase_predictions,
     scores,
     squared_hinge,
     targets,
     total_objective,
 )
+from rhythmic_jax.periods import period_offsets
 
 PERIODS = (3, 4, 5)
 # jitted once so that the loops below do not compile every eager op per call

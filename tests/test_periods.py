@@ -17,8 +17,11 @@ from rhythmic_jax.periods import (
     compression_ratio,
     crt_tables,
     database_bytes,
+    nominal_periods,
     pairwise_coprime,
+    period_offsets,
     phases,
+    place_columns,
     storage_bytes,
 )
 
@@ -362,3 +365,20 @@ def test_crt_property_any_index(periods, data):
     i = data.draw(st.integers(0, m - 1))
     got = sum(int(tab[i % t]) for t, tab in zip(periods, tables, strict=True)) % m
     assert got == i
+
+
+def test_nominal_periods_are_the_least_storage_choice():
+    for n, r in [(3576, 2), (7403, 2), (1000, 3), (50, 2)]:
+        cands = candidate_periods(n, r, 1, 7)
+        assert nominal_periods(n, r) == choose_periods(cands, [0.0] * 7, n, r)
+    assert nominal_periods(3576) == (60, 61)
+    with pytest.raises(InputError, match="no 3 pairwise co-prime"):
+        nominal_periods(1000, 3, 1, 3)  # 10, 11, 12: 10 and 12 share 2
+
+
+def test_offsets_and_place_columns():
+    assert period_offsets((3, 4, 5)) == (0, 3, 7)
+    cols = place_columns((3, 4), 12)
+    assert cols.shape == (2, 12) and cols.dtype == np.int32
+    for i in range(12):
+        assert tuple(cols[:, i]) == (i % 3, 3 + i % 4)

@@ -20,14 +20,18 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.checkpoint import load_map
-from rhythmic_jax.data import read_rgb
-from rhythmic_jax.decode import hard_decode
-from rhythmic_jax.descriptor_files import load_descriptors
+from rhythmic_jax.decoding.hard import hard_decode
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import period_offsets
-from rhythmic_jax.periods import candidate_periods, crt_tables, pairwise_coprime
-from rhythmic_jax.run import memmap_batches
+from rhythmic_jax.io.checkpoint import load_map
+from rhythmic_jax.io.descriptor_files import load_descriptors
+from rhythmic_jax.io.images import read_rgb
+from rhythmic_jax.periods import (
+    candidate_periods,
+    crt_tables,
+    pairwise_coprime,
+    period_offsets,
+)
+from rhythmic_jax.solvers.resumable import memmap_batches
 
 FAST = settings(max_examples=40, deadline=None, database=None)
 SLOW = settings(

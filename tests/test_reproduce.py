@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import rhythmic_jax as rj
-from rhythmic_jax.evaluate import accuracy
+from rhythmic_jax.eval.metrics import accuracy
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce.py"
 
@@ -146,8 +146,8 @@ def test_quick_reproduction_agrees_with_the_library(
         assert model.storage_bytes == rj.storage_bytes(model.periods, model.d)
 
     # a fresh fit with the same settings chooses the periods the report names
-    from rhythmic_jax.data import nordland
     from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.io.images import nordland
 
     summer, _ = nordland(nordland_root, progress=False)
     x = describe(summer.images[:600], get_descriptor("patchnorm"), progress=False)
@@ -187,7 +187,7 @@ def test_quick_reproduction_agrees_with_the_library(
 
 
 def test_figures_draw_the_numbers_given(tmp_path):
-    from rhythmic_jax import figures
+    from rhythmic_jax.eval import figures
 
     fig = figures.plot_training_error(
         {"level 1": ([5, 6, 7], [0.1, 0.05, 0.2], [5, 6])}, path=tmp_path / "f3.png"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
-from rhythmic_jax.decode import decode_scores
+from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.objective import objective, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, storage_bytes
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.validate import check_features, check_labels
+from rhythmic_jax.validate import check_features, check_int, check_labels
 
 
 # --------------------------------------------------------------- check_features
@@ -161,3 +161,26 @@ def test_labels_without_gaps(labels, top, count, first):
 def test_empty_labels_are_refused_in_one_line():
     with pytest.raises(InputError, match=r"^labels: empty; a map needs at least one"):
         check_labels(np.array([], np.int64), 0)
+
+
+@pytest.mark.parametrize("value", [3, np.int64(3), np.uint8(3)])
+def test_check_int_accepts_python_and_numpy_integers(value):
+    got = check_int(value, "k", 1, 5)
+    assert got == 3 and type(got) is int
+
+
+@pytest.mark.parametrize(
+    "value,low,high,line",
+    [
+        (True, 0, None, "k must be an integer >= 0, got k=True"),
+        (2.0, 0, None, "k must be an integer >= 0, got k=2.0"),
+        ("2", None, None, "k must be an integer, got k='2'"),
+        (0, 1, None, "k must be an integer >= 1, got k=0"),
+        (6, 1, 5, r"k must be an integer in \[1, 5\], got k=6"),
+    ],
+)
+def test_check_int_refuses_in_one_line(value, low, high, line):
+    with pytest.raises(InputError, match=f"^{line}$"):
+        check_int(value, "k", low, high)
+    with pytest.raises(InputError, match="^custom$"):
+        check_int(value, "k", low, high, msg="custom")

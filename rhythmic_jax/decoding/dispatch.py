@@ -1,0 +1,45 @@
+"""Decoding by name: ``"hard"`` (the paper's), ``"soft"`` or ``"topm"``."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+
+from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
+from rhythmic_jax.decoding.soft import soft_decode, topm_decode
+from rhythmic_jax.errors import InputError
+
+__all__ = ["DECODERS", "decode_scores"]
+
+DECODERS = ("hard", "soft", "topm")
+
+_hard_jit = functools.partial(jax.jit, static_argnames=("periods", "n"))(hard_decode)
+
+
+def decode_scores(
+    scores: jax.Array,
+    periods: Sequence[int],
+    n: int,
+    method: str = "hard",
+    m: int = 3,
+) -> Decoded:
+    """Decode (..., p) decision values with ``method`` in ``"hard" | "soft" | "topm"``.
+
+    ``topm`` keeps the ``m`` best phases of every period (see
+    :func:`rhythmic_jax.decoding.soft.topm_decode`). Every field of the result has the
+    scores' leading shape.
+    """
+    if method not in DECODERS:
+        raise InputError(f"unknown decode method {method!r}; choose one of {DECODERS}")
+    periods, n = check_scores(scores, periods, n)
+    if method == "soft":
+        return soft_decode(scores, periods, n)
+    if method == "topm":
+        return topm_decode(scores, periods, n, m)
+    scores = jnp.asarray(scores)
+    lead = scores.shape[:-1]
+    out = _hard_jit(scores.reshape((-1, scores.shape[-1])), periods, n)
+    return Decoded(*(x.reshape(lead) for x in out))

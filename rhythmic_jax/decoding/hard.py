@@ -1,0 +1,137 @@
+"""Batch decoding: descriptors -> decision values -> phases -> place index.
+
+The paper's decode (Sec. III-C): for every period take the argmax phase
+``j_k = argmax_j (w_j . x + b_j)`` (Eq. 3), then the unique index ``i < n`` with
+``i mod tau_k = j_k`` for all k, found here in O(r) by the Chinese-remainder tables
+of :func:`rhythmic_jax.periods.crt_tables` (the paper intersects sorted candidate
+sets; the answer is the same). When the combination is ``>= n`` no frame has those
+phases and the answer is "no match" (-1).
+
+The confidence of a hard decode is its weakest phase margin,
+``min_k (top1_k - top2_k)``: a query whose phases are all clear-cut scores high,
+and a threshold on it rejects queries (the paper's "lower bound of decision value").
+Soft and top-m decodes (:mod:`rhythmic_jax.decoding.soft`) share the :class:`Decoded`
+result and its confidence.
+
+Shapes: b queries, d features, p = sum(periods) templates, k periods.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.objective import Templates
+from rhythmic_jax.objective import scores as decision_values
+from rhythmic_jax.periods import crt_tables, period_offsets
+from rhythmic_jax.validate import check_int
+
+__all__ = ["Decoded", "check_scores", "decode", "hard_decode"]
+
+
+class Decoded(NamedTuple):
+    """Result of a batch decode; every field has the queries' leading shape (b,).
+
+    index: int32 place, -1 for no match. score: best summed score (-inf for no
+    match). runner_up: best score of a rival place (-inf when there is none).
+    """
+
+    index: jax.Array
+    score: jax.Array
+    runner_up: jax.Array
+
+    @property
+    def confidence(self) -> jax.Array:
+        """``score - runner_up`` (``inf`` without a rival, ``0`` for no match)."""
+        return jnp.where(self.index >= 0, self.score - self.runner_up, 0.0)
+
+
+def check_scores(
+    scores: jax.Array | np.ndarray, periods: Sequence[int], n: int | None = None
+) -> tuple[tuple[int, ...], int]:
+    """Validate ``scores`` (..., p) against ``periods`` and ``n``.
+
+    Returns the periods as a tuple of Python ints and ``n`` (``prod(periods)`` when
+    ``n`` is None). Raises InputError with one line on any mismatch.
+    """
+    try:
+        per = tuple(int(t) for t in periods)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"periods must be a sequence of integers, got {periods!r}"
+        ) from None
+    if not per or min(per) < 1:
+        raise InputError(f"periods must be positive integers, got {per}")
+    crt_tables(per)  # raises InputError when not pairwise co-prime
+    total = math.prod(per)
+    n = total if n is None else n
+    msg = f"n={n!r} must be an integer in [1, prod(periods)={total}]"
+    check_int(n, "n", 1, total, msg=msg)
+    if not hasattr(scores, "shape"):
+        scores = np.asarray(scores)
+    shape = scores.shape
+    if len(shape) < 1 or shape[-1] != sum(per):
+        raise InputError(
+            f"scores must have shape (..., sum(periods)={sum(per)}) for periods {per}, "
+            f"got shape {shape}"
+        )
+    if not jnp.issubdtype(scores.dtype, jnp.floating):
+        raise InputError(f"scores must be floating point, got dtype {scores.dtype}")
+    return per, int(n)
+
+
+def hard_decode(scores: jax.Array, periods: tuple[int, ...], n: int) -> Decoded:
+    """The paper's decode of decision values: per-period argmax, then CRT.
+
+    Args:
+      scores: (b, p) decision values, period k in columns ``off_k : off_k + tau_k``.
+      periods: static tuple of pairwise co-prime periods.
+      n: number of places; a combination ``>= n`` is no match.
+
+    Returns:
+      :class:`Decoded` with index (b,) int32 (-1 = no match), score (b,) the sum of
+      the per-period maxima (-inf for no match), and runner_up such that
+      ``confidence = score - runner_up = min_k (top1_k - top2_k)``.
+    """
+    tables, big_m = crt_tables(periods)
+    lead = scores.shape[:1]
+    index = jnp.zeros(lead, jnp.int32)
+    total = jnp.zeros(lead, scores.dtype)
+    gap = jnp.full(lead, jnp.inf, scores.dtype)
+    for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
+        block = scores[:, off : off + t]
+        phase = jnp.argmax(block, axis=1)
+        top = jnp.max(block, axis=1)
+        index = (index + jnp.asarray(table.astype(np.int32))[phase]) % big_m
+        total = total + top
+        if t > 1:  # second best by masking the argmax (cheaper than top_k on CPU)
+            hit = jnp.arange(t)[None, :] == phase[:, None]
+            gap = jnp.minimum(gap, top - jnp.max(jnp.where(hit, -jnp.inf, block), 1))
+    found = index < n
+    return Decoded(
+        jnp.where(found, index, -1),
+        jnp.where(found, total, jnp.asarray(-jnp.inf, scores.dtype)),
+        total - gap,
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("periods", "n"))
+def _localise(params: Templates, queries: jax.Array, periods, n) -> Decoded:
+    return hard_decode(decision_values(params, queries), periods, n)
+
+
+def decode(
+    params: Templates, queries: jax.Array, periods: Sequence[int], n: int
+) -> Decoded:
+    """Jit-compiled batch localisation of (b, d) queries with the paper's decode.
+
+    One ``(b, d) x (d, p)`` product, k argmaxes and k table look-ups per query.
+    """
+    return _localise(params, jnp.asarray(queries), tuple(int(t) for t in periods), n)

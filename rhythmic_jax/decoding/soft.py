@@ -1,0 +1,195 @@
+"""Soft and top-m decoding: score every place by its summed phase scores.
+
+The paper localises a query by the argmax phase of every period and the Chinese
+remainder intersection of those phases (Sec. III-B, Eq. 5); one wrong argmax in any
+period gives a wrong place. Soft decoding keeps every phase score and scores place
+``i < n`` by
+
+    S(i) = sum_k s_k[i mod tau_k],
+
+returning ``argmax_i S(i)``: ``r * n`` gathers per query and no descriptor access.
+After :func:`calibrate` (a log-softmax over the phases of each period) ``S(i)`` is
+a sum of per-period log-likelihoods, so periods with flat scores weigh less.
+``S`` is separable over periods, so when every phase combination is a place
+(``n = prod(tau)``) its argmax is the per-period argmax: the soft index then equals
+the hard one. It differs, and rescues queries, when the hard combination falls at
+or beyond ``n`` (a "no match" of the paper), and it gives a runner-up score.
+
+Top-m decoding scores only the places whose phase is among the ``m`` best of every
+period: the ``prod_k min(m, tau_k)`` Chinese-remainder combinations (index
+``(sum_k T_k[j_k]) mod M`` with the tables of :func:`rhythmic_jax.periods.crt_tables`),
+combinations with index ``>= n`` dropped. ``m = 1`` is the paper's hard decode
+(no match when the argmax combination is ``>= n``); ``m >= max(tau)`` is exactly the
+soft decode (same sums in the same order, ties to the smaller index).
+
+Both return the best score and the runner-up: the best score among the other places
+(with ``exclude = e``, among places more than ``e`` frames from the best one, so that
+neighbours of the match, which look alike along a route, do not count as rivals).
+``confidence = best - runner_up`` (``inf`` with no rival, ``0`` for no match).
+
+Shapes: ``b`` queries, ``p = sum(periods)`` scores per query, ``n`` places.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhythmic_jax.decoding.hard import Decoded, check_scores
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.periods import crt_tables, period_offsets, place_columns
+from rhythmic_jax.validate import check_int
+
+__all__ = ["calibrate", "soft_decode", "topm_decode"]
+
+_INT32_SAFE = 2**30  # running CRT sums stay below 2 M < 2**31
+
+
+def calibrate(scores: jax.Array, periods: Sequence[int]) -> jax.Array:
+    """Per-period log-softmax over phases: (..., p) -> (..., p).
+
+    ``c_k[j] = s_k[j] - log sum_j' exp(s_k[j'])``, so ``sum_k c_k[i mod tau_k]`` is a
+    sum of log-probabilities. Argmaxes (the hard decode) are unchanged.
+    """
+    per, _ = check_scores(scores, periods)
+    blocks = jnp.split(jnp.asarray(scores), np.cumsum(per)[:-1].tolist(), axis=-1)
+    return jnp.concatenate([jax.nn.log_softmax(b, axis=-1) for b in blocks], axis=-1)
+
+
+def _best_two(
+    score: jax.Array, index: jax.Array, valid: jax.Array, exclude: int
+) -> Decoded:
+    """Best valid candidate (ties to the smaller index) and its best rival.
+
+    score, index, valid: (c,) candidates of one query.
+    """
+    neg = jnp.asarray(-jnp.inf, score.dtype)
+    masked = jnp.where(valid, score, neg)
+    best = jnp.max(masked)
+    big = jnp.iinfo(jnp.int32).max
+    top = jnp.min(jnp.where(valid & (masked == best), index, big))
+    found = jnp.any(valid)
+    top = jnp.where(found, top, -1).astype(jnp.int32)
+    rival = valid & (jnp.abs(index - top) > exclude)
+    runner = jnp.max(jnp.where(rival, score, neg))
+    return Decoded(top, jnp.where(found, best, neg), runner)
+
+
+def _soft_one(s: jax.Array, periods: tuple[int, ...], n: int, exclude: int) -> Decoded:
+    """One query: s (p,) -> scalars."""
+    cols = place_columns(periods, n)
+    total = s[cols[0]]
+    for c in cols[1:]:
+        total = total + s[c]
+    index = jnp.arange(n, dtype=jnp.int32)
+    return _best_two(total, index, jnp.ones((n,), bool), exclude)
+
+
+def _topm_one(
+    s: jax.Array, periods: tuple[int, ...], n: int, m: int, exclude: int
+) -> Decoded:
+    """One query: s (p,) -> scalars, over prod_k min(m, tau_k) combinations."""
+    tables, big_m = crt_tables(periods)
+    score = index = None
+    for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
+        val, phase = jax.lax.top_k(s[off : off + t], min(m, t))
+        part = jnp.asarray(table.astype(np.int32))[phase]
+        if score is None:
+            score, index = val, part
+        else:
+            score = (score[:, None] + val[None, :]).reshape(-1)
+            index = ((index[:, None] + part[None, :]) % big_m).reshape(-1)
+    return _best_two(score, index, index < n, exclude)
+
+
+def _batched(one, scores: jax.Array, batch_size: int, **static) -> Decoded:
+    """Apply a one-query decoder to scores (..., p), in batches of ``batch_size``."""
+    lead = scores.shape[:-1]
+    flat = scores.reshape((-1, scores.shape[-1]))
+    out = jax.lax.map(
+        functools.partial(one, **static), flat, batch_size=min(batch_size, len(flat))
+    )
+    return Decoded(*(x.reshape(lead) for x in out))
+
+
+@functools.partial(jax.jit, static_argnames=("periods", "n", "exclude", "batch_size"))
+def _soft_jit(scores, periods, n, exclude, batch_size):
+    return _batched(
+        _soft_one, scores, batch_size, periods=periods, n=n, exclude=exclude
+    )
+
+
+@functools.partial(
+    jax.jit, static_argnames=("periods", "n", "m", "exclude", "batch_size")
+)
+def _topm_jit(scores, periods, n, m, exclude, batch_size):
+    return _batched(
+        _topm_one, scores, batch_size, periods=periods, n=n, m=m, exclude=exclude
+    )
+
+
+def _empty(lead: tuple[int, ...], dtype) -> Decoded:
+    neg = jnp.full(lead, -jnp.inf, dtype)
+    return Decoded(jnp.full(lead, -1, jnp.int32), neg, neg)
+
+
+def soft_decode(
+    scores: jax.Array,
+    periods: Sequence[int],
+    n: int,
+    *,
+    exclude: int = 0,
+    batch_size: int = 256,
+) -> Decoded:
+    """Exact score-sum decode of b queries: scores (..., p) -> Decoded with shape (...).
+
+    ``index = argmax_{i < n} sum_k s_k[i mod tau_k]`` (ties to the smaller index);
+    ``runner_up`` is the best score of a place more than ``exclude`` frames away
+    (``exclude = 0``: plain second best). Jit-compiled once per (periods, n,
+    exclude) and shape; ``batch_size`` queries are scored at a time, so memory is
+    ``O(batch_size * n)``.
+    """
+    per, n = check_scores(scores, periods, n)
+    exclude = check_int(exclude, "exclude", 0)
+    batch_size = check_int(batch_size, "batch_size", 1)
+    scores = jnp.asarray(scores)
+    if math.prod(scores.shape[:-1]) == 0:
+        return _empty(scores.shape[:-1], scores.dtype)
+    return _soft_jit(scores, per, n, exclude, batch_size)
+
+
+def topm_decode(
+    scores: jax.Array,
+    periods: Sequence[int],
+    n: int,
+    m: int,
+    *,
+    exclude: int = 0,
+    batch_size: int = 256,
+) -> Decoded:
+    """Top-m Chinese-remainder decode: scores (..., p) -> Decoded with shape (...).
+
+    Scores the ``prod_k min(m, tau_k)`` places whose phases are among the ``m`` best
+    of every period and keeps the best one below ``n`` (index -1 and score -inf when
+    every combination is ``>= n``). ``m = 1`` is the paper's hard decode; ``m >=
+    max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``m ** r``
+    instead of ``n``. Needs ``prod(periods) < 2**30`` (int32 index arithmetic).
+    """
+    per, n = check_scores(scores, periods, n)
+    m = check_int(m, "m", 1)
+    exclude = check_int(exclude, "exclude", 0)
+    batch_size = check_int(batch_size, "batch_size", 1)
+    if math.prod(per) >= _INT32_SAFE:
+        raise InputError(
+            f"prod(periods)={math.prod(per)} is too large for top-m decoding "
+            f"(must be < 2**30)"
+        )
+    scores = jnp.asarray(scores)
+    if math.prod(scores.shape[:-1]) == 0:
+        return _empty(scores.shape[:-1], scores.dtype)
+    return _topm_jit(scores, per, n, m, exclude, batch_size)

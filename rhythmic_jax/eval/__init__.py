@@ -1,0 +1,2 @@
+"""Judging a map: metrics, the evaluation report beside brute force, outlier
+rejection, nearest-neighbour baselines, SeqSLAM, and the paper's figures."""

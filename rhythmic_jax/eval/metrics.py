@@ -1,0 +1,303 @@
+"""Place-recognition metrics: accuracy, recall@K, precision-recall, storage, latency.
+
+Conventions (shared by every function here):
+
+- ``pred`` (b,) int: the predicted reference index in ``[0, n)``, or ``-1`` for
+  "no match" (the query was rejected).
+- ``gt`` (b,) int: the true reference index of each query, or ``-1`` when the
+  query's place is not in the map (an outlier that should be rejected). With
+  queries taken from the map itself ``gt = arange(b)``.
+- ``tolerance`` (int >= 0): a prediction is correct when ``|pred - gt| <=
+  tolerance`` frames (0 is the paper's exact accuracy). Reports should always
+  print it; :class:`RecallAtK` carries it with the numbers.
+
+The precision-recall curve follows the single-best-match convention of
+VPR_Tutorial (``evaluation/metrics.py::createPR``, Schubert et al. 2023) and
+VPR-Bench, with every distinct score as a threshold instead of 100 evenly
+spaced ones, laid out like ``sklearn.metrics.precision_recall_curve``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import jax
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_int
+
+__all__ = [
+    "RecallAtK",
+    "accuracy",
+    "pr_auc",
+    "pr_curve",
+    "recall_at_100_precision",
+    "recall_at_k",
+    "time_batch",
+    "time_single_queries",
+]
+
+
+def _indices(a, name: str, ndim: int) -> np.ndarray:
+    """``a`` as an int64 array of rank ``ndim`` with every entry >= -1."""
+    a = np.asarray(a)
+    if a.ndim != ndim:
+        raise InputError(f"{name} must have {ndim} dimension(s), got shape {a.shape}")
+    if a.size and not np.issubdtype(a.dtype, np.integer):
+        raise InputError(f"{name} must hold integer indices, got dtype {a.dtype}")
+    a = a.astype(np.int64)
+    if a.size and a.min() < -1:
+        raise InputError(f"{name} has index {a.min()}; indices are >= 0, or -1")
+    return a
+
+
+def _tolerance(tolerance) -> int:
+    msg = f"tolerance must be an integer >= 0, got {tolerance!r}"
+    return check_int(tolerance, "tolerance", 0, msg=msg)
+
+
+def _pred_gt(pred, gt) -> tuple[np.ndarray, np.ndarray]:
+    pred, gt = _indices(pred, "pred", 1), _indices(gt, "gt", 1)
+    if pred.shape != gt.shape:
+        raise InputError(f"pred has shape {pred.shape} but gt has shape {gt.shape}")
+    if pred.size == 0:
+        raise InputError("pred and gt are empty: no query to evaluate")
+    return pred, gt
+
+
+def _correct(pred: np.ndarray, gt: np.ndarray, tolerance: int) -> np.ndarray:
+    """(...) bool: a real match within ``tolerance`` of a place that is in the map."""
+    return (pred >= 0) & (gt >= 0) & (np.abs(pred - gt) <= tolerance)
+
+
+def accuracy(pred, gt, tolerance: int = 0) -> float:
+    """Fraction of queries answered correctly.
+
+    A query whose place is in the map (``gt[i] >= 0``) is correct when
+    ``pred[i] != -1`` and ``|pred[i] - gt[i]| <= tolerance``; an outlier
+    (``gt[i] == -1``) is correct when it is rejected (``pred[i] == -1``).
+    ``tolerance = 0`` is the paper's accuracy (Table 2: queries from the map).
+
+    Args:
+      pred: (b,) int predicted indices, -1 for no match.
+      gt: (b,) int true indices, -1 for a place not in the map.
+      tolerance: frames of slack, >= 0.
+    """
+    pred, gt = _pred_gt(pred, gt)
+    tol = _tolerance(tolerance)
+    ok = np.where(gt >= 0, _correct(pred, gt, tol), pred == -1)
+    return float(ok.mean())
+
+
+@dataclass(frozen=True)
+class RecallAtK:
+    """Recall@K for several K, with the tolerance and query count it was taken at.
+
+    ``r[k]`` is the recall at ``k``; ``str(r)`` prints the tolerance beside it.
+    """
+
+    recall: Mapping[int, float]
+    tolerance: int
+    n_queries: int
+
+    def __getitem__(self, k: int) -> float:
+        return self.recall[k]
+
+    def as_dict(self) -> dict[str, float | int]:
+        """Flat record for a report: ``{"tolerance", "n_queries", "recall@k"...}``."""
+        out: dict[str, float | int] = {
+            "tolerance": self.tolerance,
+            "n_queries": self.n_queries,
+        }
+        out.update({f"recall@{k}": v for k, v in self.recall.items()})
+        return out
+
+    def __str__(self) -> str:
+        rs = "  ".join(f"R@{k} {v:.4f}" for k, v in self.recall.items())
+        return f"{rs}  (tolerance ±{self.tolerance} frames, {self.n_queries} queries)"
+
+
+def recall_at_k(
+    ranked, gt, ks: Sequence[int] = (1, 5, 10), *, tolerance: int
+) -> RecallAtK:
+    """Recall@K: fraction of in-map queries with a correct match among the top K.
+
+    ``recall@k = #{i : gt[i] >= 0, exists j < k, |ranked[i, j] - gt[i]| <= tol}
+    / #{i : gt[i] >= 0}``. Outlier queries (``gt == -1``) are left out, as in
+    VPR_Tutorial's ``recallAtK``; ``-1`` entries of ``ranked`` never count.
+
+    Args:
+      ranked: (b, K) int candidate indices, best first.
+      gt: (b,) int true indices, -1 for a place not in the map.
+      ks: the K values, each in ``[1, K]``.
+      tolerance: frames of slack, >= 0 (required, so that it is always stated).
+    """
+    ranked = _indices(ranked, "ranked", 2)
+    gt = _indices(gt, "gt", 1)
+    tol = _tolerance(tolerance)
+    if ranked.shape[0] != gt.shape[0]:
+        raise InputError(
+            f"ranked has {ranked.shape[0]} rows but gt has {gt.shape[0]} entries"
+        )
+    ks = tuple(int(k) for k in ks)
+    if not ks or min(ks) < 1 or max(ks) > ranked.shape[1]:
+        raise InputError(f"ks must lie in [1, {ranked.shape[1]}] (columns of ranked)")
+    inmap = gt >= 0
+    if not inmap.any():
+        raise InputError("gt has no query whose place is in the map (all -1)")
+    hit = _correct(ranked[inmap], gt[inmap, None], tol)  # (b_in, K)
+    first = np.where(hit.any(1), hit.argmax(1), ranked.shape[1])  # (b_in,)
+    recall = {k: float((first < k).mean()) for k in ks}
+    return RecallAtK(recall=recall, tolerance=tol, n_queries=int(inmap.sum()))
+
+
+def pr_curve(pred, score, gt, tolerance: int) -> tuple[np.ndarray, ...]:
+    """Precision-recall curve of single-best matches over a confidence threshold.
+
+    A query is retrieved at threshold ``t`` when ``pred != -1`` and ``score >= t``
+    (queries with ``pred == -1`` are never retrieved). At each distinct score
+    ``t``::
+
+        TP = #{retrieved, correct within tolerance}
+        precision = TP / #{retrieved}
+        recall = TP / #{i : gt[i] >= 0}
+
+    so a retrieved outlier, or a wrong match, is a false positive, and recall
+    is out of every query whose place is in the map (VPR_Tutorial ``createPR``
+    with ``matching='single'``). Unlike ``sklearn.metrics.precision_recall_curve``
+    (whose recall is out of the correct matches) the curve need not reach
+    recall 1. Layout as in scikit-learn: thresholds increasing, and a last point
+    ``(precision 1, recall 0)``.
+
+    Args:
+      pred: (b,) int best match per query, -1 for no match.
+      score: (b,) float confidence of that match, higher is surer (for a
+        distance, pass its negative).
+      gt: (b,) int true indices, -1 for a place not in the map.
+      tolerance: frames of slack, >= 0.
+
+    Returns:
+      precision (m + 1,), recall (m + 1,), thresholds (m,), m = distinct scores
+      of the retrieved queries.
+    """
+    pred, gt = _pred_gt(pred, gt)
+    tol = _tolerance(tolerance)
+    score = np.asarray(score, dtype=np.float64)
+    if score.shape != pred.shape:
+        raise InputError(f"score has shape {score.shape} but pred has {pred.shape}")
+    if not np.isfinite(score).all():
+        raise InputError("score has NaN or infinite entries")
+    n_pos = int((gt >= 0).sum())
+    if n_pos == 0:
+        raise InputError("gt has no query whose place is in the map (all -1)")
+    keep = pred >= 0
+    s, ok = score[keep], _correct(pred, gt, tol)[keep]
+    order = np.argsort(-s, kind="stable")
+    s, ok = s[order], ok[order]
+    ends = np.r_[np.flatnonzero(np.diff(s)), s.size - 1] if s.size else np.zeros(0, int)
+    tp = np.cumsum(ok)[ends]
+    precision = tp / (ends + 1)
+    recall = tp / n_pos
+    return (
+        np.r_[precision[::-1], 1.0],
+        np.r_[recall[::-1], 0.0],
+        s[ends][::-1].copy(),
+    )
+
+
+def pr_auc(pred, score, gt, tolerance: int) -> float:
+    """Area under :func:`pr_curve` by the trapezoidal rule (VPR_Tutorial's AUC).
+
+    Same arguments as :func:`pr_curve`; equals ``sklearn.metrics.auc(recall,
+    precision)`` on its points.
+    """
+    precision, recall, _ = pr_curve(pred, score, gt, tolerance)
+    return float(np.trapezoid(precision[::-1], recall[::-1]))
+
+
+def recall_at_100_precision(pred, score, gt, tolerance: int) -> float:
+    """Largest recall of :func:`pr_curve` at precision exactly 1 (0 if none).
+
+    Same arguments as :func:`pr_curve`.
+    """
+    precision, recall, _ = pr_curve(pred, score, gt, tolerance)
+    return float(recall[precision == 1.0].max())
+
+
+def _summary(seconds: np.ndarray) -> dict[str, float]:
+    return {
+        "median_s": float(np.median(seconds)),
+        "p95_s": float(np.percentile(seconds, 95)),
+        "mean_s": float(seconds.mean()),
+        "min_s": float(seconds.min()),
+    }
+
+
+def time_single_queries(
+    fn: Callable, queries, warmup: int = 10, repeats: int = 1
+) -> dict[str, float | int]:
+    """Latency of one-query calls ``fn(queries[i : i + 1])``.
+
+    ``warmup`` untimed calls first (compilation, caches), then every query is
+    timed ``repeats`` times with ``time.perf_counter``; jax results are waited
+    for with ``jax.block_until_ready``. For benchmark scripts.
+
+    Args:
+      fn: maps a (1, d) batch to a result (numpy, jax array or a tuple of them).
+      queries: (b, d) queries.
+
+    Returns:
+      ``median_s``, ``p95_s``, ``mean_s``, ``min_s`` seconds per call and
+      ``n_calls`` timed.
+    """
+    queries = np.asarray(queries)
+    if queries.ndim != 2 or queries.shape[0] == 0:
+        raise InputError(
+            f"queries must be a non-empty (b, d) array, got {queries.shape}"
+        )
+    if warmup < 0 or repeats < 1:
+        raise InputError(f"need warmup >= 0 and repeats >= 1, got {warmup}, {repeats}")
+    b = queries.shape[0]
+    for i in range(warmup):
+        jax.block_until_ready(fn(queries[i % b : i % b + 1]))
+    times = []
+    for _ in range(repeats):
+        for i in range(b):
+            q = queries[i : i + 1]
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(q))
+            times.append(time.perf_counter() - t0)
+    return {**_summary(np.asarray(times)), "n_calls": len(times)}
+
+
+def time_batch(fn: Callable, queries, repeats: int = 5) -> dict[str, float | int]:
+    """Throughput of whole-batch calls ``fn(queries)``, one untimed call first.
+
+    Returns:
+      ``queries_per_s`` (batch size over the median call time), the call time
+      summary (``median_s``, ``p95_s``, ``mean_s``, ``min_s``), ``batch_size``
+      and ``repeats``.
+    """
+    queries = np.asarray(queries)
+    if queries.ndim != 2 or queries.shape[0] == 0:
+        raise InputError(
+            f"queries must be a non-empty (b, d) array, got {queries.shape}"
+        )
+    if repeats < 1:
+        raise InputError(f"repeats must be >= 1, got {repeats}")
+    jax.block_until_ready(fn(queries))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(queries))
+        times.append(time.perf_counter() - t0)
+    summary = _summary(np.asarray(times))
+    return {
+        "queries_per_s": queries.shape[0] / max(summary["median_s"], 1e-12),
+        **summary,
+        "batch_size": int(queries.shape[0]),
+        "repeats": int(repeats),
+    }

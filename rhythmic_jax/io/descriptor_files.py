@@ -1,0 +1,91 @@
+"""Descriptor files: float32 (n, d) arrays in ``.npy``, read without unpickling.
+
+A map's reference frames (or queries) described elsewhere come in as one ``.npy``
+file per traversal, one row per frame in route order. The header is read and
+checked before any data (:func:`descriptor_shape`), so a file of Python objects
+is refused without being unpickled and a fit can be refused for its size before
+the file is read; writes are atomic (temporary file, then rename).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.atomic import save_npy
+
+__all__ = [
+    "check_descriptors",
+    "descriptor_shape",
+    "load_descriptors",
+    "save_descriptors",
+]
+
+
+def check_descriptors(x: np.ndarray, where: str) -> np.ndarray:
+    """``x`` as float32 (n, d), or :class:`InputError` naming ``where`` and why."""
+    if x.dtype.kind not in "fiu":
+        raise InputError(f"{where} has dtype {x.dtype}; expected a real number array")
+    if x.ndim != 2 or x.shape[0] == 0 or x.shape[1] == 0:
+        raise InputError(f"{where} must be a non-empty (n, d) array, got {x.shape}")
+    with np.errstate(over="ignore"):  # too large for float32 -> inf, reported below
+        x = np.asarray(x, dtype=np.float32)
+    bad = np.flatnonzero(~np.isfinite(x).all(axis=1))
+    if bad.size:
+        raise InputError(f"{where} row {bad[0]} holds NaN or inf (as float32)")
+    return x
+
+
+def descriptor_shape(path: str | os.PathLike) -> tuple[int, ...]:
+    """The shape a ``.npy`` descriptor file declares, read from its header only.
+
+    Refuses (:class:`InputError`) a file that is missing, not ``.npy``, not a
+    valid header, or of Python objects; nothing is unpickled and no data is read.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".npy":
+        raise InputError(f"descriptor file must be .npy, got {path}")
+    if not path.is_file():
+        raise InputError(f"descriptor file not found: {path}")
+    with open(path, "rb") as f:
+        head = f.read(6)
+        if head[:1] == b"\x80":
+            raise InputError(f"{path} contains Python objects; refusing to unpickle")
+        f.seek(0)
+        try:
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                header = np.lib.format.read_array_header_1_0(f)
+            else:
+                header = np.lib.format.read_array_header_2_0(f)
+        except Exception as exc:
+            raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
+    if header[2].hasobject:
+        raise InputError(f"{path} contains Python objects; refusing to unpickle")
+    return tuple(int(k) for k in header[0])
+
+
+def load_descriptors(path: str | os.PathLike) -> np.ndarray:
+    """Read a float32 (n, d) descriptor matrix from a ``.npy`` file.
+
+    Nothing is unpickled (``allow_pickle=False``); the array must be 2-D,
+    non-empty, numeric and finite.
+    """
+    descriptor_shape(path)  # the header's checks, before any data is read
+    try:
+        x = np.load(path, allow_pickle=False)
+    except Exception as exc:  # truncated data after a valid header
+        raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
+    return check_descriptors(x, str(path))
+
+
+def save_descriptors(path: str | os.PathLike, x: np.ndarray) -> None:
+    """Write float32 (n, d) ``x`` to ``path`` (.npy) atomically (temp + rename)."""
+    path = Path(path)
+    if path.suffix.lower() != ".npy":
+        raise InputError(f"descriptor file must be .npy, got {path}")
+    x = check_descriptors(np.asarray(x), "descriptors")
+    save_npy(path, x)

@@ -1,0 +1,290 @@
+"""Routes from disk: image-folder traversals, Nordland, GPS places.
+
+Image convention: frames from disk are ``uint8`` arrays of shape ``(n, H, W, 3)``
+(RGB). A *traversal* is one folder of frames of a route under one condition
+(season, time of day); sorted by name (natural order, so ``img2 < img10``) the
+frames are the route in order, and the same index is the same place in every
+condition of that route (the paper's Nordland protocol).
+
+The paper's RobotCar protocol groups GPS positions into places with k-means on
+normalised coordinates (:func:`gps_places`). The aerial protocol (tiles of large
+images) is :mod:`rhythmic_jax.io.tiles`; descriptor files are
+:mod:`rhythmic_jax.io.descriptor_files`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import skimage.io
+import skimage.transform
+import skimage.util
+from sklearn.cluster import KMeans
+from threadpoolctl import threadpool_limits
+from tqdm.auto import tqdm
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_int
+
+__all__ = [
+    "Traversal",
+    "gps_places",
+    "list_images",
+    "load_route",
+    "load_traversal",
+    "natural_key",
+    "nordland",
+    "read_rgb",
+]
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+# ----------------------------------------------------------------- image folders
+
+
+@dataclass(frozen=True, eq=False)
+class Traversal:
+    """One pass along a route: ``images`` uint8 (n, H, W, 3), ``names`` (n,)."""
+
+    images: np.ndarray
+    names: tuple[str, ...]
+    root: Path
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def natural_key(name: str) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    """Sort key of a file name: its stem with digit runs read as integers.
+
+    ``"Img010.png"`` and ``"img10.jpg"`` have the same key (case, zero padding and
+    suffix are normalised away); the key is ``(text parts, numbers)``.
+    """
+    parts = re.split(r"(\d+)", Path(name).stem.lower())
+    return tuple(parts[0::2]), tuple(int(p) for p in parts[1::2])
+
+
+def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]:
+    """Image files of ``folder`` in natural order, no two with the same key.
+
+    With ``one_pattern`` all names must share their text parts (``img#.png``):
+    frames named after different patterns have no order along a route.
+    """
+    if not folder.is_dir():
+        raise InputError(f"{what} folder not found: {folder}")
+    files = [
+        p
+        for p in folder.iterdir()
+        if p.is_file()
+        and not p.name.startswith(".")
+        and p.suffix.lower() in IMAGE_SUFFIXES
+    ]
+    if not files:
+        raise InputError(f"no PNG/JPG images in {what} folder {folder}")
+    seen: dict[tuple, Path] = {}
+    for p in files:
+        key = natural_key(p.name)
+        if key in seen:
+            raise InputError(
+                f"{seen[key].name!r} and {p.name!r} in {folder} name the same frame "
+                "(names equal after ignoring case, zero padding and suffix)"
+            )
+        seen[key] = p
+    files.sort(key=lambda p: natural_key(p.name))
+    first = natural_key(files[0].name)[0]
+    for p in files[1:] if one_pattern else ():
+        if natural_key(p.name)[0] != first:
+            raise InputError(
+                f"cannot order the frames of {folder}: {files[0].name!r} and "
+                f"{p.name!r} follow different naming patterns"
+            )
+    return files
+
+
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Read one image as uint8 (H, W, 3) RGB.
+
+    Grey images are repeated to three channels; an alpha channel is composited
+    over black (``rgb * alpha / 255``; opaque pixels are unchanged). 16-bit and
+    float images are rescaled to ``0..255``.
+    """
+    path = Path(path)
+    try:
+        image = np.asarray(skimage.io.imread(path))
+    except Exception as exc:  # truncated, corrupt or not an image at all
+        reason = str(exc)
+        if "Could not find a backend" in reason:  # imageio adds pip advice
+            reason = "no image reader recognises its contents"
+        raise InputError(f"cannot read image {path}: {reason}") from exc
+    if image.ndim == 2:
+        image = image[:, :, None]
+    if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4) or image.size == 0:
+        raise InputError(f"image {path} has unsupported shape {image.shape}")
+    if image.dtype != np.uint8:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                image = skimage.util.img_as_ubyte(image)
+        except ValueError as exc:
+            raise InputError(
+                f"image {path} has unsupported dtype {image.dtype}"
+            ) from exc
+    channels = image.shape[2]
+    if channels in (2, 4):  # colour + alpha: composite over black
+        alpha = image[:, :, -1:].astype(np.float32) / 255.0
+        colour = image[:, :, :-1].astype(np.float32) * alpha
+        image = np.clip(np.rint(colour), 0, 255).astype(np.uint8)
+    if image.shape[2] == 1:
+        image = np.repeat(image, 3, axis=2)
+    return np.ascontiguousarray(image)
+
+
+def _resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize uint8 (H, W, 3) to ``size = (w, h)`` with anti-aliasing."""
+    w, h = size
+    if image.shape[:2] == (h, w):
+        return image
+    out = skimage.transform.resize(
+        image, (h, w), order=1, anti_aliasing=True, preserve_range=True
+    )
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def _check_size(size: tuple[int, int] | None) -> tuple[int, int] | None:
+    if size is None:
+        return None
+    msg = f"size must be (width, height) positive integers, got {size}"
+    if len(size) != 2:
+        raise InputError(msg)
+    size = tuple(check_int(s, "size", 1, msg=msg) for s in size)
+    return int(size[0]), int(size[1])
+
+
+def load_traversal(
+    folder: str | os.PathLike,
+    size: tuple[int, int] | None = None,
+    progress: bool = True,
+) -> Traversal:
+    """Load one folder of frames as a :class:`Traversal`, in natural name order.
+
+    Args:
+      folder: a folder of PNG/JPG frames (other files are ignored).
+      size: ``(w, h)`` to resize every frame to (scikit-image, anti-aliased);
+        without it all frames must share one size.
+      progress: show a progress bar.
+
+    Returns:
+      ``Traversal`` with ``images`` uint8 (n, H, W, 3) and the file ``names``.
+    """
+    folder = Path(folder)
+    size = _check_size(size)
+    files = list_images(folder, "traversal")
+    images = None
+    for i, path in enumerate(tqdm(files, desc=folder.name, disable=not progress)):
+        image = read_rgb(path)
+        if size is not None:
+            image = _resize(image, size)
+        if images is None:
+            images = np.empty((len(files),) + image.shape, np.uint8)
+        elif image.shape != images.shape[1:]:
+            h, w = image.shape[:2]
+            h0, w0 = images.shape[1:3]
+            raise InputError(
+                f"frame {path} is {w}x{h} but {files[0].name} is {w0}x{h0}; "
+                "pass size=(w, h) to resize"
+            )
+        images[i] = image
+    return Traversal(images=images, names=tuple(p.name for p in files), root=folder)
+
+
+def load_route(
+    folders: Sequence[str | os.PathLike],
+    size: tuple[int, int] | None = None,
+    progress: bool = True,
+) -> list[Traversal]:
+    """Several conditions of one route; index i is the same place in each.
+
+    Every folder must hold the same number of frames of the same size.
+    """
+    if len(folders) == 0:
+        raise InputError("load_route needs at least one folder")
+    route = [load_traversal(f, size=size, progress=progress) for f in folders]
+    first = route[0]
+    for t in route[1:]:
+        if len(t) != len(first):
+            raise InputError(
+                f"condition {t.root} has {len(t)} frames but {first.root} has "
+                f"{len(first)}; every condition must cover the same places"
+            )
+        if t.images.shape[1:] != first.images.shape[1:]:
+            raise InputError(
+                f"frames of {t.root} are {t.images.shape[1:3]} (H, W) but those of "
+                f"{first.root} are {first.images.shape[1:3]}; pass size=(w, h)"
+            )
+    return route
+
+
+def nordland(
+    root: str | os.PathLike,
+    seasons: Sequence[str] = ("summer", "winter"),
+    progress: bool = True,
+) -> list[Traversal]:
+    """The Nordland traversals ``root/<season>`` (e.g. ``shared/data/nordland_64x32``).
+
+    Returns one :class:`Traversal` per season, in the order of ``seasons``; the
+    64x32 set has 3576 frames per season, the same name being the same place.
+    """
+    return load_route([Path(root) / s for s in seasons], progress=progress)
+
+
+# -------------------------------------------------------------------- GPS places
+
+
+def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
+    """Group GPS positions into ``k`` places (the paper's RobotCar protocol).
+
+    k-means (scikit-learn, ``n_init=10``) on coordinates normalised to zero mean
+    and unit variance per axis; labels are renumbered in route order, so place 0
+    holds the first frame and a new place number appears the first time the
+    sequence enters that place.
+
+    Args:
+      coords: float (n, 2) positions along the sequence (e.g. northing, easting).
+      k: number of places, ``1 <= k <= n``.
+      seed: k-means random state.
+
+    Returns:
+      int64 (n,) place label per frame.
+    """
+    coords = np.asarray(coords, dtype=np.float64)
+    if coords.ndim != 2 or coords.shape[1] != 2 or len(coords) == 0:
+        raise InputError(f"coords must have shape (n, 2), got {coords.shape}")
+    bad = np.flatnonzero(~np.isfinite(coords).all(axis=1))
+    if bad.size:
+        raise InputError(f"coords row {bad[0]} is not finite: {coords[bad[0]]}")
+    check_int(
+        k,
+        "k",
+        1,
+        len(coords),
+        msg=f"k must be an integer in [1, {len(coords)}], got {k}",
+    )
+    std = coords.std(axis=0)
+    z = (coords - coords.mean(axis=0)) / np.where(std > 0, std, 1.0)
+    kmeans = KMeans(n_clusters=int(k), n_init=10, random_state=seed)
+    with threadpool_limits(limits=1):  # small 2-D problem: threads only add waiting
+        labels = kmeans.fit_predict(z)
+    _, first = np.unique(labels, return_index=True)
+    rank = np.empty(int(labels.max()) + 1, np.int64)
+    rank[labels[np.sort(first)]] = np.arange(len(first))
+    return rank[labels]

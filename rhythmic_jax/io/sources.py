@@ -1,0 +1,318 @@
+"""What a command-line SOURCE means: descriptor files, image folders or a tiled image.
+
+* ``ref.npy`` (one or several, one per traversal): ready descriptors (n, d).
+* a folder of images (one or several, one per condition of the same route): frames
+  in natural name order, described with the chosen descriptor (default
+  ``patchnorm``); several folders make a multi-exemplar map.
+* one large image with ``--tile SIZE [--stride S]``: tiles in raster order are the
+  places (the paper's aerial protocol).
+
+Several sources share place labels: row i of each is place i.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = [
+    "Features",
+    "apply_projection",
+    "check_sources_memory",
+    "describe_images",
+    "load_query_source",
+    "load_sources",
+    "reference_features",
+]
+
+DEFAULT_DESCRIPTOR = "patchnorm"
+NPY_DESCRIPTOR = "features"
+
+
+@dataclass(frozen=True)
+class Features:
+    """Descriptors ``x`` (n, d) float32 with place ``labels`` (n,) and provenance."""
+
+    x: np.ndarray
+    labels: np.ndarray
+    descriptor: str
+    settings: dict
+    extra: dict = field(default_factory=dict)
+    images: np.ndarray | None = None  # uint8 (n, H, W, 3) for image sources
+
+
+def _kind(path: Path, tile: int | None) -> str:
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    kind = "folder" if path.is_dir() else "npy" if path.suffix.lower() == ".npy" else ""
+    if kind and tile is not None:
+        what = "a folder of frames" if kind == "folder" else "a descriptor file"
+        raise InputError(
+            f"{path}: {{option}} cuts one large image, but this is {what}",
+            option="tile",
+        )
+    if kind:
+        return kind
+    if tile is not None:
+        return "image"
+    raise InputError(
+        f"{path}: not a .npy descriptor file or an image folder "
+        "(to tile one large image, give {option} SIZE)",
+        option="tile",
+    )
+
+
+def describe_images(
+    images: np.ndarray, name: str, settings: dict, key: str, progress: bool
+) -> tuple[np.ndarray, dict]:
+    """Describe uint8 frames (n, H, W, 3) with a registered descriptor (cached)."""
+    from rhythmic_jax.features import cached_describe, get_descriptor
+
+    desc = get_descriptor(name, **settings)
+    x = cached_describe(images, desc, key=key, progress=progress)
+    return x, desc.settings()
+
+
+def _images(path: Path, kind: str, tile: int | None, stride: int | None, progress):
+    from rhythmic_jax.io import images, tiles
+
+    if kind == "folder":
+        return images.load_traversal(path, progress=progress).images
+    if tile is None or tile < 1:
+        raise InputError(
+            "{option} must be a positive size, got " + str(tile), option="tile"
+        )
+    stride = stride or max(1, tile // 2)
+    return tiles.tile_image(images.read_rgb(path), tile, stride).tiles
+
+
+def _key(path: Path, tile, stride) -> str:
+    stat = path.stat()
+    raw = f"{path.resolve()}|{stat.st_mtime_ns}|{tile}|{stride}"
+    return f"{path.name}-{hashlib.sha1(raw.encode()).hexdigest()[:12]}"
+
+
+def _one(path: Path, kind: str, name: str, settings: dict, tile, stride, progress):
+    """(descriptors, settings, images or None) of one source."""
+    from rhythmic_jax.features import get_descriptor
+    from rhythmic_jax.io.descriptor_files import load_descriptors
+
+    if kind == "npy":
+        return load_descriptors(path), settings, None
+    get_descriptor(name, **settings)  # bad settings or weights: before any reading
+    images = _images(path, kind, tile, stride, progress)
+    key = _key(path, tile, stride)
+    return (*describe_images(images, name, settings, key, progress), images)
+
+
+def load_sources(
+    sources: Sequence[str],
+    descriptor: str | None = None,
+    tile: int | None = None,
+    stride: int | None = None,
+    progress: bool = True,
+    pca: int | None = None,
+    weights: str | None = None,
+) -> Features:
+    """Reference features from one or several sources of the same kind.
+
+    ``pca=k`` projects the descriptors on the k leading principal axes of the
+    reference set (L2-normalised after); the projection is kept in ``extra`` so
+    the map saves it and queries are projected the same way.
+    """
+    paths = [Path(s) for s in sources]
+    kinds = {_kind(p, tile) for p in paths}
+    if len(kinds) > 1:
+        raise InputError(f"mixed source kinds {sorted(kinds)}; give one kind at a time")
+    kind = kinds.pop()
+    if kind == "npy":
+        if descriptor is not None:
+            raise InputError(
+                "{option} applies to images; .npy files are descriptors",
+                option="descriptor",
+            )
+        name, settings = NPY_DESCRIPTOR, {}
+    else:
+        name, settings = descriptor or DEFAULT_DESCRIPTOR, {}
+        if weights is not None:
+            settings = {"weights": str(Path(weights).expanduser().absolute())}
+    blocks, images = [], []
+    for p in paths:
+        x, settings, imgs = _one(p, kind, name, settings, tile, stride, progress)
+        blocks.append(x)
+        images.append(imgs)
+    n, d = blocks[0].shape
+    for p, x in zip(paths, blocks, strict=True):
+        if x.shape != (n, d):
+            raise InputError(
+                f"{p}: {x.shape[0]} frames of {x.shape[1]}-d, but {paths[0]} has "
+                f"{n} of {d}-d; traversals of one route must match frame for frame"
+            )
+    if kind == "npy":
+        settings = {"dim": d}
+    labels = np.tile(np.arange(n), len(blocks))
+    stacked = None if kind == "npy" else _stack_images(paths, images)
+    x, extra = np.concatenate(blocks), {}
+    if pca is not None:
+        x, extra = _fit_pca(x, pca)
+        settings = {**settings, "pca": int(pca)}
+    return Features(x, labels, name, settings, extra=extra, images=stacked)
+
+
+def _fit_pca(x: np.ndarray, k: int) -> tuple[np.ndarray, dict]:
+    from rhythmic_jax.projection import fit_pca, project
+
+    if not 1 <= k <= min(x.shape):
+        raise InputError(
+            f"{{option}} must lie in [1, {min(x.shape)}], got {k}", option="pca"
+        )
+    model = fit_pca(x, k)
+    extra = {
+        "pca_mean": np.asarray(model.mean),
+        "pca_components": np.asarray(model.components),
+    }
+    return np.asarray(project(model, x, normalize=True)), extra
+
+
+def apply_projection(x: np.ndarray, extra: dict) -> np.ndarray:
+    """Project descriptors (n, d) with a map's saved PCA, if it has one."""
+    if "pca_components" not in extra:
+        return x
+    from rhythmic_jax.projection import PCA, project
+
+    comps = np.asarray(extra["pca_components"])
+    if x.shape[1] != comps.shape[1]:
+        raise InputError(
+            f"{x.shape[1]}-d descriptors but the map's PCA expects {comps.shape[1]}-d"
+        )
+    model = PCA(np.asarray(extra["pca_mean"]), comps, np.zeros(len(comps)))
+    return np.asarray(project(model, x, normalize=True))
+
+
+def _stack_images(paths: list[Path], images: list[np.ndarray]) -> np.ndarray:
+    shapes = {im.shape[1:] for im in images}
+    if len(shapes) > 1:
+        raise InputError(
+            f"{paths[0]} and the other sources hold frames of different sizes "
+            f"{sorted(shapes)}; resize them to one size"
+        )
+    return np.concatenate(images)
+
+
+def load_query_source(
+    source: str,
+    model,
+    descriptor: str | None = None,
+    tile: int | None = None,
+    stride: int | None = None,
+    progress: bool = True,
+    weights: str | None = None,
+) -> Features:
+    """Query features described the way ``model`` (a fitted map) was built.
+
+    ``weights``: a copy of the descriptor's weights file at another path (checked
+    against the sha256 the map recorded).
+    """
+    path = Path(source)
+    kind = _kind(path, tile)
+    name, settings = model.config.descriptor, dict(model.config.descriptor_settings)
+    settings.pop("pca", None)
+    if weights is not None:
+        settings = _moved_weights(name, settings, weights)
+    if descriptor is not None and descriptor != name:
+        raise InputError(
+            f"the map was built with descriptor {name!r}, not {descriptor!r}"
+        )
+    if kind != "npy" and name == NPY_DESCRIPTOR:
+        raise InputError(
+            f"{path}: the map was built from descriptor files; give queries as .npy"
+        )
+    x, _, _ = _one(path, kind, name, settings, tile, stride, progress)
+    if kind != "npy" or "pca_components" in model.extra and x.shape[1] != model.d:
+        x = apply_projection(x, model.extra)
+    if x.shape[1] != model.d:
+        raise InputError(
+            f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"
+        )
+    return Features(x, np.arange(len(x)), name, settings)
+
+
+def _moved_weights(name: str, settings: dict, weights: str) -> dict:
+    """The map's descriptor settings with its weights file at ``weights``."""
+    if "weights" not in settings:
+        raise InputError(
+            f"{{opt:weights}}: the map's descriptor {name!r} takes no weights"
+        )
+    settings = {k: v for k, v in settings.items() if k not in _PACKAGE_KEYS}
+    return settings | {"weights": str(Path(weights).expanduser().absolute())}
+
+
+_PACKAGE_KEYS = ("weights_package", "weights_version")
+
+
+def reference_features(
+    model,
+    source: str | None = None,
+    descriptor: str | None = None,
+    tile: int | None = None,
+    stride: int | None = None,
+    progress: bool = True,
+    weights: str | None = None,
+) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.
+
+    ``source`` when given; else the sources the map was fitted on (the command
+    line records their paths and tiling in ``model.reference``), when they are
+    all still there. Otherwise ``(None, None, note)``, the note saying why.
+    """
+    if source:
+        sources = [source]
+        note = f"brute force over the reference {source}"
+    else:
+        sources = list(model.reference.get("sources") or [])
+        tile, stride = model.reference.get("tile"), model.reference.get("stride")
+        missing = [s for s in sources if not Path(s).exists()]
+        if not sources or missing:
+            why = f"{missing[0]} is gone" if missing else "the map names none"
+            note = (
+                "no brute-force line: the map's reference frames are not at hand "
+                f"({why}); give --reference SOURCE"
+            )
+            return None, None, note
+        note = "brute force over the map's reference " + ", ".join(sources)
+    blocks = [
+        load_query_source(s, model, descriptor, tile, stride, progress, weights).x
+        for s in sources
+    ]
+    labels = np.concatenate([np.arange(len(b)) for b in blocks])
+    return np.concatenate(blocks), labels, note
+
+
+def check_sources_memory(sources: Sequence[str], r: int, level: int, count: int):
+    """Refuse descriptor files too large for a full-batch fit, from their headers.
+
+    Only ``.npy`` sources that exist are looked at (anything else is reported
+    when it is read); the map's settings ``r``, ``level``, ``count`` give the
+    templates. See :func:`rhythmic_jax.solvers.memory.check_memory`.
+    """
+    from rhythmic_jax.io.descriptor_files import descriptor_shape
+    from rhythmic_jax.periods import candidate_periods
+    from rhythmic_jax.solvers.memory import check_memory
+
+    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources):
+        return
+    shapes = [descriptor_shape(s) for s in sources]
+    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
+        return  # reading them says what is wrong
+    n, d = shapes[0]
+    try:
+        cands = candidate_periods(n, r, level, count)
+    except InputError:
+        return  # the map's settings say what is wrong
+    check_memory(n * len(shapes), d, sum(cands))

@@ -1,0 +1,108 @@
+"""How much memory a full-batch fit needs, and a guard that refuses one too large.
+
+:func:`fit_bytes` adds up the solver's arrays (:mod:`rhythmic_jax.solvers.newton`, and
+:mod:`rhythmic_jax.solvers.span` for wide frames); :func:`check_memory` compares the sum
+with what the machine has free and, when it does not fit, refuses before any work
+with the bytes needed and the streaming path named
+(:func:`rhythmic_jax.solvers.resumable.memmap_batches` with
+:func:`rhythmic_jax.solvers.resumable.train_run`).
+
+Names: n frames, d features, p templates (sum of the candidate periods).
+"""
+
+from __future__ import annotations
+
+import os
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["available_memory", "check_memory", "fit_bytes"]
+
+
+def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
+    """Peak bytes of a full-batch fit (:func:`rhythmic_jax.solvers.newton.newton_fit`).
+
+    With q = d + 1, k = min(512, q) leading eigenvectors and a b = min(32, k)
+    block, the solver holds:
+
+    - ``features``: the frames as given, ``n d itemsize``;
+    - ``design``: a float32 copy of the frames and the design matrix ``[x, 1]``
+      in float32, ``4 n d + 4 n q`` (no float64 copy);
+    - ``system``: ``Xa^T Xa`` in float32 (``4 q^2``), the subspace iteration's
+      (q, k) bases and eigenvectors (``12 q k``), the frames in the eigenvectors
+      ``Xa V`` (``4 n k``) and the (n, b^2) float32 outer products of their first
+      b coordinates that build the per-template blocks (``4 n b^2``, n x 1024);
+    - ``templates``: per template, about eleven float64 and float32 (n,) columns
+      (targets, margins and their update, hinge, mask, CG's margins, the line
+      search's slacks: ``80 n``), seven (q,) columns (theta, gradient, step, CG's
+      residual, direction and products: ``56 q``), the preconditioner's diagonal
+      and block (``4 k + 4 b^2``).
+
+    Wide frames (d > 2n) are solved in their span (:mod:`rhythmic_jax.solvers.span`):
+    ``span`` counts a float64 copy of the frames, ``X X^T``, its shifted copy and
+    its Cholesky factor in float64 (``8 n d + 24 n^2``) and the lifted weights
+    (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
+    It is an upper estimate: XLA frees and fuses some of these.
+    """
+    if d > 2 * n:
+        reduced = fit_bytes(n, n, p, 4)
+        return {
+            "features": n * d * itemsize,
+            "span": 8 * n * d + 24 * n * n + 8 * n * p + 12 * d * p,
+            "design": reduced["features"] + reduced["design"],
+            "system": reduced["system"],
+            "templates": reduced["templates"],
+        }
+    q = d + 1
+    k = min(512, q)
+    b = min(32, k)
+    return {
+        "features": n * d * itemsize,
+        "design": 4 * n * d + 4 * n * q,
+        "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
+        "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
+    }
+
+
+def available_memory() -> int:
+    """Bytes available now: ``MemAvailable`` of /proc/meminfo, else physical RAM."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def _gib(v: float) -> str:
+    return f"{v / 2**30:.2f} GiB" if v >= 2**30 else f"{v / 2**20:.1f} MiB"
+
+
+def check_memory(
+    n: int, d: int, p: int, itemsize: int = 4, limit_bytes: int | None = None
+) -> int:
+    """Refuse (:class:`InputError`) a full-batch fit that would not fit in memory.
+
+    Args:
+      n: frames; d: features; p: templates trained (sum of the candidate periods).
+      itemsize: bytes per feature value.
+      limit_bytes: the memory to fit in (default :func:`available_memory`).
+
+    Returns:
+      The bytes needed (:func:`fit_bytes`, summed), when they fit.
+    """
+    parts = fit_bytes(n, d, p, itemsize)
+    need = sum(parts.values())
+    limit = available_memory() if limit_bytes is None else int(limit_bytes)
+    if need > limit:
+        raise InputError(
+            f"a full-batch fit of {n} frames x {d} features x {p} templates needs "
+            f"about {need:,} bytes ({_gib(need)}: features {_gib(parts['features'])},"
+            f" solver {_gib(need - parts['features'])}) but {limit:,} bytes "
+            f"({_gib(limit)}) are available; stream the frames instead: save them to "
+            "a .npy file and train with rhythmic_jax.solvers.resumable.train_run("
+            "memmap_batches(path, labels, periods, batch_size, seed), ...)"
+        )
+    return need

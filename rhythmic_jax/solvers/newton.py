@@ -1,0 +1,392 @@
+"""Exact solver for the joint objective: Newton-CG with a gap estimate.
+
+Every template minimises ``f(theta) = 0.5 ||theta||^2 + C sum_i h_i^2`` with
+``h_i = max(0, 1 - y_i m_i)``, margins ``m = Xa theta`` and ``Xa = [X, 1]`` (the
+bias as a constant-1 feature); theta is (q,), q = d + 1.
+
+- Newton steps (Chapelle, "Training a support vector machine in the primal",
+  2007): with the active set ``D = {i : h_i > 0}`` held fixed the objective is
+  quadratic and the step ``s`` solves ``(lam I + Xa^T D Xa) s = -g_lam``, with
+  ``lam = 1 / (2C)`` and ``g_lam = lam theta - Xa^T D (y - m)`` the scaled gradient.
+  The first step, from theta = 0 where every frame is active, is the ridge
+  solution. An exact line search on the piecewise-quadratic objective (float64,
+  Newton's method on its derivative safeguarded by a bracket, a few passes over
+  the margins) follows each step; margins are updated from the products CG
+  already made.
+- inexact solves: conjugate gradients in float32 for every template at once,
+  stopping per template at the forcing term ``||r|| <= eta ||g_lam||`` (relative
+  to the step's own gradient, so near the optimum CG still works), and at a cap
+  on iterations that may grow from step to step (``cg_start``): the first steps
+  after the ridge start mostly find the active set, and accurate solves of their
+  quadratic models gain little (measured in ``reports/solver.md``).
+- preconditioner (:mod:`rhythmic_jax.solvers.precondition`): the leading eigenvectors
+  ``V`` of ``Xa^T Xa`` (subspace iteration, float32). In their span the system
+  is inverted exactly on the first ``block`` directions (a small Cholesky per
+  template: the largest eigenvalues, where the active set couples directions
+  most) and by its diagonal on the rest; outside it, by a scalar per template.
+- stop: CG gives the Newton decrement ``C (-g . s)``, the gap of the quadratic
+  model, which estimates ``f - f*`` (exactly once the active set settles; it can
+  fall short while frames still leave it, so the fast setting keeps a margin). A
+  template whose estimate is below ``gap_tol * f`` takes that last step and
+  leaves; later steps run on the others only (gathered into a power-of-two
+  number of columns, so few shapes compile), until none is left.
+
+- wide frames (d > 2n, deep descriptors): the problem is solved over the
+  n-dimensional span of the frames (:mod:`rhythmic_jax.solvers.span`), the same
+  optimum at products of n instead of d per frame (3576 x 10976
+  EfficientNet-Lite0 frames, 441 templates: ``reports/span.md``).
+
+Measured on 3576 Nordland frames of 2048-d, 441 templates: ``reports/solver.md``.
+This is the same objective as :func:`rhythmic_jax.objective.objective`; with the
+default (small) ``gap_tol`` it is solved to its optimum.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from threadpoolctl import threadpool_limits
+from tqdm.auto import tqdm
+
+from rhythmic_jax.objective import Templates
+from rhythmic_jax.solvers.precondition import block_preconditioner, spectral_setup
+from rhythmic_jax.solvers.span import lift, row_factor
+
+__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class NewtonConfig:
+    """Settings of :func:`newton_fit`.
+
+    The default solves to the optimum (estimated relative gap <= 1e-7, CG to a
+    tenth of the gradient): objectives within 1e-5 of liblinear at a tight
+    tolerance and the same training errors (``tests/test_newton.py``).
+    ``FAST`` (estimated gap <= 1e-3 before a template's last step, 3 CG
+    iterations in the first step after the ridge start, one more each step up
+    to 8) is for a 0.1 % gap: ``scripts/bench_solver.py`` times it against
+    LinearSVC and measures its true gap (``reports/solver.md``).
+
+    Attributes:
+      gap_tol: a template stops once its estimated gap (the Newton decrement) is
+        at most ``gap_tol`` times its objective; it takes that last step.
+      eta: CG forcing term: CG stops for a template when its residual is below
+        ``eta`` times its gradient (both scaled by 1 / (2C)).
+      max_iter: most Newton steps.
+      max_cg: most CG iterations per Newton step.
+      cg_start: if set, the first step after the ridge step allows this many CG
+        iterations and each later step one more, up to ``max_cg``: early steps,
+        while the active set still moves, gain little from accurate solves.
+      rank: leading eigenvectors of ``Xa^T Xa`` in the preconditioner.
+      power_iters: subspace iterations that find them.
+      block: of those, the first ``block`` preconditioned exactly per template.
+      compact: run later steps on the templates not yet stopped only.
+      span: when frames are much wider than they are many (d > 2n), solve in
+        their n-dimensional span (:mod:`rhythmic_jax.solvers.span`): the same
+        optimum with products of n instead of d per frame. Below 2n the
+        reduction's (n, d) x (d, n) product costs more than it saves (3705 x
+        4096: 9.4 s against 7.8 s).
+      seed: PRNG seed of the subspace iteration's random start (the optimum
+        does not depend on it, only the preconditioner's quality).
+    """
+
+    gap_tol: float = 1e-7
+    eta: float = 0.1
+    max_iter: int = 50
+    max_cg: int = 200
+    cg_start: int | None = None
+    rank: int = 512
+    power_iters: int = 3
+    block: int = 32
+    compact: bool = True
+    span: bool = True
+    seed: int = 0
+
+
+FAST = NewtonConfig(gap_tol=1e-3, max_cg=8, cg_start=3)
+
+
+@dataclass(frozen=True)
+class NewtonInfo:
+    """What a solve did.
+
+    Attributes:
+      steps: Newton steps taken.
+      cg_iterations: CG iterations of each step.
+      columns: templates (gathered columns, padding included) of each step.
+      objective: (p,) objective of each template at the end (float64).
+      gap_estimate: (p,) each template's last Newton decrement relative to its
+        objective: the estimated gap before its last step.
+    """
+
+    steps: int
+    cg_iterations: tuple[int, ...]
+    columns: tuple[int, ...]
+    objective: np.ndarray
+    gap_estimate: np.ndarray
+
+
+# ------------------------------------------------------------------ pieces
+
+
+def _cg(xa, mask, lam, precond, r0, eta, max_iter):
+    """Preconditioned CG from 0 for ``(lam I + Xa^T D Xa) s = r0``, every column.
+
+    Column j stops when ``||r_j|| <= eta ||r0_j||``. Returns the step ``s``
+    (q, p), its margins ``Xa s`` (n, p) (accumulated from the products, no extra
+    product) and the number of iterations.
+    """
+    target = eta * jnp.linalg.norm(r0, axis=0, keepdims=True)
+    z = precond(r0)
+    rz = jnp.sum(r0 * z, axis=0, keepdims=True)
+    zero_s = jnp.zeros_like(r0)
+    zero_u = jnp.zeros((xa.shape[0], r0.shape[1]), r0.dtype)
+
+    def live(r):
+        return jnp.linalg.norm(r, axis=0, keepdims=True) > target
+
+    def cond(state):
+        *_, r, _, _, it = state
+        return jnp.logical_and(it < max_iter, jnp.any(live(r)))
+
+    def body(state):
+        s, u, r, d, rz, it = state
+        on = live(r)
+        xd = xa @ d
+        ad = xa.T @ (mask * xd) + lam * d
+        dad = jnp.sum(d * ad, axis=0, keepdims=True)
+        step = jnp.where(on, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
+        s, u, r = s + step * d, u + step * xd, r - step * ad
+        z = precond(r)
+        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
+        beta = rz_new / jnp.where(rz > 0, rz, 1.0)
+        d = jnp.where(on, z + beta * d, d)
+        return s, u, r, d, jnp.where(on, rz_new, rz), it + 1
+
+    s, u, *_, it = jax.lax.while_loop(
+        cond, body, (zero_s, zero_u, r0, z, rz, jnp.int32(0))
+    )
+    return s, u, it
+
+
+def _line_search(m, u, y, a, b, cc, c, iters: int = 30):
+    """Exact minimiser over t >= 0 of the objective along a step, per template.
+
+    ``phi(t) = 0.5 (a + 2 t b + t^2 cc) + C sum_i max(0, 1 - y_i (m_i + t u_i))^2``
+    is convex and piecewise quadratic, so ``phi'`` is continuous, piecewise linear
+    and nondecreasing. From t = 1 (the Newton step) each iteration takes Newton's
+    step on the current piece of ``phi'`` when it stays inside the bracket of
+    the root found so far, else the secant of the bracket (Newton alone can cycle
+    between two pieces); on the root's piece either lands on it exactly. Arrays:
+    m, u, y (n, p); a, b, cc (1, p). Returns t (1, p), phi(t) (p,).
+    """
+    yu = y * u
+    slack0 = 1.0 - y * m
+
+    def phi(t):
+        h = jnp.maximum(0.0, slack0 - t * yu)
+        quad = 0.5 * (a + 2 * t * b + t * t * cc)
+        return quad + c * jnp.sum(h * h, axis=0, keepdims=True)
+
+    def slope(t):
+        """phi'(t) and the slope of phi' on the piece right of t."""
+        slack = slack0 - t * yu
+        act = slack > 0
+        g = jnp.sum(jnp.where(act, yu * slack, 0.0), axis=0, keepdims=True)
+        h = jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0, keepdims=True)
+        return b + t * cc - 2 * c * g, cc + 2 * c * h
+
+    def body(state):
+        t, lo, glo, hi, ghi, done, it = state
+        g, h = slope(t)
+        left = g < 0
+        lo, glo = jnp.where(left, t, lo), jnp.where(left, g, glo)
+        hi, ghi = jnp.where(left, hi, t), jnp.where(left, ghi, g)
+        newton = t - g / jnp.maximum(h, 1e-300)
+        inside = (newton > lo) & (newton < hi)
+        secant = lo - glo * (hi - lo) / jnp.where(ghi > glo, ghi - glo, 1.0)
+        new = jnp.where(inside | jnp.isinf(hi), newton, secant)
+        narrow = jnp.isfinite(hi) & (hi - lo <= 1e-12 * hi)
+        stop = done | (g == 0) | (new == t) | narrow
+        return jnp.where(stop, t, new), lo, glo, hi, ghi, stop, it + 1
+
+    def cond(state):
+        *_, done, it = state
+        return jnp.logical_and(it < iters, ~jnp.all(done))
+
+    zero = jnp.zeros_like(a)
+    g0, _ = slope(zero)
+    state = (jnp.ones_like(a), zero, g0, jnp.full_like(a, jnp.inf), zero, g0 >= 0, 0)
+    t, *_ = jax.lax.while_loop(cond, body, state)
+    t = jnp.where(g0 < 0, t, 0.0)
+    t = jnp.where(phi(t) <= phi(zero), t, 0.0)
+    return t, phi(t)[0]
+
+
+REFRESH_AFTER = 20  # CG iterations after which a step's margins are recomputed
+
+
+@jax.jit
+def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
+    """Margins ``Xa theta`` (n, p) from scratch: float32 product, float64 result."""
+    return (xa @ theta.astype(jnp.float32)).astype(theta.dtype)
+
+
+@jax.jit
+def _objective(m: jax.Array, theta: jax.Array, y: jax.Array, c) -> jax.Array:
+    """(p,) objective of every template from its margins m (n, p)."""
+    h = jnp.maximum(0.0, 1.0 - y * m)
+    return 0.5 * jnp.sum(theta * theta, axis=0) + c * jnp.sum(h * h, axis=0)
+
+
+@partial(jax.jit, static_argnames=("block",))
+def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg):
+    """One Newton step of the templates ``cols`` (b,) of theta (q, p), m (n, p);
+    ``cols=None``: all p (no gather).
+
+    Returns the updated ``theta`` and ``m`` (other columns unchanged), and for the
+    gathered columns the objective before and after (b,), the Newton decrement
+    (b,) and the CG iterations (at most ``max_cg``, traced: no recompilation).
+    """
+    if cols is None:
+        tb, mb, yb = theta, m, y
+    else:
+        tb, mb, yb = theta[:, cols], m[:, cols], y[:, cols]
+    lam = 0.5 / c
+    lam32 = lam.astype(jnp.float32)
+    h = jnp.maximum(0.0, 1.0 - yb * mb)
+    mask = (h > 0).astype(jnp.float32)
+    f0 = _objective(mb, tb, yb, c)
+    grad = lam * tb - (xa.T @ (yb * h).astype(jnp.float32)).astype(tb.dtype)
+    precond = block_preconditioner(vecs, lead, rest, mask, lam32, block)
+    s, u, it = _cg(xa, mask, lam32, precond, -grad.astype(jnp.float32), eta, max_cg)
+    s, u = s.astype(tb.dtype), u.astype(mb.dtype)
+    decrement = c * jnp.sum(-grad * s, axis=0)
+    a = jnp.sum(tb * tb, axis=0, keepdims=True)
+    b = jnp.sum(tb * s, axis=0, keepdims=True)
+    cc = jnp.sum(s * s, axis=0, keepdims=True)
+    t, f1 = _line_search(mb, u, yb, a, b, cc, c)
+    if cols is None:
+        theta, m = tb + t * s, mb + t * u
+    else:
+        theta = theta.at[:, cols].set(tb + t * s)
+        m = m.at[:, cols].set(mb + t * u)
+    return theta, m, f0, f1, decrement, it
+
+
+def _cg_cap(config: NewtonConfig, step: int) -> int:
+    """CG iterations allowed in Newton step ``step`` (0: the ridge step):
+    ``cg_start`` after the ridge step, one more each step, at most ``max_cg``."""
+    if config.cg_start is None:
+        return config.max_cg
+    return min(config.max_cg, config.cg_start + max(step - 1, 0))
+
+
+def _bucket(live: int, p: int) -> int:
+    """Columns to gather for ``live`` templates: p, or a power of two below it
+    (few distinct shapes, so few compilations)."""
+    size = 8
+    while size < live:
+        size *= 2
+    return min(size, p)
+
+
+# ---------------------------------------------------------------------- solve
+
+
+def newton_fit(
+    x: np.ndarray | jax.Array,
+    y: np.ndarray | jax.Array,
+    c: float,
+    config: NewtonConfig = NewtonConfig(),
+    progress: bool = True,
+) -> tuple[Templates, NewtonInfo]:
+    """Minimise the joint squared-hinge objective of p templates.
+
+    Args:
+      x: (n, d) frames (float32).
+      y: (n, p) ±1 targets (:func:`rhythmic_jax.objective.targets`).
+      c: the penalty C.
+      config: solver settings.
+      progress: show a progress bar over Newton steps.
+
+    Returns:
+      Templates with ``w`` (d, p) and ``b`` (p,) as float32, and a
+      :class:`NewtonInfo`.
+    """
+    n, d = x.shape
+    if config.span and d > 2 * n:
+        factor = row_factor(np.asarray(x))
+        reduced = dataclasses.replace(config, span=False)
+        params, info = newton_fit(
+            factor.astype(np.float32), y, c, reduced, progress=progress
+        )
+        w = lift(np.asarray(x), factor, np.asarray(params.w))
+        return Templates(w=jnp.asarray(w, jnp.float32), b=params.b), info
+    x32 = jnp.asarray(x, jnp.float32)
+    xa = jnp.concatenate([x32, jnp.ones((n, 1), jnp.float32)], axis=1)
+    rank = min(config.rank, d + 1)
+    with threadpool_limits(limits=1):  # LAPACK's threads wait on a busy machine
+        vecs, lead, rest = jax.block_until_ready(
+            spectral_setup(
+                xa, rank, config.power_iters, jax.random.PRNGKey(config.seed)
+            )
+        )
+    with jax.enable_x64(True):
+        y64 = jnp.asarray(np.asarray(y, dtype=np.float64))
+        p = y64.shape[1]
+        c64 = jnp.float64(c)
+        theta = jnp.zeros((d + 1, p), jnp.float64)
+        m = jnp.zeros((n, p), jnp.float64)
+        objective = np.full(p, np.nan)
+        gap = np.full(p, np.inf)
+        todo = np.arange(p)
+        cg_its: list[int] = []
+        widths: list[int] = []
+        bar = tqdm(range(config.max_iter), desc="newton", disable=not progress)
+        for step in bar:
+            width = _bucket(len(todo), p) if config.compact else p
+            cols = todo if config.compact else np.arange(p)
+            cols = np.concatenate([cols, np.full(width - len(cols), cols[0])])
+            cap = _cg_cap(config, step)
+            theta, m, f0, f1, dec, it = _newton_step(
+                xa, vecs, lead, rest, None if len(todo) == p else jnp.asarray(cols),
+                theta, m, y64, c64, config.eta, config.block, jnp.int32(cap),
+            )  # fmt: skip
+            cg_its.append(int(it))
+            widths.append(width)
+            if int(it) > REFRESH_AFTER:  # CG's float32 margin updates drift
+                m = _margins(xa, theta)
+            f0, f1, dec = (np.asarray(v) for v in (f0, f1, dec))
+            # padding repeats a column: take each column's values once (all equal)
+            cols, first = np.unique(cols, return_index=True)
+            f0, f1, dec = f0[first], f1[first], dec[first]
+            objective[cols] = f1
+            gap[cols] = dec / np.maximum(np.abs(f0), 1e-300)
+            done = (gap[cols] <= config.gap_tol) | (f1 >= f0)
+            bar.set_postfix(
+                objective=f"{np.nansum(objective):.6g}", gap=f"{np.max(gap):.1e}"
+            )
+            todo = np.setdiff1d(todo, cols[done])
+            if len(todo) == 0 or (not config.compact and np.all(gap <= config.gap_tol)):
+                break
+        bar.close()
+        objective = np.asarray(_objective(_margins(xa, theta), theta, y64, c64))
+        theta = theta.astype(jnp.float32)
+        info = NewtonInfo(
+            steps=len(cg_its),
+            cg_iterations=tuple(cg_its),
+            columns=tuple(widths),
+            objective=objective,
+            gap_estimate=gap,
+        )
+    log.debug("newton: %d steps, CG %s, columns %s", info.steps, cg_its, widths)
+    return Templates(w=theta[:-1], b=theta[-1]), info

@@ -1,0 +1,189 @@
+"""Metrics against scikit-learn, brute-force loops and hand-computed cases."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from sklearn.metrics import auc, precision_recall_curve, top_k_accuracy_score
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.eval.metrics import (
+    accuracy,
+    pr_auc,
+    pr_curve,
+    recall_at_100_precision,
+    recall_at_k,
+    time_batch,
+    time_single_queries,
+)
+from rhythmic_jax.periods import database_bytes, storage_bytes
+
+
+def random_case(b: int, n: int, seed: int, p_reject=0.0, p_outlier=0.0):
+    """pred (b,), score (b,) with ties, gt (b,) with outliers (-1)."""
+    rng = np.random.default_rng(seed)
+    gt = rng.integers(0, n, b)
+    gt[rng.random(b) < p_outlier] = -1
+    pred = np.where(rng.random(b) < 0.6, gt, rng.integers(0, n, b))
+    pred[rng.random(b) < p_reject] = -1
+    score = rng.integers(0, 12, b) / 4.0  # few distinct values: many ties
+    return pred, score, gt
+
+
+# Hand case: q3 rejected, q4 an outlier that is (wrongly) matched, ties at 0.8.
+PRED = np.array([0, 5, 2, -1, 7, 4])
+GT = np.array([0, 1, 2, 3, -1, 4])
+SCORE = np.array([0.9, 0.8, 0.8, 0.95, 0.5, 0.1])
+
+
+def test_accuracy_hand_case():
+    assert accuracy(PRED, GT) == pytest.approx(3 / 6)
+    assert accuracy(PRED, GT, tolerance=4) == pytest.approx(4 / 6)
+    # a rejected outlier is right, a rejected in-map query is wrong at any tolerance
+    assert accuracy([-1, -1], [-1, 3], tolerance=100) == 0.5
+
+
+def test_accuracy_matches_loop():
+    pred, _, gt = random_case(300, 50, seed=3, p_reject=0.2, p_outlier=0.2)
+    for tol in (0, 1, 3):
+        ok = []
+        for p, g in zip(pred, gt, strict=True):
+            ok.append(p == -1 if g == -1 else (p != -1 and abs(p - g) <= tol))
+        assert accuracy(pred, gt, tol) == pytest.approx(np.mean(ok))
+    assert accuracy(jnp.asarray(pred), jnp.asarray(gt)) == accuracy(pred, gt)
+
+
+def test_recall_at_k_matches_sklearn_top_k_accuracy():
+    rng = np.random.default_rng(4)
+    b, n = 200, 30
+    S = rng.standard_normal((b, n))
+    gt = rng.integers(0, n, b)
+    S[np.arange(b), gt] += 1.5  # make the true place likely near the top
+    ranked = np.argsort(-S, axis=1)[:, :10]
+    r = recall_at_k(ranked, gt, ks=(1, 5, 10), tolerance=0)
+    for k in (1, 5, 10):
+        ref = top_k_accuracy_score(gt, S, k=k, labels=np.arange(n))
+        assert r[k] == pytest.approx(ref)
+    assert r.n_queries == b and r.tolerance == 0
+
+
+def test_recall_at_k_tolerance_outliers_and_loop():
+    rng = np.random.default_rng(5)
+    b, n, K = 150, 40, 6
+    ranked = rng.integers(-1, n, (b, K))
+    gt = rng.integers(0, n, b)
+    gt[::7] = -1
+    for tol in (0, 2):
+        r = recall_at_k(ranked, gt, ks=(1, 3, 6), tolerance=tol)
+        for k in (1, 3, 6):
+            hits = [
+                any(c != -1 and abs(c - g) <= tol for c in row[:k])
+                for row, g in zip(ranked, gt, strict=True)
+                if g != -1
+            ]
+            assert r[k] == pytest.approx(np.mean(hits))
+        assert r[1] <= r[3] <= r[6]
+        assert r.n_queries == int((gt != -1).sum())
+        assert f"±{tol}" in str(r) and r.as_dict()["tolerance"] == tol
+
+
+def test_pr_curve_hand_case_with_ties_and_outlier():
+    precision, recall, thresholds = pr_curve(PRED, SCORE, GT, tolerance=0)
+    # retrieved at 0.9: {q0 ok}; at 0.8: + {q1 wrong, q2 ok}; at 0.5: + {q4
+    # outlier}; at 0.1: + {q5 ok}. Five queries have a place in the map.
+    np.testing.assert_allclose(thresholds, [0.1, 0.5, 0.8, 0.9])
+    np.testing.assert_allclose(precision, [3 / 5, 2 / 4, 2 / 3, 1, 1])
+    np.testing.assert_allclose(recall, [3 / 5, 2 / 5, 2 / 5, 1 / 5, 0])
+    area = 0.2 * 1 + 0.2 * (1 + 2 / 3) / 2 + 0.2 * (0.5 + 0.6) / 2
+    assert pr_auc(PRED, SCORE, GT, 0) == pytest.approx(area)
+    assert recall_at_100_precision(PRED, SCORE, GT, 0) == pytest.approx(0.2)
+    # with 4 frames of tolerance q1 (5 for 1) is right: precision 1 down to 0.8
+    assert recall_at_100_precision(PRED, SCORE, GT, 4) == pytest.approx(0.6)
+
+
+def test_pr_curve_matches_sklearn_when_all_queries_are_in_the_map():
+    """Every query matched and in the map: precision and thresholds are
+    scikit-learn's; its recall is out of the correct matches, ours out of all
+    queries, so ours is scikit-learn's times (#correct / #queries)."""
+    pred, score, gt = random_case(400, 60, seed=6)
+    correct = pred == gt
+    p_sk, r_sk, t_sk = precision_recall_curve(correct, score)
+    p, r, t = pr_curve(pred, score, gt, tolerance=0)
+    np.testing.assert_allclose(t, t_sk)
+    np.testing.assert_allclose(p, p_sk)
+    np.testing.assert_allclose(r, r_sk * correct.mean())
+    assert pr_auc(pred, score, gt, 0) == pytest.approx(auc(r_sk * correct.mean(), p_sk))
+
+
+def test_pr_curve_matches_sklearn_with_unretrievable_positives():
+    """General case (rejections, outliers, tolerance): each in-map query without a
+    correct retrieved match is a positive that no threshold retrieves, i.e. a
+    positive scored below every real score; drop scikit-learn's point there."""
+    pred, score, gt = random_case(500, 80, seed=7, p_reject=0.15, p_outlier=0.2)
+    tol = 2
+    retrieved = pred >= 0
+    ok = retrieved & (gt >= 0) & (np.abs(pred - gt) <= tol)
+    missed = int(((gt >= 0) & ~ok).sum())
+    y = np.r_[ok[retrieved], np.ones(missed, bool)]
+    s = np.r_[score[retrieved], np.full(missed, score.min() - 1.0)]
+    p_sk, r_sk, t_sk = precision_recall_curve(y, s)
+    p, r, t = pr_curve(pred, score, gt, tolerance=tol)
+    np.testing.assert_allclose(t, t_sk[1:])
+    np.testing.assert_allclose(p, p_sk[1:])
+    np.testing.assert_allclose(r, r_sk[1:])
+    assert pr_auc(pred, score, gt, tol) == pytest.approx(auc(r_sk[1:], p_sk[1:]))
+    best = r_sk[1:][p_sk[1:] == 1].max()
+    assert recall_at_100_precision(pred, score, gt, tol) == pytest.approx(best)
+
+
+def test_pr_curve_nothing_retrieved():
+    p, r, t = pr_curve([-1, -1], [0.3, 0.2], [0, 1], tolerance=0)
+    assert t.size == 0 and p.tolist() == [1.0] and r.tolist() == [0.0]
+    assert pr_auc([-1, -1], [0.3, 0.2], [0, 1], 0) == 0.0
+
+
+def test_storage_reproduces_paper_table_1():
+    # Nordland summer: N 7403, periods 88 + 93, d 4096 (paper Table 1)
+    assert database_bytes(7403, 4096) == 121_290_752
+    assert storage_bytes((88, 93), 4096) == 2_966_228
+    ratio = storage_bytes((88, 93), 4096) / database_bytes(7403, 4096)
+    assert round(ratio, 4) == 0.0245  # the paper prints 0.0246
+    # Aerial Brisbane: N 3705, periods 62 + 63
+    got = (database_bytes(3705, 4096), storage_bytes([62, 63], 4096))
+    assert got == (60_702_720, 2_048_500)
+    assert storage_bytes((2, 5), 3, itemsize=2) == 7 * 4 * 2
+
+
+def test_timing_helpers_return_sane_structure():
+    Q = np.random.default_rng(8).standard_normal((6, 4)).astype(np.float32)
+    W = jnp.ones((4, 3))
+    calls = []
+
+    def fn(q):
+        calls.append(q.shape)
+        return jnp.argmax(q @ W, axis=1)
+
+    single = time_single_queries(fn, Q, warmup=2, repeats=2)
+    assert single["n_calls"] == 12 and all(s == (1, 4) for s in calls)
+    assert 0 < single["min_s"] <= single["median_s"] <= single["p95_s"]
+    batch = time_batch(lambda q: (q @ np.ones((4, 2)), q), Q, repeats=3)
+    assert batch["batch_size"] == 6 and batch["repeats"] == 3
+    assert batch["queries_per_s"] == pytest.approx(6 / batch["median_s"])
+
+
+def test_bad_input_raises_input_error():
+    with pytest.raises(InputError, match="shape"):
+        accuracy([0, 1], [0])
+    with pytest.raises(InputError, match="integer"):
+        accuracy([0.0, 1.0], [0, 1])
+    with pytest.raises(InputError, match="tolerance"):
+        accuracy([0], [0], tolerance=-1)
+    with pytest.raises(InputError, match="ks"):
+        recall_at_k(np.zeros((3, 2), int), [0, 1, 2], ks=(1, 5), tolerance=0)
+    with pytest.raises(InputError, match="in the map"):
+        pr_curve([0, 1], [0.1, 0.2], [-1, -1], tolerance=0)
+    with pytest.raises(InputError, match="NaN"):
+        pr_curve([0, 1], [np.nan, 0.2], [0, 1], tolerance=0)
+    with pytest.raises(TypeError):
+        recall_at_k(np.zeros((3, 2), int), [0, 1, 2], (1,))  # tolerance required

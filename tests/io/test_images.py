@@ -1,0 +1,185 @@
+"""Image folders, Nordland and GPS places against plain references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import skimage.io
+import skimage.transform
+from sklearn.cluster import KMeans
+from sklearn.metrics import adjusted_rand_score
+from sklearn.preprocessing import StandardScaler
+from threadpoolctl import threadpool_limits
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.images import (
+    gps_places,
+    load_route,
+    load_traversal,
+    natural_key,
+    nordland,
+)
+
+RNG = np.random.default_rng(0)
+
+
+# ------------------------------------------------------------------- traversals
+
+
+def test_natural_order_and_non_images_ignored(tmp_path, rgb, write_image):
+    images = {f"img{i}.png": rgb(6, 8) for i in (10, 2, 1, 33)}
+    for name, image in images.items():
+        write_image(tmp_path, name, image)
+    (tmp_path / "notes.txt").write_text("not a frame")
+    t = load_traversal(tmp_path, progress=False)
+    assert t.names == ("img1.png", "img2.png", "img10.png", "img33.png")
+    assert t.images.shape == (4, 6, 8, 3) and t.images.dtype == np.uint8
+    for name, image in zip(t.names, t.images, strict=True):
+        np.testing.assert_array_equal(image, images[name])
+    assert natural_key("Img010.png") == natural_key("img10.jpg")
+    assert sorted(["a10", "a9", "a100"], key=natural_key) == ["a9", "a10", "a100"]
+
+
+def test_grey_rgba_and_16_bit_become_rgb(tmp_path, rgb, write_image):
+    grey = RNG.integers(0, 256, (5, 7), dtype=np.uint8)
+    rgba = np.dstack([rgb(5, 7), np.full((5, 7), 255, np.uint8)])
+    half = rgba.copy()
+    half[..., 3] = 128
+    deep = (grey.astype(np.uint16) << 8) | 0x80  # 16-bit grey
+    for i, image in enumerate([grey, rgba, half, deep]):
+        write_image(tmp_path, f"f{i}.png", image)
+    t = load_traversal(tmp_path, progress=False)
+    np.testing.assert_array_equal(t.images[0], np.repeat(grey[..., None], 3, axis=2))
+    np.testing.assert_array_equal(t.images[1], rgba[..., :3])
+    expected = np.rint(half[..., :3] * (128 / 255)).astype(np.uint8)
+    np.testing.assert_array_equal(t.images[2], expected)
+    np.testing.assert_array_equal(t.images[3], t.images[0])  # top byte kept
+
+
+def test_jpeg_frames_load(tmp_path, write_image):
+    image = np.full((16, 16, 3), (200, 40, 90), np.uint8)
+    write_image(tmp_path, "a1.jpg", image)
+    write_image(tmp_path, "a2.jpeg", image)
+    t = load_traversal(tmp_path, progress=False)
+    assert t.images.shape == (2, 16, 16, 3)
+    assert np.abs(t.images.astype(int) - image).max() <= 3  # lossy, flat colour
+
+
+def test_mixed_sizes_error_or_resize(tmp_path, rgb, write_image):
+    small, big = rgb(6, 8), rgb(12, 10)
+    write_image(tmp_path, "f1.png", small)
+    write_image(tmp_path, "f2.png", big)
+    with pytest.raises(InputError, match=r"f2\.png is 10x12 but f1\.png is 8x6"):
+        load_traversal(tmp_path, progress=False)
+    t = load_traversal(tmp_path, size=(8, 6), progress=False)
+    ref = skimage.transform.resize(
+        big, (6, 8), order=1, anti_aliasing=True, preserve_range=True
+    )
+    np.testing.assert_array_equal(t.images[0], small)
+    np.testing.assert_array_equal(t.images[1], np.rint(ref).astype(np.uint8))
+
+
+def test_bad_folders_and_files(tmp_path, rgb, write_image):
+    with pytest.raises(InputError, match="folder not found"):
+        load_traversal(tmp_path / "nowhere", progress=False)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="no PNG/JPG images"):
+        load_traversal(tmp_path / "empty", progress=False)
+    good = write_image(tmp_path / "cut", "f1.png", rgb(20, 20))
+    (tmp_path / "cut" / "f2.png").write_bytes(good.read_bytes()[:60])
+    with pytest.raises(InputError, match=r"cannot read image .*f2\.png"):
+        load_traversal(tmp_path / "cut", progress=False)
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "x1.png").write_bytes(b"not a png at all")
+    with pytest.raises(InputError, match=r"x1\.png"):
+        load_traversal(tmp_path / "junk", progress=False)
+
+
+@pytest.mark.parametrize(
+    ("names", "message"),
+    [
+        (("img1.png", "img01.png"), "name the same frame"),
+        (("img1.png", "IMG1.jpg"), "name the same frame"),
+        (("a1.png", "b2.png"), "different naming patterns"),
+        (("frame7.png", "frame7_b.png"), "different naming patterns"),
+    ],
+)
+def test_ambiguous_names(tmp_path, names, message, rgb, write_image):
+    for name in names:
+        write_image(tmp_path, name, rgb(4, 4))
+    with pytest.raises(InputError, match=message):
+        load_traversal(tmp_path, progress=False)
+
+
+def test_route_checks_counts_and_sizes(tmp_path, rgb, write_image):
+    for i in range(3):
+        write_image(tmp_path / "day", f"{i}.png", rgb(6, 8))
+        write_image(tmp_path / "night", f"{i}.png", rgb(6, 8))
+        write_image(tmp_path / "big", f"{i}.png", rgb(12, 16))
+    write_image(tmp_path / "dusk", "0.png", rgb(6, 8))
+    route = load_route([tmp_path / "day", tmp_path / "night"], progress=False)
+    assert [len(t) for t in route] == [3, 3]
+    with pytest.raises(InputError, match=r"dusk has 1 frames but .*day has 3"):
+        load_route([tmp_path / "day", tmp_path / "dusk"], progress=False)
+    with pytest.raises(InputError, match="pass size"):
+        load_route([tmp_path / "day", tmp_path / "big"], progress=False)
+    both = load_route([tmp_path / "day", tmp_path / "big"], size=(8, 6), progress=False)
+    assert both[1].images.shape == (3, 6, 8, 3)
+
+
+def test_nordland_frames_in_route_order(tmp_path, nordland_root):
+    """A quick slice of the real set: symlinks to 25 frames, read in order."""
+    sources = sorted((nordland_root / "summer").glob("*.png"))[:25]
+    for src in sources[::-1]:
+        (tmp_path / src.name).symlink_to(src)
+    t = load_traversal(tmp_path, progress=False)
+    assert t.names == tuple(p.name for p in sources)
+    assert t.images.shape == (25, 32, 64, 3)
+    np.testing.assert_array_equal(t.images[7], skimage.io.imread(sources[7])[..., :3])
+
+
+@pytest.mark.slow
+def test_nordland_both_seasons(nordland_root):
+    summer, winter = nordland(nordland_root, progress=False)
+    assert summer.images.shape == winter.images.shape == (3576, 32, 64, 3)
+    assert summer.names == winter.names
+    assert summer.names[0] == "images-00010.png"
+    assert summer.names[-1] == "images-35760.png"
+    assert not np.array_equal(summer.images[100], winter.images[100])
+
+
+# ------------------------------------------------------------------- GPS places
+
+
+def _loop(n_per_lap: int, laps: int, noise: float) -> np.ndarray:
+    """A 2 km x 200 m oval driven ``laps`` times (metres, UTM-like offsets)."""
+    t = np.tile(np.linspace(0, 2 * np.pi, n_per_lap, endpoint=False), laps)
+    xy = np.stack([5e5 + 1000 * np.cos(t), 5.7e6 + 100 * np.sin(t)], axis=1)
+    return xy + noise * RNG.standard_normal(xy.shape)
+
+
+def test_gps_places_route_order_and_laps():
+    coords = _loop(200, 2, noise=2.0)
+    labels = gps_places(coords, k=16, seed=0)
+    assert labels.shape == (400,) and set(labels) == set(range(16))
+    _, first = np.unique(labels, return_index=True)
+    np.testing.assert_array_equal(labels[np.sort(first)], np.arange(16))
+    lap1, lap2 = labels[:200], labels[200:]
+    assert lap1[0] == 0 and np.mean(lap1 == lap2) > 0.95  # same place, same label
+    changes = np.count_nonzero(np.diff(lap1))
+    assert changes <= 16 + 4  # contiguous arcs along the oval, few boundary flips
+    z = StandardScaler().fit_transform(coords)
+    with threadpool_limits(limits=1):
+        ref = KMeans(n_clusters=16, n_init=10, random_state=0).fit_predict(z)
+    assert adjusted_rand_score(labels, ref) == 1.0
+
+
+def test_gps_places_errors():
+    with pytest.raises(InputError, match=r"\(n, 2\)"):
+        gps_places(np.zeros((5, 3)), 2)
+    bad = _loop(10, 1, 0.0)
+    bad[4, 1] = np.nan
+    with pytest.raises(InputError, match="row 4"):
+        gps_places(bad, 2)
+    with pytest.raises(InputError, match="k must be"):
+        gps_places(_loop(10, 1, 0.0), 11)
