@@ -1,7 +1,8 @@
-"""The ``rhythmic-jax`` command line: a thin layer over the library.
+"""The ``rhythmic-jax`` command line: argparse over :mod:`rhythmic_jax.jobs`.
 
-Every command parses its arguments and calls library functions; bad input ends
-with one line on stderr and exit status 2, and nothing half-written on disk.
+Every command parses its arguments, runs one job and prints what it returns; bad
+input ends with one line on stderr (settings spelled as flags) and exit status 2,
+and nothing half-written on disk.
 """
 
 from __future__ import annotations
@@ -10,12 +11,11 @@ import argparse
 import json
 import logging
 import os
-import shutil
 import sys
 import textwrap
-from pathlib import Path
 
-from rhythmic_jax.errors import InputError
+from rhythmic_jax import InputError, jobs
+from rhythmic_jax.jobs import FitInterrupted, FitJob, Reading
 
 __all__ = ["main"]
 
@@ -178,191 +178,64 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _cmd_fit(args) -> int:
-    from rhythmic_jax.io.checkpoint import check_target
-    from rhythmic_jax.io.sources import check_sources_memory, load_sources
-    from rhythmic_jax.rhythmic_map import RhythmicMap
-
-    check_target(args.out)  # before the fit, not after it
-    augmented = _augmented_fit(args) if args.augment else None
-    check_sources_memory(args.sources, args.r, args.level, args.count)
-    feats = load_sources(
-        args.sources,
-        args.descriptor,
-        args.tile,
-        args.stride,
-        not args.no_progress,
-        pca=args.pca,
+def _reading(args) -> Reading:
+    return Reading(
+        descriptor=args.descriptor,
         weights=args.weights,
+        tile=args.tile,
+        stride=args.stride,
     )
-    model = RhythmicMap(
-        r=args.r,
-        level=args.level,
-        count=args.count,
-        c=args.c,
-        solver=args.solver,
-        gap=args.gap,
-        descriptor=feats.descriptor,
-        descriptor_settings=feats.settings,
-    )
-    if augmented is not None:
-        _fit_augmented(model, feats, *augmented, progress=not args.no_progress)
-    else:
-        model.fit(feats.x, feats.labels, progress=not args.no_progress)
-    model.extra.update(feats.extra)
-    model.reference = {
-        "sources": [str(Path(src).expanduser().absolute()) for src in args.sources],
-        "tile": args.tile,
-        "stride": args.stride,
-    }
-    model.save(args.out)
-    if augmented is not None and args.checkpoint is None:
-        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
-    info = model.info()
-    if args.json:
-        print(json.dumps(info, indent=2))
-    else:
-        print(
-            f"map {args.out}: n={info['n']} d={info['d']} "
-            f"periods={tuple(info['periods'])} "
-            f"storage={info['storage_bytes']:,} B "
-            f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
-        )
+
+
+def _cmd_fit(args) -> int:
+    job = FitJob(
+        sources=tuple(args.sources), out=args.out, r=args.r, level=args.level,
+        count=args.count, c=args.c, solver=args.solver, gap=args.gap, pca=args.pca,
+        augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
+        checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
+        reading=_reading(args),
+    )  # fmt: skip
+    info = jobs.fit(job, progress=not args.no_progress).info()
+    print(json.dumps(info, indent=2) if args.json else jobs.fit_summary(args.out, info))
     return 0
 
 
-def _augmented_fit(args):
-    """The augmented fit's settings and checkpoint folder, checked before any work."""
-    from rhythmic_jax.augment.kornia_ops.kornia_ops import AugmentConfig
-    from rhythmic_jax.augment.kornia_ops.stream import AugmentedFit
-
-    if args.pca is not None:
-        raise InputError("--augment and --pca together are not supported")
-    for flag in ("epochs", "batch_size", "checkpoint_every"):
-        if getattr(args, flag) < 1:
-            value = getattr(args, flag)
-            raise InputError(f"{{opt:{flag}}} must be >= 1, got {value}")
-    names = tuple(args.augment.split(","))
-    AugmentConfig(names=names)  # unknown names end here, not after describing
-    config = AugmentedFit(
-        names=names,
-        epochs=args.epochs,
-        batch_size=args.batch_size,
-        checkpoint_every=args.checkpoint_every,
-    )
-    ckpt = Path(args.checkpoint or str(Path(args.out)) + ".ckpt").absolute()
-    if ckpt.exists() and not ckpt.is_dir():
-        raise InputError(f"--checkpoint {ckpt}: a file, not a folder")
-    return config, ckpt
-
-
-def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
-    """Fit over augmented frames, checkpointed in ``ckpt``."""
-    from rhythmic_jax.augment.kornia_ops.stream import fit_map_augmented
-    from rhythmic_jax.features import get_descriptor
-
-    if feats.images is None:
-        raise InputError("--augment needs image sources (folders or --tile), not .npy")
-    descriptor = get_descriptor(feats.descriptor, **feats.settings)
-    try:
-        fit_map_augmented(
-            model, feats.images, feats.x, descriptor, config, feats.labels,
-            progress=progress, checkpoint=ckpt,
-        )  # fmt: skip
-    except KeyboardInterrupt:
-        print(
-            f"rhythmic-jax fit: the augmented fit's checkpoint is kept in {ckpt}; "
-            "run the same command again to resume",
-            file=sys.stderr,
-        )
-        raise
-
-
-def _load_queries(args):
-    from rhythmic_jax.io.sources import load_query_source
-    from rhythmic_jax.rhythmic_map import RhythmicMap
-
-    model = RhythmicMap.load(args.map)
-    feats = load_query_source(
-        args.source,
-        model,
-        args.descriptor,
-        args.tile,
-        args.stride,
-        not args.no_progress,
-        weights=args.weights,
-    )
-    return model, feats
-
-
 def _cmd_query(args) -> int:
-    import numpy as np
-
-    if args.out and not Path(args.out).parent.is_dir():
-        raise InputError(f"--out {args.out}: folder {Path(args.out).parent} not found")
-    model, feats = _load_queries(args)
-    pred = model.predict(
-        feats.x, args.decode, sequence=args.sequence, threshold=args.threshold
-    )
-    if args.out:
-        from rhythmic_jax.io.atomic import save_npy
-
-        save_npy(args.out, pred.astype(np.int64))
+    pred = jobs.query(
+        args.map, args.source, decode=args.decode, sequence=args.sequence,
+        threshold=args.threshold, out=args.out, reading=_reading(args),
+        progress=not args.no_progress,
+    )  # fmt: skip
     if args.json:
         print(json.dumps({"predictions": pred.tolist()}))
     elif not args.out:
         print("\n".join(str(int(v)) for v in pred))
     else:
-        print(
-            f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {args.out}"
-        )
+        print(jobs.query_summary(pred, args.out))
     return 0
 
 
 def _cmd_info(args) -> int:
-    from rhythmic_jax.rhythmic_map import RhythmicMap
-
-    info = RhythmicMap.load(args.map).info()
-    if args.json:
-        print(json.dumps(info, indent=2))
-    else:
-        for key in ("n", "d", "periods", "storage_bytes", "compression_ratio", "c"):
-            print(f"{key:>18}: {info[key]}")
-        for t, e in zip(info["candidates"], info["candidate_errors"], strict=True):
-            print(f"{'period ' + str(t):>18}: training error {e:.4f}")
+    info = jobs.info(args.map)
+    print(json.dumps(info, indent=2) if args.json else jobs.info_lines(info))
     return 0
 
 
 def _cmd_evaluate(args) -> int:
-    from rhythmic_jax.eval.report import evaluate_map, format_evaluation
-    from rhythmic_jax.io.sources import reference_features
-
-    model, feats = _load_queries(args)
-    ref, labels, note = reference_features(
-        model, args.reference, args.descriptor, args.tile, args.stride,
-        not args.no_progress, weights=args.weights,
+    result = jobs.evaluate(
+        args.map, args.source, reference=args.reference, tolerance=args.tolerance,
+        decode=args.decode, sequence=args.sequence, reading=_reading(args),
+        progress=not args.no_progress,
     )  # fmt: skip
-    result = evaluate_map(
-        model,
-        feats.x,
-        reference=ref,
-        reference_labels=labels,
-        tolerance=args.tolerance,
-        method=args.decode,
-        sequence=args.sequence,
-    )
-    result["reference_note"] = note
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        print(format_evaluation(result) + "\n" + note)
+        print(jobs.evaluate_summary(result))
     return 0
 
 
 def _cmd_demo(args) -> int:
-    from rhythmic_jax.demo import run_demo
-
-    run_demo(args.out, quick=args.quick, progress=not args.no_progress)
+    jobs.demo(args.out, quick=args.quick, progress=not args.no_progress)
     return 0
 
 
@@ -384,7 +257,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"rhythmic-jax {args.command}: error: {err.as_flag()}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:
+        if isinstance(err, FitInterrupted):
+            print(f"rhythmic-jax {args.command}: {err.note}", file=sys.stderr)
         print(f"rhythmic-jax {args.command}: interrupted", file=sys.stderr)
         return 130
 

@@ -22,6 +22,7 @@ import pytest
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 PACKAGE = "rhythmic_jax"
 MAX_BODY = 5  # statements a helper defined in a notebook may hold
+MAX_LOOP = 4  # statements a loop in a notebook may hold (nested ones included)
 SHARED_DATA = Path(
     os.environ.get(
         "RHYTHMIC_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -56,12 +57,18 @@ def check_public_names(tree: ast.Module, where: str) -> set[str]:
 
 
 def check_no_core_logic(tree: ast.Module, where: str) -> None:
-    """Assert no function or class holds more than ``MAX_BODY`` statements."""
+    """Assert no function or class holds more than ``MAX_BODY`` statements and no
+    loop more than ``MAX_LOOP``: longer logic belongs in the library (a job)."""
     for node in ast.walk(tree):
+        size = sum(1 for s in ast.walk(node) if isinstance(s, ast.stmt)) - 1
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
-            size = sum(1 for s in ast.walk(node) if isinstance(s, ast.stmt)) - 1
             assert size <= MAX_BODY, (
                 f"{where}: {node.name!r} holds {size} statements; "
+                "move it into the library"
+            )
+        if isinstance(node, ast.For | ast.AsyncFor | ast.While):
+            assert size <= MAX_LOOP, (
+                f"{where} line {node.lineno}: a loop of {size} statements; "
                 "move it into the library"
             )
 
@@ -150,7 +157,7 @@ def test_public_name_check_catches_private_or_missing_names(source):
 
 
 def test_public_name_check_follows_aliases_and_submodules():
-    source = "import rhythmic_jax as rj\nfrom rhythmic_jax import data\n"
+    source = "import rhythmic_jax as rj\nfrom rhythmic_jax.io import images\n"
     source += "rj.RhythmicMap\nrj.periods.phases\nimages.read_rgb\n"
     assert check_public_names(ast.parse(source), "example") == {
         "rj", "images", "rj.RhythmicMap", "rj.periods", "rj.periods.phases",
@@ -164,6 +171,15 @@ def test_core_logic_check_allows_short_helpers_only():
     long = "def g(x):\n" + "".join(f"    x = x + {i}\n" for i in range(6))
     with pytest.raises(AssertionError, match="'g' holds 6 statements"):
         check_no_core_logic(ast.parse(long), "example")
+
+
+def test_core_logic_check_catches_a_long_loop():
+    short = "for i in range(3):\n    x = i\n    if x:\n        print(x)\n"
+    check_no_core_logic(ast.parse(short), "example")
+    body = "".join(f"    x = x + {i}\n" for i in range(5))
+    for head in ("for i in range(3):\n", "while x < 9:\n"):
+        with pytest.raises(AssertionError, match="line 1: a loop of 5 statements"):
+            check_no_core_logic(ast.parse(head + body), "example")
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)

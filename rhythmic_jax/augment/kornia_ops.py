@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import kornia.augmentation as K
@@ -33,6 +34,7 @@ __all__ = [
     "AugmentConfig",
     "Params",
     "augment",
+    "augment_examples",
     "augmented_batch",
     "build_pipeline",
     "epoch_order",
@@ -376,3 +378,18 @@ def augmented_batch(
     batch_seed = np.random.SeedSequence([seed, epoch, i]).generate_state(1)[0]
     out, _ = augment(to_batch(images[idx]), config, int(batch_seed))
     return idx, out
+
+
+def augment_examples(
+    images: np.ndarray, names: Sequence[str] = (*NAMES, "all"), seed: int = 0
+) -> dict[str, np.ndarray]:
+    """Each operation applied for certain to uint8 (k, H, W, 3) ``images``.
+
+    Returns ``{"original": images, name: augmented uint8 (k, H, W, 3), ...}``,
+    one row of :func:`rhythmic_jax.eval.figures.plot_examples` per name.
+    """
+    rows = {"original": np.asarray(images)}
+    for name in names:
+        out, _ = augment(to_batch(images), AugmentConfig((name,), p=1.0), seed=seed)
+        rows[name] = to_images(out)
+    return rows

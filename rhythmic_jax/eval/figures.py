@@ -28,8 +28,11 @@ from rhythmic_jax.io.atomic import atomic_path
 __all__ = [
     "new_figure",
     "plot_augmentation",
+    "plot_cost",
+    "plot_examples",
     "plot_levels",
     "plot_r",
+    "plot_storage_growth",
     "plot_training_error",
     "save_figure",
 ]
@@ -206,4 +209,98 @@ def plot_levels(
         ax.set_xlabel("level c (T = c sqrt N)")
         ax.grid(alpha=0.3)
     fig.suptitle(title or "longer periods: accuracy against compression")
+    return _finish(fig, path)
+
+
+def plot_examples(
+    rows: Mapping[str, Any], title: str = "", path: str | os.PathLike | None = None
+):
+    """A grid of frames: one row per label, uint8 (k, H, W, 3) images each.
+
+    ``rows`` is e.g. ``{"original": frames, "hflip": ..., ...}`` from
+    :func:`rhythmic_jax.augment.kornia_ops.augment_examples`.
+    """
+    if not rows:
+        raise InputError("plot_examples: no rows to plot")
+    count = max(len(images) for images in rows.values())
+    fig, _ = new_figure(1, width=1.6 * count, height=0.8 * len(rows))
+    fig.clear()
+    axes = fig.subplots(len(rows), count, squeeze=False)
+    for ax_row, (name, images) in zip(axes, rows.items(), strict=True):
+        ax_row[0].set_ylabel(name, rotation=0, ha="right", fontsize=8)
+        for ax, image in zip(ax_row, images, strict=False):
+            ax.imshow(image)
+        for ax in ax_row:
+            ax.set_xticks([]), ax.set_yticks([])
+    fig.suptitle(title)
+    return _finish(fig, path)
+
+
+def plot_cost(
+    timings: Mapping[str, Mapping[str, float]],
+    path: str | os.PathLike | None = None,
+):
+    """Seconds per fit split into its parts, and augmented frames per second.
+
+    ``timings``: label -> ``{"fit": s, "total": s, "augment": s, "describe": s,
+    "step": s, "frames_per_s": f}`` (a plain fit has ``fit`` only), as
+    :func:`rhythmic_jax.jobs.augmentation_ablation` returns them.
+    """
+    if not timings:
+        raise InputError("plot_cost: no timings to plot")
+    names, rows = list(timings), list(timings.values())
+    parts = {
+        "exact solve + period choice": [r["fit"] - r.get("total", 0.0) for r in rows],
+        "augment": [r.get("augment", 0.0) for r in rows],
+        "describe": [r.get("describe", 0.0) for r in rows],
+        "optimiser steps": [r.get("step", 0.0) for r in rows],
+    }
+    used = [sum(p[i] for p in parts.values()) for i in range(len(rows))]
+    parts["other"] = [r["fit"] - u for r, u in zip(rows, used, strict=True)]
+    fig, (left, right) = new_figure(2, width=5.5, height=1 + 0.3 * len(names))
+    start = [0.0] * len(names)
+    for part, seconds in parts.items():
+        left.barh(names, seconds, left=start, label=part)
+        start = [a + b for a, b in zip(start, seconds, strict=True)]
+    right.barh(names, [r.get("frames_per_s", 0.0) for r in rows], color="grey")
+    right.sharey(left)
+    left.invert_yaxis()
+    fig.legend(loc="outside lower center", ncols=len(parts), fontsize=8)
+    left.set_xlabel("seconds per fit")
+    right.set_xlabel("augmented epochs: frames per second")
+    return _finish(fig, path)
+
+
+def plot_storage_growth(
+    ns: Sequence[int],
+    curves: Mapping[str, Sequence[float]],
+    d: int,
+    fitted: tuple[int, Sequence[float], str] | None = None,
+    path: str | os.PathLike | None = None,
+):
+    """Bytes against places N on log-log axes (paper Fig. 2 style).
+
+    ``curves``: label -> bytes at every N of ``ns``; a label ``"... r = R"`` that
+    starts with ``"rhythmic"`` gets a dotted ``N^(1/R)`` guide. ``fitted``:
+    ``(N, bytes of each fitted map, label)`` drawn as points.
+    """
+    if not curves:
+        raise InputError("plot_storage_growth: no curves to plot")
+    fig, (ax,) = new_figure(width=6.5, height=4.5)
+    for label, values in curves.items():
+        (line,) = ax.loglog(ns, values, label=label)
+        if label.startswith("rhythmic"):
+            r = int(label.rsplit("=", 1)[1])
+            guide = [0.4 * values[-1] * (n / ns[-1]) ** (1 / r) for n in ns]
+            ax.loglog(
+                ns, guide, ":", color=line.get_color(), lw=1, label=f"slope 1/{r}"
+            )
+    if fitted is not None:
+        n, sizes, label = fitted
+        ax.plot([n] * len(sizes), sizes, "ko", ms=4, label=label)
+    ax.set_xlabel("places N")
+    ax.set_ylabel("bytes")
+    ax.set_title(f"storage growth at d = {d}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
     return _finish(fig, path)

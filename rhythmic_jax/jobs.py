@@ -1,0 +1,364 @@
+"""Jobs: what ``rhythmic-jax`` runs, as library functions notebooks call too.
+
+A job is the policy around the library's pieces, written once:
+
+- :func:`fit`: settings checked before any work (the map folder, the augmented
+  fit's settings and checkpoint folder, the memory a full-batch fit needs), the
+  sources read, the map fitted (plainly, or over frames augmented on the fly with
+  a resumable checkpoint folder, default ``OUT.ckpt``, removed once the map is
+  saved), provenance recorded (the sources' absolute paths and tiling, so that
+  ``evaluate`` can find the reference frames again), the map saved atomically;
+- :func:`query`: queries described the way the map was built, localised, and
+  predictions written atomically;
+- :func:`info`, :func:`evaluate` (beside brute force over the map's own
+  reference frames when they are still there), :func:`demo`.
+
+Errors name settings by parameter (``{opt:tile}``); the command line spells them
+as flags. Nothing here prints; the ``*_summary`` functions return the lines the
+command line shows.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_int
+
+__all__ = [
+    "FitInterrupted",
+    "FitJob",
+    "Reading",
+    "augmentation_ablation",
+    "demo",
+    "evaluate",
+    "evaluate_summary",
+    "fit",
+    "fit_summary",
+    "info",
+    "info_lines",
+    "query",
+    "query_summary",
+]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """How frames are read from a source (see :mod:`rhythmic_jax.io.sources`).
+
+    Attributes:
+      descriptor: descriptor of image sources (a map remembers its own).
+      weights: weights file of a descriptor that needs one; when querying a map,
+        a moved copy of the file it was fitted with (its sha256 is checked).
+      tile: cut one large image into tiles of this size.
+      stride: the tiles' stride (default ``tile // 2``).
+    """
+
+    descriptor: str | None = None
+    weights: str | None = None
+    tile: int | None = None
+    stride: int | None = None
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """A map to fit from reference sources and write to ``out``.
+
+    ``rhythmic-jax fit ref.npy --out route.map`` is ``fit(FitJob(("ref.npy",),
+    "route.map"))``. The map's settings (``r`` .. ``pca``) are those of
+    :class:`rhythmic_jax.MapConfig`; ``augment`` (comma-separated kornia operation
+    names, or ``"all"``) trains over frames augmented on the fly for ``epochs``
+    passes of ``batch_size`` frames, checkpointed every ``checkpoint_every`` steps
+    in ``checkpoint`` (default ``OUT.ckpt``, removed once the map is saved; a
+    given folder is kept).
+    """
+
+    sources: tuple[str, ...]
+    out: str
+    r: int = 2
+    level: int = 1
+    count: int = 7
+    c: float | None = None
+    solver: str = "newton"
+    gap: float = 1e-7
+    pca: int | None = None
+    augment: str | None = None
+    epochs: int = 3
+    batch_size: int = 128
+    checkpoint: str | None = None
+    checkpoint_every: int = 50
+    reading: Reading = Reading()
+
+
+class FitInterrupted(KeyboardInterrupt):
+    """Ctrl-C during an augmented fit; ``note`` says where its checkpoint is kept."""
+
+    def __init__(self, note: str):
+        super().__init__(note)
+        self.note = note
+
+
+def _augmented_settings(job: FitJob):
+    """The augmented fit's settings and checkpoint folder, checked before any work."""
+    from rhythmic_jax.augment.kornia_ops import AugmentConfig
+    from rhythmic_jax.augment.stream import AugmentedFit
+
+    if job.pca is not None:
+        raise InputError("{opt:augment} and {opt:pca} together are not supported")
+    for name in ("epochs", "batch_size", "checkpoint_every"):
+        value = getattr(job, name)
+        check_int(value, name, 1, msg=f"{{opt:{name}}} must be >= 1, got {value}")
+    names = tuple(job.augment.split(","))
+    AugmentConfig(names=names)  # unknown names end here, not after describing
+    config = AugmentedFit(
+        names=names,
+        epochs=job.epochs,
+        batch_size=job.batch_size,
+        checkpoint_every=job.checkpoint_every,
+    )
+    ckpt = Path(job.checkpoint or str(Path(job.out)) + ".ckpt").absolute()
+    if ckpt.exists() and not ckpt.is_dir():
+        raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
+    return config, ckpt
+
+
+def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
+    from rhythmic_jax.augment.stream import fit_map_augmented
+    from rhythmic_jax.features import get_descriptor
+
+    if feats.images is None:
+        raise InputError(
+            "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
+        )
+    descriptor = get_descriptor(feats.descriptor, **feats.settings)
+    try:
+        fit_map_augmented(
+            model, feats.images, feats.x, descriptor, config, feats.labels,
+            progress=progress, checkpoint=ckpt,
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        raise FitInterrupted(
+            f"the augmented fit's checkpoint is kept in {ckpt}; "
+            "run the same command again to resume"
+        ) from None
+
+
+def fit(job: FitJob, progress: bool = True):
+    """Fit, record provenance and save the map of ``job``; returns the map."""
+    from rhythmic_jax.io.checkpoint import check_target
+    from rhythmic_jax.io.sources import check_sources_memory, load_sources
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    read = job.reading
+    check_target(job.out)  # before the fit, not after it
+    augmented = _augmented_settings(job) if job.augment else None
+    check_sources_memory(job.sources, job.r, job.level, job.count)
+    feats = load_sources(
+        job.sources, read.descriptor, read.tile, read.stride, progress,
+        pca=job.pca, weights=read.weights,
+    )  # fmt: skip
+    model = RhythmicMap(
+        r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
+        gap=job.gap, descriptor=feats.descriptor, descriptor_settings=feats.settings,
+    )  # fmt: skip
+    if augmented is not None:
+        _fit_augmented(model, feats, *augmented, progress=progress)
+    else:
+        model.fit(feats.x, feats.labels, progress=progress)
+    model.extra.update(feats.extra)
+    model.reference = {
+        "sources": [str(Path(src).expanduser().absolute()) for src in job.sources],
+        "tile": read.tile,
+        "stride": read.stride,
+    }
+    model.save(job.out)
+    if augmented is not None and job.checkpoint is None:
+        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
+    return model
+
+
+def fit_summary(out: str, info: dict[str, Any]) -> str:
+    """One line about a saved map: size, periods, storage and compression."""
+    return (
+        f"map {out}: n={info['n']} d={info['d']} periods={tuple(info['periods'])} "
+        f"storage={info['storage_bytes']:,} B "
+        f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
+    )
+
+
+def _load_queries(map_path: str, source: str, reading: Reading, progress: bool):
+    from rhythmic_jax.io.sources import load_query_source
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    model = RhythmicMap.load(map_path)
+    feats = load_query_source(
+        source, model, reading.descriptor, reading.tile, reading.stride, progress,
+        weights=reading.weights,
+    )  # fmt: skip
+    return model, feats
+
+
+def query(
+    map_path: str,
+    source: str,
+    *,
+    decode: str | None = None,
+    sequence: int | None = None,
+    threshold: float | None = None,
+    out: str | None = None,
+    reading: Reading = Reading(),
+    progress: bool = True,
+) -> np.ndarray:
+    """Localise the frames of ``source`` with the map at ``map_path``: (b,) int64.
+
+    ``-1`` is no match. With ``out`` the predictions are also written there
+    (``.npy``, atomically); its folder must exist.
+    """
+    if out and not Path(out).parent.is_dir():
+        raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
+    model, feats = _load_queries(map_path, source, reading, progress)
+    pred = model.predict(feats.x, decode, sequence=sequence, threshold=threshold)
+    pred = np.asarray(pred).astype(np.int64)
+    if out:
+        from rhythmic_jax.io.atomic import save_npy
+
+        save_npy(out, pred)
+    return pred
+
+
+def query_summary(pred: np.ndarray, out: str) -> str:
+    """One line about predictions written to ``out``."""
+    return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
+
+
+def info(map_path: str) -> dict[str, Any]:
+    """What a map holds (:meth:`rhythmic_jax.RhythmicMap.info`), read from disk."""
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    return RhythmicMap.load(map_path).info()
+
+
+def info_lines(info: dict[str, Any]) -> str:
+    """The text form of :func:`info`: one setting a line, then each candidate."""
+    keys = ("n", "d", "periods", "storage_bytes", "compression_ratio", "c")
+    lines = [f"{key:>18}: {info[key]}" for key in keys]
+    lines += [
+        f"{'period ' + str(t):>18}: training error {e:.4f}"
+        for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)
+    ]
+    return "\n".join(lines)
+
+
+def evaluate(
+    map_path: str,
+    source: str,
+    *,
+    reference: str | None = None,
+    tolerance: int = 0,
+    decode: str | None = None,
+    sequence: int | None = None,
+    reading: Reading = Reading(),
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Judge the map on the queries of ``source``, beside brute force.
+
+    Brute force searches ``reference`` when given, else the sources the map was
+    fitted on when they are still there; ``reference_note`` says which, or why
+    there is no brute-force line. See :func:`rhythmic_jax.eval.report.evaluate_map`.
+    """
+    from rhythmic_jax.eval.report import evaluate_map
+    from rhythmic_jax.io.sources import reference_features
+
+    model, feats = _load_queries(map_path, source, reading, progress)
+    ref, labels, note = reference_features(
+        model, reference, reading.descriptor, reading.tile, reading.stride, progress,
+        weights=reading.weights,
+    )  # fmt: skip
+    result = evaluate_map(
+        model, feats.x, reference=ref, reference_labels=labels, tolerance=tolerance,
+        method=decode, sequence=sequence,
+    )  # fmt: skip
+    result["reference_note"] = note
+    return result
+
+
+def evaluate_summary(result: dict[str, Any]) -> str:
+    """The text form of :func:`evaluate`: the table, then the reference note."""
+    from rhythmic_jax.eval.report import format_evaluation
+
+    return format_evaluation(result) + "\n" + result["reference_note"]
+
+
+def demo(out: str = "rhythmic_demo", quick: bool = False, progress: bool = True):
+    """The bundled demo (:func:`rhythmic_jax.demo.run_demo`); writes its report."""
+    from rhythmic_jax.demo import run_demo
+
+    return run_demo(out, quick=quick, progress=progress)
+
+
+def augmentation_ablation(
+    routes: dict[str, tuple[np.ndarray, np.ndarray, int]],
+    variants: dict[str, tuple[str, ...]],
+    descriptor,
+    *,
+    level: int = 1,
+    epochs: int = 3,
+    seed: int = 0,
+) -> tuple[dict[str, dict[str, dict]], dict[str, dict[str, dict]]]:
+    """Maps trained plainly and over each augmentation, judged on other-appearance
+    queries beside brute force (paper Fig. 6).
+
+    Args:
+      routes: name -> (map frames uint8 (n, H, W, 3), query frames of the same
+        places, frame tolerance).
+      variants: label -> augmentation names (``("all",)``: the seven merged).
+      descriptor: a :mod:`rhythmic_jax.features` descriptor (cached per route).
+
+    Returns:
+      ``(results, timings)``: route -> label -> the map's metrics of
+      :func:`rhythmic_jax.eval.report.evaluate_map` (``"plain map"``, ``"brute
+      force"`` and each variant), and route -> label -> seconds (``"fit"`` and the
+      augmented fit's own parts).
+    """
+    import time
+
+    from rhythmic_jax.augment.stream import AugmentedFit, fit_map_augmented
+    from rhythmic_jax.eval.report import evaluate_map
+    from rhythmic_jax.features import cached_describe
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    results: dict[str, dict[str, dict]] = {}
+    timings: dict[str, dict[str, dict]] = {}
+    for route, (frames, queries, tol) in routes.items():
+        x_map = cached_describe(
+            frames, descriptor, key=f"nb-{route}-map", progress=False
+        )
+        x_qry = cached_describe(
+            queries, descriptor, key=f"nb-{route}-qry", progress=False
+        )
+        t0 = time.perf_counter()
+        plain = RhythmicMap(level=level).fit(x_map, progress=False)
+        timings[route] = {"plain map": {"fit": time.perf_counter() - t0}}
+        judged = evaluate_map(
+            plain, x_qry, reference=x_map, tolerance=tol, timing=False
+        )
+        results[route] = {
+            "plain map": judged["methods"]["map"],
+            "brute force": judged["methods"]["brute force"],
+        }
+        for label, names in variants.items():
+            config = AugmentedFit(names=names, epochs=epochs, seed=seed)
+            t0 = time.perf_counter()
+            model = fit_map_augmented(
+                RhythmicMap(level=level), frames, x_map, descriptor, config,
+                progress=False,
+            )  # fmt: skip
+            timings[route][label] = {**model.timings, "fit": time.perf_counter() - t0}
+            judged = evaluate_map(model, x_qry, tolerance=tol, timing=False)
+            results[route][label] = judged["methods"]["map"]
+    return results, timings

@@ -1,0 +1,166 @@
+"""Start-up time: ``import rhythmic_jax``, ``rhythmic-jax --help`` and ``info``.
+
+What a user waits for before anything is computed, measured in fresh processes
+(wall clock, the median of ``--repeats`` runs, taken in turns so that load changes
+hit every command alike):
+
+- ``python -c "import rhythmic_jax"`` (the public face; nothing heavy loads until
+  a name is used);
+- ``rhythmic-jax --help`` (target: under 1 s on an idle machine);
+- ``rhythmic-jax info MAP`` on a small map fitted here (target: under 2 s).
+
+With ``--before DIR`` (a checkout of another version, e.g. ``git worktree add
+/tmp/before <commit>``) the same commands run against that checkout too, in the
+same turns, and the report gives the ratios. Also recorded: which heavy packages
+(jax, faiss, scikit-learn, torch) each command loads.
+
+    python scripts/bench_startup.py --before /tmp/before --repeats 7
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from _bench_common import REPO, begin, header, parser, rerender, run_record, table
+from _bench_common import write_report as write
+
+log = logging.getLogger("bench_startup")
+
+HEAVY = ("jax", "faiss", "sklearn", "torch", "optax", "orbax")
+PROBE = (
+    "import sys, runpy; sys.argv = {argv!r}; "
+    "code = 0\n"
+    "try:\n    runpy.run_module('rhythmic_jax.cli', run_name='__main__')\n"
+    "except SystemExit as e:\n    code = e.code or 0\n"
+    "print('LOADED', ','.join(m for m in {heavy!r} if m in sys.modules))"
+)
+
+
+def _env(checkout: Path) -> dict[str, str]:
+    env = dict(os.environ, PYTHONPATH=str(checkout), TF_CPP_MIN_LOG_LEVEL="3")
+    env.setdefault("JAX_PLATFORMS", "cpu")
+    return env
+
+
+def commands(map_path: Path) -> dict[str, list[str]]:
+    script = shutil.which("rhythmic-jax") or "rhythmic-jax"
+    return {
+        "import rhythmic_jax": [sys.executable, "-c", "import rhythmic_jax"],
+        "rhythmic-jax --help": [script, "--help"],
+        "rhythmic-jax info MAP": [script, "info", str(map_path)],
+    }
+
+
+def loaded(checkout: Path, argv: list[str]) -> list[str]:
+    """The heavy packages a command loads (run once in-process with a probe)."""
+    if argv[0] == sys.executable:
+        names = f"','.join(m for m in {HEAVY!r} if m in sys.modules)"
+        code = f"import sys, rhythmic_jax; print('LOADED', {names})"
+    else:
+        code = PROBE.format(argv=["rhythmic-jax", *argv[1:]], heavy=HEAVY)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=_env(checkout), capture_output=True,
+        text=True, check=False,
+    )  # fmt: skip
+    line = [s for s in out.stdout.splitlines() if s.startswith("LOADED")]
+    return line[-1].split(" ", 1)[1].split(",") if line and " " in line[-1] else []
+
+
+def wall(checkout: Path, argv: list[str]) -> float:
+    t0 = time.perf_counter()
+    out = subprocess.run(argv, env=_env(checkout), capture_output=True, check=False)
+    seconds = time.perf_counter() - t0
+    if out.returncode != 0:
+        raise RuntimeError(f"{argv} failed in {checkout}: {out.stderr[-400:]!r}")
+    return seconds
+
+
+def fit_map(folder: Path) -> Path:
+    """A 600-frame, 64-d map fitted with this checkout's command line."""
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((600, 64)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    np.save(folder / "ref.npy", x)
+    out = folder / "route.map"
+    script = shutil.which("rhythmic-jax") or "rhythmic-jax"
+    subprocess.run(
+        [script, "fit", str(folder / "ref.npy"), "--out", str(out), "--no-progress"],
+        env=_env(REPO), check=True, capture_output=True,
+    )  # fmt: skip
+    return out
+
+
+def markdown(report: dict) -> str:
+    lines = header("Start-up time: import, --help, info", report)
+    versions = report["versions"]
+    lines += [
+        f"Each command in a fresh process, wall seconds, median of "
+        f"{report['repeats']} runs taken in turns ({', '.join(versions)}). Targets "
+        "on an idle machine: `--help` under 1 s, `info` under 2 s.",
+        "",
+    ]
+    rows = []
+    for name, by_version in report["seconds"].items():
+        row = [name]
+        for v in versions:
+            row.append(statistics.median(by_version[v]))
+        if len(versions) == 2:
+            a, b = (statistics.median(by_version[v]) for v in versions)
+            row.append(f"{a / b:.2f}x")
+        row += [", ".join(report["loaded"][name][v]) or "-" for v in versions]
+        rows.append(row)
+    heads = ["command", *(f"{v} (s)" for v in versions)]
+    if len(versions) == 2:
+        heads.append(f"{versions[0]} / {versions[1]}")
+    heads += [f"heavy packages loaded, {v}" for v in versions]
+    lines.append(table(heads, rows))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = parser(__doc__)
+    ap.add_argument("--before", type=Path, default=None, help="checkout to compare")
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+    if args.render:
+        return rerender(args.render, markdown)
+    env, load_start = begin(log)
+    checkouts = {"this": REPO}
+    if args.before is not None:
+        checkouts = {"before": args.before.resolve(), "after": REPO}
+    with tempfile.TemporaryDirectory() as tmp:
+        cmds = commands(fit_map(Path(tmp)))
+        seconds = {name: {v: [] for v in checkouts} for name in cmds}
+        loads = {
+            name: {v: loaded(path, argv) for v, path in checkouts.items()}
+            for name, argv in cmds.items()
+        }
+        for i in range(args.repeats):
+            for name, argv in cmds.items():
+                for v, path in checkouts.items():
+                    seconds[name][v].append(wall(path, argv))
+            log.info("turn %d of %d done", i + 1, args.repeats)
+    report = dict(
+        **run_record("bench_startup.py", argv, env, load_start),
+        versions=list(checkouts),
+        checkouts={v: str(p) for v, p in checkouts.items()},
+        repeats=args.repeats,
+        seconds=seconds,
+        loaded=loads,
+    )
+    write(args.out, "startup", report, markdown(report))
+    return report
+
+
+if __name__ == "__main__":
+    json.dumps(main(), default=str)

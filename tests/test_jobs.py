@@ -1,0 +1,77 @@
+"""Jobs: the command line's policy as library calls (provenance, checks, files)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import BruteForce, InputError, RhythmicMap, jobs
+from rhythmic_jax.jobs import FitJob, Reading
+
+
+@pytest.fixture(scope="module")
+def route(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("route")
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((90, 12)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    q = x + 0.05 * rng.standard_normal(x.shape).astype(np.float32)
+    np.save(folder / "ref.npy", x)
+    np.save(folder / "qry.npy", q)
+    model = jobs.fit(FitJob((str(folder / "ref.npy"),), str(folder / "m.map")), False)
+    return folder, x, q, model
+
+
+def test_fit_saves_the_map_with_its_provenance(route):
+    folder, x, _, model = route
+    loaded = RhythmicMap.load(folder / "m.map")
+    assert (
+        loaded.periods == model.periods == RhythmicMap().fit(x, progress=False).periods
+    )
+    assert loaded.reference == {
+        "sources": [str((folder / "ref.npy").absolute())],
+        "tile": None,
+        "stride": None,
+    }
+    assert jobs.info(str(folder / "m.map")) == loaded.info()
+    line = jobs.fit_summary("m.map", loaded.info())
+    assert line.startswith(f"map m.map: n=90 d=12 periods={loaded.periods}")
+
+
+def test_query_writes_what_the_map_predicts(route, tmp_path):
+    folder, _, q, model = route
+    out = tmp_path / "pred.npy"
+    pred = jobs.query(str(folder / "m.map"), str(folder / "qry.npy"), out=str(out))
+    np.testing.assert_array_equal(pred, model.predict(q))
+    np.testing.assert_array_equal(np.load(out), pred)
+    assert jobs.query_summary(pred, "p.npy").endswith("no match) -> p.npy")
+
+
+def test_evaluate_finds_the_reference_again_for_brute_force(route):
+    folder, x, q, _ = route
+    result = jobs.evaluate(str(folder / "m.map"), str(folder / "qry.npy"))
+    want = BruteForce().fit(x).search(q, 1)[1][:, 0]
+    brute = result["methods"]["brute force"]["accuracy"]
+    assert brute == pytest.approx(float((want == np.arange(90)).mean()))
+    assert str((folder / "ref.npy").absolute()) in result["reference_note"]
+    assert jobs.evaluate_summary(result).endswith(result["reference_note"])
+
+
+def test_option_checks_name_parameters_and_run_before_any_work(route, tmp_path):
+    folder = route[0]
+    ref = (str(folder / "ref.npy"),)
+    cases = [
+        (dict(augment="all", pca=4), "augment and pca together"),
+        (dict(augment="all", epochs=0), "^epochs must be >= 1, got 0$"),
+        (dict(augment="all"), "augment needs image sources .folders or tile., not"),
+    ]
+    for extra, match in cases:
+        job = FitJob(ref, str(tmp_path / "x.map"), **extra)
+        with pytest.raises(InputError, match=match) as err:
+            jobs.fit(job, progress=False)
+        assert "--" in err.value.as_flag()
+    assert not (tmp_path / "x.map").exists()
+    with pytest.raises(InputError, match="^out .*: folder .* not found$"):
+        jobs.query(str(folder / "m.map"), ref[0], out=str(tmp_path / "no" / "p.npy"))
+    with pytest.raises(InputError, match="tile cuts one large image"):
+        jobs.query(str(folder / "m.map"), ref[0], reading=Reading(tile=8))
