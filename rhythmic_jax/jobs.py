@@ -236,8 +236,37 @@ def query_summary(pred: np.ndarray, out: str) -> str:
     return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
 
 
+INFO_KEYS = (
+    "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
+    "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
+    "config", "reference",
+)  # fmt: skip
+
+
+def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
+    """Whether a map's metadata holds every info field, agreeing with itself."""
+    try:
+        n, d, periods = int(meta["n"]), int(meta["d"]), list(meta["periods"])
+        ok = meta["storage_bytes"] == sum(int(t) for t in periods) * (d + 1) * 4
+        ok = ok and meta["database_bytes"] == n * d * 4
+    except (KeyError, TypeError, ValueError):
+        return False
+    return ok and all(k in meta for k in INFO_KEYS) and {"w", "b"} <= listed
+
+
 def info(map_path: str) -> dict[str, Any]:
-    """What a map holds (:meth:`rhythmic_jax.RhythmicMap.info`), read from disk."""
+    """What a map holds (:meth:`rhythmic_jax.RhythmicMap.info`), read from disk.
+
+    A map whose metadata is complete and consistent, with its arrays listed as
+    saved, is described from ``map.json`` alone (no JAX, no array data read); any
+    other goes through :meth:`rhythmic_jax.RhythmicMap.load`, which says what is
+    wrong with it.
+    """
+    from rhythmic_jax.io.checkpoint import arrays_listed, read_metadata
+
+    folder, meta = read_metadata(map_path)
+    if _consistent(meta, arrays_listed(folder)):
+        return {key: meta[key] for key in INFO_KEYS}
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     return RhythmicMap.load(map_path).info()

@@ -46,6 +46,9 @@ PROBE = (
 )
 
 
+RUN_IN = Path(tempfile.gettempdir())  # not a checkout: python -c puts cwd first
+
+
 def _env(checkout: Path) -> dict[str, str]:
     env = dict(os.environ, PYTHONPATH=str(checkout), TF_CPP_MIN_LOG_LEVEL="3")
     env.setdefault("JAX_PLATFORMS", "cpu")
@@ -70,7 +73,7 @@ def loaded(checkout: Path, argv: list[str]) -> list[str]:
         code = PROBE.format(argv=["rhythmic-jax", *argv[1:]], heavy=HEAVY)
     out = subprocess.run(
         [sys.executable, "-c", code], env=_env(checkout), capture_output=True,
-        text=True, check=False,
+        text=True, check=False, cwd=RUN_IN,
     )  # fmt: skip
     line = [s for s in out.stdout.splitlines() if s.startswith("LOADED")]
     return line[-1].split(" ", 1)[1].split(",") if line and " " in line[-1] else []
@@ -78,7 +81,9 @@ def loaded(checkout: Path, argv: list[str]) -> list[str]:
 
 def wall(checkout: Path, argv: list[str]) -> float:
     t0 = time.perf_counter()
-    out = subprocess.run(argv, env=_env(checkout), capture_output=True, check=False)
+    out = subprocess.run(
+        argv, env=_env(checkout), capture_output=True, check=False, cwd=RUN_IN
+    )
     seconds = time.perf_counter() - t0
     if out.returncode != 0:
         raise RuntimeError(f"{argv} failed in {checkout}: {out.stderr[-400:]!r}")
@@ -142,13 +147,13 @@ def main(argv: list[str] | None = None) -> dict:
         cmds = commands(fit_map(Path(tmp)))
         seconds = {name: {v: [] for v in checkouts} for name in cmds}
         loads = {
-            name: {v: loaded(path, argv) for v, path in checkouts.items()}
-            for name, argv in cmds.items()
+            name: {v: loaded(path, cmd) for v, path in checkouts.items()}
+            for name, cmd in cmds.items()
         }
         for i in range(args.repeats):
-            for name, argv in cmds.items():
+            for name, cmd in cmds.items():
                 for v, path in checkouts.items():
-                    seconds[name][v].append(wall(path, argv))
+                    seconds[name][v].append(wall(path, cmd))
             log.info("turn %d of %d done", i + 1, args.repeats)
     report = dict(
         **run_record("bench_startup.py", argv, env, load_start),

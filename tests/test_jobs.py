@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -75,3 +80,26 @@ def test_option_checks_name_parameters_and_run_before_any_work(route, tmp_path):
         jobs.query(str(folder / "m.map"), ref[0], out=str(tmp_path / "no" / "p.npy"))
     with pytest.raises(InputError, match="tile cuts one large image"):
         jobs.query(str(folder / "m.map"), ref[0], reading=Reading(tile=8))
+
+
+def test_info_reads_the_metadata_alone_and_says_what_load_says(route, tmp_path):
+    folder = route[0]
+    path = str(folder / "m.map")
+    assert jobs.info(path) == RhythmicMap.load(path).info()
+    code = (
+        "import sys; from rhythmic_jax import jobs; "
+        f"jobs.info({path!r}); print('jax' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+    broken = tmp_path / "broken.map"
+    shutil.copytree(path, broken)
+    meta = json.loads((broken / "map.json").read_text())
+    (broken / "map.json").write_text(json.dumps({**meta, "periods": [5, 6]}))
+    with pytest.raises(InputError, match="do not fit periods"):
+        jobs.info(str(broken))
+    shutil.rmtree(broken / "arrays")
+    (broken / "map.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="arrays are missing or corrupt"):
+        jobs.info(str(broken))

@@ -116,8 +116,8 @@ def _resolve(target: Path) -> Path:
     raise InputError(f"{target}: no such map folder")
 
 
-def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Read a map folder: (arrays, metadata). Bad folders raise :class:`InputError`."""
+def read_metadata(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
+    """A map folder's checked metadata, without its arrays: (folder, metadata)."""
     folder = _resolve(Path(path).expanduser().absolute())
     meta_file = folder / _META
     try:
@@ -133,6 +133,29 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
             f"{folder}: map format {meta['format_version']} is newer than this "
             f"rhythmic_jax reads ({FORMAT_VERSION}); upgrade the package"
         )
+    return folder, meta
+
+
+def arrays_listed(folder: Path) -> set[str]:
+    """Names of the arrays a completed save lists (empty when it is incomplete).
+
+    Reads orbax's plain-JSON tree metadata only, so it needs neither orbax nor
+    JAX; it does not read or check the arrays' data (:func:`load_map` does).
+    """
+    arrays = Path(folder) / _ARRAYS
+    try:
+        tree = json.loads((arrays / "_METADATA").read_text())["tree_metadata"]
+        done = (arrays / "commit_success.txt").is_file()
+    except (OSError, ValueError, KeyError, TypeError):
+        return set()
+    if not done or not isinstance(tree, dict):
+        return set()
+    return {k.strip("(),' ") for k in tree}
+
+
+def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Read a map folder: (arrays, metadata). Bad folders raise :class:`InputError`."""
+    folder, meta = read_metadata(path)
     ckpt = _orbax().StandardCheckpointer()
     try:
         raw = ckpt.restore(folder / _ARRAYS)
