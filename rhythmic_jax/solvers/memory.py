@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.solvers.span import in_span
 
 __all__ = ["available_memory", "check_memory", "fit_bytes"]
 
@@ -44,7 +45,7 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
     (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
     It is an upper estimate: XLA frees and fuses some of these.
     """
-    if d > 2 * n:
+    if in_span(n, d):
         reduced = fit_bytes(n, n, p, 4)
         return {
             "features": n * d * itemsize,

@@ -56,7 +56,7 @@ from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.solvers.precondition import block_preconditioner, spectral_setup
-from rhythmic_jax.solvers.span import lift, row_factor
+from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
 __all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
 
@@ -323,7 +323,7 @@ def newton_fit(
       :class:`NewtonInfo`.
     """
     n, d = x.shape
-    if config.span and d > 2 * n:
+    if config.span and in_span(n, d):
         factor = row_factor(np.asarray(x))
         reduced = dataclasses.replace(config, span=False)
         params, info = newton_fit(

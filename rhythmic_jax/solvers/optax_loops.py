@@ -23,6 +23,7 @@ import optax
 from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates, total_objective
+from rhythmic_jax.solvers.span import in_span
 
 __all__ = [
     "TrainState",
@@ -45,14 +46,15 @@ def ridge_start(x: jax.Array, y: jax.Array, c: float) -> Templates:
     """Closed-form optimum with every margin active: a ridge regression to ±1.
 
     Solves ``(lam I + Xa^T Xa) theta = Xa^T y`` with ``Xa = [x, 1]``,
-    ``lam = 1 / (2C)``; in the Gram form ``(Xa Xa^T + lam I) alpha = y`` when
-    ``n < d + 1``. Shapes: x (n, d), y (n, p) -> w (d, p), b (p,).
+    ``lam = 1 / (2C)``; in the Gram form ``(Xa Xa^T + lam I) alpha = y`` when the
+    frames are solved in their span (:func:`rhythmic_jax.solvers.span.in_span`).
+    Shapes: x (n, d), y (n, p) -> w (d, p), b (p,).
     """
     x = jnp.asarray(x, jnp.float32)
     n, d = x.shape
     xa = jnp.concatenate([x, jnp.ones((n, 1), x.dtype)], axis=1)
     lam = 0.5 / c
-    if n < d + 1:
+    if in_span(n, d):
         g = xa @ xa.T
         alpha = jax.scipy.linalg.solve(g + lam * jnp.eye(n), y, assume_a="pos")
         theta = xa.T @ alpha

@@ -38,3 +38,11 @@ def test_nan_frames_are_refused():
     x[1, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         row_factor(x)
+
+
+def test_one_rule_chooses_the_span_for_every_solver():
+    from rhythmic_jax.solvers.memory import fit_bytes
+    from rhythmic_jax.solvers.span import in_span
+
+    assert in_span(10, 21) and not in_span(10, 20) and not in_span(100, 50)
+    assert "span" in fit_bytes(10, 21, 5) and "span" not in fit_bytes(10, 20, 5)
