@@ -15,7 +15,13 @@ import sys
 import textwrap
 
 from rhythmic_jax import InputError, jobs
-from rhythmic_jax.jobs import FitInterrupted, FitJob, Reading
+from rhythmic_jax.jobs import (
+    FitInterrupted,
+    FitJob,
+    Reading,
+    int_option,
+    number_option,
+)
 
 __all__ = ["main"]
 
@@ -47,6 +53,7 @@ EXAMPLES = {
 
 
 def _quiet_logs(verbose: bool) -> None:
+    jobs.quiet_io_threads()
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING,
@@ -69,15 +76,30 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
         help="weights file of vgg16_fc7 (a state dict); when querying a map, a "
         "moved copy of the file it was fitted with (its sha256 is checked)",
     )
-    p.add_argument("--tile", type=int, default=None, help="tile a large image: size")
     p.add_argument(
-        "--stride", type=int, default=None, help="tile stride (default size/2)"
+        "--tile",
+        type=int_option(1),
+        default=None,
+        help="tile a large image: size (queries of a tiled map: the map's own)",
+    )
+    p.add_argument(
+        "--stride",
+        type=int_option(1),
+        default=None,
+        help="tile stride, with --tile (default size/2)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line, like every other refusal (exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -98,14 +120,22 @@ def _parser() -> argparse.ArgumentParser:
     p = add("fit", "fit a map on reference frames (.npy, image folders, or --tile)")
     p.add_argument("sources", nargs="+", help="descriptor .npy, image folder(s), image")
     p.add_argument("--out", required=True, help="map folder to write")
-    p.add_argument("--r", type=int, default=2, help="number of periods (default 2)")
-    p.add_argument("--level", type=int, default=1, help="period level c (c*N^(1/r))")
-    p.add_argument("--count", type=int, default=7, help="candidate periods (default 7)")
-    p.add_argument("--c", type=float, default=None, help="SVM penalty (default log N)")
+    p.add_argument(
+        "--r", type=int_option(2), default=2, help="number of periods (default 2)"
+    )
+    p.add_argument(
+        "--level", type=int_option(1), default=1, help="period level c (c*N^(1/r))"
+    )
+    p.add_argument(
+        "--count", type=int_option(2), default=7, help="candidate periods (default 7)"
+    )
+    p.add_argument(
+        "--c", type=number_option(0), default=None, help="SVM penalty (default log N)"
+    )
     p.add_argument("--solver", default="newton", choices=("newton", "lbfgs"))
     p.add_argument(
         "--gap",
-        type=float,
+        type=number_option(0, 1),
         default=1e-7,
         help="stop the solver at this estimated relative objective gap (default "
         "1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
@@ -118,9 +148,14 @@ def _parser() -> argparse.ArgumentParser:
         "separated names from gaussian_blur, hflip, random_crop, elastic, "
         "contrast, invert, grayscale, or 'all'",
     )
-    p.add_argument("--epochs", type=int, default=3, help="augmented epochs (3)")
     p.add_argument(
-        "--batch-size", type=int, default=128, help="augmented frames per step (128)"
+        "--epochs", type=int_option(1), default=3, help="augmented epochs (3)"
+    )
+    p.add_argument(
+        "--batch-size",
+        type=int_option(1),
+        default=128,
+        help="augmented frames per step (128)",
     )
     p.add_argument(
         "--checkpoint",
@@ -131,12 +166,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint-every",
-        type=int,
+        type=int_option(1),
         default=50,
         help="steps between checkpoints of an augmented fit (50)",
     )
     p.add_argument(
-        "--pca", type=int, default=None, help="project descriptors to K dims (saved)"
+        "--pca",
+        type=int_option(1),
+        default=None,
+        help="project descriptors to K dims (saved)",
     )
     _add_source_options(p)
 
@@ -145,8 +183,18 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("source", help="query descriptors .npy, image folder or image")
     p.add_argument("--out", default=None, help="write predictions to this .npy")
     p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
-    p.add_argument("--sequence", type=int, default=None, help="sequence length L")
-    p.add_argument("--threshold", type=float, default=None, help="reject below this")
+    p.add_argument(
+        "--sequence",
+        type=int_option(1),
+        default=None,
+        help="sequence length L (at most the number of queries)",
+    )
+    p.add_argument(
+        "--threshold",
+        type=number_option(),
+        default=None,
+        help="reject queries whose confidence is below this",
+    )
     p.add_argument("--json", action="store_true", help="print predictions as JSON")
     _add_source_options(p)
 
@@ -164,10 +212,18 @@ def _parser() -> argparse.ArgumentParser:
         "map was fitted on, when they are still there)",
     )
     p.add_argument(
-        "--tolerance", type=int, default=0, help="frame tolerance (default 0)"
+        "--tolerance",
+        type=int_option(0),
+        default=0,
+        help="frame tolerance (default 0)",
     )
     p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
-    p.add_argument("--sequence", type=int, default=None, help="sequence length L")
+    p.add_argument(
+        "--sequence",
+        type=int_option(1),
+        default=None,
+        help="sequence length L (at most the number of queries)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON")
     _add_source_options(p)
 
@@ -249,8 +305,12 @@ COMMANDS = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``rhythmic-jax``; returns the exit status."""
-    args = _parser().parse_args(argv)
+    """Entry point of ``rhythmic-jax``; returns the exit status (2: bad input,
+    one line on stderr; 0 after ``--help``)."""
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as done:  # --help, or a usage error already printed
+        return int(done.code or 0)
     _quiet_logs(args.verbose)
     try:
         return COMMANDS[args.command](args)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.validate import check_int
+from rhythmic_jax.validate import check_int, int_option, number_option
 
 __all__ = [
     "FitInterrupted",
@@ -43,7 +43,10 @@ __all__ = [
     "info",
     "info_lines",
     "query",
+    "int_option",
+    "number_option",
     "query_summary",
+    "quiet_io_threads",
 ]
 
 
@@ -93,6 +96,23 @@ class FitJob:
     checkpoint: str | None = None
     checkpoint_every: int = 50
     reading: Reading = Reading()
+
+
+def _check_reading(reading: Reading) -> None:
+    if reading.stride is not None and reading.tile is None:
+        from rhythmic_jax.io.sources import STRIDE_NEEDS_TILE
+
+        raise InputError(STRIDE_NEEDS_TILE)
+
+
+def quiet_io_threads() -> None:
+    """Keep orbax's late "Event loop is closed" reports (its I/O threads answering
+    after a failed map read or write) off stderr for the rest of the process."""
+    import sys
+
+    from rhythmic_jax.io.checkpoint import without_closed_loop
+
+    sys.unraisablehook = without_closed_loop(sys.unraisablehook)
 
 
 class FitInterrupted(KeyboardInterrupt):
@@ -148,6 +168,19 @@ def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
         ) from None
 
 
+def _check_map_space(job: FitJob, feats) -> None:
+    """Refuse a map that the disk under ``out`` cannot hold, from its largest
+    possible size: the templates of the ``r`` largest candidate periods and the
+    arrays saved with them (a PCA)."""
+    from rhythmic_jax.io.checkpoint import check_space
+    from rhythmic_jax.periods import candidate_periods, storage_bytes
+
+    n, d = int(feats.labels.max()) + 1, int(feats.x.shape[1])
+    cands = candidate_periods(n, job.r, job.level, job.count)
+    extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
+    check_space(job.out, storage_bytes(sorted(cands)[-job.r :], d) + extra)
+
+
 def fit(job: FitJob, progress: bool = True):
     """Fit, record provenance and save the map of ``job``; returns the map."""
     from rhythmic_jax.io.checkpoint import check_target
@@ -155,6 +188,7 @@ def fit(job: FitJob, progress: bool = True):
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     read = job.reading
+    _check_reading(read)
     check_target(job.out)  # before the fit, not after it
     augmented = _augmented_settings(job) if job.augment else None
     check_sources_memory(job.sources, job.r, job.level, job.count)
@@ -162,6 +196,7 @@ def fit(job: FitJob, progress: bool = True):
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights,
     )  # fmt: skip
+    _check_map_space(job, feats)  # the size is known now: say so before the solve
     model = RhythmicMap(
         r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
         gap=job.gap, descriptor=feats.descriptor, descriptor_settings=feats.settings,
@@ -195,6 +230,7 @@ def _load_queries(map_path: str, source: str, reading: Reading, progress: bool):
     from rhythmic_jax.io.sources import load_query_source
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
+    _check_reading(reading)
     model = RhythmicMap.load(map_path)
     feats = load_query_source(
         source, model, reading.descriptor, reading.tile, reading.stride, progress,

@@ -51,7 +51,12 @@ from rhythmic_jax.periods import (
 from rhythmic_jax.solvers.memory import check_memory
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
-from rhythmic_jax.validate import check_features, check_labels
+from rhythmic_jax.validate import (
+    check_features,
+    check_int,
+    check_labels,
+    check_number,
+)
 
 __all__ = ["MapConfig", "RhythmicMap"]
 
@@ -105,8 +110,8 @@ class MapConfig:
             raise InputError(f"gap must be in (0, 1), got {self.gap!r}")
         if self.c is not None and not self.c > 0:
             raise InputError(f"c must be positive, got {self.c}")
-        if self.threshold is not None and not isinstance(self.threshold, int | float):
-            raise InputError(f"threshold must be a number, got {self.threshold!r}")
+        if self.threshold is not None:
+            check_number(self.threshold, "threshold")
 
 
 class RhythmicMap:
@@ -161,6 +166,12 @@ class RhythmicMap:
             params, _ = fit_full_batch(x, y, c, progress=progress)
         if refine is not None:
             params = refine(params, cands, c)
+        if not all(bool(jnp.isfinite(v).all()) for v in params):
+            raise InputError(
+                "reference features: the solve gave non-finite templates (largest "
+                f"|feature| {float(np.abs(x).max()):.3g}); scale the features, "
+                "e.g. to unit-length rows"
+            )
         s = scores(params, jnp.asarray(x))
         errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
         chosen = choose_periods(cands, errors, n, cfg.r)
@@ -220,16 +231,33 @@ class RhythmicMap:
           q: (b, d) queries (consecutive frames of a traversal when ``sequence``).
           method: "hard" (paper), "soft" or "topm"; default from the config.
           sequence: decode each frame with the L previous ones in the phase
-            domain (:mod:`rhythmic_jax.decoding.sequence`); None for single frames.
+            domain (:mod:`rhythmic_jax.decoding.sequence`); None (or 1) for
+            single frames; at most b.
           speeds: map frames per query frame tried by the sequence decode.
-          threshold: reject queries whose confidence is below it.
+          threshold: reject queries whose confidence is below it (finite).
         """
         method = method or self.config.decode
+        if threshold is not None:
+            threshold = check_number(threshold, "{opt:threshold}")
+        if sequence is not None:
+            sequence = check_int(
+                sequence,
+                "sequence",
+                1,
+                msg=f"{{opt:sequence}} length L must be "
+                f"an integer >= 1, got {sequence!r}",
+            )
+            q = self._queries(q)
+            if sequence > len(q):
+                raise InputError(
+                    f"{{opt:sequence}} length L={sequence} is longer than the "
+                    f"{len(q)} queries"
+                )
         if sequence is not None and sequence > 1:
             from rhythmic_jax.decoding.sequence import sequence_decode
 
             idx, conf = sequence_decode(
-                self.scores(q),
+                _scores(self.params, q),
                 self.periods,
                 self.n,
                 sequence,
@@ -243,7 +271,7 @@ class RhythmicMap:
         idx = np.asarray(idx).astype(np.int64)
         thr = self.config.threshold if threshold is None else threshold
         if thr is not None:
-            idx = np.where(np.asarray(conf) >= thr, idx, -1)
+            idx = np.where(np.asarray(conf, np.float64) >= thr, idx, -1)
         return idx
 
     # -------------------------------------------------------------- storage

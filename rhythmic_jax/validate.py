@@ -1,12 +1,31 @@
-"""Checks on user arrays: one clear :class:`InputError` line for each bad input."""
+"""Checks on user input: one clear :class:`InputError` line for each bad value.
+
+Arrays (:func:`check_features`, :func:`check_labels`) and single numbers
+(:func:`check_int`, :func:`check_number`). The command line parses every numeric
+option with :func:`int_option` or :func:`number_option`, argparse types built on
+the same two checks, so a bad value ends where it is parsed and 0 or a negative
+number is never read as "unset".
+"""
 
 from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
 
 import numpy as np
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["check_features", "check_int", "check_labels", "is_int"]
+__all__ = [
+    "check_features",
+    "check_int",
+    "check_labels",
+    "check_number",
+    "int_option",
+    "is_int",
+    "number_option",
+]
 
 
 def is_int(value) -> bool:
@@ -33,6 +52,57 @@ def check_int(
         else:
             msg = f"{name} must be an integer, got {name}={value!r}"
     raise InputError(msg)
+
+
+def check_number(
+    value, name: str, low: float | None = None, high: float | None = None
+) -> float:
+    """``value`` as a finite float, inside the open interval (low, high) if given."""
+    ok = isinstance(value, int | float | np.integer | np.floating)
+    ok = ok and not isinstance(value, bool)
+    value = float(value) if ok else value
+    if not ok or not math.isfinite(value):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    too_low = low is not None and value <= low
+    if too_low or (high is not None and value >= high):
+        if low is not None and high is not None:
+            where = f"in ({low:g}, {high:g})"
+        else:
+            where = f"> {low:g}" if low is not None else f"< {high:g}"
+        raise InputError(f"{name} must be {where}, got {value:g}")
+    return value
+
+
+def _option(check: Callable, parse: Callable, what: str) -> Callable[[str], object]:
+    def option(text: str):
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        try:
+            return check(value)
+        except InputError as err:  # "value must be ..." -> "must be ..."
+            raise argparse.ArgumentTypeError(str(err).removeprefix("value ")) from None
+
+    option.__name__ = what
+    return option
+
+
+def int_option(least: int = 1) -> Callable[[str], int]:
+    """An argparse ``type``: the text of an integer >= ``least``."""
+
+    def check(v: int) -> int:
+        msg = f"must be an integer >= {least}, got {v}"
+        return check_int(v, "value", least, msg=msg)
+
+    return _option(check, int, "an integer")
+
+
+def number_option(
+    low: float | None = None, high: float | None = None
+) -> Callable[[str], float]:
+    """An argparse ``type``: the text of a finite number in (low, high)."""
+    return _option(lambda v: check_number(v, "value", low, high), float, "a number")
 
 
 def check_features(x, name: str = "features", d: int | None = None) -> np.ndarray:

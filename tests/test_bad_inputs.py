@@ -9,6 +9,9 @@ files, in-memory arrays) go through the library and raise ``InputError``.
 from __future__ import annotations
 
 import ast
+import contextlib
+import errno
+import io
 import json
 import os
 import pickle
@@ -16,6 +19,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -23,12 +27,18 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 from skimage.io import imsave
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.features import Hog, describe, get_descriptor
+from rhythmic_jax.io import checkpoint
+from rhythmic_jax.io.images import read_rgb
+from rhythmic_jax.io.tiles import tile_image
 from rhythmic_jax.nets import VGG16, EfficientNetLite0
 from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches
 
@@ -50,13 +60,20 @@ class Mkdir:
 
 @pytest.fixture(scope="module")
 def maps(tmp_path_factory) -> dict[str, Path]:
-    """Two small fitted maps: from 18-d descriptor files, and from 'hog' images."""
+    """Small fitted maps: from 18-d descriptor files, from 'hog' images, and from
+    'hog' tiles of one image (16-pixel tiles every 8 pixels)."""
     root = tmp_path_factory.mktemp("maps")
     RhythmicMap().fit(X, progress=False).save(root / "npy.map")
     xh = RNG.normal(size=X.shape).astype(np.float32)
     model = RhythmicMap(descriptor="hog", descriptor_settings=HOG.settings())
     model.fit(xh, progress=False).save(root / "hog.map")
-    return {"npy": root / "npy.map", "hog": root / "hog.map"}
+    model.reference = {"sources": [str(root / "big.png")], "tile": 16, "stride": 8}
+    model.save(root / "tiled.map")
+    return {
+        "npy": root / "npy.map",
+        "hog": root / "hog.map",
+        "tiled": root / "tiled.map",
+    }
 
 
 # ---------------------------------------------------------------- input makers
@@ -146,6 +163,29 @@ def not_an_image(src: Path) -> str:
     return folder
 
 
+def dangling_link(src: Path) -> str:
+    """Frames img0..img3 where img2.png is a link to a file that is gone."""
+    folder = frames(src / "links", 4)
+    (src / "links" / "img2.png").unlink()
+    (src / "links" / "img2.png").symlink_to(src / "gone.png")
+    return folder
+
+
+def fifo_frame(src: Path) -> str:
+    """Frames where img1.png is a named pipe: no image, and reading it would hang."""
+    folder = frames(src / "fifo", 3)
+    (src / "fifo" / "img1.png").unlink()
+    os.mkfifo(src / "fifo" / "img1.png")
+    return folder
+
+
+def big_image(src: Path) -> str:
+    """One 40 x 32 image: 15 tiles of 16 every 8 pixels."""
+    pixels = RNG.integers(0, 256, (32, 40, 3), dtype=np.uint8)
+    imsave(src / "big.png", pixels, check_contrast=False)
+    return str(src / "big.png")
+
+
 def copy_map(src: Path, maps, damage: Callable[[Path], None] | None = None) -> str:
     path = src / "copy.map"
     shutil.copytree(maps["npy"], path)
@@ -213,6 +253,18 @@ def hog_map(src, maps):
     return str(maps["hog"])
 
 
+def tiled_map(src, maps):
+    return str(maps["tiled"])
+
+
+def evaluate(map_: Callable, source: Callable[[Path], str], extra=()) -> Callable:
+    def argv(src, maps, out):
+        args = [map_(src, maps), source(src), "--reference", source(src)]
+        return ["evaluate", *args, "--no-progress", *extra]
+
+    return argv
+
+
 def damaged(damage):
     return lambda src, maps: copy_map(src, maps, damage)
 
@@ -248,12 +300,12 @@ CLI_CASES = [
     Case(
         "r-1",
         fit(ok, extra=["--r", "1"]),
-        r"r \(number of periods\) must be an integer >= 2, got r=1",
+        r"argument --r: must be an integer >= 2, got 1 \(see rhythmic-jax fit --help\)",
     ),
     Case(
         "r-negative",
         fit(ok, extra=["--r", "-3"]),
-        r"r \(number of periods\) must be an integer >= 2, got r=-3",
+        r"argument --r: must be an integer >= 2, got -3",
     ),
     Case(
         "r-impossible",
@@ -261,18 +313,27 @@ CLI_CASES = [
         r"no 5 pairwise co-prime periods among \(2, 3, 4, 5, 6, 7, 8\) have a "
         r"product >= n=6",
     ),
-    Case("level-0", fit(ok, extra=["--level", "0"]), r"level must be an integer >= 1"),
+    Case(
+        "level-0",
+        fit(ok, extra=["--level", "0"]),
+        r"argument --level: must be an integer >= 1, got 0",
+    ),
     Case(
         "level-negative",
         fit(ok, extra=["--level", "-2"]),
-        r"level must be an integer >= 1, got level=-2",
+        r"argument --level: must be an integer >= 1, got -2",
     ),
     Case(
         "count-below-r",
-        fit(ok, extra=["--count", "1"]),
-        r"count must be an integer >= r=2, got count=1",
+        fit(ok, extra=["--r", "3", "--count", "2"]),
+        r"count must be an integer >= r=3, got count=2",
     ),
-    Case("c-zero", fit(ok, extra=["--c", "0"]), r"c must be positive, got 0\.0"),
+    Case(
+        "count-1",
+        fit(ok, extra=["--count", "1"]),
+        r"argument --count: must be an integer >= 2, got 1",
+    ),
+    Case("c-zero", fit(ok, extra=["--c", "0"]), r"argument --c: must be > 0, got 0 "),
     Case(
         "duplicate-frame-names",
         fit(dup_frames),
@@ -323,7 +384,7 @@ CLI_CASES = [
             lambda s: frames(s / "aug", 4),
             extra=["--augment", "all", "--batch-size", "0"],
         ),
-        r"--batch-size must be >= 1, got 0",
+        r"argument --batch-size: must be an integer >= 1, got 0",
     ),
     Case(
         "augment-checkpoint-is-a-file",
@@ -387,7 +448,7 @@ CLI_CASES = [
     Case(
         "tile-zero",
         fit(lambda s: text_file(s, "big.png"), extra=["--tile", "0"]),
-        r"--tile must be a positive size, got 0",
+        r"argument --tile: must be an integer >= 1, got 0",
     ),
     Case(
         "not-a-source",
@@ -515,6 +576,144 @@ CLI_CASES = [
 ]
 
 
+CLI_CASES += [  # option values: each refused where it is parsed, 0 never "unset"
+    Case(
+        "r-not-an-integer",
+        fit(ok, extra=["--r", "2.5"]),
+        r"argument --r: expected an integer, got '2\.5'",
+    ),
+    Case("c-nan", fit(ok, extra=["--c", "nan"]), r"--c: must be a finite number"),
+    Case("c-inf", fit(ok, extra=["--c", "inf"]), r"--c: must be a finite number"),
+    Case("gap-1", fit(ok, extra=["--gap", "1"]), r"--gap: must be in \(0, 1\), got 1"),
+    Case("gap-nan", fit(ok, extra=["--gap", "nan"]), r"--gap: must be a finite"),
+    Case("pca-0", fit(ok, extra=["--pca", "0"]), r"--pca: must be an integer >= 1"),
+    Case(
+        "augment-epochs-0",
+        fit(
+            lambda s: frames(s / "aug", 4), extra=["--augment", "all", "--epochs", "0"]
+        ),
+        r"argument --epochs: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "augment-checkpoint-every-negative",
+        fit(
+            lambda s: frames(s / "aug", 4),
+            extra=["--augment", "all", "--checkpoint-every", "-5"],
+        ),
+        r"argument --checkpoint-every: must be an integer >= 1, got -5",
+    ),
+    Case(
+        "stride-0",
+        fit(big_image, extra=["--tile", "16", "--stride", "0"]),
+        r"argument --stride: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "stride-negative",
+        fit(big_image, extra=["--tile", "16", "--stride", "-8"]),
+        r"argument --stride: must be an integer >= 1, got -8",
+    ),
+    Case(
+        "stride-without-tile",
+        fit(lambda s: frames(s / "f", 3), extra=["--stride", "8"]),
+        r"^--stride needs --tile",
+    ),
+    Case(
+        "query-sequence-0",
+        query(npy_map, ok, extra=["--sequence", "0"]),
+        r"argument --sequence: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "query-sequence-negative",
+        query(npy_map, ok, extra=["--sequence", "-3"]),
+        r"argument --sequence: must be an integer >= 1, got -3",
+    ),
+    Case(
+        "query-sequence-longer-than-queries",
+        query(npy_map, ok, extra=["--sequence", "1000000"]),
+        r"sequence length L=1000000 is longer than the 40 queries",
+    ),
+    Case(
+        "query-sequence-41-of-40",
+        query(npy_map, ok, extra=["--sequence", "41", "--decode", "soft"]),
+        r"sequence length L=41 is longer than the 40 queries",
+    ),
+    Case(
+        "query-threshold-nan",
+        query(npy_map, ok, extra=["--threshold", "nan"]),
+        r"argument --threshold: must be a finite number, got nan",
+    ),
+    Case(
+        "query-threshold-inf",
+        query(npy_map, ok, extra=["--threshold", "inf"]),
+        r"argument --threshold: must be a finite number, got inf",
+    ),
+    Case(
+        "query-threshold-minus-inf",
+        query(npy_map, ok, extra=["--threshold=-inf"]),
+        r"argument --threshold: must be a finite number, got -inf",
+    ),
+    Case(
+        "query-threshold-text",
+        query(npy_map, ok, extra=["--threshold", "high"]),
+        r"argument --threshold: expected a number, got 'high'",
+    ),
+    Case(
+        "query-stride-without-tile",
+        query(npy_map, ok, extra=["--stride", "4"]),
+        r"^--stride needs --tile",
+    ),
+    Case(
+        "query-tiled-map-other-tile",
+        query(tiled_map, big_image, extra=["--tile", "8"]),
+        r"big\.png: the map was fitted on 16-pixel tiles every 8 pixels, not 8 every "
+        r"4; give the same --tile and --stride, or neither to use the map's",
+    ),
+    Case(
+        "query-tiled-map-other-stride",
+        query(tiled_map, big_image, extra=["--tile", "16", "--stride", "4"]),
+        r"big\.png: the map was fitted on 16-pixel tiles every 8 pixels, not 16 "
+        r"every 4",
+    ),
+    Case(
+        "query-tiled-map-stride-alone",
+        query(tiled_map, big_image, extra=["--stride", "4"]),
+        r"^--stride needs --tile",
+    ),
+    Case(
+        "evaluate-sequence-0",
+        evaluate(npy_map, ok, extra=["--sequence", "0"]),
+        r"argument --sequence: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "evaluate-sequence-longer-than-queries",
+        evaluate(npy_map, ok, extra=["--sequence", "64"]),
+        r"sequence length L=64 is longer than the 40 queries",
+    ),
+    Case(
+        "evaluate-tolerance-negative",
+        evaluate(npy_map, ok, extra=["--tolerance", "-1"]),
+        r"argument --tolerance: must be an integer >= 0, got -1",
+    ),
+]
+CLI_CASES += [  # files that cannot be read are errors, never dropped frames
+    Case(
+        "dangling-link-frame",
+        fit(dangling_link),
+        r"cannot read image .*links/img2\.png: a dangling link \(to .*gone\.png\)",
+    ),
+    Case(
+        "pipe-as-frame",
+        fit(fifo_frame),
+        r"cannot read image .*fifo/img1\.png: not a regular file",
+    ),
+    Case(
+        "query-dangling-link-frame",
+        query(hog_map, dangling_link),
+        r"cannot read image .*links/img2\.png: a dangling link",
+    ),
+]
+
+
 def _listing(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
 
@@ -548,13 +747,24 @@ def test_the_catalogue_is_broad():
 # --------------------------------------------------------- through a real process
 
 
-SUBPROCESS_CASES = ["nan-features", "query-wrong-dimension", "mixed-source-kinds"]
+SUBPROCESS_CASES = [
+    "nan-features",
+    "query-wrong-dimension",
+    "mixed-source-kinds",
+    "query-sequence-0",
+    "query-threshold-nan",
+    "dangling-link-frame",
+    "query-tiled-map-other-tile",
+]
 
 
 def test_real_processes_exit_2_with_one_line(maps, tmp_path):
-    """The same lines from ``python -m rhythmic_jax.cli`` and ``rhythmic-jax``."""
+    """The same lines from ``python -m rhythmic_jax.cli`` and from the installed
+    ``rhythmic-jax``, run from another working directory."""
     script = shutil.which("rhythmic-jax")
     env = {**os.environ, "RHYTHMIC_JAX_CACHE": str(tmp_path / "cache")}
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
     by_id = {c.id: c for c in CLI_CASES}
     runs = []
     for i, name in enumerate(SUBPROCESS_CASES):
@@ -562,10 +772,14 @@ def test_real_processes_exit_2_with_one_line(maps, tmp_path):
         src.mkdir(parents=True)
         out.mkdir()
         argv = by_id[name].argv(src, maps, out)
-        use_script = i == 1 and script is not None  # the installed entry point
+        use_script = i > 0 and script is not None  # the installed entry point
         cmd = [script] if use_script else [sys.executable, "-m", "rhythmic_jax.cli"]
         proc = subprocess.Popen(
-            [*cmd, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env
+            [*cmd, *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=env,
+            cwd=elsewhere,
         )
         runs.append((name, argv, out, proc))
     for name, argv, out, proc in runs:  # started together: they share the wait
@@ -573,9 +787,155 @@ def test_real_processes_exit_2_with_one_line(maps, tmp_path):
         lines = stderr.decode().splitlines()
         assert proc.returncode == 2, (name, stderr)
         assert len(lines) == 1, lines
-        assert lines[0].startswith(f"rhythmic-jax {argv[0]}: error: ")
-        assert re.search(by_id[name].match, lines[0]), lines[0]
+        prefix = f"rhythmic-jax {argv[0]}: error: "
+        assert lines[0].startswith(prefix)
+        assert re.search(by_id[name].match, lines[0][len(prefix) :]), lines[0]
         assert stdout == b"" and _listing(out) == []
+    assert _listing(elsewhere) == []
+
+
+def test_a_tiled_map_is_queried_with_its_own_tiling(maps, tmp_path, capsys):
+    """Without --tile, or with the map's own, the same tiles as the library's."""
+    big = big_image(tmp_path)
+    expected = RhythmicMap.load(maps["tiled"]).predict(
+        describe(tile_image(read_rgb(big), 16, 8).tiles, HOG, progress=False)
+    )
+    assert expected.shape == (12,)  # (32 - 16) / 8 + 1 rows x (40 - 16) / 8 + 1
+    for extra in ([], ["--tile", "16"], ["--tile", "16", "--stride", "8"]):
+        argv = ["query", str(maps["tiled"]), big, "--json", "--no-progress"]
+        code = main([*argv, *extra])
+        captured = capsys.readouterr()
+        assert code == 0 and captured.err == "", captured
+        assert json.loads(captured.out)["predictions"] == expected.tolist()
+
+
+def test_a_frame_without_read_permission_is_named(tmp_path, capsys):
+    folder = Path(frames(tmp_path / "f", 3))
+    (folder / "img1.png").chmod(0)
+    if os.access(folder / "img1.png", os.R_OK):
+        pytest.skip("this user (root) reads files without read permission")
+    code = main(["fit", str(folder), "--out", str(tmp_path / "m.map")])
+    lines = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(lines) == 1, lines
+    assert re.search(r"cannot read image .*img1\.png: permission denied$", lines[0])
+    assert not (tmp_path / "m.map").exists()
+
+
+# ------------------------------------------------------------------ a full disk
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 1 MiB tmpfs at ``tmp_path/disk``; skipped where mounting is not allowed."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if shutil.which("mount") is None:
+        pytest.skip("no mount command to make a small file system")
+    cmd = ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode:
+        pytest.skip(f"cannot mount a small tmpfs: {proc.stderr.strip()}")
+    yield disk
+    subprocess.run(["umount", str(disk)], check=True)
+
+
+def _fill(disk: Path, leave: int) -> None:
+    """Write a filler file so that about ``leave`` bytes stay free on ``disk``."""
+    free = shutil.disk_usage(disk).free
+    (disk / "filler").write_bytes(b"\1" * max(0, free - leave))
+
+
+def _fit(source: str, out: Path, capsys) -> tuple[int, list[str]]:
+    code = main(["fit", source, "--out", str(out), "--no-progress"])
+    captured = capsys.readouterr()
+    return code, captured.err.splitlines()
+
+
+def _same_map(path: Path, before: np.ndarray) -> None:
+    """The map at ``path`` loads and predicts ``before`` on X."""
+    np.testing.assert_array_equal(RhythmicMap.load(path).predict(X), before)
+
+
+def test_a_map_too_large_for_the_disk_is_refused_before_the_solve(
+    small_disk, maps, tmp_path, capsys, monkeypatch
+):
+    src = ok(tmp_path)
+    code, _ = _fit(src, small_disk / "route.map", capsys)
+    assert code == 0
+    before = RhythmicMap.load(small_disk / "route.map").predict(X)
+    _fill(small_disk, 32 * 1024)
+
+    def solve(*args, **kwargs):
+        raise AssertionError("the solve started on a disk that cannot hold the map")
+
+    monkeypatch.setattr(RhythmicMap, "fit", solve)
+    code, lines = _fit(src, small_disk / "route.map", capsys)
+    assert code == 2 and len(lines) == 1, lines
+    found = re.fullmatch(
+        rf"rhythmic-jax fit: error: {re.escape(str(small_disk))}: the map needs "
+        r"about ([\d,]+) bytes but only ([\d,]+) are free",
+        lines[0],
+    )
+    assert found, lines[0]
+    need, free = (int(g.replace(",", "")) for g in found.groups())
+    assert need > free and abs(free - shutil.disk_usage(small_disk).free) < 8192
+    assert _listing(small_disk) == ["filler", "route.map"]  # no hidden temporary
+    monkeypatch.undo()
+    _same_map(small_disk / "route.map", before)
+
+
+@pytest.mark.filterwarnings("error::pytest.PytestUnraisableExceptionWarning")
+def test_a_write_that_fills_the_disk_keeps_the_previous_map(
+    small_disk, maps, tmp_path, capsys, caplog, monkeypatch
+):
+    """The space check passes (as if its estimate were wrong) and the real write
+    runs out of space: one line, no orbax log or I/O-thread traceback, and the
+    previous map loads as before."""
+    src = ok(tmp_path)
+    code, _ = _fit(src, small_disk / "route.map", capsys)
+    assert code == 0
+    before = RhythmicMap.load(small_disk / "route.map").predict(X)
+    _fill(small_disk, 12 * 1024)
+    monkeypatch.setattr(checkpoint, "check_space", lambda path, nbytes: None)
+    code, lines = _fit(src, small_disk / "route.map", capsys)
+    assert code == 2 and len(lines) == 1, lines
+    assert re.fullmatch(
+        rf"rhythmic-jax fit: error: {re.escape(str(small_disk))}: the disk filled up "
+        r"while the map was written \([\d,]+ bytes free\); the previous map is "
+        r"unchanged",
+        lines[0],
+    ), lines[0]
+    assert not [r for r in caplog.records if r.name.startswith("absl")]
+    assert _listing(small_disk) == ["filler", "route.map"]
+    _same_map(small_disk / "route.map", before)
+
+
+def test_a_full_disk_inside_the_writer_keeps_the_previous_map(
+    maps, tmp_path, capsys, monkeypatch
+):
+    """Where no small file system can be mounted: the writer raises ENOSPC
+    after writing the arrays, before the metadata."""
+    src, out = ok(tmp_path), tmp_path / "out"
+    out.mkdir()
+    code, _ = _fit(src, out / "route.map", capsys)
+    assert code == 0
+    before = RhythmicMap.load(out / "route.map").predict(X)
+    write = checkpoint._write
+
+    def write_then_fill_up(tmp, arrays, body):
+        write(tmp, arrays, body)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp / "map.json"))
+
+    monkeypatch.setattr(checkpoint, "_write", write_then_fill_up)
+    code, lines = _fit(src, out / "route.map", capsys)
+    assert code == 2 and len(lines) == 1, lines
+    assert re.search(
+        r"out: the disk filled up while the map was written \([\d,]+ bytes free\); "
+        r"the previous map is unchanged$",
+        lines[0],
+    ), lines[0]
+    assert _listing(out) == ["route.map"]
+    _same_map(out / "route.map", before)
 
 
 # ---------------------------------------------------- library-only cases: weights
@@ -818,3 +1178,103 @@ def test_no_load_path_in_the_package_can_unpickle():
                 assert keywords.get("weights_only") is True, where
                 seen["torch"] += 1
     assert seen["np"] >= 3 and seen["torch"] >= 1  # the scan does find the loads
+
+
+# ------------------------------------- drawn arrays: a result or one line, never both
+
+PROPERTY = settings(
+    max_examples=12,
+    deadline=None,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+DTYPES = ("float16", "float32", "float64", "int8", "uint16", "int64", "bool")
+DTYPES += ("complex64",)
+
+
+def drawn_arrays(shapes: list[tuple[int, ...]]):
+    """Arrays of the given shapes and dtypes, any values: NaN, inf, huge, tiny."""
+    return st.tuples(st.sampled_from(DTYPES), st.sampled_from(shapes)).flatmap(
+        lambda ds: hnp.arrays(np.dtype(ds[0]), ds[1])
+    )
+
+
+def _valid(x: np.ndarray, d: int, least: int = 1) -> bool:
+    """Whether ``x`` is an (n >= least, d) real array, finite as float32."""
+    if x.dtype.kind not in "fiu" or x.ndim != 2 or x.shape[1] != d:
+        return False
+    with np.errstate(over="ignore", invalid="ignore"):
+        return x.shape[0] >= least and bool(np.isfinite(x.astype(np.float32)).all())
+
+
+def _main(argv: list[str]) -> tuple[int, str, list[str]]:
+    """The command line in this process: (status, stdout, stderr lines)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue().splitlines()
+
+
+def _refused(code: int, lines: list[str], command: str) -> None:
+    assert code == 2, lines
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"rhythmic-jax {command}: error: "), lines
+
+
+@PROPERTY
+@given(
+    q=drawn_arrays([(1, 18), (4, 18), (4, 18), (4, 5), (18,), (2, 2, 18), (0, 18)]),
+    sequence=st.none() | st.integers(-2, 5),
+    threshold=st.none() | st.floats(),
+    decode=st.sampled_from([None, "soft"]),
+)
+def test_query_on_any_array(maps, q, sequence, threshold, decode):
+    """Exit 0 with one index in [-1, n) per query exactly when every input is
+    good; otherwise exit 2 with one line and no prediction file."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        np.save(tmp / "q.npy", q)
+        argv = ["query", str(maps["npy"]), str(tmp / "q.npy"), "--no-progress"]
+        argv += ["--out", str(tmp / "pred.npy")]
+        argv += [] if decode is None else ["--decode", decode]
+        argv += [] if sequence is None else [f"--sequence={sequence}"]
+        argv += [] if threshold is None else [f"--threshold={threshold!r}"]
+        code, _, lines = _main(argv)
+        good = (
+            _valid(q, 18)
+            and (sequence is None or 1 <= sequence <= len(q))
+            and (threshold is None or np.isfinite(threshold))
+        )
+        if not good:
+            _refused(code, lines, "query")
+            assert _listing(tmp) == ["q.npy"]
+            return
+        assert code == 0 and lines == [], lines
+        pred = np.load(tmp / "pred.npy")
+        assert pred.dtype == np.int64 and pred.shape == (len(q),)
+        assert ((pred >= -1) & (pred < len(X))).all()
+
+
+@PROPERTY
+@given(x=drawn_arrays([(40, 18), (40, 18), (40, 18), (1, 18), (40, 0), (2, 20, 18)]))
+def test_fit_on_any_array(maps, x):
+    """A good array gives a map with finite templates that loads and answers;
+    anything else (or a solve that cannot stay finite) exits 2 with one line."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        np.save(tmp / "x.npy", x)
+        argv = ["fit", str(tmp / "x.npy"), "--out", str(tmp / "m.map"), "--json"]
+        code, out, lines = _main([*argv, "--no-progress"])
+        if code != 0 or not _valid(x, 18, least=2):
+            _refused(code, lines, "fit")
+            assert _listing(tmp) == ["x.npy"]
+            if _valid(x, 18, least=2):  # only the solve may refuse a good array
+                assert "non-finite templates" in lines[0], lines
+            return
+        info = json.loads(out)
+        assert info["n"] == 40 and np.isfinite(info["candidate_errors"]).all()
+        model = RhythmicMap.load(tmp / "m.map")
+        assert np.isfinite(np.asarray(model.params.w)).all()
+        assert np.isfinite(np.asarray(model.params.b)).all()
+        pred = model.predict(X)
+        assert ((pred >= -1) & (pred < 40)).all()

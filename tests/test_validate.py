@@ -1,14 +1,23 @@
-"""check_features and check_labels: what they return and each one-line refusal."""
+"""check_features, check_labels and the number checks behind every command-line
+option: what they return and each one-line refusal."""
 
 from __future__ import annotations
 
+import argparse
 import re
 
 import numpy as np
 import pytest
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.validate import check_features, check_int, check_labels
+from rhythmic_jax.validate import (
+    check_features,
+    check_int,
+    check_labels,
+    check_number,
+    int_option,
+    number_option,
+)
 
 
 # --------------------------------------------------------------- check_features
@@ -184,3 +193,40 @@ def test_check_int_refuses_in_one_line(value, low, high, line):
         check_int(value, "k", low, high)
     with pytest.raises(InputError, match="^custom$"):
         check_int(value, "k", low, high, msg="custom")
+
+
+def test_check_number():
+    assert check_number(np.float32(0.5), "gap", 0, 1) == 0.5
+    assert check_number(-3, "threshold") == -3.0
+    for bad, match in [
+        (float("nan"), r"^threshold must be a finite number, got nan$"),
+        (float("-inf"), r"^threshold must be a finite number, got -inf$"),
+        (True, r"^threshold must be a finite number, got True$"),
+        ("1", r"^threshold must be a finite number, got '1'$"),
+    ]:
+        with pytest.raises(InputError, match=match):
+            check_number(bad, "threshold")
+    with pytest.raises(InputError, match=r"^gap must be in \(0, 1\), got 1$"):
+        check_number(1, "gap", 0, 1)
+    with pytest.raises(InputError, match=r"^c must be > 0, got 0$"):
+        check_number(0.0, "c", low=0)
+    with pytest.raises(InputError, match=r"^x must be < 2, got 5$"):
+        check_number(5, "x", high=2)
+
+
+def test_options_parse_text_or_say_why():
+    parser = argparse.ArgumentParser(exit_on_error=False)
+    parser.add_argument("--n", type=int_option(1))
+    parser.add_argument("--t", type=number_option())
+    args = parser.parse_args(["--n", "4", "--t", "-0.5"])
+    assert (args.n, args.t) == (4, -0.5)
+    for argv, match in [
+        (["--n", "0"], r"argument --n: must be an integer >= 1, got 0$"),
+        (["--n", "-2"], r"argument --n: must be an integer >= 1, got -2$"),
+        (["--n", "1.5"], r"argument --n: expected an integer, got '1\.5'$"),
+        (["--t", "nan"], r"argument --t: must be a finite number, got nan$"),
+        (["--t=-inf"], r"argument --t: must be a finite number, got -inf$"),
+        (["--t", "x"], r"argument --t: expected a number, got 'x'$"),
+    ]:
+        with pytest.raises(argparse.ArgumentError, match=match):
+            parser.parse_args(argv)

@@ -7,14 +7,22 @@ folder beside the target and renames it into place, so a process killed during a
 save leaves the previous map loadable (if it dies between the two renames, the
 previous map is still found under its hidden backup name and :func:`load_map`
 takes it from there; the next successful save removes what a killed one left).
+
+The new map is written beside the previous one, so the disk must hold both for a
+moment: :func:`check_space` refuses a save (and the command line a fit, before
+its solve) that would not fit, and a write that still runs out of space ends
+with one line and the previous map in place.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import logging
 import os
 import shutil
+import sys
 import uuid
 from pathlib import Path
 from typing import Any
@@ -23,11 +31,22 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["FORMAT_VERSION", "check_target", "load_map", "save_map"]
+__all__ = [
+    "FORMAT_VERSION",
+    "check_space",
+    "check_target",
+    "load_map",
+    "save_map",
+    "without_closed_loop",
+]
 
 FORMAT_VERSION = 1
 _META = "map.json"
 _ARRAYS = "arrays"
+# what a map folder takes beyond its arrays' bytes: map.json and orbax's metadata,
+# about 16 files and folders of at most a 4 KiB block each
+OVERHEAD_BYTES = 64 * 1024
+_FULL = (errno.ENOSPC, errno.EDQUOT)
 log = logging.getLogger(__name__)
 
 
@@ -53,20 +72,13 @@ def save_map(
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"{target}: cannot create its folder ({err})") from None
+    body = json.dumps({"format_version": FORMAT_VERSION, **meta}, indent=2)
+    check_space(target, sum(v.nbytes for v in arrays.values()) + len(body))
     tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex[:8]}"
     old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
     try:
-        ckpt = _orbax().StandardCheckpointer()
-        try:
-            ckpt.save(tmp / _ARRAYS, arrays)
-            ckpt.wait_until_finished()
-        finally:
-            ckpt.close()
-        body = json.dumps({"format_version": FORMAT_VERSION, **meta}, indent=2)
-        with open(tmp / _META, "w") as fh:
-            fh.write(body)
-            fh.flush()
-            os.fsync(fh.fileno())
+        with _disk_full_is_input_error(target, tmp):
+            _write(tmp, arrays, body)
         if target.exists():
             _clean(target, "old")  # a killed clean-up's leftovers: keep one backup
             os.rename(target, old)
@@ -78,6 +90,96 @@ def save_map(
         raise
     _clean(target, "old", "tmp")  # the previous map, and killed saves' leftovers
     return target
+
+
+def without_closed_loop(hook):
+    """``hook`` (a ``sys.unraisablehook``) minus the "Event loop is closed" that
+    orbax's I/O threads raise when they answer after a failed read or write has
+    closed its loop; the command line keeps it for its whole run, as the threads
+    may answer late."""
+
+    if getattr(hook, "without_closed_loop", False):
+        return hook  # once is enough
+
+    def unraisable(info):
+        if str(info.exc_value) != "Event loop is closed":
+            hook(info)
+
+    unraisable.without_closed_loop = True
+    return unraisable
+
+
+@contextlib.contextmanager
+def _quiet_orbax_failures():
+    """Orbax's echoes of a failed read or write (absl error logs, and its I/O
+    threads' "Event loop is closed") stay off stderr: the caller reports the
+    failure once."""
+    absl, hook = logging.getLogger("absl"), sys.unraisablehook
+    level = absl.level
+    absl.setLevel(logging.CRITICAL)
+    sys.unraisablehook = without_closed_loop(hook)
+    try:
+        yield
+    finally:
+        absl.setLevel(level)
+        sys.unraisablehook = hook
+
+
+def _write(tmp: Path, arrays: dict[str, np.ndarray], body: str) -> None:
+    """The new map's files in the hidden folder ``tmp``."""
+    ckpt = _orbax().StandardCheckpointer()
+    with _quiet_orbax_failures():
+        try:
+            ckpt.save(tmp / _ARRAYS, arrays)
+            ckpt.wait_until_finished()
+        finally:
+            ckpt.close()
+    with open(tmp / _META, "w") as fh:
+        fh.write(body)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def _free_bytes(folder: Path) -> int:
+    """Bytes free to this user on the file system of ``folder`` (or its first
+    existing parent)."""
+    while not folder.exists():
+        folder = folder.parent
+    return shutil.disk_usage(folder).free
+
+
+def check_space(path: str | os.PathLike, nbytes: int) -> None:
+    """Refuse (:class:`InputError`) a map of ``nbytes`` array and metadata bytes
+    that the disk under ``path`` cannot hold beside the previous map."""
+    folder = Path(path).expanduser().absolute().parent
+    need, free = int(nbytes) + OVERHEAD_BYTES, _free_bytes(folder)
+    if need > free:
+        raise InputError(
+            f"{folder}: the map needs about {need:,} bytes but only {free:,} are free"
+        )
+
+
+def _is_disk_full(err: BaseException) -> bool:
+    if isinstance(err, OSError) and err.errno in _FULL:
+        return True  # tensorstore (under orbax) raises ValueError with the reason
+    text = str(err)
+    return "No space left on device" in text or "Disk quota exceeded" in text
+
+
+@contextlib.contextmanager
+def _disk_full_is_input_error(target: Path, tmp: Path):
+    """A full disk while ``tmp`` is written: one line, and ``tmp`` removed."""
+    try:
+        yield
+    except Exception as err:
+        if not _is_disk_full(err):
+            raise
+        shutil.rmtree(tmp, ignore_errors=True)
+        kept = "; the previous map is unchanged" if target.exists() else ""
+        raise InputError(
+            f"{target.parent}: the disk filled up while the map was written "
+            f"({_free_bytes(target.parent):,} bytes free){kept}"
+        ) from None
 
 
 def _clean(target: Path, *kinds: str) -> None:
@@ -157,13 +259,16 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
     """Read a map folder: (arrays, metadata). Bad folders raise :class:`InputError`."""
     folder, meta = read_metadata(path)
     ckpt = _orbax().StandardCheckpointer()
-    try:
-        raw = ckpt.restore(folder / _ARRAYS)
-    except Exception as err:  # noqa: BLE001 - orbax raises many kinds
-        msg = str(err).splitlines()[0] if str(err) else type(err).__name__
-        msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's JSON spec
-        msg = msg.split(": Error reading")[0]  # the file, not the driver's chain
-        raise InputError(f"{folder}: arrays are missing or corrupt ({msg})") from None
-    finally:
-        ckpt.close()  # an unclosed checkpointer leaks its event loop
+    with _quiet_orbax_failures():
+        try:
+            raw = ckpt.restore(folder / _ARRAYS)
+        except Exception as err:  # noqa: BLE001 - orbax raises many kinds
+            msg = str(err).splitlines()[0] if str(err) else type(err).__name__
+            msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's JSON spec
+            msg = msg.split(": Error reading")[0]  # the file, not the driver's chain
+            raise InputError(
+                f"{folder}: arrays are missing or corrupt ({msg})"
+            ) from None
+        finally:
+            ckpt.close()  # an unclosed checkpointer leaks its event loop
     return {k: np.asarray(v) for k, v in raw.items()}, meta

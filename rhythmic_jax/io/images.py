@@ -82,13 +82,28 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
     """
     if not folder.is_dir():
         raise InputError(f"{what} folder not found: {folder}")
+    try:
+        entries = list(folder.iterdir())
+    except OSError as err:
+        raise InputError(
+            f"cannot list {what} folder {folder}: {err.strerror}"
+        ) from None
     files = [
         p
-        for p in folder.iterdir()
-        if p.is_file()
-        and not p.name.startswith(".")
+        for p in entries
+        if not p.name.startswith(".")
         and p.suffix.lower() in IMAGE_SUFFIXES
+        and not p.is_dir()
     ]
+    for p in files:  # a frame left out would shift every later index
+        if not p.exists():
+            raise InputError(
+                f"cannot read image {p}: a dangling link (to {os.readlink(p)})"
+            )
+        if not p.is_file():
+            raise InputError(f"cannot read image {p}: not a regular file")
+        if not os.access(p, os.R_OK):
+            raise InputError(f"cannot read image {p}: permission denied")
     if not files:
         raise InputError(f"no PNG/JPG images in {what} folder {folder}")
     seen: dict[tuple, Path] = {}
@@ -123,9 +138,11 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
         image = np.asarray(skimage.io.imread(path))
     except Exception as exc:  # truncated, corrupt or not an image at all
         reason = str(exc)
-        if "Could not find a backend" in reason:  # imageio adds pip advice
+        if isinstance(exc, OSError) and exc.strerror:  # missing, permission denied
+            reason = exc.strerror.lower()
+        elif "Could not find a backend" in reason:  # imageio adds pip advice
             reason = "no image reader recognises its contents"
-        raise InputError(f"cannot read image {path}: {reason}") from exc
+        raise InputError(f"cannot read image {path}: {reason}") from None
     if image.ndim == 2:
         image = image[:, :, None]
     if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4) or image.size == 0:

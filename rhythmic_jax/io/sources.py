@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_int
 
 __all__ = [
     "Features",
@@ -33,6 +34,7 @@ __all__ = [
 
 DEFAULT_DESCRIPTOR = "patchnorm"
 NPY_DESCRIPTOR = "features"
+STRIDE_NEEDS_TILE = "{opt:stride} needs {opt:tile} (it is the step between tiles)"
 
 
 @dataclass(frozen=True)
@@ -84,12 +86,38 @@ def _images(path: Path, kind: str, tile: int | None, stride: int | None, progres
 
     if kind == "folder":
         return images.load_traversal(path, progress=progress).images
-    if tile is None or tile < 1:
-        raise InputError(
-            "{option} must be a positive size, got " + str(tile), option="tile"
-        )
-    stride = stride or max(1, tile // 2)
+    tile, stride = _tiling(tile, stride)
     return tiles.tile_image(images.read_rgb(path), tile, stride).tiles
+
+
+def _tiling(tile: int, stride: int | None) -> tuple[int, int]:
+    """(size, stride) of tiles; the stride defaults to half the size."""
+    tile = check_int(tile, "tile", 1, msg=f"{{opt:tile}} must be >= 1, got {tile!r}")
+    if stride is None:
+        return tile, max(1, tile // 2)
+    msg = f"{{opt:stride}} must be >= 1, got {stride!r}"
+    return tile, check_int(stride, "stride", 1, msg=msg)
+
+
+def _map_tiling(path: Path, model, tile, stride) -> tuple[int | None, int | None]:
+    """The tiling for queries of ``model``: a map fitted on tiles of one image is
+    queried with the same tiles (its own when no tile is given); another
+    tiling would give places that are not the map's."""
+    own = model.reference.get("tile")
+    if own is None or path.is_dir() or path.suffix.lower() == ".npy":
+        return tile, stride
+    own = _tiling(own, model.reference.get("stride"))
+    if tile is None:
+        if stride is not None:
+            raise InputError(STRIDE_NEEDS_TILE)
+        return own
+    if _tiling(tile, stride) != own:
+        raise InputError(
+            f"{path}: the map was fitted on {own[0]}-pixel tiles every {own[1]} "
+            f"pixels, not {tile} every {_tiling(tile, stride)[1]}; give the same "
+            "{opt:tile} and {opt:stride}, or neither to use the map's"
+        )
+    return tile, stride
 
 
 def _key(path: Path, tile, stride) -> str:
@@ -220,6 +248,7 @@ def load_query_source(
     against the sha256 the map recorded).
     """
     path = Path(source)
+    tile, stride = _map_tiling(path, model, tile, stride)
     kind = _kind(path, tile)
     name, settings = model.config.descriptor, dict(model.config.descriptor_settings)
     settings.pop("pca", None)
