@@ -22,6 +22,7 @@ from rhythmic_jax.jobs import (
     int_option,
     number_option,
 )
+from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
 
 __all__ = ["main"]
 
@@ -32,7 +33,13 @@ EXAMPLES = {
       rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
       rhythmic-jax fit summer/ --out route.map --augment all --epochs 5
         (killed or stopped with Ctrl-C? run the same command again to resume)
-    """,
+      rhythmic-jax fit big.npy --out route.map --processes 2 --memory 1GiB
+      rhythmic-jax fit shards/ --out route.map --dtype float16
+      rhythmic-jax fit summer/ --out route.map --shards summer.shards --memory 2GiB
+      on each of K hosts (process 0's host is the coordinator):
+      rhythmic-jax fit ref.npy --out route.map --coordinator HOST:PORT
+        --num-processes K --process-id i
+        """,
     "query": """
       rhythmic-jax query route.map queries.npy --out pred.npy
       rhythmic-jax query route.map winter/ --decode soft --sequence 10 --json
@@ -176,6 +183,37 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="project descriptors to K dims (saved)",
     )
+    p.add_argument(
+        "--dtype",
+        default="float32",
+        choices=("float32", "float16", "int8"),
+        help="how the map stores its templates (int8: a scale per template)",
+    )
+    scale = p.add_argument_group("scale (descriptor files or shard folders)")
+    scale.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        help="start this many local processes for one fit (frames split by rows)",
+    )
+    scale.add_argument("--coordinator", default=None, help="HOST:PORT of process 0")
+    scale.add_argument("--num-processes", type=int, default=None, help="K hosts")
+    scale.add_argument("--process-id", type=int, default=None, help="this one's i")
+    scale.add_argument(
+        "--memory",
+        default=None,
+        help="bytes each process may use (1GiB, 800M); frames that do not fit "
+        "are streamed from disk in blocks",
+    )
+    scale.add_argument(
+        "--stream", action="store_true", help="stream the frames from disk always"
+    )
+    scale.add_argument(
+        "--shards",
+        default=None,
+        help="image sources: describe them into this folder of .npy shards as "
+        "they are read, then fit from the shards",
+    )
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -249,9 +287,23 @@ def _cmd_fit(args) -> int:
         count=args.count, c=args.c, solver=args.solver, gap=args.gap, pca=args.pca,
         augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
-        reading=_reading(args),
+        reading=_reading(args), dtype=args.dtype,
     )  # fmt: skip
-    info = jobs.fit(job, progress=not args.no_progress).info()
+    scale = ScaleJob(
+        processes=args.processes, coordinator=args.coordinator,
+        num_processes=args.num_processes, process_id=args.process_id,
+        memory=args.memory, stream=args.stream, shards=args.shards,
+    )  # fmt: skip
+    run = None
+    if wants_scale(job, scale):
+        model, run = fit_scaled(job, scale, args.argv, not args.no_progress)
+        if model is None:
+            return 0
+    else:
+        model = jobs.fit(job, progress=not args.no_progress)
+    info = model.info()
+    if run is not None:
+        info["fit"] = {k: v for k, v in run.items() if k != "pass_seconds"}
     print(json.dumps(info, indent=2) if args.json else jobs.fit_summary(args.out, info))
     return 0
 
@@ -311,6 +363,7 @@ def main(argv: list[str] | None = None) -> int:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed
         return int(done.code or 0)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     _quiet_logs(args.verbose)
     try:
         return COMMANDS[args.command](args)

@@ -96,6 +96,7 @@ class FitJob:
     checkpoint: str | None = None
     checkpoint_every: int = 50
     reading: Reading = Reading()
+    dtype: str = "float32"
 
 
 def _check_reading(reading: Reading) -> None:
@@ -200,6 +201,7 @@ def fit(job: FitJob, progress: bool = True):
     model = RhythmicMap(
         r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
         gap=job.gap, descriptor=feats.descriptor, descriptor_settings=feats.settings,
+        dtype=job.dtype,
     )  # fmt: skip
     if augmented is not None:
         _fit_augmented(model, feats, *augmented, progress=progress)

@@ -42,12 +42,11 @@ from rhythmic_jax.objective import (
 from rhythmic_jax.periods import (
     candidate_periods,
     choose_periods,
-    compression_ratio,
     database_bytes,
     nominal_periods,
     period_offsets,
-    storage_bytes,
 )
+from rhythmic_jax.quantize import DTYPES, dequantize, quantize, template_bytes
 from rhythmic_jax.solvers.memory import check_memory
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
@@ -83,6 +82,9 @@ class MapConfig:
       threshold: confidence below which a query is "no match" (None: never).
       descriptor: name of the descriptor the features came from.
       descriptor_settings: its settings (compared when a map is queried).
+      dtype: how templates are stored: float32, float16, or int8 with a
+        scale per template (:mod:`rhythmic_jax.quantize`); queries are scored
+        with the stored values.
 
     ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
     summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a
@@ -100,8 +102,11 @@ class MapConfig:
     threshold: float | None = None
     descriptor: str = "features"
     descriptor_settings: dict = field(default_factory=dict, hash=False)
+    dtype: str = "float32"
 
     def __post_init__(self):
+        if self.dtype not in DTYPES:
+            raise InputError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
         if self.solver not in SOLVERS:
             raise InputError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
         if self.decode not in DECODERS:
@@ -120,6 +125,7 @@ class RhythmicMap:
     def __init__(self, config: MapConfig | None = None, **kwargs: Any):
         self.config = replace(config or MapConfig(), **kwargs)
         self.params: Templates | None = None
+        self._stored: dict[str, np.ndarray] = {}  # the templates as saved
         self.n: int | None = None
         self.d: int | None = None
         self.periods: tuple[int, ...] = ()
@@ -144,23 +150,15 @@ class RhythmicMap:
         """
         x = check_features(x, "reference features")
         labels = check_labels(np.arange(len(x)) if labels is None else labels, len(x))
-        cfg = self.config
         n = int(labels.max()) + 1
-        cands = candidate_periods(n, cfg.r, cfg.level, cfg.count)
-        nominal_periods(n, cfg.r, cfg.level, cfg.count)  # impossible r: say now
+        cands, c = self._plan(n)
         check_memory(len(x), x.shape[1], sum(cands))
-        c = cfg.c if cfg.c is not None else default_c(n)
         y = targets(labels, cands)
-        log.info(
-            "fitting %d templates (%s) on %d x %d, C=%.3g",
-            sum(cands),
-            cands,
-            *x.shape,
-            c,
-        )
-        if cfg.solver == "newton":
+        log.info("fitting %d templates (%s) on %d x %d, C=%.3g", sum(cands), cands,
+                 *x.shape, c)  # fmt: skip
+        if self.config.solver == "newton":
             params, _ = newton_fit(
-                x, y, c, NewtonConfig(gap_tol=cfg.gap), progress=progress
+                x, y, c, NewtonConfig(gap_tol=self.config.gap), progress=progress
             )
         else:
             params, _ = fit_full_batch(x, y, c, progress=progress)
@@ -174,10 +172,22 @@ class RhythmicMap:
             )
         s = scores(params, jnp.asarray(x))
         errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
-        chosen = choose_periods(cands, errors, n, cfg.r)
+        return self._choose(params, cands, errors, n, int(x.shape[1]), c)
+
+    def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
+        """Candidate periods and the penalty C for n places (impossible r: said
+        here, before any work)."""
+        cfg = self.config
+        cands = candidate_periods(n, cfg.r, cfg.level, cfg.count)
+        nominal_periods(n, cfg.r, cfg.level, cfg.count)  # impossible r: say now
+        return cands, (cfg.c if cfg.c is not None else default_c(n))
+
+    def _choose(self, params: Templates, cands, errors, n: int, d: int, c: float):
+        """Keep the periods of least training error (errors (k,) per candidate)."""
+        chosen = choose_periods(cands, errors, n, self.config.r)
         self._keep(params, cands, chosen)
-        self.n, self.d, self.c = n, int(x.shape[1]), float(c)
-        self.candidates = cands
+        self.n, self.d, self.c = n, d, float(c)
+        self.candidates = tuple(int(t) for t in cands)
         self.candidate_errors = tuple(float(e) for e in errors)
         log.info("chose periods %s (errors %s)", chosen, np.round(errors, 4))
         return self
@@ -185,8 +195,27 @@ class RhythmicMap:
     def _keep(self, params: Templates, cands, chosen) -> None:
         offs = dict(zip(cands, period_offsets(cands), strict=True))
         cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in chosen])
-        self.params = Templates(w=params.w[:, cols], b=params.b[cols])
+        stored = quantize(np.asarray(params.w)[:, cols], np.asarray(params.b)[cols],
+                          self.config.dtype)  # fmt: skip
+        self._set_stored(stored)
         self.periods = tuple(int(t) for t in chosen)
+
+    def with_dtype(self, dtype: str) -> RhythmicMap:
+        """A copy of this fitted map storing its templates as ``dtype`` (from the
+        values it stores now: requantize a float32 map, not a float16 one)."""
+        self._check_fitted()
+        other = RhythmicMap(replace(self.config, dtype=dtype))
+        skip = ("config", "params", "_stored")
+        other.__dict__.update({k: v for k, v in vars(self).items() if k not in skip})
+        w, b = dequantize(self._stored)
+        other._set_stored(quantize(w, b, dtype))
+        return other
+
+    def _set_stored(self, stored: dict[str, np.ndarray]) -> None:
+        """Keep the stored arrays; queries use them as float32."""
+        self._stored = stored
+        w, b = dequantize(stored)
+        self.params = Templates(w=jnp.asarray(w), b=jnp.asarray(b))
 
     # -------------------------------------------------------------- queries
     def _check_fitted(self) -> None:
@@ -277,15 +306,16 @@ class RhythmicMap:
     # -------------------------------------------------------------- storage
     @property
     def storage_bytes(self) -> int:
-        """Bytes of the kept templates: ``sum(periods) * (d + 1) * 4``."""
+        """Bytes of the kept templates in the stored dtype: ``sum(periods) * (d +
+        1) * itemsize`` (int8: plus a float32 scale per template)."""
         self._check_fitted()
-        return storage_bytes(self.periods, self.d, 4)
+        return template_bytes(sum(self.periods), self.d, self.config.dtype)
 
     @property
     def compression_ratio(self) -> float:
         """Map bytes over the bytes of the n x d float32 database."""
         self._check_fitted()
-        return compression_ratio(self.periods, self.n, self.d)
+        return self.storage_bytes / database_bytes(self.n, self.d, 4)
 
     def info(self) -> dict[str, Any]:
         """What ``rhythmic-jax info --json`` prints."""
@@ -312,10 +342,10 @@ class RhythmicMap:
         from rhythmic_jax.version import __version__
 
         self._check_fitted()
-        arrays = {"w": np.asarray(self.params.w), "b": np.asarray(self.params.b)}
+        arrays = dict(self._stored)
         arrays.update({f"extra_{k}": np.asarray(v) for k, v in self.extra.items()})
         meta = self.info()
-        meta.update(dtype="float32", package_version=__version__)
+        meta.update(dtype=self.config.dtype, package_version=__version__)
         checkpoint.save_map(path, arrays, meta)
 
     @classmethod
@@ -362,7 +392,14 @@ class RhythmicMap:
                 f"{path}: map built for {dim}-d features, queries are {d}-d"
             )
         self = cls(cfg)
-        self.params = Templates(w=jnp.asarray(w), b=jnp.asarray(b))
+        stored = {"w": w, "b": b}
+        if "scale" in arrays:
+            stored["scale"] = arrays["scale"]
+        if (w.dtype == np.int8) != ("scale" in stored) or str(w.dtype) != cfg.dtype:
+            raise InputError(
+                f"{path}: weights stored as {w.dtype}, map says {cfg.dtype}"
+            )
+        self._set_stored(stored)
         self.periods, self.n, self.d = periods, n, dim
         self.c, self.candidates, self.candidate_errors = c, cands, errors
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}

@@ -56,6 +56,21 @@ def _orbax():
     return ocp
 
 
+def _checkpointer():
+    """orbax's checkpointer for this process alone: in a multi-process fit only
+    process 0 saves the map, so no other process may be waited for."""
+    import jax
+
+    ocp = _orbax()
+    if jax.process_count() == 1:
+        return ocp.StandardCheckpointer()
+    me = jax.process_index()
+    options = ocp.options.MultiprocessingOptions(
+        primary_host=me, active_processes={me}, barrier_sync_key_prefix=f"map{me}"
+    )
+    return ocp.StandardCheckpointer(multiprocessing_options=options)
+
+
 def save_map(
     path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict
 ) -> Path:
@@ -127,7 +142,7 @@ def _quiet_orbax_failures():
 
 def _write(tmp: Path, arrays: dict[str, np.ndarray], body: str) -> None:
     """The new map's files in the hidden folder ``tmp``."""
-    ckpt = _orbax().StandardCheckpointer()
+    ckpt = _checkpointer()
     with _quiet_orbax_failures():
         try:
             ckpt.save(tmp / _ARRAYS, arrays)
@@ -258,7 +273,7 @@ def arrays_listed(folder: Path) -> set[str]:
 def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Read a map folder: (arrays, metadata). Bad folders raise :class:`InputError`."""
     folder, meta = read_metadata(path)
-    ckpt = _orbax().StandardCheckpointer()
+    ckpt = _checkpointer()
     with _quiet_orbax_failures():
         try:
             raw = ckpt.restore(folder / _ARRAYS)

@@ -241,6 +241,19 @@ def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
 
 
 @jax.jit
+def _design(x: jax.Array, bias: jax.Array) -> jax.Array:
+    """The design ``Xa = [x, bias]`` (n, q) in float32; jitted, so frames sharded
+    over a mesh keep their sharding."""
+    return jnp.concatenate([x.astype(jnp.float32), bias[:, None]], axis=1)
+
+
+@jax.jit
+def _zeros_like(y: jax.Array) -> jax.Array:
+    """Zeros of y's shape, dtype and sharding."""
+    return y - y
+
+
+@jax.jit
 def _objective(m: jax.Array, theta: jax.Array, y: jax.Array, c) -> jax.Array:
     """(p,) objective of every template from its margins m (n, p)."""
     h = jnp.maximum(0.0, 1.0 - y * m)
@@ -308,22 +321,31 @@ def newton_fit(
     c: float,
     config: NewtonConfig = NewtonConfig(),
     progress: bool = True,
+    *,
+    bias: jax.Array | None = None,
 ) -> tuple[Templates, NewtonInfo]:
     """Minimise the joint squared-hinge objective of p templates.
 
     Args:
-      x: (n, d) frames (float32).
-      y: (n, p) ±1 targets (:func:`rhythmic_jax.objective.targets`).
+      x: (n, d) frames (float32). A ``jax.Array`` sharded by rows over a mesh
+        (:mod:`rhythmic_jax.distributed`, frames of several processes) keeps
+        its sharding: every product runs on local frames and XLA reduces.
+      y: (n, p) ±1 targets (:func:`rhythmic_jax.objective.targets`), sharded as x.
       c: the penalty C.
       config: solver settings.
       progress: show a progress bar over Newton steps.
+      bias: (n,) the design's bias column, sharded as x: 1 for a frame, 0 for a
+        padding row (zero features) that evens out the shards. A padding row
+        adds nothing to any product and exactly C to every template's
+        objective, which is taken off. Default: all ones.
 
     Returns:
       Templates with ``w`` (d, p) and ``b`` (p,) as float32, and a
       :class:`NewtonInfo`.
     """
     n, d = x.shape
-    if config.span and in_span(n, d):
+    local = not isinstance(x, jax.Array) or x.is_fully_addressable
+    if config.span and in_span(n, d) and local and bias is None:
         factor = row_factor(np.asarray(x))
         reduced = dataclasses.replace(config, span=False)
         params, info = newton_fit(
@@ -331,8 +353,10 @@ def newton_fit(
         )
         w = lift(np.asarray(x), factor, np.asarray(params.w))
         return Templates(w=jnp.asarray(w, jnp.float32), b=params.b), info
-    x32 = jnp.asarray(x, jnp.float32)
-    xa = jnp.concatenate([x32, jnp.ones((n, 1), jnp.float32)], axis=1)
+    if bias is None:
+        bias = jnp.ones((n,), jnp.float32)
+    xa = _design(x if isinstance(x, jax.Array) else jnp.asarray(x), bias)
+    pad = n - int(np.rint(float(jnp.sum(bias))))  # padding rows: C each
     rank = min(config.rank, d + 1)
     with threadpool_limits(limits=1):  # LAPACK's threads wait on a busy machine
         vecs, lead, rest = jax.block_until_ready(
@@ -341,11 +365,15 @@ def newton_fit(
             )
         )
     with jax.enable_x64(True):
-        y64 = jnp.asarray(np.asarray(y, dtype=np.float64))
+        if isinstance(y, jax.Array):
+            y64 = y.astype(jnp.float64)
+        else:
+            y64 = jnp.asarray(np.asarray(y, dtype=np.float64))
         p = y64.shape[1]
         c64 = jnp.float64(c)
+        offset = float(c) * pad
         theta = jnp.zeros((d + 1, p), jnp.float64)
-        m = jnp.zeros((n, p), jnp.float64)
+        m = _zeros_like(y64)
         objective = np.full(p, np.nan)
         gap = np.full(p, np.inf)
         todo = np.arange(p)
@@ -358,7 +386,7 @@ def newton_fit(
             cols = np.concatenate([cols, np.full(width - len(cols), cols[0])])
             cap = _cg_cap(config, step)
             theta, m, f0, f1, dec, it = _newton_step(
-                xa, vecs, lead, rest, None if len(todo) == p else jnp.asarray(cols),
+                xa, vecs, lead, rest, None if len(todo) == p else cols,
                 theta, m, y64, c64, config.eta, config.block, jnp.int32(cap),
             )  # fmt: skip
             cg_its.append(int(it))
@@ -366,6 +394,7 @@ def newton_fit(
             if int(it) > REFRESH_AFTER:  # CG's float32 margin updates drift
                 m = _margins(xa, theta)
             f0, f1, dec = (np.asarray(v) for v in (f0, f1, dec))
+            f0, f1 = f0 - offset, f1 - offset
             # padding repeats a column: take each column's values once (all equal)
             cols, first = np.unique(cols, return_index=True)
             f0, f1, dec = f0[first], f1[first], dec[first]
@@ -380,6 +409,7 @@ def newton_fit(
                 break
         bar.close()
         objective = np.asarray(_objective(_margins(xa, theta), theta, y64, c64))
+        objective = objective - offset
         theta = theta.astype(jnp.float32)
         info = NewtonInfo(
             steps=len(cg_its),

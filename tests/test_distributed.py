@@ -1,0 +1,62 @@
+"""One fit across processes: rows, reductions, and two real local processes."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.solvers.distributed import Cluster, allreduce, row_block
+
+
+def test_row_blocks_cover_every_frame_once():
+    for n, k in ((10, 3), (7, 2), (2, 4), (3576, 5)):
+        blocks = [row_block(n, k, i) for i in range(k)]
+        rows = np.concatenate([np.arange(*b) for b in blocks])
+        np.testing.assert_array_equal(rows, np.arange(n))
+
+
+def test_cluster_settings_are_checked():
+    with pytest.raises(InputError, match="HOST:PORT"):
+        Cluster("localhost", 2, 0)
+    with pytest.raises(InputError, match="--process-id"):
+        Cluster("localhost:1234", 2, 2)
+    assert allreduce({"a": np.ones(3)})["a"].tolist() == [1, 1, 1]  # one process
+
+
+def _fit(tmp_path, name, *extra):
+    out = tmp_path / name
+    cmd = ["rhythmic-jax", "fit", "ref.npy", "--out", str(out), "--no-progress",
+           "--json", *extra]  # fmt: skip
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    text = done.stdout  # gloo's own "connected" line may come first
+    return RhythmicMap.load(out), json.loads(text[text.index("{") :])
+
+
+@pytest.mark.slow
+def test_two_local_processes_reach_the_one_process_map(tmp_path):
+    """Two processes of the installed command (gloo collectives, one CPU device
+    each) against one: same periods and training errors, templates to 1e-5."""
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=(301, 24)), axis=0).astype(np.float32)
+    np.save(tmp_path / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
+    one, _ = _fit(tmp_path, "one.map")
+    two, info = _fit(tmp_path, "two.map", "--processes", "2")
+    assert info["fit"]["mode"] == "memory" and info["fit"]["rows"] == 151
+    assert two.periods == one.periods and two.candidates == one.candidates
+    np.testing.assert_allclose(two.candidate_errors, one.candidate_errors, atol=1e-6)
+    w1, w2 = np.asarray(one.params.w), np.asarray(two.params.w)
+    assert np.linalg.norm(w2 - w1) / np.linalg.norm(w1) < 1e-5
+    b1, b2 = np.asarray(one.params.b), np.asarray(two.params.b)
+    assert np.linalg.norm(b2 - b1) / np.linalg.norm(b1) < 1e-5
+    # streamed over two processes (blocks of other rows, so float32 sums in
+    # another order): the one-process stream's map, to the solver's accuracy
+    s1, _ = _fit(tmp_path, "s1.map", "--stream")
+    s2, info = _fit(tmp_path, "s2.map", "--stream", "--processes", "2")
+    assert info["fit"]["mode"] == "stream" and s2.periods == s1.periods
+    np.testing.assert_allclose(s2.candidate_errors, s1.candidate_errors, atol=1e-6)
+    w1, w2 = np.asarray(s1.params.w), np.asarray(s2.params.w)
+    assert np.linalg.norm(w2 - w1) / np.linalg.norm(w1) < 1e-3
