@@ -22,7 +22,6 @@ from rhythmic_jax.jobs import (
     int_option,
     number_option,
 )
-from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
 
 __all__ = ["main"]
 
@@ -289,14 +288,14 @@ def _cmd_fit(args) -> int:
         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
         reading=_reading(args), dtype=args.dtype,
     )  # fmt: skip
-    scale = ScaleJob(
+    scale = jobs.ScaleJob(
         processes=args.processes, coordinator=args.coordinator,
         num_processes=args.num_processes, process_id=args.process_id,
         memory=args.memory, stream=args.stream, shards=args.shards,
     )  # fmt: skip
     run = None
-    if wants_scale(job, scale):
-        model, run = fit_scaled(job, scale, args.argv, not args.no_progress)
+    if jobs.wants_scale(job, scale):
+        model, run = jobs.fit_scaled(job, scale, args.argv, not args.no_progress)
         if model is None:
             return 0
     else:

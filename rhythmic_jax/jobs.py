@@ -28,17 +28,20 @@ from typing import Any
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
 from rhythmic_jax.validate import check_int, int_option, number_option
 
 __all__ = [
     "FitInterrupted",
     "FitJob",
     "Reading",
+    "ScaleJob",
     "augmentation_ablation",
     "demo",
     "evaluate",
     "evaluate_summary",
     "fit",
+    "fit_scaled",
     "fit_summary",
     "info",
     "info_lines",
@@ -47,6 +50,7 @@ __all__ = [
     "number_option",
     "query_summary",
     "quiet_io_threads",
+    "wants_scale",
 ]
 
 

@@ -17,24 +17,24 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 
 LAYERS = [
     ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span"],
-    ["validate"],
+    ["validate", "quantize"],
     [
         "periods", "projection", "split", "nets", "io.checkpoint", "io.images",
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
         "eval.baselines", "eval.metrics", "eval.figures",
     ],
-    ["objective", "io.tiles", "io.weights"],
+    ["objective", "io.tiles", "io.weights", "io.frame_files"],
     [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
-        "features",
+        "features", "solvers.streamed",
     ],
-    ["solvers.resumable", "decoding.soft"],
-    ["decoding.dispatch", "decoding.sequence", "io.sources"],
+    ["solvers.resumable", "decoding.soft", "solvers.distributed", "io.describe_shards"],
+    ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
     [
         "rhythmic_map", "eval.seqslam", "eval.outliers", "eval.report",
         "augment.stream",
     ],
-    ["demo"],
+    ["demo", "scale_jobs"],
     ["jobs"],
     [""],  # the public face, rhythmic_jax/__init__.py
     ["cli"],
