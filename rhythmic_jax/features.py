@@ -25,7 +25,6 @@ import functools
 import hashlib
 import json
 import logging
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -36,9 +35,10 @@ import jax
 import numpy as np
 import torch
 from skimage.feature import hog as skimage_hog
-from tqdm.auto import tqdm
 
 from rhythmic_jax import nets
+from rhythmic_jax.cache_files import default_cache_dir
+from rhythmic_jax.compiled import AUTO, CompilePolicy
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import save_npy
 from rhythmic_jax.io.weights import (
@@ -124,6 +124,29 @@ def _positive(**values: int) -> None:
         )
 
 
+class _Lite0Tap(torch.nn.Module):
+    """(b, 3, H, W) -> the block's map flattened in (h, w, c) order, unit rows."""
+
+    def __init__(self, net: nets.EfficientNetLite0, block: int):
+        super().__init__()
+        self.net, self.block = net, block
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.net.features(x, self.block)
+        return _l2(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
+
+
+class _Fc7(torch.nn.Module):
+    """(b, 3, H, W) -> VGG16's relu(fc7) (b, 4096), unit rows."""
+
+    def __init__(self, net: nets.VGG16):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return _l2(self.net.fc7(x))
+
+
 @functools.lru_cache(maxsize=2)
 def _lite0(path: str) -> nets.EfficientNetLite0:
     return nets.load_efficientnet_lite0(path)
@@ -193,11 +216,18 @@ class EfficientNetLite0Map:
         cells = -(-self.height // s) * -(-self.width // s)
         return net.block_channels(self.block) * cells
 
+    def prepare(self, batch: torch.Tensor) -> torch.Tensor:
+        """(b, 3, H, W) in [0, 1] -> the network's input (b, 3, height, width),
+        channels-last (the work a prefetch thread can do ahead of the network)."""
+        return _fit(batch, self).contiguous(memory_format=torch.channels_last)
+
+    def network(self) -> torch.nn.Module:
+        """The module that maps :meth:`prepare`'s output to the rows (b, dim)."""
+        return _Lite0Tap(_lite0(str(self._path())), self.block)
+
     @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        x = _fit(batch, self).contiguous(memory_format=torch.channels_last)
-        y = _lite0(str(self._path())).features(x, self.block)
-        return _l2(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
+        return self.network()(self.prepare(batch))
 
 
 @dataclass(frozen=True)
@@ -230,10 +260,17 @@ class VGG16Fc7:
     def dim(self) -> int:
         return 4096
 
+    def prepare(self, batch: torch.Tensor) -> torch.Tensor:
+        """(b, 3, H, W) in [0, 1] -> the network's input, channels-last."""
+        return _fit(batch, self).contiguous(memory_format=torch.channels_last)
+
+    def network(self) -> torch.nn.Module:
+        """The module that maps :meth:`prepare`'s output to the rows (b, 4096)."""
+        return _Fc7(_vgg16(str(self._path().resolve())))
+
     @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        x = _fit(batch, self).contiguous(memory_format=torch.channels_last)
-        return _l2(_vgg16(str(self._path().resolve())).fc7(x))
+        return self.network()(self.prepare(batch))
 
 
 @dataclass(frozen=True)
@@ -371,22 +408,22 @@ def describe(
     batch_size: int = 64,
     progress: bool = True,
     num_threads: int | None = None,
+    compile: CompilePolicy = AUTO,
 ) -> np.ndarray:
     """Describe uint8 RGB frames (n, H, W, 3) -> float32 (n, dim), rows unit norm.
 
-    ``num_threads`` sets torch's intra-op threads for the call (None: unchanged).
+    Conversion and resizing run a batch or two ahead of the network, which runs
+    compiled when ``compile`` says the job is large enough
+    (:mod:`rhythmic_jax.compiled`). ``num_threads`` sets torch's intra-op threads
+    for the call (None: unchanged).
     """
+    from rhythmic_jax.pipeline import describe_chunks
+
     _check_images(images)
     _positive(batch_size=batch_size)
-    out = np.zeros((len(images), descriptor.dim), np.float32)
-    starts = range(0, len(images), batch_size)
-    bar = tqdm(starts, desc=descriptor.name, unit="batch", disable=not progress)
+    chunks = (images[i : i + batch_size] for i in range(0, len(images), batch_size))
     with _torch_threads(num_threads):
-        for i in bar:
-            chunk = torch.from_numpy(np.ascontiguousarray(images[i : i + batch_size]))
-            batch = chunk.permute(0, 3, 1, 2).float().div_(255.0)  # channels-last
-            out[i : i + len(chunk)] = descriptor(batch).numpy()
-    return out
+        return describe_chunks(chunks, len(images), descriptor, compile, progress)
 
 
 def to_jax(t: torch.Tensor) -> jax.Array:
@@ -395,12 +432,6 @@ def to_jax(t: torch.Tensor) -> jax.Array:
     Do not modify ``t`` afterwards: the JAX array sees the change.
     """
     return jax.dlpack.from_dlpack(t.detach().contiguous())
-
-
-def default_cache_dir() -> Path:
-    """``$RHYTHMIC_JAX_CACHE``, else ``~/.cache/rhythmic_jax``."""
-    env = os.environ.get("RHYTHMIC_JAX_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "rhythmic_jax"
 
 
 def _cache_settings(descriptor: Descriptor) -> dict:
@@ -439,6 +470,7 @@ def cached_describe(
     batch_size: int = 64,
     progress: bool = True,
     num_threads: int | None = None,
+    compile: CompilePolicy = AUTO,
 ) -> np.ndarray:
     """:func:`describe`, memoised in an .npy file (see :func:`cache_path`).
 
@@ -454,6 +486,6 @@ def cached_describe(
                 return x
         except (OSError, ValueError, EOFError) as err:
             log.warning("recomputing unreadable cache file %s (%s)", path, err)
-    x = describe(images, descriptor, batch_size, progress, num_threads)
+    x = describe(images, descriptor, batch_size, progress, num_threads, compile)
     save_npy(path, x)
     return x

@@ -30,6 +30,7 @@ import numpy as np
 from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
+from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io import checkpoint
 from rhythmic_jax.objective import (
@@ -136,6 +137,7 @@ class RhythmicMap:
         # where the reference frames came from (paths, tiling), not the frames:
         # ``rhythmic-jax evaluate`` reads them again for its brute-force line
         self.reference: dict[str, Any] = {}
+        self._small: SmallDecoder | None = None  # numpy decode of these params
 
     # ------------------------------------------------------------------ fit
     def fit(self, x, labels=None, *, progress: bool = True, refine=None) -> RhythmicMap:
@@ -233,9 +235,13 @@ class RhythmicMap:
 
     def decode(self, q, method: str | None = None, m: int | None = None) -> Decoded:
         """Decode queries (b, d): index (-1 no match), score, runner-up, confidence."""
-        if (method or self.config.decode) == "hard":  # scores and decode in one
-            # compiled call: the latency of a single query
-            return localise(self.params, self._queries(q), self.periods, self.n)
+        if (method or self.config.decode) == "hard":
+            self._check_fitted()
+            x = check_features(q, "queries", d=self.d)
+            if len(x) <= SMALL_BATCH:  # numpy: no dispatch for a single query
+                return self._small_decoder()(x)
+            # scores and decode in one compiled call
+            return localise(self.params, jnp.asarray(x), self.periods, self.n)
         return decode_scores(
             self.scores(q),
             self.periods,
@@ -243,6 +249,14 @@ class RhythmicMap:
             method or self.config.decode,
             m or self.config.m,
         )
+
+    def _small_decoder(self) -> SmallDecoder:
+        """The numpy decoder of the current templates (rebuilt when they change)."""
+        small = self._small
+        if small is None or small.params is not self.params:
+            small = SmallDecoder.build(self.params, self.periods, self.n)
+            self._small = small
+        return small
 
     def predict(
         self,

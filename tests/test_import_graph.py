@@ -17,18 +17,21 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 
 LAYERS = [
     ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span"],
-    ["validate", "quantize"],
+    ["validate", "quantize", "cache_files"],
     [
         "periods", "projection", "split", "nets", "io.checkpoint", "io.images",
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
-        "eval.baselines", "eval.metrics", "eval.figures",
+        "eval.baselines", "eval.metrics", "eval.figures", "compiled",
     ],
-    ["objective", "io.tiles", "io.weights", "io.frame_files"],
+    ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline"],
     [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
         "features", "solvers.streamed",
     ],
-    ["solvers.resumable", "decoding.soft", "solvers.distributed", "io.describe_shards"],
+    [
+        "solvers.resumable", "decoding.soft", "solvers.distributed",
+        "io.describe_shards", "decoding.small",
+    ],
     ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
     [
         "rhythmic_map", "eval.seqslam", "eval.outliers", "eval.report",

@@ -1,0 +1,62 @@
+"""The package's cache folder and its atomically written ``.npy`` files.
+
+``$RHYTHMIC_JAX_CACHE`` (default ``~/.cache/rhythmic_jax``) holds descriptor
+files (:func:`rhythmic_jax.features.cached_describe`,
+:func:`rhythmic_jax.pipeline.describe_files`) and the compiled networks
+(:mod:`rhythmic_jax.compiled`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["cache_key_check", "default_cache_dir", "load_cached", "save_cached"]
+
+log = logging.getLogger(__name__)
+
+
+def default_cache_dir() -> Path:
+    """``$RHYTHMIC_JAX_CACHE``, else ``~/.cache/rhythmic_jax``."""
+    env = os.environ.get("RHYTHMIC_JAX_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "rhythmic_jax"
+
+
+def cache_key_check(key: str) -> None:
+    """Refuse a cache key that is not a plain, non-empty file-name part."""
+    if not key or any(c in key for c in "/\\") or key.startswith("."):
+        raise InputError(f"cache key {key!r}: use a plain, non-empty file-name part")
+
+
+def load_cached(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
+    """The float32 array of ``shape`` in the cache file ``path``, else None
+    (missing, unreadable or mis-shaped: the caller recomputes it)."""
+    if not path.is_file():
+        return None
+    try:
+        x = np.load(path, allow_pickle=False)
+        if x.shape == tuple(shape) and x.dtype == np.float32:
+            return x
+    except (OSError, ValueError, EOFError) as err:
+        log.warning("recomputing unreadable cache file %s (%s)", path, err)
+    return None
+
+
+def save_cached(path: Path, x: np.ndarray) -> None:
+    """Write ``x`` to the cache file ``path`` atomically (temporary file, replace)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, x, allow_pickle=False)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

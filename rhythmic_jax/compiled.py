@@ -1,0 +1,285 @@
+"""The descriptor network compiled for this CPU (AOTInductor), with eager as reference.
+
+A network descriptor (``prepare`` + ``network``, see :mod:`rhythmic_jax.features`)
+runs either eagerly or as an AOTInductor package: ``torch.export`` of the module
+at a fixed batch of :data:`COMPILE_BATCH` frames, compiled by inductor to C++ for
+this CPU with the weights frozen (batch norms folded into the convolutions). A
+batch of any size runs in chunks of that shape, the last chunk padded, so nothing
+is ever compiled again. The package is written once (atomically) under
+``<cache folder>/compiled/`` and keyed by the descriptor's settings, the weights
+file, the input shape, torch's version and thread count and the CPU's vector
+instructions; later jobs load it in about a second instead of compiling.
+
+Whether compiling pays is decided per job (:func:`wants_compiled`): loading a
+ready package costs about :data:`LOAD_SECONDS`, building one about
+:data:`BUILD_SECONDS`, and the compiled network saves a few milliseconds a frame,
+so small jobs stay eager. Where compiling cannot work (no C++ compiler, an
+unsupported platform) the job logs one warning line and runs eagerly.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import logging
+import os
+import platform
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rhythmic_jax.errors import InputError
+
+__all__ = [
+    "AUTO",
+    "BUILD_MIN_FRAMES",
+    "COMPILE_BATCH",
+    "COMPILE_MODES",
+    "LOAD_MIN_FRAMES",
+    "CompilePolicy",
+    "FastDescriptor",
+    "network_runner",
+    "package_path",
+    "stages",
+    "wants_compiled",
+]
+
+log = logging.getLogger(__name__)
+
+if TYPE_CHECKING:
+    import torch
+
+COMPILE_BATCH = 32
+COMPILE_MODES = ("auto", "always", "never")
+# Measured on the 2-core reference machine (scripts/bench_frames.py): loading a
+# ready package and its first call cost about LOAD_SECONDS, building one about
+# BUILD_SECONDS; EfficientNet-Lite0 (224x112) saves about 6 ms a frame compiled.
+LOAD_SECONDS = 2.0
+BUILD_SECONDS = 60.0
+LOAD_MIN_FRAMES = 400
+BUILD_MIN_FRAMES = 10_000
+
+
+@dataclass(frozen=True)
+class CompilePolicy:
+    """When a job compiles its descriptor network.
+
+    Attributes:
+      mode: ``"auto"`` (compile when the job is large enough, below),
+        ``"always"`` or ``"never"`` (the eager reference).
+      min_frames: in ``auto``, compile from this many frames on; None: from
+        :data:`LOAD_MIN_FRAMES` when the package is ready on disk, from
+        :data:`BUILD_MIN_FRAMES` when it must be built first.
+    """
+
+    mode: str = "auto"
+    min_frames: int | None = None
+
+    def __post_init__(self):
+        if self.mode not in COMPILE_MODES:
+            raise InputError(f"--compile {self.mode!r}: use one of {COMPILE_MODES}")
+        if self.min_frames is not None and (
+            not isinstance(self.min_frames, int) or self.min_frames < 0
+        ):
+            raise InputError(
+                f"--compile-min-frames must be a count >= 0, got {self.min_frames!r}"
+            )
+
+
+AUTO = CompilePolicy()
+
+
+def _weights_ident(descriptor) -> list:
+    path = getattr(descriptor, "_path", None)
+    path = path() if callable(path) else getattr(descriptor, "weights", None)
+    if not path:
+        return []
+    st = Path(path).stat()
+    return [str(Path(path).resolve()), st.st_size, st.st_mtime_ns]
+
+
+def package_path(descriptor, shape: tuple[int, ...], cache_dir=None) -> Path:
+    """``<cache>/compiled/<name>-<hash>.pt2`` of ``descriptor`` at input ``shape``."""
+    import torch
+
+    from rhythmic_jax.cache_files import default_cache_dir
+
+    ident = dict(
+        name=descriptor.name,
+        settings=descriptor.settings(),
+        weights=_weights_ident(descriptor),
+        shape=list(shape),
+        torch=torch.__version__,
+        threads=torch.get_num_threads(),
+        cpu=[platform.machine(), torch.backends.cpu.get_cpu_capability()],
+    )
+    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    return folder / "compiled" / f"{descriptor.name}-{digest[:16]}.pt2"
+
+
+def wants_compiled(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> bool:
+    """Whether a job of ``frames`` frames runs ``descriptor`` compiled.
+
+    ``ready``: the package is already on disk (loading it is cheap).
+    """
+    if policy.mode == "never" or not hasattr(descriptor, "network"):
+        return False
+    if policy.mode == "always":
+        return True
+    if policy.min_frames is not None:
+        return frames >= policy.min_frames
+    return frames >= (LOAD_MIN_FRAMES if ready else BUILD_MIN_FRAMES)
+
+
+def _build(module: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
+    """Export ``module`` at ``example``'s shape and write its AOTInductor package."""
+    import torch
+    import torch._inductor
+
+    from rhythmic_jax.cache_files import default_cache_dir
+
+    os.environ.setdefault(
+        "TORCHINDUCTOR_CACHE_DIR", str(default_cache_dir() / "inductor")
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with torch.no_grad():
+        exported = torch.export.export(module, (example,))
+    fd, tmp = tempfile.mkstemp(
+        dir=path.parent, prefix=f"{path.stem}.tmp-", suffix=".pt2"
+    )
+    os.close(fd)
+    try:
+        torch._inductor.aoti_compile_and_package(
+            exported, package_path=tmp, inductor_configs={"freezing": True}
+        )
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _load(path: Path) -> Callable[[torch.Tensor], torch.Tensor]:
+    import torch._inductor
+
+    return torch._inductor.aoti_load_package(str(path))
+
+
+def _chunked(
+    fn: Callable[[torch.Tensor], torch.Tensor], batch: int
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """Run ``fn`` (fixed ``batch`` rows) on any number of rows: chunks, the last
+    padded with zeros and its padding dropped. (m, ...) -> (m, dim)."""
+    import torch
+
+    def run(x: torch.Tensor) -> torch.Tensor:
+        outs = []
+        for i in range(0, len(x), batch):
+            part = x[i : i + batch]
+            m = len(part)
+            if m < batch:
+                pad = part.new_zeros((batch - m, *part.shape[1:]))
+                part = torch.cat([part, pad]).contiguous(
+                    memory_format=torch.channels_last
+                )
+            outs.append(fn(part)[:m])
+        if not outs:
+            return fn(x.new_zeros((batch, *x.shape[1:])))[:0]
+        return outs[0] if len(outs) == 1 else torch.cat(outs)
+
+    return run
+
+
+@functools.lru_cache(maxsize=4)
+def _compiled(descriptor, shape: tuple[int, ...], cache_dir) -> Callable | None:
+    """The loaded package (built first when missing); None when compiling fails."""
+    import torch
+
+    path = package_path(descriptor, shape, cache_dir)
+    try:
+        if not path.is_file():
+            log.info("compiling %s for %s (once per machine)", descriptor.name, shape)
+            example = torch.zeros(shape).contiguous(memory_format=torch.channels_last)
+            _build(descriptor.network().eval(), example, path)
+        return _load(path)
+    except Exception as err:  # no compiler, unsupported platform, broken package
+        reason = (str(err).strip().splitlines() or [type(err).__name__])[0][:160]
+        log.warning(
+            "%s: compiling the network failed (%s: %s); running it eagerly",
+            descriptor.name,
+            type(err).__name__,
+            reason,
+        )
+        return None
+
+
+def network_runner(
+    descriptor,
+    frames: int,
+    policy: CompilePolicy = AUTO,
+    cache_dir=None,
+) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The function a job of ``frames`` frames runs on prepared batches.
+
+    ``(m, 3, h, w)`` (``descriptor.prepare``'s output) -> ``(m, dim)`` rows, the
+    compiled package where :func:`wants_compiled` says it pays and it can be
+    built, else the eager module (the reference).
+    """
+
+    if isinstance(descriptor, FastDescriptor):
+        return descriptor._run
+    if not hasattr(descriptor, "network"):
+        return descriptor
+    eager = descriptor.network().eval()
+    shape = (COMPILE_BATCH, 3, descriptor.height, descriptor.width)
+    ready = package_path(descriptor, shape, cache_dir).is_file()
+    if not wants_compiled(descriptor, frames, policy, ready):
+        return eager
+    fn = _compiled(descriptor, shape, None if cache_dir is None else str(cache_dir))
+    return eager if fn is None else _chunked(fn, COMPILE_BATCH)
+
+
+class FastDescriptor:
+    """``descriptor`` whose network runs through :func:`network_runner`.
+
+    Same ``name``, ``settings()``, ``dim`` and ``prepare``; calling it on a batch
+    (b, 3, H, W) in [0, 1] gives the same rows (b, dim) as the descriptor (to
+    float32 rounding), from the compiled network when the job is large enough.
+    """
+
+    def __init__(self, descriptor, frames: int, policy: CompilePolicy = AUTO):
+        self.descriptor = descriptor
+        self.name = descriptor.name
+        self._run = network_runner(descriptor, frames, policy)
+        self._prepare = getattr(descriptor, "prepare", None)
+
+    def __getattr__(self, key: str):
+        return getattr(self.descriptor, key)
+
+    def __call__(self, batch: torch.Tensor) -> torch.Tensor:
+        import torch
+
+        with torch.inference_mode():
+            x = self._prepare(batch) if self._prepare is not None else batch
+            return self._run(x)
+
+
+def stages(descriptor) -> tuple[Callable, Callable]:
+    """``(prepare, run)`` with ``descriptor(batch) == run(prepare(batch))``.
+
+    ``prepare`` (resizing) can run ahead in another thread; ``run`` is the
+    network (compiled for a :class:`FastDescriptor`), or the whole descriptor
+    when it has no network.
+    """
+    if isinstance(descriptor, FastDescriptor):
+        return descriptor._prepare or _same, descriptor._run
+    if hasattr(descriptor, "network"):
+        return descriptor.prepare, descriptor.network().eval()
+    return _same, descriptor
+
+
+def _same(x):
+    return x

@@ -1,0 +1,265 @@
+"""Frames per second from images, end to end: this checkout against a baseline one.
+
+Jobs, each a fresh ``rhythmic-jax`` process on 640x320 JPEG folders made from
+Nordland frames (upscaled; written under a temporary folder, removed after):
+
+- ``fit REF/ --descriptor efficientnet_lite0`` on 1000 frames;
+- ``query MAP Q/`` on 1000 frames (the map from the fit);
+- a 100-frame ``fit`` (too small to compile: it must not be slower);
+- augmented training: one epoch of :func:`rhythmic_jax.augmented.fit_augmented`
+  over 256 Nordland frames with no augmentation (``none``) and with all seven
+  (``all``), the descriptor at its native size, frames/s over the wall time.
+
+Every job starts with an empty descriptor cache. The compiled network
+(:mod:`rhythmic_jax.compiled`) is built once before the timed runs, as a user's
+first large job does, and then loaded by each job. The baseline is another
+checkout run with ``PYTHONPATH`` pointing at it (e.g. ``git worktree add
+/tmp/base 6ee4e23``). Both variants run interleaved, ``--repeats`` times; the
+report gives medians and the ratio, with the load average (the machine is
+shared).
+
+    python scripts/bench_frames.py --base /tmp/base [--repeats 2]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from _bench_common import REPO, load_average, parser, table, write_report
+
+AUGMENTED = """
+import json, sys, time
+import numpy as np, torch
+from rhythmic_jax.augment.stream import AugmentedFit, fit_augmented
+from rhythmic_jax.io.images import nordland
+from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.solvers.newton import newton_fit
+from rhythmic_jax.objective import default_c, targets
+from rhythmic_jax.periods import candidate_periods
+root, frames, names = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+images = nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
+desc = get_descriptor("efficientnet_lite0")
+try:
+    from rhythmic_jax.compiled import CompilePolicy, FastDescriptor
+    desc = FastDescriptor(desc, frames, CompilePolicy(min_frames=0))
+except ImportError:
+    pass
+clean = cached_describe(images, desc, key="bench", progress=False)
+n = len(images)
+periods = candidate_periods(n, 2, 1, 7)
+init, _ = newton_fit(clean, targets(np.arange(n), periods), default_c(n),
+                     progress=False)
+cfg = (AugmentedFit(names=("hflip",), p=0.0, epochs=1) if names == "none"
+       else AugmentedFit(names=(names,), epochs=1,
+                         augment_settings={"elastic_impl": "coarse"}))
+warm = AugmentedFit(names=("hflip",), p=0.0, epochs=1)
+fit_augmented(images[:128], clean[:128], np.arange(128), periods, init,
+              default_c(n), desc, warm, progress=False)
+t = time.perf_counter()
+_, tm = fit_augmented(images, clean, np.arange(n), periods, init, default_c(n),
+                      desc, cfg, progress=False)
+wall = time.perf_counter() - t
+print(json.dumps(dict(tm, wall=wall, frames_per_s=n / wall)))
+"""
+
+
+def make_folders(root: Path, tmp: Path, n: int) -> dict[str, Path]:
+    """640x320 JPEG folders: ref (n summer frames), q (n winter), small (100)."""
+    from PIL import Image
+
+    from rhythmic_jax.io.images import nordland
+
+    summer, winter = nordland(root / "nordland_64x32", progress=False)
+    out = {}
+    for name, frames in (("ref", summer.images[:n]), ("q", winter.images[:n]),
+                         ("small", summer.images[n : n + 100])):  # fmt: skip
+        folder = tmp / name
+        folder.mkdir()
+        for i, im in enumerate(frames):
+            big = Image.fromarray(im).resize((640, 320), Image.BICUBIC)
+            big.save(folder / f"frame{i:05d}.jpg", quality=90)
+        out[name] = folder
+    return out
+
+
+def timed_run(cmd: list[str], env: dict) -> dict:
+    """Wall and CPU seconds (children) of one command; fails loudly.
+
+    It runs in the folder of the Lite0 weights: the baseline's ``query`` looks
+    for them by the bare file name its map records.
+    """
+    from rhythmic_jax.nets import lite0_weights_path
+
+    cwd = lite0_weights_path().parent
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=cwd)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-2000:]}")
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return dict(wall=wall, cpu=cpu, stdout=done.stdout[-2000:],
+                stderr=done.stderr[-500:], load=load_average()[0])  # fmt: skip
+
+
+def fresh_cache(tmp: Path, compiled: Path | None) -> Path:
+    """An empty descriptor cache; with ``compiled``, holding the built network."""
+    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
+    if compiled is not None and compiled.is_dir():
+        shutil.copytree(compiled, cache / "compiled")
+    return cache
+
+
+def job_env(pythonpath: str, cache: Path) -> dict:
+    """The environment of one job: which checkout, which cache folder."""
+    return {**os.environ, "PYTHONPATH": pythonpath, "RHYTHMIC_JAX_CACHE": str(cache)}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
+    ap.add_argument("--frames", type=int, default=1000)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--aug-frames", type=int, default=256)
+    ap.add_argument("--skip-augmented", action="store_true")
+    args = ap.parse_args(argv)
+    if args.render:
+        from _bench_common import rerender
+
+        rerender(args.render, markdown)
+        return
+    exe = shutil.which("rhythmic-jax")
+    paths = {"base": str(args.base.resolve()), "new": str(REPO)}
+    load0 = load_average()
+    with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
+        tmp = Path(tmpdir)
+        folders = make_folders(args.root, tmp, args.frames)
+        warm = tmp / "warm"  # the new checkout's compiled network, built once
+        env_new = {**os.environ, "PYTHONPATH": paths["new"],
+                   "RHYTHMIC_JAX_CACHE": str(warm)}  # fmt: skip
+        built = timed_run([exe, "fit", str(folders["small"]), "--out",
+                           str(tmp / "warm.map"), "--descriptor",
+                           "efficientnet_lite0", "--compile", "always",
+                           "--no-progress"], env_new)  # fmt: skip
+        runs: dict[str, dict[str, list]] = {}
+        for rep in range(args.repeats):
+            for variant in ("base", "new"):
+                compiled = warm / "compiled" if variant == "new" else None
+                for job in ("fit", "query", "fit100"):
+                    env = job_env(paths[variant], fresh_cache(tmp, compiled))
+                    out_map = tmp / f"{variant}.map"
+                    if job == "fit":
+                        shutil.rmtree(out_map, ignore_errors=True)
+                        cmd = [exe, "fit", str(folders["ref"]), "--out", str(out_map)]
+                        cmd += ["--descriptor", "efficientnet_lite0"]
+                    elif job == "query":
+                        cmd = [exe, "query", str(out_map), str(folders["q"]),
+                               "--out", str(tmp / f"{variant}.npy")]  # fmt: skip
+                    else:
+                        small = tmp / f"{variant}_small.map"
+                        shutil.rmtree(small, ignore_errors=True)
+                        cmd = [exe, "fit", str(folders["small"]), "--out", str(small)]
+                        cmd += ["--descriptor", "efficientnet_lite0"]
+                    r = timed_run([*cmd, "--no-progress"], env)
+                    print(variant, job, rep, round(r["wall"], 1), r["load"], flush=True)
+                    runs.setdefault(job, {}).setdefault(variant, []).append(r)
+                if not args.skip_augmented:
+                    for names in ("none", "all"):
+                        env = job_env(paths[variant], fresh_cache(tmp, compiled))
+                        root = str(args.root / "nordland_64x32")
+                        r = timed_run([sys.executable, "-c", AUGMENTED, root,
+                                       str(args.aug_frames), names], env)  # fmt: skip
+                        r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
+                        fps = r["inner"]["frames_per_s"]
+                        print(variant, names, rep, fps, flush=True)
+                        job = f"augmented_{names}"
+                        runs.setdefault(job, {}).setdefault(variant, []).append(r)
+        pred = {v: np.load(tmp / f"{v}.npy") for v in ("base", "new")}
+        agree = float((pred["base"] == pred["new"]).mean())
+    report = dict(
+        command="python scripts/bench_frames.py " + " ".join(argv or sys.argv[1:]),
+        base=paths["base"],
+        frames=args.frames,
+        aug_frames=args.aug_frames,
+        repeats=args.repeats,
+        build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
+        prediction_agreement=agree,
+        load_average=dict(start=load0, end=load_average()),
+        runs=runs,
+    )
+    report["summary"] = summary(report)
+    write_report(args.out, "frames", report, markdown(report))
+
+
+def frames_of(job: str, report: dict) -> int:
+    if job.startswith("augmented"):
+        return report["aug_frames"]
+    return 100 if job == "fit100" else report["frames"]
+
+
+def summary(report: dict) -> dict:
+    out = {}
+    for job, by in report["runs"].items():
+        row = {}
+        for variant, rs in by.items():
+            if job.startswith("augmented"):
+                fps = [r["inner"]["frames_per_s"] for r in rs]
+            else:
+                fps = [frames_of(job, report) / r["wall"] for r in rs]
+            row[variant] = dict(
+                wall=float(np.median([r["wall"] for r in rs])),
+                cpu=float(np.median([r["cpu"] for r in rs])),
+                frames_per_s=float(np.median(fps)),
+            )
+        row["speedup"] = row["new"]["frames_per_s"] / row["base"]["frames_per_s"]
+        out[job] = row
+    return out
+
+
+def markdown(report: dict) -> str:
+    s = report["summary"]
+    rows = [
+        [job, s[job]["base"]["wall"], s[job]["new"]["wall"],
+         s[job]["base"]["frames_per_s"], s[job]["new"]["frames_per_s"],
+         s[job]["base"]["cpu"], s[job]["new"]["cpu"], f"{s[job]['speedup']:.2f}x"]
+        for job in s
+    ]  # fmt: skip
+    load = report["load_average"]
+    return "\n".join([
+        "# Frames per second from images, end to end",
+        "",
+        f"Command: `{report['command']}`; baseline checkout {report['base']} run"
+        " interleaved with this one in the same process tree. Load average"
+        f" (1, 5, 15 min) at start {load['start']}, at end {load['end']}: the"
+        " machine is shared, so walls are pessimistic (CPU seconds count the"
+        " work). Medians of"
+        f" {report['repeats']} runs; every job starts with an empty descriptor"
+        " cache; the compiled network was built once before (it took"
+        f" {report['build_compiled']['wall']:.0f} s wall in this run, in a"
+        " 100-frame `--compile always` fit) and is loaded by each large job.",
+        "",
+        table(["job", "base wall s", "new wall s", "base frames/s",
+               "new frames/s", "base CPU s", "new CPU s", "new / base frames/s"],
+              rows),  # fmt: skip
+        "",
+        f"Jobs: `fit` and `query` on {report['frames']} 640x320 JPEG frames"
+        " (Nordland summer as reference, winter as queries) with"
+        " efficientnet_lite0 (block 10, 224x112); `fit100` on 100 frames;"
+        f" `augmented_*`: one epoch over {report['aug_frames']} Nordland frames,"
+        " frames/s over its wall time. The two query runs agree on"
+        f" {100 * report['prediction_agreement']:.1f} % of predictions.",
+    ])  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,35 @@
+"""The cache folder's .npy files: written atomically, refused when they do not fit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rhythmic_jax.cache_files import (
+    cache_key_check,
+    default_cache_dir,
+    load_cached,
+    save_cached,
+)
+from rhythmic_jax.errors import InputError
+
+
+def test_save_then_load(tmp_path):
+    x = np.arange(6, dtype=np.float32).reshape(2, 3)
+    path = tmp_path / "sub" / "a.npy"
+    save_cached(path, x)
+    np.testing.assert_array_equal(load_cached(path, (2, 3)), x)
+    assert [p.name for p in path.parent.iterdir()] == ["a.npy"]  # no temporary left
+    assert load_cached(path, (3, 2)) is None  # mis-shaped: recomputed by the caller
+    assert load_cached(tmp_path / "missing.npy", (2, 3)) is None
+    path.write_bytes(b"garbage")
+    assert load_cached(path, (2, 3)) is None
+
+
+def test_keys_and_folder(monkeypatch, tmp_path):
+    for bad in ("", "a/b", ".hidden"):
+        with pytest.raises(InputError, match="cache key"):
+            cache_key_check(bad)
+    cache_key_check("route-1")
+    monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path))
+    assert default_cache_dir() == tmp_path

@@ -1,0 +1,141 @@
+"""The compiled descriptor network: when a job compiles, padding to the fixed
+batch, the eager fallback, and (slow) compiled against eager descriptors and maps."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+from rhythmic_jax import compiled
+from rhythmic_jax.compiled import (
+    BUILD_MIN_FRAMES,
+    LOAD_MIN_FRAMES,
+    CompilePolicy,
+    FastDescriptor,
+    network_runner,
+    package_path,
+    stages,
+    wants_compiled,
+)
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.features import describe, get_descriptor
+
+
+@pytest.fixture(autouse=True)
+def fresh(monkeypatch, tmp_path):
+    """A private cache folder, and no compiled network kept from another test."""
+    monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path / "cache"))
+    compiled._compiled.cache_clear()
+    yield
+    compiled._compiled.cache_clear()
+
+
+def test_policy_decides_by_frames():
+    lite0, patch = get_descriptor("efficientnet_lite0"), get_descriptor("patchnorm")
+    auto = CompilePolicy()
+    assert not wants_compiled(lite0, 100, auto, ready=True)
+    assert wants_compiled(lite0, LOAD_MIN_FRAMES, auto, ready=True)
+    assert not wants_compiled(lite0, BUILD_MIN_FRAMES - 1, auto, ready=False)
+    assert wants_compiled(lite0, BUILD_MIN_FRAMES, auto, ready=False)
+    assert wants_compiled(lite0, 1, CompilePolicy("always"), ready=False)
+    assert not wants_compiled(lite0, 10**9, CompilePolicy("never"), ready=True)
+    assert wants_compiled(lite0, 50, CompilePolicy(min_frames=50), ready=False)
+    assert not wants_compiled(lite0, 49, CompilePolicy(min_frames=50), ready=True)
+    assert not wants_compiled(patch, 10**9, CompilePolicy("always"), ready=True)
+    assert LOAD_MIN_FRAMES > 100  # a 100-frame job never pays a load
+
+
+def test_policy_refuses_bad_settings():
+    with pytest.raises(InputError, match="--compile 'fast'"):
+        CompilePolicy("fast")
+    with pytest.raises(InputError, match="--compile-min-frames"):
+        CompilePolicy(min_frames=-1)
+
+
+def test_package_path_names_the_settings(tmp_path):
+    a = get_descriptor("efficientnet_lite0")
+    b = get_descriptor("efficientnet_lite0", block=9)
+    shape = (32, 3, 112, 224)
+    assert package_path(a, shape, tmp_path).parent == tmp_path / "compiled"
+    assert package_path(a, shape, tmp_path) == package_path(a, shape, tmp_path)
+    assert package_path(a, shape, tmp_path) != package_path(b, shape, tmp_path)
+    assert package_path(a, shape, tmp_path) != package_path(a, (16, *shape[1:]))
+
+
+def test_chunks_pad_the_last_batch_to_the_fixed_shape():
+    w = torch.randn(5, 3)
+    seen = []
+
+    def fixed(x):  # stands for a package compiled for 4 rows
+        seen.append(tuple(x.shape))
+        return x.flatten(1) @ w
+
+    run = compiled._chunked(fixed, 4)
+    x = torch.randn(10, 5, 1, 1).contiguous(memory_format=torch.channels_last)
+    torch.testing.assert_close(run(x), x.flatten(1) @ w)
+    assert seen == [(4, 5, 1, 1)] * 3  # 4 + 4 + 2 padded: never another shape
+    assert run(x[:0]).shape == (0, 3)
+
+
+def test_failed_compile_runs_eagerly_with_one_warning(monkeypatch, caplog):
+    def no_compiler(*args, **kwargs):
+        raise RuntimeError("C++ compile error\nNo such file or directory: 'g++'")
+
+    monkeypatch.setattr(compiled, "_build", no_compiler)
+    desc = get_descriptor("efficientnet_lite0")
+    frames = np.random.default_rng(0).integers(0, 256, (3, 40, 80, 3), np.uint8)
+    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.compiled"):
+        fast = describe(frames, desc, progress=False, compile=CompilePolicy("always"))
+    eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
+    np.testing.assert_array_equal(fast, eager)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "\n" not in lines[0]
+    assert "compiling the network failed (RuntimeError: C++ compile error)" in lines[0]
+    assert lines[0].endswith("running it eagerly")
+    run = network_runner(desc, 10**6, CompilePolicy("always"))  # not tried again
+    assert isinstance(run, torch.nn.Module) and len(caplog.records) == 1
+
+
+def test_fast_descriptor_keeps_the_face_of_the_descriptor():
+    desc = get_descriptor("efficientnet_lite0")
+    fast = FastDescriptor(desc, 10, CompilePolicy("never"))
+    assert (fast.name, fast.dim, fast.settings()) == (
+        desc.name,
+        desc.dim,
+        desc.settings(),
+    )
+    batch = torch.rand(2, 3, 30, 50)
+    torch.testing.assert_close(fast(batch), desc(batch))
+    prepare, run = stages(desc)
+    torch.testing.assert_close(run(prepare(batch)), desc(batch))
+    patch = get_descriptor("patchnorm")
+    prepare, run = stages(FastDescriptor(patch, 10))
+    torch.testing.assert_close(run(prepare(batch)), patch(batch))
+
+
+@pytest.mark.slow
+def test_compiled_equals_eager_descriptors_and_predictions(nordland_root):
+    """Compiled (AOTInductor, built here, minutes) against the eager reference on
+    real frames: the same descriptors (relative 1e-4) and the same map answers."""
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.io.images import nordland
+
+    summer, winter = nordland(nordland_root, progress=False)
+    idx = np.arange(0, 3576, 12)  # 298 places along the route
+    desc = get_descriptor("efficientnet_lite0")
+    eager = {
+        s: describe(t.images[idx], desc, progress=False, compile=CompilePolicy("never"))
+        for s, t in (("summer", summer), ("winter", winter))
+    }
+    fast = describe(
+        winter.images[idx], desc, progress=False, compile=CompilePolicy("always")
+    )
+    assert package_path(desc, (32, 3, 112, 224)).is_file()
+    rel = np.linalg.norm(fast - eager["winter"], axis=1)  # rows are unit
+    assert rel.max() < 1e-4
+    model = RhythmicMap(r=2).fit(eager["summer"], progress=False)
+    np.testing.assert_array_equal(model.predict(fast), model.predict(eager["winter"]))
+    assert (model.predict(fast) == np.arange(len(idx))).mean() > 0.05  # it localises

@@ -1,0 +1,114 @@
+"""Reading and resizing ahead of the network: order, bounds, errors, the cache."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import pipeline
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.io import images as data
+from rhythmic_jax.io.images import load_traversal
+from rhythmic_jax.pipeline import ahead, describe_files, read_frames
+
+
+def test_ahead_keeps_order_and_stays_bounded():
+    made = []
+
+    def items():
+        for i in range(20):
+            made.append(i)
+            yield i
+
+    got = []
+    for v in ahead(items(), depth=2):
+        time.sleep(0.005)  # a slow consumer: the producer must wait for it
+        assert len(made) - len(got) <= 4  # queue (2) + one in hand + one made
+        got.append(v)
+    assert got == list(range(20))
+
+
+def test_ahead_raises_at_the_failing_item_and_stops_when_closed():
+    def items():
+        yield 1
+        yield 2
+        raise InputError("bad frame x.png")
+
+    out = []
+    with pytest.raises(InputError, match="bad frame x.png"):
+        for v in ahead(items()):
+            out.append(v)
+    assert out == [1, 2]
+    before = threading.active_count()
+    it = ahead(iter(range(10**6)), depth=1)
+    assert next(it) == 0
+    it.close()  # the background thread ends instead of making a million items
+    assert threading.active_count() <= before
+
+
+def _folder(tmp_path, rgb, write_image, n=7, size=(24, 40)):
+    folder = tmp_path / "frames"
+    for i in range(n):
+        write_image(folder, f"img{i}.png", rgb(*size))
+    return folder, data.list_images(folder, "traversal")
+
+
+def test_read_frames_equals_load_traversal(tmp_path, rgb, write_image):
+    folder, files = _folder(tmp_path, rgb, write_image)
+    chunks = list(read_frames(files, batch_size=3))
+    assert [len(c) for c in chunks] == [3, 3, 1]
+    np.testing.assert_array_equal(
+        np.concatenate(chunks), load_traversal(folder, progress=False).images
+    )
+
+
+def test_read_frames_names_the_bad_file(tmp_path, rgb, write_image):
+    folder, _ = _folder(tmp_path, rgb, write_image, n=3)
+    write_image(folder, "img5.png", rgb(30, 20))
+    (folder / "img4.png").write_bytes(b"not an image")
+    files = data.list_images(folder, "traversal")
+    with pytest.raises(InputError, match=r"cannot read image .*img4\.png"):
+        list(read_frames(files, batch_size=2))
+    (folder / "img4.png").unlink()
+    files = data.list_images(folder, "traversal")
+    with pytest.raises(InputError, match=r"img5\.png is 20x30 but img0\.png is 40x24"):
+        list(read_frames(files, batch_size=2))
+
+
+def test_describe_files_equals_describe_and_uses_the_cache(
+    tmp_path, rgb, write_image, monkeypatch
+):
+    folder, files = _folder(tmp_path, rgb, write_image)
+    desc = get_descriptor("patchnorm", width=16, height=8, patch=4)
+    images = load_traversal(folder, progress=False).images
+    cache = tmp_path / "cache"
+    x, kept = describe_files(files, desc, "k", keep_images=True, cache_dir=cache)
+    np.testing.assert_allclose(x, describe(images, desc, progress=False), atol=1e-6)
+    np.testing.assert_array_equal(kept, images)
+    assert len(list(cache.glob("k-patchnorm-files-*.npy"))) == 1
+
+    def no_reading(path):
+        raise AssertionError(f"read {path} despite the cache")
+
+    monkeypatch.setattr(data, "read_rgb", no_reading)
+    again, none = describe_files(files, desc, "k", batch_size=2, cache_dir=cache)
+    np.testing.assert_array_equal(again, x)
+    assert none is None
+    (files[0]).write_bytes((files[1]).read_bytes())  # new contents: recomputed
+    monkeypatch.undo()
+    fresh, _ = describe_files(files, desc, "k", cache_dir=cache)
+    np.testing.assert_array_equal(fresh[0], fresh[1])
+    assert len(list(cache.glob("k-patchnorm-files-*.npy"))) == 2
+
+
+def test_describe_chunks_counts_frames():
+    desc = get_descriptor("patchnorm", width=16, height=8, patch=4)
+    chunk = np.zeros((2, 8, 16, 3), np.uint8)
+    with pytest.raises(InputError, match="more than the 1 frames announced"):
+        pipeline.describe_chunks(iter([chunk]), 1, desc)
+    with pytest.raises(InputError, match="2 frames described, 3 announced"):
+        pipeline.describe_chunks(iter([chunk]), 3, desc)
