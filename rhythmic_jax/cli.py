@@ -30,6 +30,8 @@ EXAMPLES = {
       rhythmic-jax fit ref.npy --out route.map
       rhythmic-jax fit summer/ winter/ --out route.map --descriptor patchnorm
       rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
+      rhythmic-jax fit run1/ run2/ --positions run1.csv run2.csv --places 500 \\
+          --out route.map
       rhythmic-jax fit summer/ --out route.map --augment all --epochs 5
         (killed or stopped with Ctrl-C? run the same command again to resume)
       rhythmic-jax fit big.npy --out route.map --processes 2 --memory 1GiB
@@ -50,6 +52,9 @@ EXAMPLES = {
       rhythmic-jax evaluate route.map winter/ --tolerance 1
       rhythmic-jax evaluate route.map winter/ --reference summer/ --json
       rhythmic-jax evaluate route.map queries.npy --json
+      rhythmic-jax evaluate ref.map DATASET/query --ground-truth \\
+          DATASET/ground_truth_new.npy --plot pr.png
+      rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
     """,
     "demo": """
       rhythmic-jax demo
@@ -213,6 +218,21 @@ def _parser() -> argparse.ArgumentParser:
         help="image sources: describe them into this folder of .npy shards as "
         "they are read, then fit from the shards",
     )
+    p.add_argument(
+        "--positions",
+        nargs="+",
+        default=None,
+        help="per-frame positions of the sources, one CSV/.npy per source "
+        "(easting,northing metres or latitude,longitude), or 'names' for "
+        "@easting@northing@ file names; saved for evaluate --ground-truth",
+    )
+    p.add_argument(
+        "--places",
+        type=int_option(1),
+        default=None,
+        help="group the frames into K places by k-means over --positions (the "
+        "RobotCar protocol); traversals may then differ in length",
+    )
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -259,8 +279,25 @@ def _parser() -> argparse.ArgumentParser:
         "--sequence",
         type=int_option(1),
         default=None,
-        help="sequence length L (at most the number of queries)",
+        help="sequence length L, at most the number of queries (accuracy, PR and "
+        "recall@K use the sequence scores)",
     )
+    p.add_argument(
+        "--ground-truth",
+        nargs="+",
+        default=None,
+        metavar="FILE",
+        help="VPR-Bench ground_truth_new.npy; or QUERY_POSITIONS (the map's from "
+        "fit --positions); or REF_POSITIONS QUERY_POSITIONS; or 'names' "
+        "(@easting@northing@ file names). Default: query i is place i",
+    )
+    p.add_argument(
+        "--tolerance-m",
+        type=float,
+        default=25.0,
+        help="radius of a right match for positions, metres (default 25)",
+    )
+    p.add_argument("--plot", default=None, help="write PR curves and recall@K (.png)")
     p.add_argument("--json", action="store_true", help="print JSON")
     _add_source_options(p)
 
@@ -287,6 +324,8 @@ def _cmd_fit(args) -> int:
         augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
         reading=_reading(args), dtype=args.dtype,
+        positions=tuple(args.positions) if args.positions else None,
+        places=args.places,
     )  # fmt: skip
     scale = jobs.ScaleJob(
         processes=args.processes, coordinator=args.coordinator,
@@ -332,7 +371,8 @@ def _cmd_evaluate(args) -> int:
     result = jobs.evaluate(
         args.map, args.source, reference=args.reference, tolerance=args.tolerance,
         decode=args.decode, sequence=args.sequence, reading=_reading(args),
-        progress=not args.no_progress,
+        progress=not args.no_progress, tolerance_m=args.tolerance_m, plot=args.plot,
+        ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
     )  # fmt: skip
     if args.json:
         print(json.dumps(result, indent=2))

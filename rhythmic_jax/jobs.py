@@ -82,7 +82,11 @@ class FitJob:
     names, or ``"all"``) trains over frames augmented on the fly for ``epochs``
     passes of ``batch_size`` frames, checkpointed every ``checkpoint_every`` steps
     in ``checkpoint`` (default ``OUT.ckpt``, removed once the map is saved; a
-    given folder is kept).
+    given folder is kept). ``positions`` (one CSV/.npy per source, or
+    ``("names",)`` for ``@easting@northing@`` file names) are saved in the map for
+    :func:`evaluate`'s ground truth; ``places`` groups the frames into that many
+    places by k-means over them (the RobotCar protocol; traversals may then
+    differ in length).
     """
 
     sources: tuple[str, ...]
@@ -101,6 +105,8 @@ class FitJob:
     checkpoint_every: int = 50
     reading: Reading = Reading()
     dtype: str = "float32"
+    positions: tuple[str, ...] | None = None
+    places: int | None = None
 
 
 def _check_reading(reading: Reading) -> None:
@@ -197,10 +203,14 @@ def fit(job: FitJob, progress: bool = True):
     check_target(job.out)  # before the fit, not after it
     augmented = _augmented_settings(job) if job.augment else None
     check_sources_memory(job.sources, job.r, job.level, job.count)
+    if job.places is not None and job.positions is None:
+        raise InputError("{opt:places} groups frames by their {opt:positions}")
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
-        pca=job.pca, weights=read.weights,
+        pca=job.pca, weights=read.weights, same_length=job.places is None,
     )  # fmt: skip
+    if job.positions is not None:
+        feats = _with_positions(feats, job)
     _check_map_space(job, feats)  # the size is known now: say so before the solve
     model = RhythmicMap(
         r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
@@ -221,6 +231,29 @@ def fit(job: FitJob, progress: bool = True):
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     return model
+
+
+def _with_positions(feats, job: FitJob):
+    """Features whose extra holds the frames' positions (and k-means places)."""
+    import dataclasses
+
+    from rhythmic_jax.io.ground_truth_files import in_metres, positions_of_sources
+    from rhythmic_jax.io.images import gps_places
+
+    xy, unit = positions_of_sources(job.positions, job.sources)
+    if len(xy) != len(feats.x):
+        raise InputError(
+            f"{{opt:positions}}: {len(xy)} positions for {len(feats.x)} reference "
+            "frames"
+        )
+    extra = dict(feats.extra)
+    extra["reference_positions"] = xy
+    extra["reference_positions_degrees"] = np.asarray(int(unit == "degrees"))
+    labels = feats.labels
+    if job.places is not None:
+        labels = gps_places(in_metres((xy, unit))[0], job.places)
+        extra["reference_labels"] = labels
+    return dataclasses.replace(feats, labels=labels, extra=extra)
 
 
 def fit_summary(out: str, info: dict[str, Any]) -> str:
@@ -333,6 +366,9 @@ def evaluate(
     tolerance: int = 0,
     decode: str | None = None,
     sequence: int | None = None,
+    ground_truth: tuple[str, ...] | None = None,
+    tolerance_m: float = 25.0,
+    plot: str | None = None,
     reading: Reading = Reading(),
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -340,21 +376,45 @@ def evaluate(
 
     Brute force searches ``reference`` when given, else the sources the map was
     fitted on when they are still there; ``reference_note`` says which, or why
-    there is no brute-force line. See :func:`rhythmic_jax.eval.report.evaluate_map`.
+    there is no brute-force line. ``ground_truth`` names the right places
+    (:func:`rhythmic_jax.io.ground_truth_files.load_ground_truth`; default: query
+    i is place i, give or take ``tolerance`` frames); ``plot`` writes PR curves
+    and recall@K bars (.png). See :func:`rhythmic_jax.eval.report.evaluate_map`.
     """
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.io.sources import reference_features
 
+    if plot and not str(plot).lower().endswith(".png"):
+        raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
     model, feats = _load_queries(map_path, source, reading, progress)
     ref, labels, note = reference_features(
         model, reference, reading.descriptor, reading.tile, reading.stride, progress,
         weights=reading.weights,
     )  # fmt: skip
+    if ref is not None and reference is None and "reference_labels" in model.extra:
+        labels = model.extra["reference_labels"]  # frames grouped into places
+    truth = None
+    if ground_truth is not None:
+        from rhythmic_jax.io.ground_truth_files import load_ground_truth
+
+        refs = [reference] if reference else model.reference.get("sources") or []
+        truth = load_ground_truth(
+            ground_truth, n_queries=len(feats.x), n_places=model.n,
+            query_source=source, reference_sources=refs, map_extra=model.extra,
+            tolerance_m=tolerance_m,
+        )  # fmt: skip
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=tolerance,
-        method=decode, sequence=sequence,
+        method=decode, sequence=sequence, ground_truth=truth, curves=bool(plot),
     )  # fmt: skip
     result["reference_note"] = note
+    if plot:
+        from rhythmic_jax.eval.figures import plot_evaluation
+
+        plot_evaluation(result, path=plot)
+        for row in result["methods"].values():
+            row.pop("pr_curve", None)
+        result["plot"] = str(plot)
     return result
 
 
@@ -362,7 +422,10 @@ def evaluate_summary(result: dict[str, Any]) -> str:
     """The text form of :func:`evaluate`: the table, then the reference note."""
     from rhythmic_jax.eval.report import format_evaluation
 
-    return format_evaluation(result) + "\n" + result["reference_note"]
+    lines = format_evaluation(result) + "\n" + result["reference_note"]
+    if result.get("plot"):
+        lines += f"\nPR curves and recall@K -> {result['plot']}"
+    return lines
 
 
 def demo(out: str = "rhythmic_demo", quick: bool = False, progress: bool = True):

@@ -23,7 +23,9 @@ LAYERS = [
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
         "eval.baselines", "eval.metrics", "eval.figures", "compiled",
     ],
-    ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline"],
+    ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline",
+     "eval.ground_truth"],
+    ["io.ground_truth_files"],
     [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
         "features", "solvers.streamed",

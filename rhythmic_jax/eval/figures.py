@@ -30,6 +30,7 @@ __all__ = [
     "plot_augmentation",
     "plot_cost",
     "plot_examples",
+    "plot_evaluation",
     "plot_levels",
     "plot_r",
     "plot_storage_growth",
@@ -303,4 +304,53 @@ def plot_storage_growth(
     ax.set_title(f"storage growth at d = {d}")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
+
+
+def plot_evaluation(
+    result: Mapping[str, Any],
+    title: str = "",
+    path: str | os.PathLike | None = None,
+):
+    """PR curves (left) and recall@K bars (right) of each method of
+    :func:`rhythmic_jax.report.evaluate_map` (run with ``curves=True``): the
+    map beside brute force, as ``rhythmic-jax evaluate --plot`` draws them.
+    """
+    methods = {k: v for k, v in result["methods"].items() if "pr_curve" in v}
+    if not methods:
+        raise InputError("plot_evaluation: no PR curves (evaluate with curves=True)")
+    fig, (left, right) = new_figure(2, width=4.6)
+    ks = sorted(
+        int(c.split("@")[1])
+        for c in next(iter(methods.values()))
+        if c.startswith("recall@") and c[7:].isdigit()
+    )
+    width = 0.8 / len(methods)
+    for i, (name, row) in enumerate(methods.items()):
+        pr = row["pr_curve"]
+        left.plot(
+            pr["recall"],
+            pr["precision"],
+            label=f"{name} (AUC {row['pr_auc']:.3f}, R@100P {row['recall@100p']:.3f})",
+        )
+        xs = [j + (i - (len(methods) - 1) / 2) * width for j in range(len(ks))]
+        bars = right.bar(xs, [row[f"recall@{k}"] for k in ks], width, label=name)
+        right.bar_label(bars, fmt="%.2f", fontsize=7)
+    left.set_xlabel("recall")
+    left.set_ylabel("precision")
+    left.set_xlim(0, 1.02)
+    left.set_ylim(0, 1.02)
+    left.legend(fontsize=7)
+    right.set_xticks(range(len(ks)), [f"R@{k}" for k in ks])
+    right.set_ylim(0, 1.1)
+    right.set_ylabel("recall@K")
+    right.legend(fontsize=7)
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    seq = result.get("sequence")
+    fig.suptitle(
+        title
+        or f"decode={result.get('decode')} sequence={seq or 'off'}; "
+        f"{(result.get('ground_truth') or {}).get('source', '')}",
+        fontsize=9,
+    )
     return _finish(fig, path)

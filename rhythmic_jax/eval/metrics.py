@@ -34,6 +34,7 @@ __all__ = [
     "accuracy",
     "pr_auc",
     "pr_curve",
+    "pr_points",
     "recall_at_100_precision",
     "recall_at_k",
     "time_batch",
@@ -194,7 +195,17 @@ def pr_curve(pred, score, gt, tolerance: int) -> tuple[np.ndarray, ...]:
     if n_pos == 0:
         raise InputError("gt has no query whose place is in the map (all -1)")
     keep = pred >= 0
-    s, ok = score[keep], _correct(pred, gt, tol)[keep]
+    return pr_points(score[keep], _correct(pred, gt, tol)[keep], n_pos)
+
+
+def pr_points(s, ok, n_pos: int) -> tuple[np.ndarray, ...]:
+    """The PR curve of retrieved queries' scores ``s`` (r,) and correctness ``ok``
+    (r,) bool, recall out of ``n_pos`` queries (layout of :func:`pr_curve`)."""
+    s, ok = np.asarray(s, np.float64), np.asarray(ok, bool)
+    if not np.isfinite(s).all():
+        raise InputError("score has NaN or infinite entries")
+    if n_pos < 1:
+        raise InputError("no query whose place is in the map")
     order = np.argsort(-s, kind="stable")
     s, ok = s[order], ok[order]
     ends = np.r_[np.flatnonzero(np.diff(s)), s.size - 1] if s.size else np.zeros(0, int)

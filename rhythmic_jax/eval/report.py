@@ -16,12 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.eval.metrics import (
-    accuracy,
-    recall_at_k,
-    time_batch,
-    time_single_queries,
-)
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.periods import database_bytes, place_columns
 
 __all__ = ["evaluate_map", "format_evaluation", "ranked_places"]
@@ -52,6 +48,46 @@ def _latency(fn, queries) -> dict[str, float]:
     }
 
 
+def _map_decisions(model, queries, method, sequence):
+    """(pred (b,), confidence (b,), ranked places (b, K), what recall@K ranks)."""
+    pred = model.predict(queries, method, sequence=sequence)
+    s = model.scores(queries)
+    method = method or model.config.decode
+    if sequence is not None and sequence > 1:
+        from rhythmic_jax.decoding.sequence import sequence_decode, sequence_scores
+
+        _, conf = sequence_decode(
+            s, model.periods, model.n, sequence, (1.0,), method, model.config.m
+        )
+        s = sequence_scores(s, model.periods, sequence)
+        which = f"sequence scores (L={sequence}, speed 1)"
+    else:
+        conf = model.decode(queries, method).confidence
+        which = "single-frame scores"
+    ranked = ranked_places(s, model.periods, model.n, max(KS))
+    return pred, np.asarray(conf, np.float64), ranked, which
+
+
+def _scores_of(pred, conf, ranked, truth, exact, ks) -> dict[str, Any]:
+    """Accuracy, recall@K, PR-AUC and recall at 100 % precision of one method."""
+    from rhythmic_jax.eval.ground_truth import gt_accuracy, gt_pr_curve, gt_recall_at_k
+
+    precision, recall, _ = gt_pr_curve(pred, conf, truth)
+    row = {
+        "accuracy": gt_accuracy(pred, exact if exact is not None else truth),
+        "accuracy_tol": gt_accuracy(pred, truth) if exact is not None else None,
+        **gt_recall_at_k(ranked, truth, ks),
+        "tolerance": truth.tolerance_frames
+        if truth.tolerance_m is None
+        else truth.tolerance_m,
+        "n_queries": int(truth.in_map.sum()),
+        "pr_auc": float(np.trapezoid(precision[::-1], recall[::-1])),
+        "recall@100p": float(recall[precision == 1.0].max()),
+    }
+    row["_pr"] = (precision, recall)
+    return row
+
+
 def evaluate_map(
     model,
     queries: np.ndarray,
@@ -63,8 +99,18 @@ def evaluate_map(
     method: str | None = None,
     sequence: int | None = None,
     timing: bool = True,
+    ground_truth=None,
+    curves: bool = False,
 ) -> dict[str, Any]:
     """Score a fitted :class:`~rhythmic_jax.RhythmicMap` on (b, d) queries.
+
+    Every metric follows one ground truth (:mod:`rhythmic_jax.eval.ground_truth`):
+    ``ground_truth`` when given (several right places per query), else the
+    index alignment ``gt`` (default ``arange``) with ``tolerance`` frames.
+    The map's recall@K ranks places by their summed phase scores, accumulated
+    over the sequence when ``sequence`` is set (``result["recall_ranks"]``
+    says which); its PR curve thresholds the decode's confidence, brute
+    force's the inner product of the best match (single frames).
 
     Args:
       reference: the (m, d) reference descriptors, for the brute-force line.
@@ -74,17 +120,29 @@ def evaluate_map(
       tolerance: frames of slack for the tolerant accuracy and recall@K.
       method, sequence: decode options passed to ``predict``.
       timing: measure latency and throughput.
+      ground_truth: a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
+      curves: keep each method's PR curve under ``"pr_curve"`` (for plots).
     """
+    from rhythmic_jax.eval.ground_truth import from_indices
+
     queries = np.asarray(queries, np.float32)
-    gt = np.arange(len(queries)) if gt is None else np.asarray(gt)
-    pred = model.predict(queries, method, sequence=sequence)
-    ranked = ranked_places(model.scores(queries), model.periods, model.n, max(KS))
+    exact = None
+    if ground_truth is None:
+        gt = np.arange(len(queries)) if gt is None else np.asarray(gt)
+        truth = from_indices(gt, model.n, tolerance)
+        exact = from_indices(gt, model.n, 0)
+    else:
+        truth = ground_truth
+    if len(truth) != len(queries):
+        raise InputError(
+            f"{len(queries)} queries but the ground truth ({truth.source}) has "
+            f"{len(truth)}"
+        )
+    pred, conf, ranked, which = _map_decisions(model, queries, method, sequence)
     ks = tuple(k for k in KS if k <= ranked.shape[1])
     rows: dict[str, Any] = {
         "map": {
-            "accuracy": accuracy(pred, gt, 0),
-            "accuracy_tol": accuracy(pred, gt, tolerance),
-            **recall_at_k(ranked, gt, ks, tolerance=tolerance).as_dict(),
+            **_scores_of(pred, conf, ranked, truth, exact, ks),
             "storage_bytes": model.storage_bytes,
             "periods": list(model.periods),
         }
@@ -95,54 +153,77 @@ def evaluate_map(
         from rhythmic_jax.eval.baselines import BruteForce
 
         flat = BruteForce().fit(reference)
-        _, top = flat.search(queries, max(ks))
+        sims, top = flat.search(queries, max(ks))
         if reference_labels is not None:
             top = np.asarray(reference_labels)[top]
         rows["brute force"] = {
-            "accuracy": accuracy(top[:, 0], gt, 0),
-            "accuracy_tol": accuracy(top[:, 0], gt, tolerance),
-            **recall_at_k(top, gt, ks, tolerance=tolerance).as_dict(),
+            **_scores_of(top[:, 0], sims[:, 0], top, truth, exact, ks),
             "storage_bytes": flat.storage_bytes,
         }
         if timing:
             rows["brute force"].update(
                 _latency(lambda q: flat.search(q, 1)[1], queries)
             )
+    for row in rows.values():
+        precision, recall = row.pop("_pr")
+        if curves:
+            row["pr_curve"] = {
+                "precision": precision.tolist(),
+                "recall": recall.tolist(),
+            }
     return {
         "n": model.n,
         "d": model.d,
         "n_queries": len(queries),
-        "tolerance": tolerance,
+        "tolerance": tolerance if ground_truth is None else None,
+        "ground_truth": truth.describe(),
         "decode": method or model.config.decode,
         "sequence": sequence,
+        "recall_ranks": which,
         "database_bytes": database_bytes(model.n, model.d, 4),
         "compression_ratio": model.compression_ratio,
         "methods": rows,
     }
 
 
+def _truth_line(result: dict[str, Any]) -> str:
+    g = result.get("ground_truth") or {}
+    src = g.get("source", "index-aligned (query i is place i)")
+    if g.get("tolerance_m") is not None:
+        return f"ground truth: {src}, tolerance {g['tolerance_m']:g} m"
+    if result.get("tolerance") is None:
+        return f"ground truth: {src} (lists of right places)"
+    return f"ground truth: {src}, tolerance ±{result['tolerance']} frames"
+
+
 def format_evaluation(result: dict[str, Any]) -> str:
     """A plain-text table of :func:`evaluate_map`'s result."""
-    tol = result["tolerance"]
+    seq = result["sequence"]
     head = (
-        f"n={result['n']} d={result['d']} queries={result['n_queries']} "
-        f"decode={result['decode']} sequence={result['sequence']} "
-        f"tolerance=±{tol} frames; compression ratio {result['compression_ratio']:.4f}"
+        f"n={result['n']} d={result['d']} queries={result['n_queries']}; "
+        f"compression ratio {result['compression_ratio']:.4f}\n"
+        f"decode={result['decode']} sequence={seq if seq else 'off'}; recall@K "
+        f"ranks {result.get('recall_ranks', 'single-frame scores')} "
+        "(brute force: single frames)\n" + _truth_line(result)
     )
     cols = ["accuracy", "accuracy_tol", "recall@1", "recall@5", "recall@10"]
-    cols += ["storage_bytes", "latency_median_s", "queries_per_s"]
-    lines = [head, f"{'method':<12}" + "".join(f"{c:>18}" for c in cols)]
+    cols += ["pr_auc", "recall@100p", "storage_bytes", "latency_median_s"]
+    cols += ["queries_per_s"]
+    names = {"latency_median_s": "latency", "storage_bytes": "bytes"}
+    names |= {"queries_per_s": "queries/s", "accuracy_tol": "acc_tol"}
+    w = 13
+    lines = [head, f"{'method':<12}" + "".join(f"{names.get(c, c):>{w}}" for c in cols)]
     for name, row in result["methods"].items():
         cells = []
         for c in cols:
             v = row.get(c)
             if v is None:
-                cells.append(f"{'-':>18}")
+                cells.append(f"{'-':>{w}}")
             elif isinstance(v, int):
-                cells.append(f"{v:>18,}")
+                cells.append(f"{v:>{w},}")
             elif c == "latency_median_s":
-                cells.append(f"{v * 1e3:>15.3f} ms")
+                cells.append(f"{v * 1e3:>{w - 3}.3f} ms")
             else:
-                cells.append(f"{v:>18.4f}" if v < 100 else f"{v:>18,.0f}")
+                cells.append(f"{v:>{w}.4f}" if v < 100 else f"{v:>{w},.0f}")
         lines.append(f"{name:<12}" + "".join(cells))
     return "\n".join(lines)

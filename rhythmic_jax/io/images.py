@@ -78,7 +78,9 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
     """Image files of ``folder`` in natural order, no two with the same key.
 
     With ``one_pattern`` all names must share their text parts (``img#.png``):
-    frames named after different patterns have no order along a route.
+    frames named after different patterns have no order along a route. Names
+    carrying positions (``@easting@northing@...``, Pittsburgh and GSV) are
+    exempt: their order is by the numbers, and positions give the ground truth.
     """
     if not folder.is_dir():
         raise InputError(f"{what} folder not found: {folder}")
@@ -117,7 +119,8 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
         seen[key] = p
     files.sort(key=lambda p: natural_key(p.name))
     first = natural_key(files[0].name)[0]
-    for p in files[1:] if one_pattern else ():
+    positioned = all(p.name.startswith("@") for p in files)  # @east@north@ names
+    for p in files[1:] if one_pattern and not positioned else ():
         if natural_key(p.name)[0] != first:
             raise InputError(
                 f"cannot order the frames of {folder}: {files[0].name!r} and "

@@ -147,8 +147,12 @@ def load_sources(
     progress: bool = True,
     pca: int | None = None,
     weights: str | None = None,
+    same_length: bool = True,
 ) -> Features:
     """Reference features from one or several sources of the same kind.
+
+    ``same_length``: traversals must match frame for frame (row i of each is
+    place i); False when places come from elsewhere (positions).
 
     ``pca=k`` projects the descriptors on the k leading principal axes of the
     reference set (L2-normalised after); the projection is kept in ``extra`` so
@@ -177,14 +181,14 @@ def load_sources(
         images.append(imgs)
     n, d = blocks[0].shape
     for p, x in zip(paths, blocks, strict=True):
-        if x.shape != (n, d):
+        if x.shape != (n, d) and (same_length or x.shape[1] != d):
             raise InputError(
                 f"{p}: {x.shape[0]} frames of {x.shape[1]}-d, but {paths[0]} has "
                 f"{n} of {d}-d; traversals of one route must match frame for frame"
             )
     if kind == "npy":
         settings = {"dim": d}
-    labels = np.tile(np.arange(n), len(blocks))
+    labels = np.concatenate([np.arange(len(b)) for b in blocks])
     stacked = None if kind == "npy" else _stack_images(paths, images)
     x, extra = np.concatenate(blocks), {}
     if pca is not None:

@@ -14,6 +14,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.figures import (
     new_figure,
     plot_augmentation,
+    plot_evaluation,
     plot_levels,
     plot_r,
     plot_training_error,
@@ -286,3 +287,37 @@ def test_plot_levels_title_and_path_and_refusal(keep, tmp_path):
     assert path.read_bytes()[:8] == PNG_MAGIC
     with pytest.raises(InputError, match=r"^plot_levels: no series to plot$"):
         plot_levels({})
+
+
+# -------------------------------------------------------------- plot_evaluation
+def test_plot_evaluation_curves_bars_and_png(keep, tmp_path):
+    def row(auc, r100, recalls, precision, recall):
+        return {
+            "pr_auc": auc,
+            "recall@100p": r100,
+            **{f"recall@{k}": v for k, v in zip((1, 5, 10), recalls, strict=True)},
+            "pr_curve": {"precision": precision, "recall": recall},
+        }
+
+    result = {
+        "decode": "hard",
+        "sequence": 5,
+        "ground_truth": {"source": "positions q.csv"},
+        "methods": {
+            "map": row(0.8, 0.3, (0.6, 0.8, 0.9), [0.5, 0.75, 1.0], [0.6, 0.3, 0.0]),
+            "brute force": row(0.9, 0.4, (0.7, 0.9, 1.0), [0.7, 1.0], [0.7, 0.0]),
+        },
+    }
+    fig = keep(plot_evaluation(result, path=tmp_path / "e.png"))
+    left, right = fig.axes
+    lines = left.get_lines()
+    assert [list(ln.get_xdata()) for ln in lines] == [[0.6, 0.3, 0.0], [0.7, 0.0]]
+    assert [list(ln.get_ydata()) for ln in lines] == [[0.5, 0.75, 1.0], [0.7, 1.0]]
+    assert bar_heights(right) == [0.6, 0.8, 0.9, 0.7, 0.9, 1.0]
+    assert [t.get_text() for t in right.get_xticklabels()] == ["R@1", "R@5", "R@10"]
+    legend = [t.get_text() for t in left.get_legend().get_texts()]
+    assert legend[0] == "map (AUC 0.800, R@100P 0.300)"
+    assert "sequence=5" in fig._suptitle.get_text()
+    assert png_size((tmp_path / "e.png").read_bytes())[0] > 0
+    with pytest.raises(InputError, match="no PR curves"):
+        plot_evaluation({"methods": {"map": {"pr_auc": 1.0}}})

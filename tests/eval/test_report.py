@@ -18,10 +18,14 @@ COLS = [
     "recall@1",
     "recall@5",
     "recall@10",
+    "pr_auc",
+    "recall@100p",
     "storage_bytes",
     "latency_median_s",
     "queries_per_s",
 ]
+HEAD = ["accuracy", "acc_tol", *COLS[2:7], "bytes", "latency", "queries/s"]
+W = 13
 
 
 def unit(a: np.ndarray) -> np.ndarray:
@@ -238,19 +242,21 @@ def test_format_evaluation_prints_every_row_and_column(case):
     res = evaluate_map(model, q, reference=x, tolerance=2, timing=False)
     text = format_evaluation(res)
     lines = text.split("\n")
-    assert len(lines) == 4
-    assert lines[0] == (
-        f"n={N} d={D} queries={N} decode=hard sequence=None tolerance=±2 frames; "
-        f"compression ratio {res['compression_ratio']:.4f}"
-    )
-    assert lines[1] == f"{'method':<12}" + "".join(f"{c:>18}" for c in COLS)
-    for line, name in zip(lines[2:], ["map", "brute force"], strict=True):
+    assert len(lines) == 6
+    assert lines[:3] == [
+        f"n={N} d={D} queries={N}; compression ratio {res['compression_ratio']:.4f}",
+        "decode=hard sequence=off; recall@K ranks single-frame scores (brute force: "
+        "single frames)",
+        "ground truth: index-aligned (query i is place i), tolerance ±2 frames",
+    ]
+    assert lines[3] == f"{'method':<12}" + "".join(f"{c:>{W}}" for c in HEAD)
+    for line, name in zip(lines[4:], ["map", "brute force"], strict=True):
         row = res["methods"][name]
         assert line.startswith(f"{name:<12}")
         cells = line[12:]
-        assert len(cells) == 18 * len(COLS)
-        cells = [cells[i : i + 18].strip() for i in range(0, len(cells), 18)]
-        for c in ("accuracy", "accuracy_tol", "recall@1", "recall@5", "recall@10"):
+        assert len(cells) == W * len(COLS)
+        cells = [cells[i : i + W].strip() for i in range(0, len(cells), W)]
+        for c in COLS[:7]:
             assert cells[COLS.index(c)] == f"{row[c]:.4f}"
         assert cells[COLS.index("storage_bytes")] == f"{row['storage_bytes']:,}"
         assert cells[-2:] == ["-", "-"]  # no timing
@@ -279,16 +285,18 @@ def test_format_evaluation_hand_case():
         },
     }
     lines = format_evaluation(result).split("\n")
-    assert lines[0] == (
-        "n=1000 d=8 queries=3 decode=topm sequence=4 tolerance=±0 frames; "
-        "compression ratio 0.1235"
-    )
-    assert lines[1].split() == ["method", *COLS]
-    dash = f"{'-':>18}"
-    assert lines[2] == (
+    assert lines[:3] == [
+        "n=1000 d=8 queries=3; compression ratio 0.1235",
+        "decode=topm sequence=4; recall@K ranks single-frame scores (brute force: "
+        "single frames)",
+        "ground truth: index-aligned (query i is place i), tolerance ±0 frames",
+    ]
+    assert lines[3].split() == ["method", *HEAD]
+    dash = f"{'-':>{W}}"
+    assert lines[4] == (
         f"{'map':<12}"
-        + f"{'0.5000':>18}{'0.7500':>18}{'0.5000':>18}{'1.0000':>18}"
-        + dash
-        + f"{'1,234,567':>18}{'2.500 ms':>18}{'12,346':>18}"
+        + f"{'0.5000':>{W}}{'0.7500':>{W}}{'0.5000':>{W}}{'1.0000':>{W}}"
+        + dash * 3
+        + f"{'1,234,567':>{W}}{'2.500 ms':>{W}}{'12,346':>{W}}"
     )
-    assert lines[3] == f"{'kd':<12}{'0.3333':>18}" + dash * 6 + f"{'55.5000':>18}"
+    assert lines[5] == f"{'kd':<12}{'0.3333':>{W}}" + dash * 8 + f"{'55.5000':>{W}}"

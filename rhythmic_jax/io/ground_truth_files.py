@@ -1,0 +1,333 @@
+"""Ground truth in the files VPR datasets ship, read without running their code.
+
+* **VPR-Bench** (``DATASET/ref/``, ``DATASET/query/``, ``ground_truth_new.npy``):
+  an object array of ``[query_index, [reference indices]]`` rows. An object
+  ``.npy`` is a pickle; :func:`read_vpr_bench` unpickles it with an allowlist
+  (ints, floats, lists, tuples and plain numpy arrays and scalars; nothing that
+  names another callable) and refuses anything else in one line.
+* **Positions** (:func:`read_positions`): a CSV with a header naming
+  ``easting``/``northing`` (or ``x``/``y``) in metres, or ``latitude``/
+  ``longitude`` (``lat``/``lon``) in degrees, converted to metres; a CSV of two
+  unnamed columns or an ``(n, 2)`` ``.npy`` holds easting, northing in metres.
+* **File names** ``@easting@northing@...`` as the Pittsburgh and GSV downloaders
+  write them (:func:`positions_from_names`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import pickle
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
+
+__all__ = [
+    "in_metres",
+    "load_ground_truth",
+    "latlon_to_metres",
+    "positions_from_names",
+    "positions_of_sources",
+    "read_positions",
+    "read_vpr_bench",
+    "safe_object_npy",
+]
+
+EARTH_RADIUS_M = 6_371_008.8  # mean radius (IUGG)
+
+
+def _numpy_callables() -> dict[tuple[str, str], object]:
+    try:
+        from numpy._core.multiarray import _reconstruct, scalar
+    except ImportError:  # numpy < 2
+        from numpy.core.multiarray import _reconstruct, scalar
+
+    allowed = {"_reconstruct": _reconstruct, "scalar": scalar}
+    out: dict[tuple[str, str], object] = {
+        ("numpy", "ndarray"): np.ndarray,
+        ("numpy", "dtype"): np.dtype,
+    }
+    for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
+        out.update({(module, name): f for name, f in allowed.items()})
+    return out
+
+
+class _Restricted(pickle.Unpickler):
+    """Admits numpy arrays and scalars; ints, lists, tuples need no lookup."""
+
+    def __init__(self, file, where: str):
+        super().__init__(file)
+        self.where = where
+        self.allowed = _numpy_callables()
+
+    def find_class(self, module: str, name: str):
+        found = self.allowed.get((module, name))
+        if found is None:
+            raise InputError(
+                f"{self.where}: refused: the pickle names {module}.{name}; only "
+                "ints, lists, tuples and numpy arrays are read"
+            )
+        return found
+
+    def persistent_load(self, pid):
+        raise InputError(f"{self.where}: refused: the pickle holds external objects")
+
+
+def safe_object_npy(path: str | Path) -> np.ndarray:
+    """An object-dtype ``.npy`` unpickled through the allowlist (see the module)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            version = np.lib.format.read_magic(f)
+            read = {
+                (1, 0): np.lib.format.read_array_header_1_0,
+                (2, 0): np.lib.format.read_array_header_2_0,
+            }.get(version)
+            if read is None:
+                raise ValueError(f"format version {version}")
+            shape, _, dtype = read(f)
+            if not dtype.hasobject:
+                return np.load(path, allow_pickle=False)
+            data = f.read()
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror})") from None
+    except ValueError as err:
+        raise InputError(f"{path}: not a .npy file ({err})") from None
+    try:
+        arr = _Restricted(io.BytesIO(data), str(path)).load()
+    except InputError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a broken pickle raises many kinds
+        raise InputError(f"{path}: unreadable object array ({err!r})"[:300]) from None
+    if not isinstance(arr, np.ndarray) or arr.shape != shape:
+        raise InputError(f"{path}: the pickle is not the {shape} array it announces")
+    return arr
+
+
+def _int(v, where: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int | np.integer):
+        raise InputError(f"{where}: expected an integer index, found {v!r}"[:200])
+    return int(v)
+
+
+def read_vpr_bench(path: str | Path, n_queries: int, n_places: int) -> GroundTruth:
+    """VPR-Bench ``ground_truth_new.npy``: row ``[query_index, [ref indices]]``.
+
+    Every query ``0..n_queries-1`` must have one row; reference indices are map
+    places (rows of ``DATASET/ref`` in name order).
+    """
+    arr = safe_object_npy(path)
+    rows = arr.tolist() if arr.dtype.hasobject else arr.tolist()
+    lists: dict[int, list[int]] = {}
+    for i, row in enumerate(rows):
+        where = f"{path}: row {i}"
+        if not isinstance(row, list | tuple) or len(row) != 2:
+            raise InputError(f"{where}: expected [query_index, [reference indices]]")
+        q, refs = row
+        refs = refs.tolist() if isinstance(refs, np.ndarray) else refs
+        refs = refs if isinstance(refs, list | tuple) else [refs]
+        q = _int(q, where)
+        if q in lists:
+            raise InputError(f"{where}: query {q} appears twice")
+        lists[q] = [_int(r, where) for r in refs]
+    missing = [q for q in range(n_queries) if q not in lists]
+    extra = sorted(q for q in lists if not 0 <= q < n_queries)
+    if missing or extra:
+        what = f"no row for query {missing[0]}" if missing else f"query {extra[0]}"
+        raise InputError(f"{path}: {what} (there are {n_queries} queries)")
+    src = f"VPR-Bench ground truth {Path(path).absolute()}"
+    return from_lists([lists[q] for q in range(n_queries)], n_places, src)
+
+
+def latlon_to_metres(latlon, origin=None) -> np.ndarray:
+    """(n, 2) latitude, longitude in degrees -> (n, 2) easting, northing in metres.
+
+    A local equirectangular projection about ``origin`` (default: the mean):
+    ``east = R cos(lat0) dlon``, ``north = R dlat`` (R = 6,371,008.8 m); within
+    a city it agrees with great-circle distances to well under 0.1 %.
+    """
+    ll = np.radians(np.asarray(latlon, np.float64))
+    lat0, lon0 = ll.mean(0) if origin is None else np.radians(origin)
+    east = EARTH_RADIUS_M * np.cos(lat0) * (ll[:, 1] - lon0)
+    north = EARTH_RADIUS_M * (ll[:, 0] - lat0)
+    return np.stack([east, north], axis=1)
+
+
+_METRES = (("easting", "northing"), ("x", "y"), ("east", "north"))
+_DEGREES = (("latitude", "longitude"), ("lat", "lon"), ("lat", "lng"))
+
+
+def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
+    """Per-frame positions of a file: ``(n, 2)`` and their unit.
+
+    ``"metres"``: (easting, northing); ``"degrees"``: (latitude, longitude), to
+    be projected with :func:`in_metres` together with the files they meet.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: positions file not found")
+    if path.suffix.lower() == ".npy":
+        return _checked(np.load(path, allow_pickle=False), path), "metres"
+    try:
+        rows = list(csv.reader(path.read_text().splitlines()))
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"{path}: cannot read positions ({err})") from None
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    if not rows:
+        raise InputError(f"{path}: no positions")
+    head = [c.strip().lower() for c in rows[0]]
+    try:
+        [float(c) for c in head]
+    except ValueError:
+        pass
+    else:
+        if len(head) != 2:
+            raise InputError(f"{path}: {len(head)} unnamed columns; name them")
+        return _checked(_floats(rows, (0, 1), path), path), "metres"
+    named = [(m, "metres") for m in _METRES] + [(d, "degrees") for d in _DEGREES]
+    for (a, b), unit in named:
+        if a in head and b in head:
+            xy = _floats(rows[1:], (head.index(a), head.index(b)), path)
+            return _checked(xy, path), unit
+    raise InputError(
+        f"{path}: no easting,northing / x,y / latitude,longitude columns in {head}"
+    )
+
+
+def in_metres(*positions: tuple[np.ndarray, str]) -> list[np.ndarray]:
+    """Positions ``(array, unit)`` of one area in metres, degrees projected
+    about the mean of them all (:func:`latlon_to_metres`); units must agree."""
+    units = {unit for _, unit in positions}
+    if len(units) > 1:
+        raise InputError("positions mix metres and latitude/longitude; use one")
+    if units != {"degrees"}:
+        return [np.asarray(a, np.float64) for a, _ in positions]
+    origin = np.concatenate([a for a, _ in positions]).mean(0)
+    return [latlon_to_metres(a, origin) for a, _ in positions]
+
+
+def _floats(rows, cols: tuple[int, int], path: Path) -> np.ndarray:
+    try:
+        return np.array([[float(r[c]) for c in cols] for r in rows], np.float64)
+    except (ValueError, IndexError):
+        raise InputError(f"{path}: a row without two numbers in its columns") from None
+
+
+def _checked(xy: np.ndarray, path) -> np.ndarray:
+    xy = np.asarray(xy, np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not len(xy):
+        raise InputError(f"{path}: positions must be (n, 2), got {xy.shape}")
+    if not np.isfinite(xy).all():
+        raise InputError(f"{path}: positions hold NaN or infinite values")
+    return xy
+
+
+def positions_from_names(paths: Sequence[str | Path]) -> np.ndarray:
+    """``@easting@northing@...`` file names (Pittsburgh, GSV) -> (n, 2) metres."""
+    out = []
+    for p in paths:
+        parts = Path(p).name.split("@")
+        try:
+            out.append((float(parts[1]), float(parts[2])))
+        except (IndexError, ValueError):
+            raise InputError(f"{p}: no @easting@northing@ in the file name") from None
+    return _checked(np.array(out), paths[0] if paths else "file names")
+
+
+def positions_of_sources(specs: Sequence[str], sources: Sequence[str]):
+    """Reference positions ``(array, unit)`` for the map's sources: one file per
+    source, or ``["names"]`` to read ``@easting@northing@`` from its folders."""
+    from rhythmic_jax.io.images import list_images
+
+    if list(specs) == ["names"]:
+        files = [f for s in sources for f in list_images(Path(s), "reference")]
+        return positions_from_names(files), "metres"
+    if len(specs) != len(sources):
+        raise InputError(
+            f"{{opt:positions}}: {len(specs)} files for {len(sources)} sources; "
+            "give one per source, or 'names'"
+        )
+    read = [read_positions(s) for s in specs]
+    if len({unit for _, unit in read}) > 1:
+        raise InputError("{opt:positions} mix metres and latitude/longitude; use one")
+    return np.concatenate([a for a, _ in read]), read[0][1]
+
+
+def load_ground_truth(
+    specs: Sequence[str],
+    *,
+    n_queries: int,
+    n_places: int,
+    query_source: str,
+    reference_sources: Sequence[str] = (),
+    map_extra: dict | None = None,
+    tolerance_m: float = 25.0,
+) -> GroundTruth:
+    """What ``evaluate --ground-truth`` reads (see README "Datasets in the formats
+    you have"):
+
+    * ``ground_truth_new.npy`` (object array): VPR-Bench lists;
+    * ``names``: ``@easting@northing@`` names of the reference and query frames;
+    * ``QUERY_POSITIONS``: positions of the queries, the reference's saved in the
+      map by ``fit --positions``;
+    * ``REF_POSITIONS QUERY_POSITIONS``: positions of both.
+
+    Positions give every place with a reference frame within ``tolerance_m``.
+    """
+    from rhythmic_jax.io.images import list_images
+
+    extra = map_extra or {}
+    specs = list(specs)
+    if not 1 <= len(specs) <= 2:
+        raise InputError("{opt:ground_truth} takes one or two files (or 'names')")
+    labels = extra.get("reference_labels")
+    if specs == ["names"]:
+        ref = positions_of_sources(["names"], reference_sources)
+        qry = positions_from_names(list_images(Path(query_source), "query")), "metres"
+        src = f"@easting@northing@ names of {query_source} and the reference"
+    elif len(specs) == 1 and _object_npy(specs[0]):
+        return read_vpr_bench(specs[0], n_queries, n_places)
+    else:
+        if len(specs) == 2:
+            ref = read_positions(specs[0])
+        elif "reference_positions" in extra:
+            unit = "degrees" if int(extra["reference_positions_degrees"]) else "metres"
+            ref = np.asarray(extra["reference_positions"]), unit
+        else:
+            raise InputError(
+                f"{{opt:ground_truth}} {specs[0]}: the map holds no reference "
+                "positions (fit with {opt:positions}); give REF_POSITIONS "
+                "QUERY_POSITIONS"
+            )
+        qry = read_positions(specs[-1])
+        src = "positions " + " and ".join(str(Path(s).absolute()) for s in specs)
+    ref_m, qry_m = in_metres(ref, qry)
+    if len(qry_m) != n_queries:
+        raise InputError(
+            f"{{opt:ground_truth}}: {len(qry_m)} query positions for "
+            f"{n_queries} queries"
+        )
+    if labels is not None and len(labels) != len(ref_m):
+        labels = None  # positions of another reference than the map's frames
+    return from_positions(ref_m, qry_m, tolerance_m, labels, src)
+
+
+def _object_npy(path: str) -> bool:
+    p = Path(path)
+    if p.suffix.lower() != ".npy" or not p.is_file():
+        return False
+    try:
+        with p.open("rb") as f:
+            version = np.lib.format.read_magic(f)
+            read = (
+                np.lib.format.read_array_header_1_0
+                if version == (1, 0)
+                else np.lib.format.read_array_header_2_0
+            )
+            return bool(read(f)[2].hasobject)
+    except (OSError, ValueError):
+        return False

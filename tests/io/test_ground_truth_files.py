@@ -1,0 +1,212 @@
+"""Ground truth from the files users have: a VPR-Bench layout (ragged lists, read
+without running its pickle), positions in metres or degrees, @east@north@ file
+names, and places grouped from positions, through the command line."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import skimage.io
+from skimage.transform import resize
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.cli import main
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.eval.ground_truth import from_lists, from_positions
+from rhythmic_jax.eval.report import evaluate_map
+from rhythmic_jax.io.ground_truth_files import (
+    latlon_to_metres,
+    positions_from_names,
+    read_positions,
+    safe_object_npy,
+)
+from rhythmic_jax.io.sources import load_query_source
+
+RNG = np.random.default_rng(0)
+N_REF, N_QRY = 20, 12
+
+
+def _frame(rng) -> np.ndarray:
+    low = rng.uniform(0, 1, (4, 8, 3))
+    return (resize(low, (32, 64), order=1) * 255).astype(np.uint8)
+
+
+def _save(path: Path, image) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    skimage.io.imsave(path, image, check_contrast=False)
+
+
+@pytest.fixture(scope="module")
+def vpr_bench(tmp_path_factory):
+    """DATASET/ref, DATASET/query and a ragged ground_truth_new.npy."""
+    root = tmp_path_factory.mktemp("vprb") / "DATASET"
+    rng = np.random.default_rng(1)
+    refs = [_frame(rng) for _ in range(N_REF)]
+    for i, im in enumerate(refs):
+        _save(root / "ref" / f"image{i}.jpg", im)
+    gt = np.empty((N_QRY, 2), object)
+    for j in range(N_QRY):
+        src = (3 * j) % N_REF
+        noisy = np.clip(refs[src] + rng.normal(0, 8, refs[src].shape), 0, 255)
+        _save(root / "query" / f"image{j}.jpg", noisy.astype(np.uint8))
+        right = [src, src + 1][: 1 + j % 2] if j % 4 != 3 else []  # 1, 2 or none
+        gt[j] = [j, np.array(right, np.int64) if j % 3 == 0 else right]
+    np.save(root / "ground_truth_new.npy", gt, allow_pickle=True)
+    return root
+
+
+def _cli(cwd: Path, *argv: str) -> str:
+    env = {**os.environ, "RHYTHMIC_JAX_CACHE": str(cwd / "cache")}
+    proc = subprocess.run(["rhythmic-jax", *argv], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout
+
+
+def test_vpr_bench_layout_through_the_installed_command(vpr_bench, tmp_path):
+    fit_dir, elsewhere = tmp_path / "fit", tmp_path / "elsewhere"
+    fit_dir.mkdir(), elsewhere.mkdir()
+    _cli(fit_dir, "fit", str(vpr_bench / "ref"), "--out", "ds.map", "--no-progress")
+    gt_file = str(vpr_bench / "ground_truth_new.npy")
+    out = _cli(elsewhere, "evaluate", str(fit_dir / "ds.map"),
+               str(vpr_bench / "query"), "--ground-truth", gt_file, "--json",
+               "--no-progress")  # fmt: skip
+    res = json.loads(out)
+    assert res["ground_truth"]["source"] == f"VPR-Bench ground truth {gt_file}"
+    assert res["ground_truth"]["queries_in_map"] == 9  # every 4th has no place
+    # the same numbers from the library, with the lists given by hand
+    model = RhythmicMap.load(fit_dir / "ds.map")
+    q = load_query_source(str(vpr_bench / "query"), model, progress=False).x
+    lists = [
+        [] if j % 4 == 3 else [(3 * j) % N_REF, (3 * j) % N_REF + 1][: 1 + j % 2]
+        for j in range(N_QRY)
+    ]
+    want = evaluate_map(model, q, ground_truth=from_lists(lists, N_REF, "by hand"),
+                        timing=False)["methods"]["map"]  # fmt: skip
+    got = res["methods"]["map"]
+    for key in ("accuracy", "recall@1", "recall@5", "pr_auc", "recall@100p"):
+        assert got[key] == pytest.approx(want[key]), key
+    assert got["recall@1"] > 0.5 and "brute force" in res["methods"]
+
+
+class _Marker:
+    def __init__(self, path: Path):
+        self.path = path
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.path}",))
+
+
+def test_a_malicious_ground_truth_runs_no_code(vpr_bench, tmp_path, capsys):
+    marker = tmp_path / "ran"
+    evil = np.empty((2, 2), object)
+    evil[0] = [0, [1]]
+    evil[1] = [1, _Marker(marker)]
+    bad = tmp_path / "ground_truth_new.npy"
+    np.save(bad, evil, allow_pickle=True)
+    with pytest.raises(InputError, match=r"refused: the pickle names \w+\.system"):
+        safe_object_npy(bad)
+    model = RhythmicMap().fit(RNG.normal(size=(N_REF, 2048)), progress=False)
+    model.config = type(model.config)(descriptor="patchnorm",
+                                      descriptor_settings={"width": 64, "height": 32,
+                                                           "patch": 8})  # fmt: skip
+    model.save(tmp_path / "m.map")
+    code = main(["evaluate", str(tmp_path / "m.map"), str(vpr_bench / "query"),
+                 "--ground-truth", str(bad), "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip().count("\n") == 0 and "refused" in err
+    assert not marker.exists()
+    builtins_eval = np.empty(1, object)
+    builtins_eval[0] = _Eval()
+    np.save(bad, builtins_eval, allow_pickle=True)
+    with pytest.raises(InputError, match=r"builtins\.eval"):
+        safe_object_npy(bad)
+    assert not marker.exists()
+
+
+class _Eval:
+    def __reduce__(self):
+        return (eval, ("1",))
+
+
+def test_positions_in_metres_and_degrees(tmp_path):
+    ref = np.c_[np.arange(40) * 10.0, np.zeros(40)] + 500_000
+    (tmp_path / "ref.csv").write_text(
+        "timestamp,northing,easting\n"
+        + "".join(f"{i},{n},{e}\n" for i, (e, n) in enumerate(ref))
+    )
+    xy, unit = read_positions(tmp_path / "ref.csv")
+    np.testing.assert_array_equal(xy, ref) and unit == "metres"
+    np.save(tmp_path / "q.npy", ref[:5] + [3.0, 4.0])
+    assert read_positions(tmp_path / "q.npy")[1] == "metres"
+    # degrees: the local projection keeps great-circle distances within 0.1 %
+    ll = np.array([[40.44, -79.99]]) + RNG.uniform(-0.03, 0.03, (50, 2))
+    m = latlon_to_metres(ll)
+    lat, lon = np.radians(ll).T
+    i, j = np.triu_indices(50, 1)
+    hav = 2 * 6_371_008.8 * np.arcsin(np.sqrt(
+        np.sin((lat[j] - lat[i]) / 2) ** 2
+        + np.cos(lat[i]) * np.cos(lat[j]) * np.sin((lon[j] - lon[i]) / 2) ** 2
+    ))  # fmt: skip
+    np.testing.assert_allclose(np.linalg.norm(m[i] - m[j], axis=1), hav, rtol=1e-3)
+    (tmp_path / "ll.csv").write_text("lat,lon\n" + "".join(f"{a},{b}\n" for a, b in ll))
+    assert read_positions(tmp_path / "ll.csv")[1] == "degrees"
+    names = [f"@{e:.2f}@{n:.2f}@17@T@040.4@-079.9@pano{k}@@@@@201411@.jpg"
+             for k, (e, n) in enumerate(ref[:3])]  # fmt: skip
+    np.testing.assert_allclose(positions_from_names(names), ref[:3])
+    with pytest.raises(InputError, match="no @easting@northing@"):
+        positions_from_names(["image0.jpg"])
+
+
+def test_evaluate_with_positions_names_and_places(tmp_path, capsys):
+    """Two traversals of different lengths grouped into places by k-means over
+    their positions; queries judged by positions (metres), then by names."""
+    rng = np.random.default_rng(2)
+    east = np.arange(N_REF) * 10.0 + 585_000
+    frames = [_frame(rng) for _ in range(N_REF)]
+    for run, idx in (("run1", range(N_REF)), ("run2", range(0, N_REF, 2))):
+        rows = []
+        for i in idx:
+            im = np.clip(frames[i] + rng.normal(0, 4, frames[i].shape), 0, 255)
+            name = f"@{east[i] + rng.uniform(-2, 2):.2f}@4477000.00@17@T@{i:03d}.png"
+            _save(tmp_path / run / name, im.astype(np.uint8))
+            rows.append(f"{east[i]:.2f},4477000\n")
+        (tmp_path / f"{run}.csv").write_text("easting,northing\n" + "".join(rows))
+    qidx = np.arange(1, N_REF, 3)
+    for k, i in enumerate(qidx):
+        im = np.clip(frames[i] + rng.normal(0, 8, frames[i].shape), 0, 255)
+        _save(tmp_path / "qry" / f"@{east[i] + 5:.2f}@4477000.00@17@T@{k:03d}.png",
+              im.astype(np.uint8))  # fmt: skip
+    (tmp_path / "q.csv").write_text(
+        "easting,northing\n" + "".join(f"{east[i] + 5},4477000\n" for i in qidx)
+    )
+    fit = ["fit", str(tmp_path / "run1"), str(tmp_path / "run2"), "--out",
+           str(tmp_path / "p.map"), "--positions", str(tmp_path / "run1.csv"),
+           str(tmp_path / "run2.csv"), "--places", "10", "--no-progress"]  # fmt: skip
+    assert main(fit) == 0, capsys.readouterr().err
+    model = RhythmicMap.load(tmp_path / "p.map")
+    assert model.n == 10 and model.extra["reference_labels"].shape == (30,)
+    ev = ["evaluate", str(tmp_path / "p.map"), str(tmp_path / "qry"), "--json",
+          "--no-progress", "--tolerance-m", "12"]  # fmt: skip
+    capsys.readouterr()
+    assert main([*ev, "--ground-truth", str(tmp_path / "q.csv")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["ground_truth"]["tolerance_m"] == 12.0
+    assert "q.csv" in res["ground_truth"]["source"]
+    ref_xy = np.r_[np.c_[east, np.full(N_REF, 4477000.0)],
+                   np.c_[east[::2], np.full(N_REF // 2, 4477000.0)]]  # fmt: skip
+    truth = from_positions(ref_xy, np.c_[east[qidx] + 5, np.full(len(qidx), 4477000.0)],
+                           12.0, model.extra["reference_labels"])  # fmt: skip
+    q = load_query_source(str(tmp_path / "qry"), model, progress=False).x
+    want = evaluate_map(model, q, ground_truth=truth, timing=False)["methods"]["map"]
+    assert res["methods"]["map"]["recall@5"] == pytest.approx(want["recall@5"])
+    assert res["methods"]["map"]["recall@1"] >= 0.5
+    assert main([*ev, "--ground-truth", "names"]) == 0
+    by_names = json.loads(capsys.readouterr().out)
+    assert by_names["ground_truth"]["source"].startswith("@easting@northing@ names")
+    assert by_names["ground_truth"]["queries_in_map"] == len(qidx)
