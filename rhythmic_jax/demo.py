@@ -131,7 +131,7 @@ def run_demo(
     *,
     quick: bool = False,
     config: DemoConfig | None = None,
-    progress: bool = True,
+    progress: bool = False,
 ) -> dict:
     """Build the route, fit, query, compare with brute force, write the report."""
     from rhythmic_jax.eval.report import evaluate_map, format_evaluation

@@ -406,7 +406,7 @@ def describe(
     images: np.ndarray,
     descriptor: Descriptor,
     batch_size: int = 64,
-    progress: bool = True,
+    progress: bool = False,
     num_threads: int | None = None,
     compile: CompilePolicy = AUTO,
 ) -> np.ndarray:
@@ -468,7 +468,7 @@ def cached_describe(
     key: str,
     cache_dir: str | Path | None = None,
     batch_size: int = 64,
-    progress: bool = True,
+    progress: bool = False,
     num_threads: int | None = None,
     compile: CompilePolicy = AUTO,
 ) -> np.ndarray:

@@ -192,7 +192,7 @@ def _check_map_space(job: FitJob, feats) -> None:
     check_space(job.out, storage_bytes(sorted(cands)[-job.r :], d) + extra)
 
 
-def fit(job: FitJob, progress: bool = True):
+def fit(job: FitJob, progress: bool = False):
     """Fit, record provenance and save the map of ``job``; returns the map."""
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.sources import check_sources_memory, load_sources
@@ -287,7 +287,7 @@ def query(
     threshold: float | None = None,
     out: str | None = None,
     reading: Reading = Reading(),
-    progress: bool = True,
+    progress: bool = False,
 ) -> np.ndarray:
     """Localise the frames of ``source`` with the map at ``map_path``: (b,) int64.
 
@@ -370,7 +370,7 @@ def evaluate(
     tolerance_m: float = 25.0,
     plot: str | None = None,
     reading: Reading = Reading(),
-    progress: bool = True,
+    progress: bool = False,
 ) -> dict[str, Any]:
     """Judge the map on the queries of ``source``, beside brute force.
 
@@ -428,7 +428,7 @@ def evaluate_summary(result: dict[str, Any]) -> str:
     return lines
 
 
-def demo(out: str = "rhythmic_demo", quick: bool = False, progress: bool = True):
+def demo(out: str = "rhythmic_demo", quick: bool = False, progress: bool = False):
     """The bundled demo (:func:`rhythmic_jax.demo.run_demo`); writes its report."""
     from rhythmic_jax.demo import run_demo
 

@@ -140,16 +140,28 @@ class RhythmicMap:
         self._small: SmallDecoder | None = None  # numpy decode of these params
 
     # ------------------------------------------------------------------ fit
-    def fit(self, x, labels=None, *, progress: bool = True, refine=None) -> RhythmicMap:
+    def fit(
+        self,
+        x,
+        labels=None,
+        *,
+        verbose: int = 0,
+        progress: bool | None = None,
+        refine=None,
+    ) -> RhythmicMap:
         """Train on reference frames x (n_frames, d).
 
         Args:
+          verbose: 0 (default) is quiet; 1 shows the solver's progress bar
+            (``TQDM_DISABLE=1`` hides it still), as ``rhythmic-jax fit`` does.
+          progress: the same as a bool (overrides ``verbose`` when given).
           labels: (n_frames,) place of each frame (default: its row), so several
             traversals of one route share templates (multi-exemplar map).
           refine: optional ``refine(params, candidates, c) -> params`` run after
             the exact solve and before the period choice (e.g. minibatch steps
             over augmented frames, :func:`rhythmic_jax.augment.stream.fit_augmented`).
         """
+        progress = bool(verbose) if progress is None else bool(progress)
         x = check_features(x, "reference features")
         labels = check_labels(np.arange(len(x)) if labels is None else labels, len(x))
         n = int(labels.max()) + 1

@@ -16,7 +16,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 
 LAYERS = [
-    ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span"],
+    ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span",
+     "progress"],
     ["validate", "quantize", "cache_files"],
     [
         "periods", "projection", "split", "nets", "io.checkpoint", "io.images",

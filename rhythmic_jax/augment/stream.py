@@ -165,7 +165,7 @@ def fit_augmented(
     descriptor,
     config: AugmentedFit = AugmentedFit(),
     *,
-    progress: bool = True,
+    progress: bool = False,
     checkpoint: str | os.PathLike | None = None,
 ) -> tuple[Templates, dict[str, float]]:
     """Minibatch optax training over ``config.epochs`` freshly augmented epochs.
@@ -226,7 +226,7 @@ def fit_map_augmented(
     config: AugmentedFit = AugmentedFit(),
     labels: np.ndarray | None = None,
     *,
-    progress: bool = True,
+    progress: bool = False,
     checkpoint: str | os.PathLike | None = None,
 ):
     """Fit a :class:`~rhythmic_jax.RhythmicMap` with augmented epochs, in place.

@@ -28,10 +28,10 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from rhythmic_jax.decoding.sequence import frame_offsets
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -149,7 +149,7 @@ def seqslam_decode(
     *,
     contrast_window: int | None = None,
     chunk: int = 256,
-    progress: bool = True,
+    progress: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """SeqSLAM match of every query frame: Q (T, d), X (N, d) -> index (T,), score (T,).
 
@@ -191,7 +191,7 @@ def seqslam_decode(
     xn = normalise_rows(x.astype(dtype))
     indices, scores = [], []
     starts = range(0, total, chunk)
-    for start in tqdm(starts, desc="seqslam", disable=not progress):
+    for start in bar(starts, show=progress, desc="seqslam"):
         i, s = _chunk_jit(
             qpad, valid, xn, start, length, speeds, contrast_window, chunk
         )

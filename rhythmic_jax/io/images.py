@@ -28,9 +28,9 @@ import skimage.transform
 import skimage.util
 from sklearn.cluster import KMeans
 from threadpoolctl import threadpool_limits
-from tqdm.auto import tqdm
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -193,7 +193,7 @@ def _check_size(size: tuple[int, int] | None) -> tuple[int, int] | None:
 def load_traversal(
     folder: str | os.PathLike,
     size: tuple[int, int] | None = None,
-    progress: bool = True,
+    progress: bool = False,
 ) -> Traversal:
     """Load one folder of frames as a :class:`Traversal`, in natural name order.
 
@@ -210,7 +210,7 @@ def load_traversal(
     size = _check_size(size)
     files = list_images(folder, "traversal")
     images = None
-    for i, path in enumerate(tqdm(files, desc=folder.name, disable=not progress)):
+    for i, path in enumerate(bar(files, show=progress, desc=folder.name)):
         image = read_rgb(path)
         if size is not None:
             image = _resize(image, size)
@@ -230,7 +230,7 @@ def load_traversal(
 def load_route(
     folders: Sequence[str | os.PathLike],
     size: tuple[int, int] | None = None,
-    progress: bool = True,
+    progress: bool = False,
 ) -> list[Traversal]:
     """Several conditions of one route; index i is the same place in each.
 
@@ -257,7 +257,7 @@ def load_route(
 def nordland(
     root: str | os.PathLike,
     seasons: Sequence[str] = ("summer", "winter"),
-    progress: bool = True,
+    progress: bool = False,
 ) -> list[Traversal]:
     """The Nordland traversals ``root/<season>`` (e.g. ``shared/data/nordland_64x32``).
 

@@ -144,7 +144,7 @@ def load_sources(
     descriptor: str | None = None,
     tile: int | None = None,
     stride: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     pca: int | None = None,
     weights: str | None = None,
     same_length: bool = True,
@@ -243,7 +243,7 @@ def load_query_source(
     descriptor: str | None = None,
     tile: int | None = None,
     stride: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     weights: str | None = None,
 ) -> Features:
     """Query features described the way ``model`` (a fitted map) was built.
@@ -295,7 +295,7 @@ def reference_features(
     descriptor: str | None = None,
     tile: int | None = None,
     stride: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     weights: str | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 import skimage.util
-from tqdm.auto import tqdm
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.images import list_images, read_rgb
+from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -127,7 +127,7 @@ def load_aerial_route(
     size: int = 64,
     stride: int = 32,
     crop: bool = True,
-    progress: bool = True,
+    progress: bool = False,
 ) -> AerialRoute:
     """Every pair ``folder/A/<name>``, ``folder/B/<name>`` tiled into one route.
 
@@ -145,7 +145,7 @@ def load_aerial_route(
         raise InputError(f"{folder / 'B' / missing[0]} is missing (it is in A)")
     pairs = [
         _pair_tiles(path, folder / "B" / path.name, size, stride, crop)
-        for path in tqdm(files_a, desc=folder.name, disable=not progress)
+        for path in bar(files_a, show=progress, desc=folder.name)
     ]
     index = [np.full(len(a.tiles), i, np.int64) for i, (a, _) in enumerate(pairs)]
     return AerialRoute(

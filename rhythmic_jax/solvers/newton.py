@@ -52,9 +52,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from threadpoolctl import threadpool_limits
-from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates
+from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.precondition import block_preconditioner, spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
@@ -320,7 +320,7 @@ def newton_fit(
     y: np.ndarray | jax.Array,
     c: float,
     config: NewtonConfig = NewtonConfig(),
-    progress: bool = True,
+    progress: bool = False,
     *,
     bias: jax.Array | None = None,
 ) -> tuple[Templates, NewtonInfo]:
@@ -379,7 +379,7 @@ def newton_fit(
         todo = np.arange(p)
         cg_its: list[int] = []
         widths: list[int] = []
-        bar = tqdm(range(config.max_iter), desc="newton", disable=not progress)
+        bar = progress_bar(range(config.max_iter), show=progress, desc="newton")
         for step in bar:
             width = _bucket(len(todo), p) if config.compact else p
             cols = todo if config.compact else np.arange(p)

@@ -20,9 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from tqdm.auto import tqdm
 
 from rhythmic_jax.objective import Templates, total_objective
+from rhythmic_jax.progress import bar
 from rhythmic_jax.solvers.span import in_span
 
 __all__ = [
@@ -122,7 +122,7 @@ def fit_full_batch(
     tol: float = 1e-7,
     init: Templates | None = None,
     optimizer: optax.GradientTransformation | None = None,
-    progress: bool = True,
+    progress: bool = False,
 ) -> tuple[Templates, np.ndarray]:
     """Full-batch optax L-BFGS on the joint objective from the ridge start.
 
@@ -142,7 +142,7 @@ def fit_full_batch(
     optimizer = optimizer or optax.lbfgs()
     state = init_state(init if init is not None else ridge_start(x, y, c), optimizer)
     history: list[float] = []
-    for _ in tqdm(range(steps), desc="l-bfgs", disable=not progress):
+    for _ in bar(range(steps), show=progress, desc="l-bfgs"):
         state, value = _lbfgs_step(state, x, y, c, optimizer)
         history.append(float(value))
         if len(history) > 10 and history[-11] - history[-1] <= tol * abs(history[-1]):

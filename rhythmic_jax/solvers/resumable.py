@@ -32,10 +32,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, targets
+from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.optax_loops import TrainState, init_state, minibatch_step
 from rhythmic_jax.solvers.optax_loops import adam as _adam
 from rhythmic_jax.validate import check_int, check_labels
@@ -188,7 +188,7 @@ def train_run(
     n: int,
     config: RunConfig,
     ckpt_dir: str | os.PathLike | None,
-    progress: bool = True,
+    progress: bool = False,
     timings: dict[str, float] | None = None,
 ) -> Templates:
     """Adam over ``config.epochs`` passes of minibatches, resumable from checkpoints.
@@ -229,8 +229,8 @@ def train_run(
     first = batches_for_epoch(0)
     per_epoch = len(first) if hasattr(first, "__len__") else None
     total = per_epoch * config.epochs if per_epoch is not None else None
-    bar = tqdm(
-        total=total, initial=skip, desc="train", unit="step", disable=not progress
+    bar = progress_bar(
+        total=total, initial=skip, desc="train", unit="step", show=progress
     )
     try:
         for epoch in range(config.epochs):
