@@ -41,6 +41,13 @@ _EXPORTS = {
     "recall_at_k": "rhythmic_jax.eval.metrics",
     "RecallAtK": "rhythmic_jax.eval.metrics",
     "seqslam_decode": "rhythmic_jax.eval.seqslam",
+    "GroundTruth": "rhythmic_jax.eval.ground_truth",
+    "from_indices": "rhythmic_jax.eval.ground_truth",
+    "from_lists": "rhythmic_jax.eval.ground_truth",
+    "from_positions": "rhythmic_jax.eval.ground_truth",
+    "load_ground_truth": "rhythmic_jax.io.ground_truth_files",
+    "read_positions": "rhythmic_jax.io.ground_truth_files",
+    "read_vpr_bench": "rhythmic_jax.io.ground_truth_files",
     "classifier_objective": "rhythmic_jax.objective",
     "default_c": "rhythmic_jax.objective",
     "objective": "rhythmic_jax.objective",
@@ -95,6 +102,10 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     from rhythmic_jax.eval.baselines import BruteForce as BruteForce
     from rhythmic_jax.eval.baselines import KDTreeSearch as KDTreeSearch
     from rhythmic_jax.eval.baselines import default_baselines as default_baselines
+    from rhythmic_jax.eval.ground_truth import GroundTruth as GroundTruth
+    from rhythmic_jax.eval.ground_truth import from_indices as from_indices
+    from rhythmic_jax.eval.ground_truth import from_lists as from_lists
+    from rhythmic_jax.eval.ground_truth import from_positions as from_positions
     from rhythmic_jax.eval.metrics import RecallAtK as RecallAtK
     from rhythmic_jax.eval.metrics import accuracy as accuracy
     from rhythmic_jax.eval.metrics import pr_auc as pr_auc
@@ -104,6 +115,11 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     )
     from rhythmic_jax.eval.metrics import recall_at_k as recall_at_k
     from rhythmic_jax.eval.seqslam import seqslam_decode as seqslam_decode
+    from rhythmic_jax.io.ground_truth_files import (
+        load_ground_truth as load_ground_truth,
+    )
+    from rhythmic_jax.io.ground_truth_files import read_positions as read_positions
+    from rhythmic_jax.io.ground_truth_files import read_vpr_bench as read_vpr_bench
     from rhythmic_jax.objective import Templates as Templates
     from rhythmic_jax.objective import classifier_objective as classifier_objective
     from rhythmic_jax.objective import default_c as default_c

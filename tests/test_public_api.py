@@ -12,6 +12,8 @@ PUBLIC = [
     "compression_ratio", "choose_periods", "crt_tables", "objective", "targets",
     "newton_fit", "fit_full_batch", "decode", "decode_scores", "soft_decode",
     "topm_decode", "sequence_decode", "seqslam_decode", "InputError", "Decoded",
+    "GroundTruth", "from_lists", "from_positions", "read_vpr_bench",
+    "load_ground_truth",
 ]  # fmt: skip
 
 
