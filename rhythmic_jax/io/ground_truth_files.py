@@ -311,8 +311,13 @@ def load_ground_truth(
             f"{{opt:ground_truth}}: {len(qry_m)} query positions for "
             f"{n_queries} queries"
         )
-    if labels is not None and len(labels) != len(ref_m):
-        labels = None  # positions of another reference than the map's frames
+    if labels is None or len(labels) != len(ref_m):
+        if len(ref_m) % n_places:
+            raise InputError(
+                f"--ground-truth: {len(ref_m)} reference positions for a map of "
+                f"{n_places} places (give one per reference frame)"
+            )
+        labels = np.arange(len(ref_m)) % n_places  # traversals: row i is place i
     return from_positions(ref_m, qry_m, tolerance_m, labels, src)
 
 
