@@ -210,3 +210,20 @@ def test_evaluate_with_positions_names_and_places(tmp_path, capsys):
     by_names = json.loads(capsys.readouterr().out)
     assert by_names["ground_truth"]["source"].startswith("@easting@northing@ names")
     assert by_names["ground_truth"]["queries_in_map"] == len(qidx)
+
+
+def test_positions_of_aligned_traversals_name_places(tmp_path):
+    from rhythmic_jax.ground_truth_files import load_ground_truth
+
+    east = np.arange(10) * 30.0
+    both = np.r_[east, east + 2.0]  # two traversals, frame i of each is place i
+    np.save(tmp_path / "ref.npy", np.c_[both, np.zeros(20)])
+    np.save(tmp_path / "q.npy", np.c_[east[[2, 7]] + 10, np.zeros(2)])
+    specs = [str(tmp_path / "ref.npy"), str(tmp_path / "q.npy")]
+    truth = load_ground_truth(specs, n_queries=2, n_places=10, query_source="q",
+                              tolerance_m=15.0)  # fmt: skip
+    assert [p.tolist() for p in truth.positives] == [[2], [7]]
+    with pytest.raises(InputError, match="20 reference positions for a map of 7"):
+        load_ground_truth(specs, n_queries=2, n_places=7, query_source="q")
+    with pytest.raises(InputError, match="2 query positions for 3 queries"):
+        load_ground_truth(specs, n_queries=3, n_places=10, query_source="q")
