@@ -314,7 +314,7 @@ def load_ground_truth(
     if labels is None or len(labels) != len(ref_m):
         if len(ref_m) % n_places:
             raise InputError(
-                f"--ground-truth: {len(ref_m)} reference positions for a map of "
+                f"{{opt:ground_truth}}: {len(ref_m)} reference positions for a map of "
                 f"{n_places} places (give one per reference frame)"
             )
         labels = np.arange(len(ref_m)) % n_places  # traversals: row i is place i

@@ -83,7 +83,7 @@ def test_positions_within_the_radius_with_places():
         np.testing.assert_array_equal(truth.positives[i], np.unique(labels[d[i] <= 25]))
     assert truth.tolerance_m == 25.0 and truth.describe()["tolerance_m"] == 25.0
     assert 0 < truth.in_map.mean() < 1  # some queries have no place near them
-    with pytest.raises(InputError, match="tolerance-m must be positive"):
+    with pytest.raises(InputError, match="tolerance_m must be positive"):
         from_positions(ref, qry, 0.0)
 
 
