@@ -213,7 +213,7 @@ def test_evaluate_with_positions_names_and_places(tmp_path, capsys):
 
 
 def test_positions_of_aligned_traversals_name_places(tmp_path):
-    from rhythmic_jax.ground_truth_files import load_ground_truth
+    from rhythmic_jax.io.ground_truth_files import load_ground_truth
 
     east = np.arange(10) * 30.0
     both = np.r_[east, east + 2.0]  # two traversals, frame i of each is place i
