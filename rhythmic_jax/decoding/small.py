@@ -72,7 +72,13 @@ class SmallDecoder:
         """Decode queries (b, d) float32: index (b,) int32 (-1 no match), score
         (b,) (sum of the per-period maxima, -inf for no match) and runner_up
         (score minus the smallest top-1 / top-2 margin), as numpy arrays."""
-        s = q @ self.wt.T
+        # one matrix-vector product per row: OpenBLAS's gemm on a single row
+        # wakes its thread pool, which costs milliseconds on a busy machine
+        s = (
+            np.stack([self.wt @ row for row in q])
+            if len(q)
+            else np.zeros((0, len(self.b)), np.float32)
+        )
         s += self.b
         rows = np.arange(len(s))
         index = np.zeros(len(s), np.int64)
