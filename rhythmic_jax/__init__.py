@@ -19,7 +19,19 @@ from rhythmic_jax.version import __version__ as __version__
 
 # public name -> the module that defines it
 _EXPORTS = {
+    "CodeBook": "rhythmic_jax.codes",
+    "CodeTransform": "rhythmic_jax.codes",
+    "code_bytes": "rhythmic_jax.codes",
+    "code_similarity": "rhythmic_jax.codes",
+    "fit_codes": "rhythmic_jax.codes",
     "decode_scores": "rhythmic_jax.decoding.dispatch",
+    "fused_decode": "rhythmic_jax.decoding.fusion",
+    "fused_sequence_decode": "rhythmic_jax.decoding.fusion",
+    "learn_weight": "rhythmic_jax.decoding.fusion",
+    "FrontierConfig": "rhythmic_jax.eval.frontier",
+    "crossover_n": "rhythmic_jax.eval.frontier",
+    "frontier_rows": "rhythmic_jax.eval.frontier",
+    "projected_bytes": "rhythmic_jax.eval.frontier",
     "decode": "rhythmic_jax.decoding.hard",
     "Decoded": "rhythmic_jax.decoding.hard",
     "hard_decode": "rhythmic_jax.decoding.hard",
@@ -87,7 +99,17 @@ _EXPORTS = {
 }
 
 if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
+    from rhythmic_jax.codes import CodeBook as CodeBook
+    from rhythmic_jax.codes import CodeTransform as CodeTransform
+    from rhythmic_jax.codes import code_bytes as code_bytes
+    from rhythmic_jax.codes import code_similarity as code_similarity
+    from rhythmic_jax.codes import fit_codes as fit_codes
     from rhythmic_jax.decoding.dispatch import decode_scores as decode_scores
+    from rhythmic_jax.decoding.fusion import fused_decode as fused_decode
+    from rhythmic_jax.decoding.fusion import (
+        fused_sequence_decode as fused_sequence_decode,
+    )
+    from rhythmic_jax.decoding.fusion import learn_weight as learn_weight
     from rhythmic_jax.decoding.hard import Decoded as Decoded
     from rhythmic_jax.decoding.hard import decode as decode
     from rhythmic_jax.decoding.hard import hard_decode as hard_decode
@@ -102,6 +124,10 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     from rhythmic_jax.eval.baselines import BruteForce as BruteForce
     from rhythmic_jax.eval.baselines import KDTreeSearch as KDTreeSearch
     from rhythmic_jax.eval.baselines import default_baselines as default_baselines
+    from rhythmic_jax.eval.frontier import FrontierConfig as FrontierConfig
+    from rhythmic_jax.eval.frontier import crossover_n as crossover_n
+    from rhythmic_jax.eval.frontier import frontier_rows as frontier_rows
+    from rhythmic_jax.eval.frontier import projected_bytes as projected_bytes
     from rhythmic_jax.eval.ground_truth import GroundTruth as GroundTruth
     from rhythmic_jax.eval.ground_truth import from_indices as from_indices
     from rhythmic_jax.eval.ground_truth import from_lists as from_lists

@@ -32,6 +32,8 @@ EXAMPLES = {
       rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
       rhythmic-jax fit run1/ run2/ --positions run1.csv run2.csv --places 500 \\
           --out route.map
+      rhythmic-jax fit summer/ --descriptor efficientnet_lite0 --level 4 --codes 64 \\
+        --out hybrid.map      (a map plus a 64-bit code per place)
       rhythmic-jax fit summer/ --out route.map --augment all --epochs 5
         (killed or stopped with Ctrl-C? run the same command again to resume)
       rhythmic-jax fit big.npy --out route.map --processes 2 --memory 1GiB
@@ -55,6 +57,7 @@ EXAMPLES = {
       rhythmic-jax evaluate ref.map DATASET/query --ground-truth \\
           DATASET/ground_truth_new.npy --plot pr.png
       rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
+      rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot frontier.png
     """,
     "demo": """
       rhythmic-jax demo
@@ -233,6 +236,20 @@ def _parser() -> argparse.ArgumentParser:
         help="group the frames into K places by k-means over --positions (the "
         "RobotCar protocol); traversals may then differ in length",
     )
+    p.add_argument(
+        "--codes",
+        type=int,
+        default=None,
+        metavar="BITS",
+        help="also store a BITS-bit ITQ code per place (1 <= BITS <= d); queries "
+        "fuse the map's place scores with the code similarities",
+    )
+    p.add_argument(
+        "--fusion",
+        type=float,
+        default=0.5,
+        help="the map's share of the fused score with --codes, in [0, 1] (0.5)",
+    )
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -299,6 +316,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--plot", default=None, help="write PR curves and recall@K (.png)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument(
+        "--plot",
+        default=None,
+        metavar="PNG",
+        help="draw recall against storage (map, codes, hybrid, brute force) to PNG",
+    )
     _add_source_options(p)
 
     p = add("demo", "fit and query a map on built-in photographs; write a report")
@@ -326,6 +349,7 @@ def _cmd_fit(args) -> int:
         reading=_reading(args), dtype=args.dtype,
         positions=tuple(args.positions) if args.positions else None,
         places=args.places,
+        codes=args.codes, fusion=args.fusion,
     )  # fmt: skip
     scale = jobs.ScaleJob(
         processes=args.processes, coordinator=args.coordinator,

@@ -103,6 +103,8 @@ class FitJob:
     batch_size: int = 128
     checkpoint: str | None = None
     checkpoint_every: int = 50
+    codes: int | None = None
+    fusion: float = 0.5
     reading: Reading = Reading()
     dtype: str = "float32"
     positions: tuple[str, ...] | None = None
@@ -201,6 +203,10 @@ def fit(job: FitJob, progress: bool = False):
     read = job.reading
     _check_reading(read)
     check_target(job.out)  # before the fit, not after it
+    if job.codes is not None and (isinstance(job.codes, bool) or job.codes < 1):
+        raise InputError(
+            f"{{opt:codes}} must be a number of bits >= 1, got {job.codes}"
+        )
     augmented = _augmented_settings(job) if job.augment else None
     check_sources_memory(job.sources, job.r, job.level, job.count)
     if job.places is not None and job.positions is None:
@@ -216,7 +222,13 @@ def fit(job: FitJob, progress: bool = False):
         r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
         gap=job.gap, descriptor=feats.descriptor, descriptor_settings=feats.settings,
         dtype=job.dtype,
+        codes=job.codes, fusion=job.fusion,
     )  # fmt: skip
+    if job.codes is not None and job.codes > feats.x.shape[1]:
+        raise InputError(
+            f"{{opt:codes}} {job.codes}: at most d={feats.x.shape[1]} bits (the "
+            f"descriptors' dimension)"
+        )
     if augmented is not None:
         _fit_augmented(model, feats, *augmented, progress=progress)
     else:
@@ -258,9 +270,10 @@ def _with_positions(feats, job: FitJob):
 
 def fit_summary(out: str, info: dict[str, Any]) -> str:
     """One line about a saved map: size, periods, storage and compression."""
+    codes = f" with {info['codes_bits']}-bit codes" if info.get("codes_bits") else ""
     return (
-        f"map {out}: n={info['n']} d={info['d']} periods={tuple(info['periods'])} "
-        f"storage={info['storage_bytes']:,} B "
+        f"map {out}: n={info['n']} d={info['d']} periods={tuple(info['periods'])}"
+        f"{codes} storage={info['storage_bytes']:,} B "
         f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
     )
 
@@ -351,6 +364,15 @@ def info_lines(info: dict[str, Any]) -> str:
     """The text form of :func:`info`: one setting a line, then each candidate."""
     keys = ("n", "d", "periods", "storage_bytes", "compression_ratio", "c")
     lines = [f"{key:>18}: {info[key]}" for key in keys]
+    st = info["storage"]
+    lines += [
+        f"{'storage fixed':>18}: {st['fixed']:,} B (code transform)",
+        f"{'per place':>18}: {st['per_place']:,} B (codes)",
+    ]
+    lines += [
+        f"{'period ' + t:>18}: {b:,} B (templates)" for t, b in st["per_period"].items()
+    ]
+    lines.append(f"{'share':>18}: {st['share']:.4f} of the float32 database")
     lines += [
         f"{'period ' + str(t):>18}: training error {e:.4f}"
         for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)
@@ -373,6 +395,10 @@ def evaluate(
     progress: bool = False,
 ) -> dict[str, Any]:
     """Judge the map on the queries of ``source``, beside brute force.
+
+    ``plot``: a .png to draw recall (within ``tolerance``, with the decode and
+    sequence asked for) against storage: the map, with codes also the hybrid and
+    the codes alone, and brute force (:func:`rhythmic_jax.eval.figures.plot_frontier`).
 
     Brute force searches ``reference`` when given, else the sources the map was
     fitted on when they are still there; ``reference_note`` says which, or why

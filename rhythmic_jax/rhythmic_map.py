@@ -27,7 +27,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.codes import CodeBook, check_bits
 from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
+from rhythmic_jax.decoding.fusion import (
+    check_weight,
+    fused_decode,
+    fused_place_scores,
+    fused_sequence_decode,
+)
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
@@ -86,6 +93,9 @@ class MapConfig:
       dtype: how templates are stored: float32, float16, or int8 with a
         scale per template (:mod:`rhythmic_jax.quantize`); queries are scored
         with the stored values.
+      codes: also store a ``codes``-bit ITQ code per place (a hybrid map,
+        :mod:`rhythmic_jax.decoding.fusion`); None for the map alone.
+      fusion: the map's share ``w`` of the fused score (codes: ``1 - w``).
 
     ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
     summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a
@@ -104,10 +114,19 @@ class MapConfig:
     descriptor: str = "features"
     descriptor_settings: dict = field(default_factory=dict, hash=False)
     dtype: str = "float32"
+    codes: int | None = None
+    fusion: float = 0.5
 
     def __post_init__(self):
         if self.dtype not in DTYPES:
             raise InputError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
+        if self.codes is not None:
+            bad = isinstance(self.codes, bool) or not isinstance(self.codes, int)
+            if bad or self.codes < 1:
+                raise InputError(
+                    f"codes must be a positive number of bits, got {self.codes!r}"
+                )
+        check_weight(self.fusion)
         if self.solver not in SOLVERS:
             raise InputError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
         if self.decode not in DECODERS:
@@ -134,6 +153,7 @@ class RhythmicMap:
         self.candidate_errors: tuple[float, ...] = ()
         self.c: float | None = None
         self.extra: dict[str, np.ndarray] = {}
+        self.codebook: CodeBook | None = None
         # where the reference frames came from (paths, tiling), not the frames:
         # ``rhythmic-jax evaluate`` reads them again for its brute-force line
         self.reference: dict[str, Any] = {}
@@ -164,6 +184,11 @@ class RhythmicMap:
         progress = bool(verbose) if progress is None else bool(progress)
         x = check_features(x, "reference features")
         labels = check_labels(np.arange(len(x)) if labels is None else labels, len(x))
+        cfg = self.config
+        if cfg.codes is not None:
+            check_bits(cfg.codes, x.shape[1])
+            if not np.array_equal(labels, np.arange(len(x))):
+                raise InputError("codes need one reference frame per place, in order")
         n = int(labels.max()) + 1
         cands, c = self._plan(n)
         check_memory(len(x), x.shape[1], sum(cands))
@@ -186,7 +211,10 @@ class RhythmicMap:
             )
         s = scores(params, jnp.asarray(x))
         errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
-        return self._choose(params, cands, errors, n, int(x.shape[1]), c)
+        self._choose(params, cands, errors, n, int(x.shape[1]), c)
+        if cfg.codes is not None:
+            self.codebook = CodeBook.fit(x, cfg.codes)
+        return self
 
     def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
         """Candidate periods and the penalty C for n places (impossible r: said
@@ -245,8 +273,34 @@ class RhythmicMap:
         """Decision values of queries (b, d) -> (b, sum(periods))."""
         return _scores(self.params, self._queries(q))
 
+    def place_scores(self, q) -> jax.Array:
+        """Score of every place for queries (b, d) -> (b, n): the map's summed phase
+        scores, or with codes the fused z-scores
+        (:mod:`rhythmic_jax.decoding.fusion`)."""
+        q = self._queries(q)
+        book, w = self.codebook, self.config.fusion
+        sims = None if book is None else book.similarity(q)
+        return fused_place_scores(
+            _scores(self.params, q), sims, self.periods, self.n, w
+        )
+
     def decode(self, q, method: str | None = None, m: int | None = None) -> Decoded:
-        """Decode queries (b, d): index (-1 no match), score, runner-up, confidence."""
+        """Decode queries (b, d): index (-1 no match), score, runner-up, confidence.
+
+        A map with codes fuses its place scores with the code similarities
+        (``hard`` then keeps the argmax combination and the best code).
+        """
+        if self.codebook is not None:
+            q = self._queries(q)
+            return fused_decode(
+                _scores(self.params, q),
+                self.codebook.similarity(q),
+                self.periods,
+                self.n,
+                self.config.fusion,
+                method or self.config.decode,
+                m or self.config.m,
+            )
         if (method or self.config.decode) == "hard":
             self._check_fitted()
             x = check_features(q, "queries", d=self.d)
@@ -308,7 +362,20 @@ class RhythmicMap:
                     f"{{opt:sequence}} length L={sequence} is longer than the "
                     f"{len(q)} queries"
                 )
-        if sequence is not None and sequence > 1:
+        if sequence is not None and sequence > 1 and self.codebook is not None:
+            q = self._queries(q)
+            idx, conf = fused_sequence_decode(
+                _scores(self.params, q),
+                self.codebook.similarity(q),
+                self.periods,
+                self.n,
+                sequence,
+                speeds,
+                self.config.fusion,
+                method,
+                m or self.config.m,
+            )
+        elif sequence is not None and sequence > 1:
             from rhythmic_jax.decoding.sequence import sequence_decode
 
             idx, conf = sequence_decode(
@@ -332,16 +399,33 @@ class RhythmicMap:
     # -------------------------------------------------------------- storage
     @property
     def storage_bytes(self) -> int:
-        """Bytes of the kept templates in the stored dtype: ``sum(periods) * (d +
-        1) * itemsize`` (int8: plus a float32 scale per template)."""
+        """Bytes search needs: the templates in their dtype, plus
+        with codes ``n * ceil(bits / 8) + (bits * d + d) * 4``."""
+        return self.storage()["total"]
+
+    def storage(self) -> dict[str, Any]:
+        """Bytes split into a fixed part (the code transform), a per-place part
+        (the codes) and a per-period part (``tau`` templates each, stored dtype)."""
         self._check_fitted()
-        return template_bytes(sum(self.periods), self.d, self.config.dtype)
+        codes = self.codebook.storage() if self.codebook else {}
+        per_period = {
+            str(t): template_bytes(t, self.d, self.config.dtype) for t in self.periods
+        }
+        fixed, per_place = codes.get("fixed", 0), codes.get("per_place", 0)
+        total = fixed + per_place + sum(per_period.values())
+        return {
+            "fixed": fixed,
+            "per_place": per_place,
+            "per_period": per_period,
+            "total": total,
+            "share": total / database_bytes(self.n, self.d, 4),
+        }
 
     @property
     def compression_ratio(self) -> float:
-        """Map bytes over the bytes of the n x d float32 database."""
+        """Bytes search needs over the bytes of the n x d float32 database."""
         self._check_fitted()
-        return self.storage_bytes / database_bytes(self.n, self.d, 4)
+        return self.storage()["share"]
 
     def info(self) -> dict[str, Any]:
         """What ``rhythmic-jax info --json`` prints."""
@@ -353,6 +437,8 @@ class RhythmicMap:
             "storage_bytes": self.storage_bytes,
             "database_bytes": database_bytes(self.n, self.d, 4),
             "compression_ratio": self.compression_ratio,
+            "storage": self.storage(),
+            "codes_bits": self.codebook.bits if self.codebook else None,
             "c": self.c,
             "candidates": list(self.candidates),
             "candidate_errors": list(self.candidate_errors),
@@ -370,6 +456,8 @@ class RhythmicMap:
         self._check_fitted()
         arrays = dict(self._stored)
         arrays.update({f"extra_{k}": np.asarray(v) for k, v in self.extra.items()})
+        if self.codebook is not None:
+            arrays.update(self.codebook.arrays())
         meta = self.info()
         meta.update(dtype=self.config.dtype, package_version=__version__)
         checkpoint.save_map(path, arrays, meta)
@@ -429,6 +517,13 @@ class RhythmicMap:
         self.periods, self.n, self.d = periods, n, dim
         self.c, self.candidates, self.candidate_errors = c, cands, errors
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
+        if cfg.codes is not None:
+            try:
+                self.codebook = CodeBook.from_arrays(arrays, n, dim, cfg.codes)
+            except KeyError as err:
+                raise InputError(f"{path}: codes are missing ({err})") from None
+            except InputError as err:
+                raise InputError(f"{path}: {err}") from None
         reference = meta.get("reference", {})
         self.reference = reference if isinstance(reference, dict) else {}
         return self

@@ -20,7 +20,7 @@ LAYERS = [
      "progress"],
     ["validate", "quantize", "cache_files"],
     [
-        "periods", "projection", "split", "nets", "io.checkpoint", "io.images",
+        "periods", "projection", "split", "nets", "io.checkpoint", "io.images", "codes",
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
         "eval.baselines", "eval.metrics", "eval.figures", "compiled",
     ],
@@ -36,11 +36,12 @@ LAYERS = [
         "io.describe_shards", "decoding.small",
     ],
     ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
+    ["decoding.fusion"],
     [
         "rhythmic_map", "eval.seqslam", "eval.outliers", "eval.report",
         "augment.stream",
     ],
-    ["demo", "scale_jobs"],
+    ["demo", "scale_jobs", "eval.frontier"],
     ["jobs"],
     [""],  # the public face, rhythmic_jax/__init__.py
     ["cli"],

@@ -14,6 +14,8 @@ PUBLIC = [
     "topm_decode", "sequence_decode", "seqslam_decode", "InputError", "Decoded",
     "GroundTruth", "from_lists", "from_positions", "read_vpr_bench",
     "load_ground_truth",
+    "CodeBook", "fit_codes", "fused_decode", "fused_sequence_decode", "learn_weight",
+    "frontier_rows", "projected_bytes", "crossover_n",
 ]  # fmt: skip
 
 

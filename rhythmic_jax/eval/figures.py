@@ -31,6 +31,7 @@ __all__ = [
     "plot_cost",
     "plot_examples",
     "plot_evaluation",
+    "plot_frontier",
     "plot_levels",
     "plot_r",
     "plot_storage_growth",
@@ -353,4 +354,62 @@ def plot_evaluation(
         f"{(result.get('ground_truth') or {}).get('source', '')}",
         fontsize=9,
     )
+    return _finish(fig, path)
+
+
+_KIND_STYLE = {
+    "map": ("o", "tab:blue"),
+    "codes": ("s", "tab:orange"),
+    "hybrid": ("^", "tab:green"),
+    "brute force": ("*", "black"),
+}
+
+
+def plot_frontier(
+    rows: Sequence[Mapping[str, Any]],
+    path: str | os.PathLike | None = None,
+    lengths: Sequence[int] = (1,),
+    title: str = "",
+):
+    """Recall@1 against storage (share of the float32 database, log scale), one
+    panel per sequence length, one marker per kind (map, codes, hybrid, brute force)
+    and the upper frontier of every point drawn as a step line.
+
+    Args:
+      rows: ``{"kind", "share", "recall@1 L=<L>"}`` per representation (as
+        :func:`rhythmic_jax.frontier.frontier_rows` and ``rhythmic-jax evaluate``
+        give them; a row without a length's recall is left out of that panel).
+    """
+    if not rows:
+        raise InputError("plot_frontier: no rows to plot")
+    fig, axes = new_figure(len(lengths), width=4.4)
+    for ax, length in zip(axes, lengths, strict=True):
+        key = f"recall@1 L={length}"
+        pts = [r for r in rows if r.get(key) is not None]
+        for kind, (marker, colour) in _KIND_STYLE.items():
+            sel = [r for r in pts if r["kind"] == kind]
+            if sel:
+                ax.scatter(
+                    [100 * r["share"] for r in sel],
+                    [r[key] for r in sel],
+                    marker=marker,
+                    color=colour,
+                    label=kind,
+                    s=28,
+                )
+        best, front = -1.0, []
+        for r in sorted(pts, key=lambda r: r["share"]):
+            if r[key] > best:
+                best = r[key]
+                front.append((100 * r["share"], best))
+        if front:
+            xs, ys = zip(*front, strict=True)
+            ax.step(xs, ys, where="post", color="grey", lw=1, alpha=0.7)
+        ax.set_xscale("log")
+        ax.set_xlabel("storage, % of the float32 database")
+        ax.set_ylabel(f"recall@1, L = {length}")
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title or "recall per byte")
     return _finish(fig, path)

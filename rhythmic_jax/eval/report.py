@@ -144,6 +144,8 @@ def evaluate_map(
         "map": {
             **_scores_of(pred, conf, ranked, truth, exact, ks),
             "storage_bytes": model.storage_bytes,
+            "storage_share": model.storage_bytes / database_bytes(model.n, model.d, 4),
+            "codes_bits": model.codebook.bits if model.codebook is not None else None,
             "periods": list(model.periods),
         }
     }

@@ -321,3 +321,22 @@ def test_plot_evaluation_curves_bars_and_png(keep, tmp_path):
     assert png_size((tmp_path / "e.png").read_bytes())[0] > 0
     with pytest.raises(InputError, match="no PR curves"):
         plot_evaluation({"methods": {"map": {"pr_auc": 1.0}}})
+
+
+def test_plot_frontier_writes_a_png(tmp_path):
+    from rhythmic_jax.eval.figures import plot_frontier
+
+    rows = [
+        {"kind": "map", "share": 0.04, "recall@1 L=1": 0.1, "recall@1 L=5": 0.4},
+        {"kind": "codes", "share": 0.03, "recall@1 L=1": 0.2, "recall@1 L=5": 0.5},
+        {"kind": "hybrid", "share": 0.07, "recall@1 L=1": 0.3, "recall@1 L=5": 0.6},
+        {"kind": "brute force", "share": 1.0, "recall@1 L=1": 0.5},
+    ]
+    fig = plot_frontier(rows, tmp_path / "f.png", (1, 5))
+    assert (tmp_path / "f.png").stat().st_size > 1000
+    assert len(fig.axes) == 2
+    # the frontier steps through the codes (0.03), then the hybrid (0.07)
+    xs = fig.axes[0].lines[0].get_xdata()
+    np.testing.assert_allclose(xs, [3.0, 7.0, 100.0])
+    with pytest.raises(InputError):
+        plot_frontier([], tmp_path / "g.png")

@@ -1,0 +1,283 @@
+"""Recall per byte: maps, ITQ codes and map + code hybrids at equal storage.
+
+Nordland appearance-change split (:data:`rhythmic_jax.NORDLAND_SPLIT`): maps and
+codes are fitted on the summer frames of the test places (1220-3575, N = 2,356),
+queried with their winter frames, recall@1 within ±1, EfficientNet-Lite0 block 10
+(10,976-d). The hybrids' fusion weights are learned on the training places
+(0-1199: their own maps, codes and winter queries), never on test queries.
+Storage counts every byte search needs (ITQ's mean and projection included), as a
+share of the float32 database. A second ITQ variant fits the codes' transform on
+the training places' summer *and* winter frames ("codes learned across
+conditions"). The fused decode's speed is timed against the map alone and faiss
+``IndexBinaryFlat`` on the same codes (batch of every test query, after a call
+that compiles). The projected-bytes table needs no data.
+
+    python scripts/bench_recall_per_byte.py          # reports/recall_per_byte.*
+    python scripts/bench_recall_per_byte.py --quick  # 2 maps, 2 code sizes
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+
+import faiss
+import jax
+import numpy as np
+from _bench_common import (
+    command_line,
+    cores,
+    environment,
+    header,
+    load_average,
+    parser,
+    plain,
+    rerender,
+    set_threads,
+    table,
+    write_report,
+)
+
+from rhythmic_jax.codes import CodeBook, code_bytes, pack_bits
+from rhythmic_jax.decoding.fusion import fused_decode
+from rhythmic_jax.decoding.soft import soft_decode
+from rhythmic_jax.eval.frontier import (
+    FrontierConfig,
+    budget_table,
+    crossover_n,
+    frontier_rows,
+    projected_bytes,
+    similarity_recalls,
+)
+from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.io.images import nordland
+from rhythmic_jax.rhythmic_map import RhythmicMap
+from rhythmic_jax.split import NORDLAND_SPLIT
+
+BUDGETS = (0.03, 0.05, 0.075, 0.10, 0.125, 0.15, 0.20, 0.25, 0.30)
+NS = tuple(10**k for k in range(4, 10))
+DS = (256, 2048, 4096, 10976)
+BITS = (64, 128, 256, 512)
+
+
+def load(root, progress):
+    summer, winter = nordland(root / "nordland_64x32", progress=progress)
+    desc = get_descriptor("efficientnet_lite0")
+    kw = dict(progress=progress)
+    s = cached_describe(summer.images, desc, "nordland_summer", **kw)
+    w = cached_describe(winter.images, desc, "nordland_winter", **kw)
+    return s, w
+
+
+def projections() -> list[dict]:
+    """Map and code bytes for N = 1e4 .. 1e9, and the N where the map gets smaller."""
+    out = []
+    for d in DS:
+        for r in (2, 3):
+            row = {"d": d, "r": r}
+            row.update({f"map N={n:.0e}": projected_bytes(n, d, r) for n in NS})
+            for b in BITS:
+                row[f"until {b}"], row[f"since {b}"] = crossover_n(d, b, r)
+            out.append(row)
+    return out
+
+
+def timing(ref, q, bits=64, r=2, level=4, gap=5e-4) -> dict:
+    """Batch decode of every query: map alone, hybrid, faiss IndexBinaryFlat."""
+    m = RhythmicMap(r=r, level=level, gap=gap, codes=bits, decode="soft")
+    m.fit(ref, progress=False)
+    book = m.codebook
+    qj = jax.numpy.asarray(q)
+
+    def map_alone():
+        return soft_decode(m.scores(qj), m.periods, m.n).index
+
+    def hybrid():
+        return fused_decode(m.scores(qj), book.similarity(qj), m.periods, m.n).index
+
+    index = faiss.IndexBinaryFlat(bits)
+    index.add(pack_bits(book.codes))
+
+    def binary():
+        return index.search(pack_bits(book.transform.encode(q)), 1)[1]
+
+    out = {}
+    for name, fn in (("map alone", map_alone), ("hybrid", hybrid), ("faiss", binary)):
+        jax.block_until_ready(fn())
+        times = []
+        for _ in range(3):
+            t = time.perf_counter()
+            jax.block_until_ready(fn())
+            times.append(time.perf_counter() - t)
+        out[name] = {"seconds": min(times), "queries_per_s": len(q) / min(times)}
+    out["setting"] = f"map r={r} level {level} {m.periods} + ITQ {bits}"
+    return out
+
+
+def _span(until, since) -> str:
+    """Where the map is smaller: "<= 3e4 and >= 1.2e8", ">= 1e8", "never"."""
+    parts = []
+    if until:
+        parts.append(f"<= {until:.2g}")
+    if since:
+        parts.append(f">= {since:.2g}")
+    return " and ".join(parts) or "never <= 1e12"
+
+
+def markdown(rep: dict) -> str:
+    lines = header("Recall per byte: map, ITQ codes and hybrids", rep)
+    lines += [rep["protocol"], ""]
+    ls = rep["lengths"]
+    heads = ["representation", "kind", "storage B", "share %"]
+    heads += [f"R@1 L={k}" for k in ls] + ["weight"]
+    rows = sorted(rep["rows"], key=lambda r: r["share"])
+    lines.append(
+        table(
+            heads,
+            [
+                [r["name"], r["kind"], r["storage_bytes"], 100 * r["share"]]
+                + [r[f"recall@1 L={k}"] for k in ls]
+                + [r.get("weight", "-")]
+                for r in rows
+            ],
+        )
+    )
+    for length in ls:
+        lines += ["", f"### Budget by budget, L = {length}", ""]
+        body = []
+        for b in rep["budgets"][str(length)]:
+            key = f"recall@1 L={length}"
+
+            def cell(r, key=key):
+                return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
+
+            body.append(
+                [f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"])]
+                + [cell(b["itq"]), round(b["own_minus_itq"], 3)]
+            )
+        lines.append(
+            table(["budget", "best", "map or hybrid", "ITQ", "own - ITQ"], body)
+        )
+    if rep.get("cross_rows"):
+        lines += ["", "### ITQ fitted across conditions on the training places", ""]
+        lines.append(
+            table(
+                ["codes", "share %"] + [f"R@1 L={k}" for k in ls],
+                [
+                    [r["name"], 100 * r["share"]] + [r[f"recall@1 L={k}"] for k in ls]
+                    for r in rep["cross_rows"]
+                ],
+            )
+        )
+    t = rep["timing"] or {"setting": "not measured in this run"}
+    lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
+    lines.append(
+        table(
+            ["decode", "seconds", "queries/s"],
+            [
+                [k, v["seconds"], v["queries_per_s"]]
+                for k, v in t.items()
+                if k != "setting"
+            ],
+        )
+    )
+    lines += ["", "### Projected bytes (level 1) and the N from which the map is "
+              "smaller than each code", "",
+              "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods"
+              " from `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
+              ""]  # fmt: skip
+    proj = rep["projections"]
+    keys = [k for k in proj[0] if k.startswith("map")]
+    lines.append(
+        table(
+            ["d", "r"] + keys + [f"map < ITQ {b}: N" for b in BITS],
+            [
+                [p["d"], p["r"]]
+                + [f"{p[k]:.3g}" for k in keys]
+                + [_span(p[f"until {b}"], p[f"since {b}"]) for b in BITS]
+                for p in proj
+            ],
+        )
+    )
+    lines += ["", "Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): "]
+    for b in BITS:
+        lines.append(
+            f"- ITQ {b}: "
+            + ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = parser(__doc__)
+    ap.add_argument("--quick", action="store_true", help="2 maps, 2 code sizes")
+    ap.add_argument(
+        "--no-cross", action="store_true", help="skip ITQ fitted across conditions"
+    )
+    ap.add_argument("--maps", default=None, help="maps as r:level,... (e.g. 2:4,3:4)")
+    ap.add_argument("--bits", default=None, help="code sizes, e.g. 64,128")
+    ap.add_argument("--no-timing", action="store_true", help="skip the speed table")
+    args = ap.parse_args(argv)
+    if args.render:
+        rerender(args.render, markdown)
+        return
+    logging.basicConfig(format="%(asctime)s %(message)s")
+    logging.getLogger("rhythmic_jax.eval.frontier").setLevel(logging.INFO)
+    threads = set_threads(cores())
+    load_start = load_average()
+    s, w = load(args.root, args.progress)
+    tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
+    cfg = FrontierConfig()
+    if args.quick:
+        cfg = dataclasses.replace(cfg, maps=((2, 1), (3, 2)), bits=(64, 128))
+    if args.maps:
+        maps = tuple(tuple(int(v) for v in m.split(":")) for m in args.maps.split(","))
+        cfg = dataclasses.replace(cfg, maps=maps)
+    if args.bits:
+        cfg = dataclasses.replace(cfg, bits=tuple(int(b) for b in args.bits.split(",")))
+    t0 = time.perf_counter()
+    rows = frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]))
+    both = np.concatenate([s[tr], w[tr]])
+    cross_rows = []
+    for bits in () if args.no_cross else cfg.bits:
+        book = CodeBook.fit(s[te], bits, fit_on=both)
+        sims = np.asarray(book.similarity(w[te]))
+        rec = similarity_recalls(sims, cfg.lengths, cfg.tolerance)
+        size = code_bytes(len(te), s.shape[1], bits)["total"]
+        cross_rows.append(
+            {
+                "name": f"ITQ {bits} bits, across conditions",
+                "share": size / (len(te) * s.shape[1] * 4),
+                **{f"recall@1 L={k}": v for k, v in rec.items()},
+            }
+        )
+    rep = {
+        "command": command_line("bench_recall_per_byte.py", argv),
+        "environment": environment(threads),
+        "protocol": (
+            f"Nordland split: test places {int(te[0])}-{int(te[-1])} (N = {len(te)}),"
+            f" summer references, winter queries, recall@1 within ±{cfg.tolerance};"
+            f" training places {int(tr[0])}-{int(tr[-1])} for the fusion weights."
+            f" Maps: squared-hinge RhythmicMap (gap {cfg.gap}), soft decode;"
+            f" sequences summed along the diagonal at velocity 1."
+        ),
+        "config": dataclasses.asdict(cfg),
+        "lengths": list(cfg.lengths),
+        "rows": rows,
+        "cross_rows": cross_rows,
+        "budgets": {str(k): budget_table(rows, BUDGETS, k) for k in cfg.lengths},
+        "timing": {} if args.no_timing else timing(s[te], w[te]),
+        "projections": projections(),
+        "seconds": time.perf_counter() - t0,
+    }
+    rep["load_average"] = {"start": load_start, "end": load_average()}
+    rep = plain(rep)
+    write_report(args.out, "recall_per_byte", rep, markdown(rep))
+    from rhythmic_jax.eval.figures import plot_frontier
+
+    plot_frontier(rows, args.out / "recall_per_byte.png", cfg.lengths)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,83 @@
+"""Recall per byte: byte counts by hand, crossovers, frontier rows against faiss."""
+
+import faiss
+import numpy as np
+import pytest
+
+from rhythmic_jax.codes import code_bytes
+from rhythmic_jax.eval.frontier import (
+    FrontierConfig,
+    budget_table,
+    crossover_n,
+    frontier_rows,
+    projected_bytes,
+    similarity_recalls,
+)
+
+
+def test_projected_bytes_by_hand():
+    # N = 10^4, r = 2: candidates from 100; 100 and 101 are co-prime, 100*101 >= N
+    assert projected_bytes(10**4, 256, 2) == (100 + 101) * 257 * 4
+    # N = 10^6, r = 3: 100, 101, 103 (102 shares 2 with 100)
+    assert projected_bytes(10**6, 256, 3) == (100 + 101 + 103) * 257 * 4
+    # level 2 doubles the start
+    assert projected_bytes(10**4, 256, 2, 2) == (200 + 201) * 257 * 4
+
+
+def test_crossover_is_where_the_sizes_cross():
+    until, since = crossover_n(10976, 64, 2)
+    assert until is not None and since is not None and until < since
+    for n, smaller in [(until, True), (since, True), (since // 2, False)]:
+        assert (
+            projected_bytes(n, 10976) < code_bytes(n, 10976, 64)["total"]
+        ) == smaller
+    # at d = 256, r = 3 a map is smaller than 512-bit codes at every N
+    assert crossover_n(256, 512, 3) == (10**12, 100)
+
+
+def test_similarity_recalls_diagonal_by_hand():
+    sims = np.full((6, 6), 0.0, np.float32)
+    sims[np.arange(6), np.arange(6)] = 1.0
+    sims[3] = 0.0
+    sims[3, 0] = 0.5  # frame 3 alone is wrong; with its two predecessors it is right
+    got = similarity_recalls(sims, (1, 3), 0)
+    assert got[1] == pytest.approx(5 / 6) and got[3] == 1.0
+
+
+def test_budget_table_picks_the_best_within_each_budget():
+    rows = [
+        {"kind": "codes", "name": "c", "share": 0.03, "recall@1 L=1": 0.2},
+        {"kind": "map", "name": "m", "share": 0.05, "recall@1 L=1": 0.1},
+        {"kind": "hybrid", "name": "h", "share": 0.08, "recall@1 L=1": 0.3},
+    ]
+    b = budget_table(rows, (0.04, 0.06, 0.1))
+    assert b[0]["own"] is None and b[0]["own_minus_itq"] == pytest.approx(-0.2)
+    assert b[1]["best"]["name"] == "c" and b[1]["own"]["name"] == "m"
+    assert b[2]["best"]["name"] == "h" and b[2]["own_minus_itq"] == pytest.approx(0.1)
+
+
+@pytest.mark.slow
+def test_frontier_rows_against_faiss():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(150, 32)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    q = x + 0.1 * rng.normal(size=x.shape).astype(np.float32)
+    cfg = FrontierConfig(maps=((2, 1),), bits=(16,), lengths=(1,), tolerance=0)
+    rows = {r["kind"]: r for r in frontier_rows(x, q, cfg)}
+    # brute force and the codes against faiss on the same data
+    _, top = faiss.knn(q, x, 1, faiss.METRIC_INNER_PRODUCT)
+    assert rows["brute force"]["recall@1 L=1"] == np.mean(top[:, 0] == np.arange(150))
+    itq = faiss.IndexPreTransform(
+        faiss.ITQTransform(32, 16, True), faiss.IndexLSH(16, 16, False, False)
+    )
+    itq.train(x)
+    itq.add(x)
+    dist, idx = itq.search(q, 150)  # Hamming distance to every place
+    full = np.empty((150, 150))
+    np.put_along_axis(full, idx, dist, axis=1)
+    assert rows["codes"]["recall@1 L=1"] == np.mean(full.argmin(1) == np.arange(150))
+    assert rows["codes"]["storage_bytes"] == 150 * 2 + (16 * 32 + 32) * 4
+    assert rows["hybrid"]["storage_bytes"] == (
+        rows["map"]["storage_bytes"] + rows["codes"]["storage_bytes"]
+    )
+    assert rows["hybrid"]["weight"] == 0.5  # no training places: the fixed weight

@@ -1,0 +1,133 @@
+"""A map with codes (hybrid): fit, storage split, save and load, bad --codes."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.decoding.fusion import fused_decode
+from rhythmic_jax.errors import InputError
+
+
+def _route(n=120, d=40, seed=0):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, d)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    q = x + 0.6 * rng.normal(size=x.shape).astype(np.float32) / np.sqrt(d)
+    return x, q
+
+
+@pytest.fixture(scope="module")
+def hybrid():
+    x, q = _route()
+    return RhythmicMap(r=2, level=1, codes=16, decode="soft").fit(x, progress=False), q
+
+
+def test_storage_split_by_hand(hybrid):
+    model, _ = hybrid
+    t1, t2 = model.periods
+    d, n = 40, 120
+    st = model.storage()
+    assert st["per_period"] == {str(t1): t1 * 41 * 4, str(t2): t2 * 41 * 4}
+    assert st["fixed"] == (16 * 40 + 40) * 4  # mean + (16, 40) projection
+    assert st["per_place"] == 120 * 2  # 16 bits = 2 bytes a place
+    assert model.storage_bytes == st["total"] == (t1 + t2) * 41 * 4 + 2720 + 240
+    assert st["share"] == pytest.approx(st["total"] / (n * d * 4))
+    assert model.info()["codes_bits"] == 16
+
+
+def test_predict_is_the_fused_decode(hybrid):
+    model, q = hybrid
+    sims = model.codebook.similarity(q)
+    ref = fused_decode(model.scores(q), sims, model.periods, model.n, 0.5, "soft")
+    assert np.array_equal(model.predict(q), np.asarray(ref.index))
+    # the hybrid beats its map alone on these noisy queries
+    alone = RhythmicMap(r=2, level=1, decode="soft").fit(_route()[0], progress=False)
+    gt = np.arange(len(q))
+    assert (model.predict(q) == gt).mean() > (alone.predict(q) == gt).mean()
+
+
+def test_saved_and_loaded_predicts_the_same(hybrid, tmp_path):
+    model, q = hybrid
+    model.save(tmp_path / "m")
+    back = RhythmicMap.load(tmp_path / "m")
+    assert np.array_equal(back.codebook.codes, model.codebook.codes)
+    for kw in [{}, {"method": "topm"}, {"method": "hard"}, {"sequence": 5}]:
+        assert np.array_equal(back.predict(q, **kw), model.predict(q, **kw)), kw
+    assert back.info()["storage"] == model.info()["storage"]
+
+
+@pytest.mark.parametrize("bits", [0, -3, 41])
+def test_bad_codes_in_python(bits):
+    x, _ = _route()
+    with pytest.raises(InputError) as err:
+        RhythmicMap(codes=bits).fit(x, progress=False)
+    assert "\n" not in str(err.value) and "codes" in str(err.value)
+
+
+@pytest.mark.parametrize("bits", ["0", "-8", "41"])
+def test_bad_codes_on_the_command_line(tmp_path, bits):
+    x, _ = _route()
+    np.save(tmp_path / "ref.npy", x)
+    cmd = [sys.executable, "-m", "rhythmic_jax.cli", "fit", "ref.npy", "--out", "m"]
+    out = subprocess.run(
+        cmd + ["--codes", bits], cwd=tmp_path, capture_output=True, text=True
+    )
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--codes" in lines[0], out.stderr
+    assert not (tmp_path / "m").exists()
+
+
+def test_cli_fit_info_evaluate_npy(tmp_path):
+    x, q = _route()
+    np.save(tmp_path / "ref.npy", x)
+    np.save(tmp_path / "q.npy", q)
+    run = [sys.executable, "-m", "rhythmic_jax.cli"]
+    fit = run + ["fit", "ref.npy", "--out", "m", "--codes", "16"]
+    subprocess.run(fit, cwd=tmp_path, check=True, capture_output=True)
+    info = subprocess.run(
+        run + ["info", "m"], cwd=tmp_path, check=True, capture_output=True, text=True
+    ).stdout
+    assert "storage fixed" in info and "per place" in info and "(templates)" in info
+    ev = run + ["evaluate", "m", "q.npy", "--tolerance", "1", "--json"]
+    res = json.loads(
+        subprocess.run(ev, cwd=tmp_path, check=True, capture_output=True).stdout
+    )
+    row = res["methods"]["map"]  # the hybrid's decode, its total storage
+    assert row["codes_bits"] == 16 and 0 <= row["recall@1"] <= 1
+    assert row["storage_share"] == pytest.approx(row["storage_bytes"] / (120 * 40 * 4))
+
+
+@pytest.mark.slow
+def test_installed_command_on_test_place_folders(nordland_root, tmp_path):
+    """fit TEST_SUMMER/ --codes 64, then evaluate TEST_WINTER/: the hybrid's line."""
+    import shutil
+
+    exe = shutil.which("rhythmic-jax")
+    assert exe, "the rhythmic-jax command is not installed"
+    from rhythmic_jax.split import NORDLAND_SPLIT
+
+    for season in ("summer", "winter"):
+        files = sorted((nordland_root / season).glob("*.png"))
+        folder = tmp_path / f"TEST_{season.upper()}"
+        folder.mkdir()
+        for i in NORDLAND_SPLIT.test:
+            (folder / files[i].name).symlink_to(files[i])
+    work = tmp_path / "work"
+    work.mkdir()
+    env = {**__import__("os").environ, "RHYTHMIC_JAX_CACHE": str(tmp_path / "cache")}
+    fit = [exe, "fit", "../TEST_SUMMER/", "--descriptor", "efficientnet_lite0"]
+    fit += ["--level", "4", "--codes", "64", "--out", "M", "--no-progress"]
+    subprocess.run(fit, cwd=work, env=env, check=True, capture_output=True)
+    ev = [exe, "evaluate", "M", "../TEST_WINTER/", "--tolerance", "1", "--json"]
+    ev += ["--no-progress", "--plot", "frontier.png"]  # PR curves
+    out = subprocess.run(ev, cwd=work, env=env, check=True, capture_output=True)
+    res = json.loads(out.stdout)
+    hybrid = res["methods"]["map"]
+    assert res["n"] == len(NORDLAND_SPLIT.test) and hybrid["codes_bits"] == 64
+    assert 0.15 < hybrid["storage_share"] < 0.25  # level-4 templates + 64-bit codes
+    assert hybrid["recall@1"] > 0.2 and (work / "frontier.png").is_file()
