@@ -117,6 +117,8 @@ def timing(ref, q, bits=64, r=2, level=4, gap=5e-4) -> dict:
 
 def _span(until, since) -> str:
     """Where the map is smaller: "<= 3e4 and >= 1.2e8", ">= 1e8", "never"."""
+    if until and until >= 10**12:
+        return "every N"
     parts = []
     if until:
         parts.append(f"<= {until:.2g}")
@@ -195,7 +197,12 @@ def markdown(rep: dict) -> str:
             [
                 [p["d"], p["r"]]
                 + [f"{p[k]:.3g}" for k in keys]
-                + [_span(p[f"until {b}"], p[f"since {b}"]) for b in BITS]
+                + [
+                    _span(p[f"until {b}"], p[f"since {b}"])
+                    if b <= p["d"]
+                    else "bits > d"
+                    for b in BITS
+                ]
                 for p in proj
             ],
         )
