@@ -327,19 +327,24 @@ def query_summary(pred: np.ndarray, out: str) -> str:
 INFO_KEYS = (
     "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
     "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
-    "config", "reference",
+    "config", "reference", "storage", "codes_bits",
 )  # fmt: skip
+CODE_ARRAYS = {"codes_mean", "codes_projection", "codes_packed"}
 
 
 def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
     """Whether a map's metadata holds every info field, agreeing with itself."""
     try:
         n, d, periods = int(meta["n"]), int(meta["d"]), list(meta["periods"])
-        ok = meta["storage_bytes"] == sum(int(t) for t in periods) * (d + 1) * 4
+        templates = sum(int(t) for t in periods) * (d + 1) * 4
+        st = meta["storage"]
+        ok = sum(st["per_period"].values()) == templates
+        ok = ok and meta["storage_bytes"] == templates + st["fixed"] + st["per_place"]
         ok = ok and meta["database_bytes"] == n * d * 4
-    except (KeyError, TypeError, ValueError):
+        arrays = {"w", "b"} | (CODE_ARRAYS if meta["codes_bits"] else set())
+    except (KeyError, TypeError, ValueError, AttributeError):
         return False
-    return ok and all(k in meta for k in INFO_KEYS) and {"w", "b"} <= listed
+    return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
 
 
 def info(map_path: str) -> dict[str, Any]:
