@@ -316,12 +316,6 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--plot", default=None, help="write PR curves and recall@K (.png)")
     p.add_argument("--json", action="store_true", help="print JSON")
-    p.add_argument(
-        "--plot",
-        default=None,
-        metavar="PNG",
-        help="draw recall against storage (map, codes, hybrid, brute force) to PNG",
-    )
     _add_source_options(p)
 
     p = add("demo", "fit and query a map on built-in photographs; write a report")

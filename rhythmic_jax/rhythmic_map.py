@@ -288,10 +288,12 @@ class RhythmicMap:
         """Decode queries (b, d): index (-1 no match), score, runner-up, confidence.
 
         A map with codes fuses its place scores with the code similarities
-        (``hard`` then keeps the argmax combination and the best code).
+        (``hard`` then scores every place, as ``soft``).
         """
         if self.codebook is not None:
             q = self._queries(q)
+            if (method or self.config.decode) == "hard":
+                method = "soft"
             return fused_decode(
                 _scores(self.params, q),
                 self.codebook.similarity(q),
