@@ -92,6 +92,16 @@ _EXPORTS = {
     "memmap_batches": "rhythmic_jax.solvers.resumable",
     "RunConfig": "rhythmic_jax.solvers.resumable",
     "train_run": "rhythmic_jax.solvers.resumable",
+    "Groups": "rhythmic_jax.groups",
+    "choose_radices": "rhythmic_jax.groups",
+    "choose_segment": "rhythmic_jax.groups",
+    "parse_layout": "rhythmic_jax.groups",
+    "resolve_layout": "rhythmic_jax.groups",
+    "group_hard_decode": "rhythmic_jax.decoding.group_decode",
+    "group_sequence_decode": "rhythmic_jax.decoding.group_decode",
+    "group_soft_decode": "rhythmic_jax.decoding.group_decode",
+    "group_topm_decode": "rhythmic_jax.decoding.group_decode",
+    "place_scores": "rhythmic_jax.decoding.group_decode",
     "NORDLAND_SPLIT": "rhythmic_jax.split",
     "pair_split": "rhythmic_jax.split",
     "PlaceSplit": "rhythmic_jax.split",
@@ -110,6 +120,19 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
         fused_sequence_decode as fused_sequence_decode,
     )
     from rhythmic_jax.decoding.fusion import learn_weight as learn_weight
+    from rhythmic_jax.decoding.group_decode import (
+        group_hard_decode as group_hard_decode,
+    )
+    from rhythmic_jax.decoding.group_decode import (
+        group_sequence_decode as group_sequence_decode,
+    )
+    from rhythmic_jax.decoding.group_decode import (
+        group_soft_decode as group_soft_decode,
+    )
+    from rhythmic_jax.decoding.group_decode import (
+        group_topm_decode as group_topm_decode,
+    )
+    from rhythmic_jax.decoding.group_decode import place_scores as place_scores
     from rhythmic_jax.decoding.hard import Decoded as Decoded
     from rhythmic_jax.decoding.hard import decode as decode
     from rhythmic_jax.decoding.hard import hard_decode as hard_decode
@@ -141,6 +164,11 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     )
     from rhythmic_jax.eval.metrics import recall_at_k as recall_at_k
     from rhythmic_jax.eval.seqslam import seqslam_decode as seqslam_decode
+    from rhythmic_jax.groups import Groups as Groups
+    from rhythmic_jax.groups import choose_radices as choose_radices
+    from rhythmic_jax.groups import choose_segment as choose_segment
+    from rhythmic_jax.groups import parse_layout as parse_layout
+    from rhythmic_jax.groups import resolve_layout as resolve_layout
     from rhythmic_jax.io.ground_truth_files import (
         load_ground_truth as load_ground_truth,
     )

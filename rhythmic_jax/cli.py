@@ -28,6 +28,8 @@ __all__ = ["main"]
 EXAMPLES = {
     "fit": """
       rhythmic-jax fit ref.npy --out route.map
+      rhythmic-jax fit ref.npy --out route.map --layout mixed:48,50
+      rhythmic-jax fit summer/ --out route.map --layout hierarchical:50
       rhythmic-jax fit summer/ winter/ --out route.map --descriptor patchnorm
       rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
       rhythmic-jax fit run1/ run2/ --positions run1.csv run2.csv --places 500 \\
@@ -153,6 +155,15 @@ def _parser() -> argparse.ArgumentParser:
         default=1e-7,
         help="stop the solver at this estimated relative objective gap (default "
         "1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
+    )
+    p.add_argument(
+        "--layout",
+        default="periods",
+        help="how frames are labelled: periods (default, chosen by training error), "
+        "periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix digits, most "
+        "significant first: it classifies contiguous segments), hierarchical, "
+        "hierarchical:SEG or hierarchical:SEG:T1,T2 (segments of SEG frames plus "
+        "co-prime fine periods); sizes left out match the storage of --r/--level",
     )
     p.add_argument("--json", action="store_true", help="print the map's info as JSON")
     p.add_argument(
@@ -337,7 +348,8 @@ def _reading(args) -> Reading:
 def _cmd_fit(args) -> int:
     job = FitJob(
         sources=tuple(args.sources), out=args.out, r=args.r, level=args.level,
-        count=args.count, c=args.c, solver=args.solver, gap=args.gap, pca=args.pca,
+        count=args.count, c=args.c, solver=args.solver, gap=args.gap,
+        layout=args.layout, pca=args.pca,
         augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
         reading=_reading(args), dtype=args.dtype,

@@ -97,6 +97,7 @@ class FitJob:
     c: float | None = None
     solver: str = "newton"
     gap: float = 1e-7
+    layout: str = "periods"
     pca: int | None = None
     augment: str | None = None
     epochs: int = 3
@@ -196,6 +197,7 @@ def _check_map_space(job: FitJob, feats) -> None:
 
 def fit(job: FitJob, progress: bool = False):
     """Fit, record provenance and save the map of ``job``; returns the map."""
+    from rhythmic_jax.groups import parse_layout
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.sources import check_sources_memory, load_sources
     from rhythmic_jax.rhythmic_map import RhythmicMap
@@ -207,6 +209,7 @@ def fit(job: FitJob, progress: bool = False):
         raise InputError(
             f"{{opt:codes}} must be a number of bits >= 1, got {job.codes}"
         )
+    parse_layout(job.layout)  # a bad layout ends here, not after describing
     augmented = _augmented_settings(job) if job.augment else None
     check_sources_memory(job.sources, job.r, job.level, job.count)
     if job.places is not None and job.positions is None:
@@ -220,8 +223,8 @@ def fit(job: FitJob, progress: bool = False):
     _check_map_space(job, feats)  # the size is known now: say so before the solve
     model = RhythmicMap(
         r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
-        gap=job.gap, descriptor=feats.descriptor, descriptor_settings=feats.settings,
-        dtype=job.dtype,
+        gap=job.gap, layout=job.layout, descriptor=feats.descriptor,
+        descriptor_settings=feats.settings, dtype=job.dtype,
         codes=job.codes, fusion=job.fusion,
     )  # fmt: skip
     if job.codes is not None and job.codes > feats.x.shape[1]:
@@ -272,7 +275,7 @@ def fit_summary(out: str, info: dict[str, Any]) -> str:
     """One line about a saved map: size, periods, storage and compression."""
     codes = f" with {info['codes_bits']}-bit codes" if info.get("codes_bits") else ""
     return (
-        f"map {out}: n={info['n']} d={info['d']} periods={tuple(info['periods'])}"
+        f"map {out}: n={info['n']} d={info['d']} {info['layout']}"
         f"{codes} storage={info['storage_bytes']:,} B "
         f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
     )
@@ -367,7 +370,7 @@ def info(map_path: str) -> dict[str, Any]:
 
 def info_lines(info: dict[str, Any]) -> str:
     """The text form of :func:`info`: one setting a line, then each candidate."""
-    keys = ("n", "d", "periods", "storage_bytes", "compression_ratio", "c")
+    keys = ("n", "d", "layout", "storage_bytes", "compression_ratio", "c")
     lines = [f"{key:>18}: {info[key]}" for key in keys]
     st = info["storage"]
     lines += [

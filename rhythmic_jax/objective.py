@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.groups import Groups
 from rhythmic_jax.periods import period_offsets
 
 __all__ = [
@@ -52,25 +53,41 @@ def default_c(n: int) -> float:
     return float(math.log(n))
 
 
-def targets(labels: np.ndarray | jax.Array, periods: Sequence[int]) -> jax.Array:
-    """±1 targets ``y[i, off_k + j] = +1 iff labels[i] mod tau_k == j``.
+def _label_parts(labels, periods) -> tuple[list, tuple[int, ...]]:
+    """Labels of every group and the group sizes; plain periods (any, e.g. the
+    candidates, co-prime or not) label by ``labels mod tau``."""
+    if isinstance(periods, Groups):
+        return periods.label_parts(labels), periods.sizes
+    sizes = tuple(int(t) for t in periods)
+    return [labels % t for t in sizes], sizes
+
+
+def targets(
+    labels: np.ndarray | jax.Array, periods: Sequence[int] | Groups
+) -> jax.Array:
+    """±1 targets ``y[i, off_g + j] = +1 iff label_g(labels[i]) == j``.
+
+    With periods the label is ``labels[i] mod tau_k`` (paper Eq. 1); with a
+    :class:`~rhythmic_jax.groups.Groups` it is the group's label (a mixed-radix
+    digit, a segment), so every layout trains the same objective.
 
     Args:
       labels: (n,) int place index of every frame (several traversals of one route
         share labels: multi-exemplar training).
-      periods: static tuple of k periods.
+      periods: static tuple of k periods, or the map's groups.
 
     Returns:
-      (n, p) float32 array of ±1, p = sum(periods).
+      (n, p) float32 array of ±1, p = sum of the group sizes.
     """
     labels = jnp.asarray(labels)
+    parts, sizes = _label_parts(labels, periods)
     cols = [
         jnp.where(
-            (labels % t)[:, None] == jnp.arange(t)[None, :],
+            part[:, None] == jnp.arange(t)[None, :],
             jnp.float32(1.0),
             jnp.float32(-1.0),
         )
-        for t in periods
+        for part, t in zip(parts, sizes, strict=True)
     ]
     return jnp.concatenate(cols, axis=1)
 
@@ -154,15 +171,19 @@ def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:
     ).astype(jnp.int32)
 
 
-def period_errors(s: jax.Array, labels: jax.Array, periods: Sequence[int]) -> jax.Array:
+def period_errors(
+    s: jax.Array, labels: jax.Array, periods: Sequence[int] | Groups
+) -> jax.Array:
     """Training error of every period: fraction of frames whose argmax phase is wrong.
 
     Args:
       s: (n, p) decision values of the frames; labels: (n,) place indices.
+      periods: the periods, or a map's groups (then the error of every group).
 
     Returns:
       (k,) error of each period (paper Sec. III-B, "training error e").
     """
-    pred = phase_predictions(s, periods)
-    truth = jnp.stack([jnp.asarray(labels) % t for t in periods], axis=1)
+    parts, sizes = _label_parts(jnp.asarray(labels), periods)
+    pred = phase_predictions(s, sizes)
+    truth = jnp.stack(parts, axis=1)
     return jnp.mean(pred != truth, axis=0)

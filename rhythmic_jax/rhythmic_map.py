@@ -39,6 +39,7 @@ from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
 from rhythmic_jax.io import checkpoint
 from rhythmic_jax.objective import (
     Templates,
@@ -96,6 +97,13 @@ class MapConfig:
       codes: also store a ``codes``-bit ITQ code per place (a hybrid map,
         :mod:`rhythmic_jax.decoding.fusion`); None for the map alone.
       fusion: the map's share ``w`` of the fused score (codes: ``1 - w``).
+      layout: how frames are labelled (:mod:`rhythmic_jax.groups`): "periods"
+        (the paper: co-prime periods chosen by training error), "periods:T1,T2",
+        "mixed" or "mixed:B1,..,Br" (mixed-radix digits, most significant first:
+        the first digit classifies contiguous segments), "hierarchical",
+        "hierarchical:SEG" or "hierarchical:SEG:T1,T2" (a segment classifier and
+        co-prime fine periods). Sizes left out are chosen for the storage of a
+        periods map of the same ``r`` and ``level``.
 
     ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
     summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a
@@ -117,7 +125,10 @@ class MapConfig:
     codes: int | None = None
     fusion: float = 0.5
 
+    layout: str = "periods"
+
     def __post_init__(self):
+        parse_layout(self.layout)
         if self.dtype not in DTYPES:
             raise InputError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
         if self.codes is not None:
@@ -149,9 +160,11 @@ class RhythmicMap:
         self.n: int | None = None
         self.d: int | None = None
         self.periods: tuple[int, ...] = ()
+        self.groups: Groups | None = None
         self.candidates: tuple[int, ...] = ()
         self.candidate_errors: tuple[float, ...] = ()
         self.c: float | None = None
+        self.group_errors: tuple[float, ...] = ()
         self.extra: dict[str, np.ndarray] = {}
         self.codebook: CodeBook | None = None
         # where the reference frames came from (paths, tiling), not the frames:
@@ -190,6 +203,9 @@ class RhythmicMap:
             if not np.array_equal(labels, np.arange(len(x))):
                 raise InputError("codes need one reference frame per place, in order")
         n = int(labels.max()) + 1
+        spec = parse_layout(self.config.layout)
+        if spec.kind != "periods" or spec.sizes:
+            return self._fit_groups(x, labels, spec, progress, refine)
         cands, c = self._plan(n)
         check_memory(len(x), x.shape[1], sum(cands))
         y = targets(labels, cands)
@@ -231,6 +247,7 @@ class RhythmicMap:
         self.n, self.d, self.c = n, d, float(c)
         self.candidates = tuple(int(t) for t in cands)
         self.candidate_errors = tuple(float(e) for e in errors)
+        self.group_errors = tuple(float(errors[cands.index(t)]) for t in self.periods)
         log.info("chose periods %s (errors %s)", chosen, np.round(errors, 4))
         return self
 
@@ -241,6 +258,38 @@ class RhythmicMap:
                           self.config.dtype)  # fmt: skip
         self._set_stored(stored)
         self.periods = tuple(int(t) for t in chosen)
+        self.groups = Groups("periods", self.periods)
+
+    def _fit_groups(self, x, labels, spec, progress, refine) -> RhythmicMap:
+        """Fit a layout whose groups are fixed before training (no period choice):
+        the same objective and solver, targets from the groups' labels."""
+        cfg = self.config
+        n = int(labels.max()) + 1
+        groups = resolve_layout(spec, n, cfg.r, cfg.level)
+        check_memory(len(x), x.shape[1], groups.p)
+        c = cfg.c if cfg.c is not None else default_c(n)
+        y = targets(labels, groups)
+        log.info("fitting %s on %d x %d, C=%.3g", groups.describe(), *x.shape, c)
+        if cfg.solver == "newton":
+            params, _ = newton_fit(
+                x, y, c, NewtonConfig(gap_tol=cfg.gap), progress=progress
+            )
+        else:
+            params, _ = fit_full_batch(x, y, c, progress=progress)
+        if refine is not None:
+            params = refine(params, groups, c)
+        errors = np.asarray(
+            period_errors(scores(params, jnp.asarray(x)), labels, groups)
+        )
+        stored = quantize(np.asarray(params.w), np.asarray(params.b), cfg.dtype)
+        self._set_stored(stored)
+        self.groups = groups
+        self.periods = groups.sizes if groups.kind == "periods" else ()
+        self.n, self.d, self.c = n, int(x.shape[1]), float(c)
+        self.candidates, self.candidate_errors = (), ()
+        self.group_errors = tuple(float(e) for e in errors)
+        log.info("group training errors %s", np.round(errors, 4))
+        return self
 
     def with_dtype(self, dtype: str) -> RhythmicMap:
         """A copy of this fitted map storing its templates as ``dtype`` (from the
@@ -303,16 +352,16 @@ class RhythmicMap:
                 method or self.config.decode,
                 m or self.config.m,
             )
-        if (method or self.config.decode) == "hard":
-            self._check_fitted()
+        self._check_fitted()
+        if (method or self.config.decode) == "hard" and self.groups.kind == "periods":
             x = check_features(q, "queries", d=self.d)
             if len(x) <= SMALL_BATCH:  # numpy: no dispatch for a single query
                 return self._small_decoder()(x)
             # scores and decode in one compiled call
             return localise(self.params, jnp.asarray(x), self.periods, self.n)
         return decode_scores(
-            self.scores(q),
-            self.periods,
+            _scores(self.params, q),
+            self.groups,
             self.n,
             method or self.config.decode,
             m or self.config.m,
@@ -342,8 +391,9 @@ class RhythmicMap:
           q: (b, d) queries (consecutive frames of a traversal when ``sequence``).
           method: "hard" (paper), "soft" or "topm"; default from the config.
           sequence: decode each frame with the L previous ones in the phase
-            domain (:mod:`rhythmic_jax.decoding.sequence`); None (or 1) for
-            single frames; at most b.
+            domain (:mod:`rhythmic_jax.decoding.sequence`; mixed-radix and
+            hierarchical maps sum place scores instead); None (or 1) for single
+            frames; at most b.
           speeds: map frames per query frame tried by the sequence decode.
           threshold: reject queries whose confidence is below it (finite).
         """
@@ -382,7 +432,7 @@ class RhythmicMap:
 
             idx, conf = sequence_decode(
                 _scores(self.params, q),
-                self.periods,
+                self.groups,
                 self.n,
                 sequence,
                 speeds,
@@ -411,7 +461,10 @@ class RhythmicMap:
         self._check_fitted()
         codes = self.codebook.storage() if self.codebook else {}
         per_period = {
-            str(t): template_bytes(t, self.d, self.config.dtype) for t in self.periods
+            (str(t) if self.groups.kind == "periods" else f"{k}:{t}"): template_bytes(
+                t, self.d, self.config.dtype
+            )
+            for k, t in enumerate(self.groups.sizes)
         }
         fixed, per_place = codes.get("fixed", 0), codes.get("per_place", 0)
         total = fixed + per_place + sum(per_period.values())
@@ -436,6 +489,9 @@ class RhythmicMap:
             "n": self.n,
             "d": self.d,
             "periods": list(self.periods),
+            "layout": self.groups.describe(),
+            "groups": self.groups.to_dict(),
+            "group_errors": list(self.group_errors),
             "storage_bytes": self.storage_bytes,
             "database_bytes": database_bytes(self.n, self.d, 4),
             "compression_ratio": self.compression_ratio,
@@ -482,14 +538,26 @@ class RhythmicMap:
             c = float(meta["c"])
             cands = tuple(int(t) for t in meta.get("candidates", ()))
             errors = tuple(float(e) for e in meta.get("candidate_errors", ()))
+            group_errors = tuple(float(e) for e in meta.get("group_errors", ()))
             w, b = arrays["w"], arrays["b"]
-        except (KeyError, TypeError, ValueError) as err:
+            # maps saved before layouts existed are periods maps
+            kind = meta.get("groups", {}).get("kind", "periods")
+            groups = (
+                Groups("periods", periods)
+                if kind == "periods"
+                else Groups.from_dict(meta["groups"])
+            )
+        except (KeyError, TypeError, ValueError, AttributeError, InputError) as err:
             raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
-        if w.shape != (dim, sum(periods)) or b.shape != (sum(periods),):
+        if w.shape != (dim, groups.p) or b.shape != (groups.p,):
             raise InputError(
                 f"{path}: weights of shape {w.shape} do not fit "
-                f"periods {periods}, d={dim}"
+                f"{groups.describe()}, d={dim}"
             )
+        try:
+            groups.check(n)
+        except InputError as err:
+            raise InputError(f"{path}: corrupt map metadata ({err})") from None
         if descriptor is not None and descriptor != cfg.descriptor:
             raise InputError(
                 f"{path}: map built with descriptor {cfg.descriptor!r}, "
@@ -517,6 +585,7 @@ class RhythmicMap:
             )
         self._set_stored(stored)
         self.periods, self.n, self.d = periods, n, dim
+        self.groups, self.group_errors = groups, group_errors
         self.c, self.candidates, self.candidate_errors = c, cands, errors
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
         if cfg.codes is not None:

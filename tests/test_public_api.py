@@ -16,6 +16,7 @@ PUBLIC = [
     "load_ground_truth",
     "CodeBook", "fit_codes", "fused_decode", "fused_sequence_decode", "learn_weight",
     "frontier_rows", "projected_bytes", "crossover_n",
+    "Groups", "parse_layout", "resolve_layout", "place_scores", "group_soft_decode",
 ]  # fmt: skip
 
 

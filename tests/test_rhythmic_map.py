@@ -167,3 +167,55 @@ def test_fused_hard_decode_equals_scores_then_decode(fitted):
     ).any()
     for a, b in zip(fused, apart, strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)
+
+
+@pytest.mark.parametrize("layout", ["mixed", "hierarchical:15:4,5"])
+def test_layouts_localise_and_survive_a_round_trip(layout, tmp_path):
+    x = wide()
+    model = RhythmicMap(layout=layout).fit(x, progress=False)
+    groups = model.groups
+    assert groups.kind == layout.split(":")[0] and model.periods == ()
+    assert model.params.w.shape == (250, groups.p)
+    assert model.storage_bytes == groups.p * 251 * 4
+    assert model.compression_ratio == pytest.approx(groups.p * 251 / (150 * 250))
+    assert len(model.group_errors) == len(groups.sizes)
+    rng = np.random.default_rng(3)
+    q = x + 0.01 * rng.normal(size=x.shape).astype(np.float32)
+    preds = {}
+    for method in ("hard", "soft", "topm"):
+        preds[method] = model.predict(q, method)
+        assert (preds[method] == np.arange(150)).mean() > 0.97, method
+    preds["sequence"] = model.predict(q, "soft", sequence=5)
+    assert (preds["sequence"] == np.arange(150)).mean() > 0.97
+    info = model.info()
+    assert info["groups"] == groups.to_dict() and info["layout"] == groups.describe()
+    model.save(tmp_path / "route.map")
+    back = RhythmicMap.load(tmp_path / "route.map")
+    assert back.groups == groups and back.config.layout == layout
+    for method, want in preds.items():
+        got = back.predict(q, "soft", sequence=5) if method == "sequence" else None
+        got = back.predict(q, method) if got is None else got
+        np.testing.assert_array_equal(got, want)
+
+
+def test_maps_saved_without_a_layout_still_load(fitted, tmp_path):
+    import json
+
+    model, x = fitted
+    model.save(tmp_path / "old.map")
+    meta_file = tmp_path / "old.map" / "map.json"
+    meta = json.loads(meta_file.read_text())
+    for key in ("layout", "groups", "group_errors"):
+        del meta[key]
+    del meta["config"]["layout"]
+    meta_file.write_text(json.dumps(meta))
+    back = RhythmicMap.load(tmp_path / "old.map")
+    assert back.groups.kind == "periods" and back.groups.sizes == model.periods
+    np.testing.assert_array_equal(back.predict(x), model.predict(x))
+
+
+def test_bad_layouts_are_refused_before_fitting():
+    with pytest.raises(InputError, match="layout 'mixed:1,2'"):
+        RhythmicMap(layout="mixed:1,2")
+    with pytest.raises(InputError, match="tells apart 100 places"):
+        RhythmicMap(layout="mixed:10,10").fit(wide(), progress=False)

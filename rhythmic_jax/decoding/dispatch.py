@@ -8,9 +8,15 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
+from rhythmic_jax.decoding.group_decode import (
+    group_hard_decode,
+    group_soft_decode,
+    group_topm_decode,
+)
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import Groups
 
 __all__ = ["DECODERS", "decode_scores"]
 
@@ -21,7 +27,7 @@ _hard_jit = functools.partial(jax.jit, static_argnames=("periods", "n"))(hard_de
 
 def decode_scores(
     scores: jax.Array,
-    periods: Sequence[int],
+    periods: Sequence[int] | Groups,
     n: int,
     method: str = "hard",
     m: int = 3,
@@ -30,11 +36,19 @@ def decode_scores(
 
     ``topm`` keeps the ``m`` best phases of every period (see
     :func:`rhythmic_jax.decoding.soft.topm_decode`). Every field of the result has the
-    scores' leading shape.
+    scores' leading shape. ``periods`` may be a map's
+    :class:`~rhythmic_jax.groups.Groups`: mixed-radix and hierarchical layouts
+    decode in the place domain (:mod:`rhythmic_jax.decoding.group_decode`).
     """
     if method not in DECODERS:
         raise InputError(f"unknown decode method {method!r}; choose one of {DECODERS}")
-    periods, n = check_scores(scores, periods, n)
+    if isinstance(periods, Groups) and periods.kind != "periods":
+        if method == "soft":
+            return group_soft_decode(scores, periods, n)
+        if method == "topm":
+            return group_topm_decode(scores, periods, n, m)
+        return group_hard_decode(scores, periods, n)
+    periods, n = check_scores(scores, getattr(periods, "sizes", periods), n)
     if method == "soft":
         return soft_decode(scores, periods, n)
     if method == "topm":

@@ -32,6 +32,7 @@ import numpy as np
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import Groups
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -158,7 +159,7 @@ def _decode_jit(scores, periods, n, length, speeds, method, m, exclude):
 
 def sequence_decode(
     scores: jax.Array,
-    periods: Sequence[int],
+    periods: Sequence[int] | Groups,
     n: int,
     length: int,
     speeds: Sequence[float] = (1.0,),
@@ -174,15 +175,26 @@ def sequence_decode(
     "topm": top-``m`` combinations, "hard": per-period argmax + CRT); per frame the
     speed with the highest decoded score wins (first in ``speeds`` on ties).
 
+    ``periods`` may be a map's :class:`~rhythmic_jax.groups.Groups`; a
+    mixed-radix or hierarchical map sums its evidence in the place domain and
+    takes the argmax whatever the method
+    (:func:`rhythmic_jax.decoding.group_decode.group_sequence_decode`).
+
     Returns:
       index: (T,) int32, -1 for no match; confidence: (T,) best minus runner-up
       score of the winning speed (for "hard" the smallest per-period top-2 gap).
     """
-    scores, per, n = _check_frames(scores, periods, n)
-    length = _check_length(length)
-    speeds = _check_speeds(speeds)
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got method={method!r}")
+    if isinstance(periods, Groups) and periods.kind != "periods":
+        from rhythmic_jax.decoding.group_decode import group_sequence_decode
+
+        return group_sequence_decode(
+            scores, periods, n, length, speeds, exclude=exclude
+        )
+    scores, per, n = _check_frames(scores, getattr(periods, "sizes", periods), n)
+    length = _check_length(length)
+    speeds = _check_speeds(speeds)
     check_int(m, "m", 1)
     check_int(exclude, "exclude", 0)
     if method != "soft" and math.prod(per) >= 2**30:

@@ -42,6 +42,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import Groups
 from rhythmic_jax.periods import crt_tables, period_offsets, place_columns
 from rhythmic_jax.validate import check_int
 
@@ -50,13 +51,22 @@ __all__ = ["calibrate", "soft_decode", "topm_decode"]
 _INT32_SAFE = 2**30  # running CRT sums stay below 2 M < 2**31
 
 
-def calibrate(scores: jax.Array, periods: Sequence[int]) -> jax.Array:
+def calibrate(scores: jax.Array, periods: Sequence[int] | Groups) -> jax.Array:
     """Per-period log-softmax over phases: (..., p) -> (..., p).
 
     ``c_k[j] = s_k[j] - log sum_j' exp(s_k[j'])``, so ``sum_k c_k[i mod tau_k]`` is a
-    sum of log-probabilities. Argmaxes (the hard decode) are unchanged.
+    sum of log-probabilities. Argmaxes (the hard decode) are unchanged. With a
+    :class:`~rhythmic_jax.groups.Groups` the softmax runs over every group's classes.
     """
-    per, _ = check_scores(scores, periods)
+    if isinstance(periods, Groups) and periods.kind != "periods":
+        per = periods.sizes
+        if getattr(scores, "shape", (0,))[-1:] != (periods.p,):
+            raise InputError(
+                f"scores must have shape (..., {periods.p}) for "
+                f"{periods.describe()}, got {np.shape(scores)}"
+            )
+    else:
+        per, _ = check_scores(scores, getattr(periods, "sizes", periods))
     blocks = jnp.split(jnp.asarray(scores), np.cumsum(per)[:-1].tolist(), axis=-1)
     return jnp.concatenate([jax.nn.log_softmax(b, axis=-1) for b in blocks], axis=-1)
 

@@ -16,8 +16,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
+from rhythmic_jax.groups import Groups
 from rhythmic_jax.periods import database_bytes, place_columns
 
 __all__ = ["evaluate_map", "format_evaluation", "ranked_places"]
@@ -33,8 +35,16 @@ def _ranked(scores: jax.Array, periods: tuple[int, ...], n: int, k: int) -> jax.
 
 
 def ranked_places(scores, periods, n: int, k: int = 10) -> np.ndarray:
-    """The k best places by ``sum_k s_k[i mod tau_k]``: (b, p) -> (b, k) indices."""
-    periods = tuple(int(t) for t in periods)
+    """The k best places by ``sum_k s_k[i mod tau_k]``: (b, p) -> (b, k) indices.
+
+    ``periods`` may be a map's :class:`~rhythmic_jax.groups.Groups` (then the
+    summed evidence of every group,
+    :func:`rhythmic_jax.decoding.group_decode.place_scores`).
+    """
+    if isinstance(periods, Groups) and periods.kind != "periods":
+        total = place_scores(scores, periods, n)
+        return np.asarray(jax.lax.top_k(total, min(k, n))[1])
+    periods = tuple(int(t) for t in getattr(periods, "sizes", periods))
     return np.asarray(_ranked(jnp.asarray(scores), periods, int(n), min(k, n)))
 
 
@@ -57,14 +67,17 @@ def _map_decisions(model, queries, method, sequence):
         from rhythmic_jax.decoding.sequence import sequence_decode, sequence_scores
 
         _, conf = sequence_decode(
-            s, model.periods, model.n, sequence, (1.0,), method, model.config.m
+            s, model.groups, model.n, sequence, (1.0,), method, model.config.m
         )
-        s = sequence_scores(s, model.periods, sequence)
-        which = f"sequence scores (L={sequence}, speed 1)"
+        if model.groups.kind == "periods":
+            s = sequence_scores(s, model.periods, sequence)
+            which = f"sequence scores (L={sequence}, speed 1)"
+        else:  # place-domain sequences keep no per-group scores to rank
+            which = "single-frame scores"
     else:
         conf = model.decode(queries, method).confidence
         which = "single-frame scores"
-    ranked = ranked_places(s, model.periods, model.n, max(KS))
+    ranked = ranked_places(s, model.groups, model.n, max(KS))
     return pred, np.asarray(conf, np.float64), ranked, which
 
 
@@ -147,6 +160,7 @@ def evaluate_map(
             "storage_share": model.storage_bytes / database_bytes(model.n, model.d, 4),
             "codes_bits": model.codebook.bits if model.codebook is not None else None,
             "periods": list(model.periods),
+            "layout": model.groups.describe(),
         }
     }
     if timing:

@@ -1,0 +1,328 @@
+"""Decoding any layout of groups in the place domain: all the evidence, summed.
+
+A map whose groups are not co-prime periods (:class:`~rhythmic_jax.groups.Groups`:
+mixed-radix digits, or segments plus fine periods) has no Chinese remainder; it
+is decoded from the scores of every place,
+
+    S(i) = sum_g s_g[label_g(i)],
+
+the evidence of every classifier for place ``i`` (for periods, ``label_g(i) = i mod
+tau_g`` and this is soft decode (:mod:`rhythmic_jax.decoding.soft`)):
+
+- soft: ``argmax_{i < n} S(i)``, runner-up the best place more than ``exclude``
+  frames away (as the periods' soft decode);
+- top-m: the same argmax over the places whose label is among the ``m`` best of
+  every group (``m = 1``: every group's argmax; ``m >= max(size)``: soft);
+- hard: mixed radix, the argmax digits give the index directly
+  (``sum_k d_k prod(b_{k+1..r})``, no match when it is ``>= n``); hierarchical,
+  the argmax segment, then its best place by the summed fine scores. Confidence
+  is the smallest top-2 margin (of every digit; of the segment and of the place
+  within it);
+- sequences: ``A_t(i) = sum_{l < L} S_{t-l}(i - o_l)`` with ``o_l = round(l v)``
+  (frames before the first left out; a place shifted off the route scores the
+  mean of its frame), decoded by its argmax over places for every speed ``v``, the
+  best-scoring speed kept. Memory ``O(chunk * n)`` per step.
+
+Shapes: b queries (T frames of a sequence), p = sum of the group sizes, n places.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhythmic_jax.decoding.hard import Decoded
+from rhythmic_jax.decoding.soft import _batched, _best_two, _empty
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import Groups
+from rhythmic_jax.validate import check_int as _check_int
+
+__all__ = [
+    "check_group_scores",
+    "group_hard_decode",
+    "group_sequence_decode",
+    "group_soft_decode",
+    "group_topm_decode",
+    "place_scores",
+]
+
+
+def check_group_scores(scores, groups: Groups, n: int | None = None) -> int:
+    """Validate scores (..., p) against ``groups`` and ``n`` (default: capacity)."""
+    if not isinstance(groups, Groups):
+        raise InputError(f"groups must be a Groups, got {groups!r}")
+    n = groups.check(groups.capacity if n is None else n)
+    shape = getattr(scores, "shape", np.shape(scores))
+    if len(shape) < 1 or shape[-1] != groups.p:
+        raise InputError(
+            f"scores must have shape (..., {groups.p}) for {groups.describe()}, "
+            f"got shape {shape}"
+        )
+    if not jnp.issubdtype(getattr(scores, "dtype", np.float64), jnp.floating):
+        raise InputError(f"scores must be floating point, got dtype {scores.dtype}")
+    return n
+
+
+@functools.lru_cache(maxsize=64)
+def _columns(groups: Groups, n: int) -> np.ndarray:
+    return groups.columns(n)
+
+
+def _place_sum(scores: jax.Array, groups: Groups, n: int) -> jax.Array:
+    """(..., p) -> (..., n): ``S(i) = sum_g scores[..., col_g(i)]``."""
+    cols = _columns(groups, n)
+    total = jnp.take(scores, cols[0], axis=-1)
+    for c in cols[1:]:
+        total = total + jnp.take(scores, c, axis=-1)
+    return total
+
+
+@functools.partial(jax.jit, static_argnames=("groups", "n"))
+def _place_jit(scores, groups, n):
+    return _place_sum(scores, groups, n)
+
+
+def place_scores(scores: jax.Array, groups: Groups, n: int) -> jax.Array:
+    """Summed evidence of every place: scores (..., p) -> (..., n)."""
+    n = check_group_scores(scores, groups, n)
+    return _place_jit(jnp.asarray(scores), groups, n)
+
+
+# --------------------------------------------------------------------- soft
+def _soft_one(s, groups: Groups, n: int, exclude: int) -> Decoded:
+    total = _place_sum(s, groups, n)
+    return _best_two(
+        total, jnp.arange(n, dtype=jnp.int32), jnp.ones((n,), bool), exclude
+    )
+
+
+def _topm_one(s, groups: Groups, n: int, m: int, exclude: int) -> Decoded:
+    cols = _columns(groups, n)
+    valid = jnp.ones((n,), bool)
+    for g, (off, t) in enumerate(zip(groups.offsets, groups.sizes, strict=True)):
+        _, best = jax.lax.top_k(s[off : off + t], min(m, t))
+        keep = jnp.zeros((t,), bool).at[best].set(True)
+        valid = valid & keep[cols[g] - off]
+    total = _place_sum(s, groups, n)
+    return _best_two(total, jnp.arange(n, dtype=jnp.int32), valid, exclude)
+
+
+@functools.partial(
+    jax.jit, static_argnames=("groups", "n", "m", "exclude", "batch_size")
+)
+def _decode_jit(scores, groups, n, m, exclude, batch_size):
+    if m is None:
+        return _batched(
+            _soft_one, scores, batch_size, groups=groups, n=n, exclude=exclude
+        )
+    return _batched(
+        _topm_one, scores, batch_size, groups=groups, n=n, m=m, exclude=exclude
+    )
+
+
+def group_soft_decode(
+    scores: jax.Array,
+    groups: Groups,
+    n: int,
+    *,
+    exclude: int = 0,
+    batch_size: int = 256,
+) -> Decoded:
+    """``argmax_{i < n} S(i)`` of every query: scores (..., p) -> Decoded (...)."""
+    n = check_group_scores(scores, groups, n)
+    exclude = _check_int(exclude, "exclude", 0)
+    batch_size = _check_int(batch_size, "batch_size", 1)
+    scores = jnp.asarray(scores)
+    if math.prod(scores.shape[:-1]) == 0:
+        return _empty(scores.shape[:-1], scores.dtype)
+    return _decode_jit(scores, groups, n, None, exclude, batch_size)
+
+
+def group_topm_decode(
+    scores: jax.Array,
+    groups: Groups,
+    n: int,
+    m: int,
+    *,
+    exclude: int = 0,
+    batch_size: int = 256,
+) -> Decoded:
+    """Best ``S(i)`` over places whose labels are all among their group's ``m`` best.
+
+    Index -1 (score -inf) when no place has such labels (e.g. a mixed-radix
+    combination ``>= n`` at ``m = 1``).
+    """
+    n = check_group_scores(scores, groups, n)
+    m = _check_int(m, "m", 1)
+    exclude = _check_int(exclude, "exclude", 0)
+    batch_size = _check_int(batch_size, "batch_size", 1)
+    scores = jnp.asarray(scores)
+    if math.prod(scores.shape[:-1]) == 0:
+        return _empty(scores.shape[:-1], scores.dtype)
+    return _decode_jit(scores, groups, n, m, exclude, batch_size)
+
+
+# --------------------------------------------------------------------- hard
+def _top_two(block: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(b, t) -> argmax (b,), max (b,), max - second (b,) (inf when t == 1)."""
+    arg = jnp.argmax(block, axis=1)
+    top = jnp.max(block, axis=1)
+    hit = jnp.arange(block.shape[1])[None, :] == arg[:, None]
+    second = jnp.max(jnp.where(hit, -jnp.inf, block), axis=1)
+    return arg, top, top - second
+
+
+def _hard(scores: jax.Array, groups: Groups, n: int) -> Decoded:
+    b = scores.shape[0]
+    offs = groups.offsets
+    if groups.kind == "mixed":
+        index = jnp.zeros((b,), jnp.int32)
+        total = jnp.zeros((b,), scores.dtype)
+        gap = jnp.full((b,), jnp.inf, scores.dtype)
+        for off, t, w in zip(offs, groups.sizes, groups.weights(), strict=True):
+            digit, top, margin = _top_two(scores[:, off : off + t])
+            index = index + digit.astype(jnp.int32) * w
+            total = total + top
+            gap = jnp.minimum(gap, margin)
+        found = index < n
+        return Decoded(
+            jnp.where(found, index, -1),
+            jnp.where(found, total, jnp.asarray(-jnp.inf, scores.dtype)),
+            total - gap,
+        )
+    # hierarchical: the argmax segment, then its best place by the fine scores
+    s = groups.segment
+    seg, seg_top, seg_gap = _top_two(scores[:, : groups.sizes[0]])
+    place = (seg * s).astype(jnp.int32)[:, None] + jnp.arange(s, dtype=jnp.int32)[
+        None, :
+    ]
+    fine = jnp.zeros(place.shape, scores.dtype)
+    for off, t in zip(offs[1:], groups.sizes[1:], strict=True):
+        fine = fine + jnp.take_along_axis(scores, off + place % t, axis=1)
+    fine = jnp.where(place < n, fine, -jnp.inf)
+    best, fine_top, fine_gap = _top_two(fine)
+    total = seg_top + fine_top
+    gap = jnp.minimum(seg_gap, fine_gap)
+    index = (seg * s + best).astype(jnp.int32)
+    return Decoded(index, total, total - gap)
+
+
+_hard_jit = functools.partial(jax.jit, static_argnames=("groups", "n"))(_hard)
+
+
+def group_hard_decode(scores: jax.Array, groups: Groups, n: int) -> Decoded:
+    """Hard decode of a mixed or hierarchical map: scores (..., p) -> Decoded (...)."""
+    n = check_group_scores(scores, groups, n)
+    if groups.kind == "periods":
+        raise InputError(
+            "periods maps decode with rhythmic_jax.decoding.hard.hard_decode"
+        )
+    scores = jnp.asarray(scores)
+    lead = scores.shape[:-1]
+    if math.prod(lead) == 0:
+        return _empty(lead, scores.dtype)
+    out = _hard_jit(scores.reshape((-1, scores.shape[-1])), groups, n)
+    return Decoded(*(x.reshape(lead) for x in out))
+
+
+# ---------------------------------------------------------------- sequences
+def _shifted(place: jax.Array, shift: int) -> jax.Array:
+    """(F, n) -> (F, n): column i holds ``place[:, i - shift]``, the row mean where
+    ``i - shift`` is off the route."""
+    f, n = place.shape
+    if abs(shift) >= n:
+        return jnp.broadcast_to(jnp.mean(place, axis=1, keepdims=True), (f, n))
+    fill = jnp.broadcast_to(jnp.mean(place, axis=1, keepdims=True), (f, abs(shift)))
+    if shift >= 0:
+        return jnp.concatenate([fill, place[:, : n - shift]], axis=1)
+    return jnp.concatenate([place[:, -shift:], fill], axis=1)
+
+
+@functools.partial(
+    jax.jit, static_argnames=("groups", "n", "offsets", "exclude", "batch_size")
+)
+def _sequence_chunk(window, groups, n, offsets, exclude, batch_size):
+    """window (C + L - 1, p) scores, oldest first -> Decoded (C,) of its C ends."""
+    length = len(offsets)
+    place = _place_sum(window, groups, n)
+    frames = window.shape[0] - length + 1
+    acc = jnp.zeros((frames, n), place.dtype)
+    for step, o in enumerate(offsets):
+        rows = place[length - 1 - step : length - 1 - step + frames]
+        acc = acc + _shifted(rows, o)
+    index = jnp.arange(n, dtype=jnp.int32)
+    valid = jnp.ones((n,), bool)
+    return jax.lax.map(
+        lambda a: _best_two(a, index, valid, exclude), acc, batch_size=batch_size
+    )
+
+
+def group_sequence_decode(
+    scores: jax.Array,
+    groups: Groups,
+    n: int,
+    length: int,
+    speeds: Sequence[float] = (1.0,),
+    *,
+    exclude: int = 0,
+    chunk: int = 256,
+) -> tuple[jax.Array, jax.Array]:
+    """Sequence decode in the place domain: scores (T, p) -> index (T,), confidence.
+
+    Per speed the accumulated ``A_t`` (module docstring) is decoded by its argmax;
+    per frame the speed with the highest score wins (first in ``speeds`` on ties).
+    """
+    from rhythmic_jax.decoding.sequence import (
+        _check_length,
+        _check_speeds,
+        frame_offsets,
+    )
+
+    n = check_group_scores(scores, groups, n)
+    scores = jnp.asarray(scores)
+    if scores.ndim != 2:
+        raise InputError(f"scores must have shape (T, p), got {scores.shape}")
+    length = _check_length(length)
+    speeds = _check_speeds(speeds)
+    exclude = _check_int(exclude, "exclude", 0)
+    chunk = _check_int(chunk, "chunk", 1)
+    frames = scores.shape[0]
+    if frames == 0:
+        return jnp.zeros((0,), jnp.int32), jnp.zeros((0,), scores.dtype)
+    chunk = min(chunk, frames)
+    pad_end = -frames % chunk
+    padded = jnp.concatenate(
+        [
+            jnp.zeros((length - 1, groups.p), scores.dtype),
+            scores,
+            jnp.zeros((pad_end, groups.p), scores.dtype),
+        ]
+    )
+    best: Decoded | None = None
+    for v in speeds:
+        offsets = frame_offsets(length, v)
+        parts = [
+            _sequence_chunk(
+                padded[t0 : t0 + chunk + length - 1],
+                groups,
+                n,
+                offsets,
+                exclude,
+                min(chunk, 64),
+            )  # fmt: skip
+            for t0 in range(0, frames, chunk)
+        ]
+        out = Decoded(*(jnp.concatenate(x)[:frames] for x in zip(*parts, strict=True)))
+        if best is None:
+            best = out
+        else:
+            better = out.score > best.score
+            best = Decoded(
+                *(jnp.where(better, a, b) for a, b in zip(out, best, strict=True))
+            )
+    return best.index, best.confidence
