@@ -360,7 +360,7 @@ class RhythmicMap:
             # scores and decode in one compiled call
             return localise(self.params, jnp.asarray(x), self.periods, self.n)
         return decode_scores(
-            _scores(self.params, q),
+            _scores(self.params, self._queries(q)),
             self.groups,
             self.n,
             method or self.config.decode,

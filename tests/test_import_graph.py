@@ -24,6 +24,7 @@ LAYERS = [
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
         "eval.baselines", "eval.metrics", "eval.figures", "compiled",
     ],
+    ["groups"],
     ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline",
      "eval.ground_truth"],
     ["io.ground_truth_files"],
@@ -35,6 +36,7 @@ LAYERS = [
         "solvers.resumable", "decoding.soft", "solvers.distributed",
         "io.describe_shards", "decoding.small",
     ],
+    ["decoding.group_decode"],
     ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
     ["decoding.fusion"],
     [

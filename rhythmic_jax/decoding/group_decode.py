@@ -266,29 +266,29 @@ def group_sequence_decode(
     scores: jax.Array,
     groups: Groups,
     n: int,
-    length: int,
-    speeds: Sequence[float] = (1.0,),
+    offsets: Sequence[Sequence[int]],
     *,
     exclude: int = 0,
     chunk: int = 256,
 ) -> tuple[jax.Array, jax.Array]:
     """Sequence decode in the place domain: scores (T, p) -> index (T,), confidence.
 
-    Per speed the accumulated ``A_t`` (module docstring) is decoded by its argmax;
-    per frame the speed with the highest score wins (first in ``speeds`` on ties).
+    ``offsets`` holds, per speed ``v``, the map-frame offsets ``o_l`` of the L
+    frames of a window (:func:`rhythmic_jax.decoding.sequence.frame_offsets`);
+    :func:`rhythmic_jax.decoding.sequence.sequence_decode` passes them for a map's
+    groups. Per speed the accumulated ``A_t`` (module docstring) is decoded by its
+    argmax; per frame the speed with the highest score wins (first on ties).
     """
-    from rhythmic_jax.decoding.sequence import (
-        _check_length,
-        _check_speeds,
-        frame_offsets,
-    )
-
     n = check_group_scores(scores, groups, n)
     scores = jnp.asarray(scores)
     if scores.ndim != 2:
         raise InputError(f"scores must have shape (T, p), got {scores.shape}")
-    length = _check_length(length)
-    speeds = _check_speeds(speeds)
+    offsets = tuple(tuple(int(o) for o in offs) for offs in offsets)
+    if not offsets or len({len(offs) for offs in offsets}) != 1 or not offsets[0]:
+        raise InputError(
+            "offsets must hold one non-empty window per speed, all of one length"
+        )
+    length = len(offsets[0])
     exclude = _check_int(exclude, "exclude", 0)
     chunk = _check_int(chunk, "chunk", 1)
     frames = scores.shape[0]
@@ -304,14 +304,13 @@ def group_sequence_decode(
         ]
     )
     best: Decoded | None = None
-    for v in speeds:
-        offsets = frame_offsets(length, v)
+    for offs in offsets:
         parts = [
             _sequence_chunk(
                 padded[t0 : t0 + chunk + length - 1],
                 groups,
                 n,
-                offsets,
+                offs,
                 exclude,
                 min(chunk, 64),
             )  # fmt: skip

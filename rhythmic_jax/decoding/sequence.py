@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.decoding.group_decode import group_sequence_decode
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
@@ -186,15 +187,12 @@ def sequence_decode(
     """
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got method={method!r}")
-    if isinstance(periods, Groups) and periods.kind != "periods":
-        from rhythmic_jax.decoding.group_decode import group_sequence_decode
-
-        return group_sequence_decode(
-            scores, periods, n, length, speeds, exclude=exclude
-        )
-    scores, per, n = _check_frames(scores, getattr(periods, "sizes", periods), n)
     length = _check_length(length)
     speeds = _check_speeds(speeds)
+    if isinstance(periods, Groups) and periods.kind != "periods":
+        offsets = [frame_offsets(length, v) for v in speeds]
+        return group_sequence_decode(scores, periods, n, offsets, exclude=exclude)
+    scores, per, n = _check_frames(scores, getattr(periods, "sizes", periods), n)
     check_int(m, "m", 1)
     check_int(exclude, "exclude", 0)
     if method != "soft" and math.prod(per) >= 2**30:

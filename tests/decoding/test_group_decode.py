@@ -143,7 +143,8 @@ def test_sequences_sum_place_scores_along_the_route(groups, n):
         for t in range(frames):
             if acc[t].max() > best_score[t] + 1e-9:
                 best_score[t], want[t] = acc[t].max(), int(np.argmax(acc[t]))
-    idx, conf = group_sequence_decode(s, groups, n, length, speeds, chunk=5)
+    offsets = [frame_offsets(length, v) for v in speeds]
+    idx, conf = group_sequence_decode(s, groups, n, offsets, chunk=5)
     np.testing.assert_array_equal(np.asarray(idx), want)
     assert (np.asarray(conf) >= 0).all()
     idx2, _ = sequence_decode(s, groups, n, length, speeds, "soft")
