@@ -38,6 +38,13 @@ from rhythmic_jax.decoding.fusion import (
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
+from rhythmic_jax.embedding import (
+    Embedding,
+    embedding_arrays,
+    embedding_bytes,
+    embedding_from_arrays,
+)
+from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
 from rhythmic_jax.io import checkpoint
@@ -153,8 +160,16 @@ class MapConfig:
 class RhythmicMap:
     """A place-recognition map stored as r groups of periodic linear templates."""
 
-    def __init__(self, config: MapConfig | None = None, **kwargs: Any):
+    def __init__(
+        self,
+        config: MapConfig | None = None,
+        *,
+        embedding: Embedding | None = None,
+        **kwargs: Any,
+    ):
         self.config = replace(config or MapConfig(), **kwargs)
+        # applied to the reference frames and to every query (saved with the map)
+        self.embedding = embedding
         self.params: Templates | None = None
         self._stored: dict[str, np.ndarray] = {}  # the templates as saved
         self.n: int | None = None
@@ -197,15 +212,20 @@ class RhythmicMap:
         progress = bool(verbose) if progress is None else bool(progress)
         x = check_features(x, "reference features")
         labels = check_labels(np.arange(len(x)) if labels is None else labels, len(x))
+        d_in = int(x.shape[1])
+        if self.embedding is not None:
+            x = apply_embedding(self.embedding, x)
         cfg = self.config
         if cfg.codes is not None:
+            if self.embedding is not None:
+                raise InputError("codes and an embedding cannot be combined yet")
             check_bits(cfg.codes, x.shape[1])
             if not np.array_equal(labels, np.arange(len(x))):
                 raise InputError("codes need one reference frame per place, in order")
         n = int(labels.max()) + 1
         spec = parse_layout(self.config.layout)
         if spec.kind != "periods" or spec.sizes:
-            return self._fit_groups(x, labels, spec, progress, refine)
+            return self._fit_groups(x, labels, spec, progress, refine, d_in)
         cands, c = self._plan(n)
         check_memory(len(x), x.shape[1], sum(cands))
         y = targets(labels, cands)
@@ -227,7 +247,7 @@ class RhythmicMap:
             )
         s = scores(params, jnp.asarray(x))
         errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
-        self._choose(params, cands, errors, n, int(x.shape[1]), c)
+        self._choose(params, cands, errors, n, d_in, c)
         if cfg.codes is not None:
             self.codebook = CodeBook.fit(x, cfg.codes)
         return self
@@ -260,7 +280,7 @@ class RhythmicMap:
         self.periods = tuple(int(t) for t in chosen)
         self.groups = Groups("periods", self.periods)
 
-    def _fit_groups(self, x, labels, spec, progress, refine) -> RhythmicMap:
+    def _fit_groups(self, x, labels, spec, progress, refine, d_in) -> RhythmicMap:
         """Fit a layout whose groups are fixed before training (no period choice):
         the same objective and solver, targets from the groups' labels."""
         cfg = self.config
@@ -285,7 +305,7 @@ class RhythmicMap:
         self._set_stored(stored)
         self.groups = groups
         self.periods = groups.sizes if groups.kind == "periods" else ()
-        self.n, self.d, self.c = n, int(x.shape[1]), float(c)
+        self.n, self.d, self.c = n, d_in, float(c)
         self.candidates, self.candidate_errors = (), ()
         self.group_errors = tuple(float(e) for e in errors)
         log.info("group training errors %s", np.round(errors, 4))
@@ -316,7 +336,10 @@ class RhythmicMap:
     def _queries(self, q) -> jax.Array:
         """Checked (b, d) queries of a fitted map, as a JAX array."""
         self._check_fitted()
-        return jnp.asarray(check_features(q, "queries", d=self.d))
+        q = check_features(q, "queries", d=self.d)
+        if self.embedding is not None:
+            q = apply_embedding(self.embedding, q)
+        return jnp.asarray(q)
 
     def scores(self, q) -> jax.Array:
         """Decision values of queries (b, d) -> (b, sum(periods))."""
@@ -355,6 +378,8 @@ class RhythmicMap:
         self._check_fitted()
         if (method or self.config.decode) == "hard" and self.groups.kind == "periods":
             x = check_features(q, "queries", d=self.d)
+            if self.embedding is not None:
+                x = np.asarray(apply_embedding(self.embedding, x), np.float32)
             if len(x) <= SMALL_BATCH:  # numpy: no dispatch for a single query
                 return self._small_decoder()(x)
             # scores and decode in one compiled call
@@ -450,19 +475,32 @@ class RhythmicMap:
 
     # -------------------------------------------------------------- storage
     @property
+    def template_d(self) -> int:
+        """Dimension of the templates: the embedding's k, else the input d."""
+        return self.d if self.embedding is None else self.embedding.k
+
+    @property
     def storage_bytes(self) -> int:
-        """Bytes search needs: the templates in their dtype, plus
-        with codes ``n * ceil(bits / 8) + (bits * d + d) * 4``."""
+        """Bytes of the templates in their dtype, plus with codes
+        ``n * ceil(bits / 8) + (bits * d + d) * 4``; an embedding is counted apart
+        (:attr:`embedding_bytes`)."""
         return self.storage()["total"]
+
+    @property
+    def embedding_bytes(self) -> int:
+        """Bytes of the embedding's parameters (0 without one; do not grow with N)."""
+        return 0 if self.embedding is None else embedding_bytes(self.embedding)
 
     def storage(self) -> dict[str, Any]:
         """Bytes split into a fixed part (the code transform), a per-place part
-        (the codes) and a per-period part (``tau`` templates each, stored dtype)."""
+        (the codes) and a per-period part (``tau`` templates each, stored dtype);
+        ``embedding`` is shown apart, and ``share`` counts everything against the
+        n x d float32 database."""
         self._check_fitted()
         codes = self.codebook.storage() if self.codebook else {}
         per_period = {
             (str(t) if self.groups.kind == "periods" else f"{k}:{t}"): template_bytes(
-                t, self.d, self.config.dtype
+                t, self.template_d, self.config.dtype
             )
             for k, t in enumerate(self.groups.sizes)
         }
@@ -472,13 +510,14 @@ class RhythmicMap:
             "fixed": fixed,
             "per_place": per_place,
             "per_period": per_period,
+            "embedding": self.embedding_bytes,
             "total": total,
-            "share": total / database_bytes(self.n, self.d, 4),
+            "share": (total + self.embedding_bytes) / database_bytes(self.n, self.d, 4),
         }
 
     @property
     def compression_ratio(self) -> float:
-        """Bytes search needs over the bytes of the n x d float32 database."""
+        """Bytes search needs (embedding included) over the n x d float32 database."""
         self._check_fitted()
         return self.storage()["share"]
 
@@ -493,6 +532,10 @@ class RhythmicMap:
             "groups": self.groups.to_dict(),
             "group_errors": list(self.group_errors),
             "storage_bytes": self.storage_bytes,
+            "embedding_bytes": self.embedding_bytes,
+            "embedding": None
+            if self.embedding is None
+            else {"kind": self.embedding.kind, "k": self.embedding.k},
             "database_bytes": database_bytes(self.n, self.d, 4),
             "compression_ratio": self.compression_ratio,
             "storage": self.storage(),
@@ -516,6 +559,8 @@ class RhythmicMap:
         arrays.update({f"extra_{k}": np.asarray(v) for k, v in self.extra.items()})
         if self.codebook is not None:
             arrays.update(self.codebook.arrays())
+        if self.embedding is not None:
+            arrays.update(embedding_arrays(self.embedding))
         meta = self.info()
         meta.update(dtype=self.config.dtype, package_version=__version__)
         checkpoint.save_map(path, arrays, meta)
@@ -547,12 +592,18 @@ class RhythmicMap:
                 if kind == "periods"
                 else Groups.from_dict(meta["groups"])
             )
+            emb = embedding_from_arrays(arrays)
         except (KeyError, TypeError, ValueError, AttributeError, InputError) as err:
             raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
-        if w.shape != (dim, groups.p) or b.shape != (groups.p,):
+        tdim = dim if emb is None else emb.k
+        if emb is not None and emb.d != dim:
+            raise InputError(
+                f"{path}: embedding expects {emb.d}-d input, map says {dim}"
+            )
+        if w.shape != (tdim, groups.p) or b.shape != (groups.p,):
             raise InputError(
                 f"{path}: weights of shape {w.shape} do not fit "
-                f"{groups.describe()}, d={dim}"
+                f"{groups.describe()}, d={tdim}"
             )
         try:
             groups.check(n)
@@ -575,7 +626,7 @@ class RhythmicMap:
             raise InputError(
                 f"{path}: map built for {dim}-d features, queries are {d}-d"
             )
-        self = cls(cfg)
+        self = cls(cfg, embedding=emb)
         stored = {"w": w, "b": b}
         if "scale" in arrays:
             stored["scale"] = arrays["scale"]
