@@ -32,6 +32,13 @@ _EXPORTS = {
     "crossover_n": "rhythmic_jax.eval.frontier",
     "frontier_rows": "rhythmic_jax.eval.frontier",
     "projected_bytes": "rhythmic_jax.eval.frontier",
+    "Embedding": "rhythmic_jax.embedding",
+    "embedding_bytes": "rhythmic_jax.embedding",
+    "fit_invariant": "rhythmic_jax.embedding",
+    "load_embedding": "rhythmic_jax.embedding",
+    "save_embedding": "rhythmic_jax.embedding",
+    "LearnConfig": "rhythmic_jax.learn",
+    "learn_embedding": "rhythmic_jax.learn",
     "decode": "rhythmic_jax.decoding.hard",
     "Decoded": "rhythmic_jax.decoding.hard",
     "hard_decode": "rhythmic_jax.decoding.hard",
@@ -142,6 +149,11 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     from rhythmic_jax.decoding.soft import calibrate as calibrate
     from rhythmic_jax.decoding.soft import soft_decode as soft_decode
     from rhythmic_jax.decoding.soft import topm_decode as topm_decode
+    from rhythmic_jax.embedding import Embedding as Embedding
+    from rhythmic_jax.embedding import embedding_bytes as embedding_bytes
+    from rhythmic_jax.embedding import fit_invariant as fit_invariant
+    from rhythmic_jax.embedding import load_embedding as load_embedding
+    from rhythmic_jax.embedding import save_embedding as save_embedding
     from rhythmic_jax.eval.baselines import ITQ as ITQ
     from rhythmic_jax.eval.baselines import OPQ as OPQ
     from rhythmic_jax.eval.baselines import BruteForce as BruteForce
@@ -174,6 +186,8 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     )
     from rhythmic_jax.io.ground_truth_files import read_positions as read_positions
     from rhythmic_jax.io.ground_truth_files import read_vpr_bench as read_vpr_bench
+    from rhythmic_jax.learn import LearnConfig as LearnConfig
+    from rhythmic_jax.learn import learn_embedding as learn_embedding
     from rhythmic_jax.objective import Templates as Templates
     from rhythmic_jax.objective import classifier_objective as classifier_objective
     from rhythmic_jax.objective import default_c as default_c

@@ -18,6 +18,7 @@ from rhythmic_jax import InputError, jobs
 from rhythmic_jax.jobs import (
     FitInterrupted,
     FitJob,
+    LearnJob,
     Reading,
     int_option,
     number_option,
@@ -45,6 +46,12 @@ EXAMPLES = {
       rhythmic-jax fit ref.npy --out route.map --coordinator HOST:PORT
         --num-processes K --process-id i
         """,
+    "learn": """
+      rhythmic-jax learn summer_train.npy winter_train.npy --out route.emb
+      rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \
+          --method invariant
+      rhythmic-jax fit summer_test.npy --embedding route.emb --out route.map
+    """,
     "query": """
       rhythmic-jax query route.map queries.npy --out pred.npy
       rhythmic-jax query route.map winter/ --decode soft --sequence 10 --json
@@ -263,6 +270,31 @@ def _parser() -> argparse.ArgumentParser:
     )
     _add_source_options(p)
 
+    p.add_argument(
+        "--embedding",
+        default=None,
+        help="embedding folder written by 'rhythmic-jax learn' (saved in the map "
+        "and applied to every query)",
+    )
+
+    p = add(
+        "learn",
+        "learn an embedding from two or more traversals of a training route",
+    )
+    p.add_argument("sources", nargs="+", help="one source per traversal (same places)")
+    p.add_argument("--out", required=True, help="embedding folder to write")
+    p.add_argument(
+        "--method",
+        default="invariant",
+        choices=("invariant", "map", "infonce"),
+        help="closed form (default), learned through the map, or InfoNCE",
+    )
+    p.add_argument("--head", default="linear", choices=("linear", "mlp"))
+    p.add_argument("--k", type=int, default=256, help="output dimensions (256)")
+    p.add_argument("--steps", type=int, default=300, help="gradient steps (300)")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed (0)")
+    _add_source_options(p)
+
     p = add("query", "localise queries against a map (-1 = no match)")
     p.add_argument("map", help="map folder")
     p.add_argument("source", help="query descriptors .npy, image folder or image")
@@ -356,6 +388,7 @@ def _cmd_fit(args) -> int:
         positions=tuple(args.positions) if args.positions else None,
         places=args.places,
         codes=args.codes, fusion=args.fusion,
+        embedding=args.embedding,
     )  # fmt: skip
     scale = jobs.ScaleJob(
         processes=args.processes, coordinator=args.coordinator,
@@ -391,6 +424,18 @@ def _cmd_query(args) -> int:
     return 0
 
 
+def _cmd_learn(args) -> int:
+    from rhythmic_jax.learn import LearnConfig
+
+    config = LearnConfig(
+        method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
+    )
+    job = LearnJob(tuple(args.sources), args.out, config, _reading(args))
+    emb, info = jobs.learn(job, progress=not args.no_progress)
+    print(jobs.learn_summary(args.out, emb, info))
+    return 0
+
+
 def _cmd_info(args) -> int:
     info = jobs.info(args.map)
     print(json.dumps(info, indent=2) if args.json else jobs.info_lines(info))
@@ -418,6 +463,7 @@ def _cmd_demo(args) -> int:
 
 COMMANDS = {
     "fit": _cmd_fit,
+    "learn": _cmd_learn,
     "query": _cmd_query,
     "info": _cmd_info,
     "evaluate": _cmd_evaluate,

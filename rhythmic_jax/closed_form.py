@@ -29,7 +29,7 @@ __all__ = ["phase_targets", "place_log_scores", "ridge_templates"]
 
 
 def phase_targets(labels: jax.Array, periods: Sequence[int]) -> jax.Array:
-    """+-1 targets (n, sum(periods)): column j of period tau is +1 at label % tau == j."""
+    """+-1 targets (n, sum(periods)): column j of period tau is +1 at label%tau == j."""
     cols = [
         jnp.where(labels[:, None] % t == jnp.arange(t)[None, :], 1.0, -1.0)
         for t in periods

@@ -35,6 +35,8 @@ __all__ = [
     "embedding_bytes",
     "embedding_from_arrays",
     "fit_invariant",
+    "load_embedding",
+    "save_embedding",
 ]
 
 
@@ -159,12 +161,38 @@ def fit_invariant(
         raise InputError(f"embedding: k={k} must lie in [1, {p}]")
     pca = fit_pca(np.concatenate(xs), p)
     scale = 1.0 / jnp.sqrt(pca.explained_variance + 1e-12)
-    zs = [((jnp.asarray(t) - pca.mean) @ pca.components.T) * scale for t in xs]
+    zs = [
+        ((jnp.asarray(t) - pca.mean[None, :]) @ pca.components.T) * scale[None, :]
+        for t in xs
+    ]
     centre = sum(zs) / len(zs)
     dev = jnp.concatenate([z - centre for z in zs])
     cw = dev.T @ dev / dev.shape[0]
     cw = cw + shrink * jnp.trace(cw) / p * jnp.eye(p)
     evals, evecs = jnp.linalg.eigh(cw)  # ascending: least within-place change first
     # each kept direction scaled by C_w^{-1/2}: the condition change is whitened
-    proj = pca.components.T @ (scale[:, None] * evecs[:, :k] / jnp.sqrt(evals[:k]))
+    proj = pca.components.T @ (
+        scale[:, None] * evecs[:, :k] / jnp.sqrt(evals[:k])[None, :]
+    )
     return linear(pca.mean, proj)
+
+
+def save_embedding(path, emb: Embedding, meta: dict) -> None:
+    """Write an embedding to the folder ``path`` (orbax arrays + JSON, atomic)."""
+    from rhythmic_jax import checkpoint
+
+    info = {"kind": "embedding", "head": emb.kind, "d": emb.d, "k": emb.k}
+    checkpoint.save_map(path, embedding_arrays(emb), {**meta, **info})
+
+
+def load_embedding(path) -> tuple[Embedding, dict]:
+    """Read an embedding written by :func:`save_embedding` -> (embedding, meta)."""
+    from rhythmic_jax import checkpoint
+
+    arrays, meta = checkpoint.load_map(path)
+    emb = embedding_from_arrays(arrays) if meta.get("kind") == "embedding" else None
+    if emb is None:
+        raise InputError(
+            f"{path}: not an embedding (write one with rhythmic-jax learn)"
+        )
+    return emb, meta

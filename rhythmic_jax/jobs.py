@@ -43,8 +43,13 @@ __all__ = [
     "fit",
     "fit_scaled",
     "fit_summary",
+    "FitInterrupted",
+    "FitJob",
     "info",
     "info_lines",
+    "learn",
+    "learn_summary",
+    "LearnJob",
     "query",
     "int_option",
     "number_option",
@@ -87,6 +92,8 @@ class FitJob:
     :func:`evaluate`'s ground truth; ``places`` groups the frames into that many
     places by k-means over them (the RobotCar protocol; traversals may then
     differ in length).
+    given folder is kept). ``embedding`` names a folder written by :func:`learn`:
+    it is saved inside the map and applied to every query.
     """
 
     sources: tuple[str, ...]
@@ -110,6 +117,7 @@ class FitJob:
     dtype: str = "float32"
     positions: tuple[str, ...] | None = None
     places: int | None = None
+    embedding: str | None = None
 
 
 def _check_reading(reading: Reading) -> None:
@@ -226,6 +234,7 @@ def fit(job: FitJob, progress: bool = False):
         gap=job.gap, layout=job.layout, descriptor=feats.descriptor,
         descriptor_settings=feats.settings, dtype=job.dtype,
         codes=job.codes, fusion=job.fusion,
+        embedding=_embedding_for(job.embedding, feats),
     )  # fmt: skip
     if job.codes is not None and job.codes > feats.x.shape[1]:
         raise InputError(
@@ -269,6 +278,77 @@ def _with_positions(feats, job: FitJob):
         labels = gps_places(in_metres((xy, unit))[0], job.places)
         extra["reference_labels"] = labels
     return dataclasses.replace(feats, labels=labels, extra=extra)
+
+
+def _embedding_for(path: str | None, feats):
+    """The embedding of ``fit --embedding``, checked against the features."""
+    if path is None:
+        return None
+    from rhythmic_jax.embedding import load_embedding
+
+    emb, meta = load_embedding(path)
+    if meta.get("descriptor") != feats.descriptor:
+        raise InputError(
+            f"--embedding {path}: learned on {meta.get('descriptor')!r} descriptors, "
+            f"the map's are {feats.descriptor!r}"
+        )
+    if emb.d != feats.x.shape[1]:
+        raise InputError(
+            f"--embedding {path}: expects {emb.d}-d descriptors, got {feats.x.shape[1]}"
+        )
+    return emb
+
+
+@dataclass(frozen=True)
+class LearnJob:
+    """An embedding to learn from two or more traversals and write to ``out``.
+
+    ``rhythmic-jax learn a.npy b.npy --out route.emb`` is
+    ``learn(LearnJob(("a.npy", "b.npy"), "route.emb"))``; ``config`` is a
+    :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed).
+    """
+
+    sources: tuple[str, ...]
+    out: str
+    config: Any = None
+    reading: Reading = Reading()
+
+
+def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
+    """Learn, save and return ``(embedding, info)`` of ``job``."""
+    from rhythmic_jax.embedding import save_embedding
+    from rhythmic_jax.io.checkpoint import check_target
+    from rhythmic_jax.io.sources import load_sources
+    from rhythmic_jax.learn import LearnConfig, learn_embedding
+
+    check_target(job.out)
+    if len(job.sources) < 2:
+        raise InputError("learn needs two or more traversals of the training route")
+    read = job.reading
+    feats = load_sources(
+        job.sources, read.descriptor, read.tile, read.stride, progress,
+        weights=read.weights,
+    )  # fmt: skip
+    traversals = np.split(feats.x, len(job.sources))
+    emb, info = learn_embedding(traversals, job.config or LearnConfig())
+    meta = dict(
+        descriptor=feats.descriptor,
+        descriptor_settings=feats.settings,
+        learn={k: v for k, v in info.items() if k != "val_loss"},
+        sources=[str(Path(s).expanduser().absolute()) for s in job.sources],
+    )
+    save_embedding(job.out, emb, meta)
+    info["traversals"] = len(job.sources)
+    return emb, info
+
+
+def learn_summary(out: str, emb, info: dict[str, Any]) -> str:
+    """One line about a saved embedding."""
+    return (
+        f"embedding {out}: {emb.kind} {emb.d} -> {emb.k} dims, "
+        f"{info['seconds']:.1f} s on {info['places']} places x "
+        f"{info['traversals']} traversals"
+    )
 
 
 def fit_summary(out: str, info: dict[str, Any]) -> str:
@@ -370,7 +450,8 @@ def info(map_path: str) -> dict[str, Any]:
 
 def info_lines(info: dict[str, Any]) -> str:
     """The text form of :func:`info`: one setting a line, then each candidate."""
-    keys = ("n", "d", "layout", "storage_bytes", "compression_ratio", "c")
+    keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
+            "compression_ratio", "c")  # fmt: skip
     lines = [f"{key:>18}: {info[key]}" for key in keys]
     st = info["storage"]
     lines += [

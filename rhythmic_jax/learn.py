@@ -113,7 +113,7 @@ def _head(params: dict, u: jax.Array) -> jax.Array:
     """Head applied to the closed form's output u (n, k) -> normalised (n, k)."""
     z = u @ params["m"]
     if "w1" in params:
-        z = z + jax.nn.relu(z @ params["w1"] + params["b1"]) @ params["w2"]
+        z = z + jax.nn.relu(z @ params["w1"] + params["b1"][None, :]) @ params["w2"]
     return z / jnp.maximum(jnp.linalg.norm(z, axis=1, keepdims=True), 1e-12)
 
 
@@ -270,4 +270,4 @@ def learn_embedding(
 
 def _base_out(base: Embedding, x: np.ndarray) -> np.ndarray:
     """The closed form's un-normalised output (n, k) (the head normalises)."""
-    return np.asarray((jnp.asarray(x) - base.mean) @ base.proj)
+    return np.asarray((jnp.asarray(x) - base.mean[None, :]) @ base.proj)

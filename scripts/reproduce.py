@@ -701,6 +701,17 @@ def decoding_markdown(path: Path) -> tuple[str, dict | None]:
     return "\n".join(parts), data
 
 
+def cross_condition_markdown(path: Path) -> str:
+    """The report of ``scripts/bench_cross_condition.py`` (its Markdown), if present."""
+    if not path.is_file():
+        return (
+            "This section is produced by `python scripts/bench_cross_condition.py` "
+            f"(it writes `reports/{path.name}`, absent when this report was made)."
+        )
+    body = path.read_text().split("\n", 1)[1].replace("\n#", "\n##")
+    return f"From `{path.name}` (figure `cross_condition.png`):\n{body.rstrip()}"
+
+
 DEVIATIONS = """\
 - **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d). Here every
   method, the baselines included, uses SeqSLAM's patch-normalised 64x32 grey
@@ -825,6 +836,10 @@ accuracy (ratio 0.131 at T = 4 sqrt N on Aerial Brisbane).
 
 {decoding}
 
+## Beyond the paper: recognition under appearance change, split by place
+
+{cross_condition}
+
 ## Deviations from the paper, and why
 
 {deviations}"""
@@ -876,6 +891,7 @@ def markdown(res: dict) -> str:
         augmentation=augmentation_markdown(res["appearance"]["augmentation"]),
         aerial=levels_markdown(res["aerial"]),
         decoding=res["decoding_md"],
+        cross_condition=res.get("cross_condition_md", ""),
         deviations=DEVIATIONS,
     )
 
@@ -964,6 +980,12 @@ def parse(argv: list[str]) -> argparse.Namespace:
         help="npz of predictions (default: in --cache-dir)",
     )
     p.add_argument("--decoding", type=Path, default=REPO / "reports" / "decoding.json")
+    p.add_argument(
+        "--cross-condition",
+        type=Path,
+        default=REPO / "reports" / "cross_condition.md",
+        help="report of scripts/bench_cross_condition.py to include",
+    )
     p.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
     p.add_argument("--no-progress", dest="progress", action="store_false")
     return p.parse_args(argv)
@@ -1016,6 +1038,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     res["aerial"] = aerial(run, data, fits)
     say(levels_markdown(res["aerial"]))
     res["decoding_md"], res["decoding"] = decoding_markdown(args.decoding)
+    res["cross_condition_md"] = cross_condition_markdown(args.cross_condition)
     steps.update()
     res["meta"] = meta(argv, run, data, load_start, t0, preds)
     res["figures"] = draw(res, args.out)

@@ -159,6 +159,7 @@ def evaluate_map(
             "storage_bytes": model.storage_bytes,
             "storage_share": model.storage_bytes / database_bytes(model.n, model.d, 4),
             "codes_bits": model.codebook.bits if model.codebook is not None else None,
+            "embedding_bytes": model.embedding_bytes,
             "periods": list(model.periods),
             "layout": model.groups.describe(),
         }

@@ -1,0 +1,77 @@
+"""The closed-form invariant embedding, its storage count, and maps that carry it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import RhythmicMap
+from rhythmic_jax.embedding import (
+    apply,
+    embedding_bytes,
+    fit_invariant,
+    load_embedding,
+    save_embedding,
+)
+from rhythmic_jax.errors import InputError
+
+
+def two_conditions(n=400, d=48, nuisance=8, strength=3.0, seed=0):
+    """Places p_i in R^d seen under two conditions that add large noise in a
+    fixed subspace: (cond A (n, d), cond B (n, d))."""
+    rng = np.random.default_rng(seed)
+    places = rng.normal(size=(n, d))
+    basis = np.linalg.qr(rng.normal(size=(d, nuisance)))[0]
+    out = []
+    for _ in range(2):
+        noise = strength * rng.normal(size=(n, nuisance)) @ basis.T
+        out.append((places + noise + 0.3 * rng.normal(size=(n, d))).astype("float32"))
+    return out
+
+
+def brute(ref, qry):
+    ref = ref / np.linalg.norm(ref, axis=1, keepdims=True)
+    qry = qry / np.linalg.norm(qry, axis=1, keepdims=True)
+    return float(np.mean((qry @ ref.T).argmax(1) == np.arange(len(ref))))
+
+
+def test_invariant_embedding_removes_the_condition_change():
+    a, b = two_conditions()
+    emb = fit_invariant([a[:200], b[:200]], k=24, p=40)
+    raw = brute(a[200:], b[200:])
+    embedded = brute(apply(emb, a[200:]), apply(emb, b[200:]))
+    assert embedded > raw + 0.2, (raw, embedded)
+    assert embedding_bytes(emb) == 4 * (48 + 48 * 24)
+
+
+def test_map_with_embedding_saves_applies_and_counts_it(tmp_path):
+    a, b = two_conditions()
+    emb = fit_invariant([a[:200], b[:200]], k=24, p=40)
+    m = RhythmicMap(r=2, level=1, embedding=emb).fit(a[200:], progress=False)
+    assert m.d == 48 and m.params.w.shape == (24, sum(m.periods))
+    assert m.storage_bytes == sum(m.periods) * 25 * 4
+    assert m.embedding_bytes == embedding_bytes(emb)
+    info = m.info()
+    assert info["embedding"] == {"kind": "linear", "k": 24}
+    want = (m.storage_bytes + m.embedding_bytes) / (200 * 48 * 4)
+    assert info["compression_ratio"] == pytest.approx(want)
+    m.save(tmp_path / "m")
+    back = RhythmicMap.load(tmp_path / "m")
+    np.testing.assert_array_equal(back.predict(b[200:]), m.predict(b[200:]))
+    with pytest.raises(InputError, match="48"):
+        back.predict(b[200:, :10])
+
+
+def test_embedding_folder_round_trip_and_refusal(tmp_path):
+    a, b = two_conditions(n=120)
+    emb = fit_invariant([a, b], k=8, p=16)
+    save_embedding(tmp_path / "e", emb, {"descriptor": "features"})
+    back, meta = load_embedding(tmp_path / "e")
+    np.testing.assert_allclose(apply(back, a), apply(emb, a), rtol=1e-6)
+    assert meta["k"] == 8 and meta["descriptor"] == "features"
+    m = RhythmicMap(r=2, level=1).fit(a, progress=False)
+    m.save(tmp_path / "m")
+    with pytest.raises(InputError, match="not an embedding"):
+        load_embedding(tmp_path / "m")
+    with pytest.raises(InputError, match="two or more"):
+        fit_invariant([a])
