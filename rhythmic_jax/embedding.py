@@ -179,7 +179,7 @@ def fit_invariant(
 
 def save_embedding(path, emb: Embedding, meta: dict) -> None:
     """Write an embedding to the folder ``path`` (orbax arrays + JSON, atomic)."""
-    from rhythmic_jax import checkpoint
+    from rhythmic_jax.io import checkpoint
 
     info = {"kind": "embedding", "head": emb.kind, "d": emb.d, "k": emb.k}
     checkpoint.save_map(path, embedding_arrays(emb), {**meta, **info})
@@ -187,7 +187,7 @@ def save_embedding(path, emb: Embedding, meta: dict) -> None:
 
 def load_embedding(path) -> tuple[Embedding, dict]:
     """Read an embedding written by :func:`save_embedding` -> (embedding, meta)."""
-    from rhythmic_jax import checkpoint
+    from rhythmic_jax.io import checkpoint
 
     arrays, meta = checkpoint.load_map(path)
     emb = embedding_from_arrays(arrays) if meta.get("kind") == "embedding" else None
