@@ -425,9 +425,7 @@ def _cmd_query(args) -> int:
 
 
 def _cmd_learn(args) -> int:
-    from rhythmic_jax.learn import LearnConfig
-
-    config = LearnConfig(
+    config = jobs.learn_config(
         method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
     )
     job = LearnJob(tuple(args.sources), args.out, config, _reading(args))

@@ -50,6 +50,7 @@ __all__ = [
     "learn",
     "learn_summary",
     "LearnJob",
+    "learn_config",
     "query",
     "int_option",
     "number_option",
@@ -314,6 +315,13 @@ class LearnJob:
     reading: Reading = Reading()
 
 
+def learn_config(**settings) -> Any:
+    """A :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed)."""
+    from rhythmic_jax.learn import LearnConfig
+
+    return LearnConfig(**settings)
+
+
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     """Learn, save and return ``(embedding, info)`` of ``job``."""
     from rhythmic_jax.embedding import save_embedding
@@ -410,7 +418,7 @@ def query_summary(pred: np.ndarray, out: str) -> str:
 INFO_KEYS = (
     "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
     "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
-    "config", "reference", "storage", "codes_bits",
+    "config", "reference", "storage", "codes_bits", "embedding_bytes", "embedding",
 )  # fmt: skip
 CODE_ARRAYS = {"codes_mean", "codes_projection", "codes_packed"}
 

@@ -26,11 +26,11 @@ LAYERS = [
     ],
     ["groups"],
     ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline",
-     "eval.ground_truth"],
-    ["io.ground_truth_files"],
+     "eval.ground_truth", "embedding"],
+    ["io.ground_truth_files", "closed_form"],
     [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
-        "features", "solvers.streamed",
+        "features", "solvers.streamed", "learn",
     ],
     [
         "solvers.resumable", "decoding.soft", "solvers.distributed",
