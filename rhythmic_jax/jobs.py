@@ -419,6 +419,7 @@ INFO_KEYS = (
     "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
     "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
     "config", "reference", "storage", "codes_bits", "embedding_bytes", "embedding",
+    "layout", "groups", "group_errors",
 )  # fmt: skip
 CODE_ARRAYS = {"codes_mean", "codes_projection", "codes_packed"}
 
