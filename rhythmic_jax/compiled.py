@@ -80,12 +80,15 @@ class CompilePolicy:
 
     def __post_init__(self):
         if self.mode not in COMPILE_MODES:
-            raise InputError(f"--compile {self.mode!r}: use one of {COMPILE_MODES}")
+            raise InputError(
+                f"{{opt:compile}} {self.mode!r}: use one of {COMPILE_MODES}"
+            )
         if self.min_frames is not None and (
             not isinstance(self.min_frames, int) or self.min_frames < 0
         ):
             raise InputError(
-                f"--compile-min-frames must be a count >= 0, got {self.min_frames!r}"
+                "{opt:compile_min_frames} must be a count >= 0, "
+                f"got {self.min_frames!r}"
             )
 
 

@@ -290,12 +290,14 @@ def _embedding_for(path: str | None, feats):
     emb, meta = load_embedding(path)
     if meta.get("descriptor") != feats.descriptor:
         raise InputError(
-            f"--embedding {path}: learned on {meta.get('descriptor')!r} descriptors, "
+            f"{{opt:embedding}} {path}: learned on {meta.get('descriptor')!r} "
+            "descriptors, "
             f"the map's are {feats.descriptor!r}"
         )
     if emb.d != feats.x.shape[1]:
         raise InputError(
-            f"--embedding {path}: expects {emb.d}-d descriptors, got {feats.x.shape[1]}"
+            f"{{opt:embedding}} {path}: expects {emb.d}-d descriptors, "
+            f"got {feats.x.shape[1]}"
         )
     return emb
 

@@ -45,7 +45,9 @@ def parse_bytes(text: str) -> int:
     """``"1GiB"``, ``"800M"``, ``"1.5g"``, ``"123456"`` -> bytes."""
     m = re.fullmatch(r"\s*([0-9.]+)\s*([kmgt]?)(i?b)?\s*", str(text).lower())
     if not m:
-        raise InputError(f"--memory: expected a size like 1GiB or 800M, got {text!r}")
+        raise InputError(
+            f"{{opt:memory}}: expected a size like 1GiB or 800M, got {text!r}"
+        )
     return int(float(m.group(1)) * _UNITS[m.group(2)])
 
 
@@ -70,7 +72,7 @@ def block_rows_for(memory: int, d: int, p: int, base: int | None = None) -> int:
     rows = room // (8 * q + 60 * p)
     if rows < 64:
         raise InputError(
-            f"--memory {memory:,} bytes is too small to stream {d}-d frames for "
+            f"{{opt:memory}} {memory:,} bytes is too small to stream {d}-d frames for "
             f"{p} templates: {base:,} bytes are in use already and the solver "
             f"needs {120 * q * p + SLACK:,} more besides the blocks"
         )

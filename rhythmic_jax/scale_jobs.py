@@ -40,12 +40,15 @@ def wants_scale(job, scale: ScaleJob) -> bool:
     dirs = any(Path(s).is_dir() for s in job.sources)
     if scale.shards is not None or (files and (wanted or dirs)):
         if job.augment or job.pca is not None:
-            raise InputError("--augment and --pca need an in-memory fit of one process")
+            raise InputError(
+                "{opt:augment} and {opt:pca} need an in-memory fit of one process"
+            )
         return True
     if wanted:
         raise InputError(
-            "--processes, --coordinator, --memory and --stream need descriptor "
-            "files (.npy) or shard folders; describe images with --shards DIR"
+            "{opt:processes}, {opt:coordinator}, {opt:memory} and {opt:stream} need "
+            "descriptor "
+            "files (.npy) or shard folders; describe images with {opt:shards} DIR"
         )
     return False
 
@@ -57,11 +60,11 @@ def _describe_to_shards(job, scale: ScaleJob, progress: bool) -> list[str]:
 
     root = Path(scale.shards).expanduser().absolute()
     if any(is_frame_source(s) for s in job.sources):
-        raise InputError("--shards describes image folders; these are descriptors")
+        raise InputError("{opt:shards} describes image folders; these are descriptors")
     if job.reading.tile is not None:
-        raise InputError("--shards takes image folders, not --tile")
+        raise InputError("{opt:shards} takes image folders, not {opt:tile}")
     if root.exists():
-        raise InputError(f"--shards {root}: exists; give a new folder")
+        raise InputError(f"{{opt:shards}} {root}: exists; give a new folder")
     name = job.reading.descriptor or "patchnorm"
     settings = {}
     if job.reading.weights is not None:
@@ -69,7 +72,7 @@ def _describe_to_shards(job, scale: ScaleJob, progress: bool) -> list[str]:
     out = []
     for i, src in enumerate(job.sources):
         if not Path(src).is_dir():
-            raise InputError(f"{src}: --shards needs image folders")
+            raise InputError(f"{src}: {{opt:shards}} needs image folders")
         folder = root / f"{i:02d}-{Path(src).name}"
         describe_to_shards(src, folder, name, settings, progress=progress)
         out.append(str(folder))
@@ -111,7 +114,7 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
     if scale.shards is not None:
         sources = shard_sources = _describe_to_shards(job, scale, progress)
     if scale.processes < 1:
-        raise InputError(f"--processes must be >= 1, got {scale.processes}")
+        raise InputError(f"{{opt:processes}} must be >= 1, got {scale.processes}")
     if scale.coordinator is None and scale.processes > 1:
         child = _child_argv(argv, list(job.sources), shard_sources)
         status = distributed.launch_local(child, scale.processes)
@@ -120,7 +123,9 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
         return None, None
     if scale.coordinator is not None:
         if scale.num_processes is None or scale.process_id is None:
-            raise InputError("--coordinator needs --num-processes and --process-id")
+            raise InputError(
+                "{opt:coordinator} needs {opt:num_processes} and {opt:process_id}"
+            )
         cluster = distributed.Cluster(
             scale.coordinator, scale.num_processes, scale.process_id
         )

@@ -72,11 +72,11 @@ class Cluster:
         host, _, port = self.coordinator.rpartition(":")
         if not host or not port.isdigit():
             raise InputError(
-                f"--coordinator must be HOST:PORT, got {self.coordinator!r}"
+                f"{{opt:coordinator}} must be HOST:PORT, got {self.coordinator!r}"
             )
         if self.num_processes < 1 or not 0 <= self.process_id < self.num_processes:
             raise InputError(
-                f"--process-id must be in 0 .. {self.num_processes - 1}, "
+                f"{{opt:process_id}} must be in 0 .. {self.num_processes - 1}, "
                 f"got {self.process_id}"
             )
 
@@ -217,7 +217,7 @@ def launch_local(argv: Sequence[str], k: int) -> int:
     fails the others are stopped. Returns the first non-zero exit status, or 0.
     """
     if k < 1:
-        raise InputError(f"--processes must be >= 1, got {k}")
+        raise InputError(f"{{opt:processes}} must be >= 1, got {k}")
     port = free_port()
     cluster = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", str(k)]
     env = dict(os.environ)
