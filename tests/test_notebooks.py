@@ -228,7 +228,8 @@ def test_notebook_runs_in_reduced_size(path, data, monkeypatch, tmp_path):
     outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
     images = sum("image/png" in o.get("data", {}) for o in outputs)
-    assert images >= 4, f"{path.name} drew {images} figures"
+    least = {"embedding_ablation.ipynb": 1}.get(path.name, 4)  # one side-by-side plot
+    assert images >= least, f"{path.name} drew {images} figures"
     text = "".join(o.get("text", "") for o in outputs)
     assert ("scikit-image's photographs" in text) == (data == "absent")
     after = {p: p.stat().st_mtime_ns for p in _figures(path)}

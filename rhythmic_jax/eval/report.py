@@ -77,6 +77,11 @@ def _map_decisions(model, queries, method, sequence):
     else:
         conf = model.decode(queries, method).confidence
         which = "single-frame scores"
+    if model.codebook is not None and which == "single-frame scores":
+        # a hybrid map ranks its fused place scores, as its decode does
+        total = np.asarray(model.place_scores(queries))
+        ranked = np.argsort(-total, axis=1, kind="stable")[:, : min(max(KS), model.n)]
+        return pred, np.asarray(conf, np.float64), ranked, "fused place scores"
     ranked = ranked_places(s, model.groups, model.n, max(KS))
     return pred, np.asarray(conf, np.float64), ranked, which
 
