@@ -40,7 +40,7 @@ def test_fit_saves_the_map_with_its_provenance(route):
     }
     assert jobs.info(str(folder / "m.map")) == loaded.info()
     line = jobs.fit_summary("m.map", loaded.info())
-    assert line.startswith(f"map m.map: n=90 d=12 periods={loaded.periods}")
+    assert line.startswith(f"map m.map: n=90 d=12 periods {loaded.periods}")
 
 
 def test_query_writes_what_the_map_predicts(route, tmp_path):
