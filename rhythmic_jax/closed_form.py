@@ -25,16 +25,7 @@ import numpy as np
 
 from rhythmic_jax.objective import Templates
 
-__all__ = ["phase_targets", "place_log_scores", "ridge_templates"]
-
-
-def phase_targets(labels: jax.Array, periods: Sequence[int]) -> jax.Array:
-    """+-1 targets (n, sum(periods)): column j of period tau is +1 at label%tau == j."""
-    cols = [
-        jnp.where(labels[:, None] % t == jnp.arange(t)[None, :], 1.0, -1.0)
-        for t in periods
-    ]
-    return jnp.concatenate(cols, axis=1)
+__all__ = ["place_log_scores", "ridge_templates"]
 
 
 def ridge_templates(z: jax.Array, y: jax.Array, ridge: float) -> Templates:

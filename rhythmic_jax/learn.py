@@ -36,13 +36,13 @@ import numpy as np
 import optax
 
 from rhythmic_jax.closed_form import (
-    phase_targets,
     place_log_scores,
     ridge_templates,
     window_periods,
 )
 from rhythmic_jax.embedding import Embedding, fit_invariant, linear
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.objective import targets
 
 __all__ = ["LearnConfig", "learn_embedding", "map_episode_loss"]
 
@@ -135,7 +135,7 @@ def map_episode_loss(
     zr, zq = _head(params, ref), _head(params, qry)
     w = ref.shape[0]
     labels = jnp.arange(w) + offset
-    tmpl = ridge_templates(zr, phase_targets(labels, periods), ridge)
+    tmpl = ridge_templates(zr, targets(labels, periods), ridge)
     s = zq @ tmpl.w + tmpl.b[None, :]
     scale = params["scale"]
     place = place_log_scores(s, periods, labels, scale)

@@ -8,12 +8,12 @@ import numpy as np
 from jax import enable_x64
 
 from rhythmic_jax.closed_form import (
-    phase_targets,
     place_log_scores,
     ridge_templates,
     window_periods,
 )
 from rhythmic_jax.decoding.soft import soft_decode
+from rhythmic_jax.objective import targets
 
 
 def _direct(z, y, ridge):
@@ -30,7 +30,7 @@ def _direct(z, y, ridge):
 def test_ridge_templates_equal_the_direct_solve():
     rng = np.random.default_rng(0)
     z = rng.normal(size=(40, 6))
-    y = np.asarray(phase_targets(jnp.arange(40) + 3, (5, 7)), np.float64)
+    y = np.asarray(targets(jnp.arange(40) + 3, (5, 7)), np.float64)
     with enable_x64():
         for ridge in (1e-3, 1.0, 30.0):
             t = ridge_templates(jnp.asarray(z), jnp.asarray(y), ridge)
@@ -45,7 +45,7 @@ def test_gradient_through_the_solve_matches_finite_differences():
     q = rng.normal(size=(8, 5))
     periods = (4, 5)
     with enable_x64():
-        y = phase_targets(jnp.arange(30), periods)
+        y = targets(jnp.arange(30), periods)
 
         def loss(z):
             t = ridge_templates(z, y, 0.5)
