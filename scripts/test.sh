@@ -4,5 +4,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export JAX_PLATFORMS=cpu TF_CPP_MIN_LOG_LEVEL=3
-python -m pytest -q
+python -m pytest -q --durations=30
 timeout "${SLOW_TIMEOUT:-3600}" python -m pytest -q -m slow

@@ -305,6 +305,7 @@ def plot_storage_growth(
     ax.set_title(f"storage growth at d = {d}")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
+    return _finish(fig, path)
 
 
 def plot_evaluation(

@@ -340,3 +340,22 @@ def test_plot_frontier_writes_a_png(tmp_path):
     np.testing.assert_allclose(xs, [3.0, 7.0, 100.0])
     with pytest.raises(InputError):
         plot_frontier([], tmp_path / "g.png")
+
+
+def test_plot_storage_growth_returns_the_figure_and_saves_it(keep, tmp_path):
+    from rhythmic_jax.eval.figures import plot_storage_growth
+
+    ns = [100, 1000, 10000]
+    curves = {"brute force": [4e5, 4e6, 4e7], "rhythmic map, r = 2": [8e4, 2.5e5, 8e5]}
+    fig = keep(
+        plot_storage_growth(ns, curves, 1024, (1000, [2e5], "fitted"), tmp_path / "s.png")
+    )
+    assert png_size((tmp_path / "s.png").read_bytes())[0] > 0
+    (ax,) = fig.axes
+    labels = [line.get_label() for line in ax.lines]
+    assert labels == ["brute force", "rhythmic map, r = 2", "slope 1/2", "fitted"]
+    # the guide has slope 1/2 on log-log axes
+    guide = ax.lines[2].get_ydata()
+    np.testing.assert_allclose(np.log10(guide[-1] / guide[0]), 1.0)
+    with pytest.raises(InputError, match="no curves"):
+        plot_storage_growth(ns, {}, 1024)
