@@ -23,10 +23,10 @@ from typing import TypeVar
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from rhythmic_jax.compiled import AUTO, CompilePolicy, network_runner
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.progress import bar as progress_bar
 
 __all__ = [
     "ahead",
@@ -148,7 +148,7 @@ def describe_chunks(
                 yield chunk, prepare(batch) if prepare is not None else batch
 
     out = np.zeros((n, descriptor.dim), np.float32)
-    bar = tqdm(total=n, desc=descriptor.name, unit="frame", disable=not progress)
+    bar = progress_bar(total=n, show=progress, desc=descriptor.name, unit="frame")
     start = 0
     with torch.inference_mode(), bar:
         for chunk, x in ahead(prepared(), depth):

@@ -39,3 +39,28 @@ def test_the_command_line_shows_bars_unless_disabled(tmp_path, capfd, monkeypatc
     monkeypatch.setenv("TQDM_DISABLE", "1")
     assert main(["fit", str(tmp_path / "ref.npy"), "--out", str(tmp_path / "b")]) == 0
     assert "newton" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("value, hidden", [("1", True), ("0", False)])
+def test_the_scale_out_bars_follow_tqdm_disable(tmp_path, capfd, monkeypatch, value,
+                                                hidden):  # fmt: skip
+    from PIL import Image
+
+    from rhythmic_jax.io.describe_shards import describe_to_shards
+    from rhythmic_jax.io.frame_files import open_frames
+    from rhythmic_jax.solvers.streamed import StreamConfig, streamed_newton_fit
+
+    monkeypatch.setenv("TQDM_DISABLE", value)
+    (tmp_path / "route").mkdir()
+    for i in range(3):
+        Image.fromarray(np.full((32, 64, 3), 40 * i, np.uint8)).save(
+            tmp_path / "route" / f"{i:03d}.png"
+        )
+    describe_to_shards(tmp_path / "route", tmp_path / "shards", progress=True)
+    np.save(tmp_path / "ref.npy", X / np.linalg.norm(X, axis=1, keepdims=True))
+    frames = open_frames(tmp_path / "ref.npy")
+    config = StreamConfig(max_iter=2, max_cg=2)
+    streamed_newton_fit(frames, np.arange(40), (3, 4), 1.0, config, progress=True)
+    err = capfd.readouterr().err
+    assert ("newton (streamed)" not in err) == hidden
+    assert ("route" not in err) == hidden

@@ -12,9 +12,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from rhythmic_jax.io.frame_files import ShardWriter
+from rhythmic_jax.progress import bar as progress_bar
 
 __all__ = ["describe_to_shards"]
 
@@ -37,7 +37,7 @@ def describe_to_shards(
 
     desc = get_descriptor(descriptor, **(settings or {}))
     files = list_images(Path(folder), "traversal")
-    bar = tqdm(total=len(files), desc=Path(folder).name, disable=not progress)
+    bar = progress_bar(total=len(files), show=progress, desc=Path(folder).name)
     shape = None
     meta = {"descriptor": descriptor, "settings": desc.settings()}
     with ShardWriter(out, rows=rows, meta=meta) as writer:

@@ -34,11 +34,11 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from rhythmic_jax.io.frame_files import Frames
 from rhythmic_jax.objective import Templates, targets
 from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.progress import bar as progress_bar
 
 __all__ = [
     "FAST_STREAM",
@@ -210,7 +210,7 @@ def streamed_newton_fit(
     theta = np.zeros((q, p))
     done = np.zeros(p, bool)
     info = StreamInfo()
-    bar = tqdm(range(config.max_iter), desc="newton (streamed)", disable=not progress)
+    bar = progress_bar(range(config.max_iter), show=progress, desc="newton (streamed)")
     for step in bar:
         th32 = jnp.asarray(theta, jnp.float32)
         gx, hh, diag = stream.run(_grad_pass, th32)
