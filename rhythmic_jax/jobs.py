@@ -92,9 +92,9 @@ class FitJob:
     ``("names",)`` for ``@easting@northing@`` file names) are saved in the map for
     :func:`evaluate`'s ground truth; ``places`` groups the frames into that many
     places by k-means over them (the RobotCar protocol; traversals may then
-    differ in length).
-    given folder is kept). ``embedding`` names a folder written by :func:`learn`:
-    it is saved inside the map and applied to every query.
+    differ in length). ``embedding`` names a folder written by :func:`learn`: it
+    is saved inside the map and applied to every query (with ``codes``, ITQ is
+    fitted on the embedded reference frames).
     """
 
     sources: tuple[str, ...]
@@ -237,10 +237,11 @@ def fit(job: FitJob, progress: bool = False):
         codes=job.codes, fusion=job.fusion,
         embedding=_embedding_for(job.embedding, feats),
     )  # fmt: skip
-    if job.codes is not None and job.codes > feats.x.shape[1]:
+    dim = feats.x.shape[1] if model.embedding is None else model.embedding.k
+    if job.codes is not None and job.codes > dim:
+        what = "descriptors'" if model.embedding is None else "embedding's"
         raise InputError(
-            f"{{opt:codes}} {job.codes}: at most d={feats.x.shape[1]} bits (the "
-            f"descriptors' dimension)"
+            f"{{opt:codes}} {job.codes}: at most d={dim} bits (the {what} dimension)"
         )
     if augmented is not None:
         _fit_augmented(model, feats, *augmented, progress=progress)
@@ -430,7 +431,8 @@ def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
     """Whether a map's metadata holds every info field, agreeing with itself."""
     try:
         n, d, periods = int(meta["n"]), int(meta["d"]), list(meta["periods"])
-        templates = sum(int(t) for t in periods) * (d + 1) * 4
+        k = int(meta["embedding"]["k"]) if meta["embedding"] else d  # templates' d
+        templates = sum(int(t) for t in periods) * (k + 1) * 4
         st = meta["storage"]
         ok = sum(st["per_period"].values()) == templates
         ok = ok and meta["storage_bytes"] == templates + st["fixed"] + st["per_place"]

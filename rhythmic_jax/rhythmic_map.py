@@ -216,16 +216,22 @@ class RhythmicMap:
         if self.embedding is not None:
             x = apply_embedding(self.embedding, x)
         cfg = self.config
-        if cfg.codes is not None:
-            if self.embedding is not None:
-                raise InputError("codes and an embedding cannot be combined yet")
+        if cfg.codes is not None:  # ITQ on the embedded frames when there is one
             check_bits(cfg.codes, x.shape[1])
             if not np.array_equal(labels, np.arange(len(x))):
                 raise InputError("codes need one reference frame per place, in order")
         n = int(labels.max()) + 1
         spec = parse_layout(self.config.layout)
+        if cfg.codes is not None and spec.kind != "periods":
+            raise InputError(
+                f"codes fuse with the place scores of a periods layout, not "
+                f"{cfg.layout!r}"
+            )
         if spec.kind != "periods" or spec.sizes:
-            return self._fit_groups(x, labels, spec, progress, refine, d_in)
+            self._fit_groups(x, labels, spec, progress, refine, d_in)
+            if cfg.codes is not None:
+                self.codebook = CodeBook.fit(x, cfg.codes)
+            return self
         cands, c = self._plan(n)
         check_memory(len(x), x.shape[1], sum(cands))
         y = targets(labels, cands)
@@ -433,14 +439,14 @@ class RhythmicMap:
                 msg=f"{{opt:sequence}} length L must be "
                 f"an integer >= 1, got {sequence!r}",
             )
-            q = self._queries(q)
+            if sequence > 1:  # embedded once here; single frames go to decode
+                q = self._queries(q)
             if sequence > len(q):
                 raise InputError(
                     f"{{opt:sequence}} length L={sequence} is longer than the "
                     f"{len(q)} queries"
                 )
         if sequence is not None and sequence > 1 and self.codebook is not None:
-            q = self._queries(q)
             idx, conf = fused_sequence_decode(
                 _scores(self.params, q),
                 self.codebook.similarity(q),
@@ -641,7 +647,7 @@ class RhythmicMap:
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
         if cfg.codes is not None:
             try:
-                self.codebook = CodeBook.from_arrays(arrays, n, dim, cfg.codes)
+                self.codebook = CodeBook.from_arrays(arrays, n, tdim, cfg.codes)
             except KeyError as err:
                 raise InputError(f"{path}: codes are missing ({err})") from None
             except InputError as err:

@@ -75,3 +75,39 @@ def test_embedding_folder_round_trip_and_refusal(tmp_path):
         load_embedding(tmp_path / "m")
     with pytest.raises(InputError, match="two or more"):
         fit_invariant([a])
+
+
+def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
+    from rhythmic_jax import jobs
+
+    a, b = two_conditions(n=300)
+    emb = fit_invariant([a[:150], b[:150]], k=24, p=40)
+    save_embedding(tmp_path / "e", emb, {"descriptor": "features"})
+    np.save(tmp_path / "ref.npy", a[150:])
+    job = jobs.FitJob(
+        (str(tmp_path / "ref.npy"),), str(tmp_path / "m"), codes=16,
+        embedding=str(tmp_path / "e"),
+    )  # fmt: skip
+    m = jobs.fit(job)
+    # ITQ fitted on the embedded frames: a (16, k) projection, not (16, d)
+    assert m.codebook.transform.projection.shape == (16, 24)
+    n, k, tau = 150, 24, sum(m.periods)
+    by_hand = tau * (k + 1) * 4 + n * 2 + (16 * k + k) * 4
+    assert m.storage_bytes == by_hand
+    assert m.embedding_bytes == 4 * (48 + 48 * 24)
+    assert m.compression_ratio == pytest.approx(
+        (by_hand + m.embedding_bytes) / (n * 48 * 4)
+    )
+    back = RhythmicMap.load(tmp_path / "m")
+    for kw in ({}, {"sequence": 5}):
+        np.testing.assert_array_equal(
+            back.predict(b[150:], "soft", **kw), m.predict(b[150:], "soft", **kw)
+        )
+    on_disk = jobs.info(str(tmp_path / "m"))
+    assert on_disk["storage_bytes"] == by_hand and on_disk["codes_bits"] == 16
+    assert on_disk["embedding"] == {"kind": "linear", "k": 24}
+    text = jobs.info_lines(on_disk)
+    assert f"{n * 2:,} B (codes)" in text and "embedding_bytes" in text
+    with pytest.raises(InputError, match="at most d=24"):
+        jobs.fit(jobs.FitJob(job.sources, str(tmp_path / "m2"), codes=32,
+                             embedding=job.embedding))  # fmt: skip

@@ -131,3 +131,13 @@ def test_installed_command_on_test_place_folders(nordland_root, tmp_path):
     assert res["n"] == len(NORDLAND_SPLIT.test) and hybrid["codes_bits"] == 64
     assert 0.15 < hybrid["storage_share"] < 0.25  # level-4 templates + 64-bit codes
     assert hybrid["recall@1"] > 0.2 and (work / "frontier.png").is_file()
+
+
+def test_codes_with_given_periods_and_refused_with_digits():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(60, 16)).astype("float32")
+    m = RhythmicMap(layout="periods:7,9", codes=8).fit(x, progress=False)
+    assert m.periods == (7, 9) and m.codebook is not None
+    assert m.storage_bytes == 16 * 17 * 4 + 60 + (8 * 16 + 16) * 4
+    with pytest.raises(InputError, match="periods layout"):
+        RhythmicMap(layout="mixed", codes=8).fit(x, progress=False)
