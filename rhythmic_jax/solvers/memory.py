@@ -28,7 +28,8 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
 
     - ``features``: the frames as given, ``n d itemsize``;
     - ``design``: a float32 copy of the frames and the design matrix ``[x, 1]``
-      in float32, ``4 n d + 4 n q`` (no float64 copy);
+      in float32, ``4 n d + 4 n q``, and the float64 design each Newton step's
+      gradient is summed with (``8 n q``);
     - ``system``: ``Xa^T Xa`` in float32 (``4 q^2``), the subspace iteration's
       (q, k) bases and eigenvectors (``12 q k``), the frames in the eigenvectors
       ``Xa V`` (``4 n k``) and the (n, b^2) float32 outer products of their first
@@ -59,7 +60,7 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
     b = min(32, k)
     return {
         "features": n * d * itemsize,
-        "design": 4 * n * d + 4 * n * q,
+        "design": 4 * n * d + 12 * n * q,
         "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
         "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
     }

@@ -278,7 +278,9 @@ def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg)
     h = jnp.maximum(0.0, 1.0 - yb * mb)
     mask = (h > 0).astype(jnp.float32)
     f0 = _objective(mb, tb, yb, c)
-    grad = lam * tb - (xa.T @ (yb * h).astype(jnp.float32)).astype(tb.dtype)
+    # float64 sums: the optimum the gradient defines does not move with the
+    # order of the sum (rows split over processes), as float32's did by ~1e-6
+    grad = lam * tb - xa.T.astype(tb.dtype) @ (yb * h)
     precond = block_preconditioner(vecs, lead, rest, mask, lam32, block)
     s, u, it = _cg(xa, mask, lam32, precond, -grad.astype(jnp.float32), eta, max_cg)
     s, u = s.astype(tb.dtype), u.astype(mb.dtype)

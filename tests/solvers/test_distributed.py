@@ -41,19 +41,26 @@ def _fit(tmp_path, name, *extra):
 @pytest.mark.slow
 def test_two_local_processes_reach_the_one_process_map(tmp_path):
     """Two processes of the installed command (gloo collectives, one CPU device
-    each) against one: same periods and training errors, templates to 1e-5."""
+    each) against one: same periods and training errors, templates to 1e-6.
+
+    Both solve to a 1e-10 gap, so what is left is arithmetic: the gradient's
+    sums over frames are float64 (in float32 their order, which the split into
+    processes changes, moved the optimum by 1.3e-6)."""
     rng = np.random.default_rng(0)
     x = np.cumsum(rng.normal(size=(301, 24)), axis=0).astype(np.float32)
     np.save(tmp_path / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
-    one, _ = _fit(tmp_path, "one.map")
-    two, info = _fit(tmp_path, "two.map", "--processes", "2")
+    one, _ = _fit(tmp_path, "one.map", "--gap", "1e-10")
+    two, info = _fit(tmp_path, "two.map", "--gap", "1e-10", "--processes", "2")
+    print("relative template difference",
+          np.linalg.norm(np.asarray(two.params.w) - np.asarray(one.params.w))
+          / np.linalg.norm(np.asarray(one.params.w)))  # fmt: skip
     assert info["fit"]["mode"] == "memory" and info["fit"]["rows"] == 151
     assert two.periods == one.periods and two.candidates == one.candidates
     np.testing.assert_allclose(two.candidate_errors, one.candidate_errors, atol=1e-6)
     w1, w2 = np.asarray(one.params.w), np.asarray(two.params.w)
-    assert np.linalg.norm(w2 - w1) / np.linalg.norm(w1) < 1e-5
+    assert np.linalg.norm(w2 - w1) / np.linalg.norm(w1) < 1e-6
     b1, b2 = np.asarray(one.params.b), np.asarray(two.params.b)
-    assert np.linalg.norm(b2 - b1) / np.linalg.norm(b1) < 1e-5
+    assert np.linalg.norm(b2 - b1) / np.linalg.norm(b1) < 1e-6
     # streamed over two processes (blocks of other rows, so float32 sums in
     # another order): the one-process stream's map, to the solver's accuracy
     s1, _ = _fit(tmp_path, "s1.map", "--stream")
