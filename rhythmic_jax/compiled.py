@@ -165,6 +165,13 @@ def _build(module: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
         Path(tmp).unlink(missing_ok=True)
 
 
+def _check_compiler() -> None:
+    """Raise when inductor finds no working C++ compiler (``$CXX``, else g++)."""
+    from torch._inductor import cpp_builder
+
+    cpp_builder.get_cpp_compiler()
+
+
 def _load(path: Path) -> Callable[[torch.Tensor], torch.Tensor]:
     import torch._inductor
 
@@ -204,6 +211,7 @@ def _compiled(descriptor, shape: tuple[int, ...], cache_dir) -> Callable | None:
     path = package_path(descriptor, shape, cache_dir)
     try:
         if not path.is_file():
+            _check_compiler()  # before minutes of export and code generation
             log.info("compiling %s for %s (once per machine)", descriptor.name, shape)
             example = torch.zeros(shape).contiguous(memory_format=torch.channels_last)
             _build(descriptor.network().eval(), example, path)

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from rhythmic_jax.compiled import AUTO, CompilePolicy
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
 from rhythmic_jax.validate import check_int, int_option, number_option
@@ -36,6 +37,7 @@ __all__ = [
     "FitJob",
     "Reading",
     "ScaleJob",
+    "CompilePolicy",
     "augmentation_ablation",
     "demo",
     "evaluate",
@@ -70,12 +72,16 @@ class Reading:
         a moved copy of the file it was fitted with (its sha256 is checked).
       tile: cut one large image into tiles of this size.
       stride: the tiles' stride (default ``tile // 2``).
+      compile: when a descriptor network runs compiled for this CPU
+        (:class:`rhythmic_jax.compiled.CompilePolicy`; by default when the job
+        is large enough for compiling to pay).
     """
 
     descriptor: str | None = None
     weights: str | None = None
     tile: int | None = None
     stride: int | None = None
+    compile: CompilePolicy = AUTO
 
 
 @dataclass(frozen=True)
@@ -170,8 +176,11 @@ def _augmented_settings(job: FitJob):
     return config, ckpt
 
 
-def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
+def _fit_augmented(
+    model, feats, config, ckpt: Path, progress: bool, policy: CompilePolicy = AUTO
+) -> None:
     from rhythmic_jax.augment.stream import fit_map_augmented
+    from rhythmic_jax.compiled import FastDescriptor
     from rhythmic_jax.features import get_descriptor
 
     if feats.images is None:
@@ -179,6 +188,8 @@ def _fit_augmented(model, feats, config, ckpt: Path, progress: bool) -> None:
             "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
         )
     descriptor = get_descriptor(feats.descriptor, **feats.settings)
+    frames = len(feats.images) * config.epochs  # frames the network will see
+    descriptor = FastDescriptor(descriptor, frames, policy)
     try:
         fit_map_augmented(
             model, feats.images, feats.x, descriptor, config, feats.labels,
@@ -226,6 +237,7 @@ def fit(job: FitJob, progress: bool = False):
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
+        compile=read.compile, keep_images=augmented is not None,
     )  # fmt: skip
     if job.positions is not None:
         feats = _with_positions(feats, job)
@@ -244,7 +256,7 @@ def fit(job: FitJob, progress: bool = False):
             f"{{opt:codes}} {job.codes}: at most d={dim} bits (the {what} dimension)"
         )
     if augmented is not None:
-        _fit_augmented(model, feats, *augmented, progress=progress)
+        _fit_augmented(model, feats, *augmented, progress, read.compile)
     else:
         model.fit(feats.x, feats.labels, progress=progress)
     model.extra.update(feats.extra)
@@ -338,7 +350,7 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     read = job.reading
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
-        weights=read.weights,
+        weights=read.weights, compile=read.compile, keep_images=False,
     )  # fmt: skip
     traversals = np.split(feats.x, len(job.sources))
     emb, info = learn_embedding(traversals, job.config or LearnConfig())
@@ -380,7 +392,7 @@ def _load_queries(map_path: str, source: str, reading: Reading, progress: bool):
     model = RhythmicMap.load(map_path)
     feats = load_query_source(
         source, model, reading.descriptor, reading.tile, reading.stride, progress,
-        weights=reading.weights,
+        weights=reading.weights, compile=reading.compile,
     )  # fmt: skip
     return model, feats
 
@@ -517,7 +529,7 @@ def evaluate(
     model, feats = _load_queries(map_path, source, reading, progress)
     ref, labels, note = reference_features(
         model, reference, reading.descriptor, reading.tile, reading.stride, progress,
-        weights=reading.weights,
+        weights=reading.weights, compile=reading.compile,
     )  # fmt: skip
     if ref is not None and reference is None and "reference_labels" in model.extra:
         labels = model.extra["reference_labels"]  # frames grouped into places

@@ -142,3 +142,57 @@ def test_compiled_equals_eager_descriptors_and_predictions(nordland_root):
     model = RhythmicMap(r=2).fit(eager["summer"], progress=False)
     np.testing.assert_array_equal(model.predict(fast), model.predict(eager["winter"]))
     assert (model.predict(fast) == np.arange(len(idx))).mean() > 0.05  # it localises
+
+
+def _installed(*argv, cwd, env):
+    import shutil
+    import subprocess
+    import sys
+
+    script = shutil.which("rhythmic-jax")
+    cmd = [script] if script else [sys.executable, "-m", "rhythmic_jax.cli"]
+    return subprocess.run(
+        [*cmd, *argv], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
+    )
+
+
+def test_help_says_what_compiling_costs():
+    from rhythmic_jax.cli import _parser
+
+    sub = _parser()._subparsers._group_actions[0].choices
+    for command in ("fit", "query", "evaluate", "learn"):
+        text = " ".join(sub[command].format_help().split())
+        assert "--compile {auto,always,never}" in text
+    assert "about a minute once per machine" in text and "--compile-min-frames" in text
+
+
+@pytest.mark.slow
+def test_installed_command_without_a_compiler_runs_eagerly(tmp_path, rgb, write_image):
+    """No C++ compiler (CXX and PATH lead nowhere): ``fit --compile always`` says so
+    in one line and fits the map with the eager network, no traceback."""
+    import os
+    import sys
+
+    frames = tmp_path / "frames"
+    for i in range(3):
+        write_image(frames, f"f{i}.png", rgb(40, 80))
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {
+        **os.environ,
+        "RHYTHMIC_JAX_CACHE": str(tmp_path / "cache"),
+        "CXX": str(tmp_path / "no-compiler" / "c++"),
+        "PATH": os.path.dirname(sys.executable),
+    }
+    proc = _installed(
+        "fit", str(frames), "--out", "m.map", "--descriptor", "efficientnet_lite0",
+        "--compile", "always", "--no-progress", cwd=work, env=env,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "No working C++ compiler" in lines[0]
+    assert lines[0].endswith("running it eagerly")
+    assert (work / "m.map").is_dir() and "map m.map: n=3" in proc.stdout
+    assert not list((tmp_path / "cache" / "compiled").glob("*.pt2"))

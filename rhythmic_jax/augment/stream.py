@@ -28,6 +28,7 @@ import logging
 import os
 import time
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import jax
@@ -83,6 +84,11 @@ class AugmentedEpoch(Sequence):
     :func:`~rhythmic_jax.solvers.resumable.train_run` skips the batches already trained
     on without augmenting or describing them.
 
+    Taking augmented batch ``i`` starts batch ``i + 1``'s augmentation and
+    resizing in a background thread (one batch ahead, bounded), so describing
+    batch ``i`` waits only for the network; the batches are the same as made
+    one at a time.
+
     ``images`` uint8 (n, H, W, 3); ``clean`` (n, d) descriptors; ``labels`` (n,)
     place of each frame; ``timings`` accumulates seconds augmenting and describing.
     """
@@ -104,6 +110,10 @@ class AugmentedEpoch(Sequence):
         rng = np.random.default_rng([config.seed, epoch, 1])
         self._clean_order = rng.permutation(len(clean))
         self._per_half = -(-len(clean) // config.batch_size)
+        from rhythmic_jax.compiled import stages
+
+        self._prepare, self._run = stages(descriptor)
+        self._ahead: dict[int, Future] = {}
 
     def __len__(self) -> int:
         return 2 * self._per_half
@@ -120,22 +130,54 @@ class AugmentedEpoch(Sequence):
             )
         import torch
 
-        from rhythmic_jax.augment.kornia_ops import augmented_batch
         from rhythmic_jax.features import to_jax
+
+        ahead = self._ahead.pop(i, None)
+        for late in self._ahead.values():  # taken out of order: start afresh
+            late.cancel()
+        self._ahead.clear()
+        t = time.perf_counter()
+        idx, batch = ahead.result() if ahead is not None else self._augmented(i)
+        t_net = time.perf_counter()
+        if i + 1 < self._per_half:
+            self._ahead[i + 1] = _augmenter().submit(self._augmented, i + 1)
+        with torch.inference_mode():
+            x = to_jax(self._run(batch))
+        if self._timings is not None:
+            wait = self._timings.get("augment_wait", 0.0) + t_net - t
+            self._timings["augment_wait"] = wait
+            seconds = time.perf_counter() - t_net
+            self._timings["describe"] = self._timings.get("describe", 0.0) + seconds
+        return x, targets(self._labels[idx], self._periods)
+
+    def _augmented(self, i: int):
+        """Augmented batch ``i``, prepared for the network: ``(idx (b,), (b, 3,
+        h, w))``; seconds spent go to ``timings["augment"]``."""
+        import torch
+
+        from rhythmic_jax.augment.kornia_ops import augmented_batch
 
         t = time.perf_counter()
         idx, batch = augmented_batch(
-            self._images, self._order, self._aug, size, self._config.seed,
-            self._epoch, i,
+            self._images, self._order, self._aug, self._config.batch_size,
+            self._config.seed, self._epoch, i,
         )  # fmt: skip
-        t_aug = time.perf_counter()
         with torch.inference_mode():
-            x = to_jax(self._descriptor(batch))
+            batch = self._prepare(batch)
         if self._timings is not None:
-            self._timings["augment"] = self._timings.get("augment", 0.0) + t_aug - t
-            seconds = time.perf_counter() - t_aug
-            self._timings["describe"] = self._timings.get("describe", 0.0) + seconds
-        return x, targets(self._labels[idx], self._periods)
+            seconds = time.perf_counter() - t
+            self._timings["augment"] = self._timings.get("augment", 0.0) + seconds
+        return idx, batch
+
+
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _augmenter() -> ThreadPoolExecutor:
+    """The one background thread that augments the next batch."""
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(1, thread_name_prefix="rhythmic-augment"))
+    return _POOL[0]
 
 
 def _source(images, descriptor, config: AugmentedFit) -> str:

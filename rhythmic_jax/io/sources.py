@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rhythmic_jax.compiled import AUTO, CompilePolicy
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.validate import check_int
 
@@ -71,21 +72,45 @@ def _kind(path: Path, tile: int | None) -> str:
 
 
 def describe_images(
-    images: np.ndarray, name: str, settings: dict, key: str, progress: bool
+    images: np.ndarray,
+    name: str,
+    settings: dict,
+    key: str,
+    progress: bool,
+    compile: CompilePolicy = AUTO,
 ) -> tuple[np.ndarray, dict]:
-    """Describe uint8 frames (n, H, W, 3) with a registered descriptor (cached)."""
+    """Describe uint8 frames (n, H, W, 3) with a registered descriptor (cached).
+
+    ``compile``: when the descriptor's network runs compiled
+    (:mod:`rhythmic_jax.compiled`)."""
     from rhythmic_jax.features import cached_describe, get_descriptor
 
     desc = get_descriptor(name, **settings)
-    x = cached_describe(images, desc, key=key, progress=progress)
+    x = cached_describe(images, desc, key=key, progress=progress, compile=compile)
     return x, desc.settings()
+
+
+def _describe_folder(
+    path: Path, name: str, settings: dict, key: str, progress, compile, keep: bool
+) -> tuple[np.ndarray, dict, np.ndarray | None]:
+    """A folder of frames described as it is read: decoding and resizing run ahead
+    of the network (:func:`rhythmic_jax.pipeline.describe_files`), cached by the
+    files' bytes. ``(x (n, d), settings, uint8 (n, H, W, 3) when keep)``."""
+    from rhythmic_jax.features import get_descriptor
+    from rhythmic_jax.io.images import list_images
+    from rhythmic_jax.pipeline import describe_files
+
+    desc = get_descriptor(name, **settings)
+    files = list_images(path, "traversal")
+    x, images = describe_files(
+        files, desc, key, keep_images=keep, progress=progress, policy=compile
+    )
+    return x, desc.settings(), images
 
 
 def _images(path: Path, kind: str, tile: int | None, stride: int | None, progress):
     from rhythmic_jax.io import images, tiles
 
-    if kind == "folder":
-        return images.load_traversal(path, progress=progress).images
     tile, stride = _tiling(tile, stride)
     return tiles.tile_image(images.read_rgb(path), tile, stride).tiles
 
@@ -126,17 +151,30 @@ def _key(path: Path, tile, stride) -> str:
     return f"{path.name}-{hashlib.sha1(raw.encode()).hexdigest()[:12]}"
 
 
-def _one(path: Path, kind: str, name: str, settings: dict, tile, stride, progress):
-    """(descriptors, settings, images or None) of one source."""
+def _one(
+    path: Path,
+    kind: str,
+    name: str,
+    settings: dict,
+    tile,
+    stride,
+    progress,
+    compile: CompilePolicy = AUTO,
+    keep: bool = True,
+):
+    """(descriptors, settings, images or None) of one source; a folder's frames
+    are kept only with ``keep``."""
     from rhythmic_jax.features import get_descriptor
     from rhythmic_jax.io.descriptor_files import load_descriptors
 
     if kind == "npy":
         return load_descriptors(path), settings, None
     get_descriptor(name, **settings)  # bad settings or weights: before any reading
-    images = _images(path, kind, tile, stride, progress)
     key = _key(path, tile, stride)
-    return (*describe_images(images, name, settings, key, progress), images)
+    if kind == "folder":
+        return _describe_folder(path, name, settings, key, progress, compile, keep)
+    images = _images(path, kind, tile, stride, progress)
+    return (*describe_images(images, name, settings, key, progress, compile), images)
 
 
 def load_sources(
@@ -148,11 +186,15 @@ def load_sources(
     pca: int | None = None,
     weights: str | None = None,
     same_length: bool = True,
+    compile: CompilePolicy = AUTO,
+    keep_images: bool = True,
 ) -> Features:
     """Reference features from one or several sources of the same kind.
 
     ``same_length``: traversals must match frame for frame (row i of each is
-    place i); False when places come from elsewhere (positions).
+    place i); False when places come from elsewhere (positions). ``compile``:
+    when a descriptor network runs compiled; ``keep_images``: False leaves a
+    folder's frames out of ``images`` (they are described as they are read).
 
     ``pca=k`` projects the descriptors on the k leading principal axes of the
     reference set (L2-normalised after); the projection is kept in ``extra`` so
@@ -176,7 +218,9 @@ def load_sources(
             settings = {"weights": str(Path(weights).expanduser().absolute())}
     blocks, images = [], []
     for p in paths:
-        x, settings, imgs = _one(p, kind, name, settings, tile, stride, progress)
+        x, settings, imgs = _one(
+            p, kind, name, settings, tile, stride, progress, compile, keep_images
+        )
         blocks.append(x)
         images.append(imgs)
     n, d = blocks[0].shape
@@ -189,7 +233,8 @@ def load_sources(
     if kind == "npy":
         settings = {"dim": d}
     labels = np.concatenate([np.arange(len(b)) for b in blocks])
-    stacked = None if kind == "npy" else _stack_images(paths, images)
+    kept = kind != "npy" and all(im is not None for im in images)
+    stacked = _stack_images(paths, images) if kept else None
     x, extra = np.concatenate(blocks), {}
     if pca is not None:
         x, extra = _fit_pca(x, pca)
@@ -245,11 +290,13 @@ def load_query_source(
     stride: int | None = None,
     progress: bool = False,
     weights: str | None = None,
+    compile: CompilePolicy = AUTO,
 ) -> Features:
     """Query features described the way ``model`` (a fitted map) was built.
 
     ``weights``: a copy of the descriptor's weights file at another path (checked
-    against the sha256 the map recorded).
+    against the sha256 the map recorded); ``compile``: when a descriptor network
+    runs compiled.
     """
     path = Path(source)
     tile, stride = _map_tiling(path, model, tile, stride)
@@ -266,7 +313,7 @@ def load_query_source(
         raise InputError(
             f"{path}: the map was built from descriptor files; give queries as .npy"
         )
-    x, _, _ = _one(path, kind, name, settings, tile, stride, progress)
+    x, _, _ = _one(path, kind, name, settings, tile, stride, progress, compile, False)
     if kind != "npy" or "pca_components" in model.extra and x.shape[1] != model.d:
         x = apply_projection(x, model.extra)
     if x.shape[1] != model.d:
@@ -297,6 +344,7 @@ def reference_features(
     stride: int | None = None,
     progress: bool = False,
     weights: str | None = None,
+    compile: CompilePolicy = AUTO,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.
 
@@ -320,7 +368,9 @@ def reference_features(
             return None, None, note
         note = "brute force over the map's reference " + ", ".join(sources)
     blocks = [
-        load_query_source(s, model, descriptor, tile, stride, progress, weights).x
+        load_query_source(
+            s, model, descriptor, tile, stride, progress, weights, compile
+        ).x
         for s in sources
     ]
     labels = np.concatenate([np.arange(len(b)) for b in blocks])

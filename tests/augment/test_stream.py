@@ -105,3 +105,19 @@ def test_multi_exemplar_map_covers_both_seasons(nordland_patchnorm):
     assert acc(both, w) >= acc(only_w, w) - 0.015
     assert acc(both, w) > acc(only_s, w) + 0.5
     assert acc(both, s) > acc(only_w, s) + 0.5
+
+
+def test_in_order_batches_are_augmented_ahead_and_equal_those_made_alone(route):
+    """Taking batch i starts batch i + 1's augmentation in the background; the
+    stream in order equals every batch made on its own (the same draws)."""
+    frames, clean, desc = route
+    cfg = AugmentedFit(names=("all",), batch_size=32, seed=5)
+    epoch = AugmentedEpoch(frames, clean, np.arange(90), (9, 10), desc, cfg, 1)
+    stream = epoch_batches(frames, AugmentConfig(("all",)), 32, 5, 1)
+    x0, _ = epoch[0]
+    assert list(epoch._ahead) == [1]  # batch 1 is being made already
+    got = [x0] + [epoch[i][0] for i in (1, 2)]
+    assert not epoch._ahead  # nothing is made past the augmented half
+    for x, (_, batch) in zip(got, stream, strict=True):
+        with torch.inference_mode():
+            np.testing.assert_allclose(np.asarray(x), desc(batch).numpy(), atol=1e-6)

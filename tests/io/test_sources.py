@@ -78,3 +78,28 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
     check_sources_memory([str(tmp_path / "small.npy")], 2, 1, 7)  # fits
     check_sources_memory([str(tmp_path / "absent.npy")], 2, 1, 7)  # left to the read
     check_sources_memory([str(tmp_path / "small.npy")], 1, 1, 7)  # left to the map
+
+
+def test_folders_are_described_as_read_and_cached(tmp_path, monkeypatch):
+    """A folder is read ahead of the descriptor and cached by its files' bytes: a
+    second load reads no frame, and without kept frames none are held."""
+    from rhythmic_jax import pipeline
+    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.io import images
+
+    monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path / "cache"))
+    folder = _folder(tmp_path / "s", n=7)
+    frames = images.load_traversal(folder).images
+    first = load_sources([folder], keep_images=False)
+    assert first.images is None
+    expected = describe(frames, get_descriptor("patchnorm"), progress=False)
+    np.testing.assert_allclose(first.x, expected, atol=1e-6)
+    assert len(list((tmp_path / "cache").glob("s-*-patchnorm-files-*.npy"))) == 1
+
+    def unread(path):
+        raise AssertionError(f"read {path} despite the cache")
+
+    monkeypatch.setattr(images, "read_rgb", unread)
+    monkeypatch.setattr(pipeline, "describe_chunks", unread)
+    again = load_sources([folder], keep_images=False)
+    np.testing.assert_array_equal(again.x, first.x)
