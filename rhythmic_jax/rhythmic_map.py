@@ -398,6 +398,23 @@ class RhythmicMap:
             m or self.config.m,
         )
 
+    def _few_places(self, q, method: str) -> np.ndarray | None:
+        """Places (b,) int64 of up to :data:`SMALL_BATCH` queries by the numpy hard
+        decode, one matrix-vector product each and nothing else (no runner-up,
+        no dispatch); None where that decode does not apply."""
+        if self.codebook is not None or method != "hard":
+            return None
+        self._check_fitted()
+        if self.groups.kind != "periods":
+            return None
+        x = check_features(q, "queries", d=self.d)
+        if len(x) > SMALL_BATCH:
+            return None
+        if self.embedding is not None:
+            x = np.asarray(apply_embedding(self.embedding, x), np.float32)
+        small = self._small_decoder()
+        return np.array([small.index(row) for row in x], np.int64)
+
     def _small_decoder(self) -> SmallDecoder:
         """The numpy decoder of the current templates (rebuilt when they change)."""
         small = self._small
@@ -471,6 +488,10 @@ class RhythmicMap:
                 m or self.config.m,
             )
         else:
+            thr = self.config.threshold if threshold is None else threshold
+            few = self._few_places(q, method) if thr is None else None
+            if few is not None:
+                return few
             out = self.decode(q, method, m)
             idx, conf = out.index, out.confidence
         idx = np.asarray(idx).astype(np.int64)

@@ -69,6 +69,13 @@ def test_map_uses_it_for_few_queries():
             part.index, np.asarray(full.index)[i : i + SMALL_BATCH]
         )
     assert model.predict(q[:1]).tolist() == [int(full.index[0])]
+    for i in range(0, 60, 5):  # predict's own path: places only, in numpy
+        few = model._few_places(q[i : i + 5], "hard")
+        assert few.dtype == np.int64
+        np.testing.assert_array_equal(few, np.asarray(full.index)[i : i + 5])
+        np.testing.assert_array_equal(model.predict(q[i : i + 5]), few)
+    assert model._few_places(q[:9], "hard") is None  # a batch: jitted
+    assert model._few_places(q[:1], "soft") is None
     first = model._small_decoder()
     model.fit(x[::-1].copy(), progress=False)  # new templates: a new decoder
     assert model._small_decoder() is not first
