@@ -15,13 +15,11 @@ import sys
 import textwrap
 
 from rhythmic_jax import InputError, jobs
-from rhythmic_jax.compiled import (
+from rhythmic_jax.jobs import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
     LOAD_MIN_FRAMES,
     CompilePolicy,
-)
-from rhythmic_jax.jobs import (
     FitInterrupted,
     FitJob,
     LearnJob,

@@ -27,7 +27,13 @@ from typing import Any
 
 import numpy as np
 
-from rhythmic_jax.compiled import AUTO, CompilePolicy
+from rhythmic_jax.compiled import (
+    AUTO,
+    BUILD_MIN_FRAMES,
+    COMPILE_MODES,
+    LOAD_MIN_FRAMES,
+    CompilePolicy,
+)
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
 from rhythmic_jax.validate import check_int, int_option, number_option
@@ -37,7 +43,10 @@ __all__ = [
     "FitJob",
     "Reading",
     "ScaleJob",
+    "BUILD_MIN_FRAMES",
+    "COMPILE_MODES",
     "CompilePolicy",
+    "LOAD_MIN_FRAMES",
     "augmentation_ablation",
     "demo",
     "evaluate",
