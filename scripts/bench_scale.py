@@ -307,7 +307,13 @@ def grid(quick: bool) -> list[tuple]:
         cells += [("nordland", n, 2048, r, 1, "memory") for n in (1000, 3576)
                   for r in (2, 3)]  # fmt: skip
     cost = {"memory": 1, "stream": 4}
-    return sorted(cells, key=lambda c: c[1] * c[2] * (6 - c[3]) * cost[c[5]])
+
+    def order(c):  # the storage slope at d = 256, r = 3 first, then by cost
+        return c[0] != "walk" or c[2:] != (256, 3, 1, "memory"), (
+            c[1] * c[2] * (6 - c[3]) * cost[c[5]]
+        )
+
+    return sorted(cells, key=order)
 
 
 def _key(cell: tuple) -> str:
@@ -419,8 +425,11 @@ def main(argv=None) -> None:
     passes = [r["passes"] for r in rows if r["mode"] == "stream" and r["r"] == 3]
     if args.probe:
         try:
-            report["probe"] = probe(args.probe, args.probe_memory, args.cells,
-                                    max(passes, default=100))  # fmt: skip
+            found = probe(args.probe, args.probe_memory, args.cells, 100)
+            per = float(np.median(found["pass_seconds"]))
+            found["passes_assumed"] = max(passes, default=100)
+            found["projected_hours"] = per * found["passes_assumed"] / 3600
+            report["probe"] = found
         except RuntimeError as err:
             log.warning("probe failed: %s", err)
             missing.append(f"probe N={args.probe} (failed)")
