@@ -154,6 +154,8 @@ def slopes(rows: list[dict]) -> list[dict]:
         lx = np.log([p["n"] for p in pts])
         ly = np.log([p["storage_bytes"] for p in pts])
         slope = float(np.polyfit(lx, ly, 1)[0])
+        top = np.asarray([p["n"] for p in pts]) >= 10000
+        upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         out.append(
             dict(
                 source=source,
@@ -161,6 +163,7 @@ def slopes(rows: list[dict]) -> list[dict]:
                 r=r,
                 points=len(pts),
                 slope=slope,
+                slope_from_10k=upper,
                 target=1 / r,
                 within=abs(slope - 1 / r) <= 0.05,
             )
@@ -246,7 +249,16 @@ def markdown(report: dict) -> str:
     lines += [bc.table(head, rows), "", "Storage slopes (log bytes on log N):", ""]
     lines += [
         bc.table(
-            ["source", "d", "r", "points", "slope", "1/r", "within 0.05"],
+            [
+                "source",
+                "d",
+                "r",
+                "points",
+                "slope",
+                "1/r",
+                "within 0.05",
+                "slope N >= 10^4",
+            ],  # fmt: skip
             [
                 [
                     s["source"],
@@ -256,7 +268,8 @@ def markdown(report: dict) -> str:
                     round(s["slope"], 4),
                     round(s["target"], 4),
                     str(s["within"]),
-                ]  # fmt: skip
+                    _num(s.get("slope_from_10k"), 4),
+                ]
                 for s in report["slopes"]
             ],
         )
