@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from pathlib import Path
 
 import faiss
 import jax
@@ -39,23 +40,24 @@ from _bench_common import (
     write_report,
 )
 
-from rhythmic_jax.codes import CodeBook, code_bytes, pack_bits
+from rhythmic_jax.codes import code_bytes, pack_bits
 from rhythmic_jax.decoding.fusion import fused_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.eval.frontier import (
     FrontierConfig,
     budget_table,
     crossover_n,
+    fitted_codes,
+    fitted_map,
     frontier_rows,
     projected_bytes,
     similarity_recalls,
 )
 from rhythmic_jax.features import cached_describe, get_descriptor
 from rhythmic_jax.io.images import nordland
-from rhythmic_jax.rhythmic_map import RhythmicMap
 from rhythmic_jax.split import NORDLAND_SPLIT
 
-BUDGETS = (0.03, 0.05, 0.075, 0.10, 0.125, 0.15, 0.20, 0.25, 0.30)
+BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
 DS = (256, 2048, 4096, 10976)
 BITS = (64, 128, 256, 512)
@@ -83,18 +85,22 @@ def projections() -> list[dict]:
     return out
 
 
-def timing(ref, q, bits=64, r=2, level=4, gap=5e-4) -> dict:
-    """Batch decode of every query: map alone, hybrid, faiss IndexBinaryFlat."""
-    m = RhythmicMap(r=r, level=level, gap=gap, codes=bits, decode="soft")
-    m.fit(ref, progress=False)
-    book = m.codebook
-    qj = jax.numpy.asarray(q)
+def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
+    """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
+    faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
+    w, b, per = fitted_map(ref, r, level, gap, cache)
+    book = fitted_codes(ref, bits, cache)
+    n = len(ref)
+    wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
 
     def map_alone():
-        return soft_decode(m.scores(qj), m.periods, m.n).index
+        return soft_decode(qj @ wj + bj, per, n).index
 
     def hybrid():
-        return fused_decode(m.scores(qj), book.similarity(qj), m.periods, m.n).index
+        return fused_decode(qj @ wj + bj, book.similarity(qj), per, n).index
+
+    def codes_alone():
+        return book.similarity(qj).argmax(1)
 
     index = faiss.IndexBinaryFlat(bits)
     index.add(pack_bits(book.codes))
@@ -103,15 +109,24 @@ def timing(ref, q, bits=64, r=2, level=4, gap=5e-4) -> dict:
         return index.search(pack_bits(book.transform.encode(q)), 1)[1]
 
     out = {}
-    for name, fn in (("map alone", map_alone), ("hybrid", hybrid), ("faiss", binary)):
+    fns = (
+        ("map alone", map_alone),
+        ("hybrid (map + codes, fused)", hybrid),
+        ("codes alone (JAX)", codes_alone),
+        ("codes alone (faiss IndexBinaryFlat)", binary),
+    )
+    for name, fn in fns:
         jax.block_until_ready(fn())
         times = []
-        for _ in range(3):
+        for _ in range(5):
             t = time.perf_counter()
             jax.block_until_ready(fn())
             times.append(time.perf_counter() - t)
         out[name] = {"seconds": min(times), "queries_per_s": len(q) / min(times)}
-    out["setting"] = f"map r={r} level {level} {m.periods} + ITQ {bits}"
+    base = out["map alone"]["seconds"]
+    for v in out.values():
+        v["x map alone"] = v["seconds"] / base
+    out["setting"] = f"map r={r} level {level} {per} + ITQ {bits}, {len(q)} queries"
     return out
 
 
@@ -127,9 +142,45 @@ def _span(until, since) -> str:
     return " and ".join(parts) or "never <= 1e12"
 
 
+def _num(v):
+    return "-" if v is None else v
+
+
+def _targets(rep: dict) -> list[str]:
+    """The hybrid at <= 20 % against the targets, and own - ITQ per length."""
+    hyb = [r for r in rep["rows"] if r["kind"] == "hybrid" and r["share"] <= 0.20]
+    out = []
+    for length, goal in ((1, 0.27), (10, 0.88)):
+        key = f"recall@1 L={length}"
+        if not hyb or key not in hyb[0]:
+            continue
+        best = max(hyb, key=lambda r: r[key])
+        met = "met" if best[key] >= goal else "not met"
+        out.append(
+            f"- Hybrid at <= 20 %, L = {length}: best {best[key]:.3f} "
+            f"({best['name']}, {100 * best['share']:.1f} %); target {goal}: {met}."
+        )
+    for length in rep["lengths"]:
+        b = rep["budgets"][str(length)]
+        short = [x for x in b if x["own_minus_itq"] < 0]
+        line = f"- L = {length}: the map or a hybrid is at least ITQ's best at "
+        line += f"{len(b) - len(short)} of {len(b)} budgets"
+        if short:
+            worst = min(short, key=lambda x: x["own_minus_itq"])
+            at = ", ".join(f"{100 * x['budget']:g} %" for x in short)
+            line += (
+                f"; behind at {at}"
+                f" (at most by {-worst['own_minus_itq']:.3f}, at "
+                f"{100 * worst['budget']:g} %)"
+            )
+        out.append(line + ".")
+    return out
+
+
 def markdown(rep: dict) -> str:
     lines = header("Recall per byte: map, ITQ codes and hybrids", rep)
     lines += [rep["protocol"], ""]
+    lines += ["### Targets", ""] + _targets(rep) + [""]
     ls = rep["lengths"]
     heads = ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["weight"]
@@ -139,7 +190,7 @@ def markdown(rep: dict) -> str:
             heads,
             [
                 [r["name"], r["kind"], r["storage_bytes"], 100 * r["share"]]
-                + [r[f"recall@1 L={k}"] for k in ls]
+                + [_num(r[f"recall@1 L={k}"]) for k in ls]
                 + [r.get("weight", "-")]
                 for r in rows
             ],
@@ -176,9 +227,9 @@ def markdown(rep: dict) -> str:
     lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
     lines.append(
         table(
-            ["decode", "seconds", "queries/s"],
+            ["decode", "seconds", "queries/s", "time / map alone"],
             [
-                [k, v["seconds"], v["queries_per_s"]]
+                [k, v["seconds"], v["queries_per_s"], v["x map alone"]]
                 for k, v in t.items()
                 if k != "setting"
             ],
@@ -220,7 +271,12 @@ def main(argv=None):
     ap = parser(__doc__)
     ap.add_argument("--quick", action="store_true", help="2 maps, 2 code sizes")
     ap.add_argument(
-        "--no-cross", action="store_true", help="skip ITQ fitted across conditions"
+        "--cross", action="store_true", help="also ITQ fitted across conditions"
+    )
+    ap.add_argument(
+        "--cache",
+        default=str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
+        help="folder keeping fitted templates and codes ('' for none)",
     )
     ap.add_argument("--maps", default=None, help="maps as r:level,... (e.g. 2:4,3:4)")
     ap.add_argument("--bits", default=None, help="code sizes, e.g. 64,128")
@@ -244,11 +300,12 @@ def main(argv=None):
     if args.bits:
         cfg = dataclasses.replace(cfg, bits=tuple(int(b) for b in args.bits.split(",")))
     t0 = time.perf_counter()
-    rows = frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]))
+    cache = args.cache or None
+    rows = frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
     both = np.concatenate([s[tr], w[tr]])
     cross_rows = []
-    for bits in () if args.no_cross else cfg.bits:
-        book = CodeBook.fit(s[te], bits, fit_on=both)
+    for bits in cfg.bits if args.cross else ():
+        book = fitted_codes(s[te], bits, cache, fit_on=both)
         sims = np.asarray(book.similarity(w[te]))
         rec = similarity_recalls(sims, cfg.lengths, cfg.tolerance)
         size = code_bytes(len(te), s.shape[1], bits)["total"]
@@ -274,7 +331,9 @@ def main(argv=None):
         "rows": rows,
         "cross_rows": cross_rows,
         "budgets": {str(k): budget_table(rows, BUDGETS, k) for k in cfg.lengths},
-        "timing": {} if args.no_timing else timing(s[te], w[te]),
+        "timing": {}
+        if args.no_timing
+        else timing(s[te], w[te], cache, cfg.bits[0], *cfg.maps[-1], cfg.gap),
         "projections": projections(),
         "seconds": time.perf_counter() - t0,
     }

@@ -60,6 +60,46 @@ def test_saved_and_loaded_predicts_the_same(hybrid, tmp_path):
     assert back.info()["storage"] == model.info()["storage"]
 
 
+@pytest.mark.parametrize("sequence", [None, 5])
+def test_recall_at_k_ranks_the_fused_scores(hybrid, sequence):
+    """evaluate's recall@1 is the hybrid decode's own accuracy, with sequences too
+    (the first ranked place is the fused decode's answer)."""
+    from rhythmic_jax.eval.report import evaluate_map
+
+    model, q = hybrid
+    res = evaluate_map(model, q, sequence=sequence, timing=False)
+    row = res["methods"]["map"]
+    assert res["recall_ranks"].startswith("fused")
+    assert row["recall@1"] == pytest.approx(row["accuracy"])
+    pred = model.predict(q, sequence=sequence)
+    assert row["accuracy"] == pytest.approx(np.mean(pred == np.arange(len(q))))
+
+
+def test_evaluate_frontier_rows_and_plot(hybrid, tmp_path):
+    """With curves, a hybrid's evaluation holds recall per byte of its parts."""
+    from rhythmic_jax.eval.figures import plot_evaluation
+    from rhythmic_jax.eval.report import evaluate_map
+
+    model, q = hybrid
+    x = _route()[0]
+    res = evaluate_map(model, q, reference=x, tolerance=1, timing=False, curves=True)
+    rows = {r["kind"]: r for r in res["frontier"]}
+    assert set(rows) == {"map", "codes", "hybrid", "brute force"}
+    key = "recall@1 L=1"
+    assert rows["hybrid"][key] == pytest.approx(res["methods"]["map"]["accuracy_tol"])
+    assert rows["brute force"][key] == pytest.approx(
+        res["methods"]["brute force"]["accuracy_tol"]
+    )
+    parts = rows["map"]["storage_bytes"] + rows["codes"]["storage_bytes"]
+    assert parts == rows["hybrid"]["storage_bytes"] == model.storage_bytes
+    alone = np.asarray(model.codebook.similarity(q)).argmax(1)
+    assert rows["codes"][key] == pytest.approx(
+        np.mean(np.abs(alone - np.arange(len(q))) <= 1)
+    )
+    fig = plot_evaluation(res, path=tmp_path / "e.png")
+    assert len(fig.axes) == 3 and (tmp_path / "e.png").stat().st_size > 0
+
+
 @pytest.mark.parametrize("bits", [0, -3, 41])
 def test_bad_codes_in_python(bits):
     x, _ = _route()

@@ -31,6 +31,7 @@ __all__ = [
     "plot_cost",
     "plot_examples",
     "plot_evaluation",
+    "frontier_panel",
     "plot_frontier",
     "plot_levels",
     "plot_r",
@@ -315,12 +316,18 @@ def plot_evaluation(
 ):
     """PR curves (left) and recall@K bars (right) of each method of
     :func:`rhythmic_jax.report.evaluate_map` (run with ``curves=True``): the
-    map beside brute force, as ``rhythmic-jax evaluate --plot`` draws them.
+    map beside brute force, as ``rhythmic-jax evaluate --plot`` draws them; for a
+    map with codes a third panel, recall against storage of the templates alone,
+    the codes alone, both fused and brute force (``result["frontier"]``).
     """
     methods = {k: v for k, v in result["methods"].items() if "pr_curve" in v}
     if not methods:
         raise InputError("plot_evaluation: no PR curves (evaluate with curves=True)")
-    fig, (left, right) = new_figure(2, width=4.6)
+    frontier = result.get("frontier")
+    fig, axes = new_figure(3 if frontier else 2, width=4.6)
+    left, right = axes[:2]
+    if frontier:  # a map with codes: recall per byte of its parts and of both
+        frontier_panel(axes[2], frontier, result.get("sequence") or 1)
     ks = sorted(
         int(c.split("@")[1])
         for c in next(iter(methods.values()))
@@ -363,7 +370,40 @@ _KIND_STYLE = {
     "codes": ("s", "tab:orange"),
     "hybrid": ("^", "tab:green"),
     "brute force": ("*", "black"),
+    "SeqSLAM": ("P", "tab:red"),
 }
+
+
+def frontier_panel(ax, rows: Sequence[Mapping[str, Any]], length: int = 1) -> None:
+    """Draw recall@1 at sequence ``length`` against storage on ``ax``: one marker
+    per kind, and the upper frontier of the points as a step line."""
+    key = f"recall@1 L={length}"
+    pts = [r for r in rows if r.get(key) is not None]
+    for kind, (marker, colour) in _KIND_STYLE.items():
+        sel = [r for r in pts if r["kind"] == kind]
+        if sel:
+            ax.scatter(
+                [100 * r["share"] for r in sel],
+                [r[key] for r in sel],
+                marker=marker,
+                color=colour,
+                label=kind,
+                s=28,
+            )
+    best, front = -1.0, []
+    for r in sorted(pts, key=lambda r: r["share"]):
+        if r[key] > best:
+            best = r[key]
+            front.append((100 * r["share"], best))
+    if front:
+        xs, ys = zip(*front, strict=True)
+        ax.step(xs, ys, where="post", color="grey", lw=1, alpha=0.7)
+    ax.set_xscale("log")
+    ax.set_xlabel("storage, % of the float32 database")
+    ax.set_ylabel(f"recall@1, L = {length}")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
 
 
 def plot_frontier(
@@ -385,32 +425,6 @@ def plot_frontier(
         raise InputError("plot_frontier: no rows to plot")
     fig, axes = new_figure(len(lengths), width=4.4)
     for ax, length in zip(axes, lengths, strict=True):
-        key = f"recall@1 L={length}"
-        pts = [r for r in rows if r.get(key) is not None]
-        for kind, (marker, colour) in _KIND_STYLE.items():
-            sel = [r for r in pts if r["kind"] == kind]
-            if sel:
-                ax.scatter(
-                    [100 * r["share"] for r in sel],
-                    [r[key] for r in sel],
-                    marker=marker,
-                    color=colour,
-                    label=kind,
-                    s=28,
-                )
-        best, front = -1.0, []
-        for r in sorted(pts, key=lambda r: r["share"]):
-            if r[key] > best:
-                best = r[key]
-                front.append((100 * r["share"], best))
-        if front:
-            xs, ys = zip(*front, strict=True)
-            ax.step(xs, ys, where="post", color="grey", lw=1, alpha=0.7)
-        ax.set_xscale("log")
-        ax.set_xlabel("storage, % of the float32 database")
-        ax.set_ylabel(f"recall@1, L = {length}")
-        ax.set_ylim(0, 1)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        frontier_panel(ax, rows, length)
     fig.suptitle(title or "recall per byte")
     return _finish(fig, path)

@@ -19,10 +19,12 @@ N: a map keeps r pairwise co-prime periods from ``level * ceil(N^(1/r))`` up
 from __future__ import annotations
 
 import functools
+import hashlib
 import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -38,11 +40,14 @@ from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.periods import candidate_periods, choose_periods, database_bytes
 from rhythmic_jax.periods import storage_bytes as map_bytes
+from rhythmic_jax.quantize import dequantize, quantize, template_bytes
 
 __all__ = [
     "FrontierConfig",
     "budget_table",
     "crossover_n",
+    "fitted_codes",
+    "fitted_map",
     "frontier_rows",
     "projected_bytes",
     "similarity_recalls",
@@ -59,12 +64,15 @@ class FrontierConfig:
     split (summer references, winter queries, EfficientNet-Lite0).
     """
 
-    maps: tuple[tuple[int, int], ...] = ((2, 1), (2, 2), (2, 4), (3, 2), (3, 4))
+    maps: tuple[tuple[int, int], ...] = tuple(
+        (r, level) for r in (2, 3) for level in (1, 2, 3, 4)
+    )
     bits: tuple[int, ...] = (64, 128, 256, 512)
     lengths: tuple[int, ...] = (1, 5, 10)
     tolerance: int = 1
     gap: float = 5e-4
     weight: float = 0.5
+    dtypes: tuple[str, ...] = ("float32", "int8")
 
 
 def _recall(idx, tol: int) -> float:
@@ -83,30 +91,92 @@ def similarity_recalls(sims, lengths, tol) -> dict[int, float]:
 
 
 def _fit_map(x, r, level, gap):
+    """The (w (d, p), b (p,)) templates and periods of a soft-decode map of x."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
-    return RhythmicMap(r=r, level=level, gap=gap, decode="soft").fit(x, progress=False)
+    m = RhythmicMap(r=r, level=level, gap=gap, decode="soft").fit(x, progress=False)
+    return np.asarray(m.params.w), np.asarray(m.params.b), tuple(m.periods)
 
 
 def _since(t: float) -> float:
     return time.perf_counter() - t
 
 
-def _parts(ref, queries, cfg, cross=None):
-    """Maps' scores and codes' similarities of ``queries`` against ``ref``."""
+def _cached(cache, key: str, make):
+    """``make()``'s dict of arrays, kept as ``cache/key.npz`` when cache is set."""
+    if cache is None:
+        return make()
+    path = Path(cache) / f"{key}.npz"
+    if path.exists():
+        with np.load(path) as f:
+            return dict(f)
+    out = make()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **out)
+    tmp.replace(path)
+    return out
+
+
+def _fingerprint(x: np.ndarray) -> str:
+    return hashlib.sha1(np.ascontiguousarray(x).tobytes()).hexdigest()[:16]
+
+
+def fitted_map(ref, r: int, level: int, gap: float, cache=None):
+    """``(w (d, p), b (p,), periods)`` of a soft-decode map of ref (n, d), kept in
+    the ``cache`` folder (when given) keyed by the data and settings."""
+    ref = np.asarray(ref, np.float32)
+
+    def make():
+        w, b, per = _fit_map(ref, r, level, gap)
+        return {"w": w, "b": b, "periods": np.asarray(per)}
+
+    got = _cached(cache, f"map-{_fingerprint(ref)}-r{r}-l{level}-g{gap:g}", make)
+    return got["w"], got["b"], tuple(int(t) for t in got["periods"])
+
+
+def fitted_codes(ref, bits: int, cache=None, fit_on=None) -> CodeBook:
+    """:meth:`CodeBook.fit` of ref (n, d), kept in ``cache`` like :func:`fitted_map`."""
+    ref = np.asarray(ref, np.float32)
+    n, d = ref.shape
+    tag = _fingerprint(ref)
+    fit_tag = tag if fit_on is None else _fingerprint(np.asarray(fit_on, np.float32))
+    got = _cached(
+        cache,
+        f"itq-{tag}-{fit_tag}-b{bits}",
+        lambda: CodeBook.fit(ref, bits, fit_on=fit_on).arrays(),
+    )
+    return CodeBook.from_arrays(got, n, d, bits)
+
+
+def _parts(ref, queries, cfg, cache=None):
+    """Maps' scores (per stored dtype) and codes' similarities of ``queries``.
+
+    Returns ``({(r, level, dtype): (periods, scores (b, p), bytes)},
+    {bits: similarities (b, n)})``.
+    """
+    d = ref.shape[1]
     maps = {}
     for r, level in cfg.maps:
         t = time.perf_counter()
-        m = _fit_map(ref, r, level, cfg.gap)
-        maps[(r, level)] = (m.periods, np.asarray(m.scores(queries)))
-        log.info("map r=%d level %d %s: %.1f s", r, level, m.periods, _since(t))
+        w32, b32, per = fitted_map(ref, r, level, cfg.gap, cache)
+        for dtype in cfg.dtypes:
+            w, b = dequantize(quantize(w32, b32, dtype))
+            s = np.asarray(jax.numpy.asarray(queries) @ w + b[None, :])
+            maps[(r, level, dtype)] = (per, s, template_bytes(sum(per), d, dtype))
+        log.info("map r=%d level %d %s: %.1f s", r, level, per, _since(t))
     codes = {}
     for bits in cfg.bits:
         t = time.perf_counter()
-        book = CodeBook.fit(ref, bits, fit_on=cross)
+        book = fitted_codes(ref, bits, cache)
         codes[bits] = np.asarray(book.similarity(queries))
         log.info("ITQ %d bits on %d frames: %.1f s", bits, len(ref), _since(t))
     return maps, codes
+
+
+def _map_name(r, level, per, dtype) -> str:
+    kept = "" if dtype == "float32" else f" {dtype}"
+    return f"map r={r} level {level} {per}{kept}"
 
 
 def frontier_rows(
@@ -115,6 +185,8 @@ def frontier_rows(
     config: FrontierConfig = FrontierConfig(),
     *,
     train: tuple[np.ndarray, np.ndarray] | None = None,
+    seqslam: bool = True,
+    cache=None,
 ) -> list[dict]:
     """Recall@1 against total bytes on the places of ``ref``.
 
@@ -123,21 +195,23 @@ def frontier_rows(
       queries: (n, d) descriptors of the same places in another condition.
       train: (reference, query) descriptors of *other* places, for the hybrids'
         fusion weights (learned per map + code pair on single frames).
+      seqslam: add SeqSLAM on the raw descriptors (sequences only).
+      cache: a folder where fitted templates and code books are kept.
 
-    Returns one dict per representation: ``kind`` (brute force | map | codes |
-    hybrid), ``name``, ``r``, ``level``, ``periods``, ``bits``, ``weight``,
-    ``storage_bytes``, ``share`` (of the float32 database) and ``recall@1 L=<L>``
-    for every length of the config.
+    Returns one dict per representation: ``kind`` (brute force | SeqSLAM | map |
+    codes | hybrid), ``name``, ``r``, ``level``, ``periods``, ``dtype``, ``bits``,
+    ``weight``, ``storage_bytes``, ``share`` (of the float32 database) and
+    ``recall@1 L=<L>`` for every length of the config (None where not measured).
     """
     ref, queries = np.asarray(ref, np.float32), np.asarray(queries, np.float32)
     n, d = ref.shape
     db, tol, lengths = database_bytes(n, d, 4), config.tolerance, config.lengths
-    maps, codes = _parts(ref, queries, config)
+    maps, codes = _parts(ref, queries, config, cache=cache)
     weights = {}
     if train is not None:
-        tmaps, tcodes = _parts(*train, config)
+        tmaps, tcodes = _parts(*train, config, cache=cache)
         gt = np.arange(len(train[1]))
-        for key, (per, s) in tmaps.items():
+        for key, (per, s, _) in tmaps.items():
             for bits, sims in tcodes.items():
                 nt = len(train[0])
                 weights[key, bits] = learn_weight(s, sims, per, nt, gt, tol)[0]
@@ -146,7 +220,7 @@ def frontier_rows(
     def row(kind, name, size, recalls, **extra):
         out = {"kind": kind, "name": name, "storage_bytes": int(size)}
         out.update(share=size / db, **extra)
-        out.update({f"recall@1 L={k}": v for k, v in recalls.items()})
+        out.update({f"recall@1 L={k}": recalls.get(k) for k in lengths})
         log.info("%s", out)
         return out
 
@@ -154,7 +228,12 @@ def frontier_rows(
     rows = [
         row("brute force", "brute force", db, similarity_recalls(brute, lengths, tol))
     ]
-    for (r, level), (per, s) in maps.items():
+    if seqslam:
+        from rhythmic_jax.eval.seqslam import seqslam_decode
+
+        rec = {k: _recall(seqslam_decode(queries, ref, k)[0], tol) for k in lengths}
+        rows.append(row("SeqSLAM", "SeqSLAM (raw descriptors)", db, rec))
+    for (r, level, dtype), (per, s, size) in maps.items():
         rec = {
             k: _recall(
                 soft_decode(s, per, n).index
@@ -164,17 +243,16 @@ def frontier_rows(
             )
             for k in lengths
         }
-        name = f"map r={r} level {level} {per}"
-        rows.append(
-            row("map", name, map_bytes(per, d), rec, r=r, level=level, periods=per)
-        )
+        name = _map_name(r, level, per, dtype)
+        extra = dict(r=r, level=level, periods=per, dtype=dtype)
+        rows.append(row("map", name, size, rec, **extra))
     for bits, sims in codes.items():
         size = code_bytes(n, d, bits)["total"]
         rec = similarity_recalls(sims, lengths, tol)
         rows.append(row("codes", f"ITQ {bits} bits", size, rec, bits=bits))
-    for (r, level), (per, s) in maps.items():
+    for (r, level, dtype), (per, s, msize) in maps.items():
         for bits, sims in codes.items():
-            w = weights.get(((r, level), bits), config.weight)
+            w = weights.get(((r, level, dtype), bits), config.weight)
             rec = {
                 k: _recall(
                     fused_decode(s, sims, per, n, w).index
@@ -184,20 +262,10 @@ def frontier_rows(
                 )
                 for k in lengths
             }
-            size = map_bytes(per, d) + code_bytes(n, d, bits)["total"]
-            rows.append(
-                row(
-                    "hybrid",
-                    f"map r={r} level {level} + ITQ {bits}",
-                    size,
-                    rec,
-                    r=r,
-                    level=level,
-                    periods=per,
-                    bits=bits,
-                    weight=w,
-                )  # fmt: skip
-            )
+            size = msize + code_bytes(n, d, bits)["total"]
+            name = f"{_map_name(r, level, per, dtype)} + ITQ {bits}"
+            extra = dict(r=r, level=level, periods=per, dtype=dtype, bits=bits)
+            rows.append(row("hybrid", name, size, rec, weight=w, **extra))
     return rows
 
 

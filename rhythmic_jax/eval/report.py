@@ -58,11 +58,39 @@ def _latency(fn, queries) -> dict[str, float]:
     }
 
 
+def _hybrid_decisions(model, queries, method, sequence):
+    """A map with codes: confidence and places ranked by the fused scores, over
+    the sequence when one is asked for (as its decode fuses them)."""
+    from rhythmic_jax.decoding.fusion import (
+        code_sequence_scores,
+        fused_place_scores,
+        fused_sequence_decode,
+    )
+    from rhythmic_jax.decoding.sequence import sequence_scores
+
+    if sequence is None or sequence <= 1:
+        conf = model.decode(queries, method).confidence
+        return conf, np.asarray(model.place_scores(queries)), "fused place scores"
+    s, sims = model.scores(queries), model.codebook.similarity(queries)
+    w, per = model.config.fusion, model.periods
+    _, conf = fused_sequence_decode(
+        s, sims, per, model.n, sequence, (1.0,), w, method, model.config.m
+    )
+    acc = sequence_scores(s, per, sequence)
+    total = fused_place_scores(acc, code_sequence_scores(sims, sequence), per,
+                               model.n, w)  # fmt: skip
+    return conf, np.asarray(total), f"fused sequence scores (L={sequence}, speed 1)"
+
+
 def _map_decisions(model, queries, method, sequence):
     """(pred (b,), confidence (b,), ranked places (b, K), what recall@K ranks)."""
     pred = model.predict(queries, method, sequence=sequence)
-    s = model.scores(queries)
     method = method or model.config.decode
+    if model.codebook is not None:
+        conf, total, which = _hybrid_decisions(model, queries, method, sequence)
+        ranked = np.argsort(-total, axis=1, kind="stable")[:, : min(max(KS), model.n)]
+        return pred, np.asarray(conf, np.float64), ranked, which
+    s = model.scores(queries)
     if sequence is not None and sequence > 1:
         from rhythmic_jax.decoding.sequence import sequence_decode, sequence_scores
 
@@ -77,11 +105,6 @@ def _map_decisions(model, queries, method, sequence):
     else:
         conf = model.decode(queries, method).confidence
         which = "single-frame scores"
-    if model.codebook is not None and which == "single-frame scores":
-        # a hybrid map ranks its fused place scores, as its decode does
-        total = np.asarray(model.place_scores(queries))
-        ranked = np.argsort(-total, axis=1, kind="stable")[:, : min(max(KS), model.n)]
-        return pred, np.asarray(conf, np.float64), ranked, "fused place scores"
     ranked = ranked_places(s, model.groups, model.n, max(KS))
     return pred, np.asarray(conf, np.float64), ranked, which
 
@@ -104,6 +127,47 @@ def _scores_of(pred, conf, ranked, truth, exact, ks) -> dict[str, Any]:
     }
     row["_pr"] = (precision, recall)
     return row
+
+
+def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
+    """Recall@1 against bytes for a fitted map with codes, as ``evaluate`` reports it.
+
+    Rows as :func:`rhythmic_jax.eval.frontier.frontier_rows` gives them, for one
+    length L = ``sequence`` or 1: the map's templates alone (soft decode), its
+    codes alone (similarities summed along the diagonal for sequences), the
+    hybrid (``pred``, the map's own decode) and, for single frames, brute force
+    (``brute``: its predictions).
+    ``truth`` is a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
+    """
+    from rhythmic_jax.codes import code_bytes
+    from rhythmic_jax.decoding.fusion import code_sequence_scores
+    from rhythmic_jax.decoding.sequence import sequence_decode
+    from rhythmic_jax.decoding.soft import soft_decode
+    from rhythmic_jax.eval.ground_truth import gt_accuracy
+
+    length = int(sequence) if sequence else 1
+    key, n, d = f"recall@1 L={length}", model.n, model.d
+    s = model.scores(queries)
+    sims = model.codebook.similarity(queries)
+    if length > 1:
+        alone = sequence_decode(s, model.periods, n, length, (1.0,), "soft")[0]
+        coded = code_sequence_scores(sims, length)
+    else:
+        alone, coded = soft_decode(s, model.periods, n).index, sims
+    st, db = model.storage(), database_bytes(n, d, 4)
+    parts = [
+        ("map", "templates alone", sum(st["per_period"].values()), alone),
+        ("codes", f"ITQ {model.codebook.bits} bits alone",
+         code_bytes(n, d, model.codebook.bits)["total"], np.argmax(coded, axis=1)),
+        ("hybrid", "map + codes (fused)", model.storage_bytes, pred),
+    ]  # fmt: skip
+    if brute is not None and length == 1:
+        parts.append(("brute force", "brute force", db, brute))
+    return [
+        {"kind": kind, "name": name, "storage_bytes": int(size),
+         "share": size / db, key: gt_accuracy(np.asarray(p), truth)}
+        for kind, name, size, p in parts
+    ]  # fmt: skip
 
 
 def evaluate_map(
@@ -171,6 +235,7 @@ def evaluate_map(
     }
     if timing:
         rows["map"].update(_latency(lambda q: model.decode(q).index, queries))
+    brute = None
     if reference is not None:
         from rhythmic_jax.eval.baselines import BruteForce
 
@@ -178,6 +243,7 @@ def evaluate_map(
         sims, top = flat.search(queries, max(ks))
         if reference_labels is not None:
             top = np.asarray(reference_labels)[top]
+        brute = top[:, 0]
         rows["brute force"] = {
             **_scores_of(top[:, 0], sims[:, 0], top, truth, exact, ks),
             "storage_bytes": flat.storage_bytes,
@@ -193,7 +259,7 @@ def evaluate_map(
                 "precision": precision.tolist(),
                 "recall": recall.tolist(),
             }
-    return {
+    out = {
         "n": model.n,
         "d": model.d,
         "n_queries": len(queries),
@@ -206,6 +272,9 @@ def evaluate_map(
         "compression_ratio": model.compression_ratio,
         "methods": rows,
     }
+    if curves and model.codebook is not None:  # recall per byte, for the plot
+        out["frontier"] = model_frontier(model, queries, pred, truth, sequence, brute)
+    return out
 
 
 def _truth_line(result: dict[str, Any]) -> str:

@@ -57,13 +57,21 @@ def test_budget_table_picks_the_best_within_each_budget():
 
 
 @pytest.mark.slow
-def test_frontier_rows_against_faiss():
+def test_frontier_rows_against_faiss(tmp_path):
     rng = np.random.default_rng(0)
     x = rng.normal(size=(150, 32)).astype(np.float32)
     x /= np.linalg.norm(x, axis=1, keepdims=True)
     q = x + 0.1 * rng.normal(size=x.shape).astype(np.float32)
     cfg = FrontierConfig(maps=((2, 1),), bits=(16,), lengths=(1,), tolerance=0)
-    rows = {r["kind"]: r for r in frontier_rows(x, q, cfg)}
+    listed = frontier_rows(x, q, cfg, cache=tmp_path)
+    assert frontier_rows(x, q, cfg, cache=tmp_path) == listed  # fits kept, reused
+    assert len(list(tmp_path.glob("*.npz"))) == 2
+    maps = {r["dtype"]: r for r in listed if r["kind"] == "map"}
+    p = sum(maps["float32"]["periods"])
+    assert maps["float32"]["storage_bytes"] == p * 33 * 4
+    assert maps["int8"]["storage_bytes"] == p * 33 + 4 * p  # int8 + a scale each
+    rows = {r["kind"]: r for r in listed}
+    assert rows["SeqSLAM"]["storage_bytes"] == 150 * 32 * 4
     # brute force and the codes against faiss on the same data
     _, top = faiss.knn(q, x, 1, faiss.METRIC_INNER_PRODUCT)
     assert rows["brute force"]["recall@1 L=1"] == np.mean(top[:, 0] == np.arange(150))
