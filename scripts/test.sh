@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # The test suite: the default run, then the slow real-data checks in a second,
-# bounded step. Run after `pip install -e ".[test]"`.
+# bounded step, each over two worker processes (most tests wait on one core:
+# tracing, compiling, starting the installed command). Run after
+# `pip install -e ".[test]"`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export JAX_PLATFORMS=cpu TF_CPP_MIN_LOG_LEVEL=3
-python -m pytest -q --durations=30
-timeout "${SLOW_TIMEOUT:-3600}" python -m pytest -q -m slow
+python -m pytest -q -n 2 --dist loadscope --durations=30
+timeout "${SLOW_TIMEOUT:-3600}" python -m pytest -q -n 2 --dist loadscope -m slow
