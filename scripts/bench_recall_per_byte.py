@@ -183,6 +183,12 @@ def _targets(rep: dict) -> list[str]:
 def markdown(rep: dict) -> str:
     lines = header("Recall per byte: map, ITQ codes and hybrids", rep)
     lines += [rep["protocol"], ""]
+    lines += [
+        f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
+        " and code books are kept in the cache folder, so a re-run of settings"
+        " already fitted only decodes).",
+        "",
+    ]
     lines += ["### Targets", ""] + _targets(rep) + [""]
     ls = rep["lengths"]
     heads = ["representation", "kind", "storage B", "share %"]
