@@ -701,15 +701,48 @@ def decoding_markdown(path: Path) -> tuple[str, dict | None]:
     return "\n".join(parts), data
 
 
+CROSS_COLUMNS = (("r1", "R@1 ±1"), ("r1_exact", "exact"), ("r5", "R@5"),
+                 ("L10", "L = 10"), ("self_r1", "self"))  # fmt: skip
+
+
 def cross_condition_markdown(path: Path) -> str:
-    """The report of ``scripts/bench_cross_condition.py`` (its Markdown), if present."""
+    """Targets and the first direction of every data set of
+    ``scripts/bench_cross_condition.py``'s ``cross_condition.json``, if present."""
     if not path.is_file():
         return (
             "This section is produced by `python scripts/bench_cross_condition.py` "
             f"(it writes `reports/{path.name}`, absent when this report was made)."
         )
-    body = path.read_text().split("\n", 1)[1].replace("\n#", "\n##")
-    return f"From `{path.name}` (figure `cross_condition.png`):\n{body.rstrip()}"
+    data = json.loads(path.read_text())
+    parts = [
+        f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
+        f"directions in `cross_condition.md`), written by `{data.get('command')}`; "
+        "load average at the start and end "
+        f"{data['load_average']['start']} / {data['load_average']['end']}.",
+        "",
+        "Targets:",
+        "",
+    ]
+    try:
+        parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
+        for name, ds in data["datasets"].items():
+            key, rows = next(iter(ds["directions"].items()))
+            head = ["method", *(h for _, h in CROSS_COLUMNS), "share of raw bytes"]
+            body = [
+                "| " + " | ".join(head) + " |",
+                "|---" + "|---:" * (len(head) - 1) + "|",
+            ]
+            for r in rows:
+                cells = ["" if c not in r else f"{r[c]:.3f}" for c, _ in CROSS_COLUMNS]
+                body.append(
+                    f"| {r['method']} | " + " | ".join(cells)
+                    + f" | {100 * r['ratio']:.1f} % |"
+                )  # fmt: skip
+            parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
+            parts += body
+    except (KeyError, TypeError, ValueError, IndexError, StopIteration) as err:
+        return f"`{path.name}` has a layout this script does not read ({err!r})."
+    return "\n".join(parts)
 
 
 DEVIATIONS = """\
@@ -983,7 +1016,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument(
         "--cross-condition",
         type=Path,
-        default=REPO / "reports" / "cross_condition.md",
+        default=REPO / "reports" / "cross_condition.json",
         help="report of scripts/bench_cross_condition.py to include",
     )
     p.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
