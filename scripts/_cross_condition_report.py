@@ -96,8 +96,16 @@ def _fmt(v):
 
 def markdown(report: dict) -> str:
     lines = header("Recognition under appearance change (split by place)", report)
+    walls = report.get("wall_seconds_by_process")
+    wall = (
+        "Data sets run in parallel processes (the commands above, joined by ';'); "
+        "wall time of each: "
+        + ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
+        if walls
+        else f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
+    )
     lines += [
-        f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min.",
+        wall + ".",
         "",
         "Maps are fitted on one condition of the test places and queried with the "
         "other; every embedding was learned on the training places only (Nordland "
