@@ -274,6 +274,19 @@ def markdown(report: dict) -> str:
             ],
         )
     ]
+    for sl in report["slopes"]:
+        pts = sorted(
+            (r["n"], int(np.prod(r["periods"])))
+            for r in report["rows"]
+            if (r["source"], r["d"], r["r"], r["processes"], r["mode"])
+            == (sl["source"], sl["d"], sl["r"], 1, "memory")
+        )
+        (n0, m0), (n1, m1) = pts[0], pts[-1]
+        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}: the chosen "
+                  f"periods' product M is {m0 / n0:.2f} N at N = {n0:,} and "
+                  f"{m1 / n1:.2f} N at N = {n1:,}; the periods sit further above "
+                  f"N^(1/r) at small N, which flattens the slope over the whole "
+                  "range."]  # fmt: skip
     gaps = [
         100 * (r["accuracy"]["float32"] - r["accuracy"]["float16"])
         for r in report["rows"]
