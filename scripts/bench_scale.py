@@ -218,8 +218,9 @@ def markdown(report: dict) -> str:
     lines += [
         f"Every fit ran under `nice -n 10` beside other jobs (load above): the times"
         f" are pessimistic. Cells were measured between {report['cells_from']} and"
-        f" {report['cells_to']} (load at each cell in the JSON); a rerun reuses"
-        " cells already measured.",
+        f" {report['cells_to']} at a 1-minute load average of {report['load_cells']}"
+        " (each cell's in the JSON); a rerun reuses cells already measured, so the"
+        " command above may only have collected them.",
         "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "periods", "bytes", "B/place",
@@ -299,7 +300,8 @@ def markdown(report: dict) -> str:
     if probe:
         lines += ["", *probe_lines(probe)]
     if report.get("missing"):
-        lines += ["", "Not run (time budget): " + ", ".join(report["missing"])]
+        lines += ["", "Not measured (time budget, or failed as said): "
+                  + ", ".join(report["missing"])]  # fmt: skip
     lines += ["", "Figures: " + ", ".join(report["figures"])]
     return "\n".join(lines)
 
@@ -432,6 +434,10 @@ def main(argv=None) -> None:
             stamps.append(rows[-1]["measured"])
             continue
         name = "{} N={} d={} r={} K={} {}".format(*cell)
+        failed = args.cells / f"{_key(cell)}.failed"
+        if failed.exists():
+            missing.append(f"{name} (failed: {failed.read_text().strip()})")
+            continue
         if time.perf_counter() - t0 > args.budget:
             missing.append(name)
             continue
@@ -440,7 +446,9 @@ def main(argv=None) -> None:
             row = one(cell, x_path, args.cells, args.memory)
         except RuntimeError as err:
             log.warning("%s failed: %s", name, err)
-            missing.append(name + " (failed)")
+            reason = str(err).strip().splitlines()[-1][-300:]
+            failed.write_text(reason)
+            missing.append(f"{name} (failed: {reason})")
             continue
         row.update(measured=time.strftime("%H:%M UTC", time.gmtime()),
                    load=bc.load_average())  # fmt: skip
@@ -466,6 +474,10 @@ def main(argv=None) -> None:
         memory=args.memory,
         cells_from=min(stamps, default="-"),
         cells_to=max(stamps, default="-"),
+        load_cells="{:.1f} - {:.1f}".format(
+            min((r["load"][0] for r in rows), default=0),
+            max((r["load"][0] for r in rows), default=0),
+        ),
         self_rss=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
     )
     report["figures"] = figures(rows, args.out) if rows else []
