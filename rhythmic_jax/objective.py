@@ -10,6 +10,10 @@ with the bias treated as a constant-1 feature regularised like the weights and
 ``C = log N`` by default. :func:`classifier_objective` is ONE classifier;
 :func:`objective` ``jax.vmap``-s it over every template of every candidate period
 (``p`` templates in all), which XLA lowers to one ``(n, d) x (d, p)`` product.
+Both are :func:`margin_objective` (the same classifier written at its margins
+``m = x . w + b``) composed with the linear scores; solvers that keep the margins
+in step with the parameters (Newton-CG) differentiate :func:`margin_objectives`,
+its vmap, directly.
 
 Names: n frames, d features, p templates (sum of the periods), k periods.
 """
@@ -31,6 +35,8 @@ __all__ = [
     "Templates",
     "classifier_objective",
     "default_c",
+    "margin_objective",
+    "margin_objectives",
     "objective",
     "period_errors",
     "phase_predictions",
@@ -93,8 +99,50 @@ def targets(
 
 
 def squared_hinge(score: jax.Array, target: jax.Array) -> jax.Array:
-    """Per-element squared hinge ``max(0, 1 - target * score) ** 2`` (input's shape)."""
-    return jnp.square(jnp.maximum(0.0, 1.0 - target * score))
+    """Per-element squared hinge ``max(0, 1 - target * score) ** 2`` (input's shape).
+
+    Written with ``jax.nn.relu``, whose derivative is 0 at 0, so the second
+    derivative autodiff gives is the generalised Hessian ``2 [1 - target * score > 0]``
+    (target^2 = 1) that Newton's method on the squared hinge uses (Chapelle, 2007),
+    also on the kink itself.
+    """
+    return jnp.square(jax.nn.relu(1.0 - target * score))
+
+
+def margin_objective(
+    theta: jax.Array,
+    m: jax.Array,
+    y: jax.Array,
+    c: float,
+    frame_weight: jax.Array | float = 1.0,
+) -> jax.Array:
+    """ONE template's objective at its margins: ``0.5 ||theta||^2 + C sum_i a_i h(m_i, y_i)``.
+
+    Args:
+      theta: (q,) all parameters, the bias among them (it is regularised like
+        the weights): ``[w; b]``, q = d + 1.
+      m: (n,) margins ``x_i . w + b`` of the frames.
+      y: (n,) ±1 targets; c: the penalty C; frame_weight: scalar or (n,) ``a_i``.
+
+    Returns:
+      () the objective value; :func:`classifier_objective` is this at ``m = x w + b``.
+    """
+    loss = squared_hinge(m, y)
+    return 0.5 * jnp.vdot(theta, theta) + c * jnp.sum(frame_weight * loss)
+
+
+def margin_objectives(
+    theta: jax.Array,
+    m: jax.Array,
+    y: jax.Array,
+    c: float,
+    frame_weight: jax.Array | float = 1.0,
+) -> jax.Array:
+    """:func:`margin_objective` vmapped over templates: theta (q, p), m and y (n, p)
+    -> (p,). The objective Newton-CG differentiates (its gradient and Hessian come
+    from ``jax.grad`` and ``jax.jvp`` of it), margins kept in step with theta."""
+    per_template = jax.vmap(margin_objective, in_axes=(1, 1, 1, None, None))
+    return per_template(theta, m, y, c, frame_weight)
 
 
 def classifier_objective(
@@ -116,8 +164,8 @@ def classifier_objective(
     Returns:
       () the objective value.
     """
-    loss = squared_hinge(x @ w + b, y)
-    return 0.5 * (jnp.vdot(w, w) + b * b) + c * jnp.sum(frame_weight * loss)
+    theta = jnp.concatenate([w, jnp.reshape(b, (1,))])
+    return margin_objective(theta, x @ w + b, y, c, frame_weight)
 
 
 def objective(

@@ -2,19 +2,24 @@
 
 Every template minimises ``f(theta) = 0.5 ||theta||^2 + C sum_i h_i^2`` with
 ``h_i = max(0, 1 - y_i m_i)``, margins ``m = Xa theta`` and ``Xa = [X, 1]`` (the
-bias as a constant-1 feature); theta is (q,), q = d + 1.
+bias as a constant-1 feature); theta is (q,), q = d + 1. That is
+:func:`rhythmic_jax.objective.margin_objectives`, the one vmapped objective at
+the margins, and each step is the optax chain
+:func:`rhythmic_jax.solvers.newton_cg.newton_solver` on it (gradient, Hessian-vector
+products and line search all by autodiff of that objective). This module drives
+the steps: the preconditioner's setup, which templates are still running, the
+stopping rule and the span of wide frames.
 
 - Newton steps (Chapelle, "Training a support vector machine in the primal",
   2007): with the active set ``D = {i : h_i > 0}`` held fixed the objective is
-  quadratic and the step ``s`` solves ``(lam I + Xa^T D Xa) s = -g_lam``, with
-  ``lam = 1 / (2C)`` and ``g_lam = lam theta - Xa^T D (y - m)`` the scaled gradient.
-  The first step, from theta = 0 where every frame is active, is the ridge
-  solution. An exact line search on the piecewise-quadratic objective (float64,
-  Newton's method on its derivative safeguarded by a bracket, a few passes over
-  the margins) follows each step; margins are updated from the products CG
-  already made.
+  quadratic and the step ``s`` solves ``(I + 2C Xa^T D Xa) s = -g``. The first
+  step, from theta = 0 where every frame is active, is the ridge solution. An
+  exact line search on the piecewise-quadratic objective (float64, Newton's
+  method on its derivative safeguarded by a bracket, a few passes over the
+  margins) follows each step; margins are updated from the products CG already
+  made.
 - inexact solves: conjugate gradients in float32 for every template at once,
-  stopping per template at the forcing term ``||r|| <= eta ||g_lam||`` (relative
+  stopping per template at the forcing term ``||r|| <= eta ||g||`` (relative
   to the step's own gradient, so near the optimum CG still works), and at a cap
   on iterations that may grow from step to step (``cg_start``): the first steps
   after the ridge start mostly find the active set, and accurate solves of their
@@ -24,7 +29,7 @@ bias as a constant-1 feature); theta is (q,), q = d + 1.
   is inverted exactly on the first ``block`` directions (a small Cholesky per
   template: the largest eigenvalues, where the active set couples directions
   most) and by its diagonal on the rest; outside it, by a scalar per template.
-- stop: CG gives the Newton decrement ``C (-g . s)``, the gap of the quadratic
+- stop: CG gives the Newton decrement ``-0.5 g . s``, the gap of the quadratic
   model, which estimates ``f - f*`` (exactly once the active set settles; it can
   fall short while frames still leave it, so the fast setting keeps a margin). A
   template whose estimate is below ``gap_tol * f`` takes that last step and
@@ -51,11 +56,13 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 from threadpoolctl import threadpool_limits
 
-from rhythmic_jax.objective import Templates
+from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.precondition import block_preconditioner, spectral_setup
+from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver
+from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
 __all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
@@ -137,100 +144,6 @@ class NewtonInfo:
 # ------------------------------------------------------------------ pieces
 
 
-def _cg(xa, mask, lam, precond, r0, eta, max_iter):
-    """Preconditioned CG from 0 for ``(lam I + Xa^T D Xa) s = r0``, every column.
-
-    Column j stops when ``||r_j|| <= eta ||r0_j||``. Returns the step ``s``
-    (q, p), its margins ``Xa s`` (n, p) (accumulated from the products, no extra
-    product) and the number of iterations.
-    """
-    target = eta * jnp.linalg.norm(r0, axis=0, keepdims=True)
-    z = precond(r0)
-    rz = jnp.sum(r0 * z, axis=0, keepdims=True)
-    zero_s = jnp.zeros_like(r0)
-    zero_u = jnp.zeros((xa.shape[0], r0.shape[1]), r0.dtype)
-
-    def live(r):
-        return jnp.linalg.norm(r, axis=0, keepdims=True) > target
-
-    def cond(state):
-        *_, r, _, _, it = state
-        return jnp.logical_and(it < max_iter, jnp.any(live(r)))
-
-    def body(state):
-        s, u, r, d, rz, it = state
-        on = live(r)
-        xd = xa @ d
-        ad = xa.T @ (mask * xd) + lam * d
-        dad = jnp.sum(d * ad, axis=0, keepdims=True)
-        step = jnp.where(on, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
-        s, u, r = s + step * d, u + step * xd, r - step * ad
-        z = precond(r)
-        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
-        beta = rz_new / jnp.where(rz > 0, rz, 1.0)
-        d = jnp.where(on, z + beta * d, d)
-        return s, u, r, d, jnp.where(on, rz_new, rz), it + 1
-
-    s, u, *_, it = jax.lax.while_loop(
-        cond, body, (zero_s, zero_u, r0, z, rz, jnp.int32(0))
-    )
-    return s, u, it
-
-
-def _line_search(m, u, y, a, b, cc, c, iters: int = 30):
-    """Exact minimiser over t >= 0 of the objective along a step, per template.
-
-    ``phi(t) = 0.5 (a + 2 t b + t^2 cc) + C sum_i max(0, 1 - y_i (m_i + t u_i))^2``
-    is convex and piecewise quadratic, so ``phi'`` is continuous, piecewise linear
-    and nondecreasing. From t = 1 (the Newton step) each iteration takes Newton's
-    step on the current piece of ``phi'`` when it stays inside the bracket of
-    the root found so far, else the secant of the bracket (Newton alone can cycle
-    between two pieces); on the root's piece either lands on it exactly. Arrays:
-    m, u, y (n, p); a, b, cc (1, p). Returns t (1, p), phi(t) (p,).
-    """
-    yu = y * u
-    slack0 = 1.0 - y * m
-
-    def phi(t):
-        h = jnp.maximum(0.0, slack0 - t * yu)
-        quad = 0.5 * (a + 2 * t * b + t * t * cc)
-        return quad + c * jnp.sum(h * h, axis=0, keepdims=True)
-
-    def slope(t):
-        """phi'(t) and the slope of phi' on the piece right of t."""
-        slack = slack0 - t * yu
-        act = slack > 0
-        g = jnp.sum(jnp.where(act, yu * slack, 0.0), axis=0, keepdims=True)
-        h = jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0, keepdims=True)
-        return b + t * cc - 2 * c * g, cc + 2 * c * h
-
-    def body(state):
-        t, lo, glo, hi, ghi, done, it = state
-        g, h = slope(t)
-        left = g < 0
-        lo, glo = jnp.where(left, t, lo), jnp.where(left, g, glo)
-        hi, ghi = jnp.where(left, hi, t), jnp.where(left, ghi, g)
-        newton = t - g / jnp.maximum(h, 1e-300)
-        inside = (newton > lo) & (newton < hi)
-        secant = lo - glo * (hi - lo) / jnp.where(ghi > glo, ghi - glo, 1.0)
-        new = jnp.where(inside | jnp.isinf(hi), newton, secant)
-        narrow = jnp.isfinite(hi) & (hi - lo <= 1e-12 * hi)
-        stop = done | (g == 0) | (new == t) | narrow
-        return jnp.where(stop, t, new), lo, glo, hi, ghi, stop, it + 1
-
-    def cond(state):
-        *_, done, it = state
-        return jnp.logical_and(it < iters, ~jnp.all(done))
-
-    zero = jnp.zeros_like(a)
-    g0, _ = slope(zero)
-    state = (jnp.ones_like(a), zero, g0, jnp.full_like(a, jnp.inf), zero, g0 >= 0, 0)
-    t, *_ = jax.lax.while_loop(cond, body, state)
-    t = jnp.where(g0 < 0, t, 0.0)
-    t = jnp.where(phi(t) <= phi(zero), t, 0.0)
-    return t, phi(t)[0]
-
-
 REFRESH_AFTER = 20  # CG iterations after which a step's margins are recomputed
 
 
@@ -253,48 +166,54 @@ def _zeros_like(y: jax.Array) -> jax.Array:
     return y - y
 
 
-@jax.jit
-def _objective(m: jax.Array, theta: jax.Array, y: jax.Array, c) -> jax.Array:
-    """(p,) objective of every template from its margins m (n, p)."""
-    h = jnp.maximum(0.0, 1.0 - y * m)
-    return 0.5 * jnp.sum(theta * theta, axis=0) + c * jnp.sum(h * h, axis=0)
+def _take(tree, cols):
+    """Columns ``cols`` (templates, the last axis) of every array of a tree;
+    scalars are shared."""
+    if cols is None:
+        return tree
+    return jax.tree.map(lambda a: a[..., cols] if a.ndim else a, tree)
 
 
-@partial(jax.jit, static_argnames=("block",))
-def _newton_step(xa, vecs, lead, rest, cols, theta, m, y, c, eta, block, max_cg):
-    """One Newton step of the templates ``cols`` (b,) of theta (q, p), m (n, p);
-    ``cols=None``: all p (no gather).
+def _put(tree, part, cols):
+    """``tree`` with its columns ``cols`` replaced by ``part`` (see :func:`_take`)."""
+    if cols is None:
+        return part
+    return jax.tree.map(
+        lambda a, b: a.at[..., cols].set(b) if a.ndim else b, tree, part
+    )
 
-    Returns the updated ``theta`` and ``m`` (other columns unchanged), and for the
-    gathered columns the objective before and after (b,), the Newton decrement
-    (b,) and the CG iterations (at most ``max_cg``, traced: no recompilation).
+
+@partial(jax.jit, static_argnames=("eta", "block"))
+def _newton_step(xa, spectral, cols, params, opt_state, y, c, eta, block, max_cg):
+    """One Newton step of the templates ``cols`` (b,) of ``params`` (an
+    :class:`~rhythmic_jax.solvers.newton_cg.Iterate`: theta (q, p), margins
+    (n, p)); ``cols=None``: all p (no gather). The step is
+    :func:`~rhythmic_jax.solvers.newton_cg.newton_solver` (optax) on
+    :func:`~rhythmic_jax.objective.margin_objectives`.
+
+    Returns the updated iterate and optimiser state (other columns unchanged),
+    and for the gathered columns the objective before and after (b,), the Newton
+    decrement (b,) and the CG iterations (at most ``max_cg``, traced: no
+    recompilation).
     """
-    if cols is None:
-        tb, mb, yb = theta, m, y
-    else:
-        tb, mb, yb = theta[:, cols], m[:, cols], y[:, cols]
-    lam = 0.5 / c
-    lam32 = lam.astype(jnp.float32)
-    h = jnp.maximum(0.0, 1.0 - yb * mb)
-    mask = (h > 0).astype(jnp.float32)
-    f0 = _objective(mb, tb, yb, c)
-    # float64 sums: the optimum the gradient defines does not move with the
-    # order of the sum (rows split over processes), as float32's did by ~1e-6
-    grad = lam * tb - xa.T.astype(tb.dtype) @ (yb * h)
-    precond = block_preconditioner(vecs, lead, rest, mask, lam32, block)
-    s, u, it = _cg(xa, mask, lam32, precond, -grad.astype(jnp.float32), eta, max_cg)
-    s, u = s.astype(tb.dtype), u.astype(mb.dtype)
-    decrement = c * jnp.sum(-grad * s, axis=0)
-    a = jnp.sum(tb * tb, axis=0, keepdims=True)
-    b = jnp.sum(tb * s, axis=0, keepdims=True)
-    cc = jnp.sum(s * s, axis=0, keepdims=True)
-    t, f1 = _line_search(mb, u, yb, a, b, cc, c)
-    if cols is None:
-        theta, m = tb + t * s, mb + t * u
-    else:
-        theta = theta.at[:, cols].set(tb + t * s)
-        m = m.at[:, cols].set(mb + t * u)
-    return theta, m, f0, f1, decrement, it
+    optimizer = newton_solver(eta=eta, block=block)
+    part, state, yb = _take(params, cols), _take(opt_state, cols), _take(y, cols)
+
+    def value_fn(it: Iterate) -> jax.Array:
+        return margin_objectives(it.theta, it.margins, yb, c)
+
+    grad = jax.grad(lambda it: jnp.sum(value_fn(it)))(part)
+    updates, state = optimizer.update(
+        grad, state, part, value_fn=value_fn, design=xa, spectral=spectral,
+        max_cg=max_cg,
+    )  # fmt: skip
+    part = optax.apply_updates(part, updates)
+    cg_state, search = state
+    params, opt_state = _put(params, part, cols), _put(opt_state, state, cols)
+    return (
+        params, opt_state, search.value, search.new_value,
+        cg_state.decrement, cg_state.cg_iterations,
+    )  # fmt: skip
 
 
 def _cg_cap(config: NewtonConfig, step: int) -> int:
@@ -374,8 +293,8 @@ def newton_fit(
         p = y64.shape[1]
         c64 = jnp.float64(c)
         offset = float(c) * pad
-        theta = jnp.zeros((d + 1, p), jnp.float64)
-        m = _zeros_like(y64)
+        params = Iterate(jnp.zeros((d + 1, p), jnp.float64), _zeros_like(y64))
+        opt_state = newton_solver(config.eta, config.max_cg, config.block).init(params)
         objective = np.full(p, np.nan)
         gap = np.full(p, np.inf)
         todo = np.arange(p)
@@ -387,14 +306,15 @@ def newton_fit(
             cols = todo if config.compact else np.arange(p)
             cols = np.concatenate([cols, np.full(width - len(cols), cols[0])])
             cap = _cg_cap(config, step)
-            theta, m, f0, f1, dec, it = _newton_step(
-                xa, vecs, lead, rest, None if len(todo) == p else cols,
-                theta, m, y64, c64, config.eta, config.block, jnp.int32(cap),
+            params, opt_state, f0, f1, dec, it = _newton_step(
+                xa, (vecs, lead, rest), None if len(todo) == p else cols,
+                params, opt_state, y64, c64, config.eta, config.block,
+                jnp.int32(cap),
             )  # fmt: skip
             cg_its.append(int(it))
             widths.append(width)
             if int(it) > REFRESH_AFTER:  # CG's float32 margin updates drift
-                m = _margins(xa, theta)
+                params = params._replace(margins=_margins(xa, params.theta))
             f0, f1, dec = (np.asarray(v) for v in (f0, f1, dec))
             f0, f1 = f0 - offset, f1 - offset
             # padding repeats a column: take each column's values once (all equal)
@@ -410,8 +330,9 @@ def newton_fit(
             if len(todo) == 0 or (not config.compact and np.all(gap <= config.gap_tol)):
                 break
         bar.close()
-        objective = np.asarray(_objective(_margins(xa, theta), theta, y64, c64))
-        objective = objective - offset
+        theta = params.theta
+        final = margin_objectives(theta, _margins(xa, theta), y64, c64)
+        objective = np.asarray(final) - offset
         theta = theta.astype(jnp.float32)
         info = NewtonInfo(
             steps=len(cg_its),

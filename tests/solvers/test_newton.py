@@ -17,9 +17,9 @@ from rhythmic_jax.solvers.newton import (
     FAST,
     NewtonConfig,
     _cg_cap,
-    _line_search,
     newton_fit,
 )
+from rhythmic_jax.solvers.newton_cg import Iterate, scale_by_exact_linesearch
 
 
 def liblinear_objective(w, b, x, y, c):
@@ -109,9 +109,17 @@ def test_line_search_finds_the_minimum_along_the_step():
         h = np.maximum(0.0, 1.0 - y * (m + t * u))
         return 0.5 * (a + 2 * t * b + t * t * cc)[:, 0] + c * np.sum(h * h, axis=1)
 
+    def value_fn(it):  # theta (1, p) is the step length along the line
+        h = jnp.maximum(0.0, 1.0 - y * it.margins)
+        t = it.theta
+        return 0.5 * (a + 2 * t * b + t * t * cc)[0] + c * jnp.sum(h * h, axis=0)
+
     with jax.enable_x64(True):
-        t, f = _line_search(*(jnp.asarray(v) for v in (m, u, y, a, b, cc)), c)
-        t, f = np.asarray(t), np.asarray(f)
+        search = scale_by_exact_linesearch()
+        start = Iterate(jnp.zeros((1, p)), jnp.asarray(m))
+        step = Iterate(jnp.ones((1, p)), jnp.asarray(u))
+        _, state = search.update(step, search.init(start), start, value_fn=value_fn)
+        t, f = np.asarray(state.step_size), np.asarray(state.new_value)
     grid = phi(np.linspace(0.0, 3.0, 30001)[:, None, None])
     np.testing.assert_allclose(f, phi(t[None])[0], rtol=1e-12)
     assert np.all(f <= grid.min(axis=0) + 1e-9 * np.abs(grid.min(axis=0)))

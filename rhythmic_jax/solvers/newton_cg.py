@@ -1,0 +1,266 @@
+"""Newton-CG as optax transformations over the one objective.
+
+The iterate is :class:`Iterate`: every template's parameters ``theta`` (q, p) with
+their margins ``m = Xa theta`` (n, p) kept in step (the design ``Xa = [X, 1]``,
+q = d + 1). The objective is passed as optax's ``value_fn``: a function of the
+iterate, :func:`rhythmic_jax.objective.margin_objectives` (one value per template;
+their sum is minimised; a scalar works too). Everything the solver needs of it
+comes from autodiff:
+
+- the gradient: ``jax.grad`` of ``value_fn`` gives ``(d/dtheta, d/dm)``; the
+  chain rule through ``m = Xa theta`` makes it ``g = d/dtheta + Xa^T d/dm``;
+- Hessian-vector products: ``jax.linearize`` of that gradient, applied to
+  ``(v, Xa v)`` and pulled back by ``Xa^T`` (the squared hinge's second
+  derivative is its generalised Hessian, ``rhythmic_jax.objective.squared_hinge``);
+- the line search: ``jax.jvp`` of ``value_fn`` along the step.
+
+:func:`newton_cg` turns the gradient into the Newton step by preconditioned
+conjugate gradients (Chapelle, "Training a support vector machine in the primal",
+2007), stopping per template at ``||r|| <= eta ||g||``, and returns the step with
+its margins (``Xa s``, accumulated from CG's own products). It is chained with
+:func:`scale_by_exact_linesearch`, the exact minimiser along the step of every
+template separately (the objective is piecewise quadratic along a line). optax's
+``scale_by_zoom_linesearch`` takes one step size for the whole tree, i.e. one for
+every template, and also chains after :func:`newton_cg` (tested); the exact
+per-template search takes fewer Newton steps and is the default.
+
+Names: n frames, q = d + 1 parameters, p templates.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from rhythmic_jax.solvers.precondition import block_preconditioner
+
+__all__ = [
+    "ExactLinesearchState",
+    "Iterate",
+    "NewtonCGState",
+    "newton_cg",
+    "newton_solver",
+    "scale_by_exact_linesearch",
+]
+
+
+class Iterate(NamedTuple):
+    """Parameters ``theta`` (q, p), bias last, and their margins ``Xa theta`` (n, p)."""
+
+    theta: jax.Array
+    margins: jax.Array
+
+
+class NewtonCGState(NamedTuple):
+    """Steps taken, each template's last Newton decrement (p,) (the model's
+    predicted decrease ``-0.5 g . s``, an estimate of ``f - f*``) and the CG
+    iterations of the last step."""
+
+    count: jax.Array
+    decrement: jax.Array
+    cg_iterations: jax.Array
+
+
+class ExactLinesearchState(NamedTuple):
+    """The last step size of every template (1, p) and the objective before and
+    after it (p,)."""
+
+    step_size: jax.Array
+    value: jax.Array
+    new_value: jax.Array
+
+
+def _total(value_fn):
+    return lambda params: jnp.sum(value_fn(params))
+
+
+def _cg(hvp, precond, r0, eta, max_iter):
+    """Preconditioned CG from 0 for ``H s = r0``, every column (template) at once.
+
+    ``hvp`` maps (q, p) to ``(H v, Xa v)``. Column j stops when
+    ``||r_j|| <= eta ||r0_j||``. Returns the step ``s`` (q, p), its margins
+    ``Xa s`` (n, p) (accumulated from the products, no extra product) and the
+    number of iterations.
+    """
+    target = eta * jnp.linalg.norm(r0, axis=0, keepdims=True)
+    z = precond(r0)
+    rz = jnp.sum(r0 * z, axis=0, keepdims=True)
+    _, xz = jax.eval_shape(hvp, r0)
+    zero_u = jnp.zeros(xz.shape, xz.dtype)
+
+    def live(r):
+        return jnp.linalg.norm(r, axis=0, keepdims=True) > target
+
+    def cond(state):
+        *_, r, _, _, it = state
+        return jnp.logical_and(it < max_iter, jnp.any(live(r)))
+
+    def body(state):
+        s, u, r, d, rz, it = state
+        on = live(r)
+        ad, xd = hvp(d)
+        dad = jnp.sum(d * ad, axis=0, keepdims=True)
+        step = jnp.where(on, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
+        s, u, r = s + step * d, u + step * xd, r - step * ad
+        z = precond(r)
+        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
+        beta = rz_new / jnp.where(rz > 0, rz, 1.0)
+        d = jnp.where(on, z + beta * d, d)
+        return s, u, r, d, jnp.where(on, rz_new, rz), it + 1
+
+    init = (jnp.zeros_like(r0), zero_u, r0, z, rz, jnp.int32(0))
+    s, u, *_, it = jax.lax.while_loop(cond, body, init)
+    return s, u, it
+
+
+def newton_cg(
+    eta: float = 0.1, max_cg: int = 200, block: int = 32
+) -> optax.GradientTransformationExtraArgs:
+    """The Newton step of every template, by preconditioned CG.
+
+    ``update(grad, state, params, *, value_fn, design, spectral, max_cg=None)``:
+    ``grad`` is ``jax.grad`` of ``value_fn`` at ``params`` (an :class:`Iterate`),
+    ``design`` the (n, q) float32 ``Xa``, ``spectral`` the preconditioner's
+    ``(vecs, lead, rest)`` (:func:`rhythmic_jax.solvers.precondition.spectral_setup`)
+    and ``max_cg`` (traced) caps CG for this step. Returns the step as an
+    :class:`Iterate` ``(s, Xa s)`` and the new :class:`NewtonCGState`.
+
+    Args:
+      eta: CG forcing term (relative residual at which a template stops).
+      max_cg: default cap on CG iterations.
+      block: leading eigen-directions the preconditioner inverts exactly.
+    """
+
+    def init_fn(params: Iterate) -> NewtonCGState:
+        p = params.theta.shape[-1]
+        return NewtonCGState(
+            count=jnp.zeros([], jnp.int32),
+            decrement=jnp.full((p,), jnp.inf, params.theta.dtype),
+            cg_iterations=jnp.zeros([], jnp.int32),
+        )
+
+    def update_fn(
+        updates: Iterate,
+        state: NewtonCGState,
+        params: Iterate,
+        *,
+        value_fn,
+        design: jax.Array,
+        spectral: tuple[jax.Array, jax.Array, jax.Array],
+        max_cg: Any = max_cg,
+        **extra_args,
+    ) -> tuple[Iterate, NewtonCGState]:
+        del extra_args
+        xa, dtype = design, params.theta.dtype
+        f32 = xa.dtype
+        grad = updates.theta + (xa.T @ updates.margins.astype(f32)).astype(dtype)
+        _, hessian = jax.linearize(jax.grad(_total(value_fn)), params)
+        # The Hessian is block-diagonal in (theta, m) (a regulariser in theta, a
+        # per-frame loss in m): applied to ones it gives both diagonals.
+        curv = hessian(jax.tree.map(jnp.ones_like, params))
+        weight = curv.margins.astype(f32)
+        lam = jnp.mean(curv.theta).astype(f32)
+
+        def hvp(v):
+            xv = xa @ v
+            h = hessian(Iterate(v.astype(dtype), xv.astype(dtype)))
+            return h.theta.astype(f32) + xa.T @ h.margins.astype(f32), xv
+
+        precond = block_preconditioner(*spectral, weight, lam, block)
+        s, u, it = _cg(hvp, precond, -grad.astype(f32), eta, max_cg)
+        s, u = s.astype(dtype), u.astype(dtype)
+        decrement = 0.5 * jnp.sum(-grad * s, axis=0)
+        new_state = NewtonCGState(state.count + 1, decrement, it)
+        return Iterate(s, u), new_state
+
+    return optax.GradientTransformationExtraArgs(init_fn, update_fn)
+
+
+def _bracketed_root(slope, t0, iters: int):
+    """Root over t >= 0 of a continuous, piecewise-linear, nondecreasing ``phi'``.
+
+    ``slope(t)`` returns ``phi'(t)`` and ``phi''(t)`` (1, p). From ``t0`` each
+    iteration takes Newton's step on the current piece when it stays inside the
+    bracket found so far, else the bracket's secant (Newton alone can cycle
+    between two pieces); on the root's piece either lands on it exactly.
+    Returns t (1, p) and ``phi'(0)``.
+    """
+
+    def body(state):
+        t, lo, glo, hi, ghi, done, it = state
+        g, h = slope(t)
+        left = g < 0
+        lo, glo = jnp.where(left, t, lo), jnp.where(left, g, glo)
+        hi, ghi = jnp.where(left, hi, t), jnp.where(left, ghi, g)
+        newton = t - g / jnp.maximum(h, 1e-300)
+        inside = (newton > lo) & (newton < hi)
+        secant = lo - glo * (hi - lo) / jnp.where(ghi > glo, ghi - glo, 1.0)
+        new = jnp.where(inside | jnp.isinf(hi), newton, secant)
+        narrow = jnp.isfinite(hi) & (hi - lo <= 1e-12 * hi)
+        stop = done | (g == 0) | (new == t) | narrow
+        return jnp.where(stop, t, new), lo, glo, hi, ghi, stop, it + 1
+
+    def cond(state):
+        *_, done, it = state
+        return jnp.logical_and(it < iters, ~jnp.all(done))
+
+    zero = jnp.zeros_like(t0)
+    g0, _ = slope(zero)
+    state = (t0, zero, g0, jnp.full_like(t0, jnp.inf), zero, g0 >= 0, 0)
+    t, *_ = jax.lax.while_loop(cond, body, state)
+    return jnp.where(g0 < 0, t, 0.0), g0
+
+
+def scale_by_exact_linesearch(
+    max_iterations: int = 30,
+) -> optax.GradientTransformationExtraArgs:
+    """Scale every template's step by its exact minimiser along the step.
+
+    ``update(updates, state, params, *, value_fn)``: ``value_fn(params)`` gives
+    one objective per template (p,), each depending on its own column only.
+    ``phi_j(t) = value_fn(params + t updates)_j`` is convex and piecewise
+    quadratic for the squared hinge; its derivatives come from ``jax.jvp``
+    along the step. The minimiser is found by :func:`_bracketed_root` from
+    t = 1 (the Newton step); a step that does not decrease ``phi`` becomes 0.
+    """
+
+    def init_fn(params: Iterate) -> ExactLinesearchState:
+        p = params.theta.shape[-1]
+        zero = jnp.zeros((p,), params.theta.dtype)
+        return ExactLinesearchState(jnp.ones((1, p), params.theta.dtype), zero, zero)
+
+    def update_fn(updates, state, params, *, value_fn, **extra_args):
+        del state, extra_args
+        p = params.theta.shape[-1]
+
+        def phi(t):  # (1, p) -> (p,)
+            return value_fn(jax.tree.map(lambda a, s: a + t * s, params, updates))
+
+        def dphi(t):
+            return jax.jvp(phi, (t,), (jnp.ones_like(t),))[1]
+
+        def slope(t):
+            g, h = jax.jvp(dphi, (t,), (jnp.ones_like(t),))
+            return g[None, :], h[None, :]
+
+        t0 = jnp.ones((1, p), params.theta.dtype)
+        t, _ = _bracketed_root(slope, t0, max_iterations)
+        f0, f1 = phi(jnp.zeros_like(t)), phi(t)
+        worse = (f1 > f0)[None, :]
+        t = jnp.where(worse, 0.0, t)
+        f1 = jnp.where(worse[0], f0, f1)
+        scaled = jax.tree.map(lambda s: t * s, updates)
+        return scaled, ExactLinesearchState(t, f0, f1)
+
+    return optax.GradientTransformationExtraArgs(init_fn, update_fn)
+
+
+def newton_solver(
+    eta: float = 0.1, max_cg: int = 200, block: int = 32
+) -> optax.GradientTransformationExtraArgs:
+    """``optax.chain(newton_cg(...), scale_by_exact_linesearch())``: a full
+    Newton step; its state is ``(NewtonCGState, ExactLinesearchState)``."""
+    return optax.chain(newton_cg(eta, max_cg, block), scale_by_exact_linesearch())
