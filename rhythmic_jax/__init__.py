@@ -92,6 +92,11 @@ _EXPORTS = {
     "fit_bytes": "rhythmic_jax.solvers.memory",
     "newton_fit": "rhythmic_jax.solvers.newton",
     "NewtonConfig": "rhythmic_jax.solvers.newton",
+    "newton_solver": "rhythmic_jax.solvers.newton_cg",
+    "LBFGS": "rhythmic_jax.solvers.protocol",
+    "Minibatch": "rhythmic_jax.solvers.protocol",
+    "Newton": "rhythmic_jax.solvers.protocol",
+    "Solution": "rhythmic_jax.solvers.protocol",
     "fit_full_batch": "rhythmic_jax.solvers.optax_loops",
     "minibatch_step": "rhythmic_jax.solvers.optax_loops",
     "ridge_start": "rhythmic_jax.solvers.optax_loops",
@@ -213,10 +218,15 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     from rhythmic_jax.solvers.memory import fit_bytes as fit_bytes
     from rhythmic_jax.solvers.newton import NewtonConfig as NewtonConfig
     from rhythmic_jax.solvers.newton import newton_fit as newton_fit
+    from rhythmic_jax.solvers.newton_cg import newton_solver as newton_solver
     from rhythmic_jax.solvers.optax_loops import TrainState as TrainState
     from rhythmic_jax.solvers.optax_loops import fit_full_batch as fit_full_batch
     from rhythmic_jax.solvers.optax_loops import minibatch_step as minibatch_step
     from rhythmic_jax.solvers.optax_loops import ridge_start as ridge_start
+    from rhythmic_jax.solvers.protocol import LBFGS as LBFGS
+    from rhythmic_jax.solvers.protocol import Minibatch as Minibatch
+    from rhythmic_jax.solvers.protocol import Newton as Newton
+    from rhythmic_jax.solvers.protocol import Solution as Solution
     from rhythmic_jax.solvers.resumable import RunConfig as RunConfig
     from rhythmic_jax.solvers.resumable import memmap_batches as memmap_batches
     from rhythmic_jax.solvers.resumable import train_run as train_run

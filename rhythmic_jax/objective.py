@@ -116,7 +116,8 @@ def margin_objective(
     c: float,
     frame_weight: jax.Array | float = 1.0,
 ) -> jax.Array:
-    """ONE template's objective at its margins: ``0.5 ||theta||^2 + C sum_i a_i h(m_i, y_i)``.
+    """ONE template's objective at its margins m: ``0.5 ||theta||^2 + C sum_i a_i h_i``,
+    ``h_i = max(0, 1 - y_i m_i)^2``.
 
     Args:
       theta: (q,) all parameters, the bias among them (it is regularised like

@@ -64,8 +64,7 @@ from rhythmic_jax.periods import (
 )
 from rhythmic_jax.quantize import DTYPES, dequantize, quantize, template_bytes
 from rhythmic_jax.solvers.memory import check_memory
-from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
-from rhythmic_jax.solvers.optax_loops import fit_full_batch
+from rhythmic_jax.solvers.protocol import solver_for
 from rhythmic_jax.validate import (
     check_features,
     check_int,
@@ -237,12 +236,8 @@ class RhythmicMap:
         y = targets(labels, cands)
         log.info("fitting %d templates (%s) on %d x %d, C=%.3g", sum(cands), cands,
                  *x.shape, c)  # fmt: skip
-        if self.config.solver == "newton":
-            params, _ = newton_fit(
-                x, y, c, NewtonConfig(gap_tol=self.config.gap), progress=progress
-            )
-        else:
-            params, _ = fit_full_batch(x, y, c, progress=progress)
+        solver = solver_for(self.config.solver, self.config.gap, progress)
+        params, _ = solver.run(None, x, y, c)
         if refine is not None:
             params = refine(params, cands, c)
         if not all(bool(jnp.isfinite(v).all()) for v in params):
@@ -296,12 +291,8 @@ class RhythmicMap:
         c = cfg.c if cfg.c is not None else default_c(n)
         y = targets(labels, groups)
         log.info("fitting %s on %d x %d, C=%.3g", groups.describe(), *x.shape, c)
-        if cfg.solver == "newton":
-            params, _ = newton_fit(
-                x, y, c, NewtonConfig(gap_tol=cfg.gap), progress=progress
-            )
-        else:
-            params, _ = fit_full_batch(x, y, c, progress=progress)
+        solver = solver_for(self.config.solver, self.config.gap, progress)
+        params, _ = solver.run(None, x, y, c)
         if refine is not None:
             params = refine(params, groups, c)
         errors = np.asarray(

@@ -27,7 +27,7 @@ LAYERS = [
     ["groups"],
     ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline",
      "eval.ground_truth", "embedding"],
-    ["io.ground_truth_files", "closed_form"],
+    ["io.ground_truth_files", "closed_form", "solvers.newton_cg"],
     [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
         "features", "solvers.streamed", "learn",
@@ -36,7 +36,7 @@ LAYERS = [
         "solvers.resumable", "decoding.soft", "solvers.distributed",
         "io.describe_shards", "decoding.small",
     ],
-    ["decoding.group_decode"],
+    ["decoding.group_decode", "solvers.protocol"],
     ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
     ["decoding.fusion"],
     [

@@ -57,6 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import scipy.linalg
 from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.objective import Templates, margin_objectives
@@ -244,6 +245,7 @@ def newton_fit(
     progress: bool = False,
     *,
     bias: jax.Array | None = None,
+    init: Templates | None = None,
 ) -> tuple[Templates, NewtonInfo]:
     """Minimise the joint squared-hinge objective of p templates.
 
@@ -259,6 +261,8 @@ def newton_fit(
         padding row (zero features) that evens out the shards. A padding row
         adds nothing to any product and exactly C to every template's
         objective, which is taken off. Default: all ones.
+      init: starting templates, w (d, p) and b (p,) (a warm start); default
+        zero, from which the first step is the ridge solution.
 
     Returns:
       Templates with ``w`` (d, p) and ``b`` (p,) as float32, and a
@@ -269,8 +273,12 @@ def newton_fit(
     if config.span and in_span(n, d) and local and bias is None:
         factor = row_factor(np.asarray(x))
         reduced = dataclasses.replace(config, span=False)
+        if init is not None:  # the same margins in the span: L beta = X w
+            margins = np.asarray(x, np.float64) @ np.asarray(init.w, np.float64)
+            beta = scipy.linalg.solve_triangular(factor, margins, lower=True)
+            init = Templates(jnp.asarray(beta, jnp.float32), init.b)
         params, info = newton_fit(
-            factor.astype(np.float32), y, c, reduced, progress=progress
+            factor.astype(np.float32), y, c, reduced, progress=progress, init=init
         )
         w = lift(np.asarray(x), factor, np.asarray(params.w))
         return Templates(w=jnp.asarray(w, jnp.float32), b=params.b), info
@@ -293,7 +301,13 @@ def newton_fit(
         p = y64.shape[1]
         c64 = jnp.float64(c)
         offset = float(c) * pad
-        params = Iterate(jnp.zeros((d + 1, p), jnp.float64), _zeros_like(y64))
+        if init is None:
+            params = Iterate(jnp.zeros((d + 1, p), jnp.float64), _zeros_like(y64))
+        else:
+            theta = jnp.concatenate(
+                [jnp.asarray(init.w), jnp.reshape(jnp.asarray(init.b), (1, -1))]
+            ).astype(jnp.float64)
+            params = Iterate(theta, _margins(xa, theta))
         opt_state = newton_solver(config.eta, config.max_cg, config.block).init(params)
         objective = np.full(p, np.nan)
         gap = np.full(p, np.inf)

@@ -39,6 +39,7 @@ from rhythmic_jax.solvers.precondition import block_preconditioner
 
 __all__ = [
     "ExactLinesearchState",
+    "derivatives",
     "Iterate",
     "NewtonCGState",
     "newton_cg",
@@ -154,21 +155,8 @@ def newton_cg(
         **extra_args,
     ) -> tuple[Iterate, NewtonCGState]:
         del extra_args
-        xa, dtype = design, params.theta.dtype
-        f32 = xa.dtype
-        grad = updates.theta + (xa.T @ updates.margins.astype(f32)).astype(dtype)
-        _, hessian = jax.linearize(jax.grad(_total(value_fn)), params)
-        # The Hessian is block-diagonal in (theta, m) (a regulariser in theta, a
-        # per-frame loss in m): applied to ones it gives both diagonals.
-        curv = hessian(jax.tree.map(jnp.ones_like, params))
-        weight = curv.margins.astype(f32)
-        lam = jnp.mean(curv.theta).astype(f32)
-
-        def hvp(v):
-            xv = xa @ v
-            h = hessian(Iterate(v.astype(dtype), xv.astype(dtype)))
-            return h.theta.astype(f32) + xa.T @ h.margins.astype(f32), xv
-
+        f32, dtype = design.dtype, params.theta.dtype
+        grad, hvp, weight, lam = derivatives(value_fn, updates, params, design)
         precond = block_preconditioner(*spectral, weight, lam, block)
         s, u, it = _cg(hvp, precond, -grad.astype(f32), eta, max_cg)
         s, u = s.astype(dtype), u.astype(dtype)
@@ -177,6 +165,39 @@ def newton_cg(
         return Iterate(s, u), new_state
 
     return optax.GradientTransformationExtraArgs(init_fn, update_fn)
+
+
+def derivatives(value_fn, grad: Iterate, params: Iterate, design: jax.Array):
+    """What Newton-CG needs of the objective, by autodiff, at ``params``.
+
+    Args:
+      value_fn: the objective of an :class:`Iterate` (summed if it gives one
+        value per template).
+      grad: ``jax.grad`` of it at ``params``: ``(d/dtheta, d/dm)``.
+      params: the iterate, theta (q, p) and margins (n, p) (float64 or 32).
+      design: ``Xa`` (n, q), the product's dtype (float32).
+
+    Returns:
+      ``g`` (q, p): the gradient in theta, ``d/dtheta + Xa^T d/dm`` (the chain
+      rule through ``m = Xa theta``); ``hvp``: (q, p) -> ``(H v, Xa v)`` in the
+      design's dtype, H the (generalised) Hessian in theta; the Hessian's
+      diagonal in the margins (n, p) and its (mean) curvature in theta (), which
+      the preconditioner takes.
+    """
+    xa, dtype = design, params.theta.dtype
+    f32 = xa.dtype
+    g = grad.theta + (xa.T @ grad.margins.astype(f32)).astype(dtype)
+    _, hessian = jax.linearize(jax.grad(_total(value_fn)), params)
+    # The Hessian is block-diagonal in (theta, m) (a regulariser in theta, a
+    # per-frame loss in m): applied to ones it gives both diagonals.
+    curv = hessian(jax.tree.map(jnp.ones_like, params))
+
+    def hvp(v):
+        xv = xa @ v
+        h = hessian(Iterate(v.astype(dtype), xv.astype(dtype)))
+        return h.theta.astype(f32) + xa.T @ h.margins.astype(f32), xv
+
+    return g, hvp, curv.margins.astype(f32), jnp.mean(curv.theta).astype(f32)
 
 
 def _bracketed_root(slope, t0, iters: int):
