@@ -186,7 +186,10 @@ def derivatives(value_fn, grad: Iterate, params: Iterate, design: jax.Array):
     """
     xa, dtype = design, params.theta.dtype
     f32 = xa.dtype
-    g = grad.theta + (xa.T @ grad.margins.astype(f32)).astype(dtype)
+    # float64 sums over frames (in the iterate's dtype): the optimum the gradient
+    # defines does not move with the order of the sum (rows split over
+    # processes), as float32's did by ~1e-6
+    g = grad.theta + xa.T.astype(dtype) @ grad.margins
     _, hessian = jax.linearize(jax.grad(_total(value_fn)), params)
     # The Hessian is block-diagonal in (theta, m) (a regulariser in theta, a
     # per-frame loss in m): applied to ones it gives both diagonals.
