@@ -1,4 +1,6 @@
-"""Solvers of the one objective: Newton-CG (exact, with its preconditioner and the
-span of the frames for wide descriptors), optax loops (full-batch L-BFGS,
-minibatch Adam), resumable runs over batches streamed from disk, the memory
-guard, and sharding over frames and templates."""
+"""Solvers of the one objective, all answering ``run(init_params, *args)``
+(:mod:`~rhythmic_jax.solvers.protocol`): Newton-CG as optax transformations
+(:mod:`~rhythmic_jax.solvers.newton_cg`; driven with its preconditioner and the
+span of the frames for wide descriptors by :mod:`~rhythmic_jax.solvers.newton`),
+optax loops (full-batch L-BFGS, minibatch Adam), resumable runs over batches
+streamed from disk, the memory guard, and sharding over frames and templates."""
