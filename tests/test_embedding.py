@@ -77,6 +77,7 @@ def test_embedding_folder_round_trip_and_refusal(tmp_path):
         fit_invariant([a])
 
 
+@pytest.mark.slow  # two fits, a save and a load: about 30 s on 2 cores
 def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
     from rhythmic_jax import jobs
 
