@@ -348,7 +348,9 @@ def test_plot_storage_growth_returns_the_figure_and_saves_it(keep, tmp_path):
     ns = [100, 1000, 10000]
     curves = {"brute force": [4e5, 4e6, 4e7], "rhythmic map, r = 2": [8e4, 2.5e5, 8e5]}
     fig = keep(
-        plot_storage_growth(ns, curves, 1024, (1000, [2e5], "fitted"), tmp_path / "s.png")
+        plot_storage_growth(
+            ns, curves, 1024, (1000, [2e5], "fitted"), tmp_path / "s.png"
+        )
     )
     assert png_size((tmp_path / "s.png").read_bytes())[0] > 0
     (ax,) = fig.axes
