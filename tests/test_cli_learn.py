@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from test_embedding import two_conditions
 
 
@@ -22,6 +23,7 @@ def _cli(*argv, cwd, env):
     return proc.stdout
 
 
+@pytest.mark.slow
 def test_learn_fit_query_evaluate_from_another_directory(tmp_path):
     data, work = tmp_path / "data", tmp_path / "elsewhere"
     data.mkdir()

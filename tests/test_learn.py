@@ -17,7 +17,9 @@ def map_accuracy(ref, qry, embedding=None):
     return float(np.mean(pred == np.arange(len(ref))))
 
 
-@pytest.mark.parametrize("method", ["map", "infonce"])
+@pytest.mark.parametrize(
+    "method", [pytest.param("map", marks=pytest.mark.slow), "infonce"]
+)
 def test_learned_embedding_raises_the_maps_cross_condition_accuracy(method):
     a, b = two_conditions(n=560, strength=4.0, seed=3)
     train, test = slice(0, 280), slice(300, 560)

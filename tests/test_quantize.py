@@ -40,6 +40,7 @@ def test_bytes_count_the_chosen_dtype():
         template_bytes(1, 1, "float64")
 
 
+@pytest.mark.slow
 def test_maps_keep_their_dtype_on_disk_and_most_of_their_accuracy(route, tmp_path):
     full = RhythmicMap(r=2, gap=1e-3).fit(route, progress=False)
     base = np.mean(full.predict(route) == np.arange(len(route)))

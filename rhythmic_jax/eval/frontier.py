@@ -108,7 +108,7 @@ def _cached(cache, key: str, make):
         return make()
     path = Path(cache) / f"{key}.npz"
     if path.exists():
-        with np.load(path) as f:
+        with np.load(path, allow_pickle=False) as f:
             return dict(f)
     out = make()
     path.parent.mkdir(parents=True, exist_ok=True)
