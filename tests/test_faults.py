@@ -257,6 +257,9 @@ def test_a_stopped_augmented_fit_resumes_to_the_same_map(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # Ctrl-C as a user's shell delivers it: a parallel test runner may start
+        # its workers with SIGINT ignored, which a child would otherwise inherit
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     ckpt = tmp_path / "route.map.ckpt"
     _wait_for_a_checkpoint(proc, ckpt, random.Random(sig))
