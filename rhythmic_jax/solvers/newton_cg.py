@@ -157,8 +157,19 @@ def newton_cg(
         del extra_args
         f32, dtype = design.dtype, params.theta.dtype
         grad, hvp, weight, lam = derivatives(value_fn, updates, params, design)
-        precond = block_preconditioner(*spectral, weight, lam, block)
-        s, u, it = _cg(hvp, precond, -grad.astype(f32), eta, max_cg)
+        # CG solves H s = -g divided by the loss's largest curvature (2C for the
+        # squared hinge): active frames weigh 1 and the regulariser 1 / (2C).
+        # The step is the same in exact arithmetic, but not in float32, where
+        # the preconditioner's leading block rounds differently at each scale
+        # (~1e-3 on the first step); at this one it rounds as the solver was
+        # measured with.
+        top = jnp.max(weight)
+        scale = 1.0 / jnp.where(top > 0, top, 1.0)
+        precond = block_preconditioner(
+            *spectral, (weight * scale).astype(f32), (lam * scale).astype(f32), block
+        )
+        r0 = -(grad * scale).astype(f32)
+        s, u, it = _cg(lambda v: hvp(v, scale), precond, r0, eta, max_cg)
         s, u = s.astype(dtype), u.astype(dtype)
         decrement = 0.5 * jnp.sum(-grad * s, axis=0)
         new_state = NewtonCGState(state.count + 1, decrement, it)
@@ -179,9 +190,10 @@ def derivatives(value_fn, grad: Iterate, params: Iterate, design: jax.Array):
 
     Returns:
       ``g`` (q, p): the gradient in theta, ``d/dtheta + Xa^T d/dm`` (the chain
-      rule through ``m = Xa theta``); ``hvp``: (q, p) -> ``(H v, Xa v)`` in the
-      design's dtype, H the (generalised) Hessian in theta; the Hessian's
-      diagonal in the margins (n, p) and its (mean) curvature in theta (), which
+      rule through ``m = Xa theta``); ``hvp``: ``(v (q, p), scale=1)`` ->
+      ``(scale H v, Xa v)`` in the design's dtype, H the (generalised) Hessian in
+      theta (scaled before the cast); the Hessian's diagonal in the margins
+      (n, p) and its (mean) curvature in theta (), in the iterate's dtype, which
       the preconditioner takes.
     """
     xa, dtype = design, params.theta.dtype
@@ -195,12 +207,14 @@ def derivatives(value_fn, grad: Iterate, params: Iterate, design: jax.Array):
     # per-frame loss in m): applied to ones it gives both diagonals.
     curv = hessian(jax.tree.map(jnp.ones_like, params))
 
-    def hvp(v):
+    def hvp(v, scale=1.0):
         xv = xa @ v
         h = hessian(Iterate(v.astype(dtype), xv.astype(dtype)))
-        return h.theta.astype(f32) + xa.T @ h.margins.astype(f32), xv
+        scale = jnp.asarray(scale, dtype)
+        loss = xa.T @ (h.margins * scale).astype(f32)
+        return loss + h.theta.astype(f32) * scale.astype(f32), xv
 
-    return g, hvp, curv.margins.astype(f32), jnp.mean(curv.theta).astype(f32)
+    return g, hvp, curv.margins, jnp.mean(curv.theta)
 
 
 def _bracketed_root(slope, t0, iters: int):

@@ -63,6 +63,9 @@ def test_gradient_and_hvp_equal_jax_grad_of_the_objective_and_differences():
         np.testing.assert_allclose(xv, xa @ v, rtol=1e-10)
         jvp = jax.jvp(jax.grad(f), (it.theta,), (jnp.asarray(v),))[1]
         np.testing.assert_allclose(hv, jvp, rtol=1e-9)
+        # the products CG takes, of the system divided by the loss's curvature
+        scaled, _ = hvp(jnp.asarray(v), 1 / (2 * c))
+        np.testing.assert_allclose(scaled, jvp / (2 * c), rtol=1e-9)
         eps = 1e-6  # a piecewise quadratic: central differences are exact off kinks
         fd = (jax.grad(f)(it.theta + eps * v) - jax.grad(f)(it.theta - eps * v)) / (
             2 * eps
