@@ -36,14 +36,21 @@ deviation 0.3, rows L2-normalised, seeded.
     python scripts/bench_solver.py           # writes reports/solver.{json,md}
     python scripts/bench_solver.py --quick   # 800 frames, 4 sampled templates
     python scripts/bench_solver.py --render reports/solver.json  # Markdown again
+    python scripts/bench_solver.py --compare-ref 28e5003  # and Newton at a commit
+
+``--compare-ref REV`` also times the 0.1 % Newton solve on the Nordland frames
+at commit REV against this checkout, alternating processes (``_newton_ref.py``);
+``--compare-only`` runs that comparison alone (``reports/solver_compare``).
 """
 
 from __future__ import annotations
 
 import logging
+import sys
 import warnings
 from pathlib import Path
 
+import _newton_ref
 import numpy as np
 import optax
 from _bench_common import (
@@ -79,6 +86,7 @@ log = logging.getLogger("bench_solver")
 
 AIM_SPEEDUP = 100.0
 AIM_GAP = 1e-3
+AIM_RATIO = 1.10  # Newton at this checkout against --compare-ref, median wall
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
 
 
@@ -468,6 +476,8 @@ def markdown(report: dict) -> str:
             f" seed {v['seed']}; mean cosine of frames lag apart: {cos}.",
             "",
         ]
+    if report.get("compare_ref"):
+        parts.append(_newton_ref.markdown(report["compare_ref"], AIM_RATIO))
     return "\n".join(parts)
 
 
@@ -481,9 +491,19 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--video-dim", type=int, default=4096)
     ap.add_argument("--samples", type=int, default=None, help="LinearSVC templates")
     ap.add_argument("--quick", action="store_true", help="800 frames, 4 templates")
+    ap.add_argument(
+        "--compare-ref", metavar="REV", default=None,
+        help="also time Newton (0.1 %% gap) at git commit REV against this checkout",
+    )  # fmt: skip
+    ap.add_argument("--compare-runs", type=int, default=5, help="processes each")
+    ap.add_argument(
+        "--compare-only", action="store_true", help="only the --compare-ref timing"
+    )
     args = ap.parse_args(argv)
     if args.render:
         return rerender(args.render, markdown)
+    if args.compare_only and not args.compare_ref:
+        ap.error("--compare-only needs --compare-ref")
     frames = args.frames or (800 if args.quick else 3576)
     video_frames = args.video_frames or (800 if args.quick else 3705)
     samples = args.samples or (4 if args.quick else 12)
@@ -491,24 +511,37 @@ def main(argv: list[str] | None = None) -> dict:
     env, load_start = begin(log)
     cases = []
     nordland_dir = args.root / "nordland_64x32"
+    x = None
     if nordland_dir.is_dir():
         x = nordland_summer(args.root, frames, args.progress)
-        cases.append(
-            bench_case("Nordland summer, patchnorm 64x32", x, samples, args.progress)
-        )
+        if not args.compare_only:
+            name = "Nordland summer, patchnorm 64x32"
+            cases.append(bench_case(name, x, samples, args.progress))
     else:
         log.warning(
             "no Nordland data at %s: skipping the real-frame case", nordland_dir
         )
-    xv = video_like(video_frames, args.video_dim, **VIDEO)
-    cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
+    extra = {}
+    if not args.compare_only:
+        xv = video_like(video_frames, args.video_dim, **VIDEO)
+        cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
+        extra["video_like"] = dict(**VIDEO, cosines=neighbour_cosines(xv))
+    if args.compare_ref:
+        if x is None:
+            sys.exit(f"--compare-ref needs the Nordland frames under {nordland_dir}")
+        n = len(x)
+        y = np.asarray(targets(np.arange(n), candidate_periods(n, 2, 1, 7)))
+        extra["compare_ref"] = plain(
+            _newton_ref.compare(args.compare_ref, x, y, default_c(n), args.compare_runs)
+        )
     report = dict(
         **run_record("bench_solver.py", argv, env, load_start),
-        aim=dict(speedup=AIM_SPEEDUP, gap=AIM_GAP),
-        video_like=dict(**VIDEO, cosines=neighbour_cosines(xv)),
+        aim=dict(speedup=AIM_SPEEDUP, gap=AIM_GAP, newton_ratio=AIM_RATIO),
+        **extra,
         cases=cases,
     )
     stem = "solver_quick" if args.quick else "solver"
+    stem = f"{stem}_compare" if args.compare_only else stem
     write_report(args.out, stem, report, markdown(report))
     return report
 
