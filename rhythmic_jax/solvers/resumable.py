@@ -36,8 +36,7 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, targets
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.optax_loops import TrainState, init_state, minibatch_step
-from rhythmic_jax.solvers.optax_loops import adam as _adam
+from rhythmic_jax.solvers.optax_loops import TrainState, adam, minibatch_step
 from rhythmic_jax.validate import check_int, check_labels
 
 __all__ = ["RunConfig", "memmap_batches", "train_run"]
@@ -164,7 +163,10 @@ def _restore(manager, ckpt_dir: Path, fresh: TrainState, config: RunConfig):
     args = ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
     state = manager.restore(step, args=args).state
     log.info("resuming from %s at step %d", ckpt_dir, int(state.step))
-    return TrainState(state.params, state.opt_state, jnp.asarray(state.step))
+    return dataclasses.replace(
+        fresh, params=state.params, opt_state=state.opt_state,
+        step=jnp.asarray(state.step),
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------- the loop
@@ -211,8 +213,8 @@ def train_run(
       The trained templates. On an exception or Ctrl-C the state reached is saved
       first, then the exception propagates.
     """
-    optimizer = _adam(config.learning_rate)
-    state = init_state(Templates(jnp.asarray(init.w), jnp.asarray(init.b)), optimizer)
+    params = Templates(jnp.asarray(init.w), jnp.asarray(init.b))
+    state = TrainState.create(params, adam(config.learning_rate))
     log.info("train_run %s, C=%.4g, n=%d, devices %s", config, c, n, jax.devices())
     manager = saved = None
     if ckpt_dir is not None:
@@ -241,7 +243,7 @@ def train_run(
                 yb = jnp.asarray(yb, jnp.float32)
                 scale = n / xb.shape[0]
                 t = time.perf_counter()
-                state, loss = minibatch_step(state, xb, yb, c, scale, optimizer)
+                state, loss = minibatch_step(state, xb, yb, c, scale)
                 step = int(state.step)
                 if timings is not None:
                     loss.block_until_ready()

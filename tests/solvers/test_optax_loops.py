@@ -10,9 +10,12 @@ import numpy as np
 import optax
 import pytest
 
-from rhythmic_jax.objective import objective, targets
+from rhythmic_jax.objective import objective, targets, total_objective
 from rhythmic_jax.solvers.newton import newton_fit
 from rhythmic_jax.solvers.optax_loops import (
+    TrainState,
+    _lbfgs_step,
+    adam,
     fit_full_batch,
     init_state,
     minibatch_step,
@@ -58,14 +61,62 @@ def test_minibatch_steps_descend_and_do_not_recompile(caplog):
         return sum("Compiling" in r.getMessage() for r in caplog.records)
 
     with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
-        minibatch_step(state, x[:16], y[:16], c, 4.0, opt)
+        minibatch_step(state, x[:16], y[:16], c, 4.0)
         first = compiles()
         for i in range(4):
             sl = slice(16 * i, 16 * (i + 1))
-            state, _ = minibatch_step(state, x[sl], y[sl], c, 4.0, opt)
+            state, _ = minibatch_step(state, x[sl], y[sl], c, 4.0)
         assert compiles() == first
-        minibatch_step(state, x[:8], y[:8], c, 8.0, opt)  # a new shape compiles
+        minibatch_step(state, x[:8], y[:8], c, 8.0)  # a new shape compiles
         assert compiles() > first
     assert int(state.step) == 4
     end = float(jnp.sum(objective(state.params, jnp.asarray(x), y, c)))
     assert end < start
+
+
+def test_the_state_carries_its_optimizer_and_equal_settings_compile_once():
+    """The optimiser is a static field of the state: not a leaf, and two states
+    made with the same settings (separate objects) share one compiled step; other
+    settings compile again and step as plain optax does."""
+    x, y = data(24, 7)  # shapes no other test compiles
+    c, init = 1.5, ridge_start(x, y, 1.5)
+
+    def fit(tx, steps=3):
+        state = TrainState.create(init, tx)
+        for i in range(steps):
+            sl = slice(8 * i, 8 * (i + 1))
+            state, _ = minibatch_step(state, x[sl], y[sl], c, 3.0)
+        return state
+
+    before = minibatch_step._cache_size()
+    a, b = fit(adam(0.03)), fit(adam(0.03))
+    assert minibatch_step._cache_size() == before + 1
+    assert a.tx == b.tx == adam(0.03) != adam(0.1)
+    assert isinstance(a.tx.tx, optax.GradientTransformation)
+    arrays = jax.tree.leaves((a.params, a.opt_state, a.step))
+    assert len(jax.tree.leaves(a)) == len(arrays)  # the optimiser is no leaf
+    np.testing.assert_array_equal(np.asarray(a.params.w), np.asarray(b.params.w))
+    assert int(a.step) == 3
+
+    other = fit(adam(0.1))  # another key: its own compilation and its own steps
+    assert minibatch_step._cache_size() == before + 2
+    plain, opt = init, optax.adam(0.1)
+    opt_state = opt.init(plain)
+    for i in range(3):
+        sl = slice(8 * i, 8 * (i + 1))
+        grad = jax.grad(total_objective)(plain, x[sl], y[sl], c, 3.0)
+        updates, opt_state = opt.update(grad, opt_state, plain)
+        plain = optax.apply_updates(plain, updates)
+    np.testing.assert_allclose(other.params.w, plain.w, rtol=1e-6, atol=1e-7)
+    assert not np.allclose(np.asarray(other.params.w), np.asarray(a.params.w))
+
+
+def test_two_lbfgs_fits_compile_the_step_once():
+    x, y = data(28, 9)
+    before = _lbfgs_step._cache_size()
+    first, _ = fit_full_batch(x, y, 2.0, steps=3)
+    compiled = _lbfgs_step._cache_size()
+    assert before < compiled <= before + 2  # optax's initial state: weak types
+    second, _ = fit_full_batch(x, y, 2.0, steps=3)
+    assert _lbfgs_step._cache_size() == compiled
+    np.testing.assert_array_equal(np.asarray(first.w), np.asarray(second.w))

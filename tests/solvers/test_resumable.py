@@ -82,12 +82,20 @@ def test_run_equals_the_plain_optax_loop(problem, uninterrupted):
     state = init_state(init, optimizer)
     for xb, yb in batches:
         xb = jnp.asarray(xb, jnp.float32)
-        state, _ = minibatch_step(
-            state, xb, jnp.asarray(yb), C, N / xb.shape[0], optimizer
-        )
+        state, _ = minibatch_step(state, xb, jnp.asarray(yb), C, N / xb.shape[0])
     assert int(state.step) == STEPS
     assert_same_map(state.params, uninterrupted, x)
     assert not np.allclose(np.asarray(init.w), np.asarray(uninterrupted.w))
+
+
+def test_two_runs_with_one_learning_rate_compile_the_step_once(problem):
+    """The optimiser lives in the state and compares by its settings: a second
+    run (a new optimiser object) reuses the first one's compiled step."""
+    x, labels, _, init = problem
+    train_run(in_memory(x, labels), init, C, N, CONFIG, None, progress=False)
+    compiled = minibatch_step._cache_size()
+    train_run(in_memory(x, labels), init, C, N, CONFIG, None, progress=False)
+    assert minibatch_step._cache_size() == compiled
 
 
 @pytest.mark.parametrize("stop", [2, 4, 5, 7])  # mid-epoch, at the boundary, ...
