@@ -398,6 +398,18 @@ class RhythmicMap:
         self._check_fitted()
         if self.groups.kind != "periods":
             return None
+        if (
+            type(q) is np.ndarray
+            and q.dtype == np.float32
+            and q.ndim == 2
+            and 0 < len(q) <= SMALL_BATCH
+            and q.shape[1] == self.d
+            and self.embedding is None
+        ):  # the fast lane: the scores' finiteness checks the values
+            small = self._small_decoder()
+            found = [small.place(row) for row in q]
+            if None not in found:
+                return np.array(found, np.int64)
         x = check_features(q, "queries", d=self.d)
         if len(x) > SMALL_BATCH:
             return None
@@ -405,6 +417,39 @@ class RhythmicMap:
             x = np.asarray(apply_embedding(self.embedding, x), np.float32)
         small = self._small_decoder()
         return np.array([small.index(row) for row in x], np.int64)
+
+    def locate(self, q) -> int:
+        """Place of one descriptor ``q`` (d,), -1 for no match:
+        ``predict(q[None])[0]`` with nothing around it. For the paper's hard
+        decode (no threshold, codes or embedding) a float32 (d,) numpy array
+        goes straight to one BLAS product (no dispatch, no copies; a NaN or inf
+        is caught on its scores); anything else takes ``predict``'s checks."""
+        small = self._small
+        if (
+            small is not None
+            and small.params is self.params
+            and type(q) is np.ndarray
+            and q.dtype == np.float32
+            and q.shape == (self.d,)
+            and self.embedding is None
+            and self.codebook is None
+            and self.config.decode == "hard"
+            and self.config.threshold is None
+        ):
+            found = small.place(q)
+            if found is not None:
+                return found
+        self._check_fitted()
+        try:
+            x = np.asarray(q)
+        except ValueError:  # ragged: predict's checks say so
+            x = None
+        if x is not None and x.ndim != 1:
+            raise InputError(
+                f"query: expected one descriptor of shape ({self.d},), "
+                f"got shape {x.shape}"
+            )
+        return int(self.predict([q] if x is None else x[None])[0])
 
     def _small_decoder(self) -> SmallDecoder:
         """The numpy decoder of the current templates (rebuilt when they change)."""

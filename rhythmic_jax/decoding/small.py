@@ -4,16 +4,28 @@ A jitted JAX call costs about a hundred microseconds of dispatch on CPU however
 small its work; one query's work is a (p, d) matrix-vector product (BLAS
 ``sgemv``), k argmaxes and k Chinese-remainder table look-ups, a few tens of
 microseconds. :class:`SmallDecoder` holds the templates transposed (p, d),
-C-contiguous, so the product streams rows, and the CRT tables as Python ints.
+C-contiguous, so the product streams rows, and the CRT tables as Python ints
+(for two periods, one table of every phase pair's place).
 It gives the same :class:`~rhythmic_jax.soft.Decoded` as
 :func:`rhythmic_jax.decode.decode` (the batch decode) up to float32 rounding of
 the product (a phase can differ only where two phases tie to ~1e-6).
+
+The product is the whole cost of one query (the 201 x 2048 float32 templates of
+a 10^4-place map are 1.6 MB, read once per query). OpenBLAS, numpy's BLAS, runs
+``sgemv`` on one thread below ``rows * cols`` = :data:`GEMV_THREADED` elements
+and on its thread pool from there; such a map sits just below, so its matrix
+gets zero rows up to that size when that costs at most
+:data:`PAD_AT_MOST` more bytes and there are cores to share it
+(``reports/single_query.md``: 28 -> 21 us on 2 cores). The zero rows score 0
+and no period's columns reach them.
 
 Names: b queries, d features, p = sum(periods) templates, k periods.
 """
 
 from __future__ import annotations
 
+import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,16 +35,30 @@ from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import crt_tables, period_offsets
 
-__all__ = ["SMALL_BATCH", "SmallDecoder"]
+__all__ = ["GEMV_THREADED", "SMALL_BATCH", "SmallDecoder", "gemv_rows"]
 
 SMALL_BATCH = 8  # up to this many queries numpy beats a jitted call on 2 cores
+GEMV_THREADED = 460_800  # OpenBLAS's sgemv uses its thread pool from this size
+PAD_AT_MOST = 1.25  # row padding allowed to reach it (x the template bytes)
+PAIR_TABLE = 1 << 20  # two periods: one place table up to this many pairs
+
+
+def gemv_rows(p: int, d: int, cores: int | None = None) -> int:
+    """Rows to store p templates of d numbers with: p, or the fewest rows that
+    put a (rows, d) ``sgemv`` on OpenBLAS's thread pool when that is at most
+    :data:`PAD_AT_MOST` x p and ``cores`` (default: this process's) >= 2."""
+    cores = len(os.sched_getaffinity(0)) if cores is None else cores
+    need = -(-GEMV_THREADED // max(d, 1))
+    return need if cores >= 2 and p < need <= PAD_AT_MOST * p else p
 
 
 @dataclass(frozen=True, eq=False)
 class SmallDecoder:
-    """Hard decode in numpy: ``wt`` (p, d) and ``b`` (p,) float32, the periods'
-    column ``slices``, CRT ``tables`` (k lists of ints), their modulus ``big_m``
-    and the place count ``n`` (an index >= n is no match, -1)."""
+    """Hard decode in numpy: ``wt`` (rows, d) and ``b`` (rows,) float32 (rows >=
+    p: :func:`gemv_rows`' zero padding), the periods' column ``slices``, CRT
+    ``tables`` (k lists of ints), their modulus ``big_m``, the place count ``n``
+    (an index >= n is no match, -1) and, for two periods, ``pairs``: the place
+    of every phase pair (lists of ints, -1 no match), or None."""
 
     wt: np.ndarray
     b: np.ndarray
@@ -41,6 +67,7 @@ class SmallDecoder:
     big_m: int
     n: int
     params: Templates | None = None  # what it was built from (identity check)
+    pairs: tuple[list[int], ...] | None = None
 
     @classmethod
     def build(cls, params: Templates, periods: Sequence[int], n: int):
@@ -48,23 +75,60 @@ class SmallDecoder:
         periods = tuple(int(t) for t in periods)
         tables, big_m = crt_tables(periods)
         offs = period_offsets(periods)
+        w = np.asarray(params.w, np.float32)
+        d, p = w.shape
+        wt = np.zeros((gemv_rows(p, d), d), np.float32)
+        wt[:p] = w.T
+        b = np.zeros(len(wt), np.float32)
+        b[:p] = np.asarray(params.b, np.float32)
+        pairs = None
+        if len(periods) == 2 and big_m <= PAIR_TABLE:
+            place = (tables[0][:, None] + tables[1][None, :]) % big_m
+            pairs = tuple(np.where(place < n, place, -1).tolist())
         return cls(
-            wt=np.ascontiguousarray(np.asarray(params.w, np.float32).T),
-            b=np.asarray(params.b, np.float32),
+            wt=wt,
+            b=b,
             slices=tuple(slice(o, o + t) for o, t in zip(offs, periods, strict=True)),
             tables=tuple(tuple(int(v) for v in t) for t in tables),
             big_m=big_m,
             n=int(n),
             params=params,
+            pairs=pairs,
         )
 
     def index(self, q: np.ndarray) -> int:
         """Place of one query ``q`` (d,) float32; -1 for no match."""
         s = self.wt @ q
         s += self.b
+        if self.pairs is not None:
+            first, second = self.slices
+            return self.pairs[s[first].argmax()][s[second].argmax()]
         i = 0
         for sl, table in zip(self.slices, self.tables, strict=True):
             i += table[int(s[sl].argmax())]
+        i %= self.big_m
+        return i if i < self.n else -1
+
+    def place(self, q: np.ndarray) -> int | None:
+        """:meth:`index` of one query ``q`` (d,) float32, or None when a
+        period's top score is not finite (``q`` holds a NaN or an inf: every
+        score is then NaN or infinite, so this checks the whole query)."""
+        s = self.wt @ q
+        s += self.b
+        if self.pairs is not None:
+            first, second = self.slices
+            top1, top2 = s[first], s[second]
+            j, k = top1.argmax(), top2.argmax()
+            if math.isfinite(top1[j]) and math.isfinite(top2[k]):
+                return self.pairs[j][k]
+            return None
+        i = 0
+        for sl, table in zip(self.slices, self.tables, strict=True):
+            block = s[sl]
+            j = block.argmax()
+            if not math.isfinite(block[j]):
+                return None
+            i += table[j]
         i %= self.big_m
         return i if i < self.n else -1
 

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import decode
-from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
+from rhythmic_jax.decoding.small import (
+    GEMV_THREADED,
+    SMALL_BATCH,
+    SmallDecoder,
+    gemv_rows,
+)
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import Groups
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import candidate_periods, choose_periods
 
@@ -79,3 +88,62 @@ def test_map_uses_it_for_few_queries():
     first = model._small_decoder()
     model.fit(x[::-1].copy(), progress=False)  # new templates: a new decoder
     assert model._small_decoder() is not first
+
+
+def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
+    assert gemv_rows(201, 2048, cores=2) * 2048 >= GEMV_THREADED
+    assert gemv_rows(201, 2048, cores=2) - 1 < GEMV_THREADED / 2048  # the fewest
+    assert gemv_rows(201, 2048, cores=1) == 201  # one core: nothing to share
+    assert gemv_rows(100, 2048, cores=2) == 100  # too small: padding would double
+    assert gemv_rows(300, 2048, cores=2) == 300  # already threaded
+    periods, n = (100, 101), 10_000
+    params = _templates(2048, periods, seed=4)
+    small = SmallDecoder.build(params, periods, n)
+    assert small.wt.shape[0] == gemv_rows(201, 2048)
+    assert not small.wt[201:].any() and not small.b[201:].any()
+    q = np.random.default_rng(5).standard_normal((200, 2048), dtype=np.float32)
+    batch = decode(params, q, periods, n)
+    _same(small(q), batch)
+    want = np.asarray(batch.index).tolist()
+    assert [small.index(x) for x in q] == want
+    assert [small.place(x) for x in q] == want
+
+
+@pytest.mark.parametrize("periods,n", [((100, 101), 10_000), ((7, 9, 11), 600)])
+def test_place_rejects_non_finite_queries(periods, n):
+    small = SmallDecoder.build(_templates(32, periods), periods, n)
+    q = np.random.default_rng(6).standard_normal(32, dtype=np.float32)
+    assert small.place(q) == small.index(q)
+    for bad in (np.nan, np.inf, -np.inf):
+        x = q.copy()
+        x[7] = bad
+        assert small.place(x) is None
+
+
+def test_locate_is_predict_of_one_row():
+    periods, n = (7, 9), 60
+    model = RhythmicMap(r=2)  # as fit leaves it, without a fit's compiles
+    model.params, model.periods, model.n, model.d = (
+        _templates(16, periods),
+        periods,
+        n,
+        16,
+    )
+    model.groups = Groups("periods", periods)
+    q = np.random.default_rng(7).standard_normal((60, 16), dtype=np.float32)
+    want = model.predict(q).tolist()
+    assert [model.locate(row) for row in q] == want  # first call builds the lane
+    assert model._small is not None
+    assert [model.locate(row) for row in q] == want
+    assert model.locate(q[3].astype(np.float64)) == want[3]  # converted
+    assert model.locate(q[3].tolist()) == want[3]
+    bad = q[3].copy()
+    bad[0] = np.nan
+    with pytest.raises(InputError, match="NaN or inf"):
+        model.locate(bad)
+    with pytest.raises(InputError, match="one descriptor"):
+        model.locate(q[:2])
+    with pytest.raises(InputError, match="16-d"):
+        model.locate(q[3, :8])
+    model.config = replace(model.config, threshold=1e9)
+    assert model.locate(q[0]) == -1  # the config's threshold holds
