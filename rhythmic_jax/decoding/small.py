@@ -17,7 +17,9 @@ and on its thread pool from there; such a map sits just below, so its matrix
 gets zero rows up to that size when that costs at most
 :data:`PAD_AT_MOST` more bytes and there are cores to share it
 (``reports/single_query.md``: 28 -> 21 us on 2 cores). The zero rows score 0
-and no period's columns reach them.
+and no period's columns reach them. The price is the tail on a busy machine:
+the call waits for the pool's other thread, which the scheduler may hold back
+for milliseconds (the report's p95 under load).
 
 Names: b queries, d features, p = sum(periods) templates, k periods.
 """
