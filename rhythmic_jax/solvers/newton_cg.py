@@ -40,8 +40,11 @@ from rhythmic_jax.solvers.precondition import block_preconditioner
 __all__ = [
     "ExactLinesearchState",
     "derivatives",
+    "host_loop",
+    "in_memory_system",
     "Iterate",
     "NewtonCGState",
+    "NewtonSystem",
     "newton_cg",
     "newton_solver",
     "scale_by_exact_linesearch",
@@ -78,19 +81,25 @@ def _total(value_fn):
     return lambda params: jnp.sum(value_fn(params))
 
 
-def _cg(hvp, precond, r0, eta, max_iter):
+def _cg(hvp, precond, r0, eta, max_iter, loop=jax.lax.while_loop):
     """Preconditioned CG from 0 for ``H s = r0``, every column (template) at once.
 
-    ``hvp`` maps (q, p) to ``(H v, Xa v)``. Column j stops when
-    ``||r_j|| <= eta ||r0_j||``. Returns the step ``s`` (q, p), its margins
-    ``Xa s`` (n, p) (accumulated from the products, no extra product) and the
-    number of iterations.
+    ``hvp`` maps (q, p) to ``(H v, Xa v)``, or to ``(H v, None)`` where the
+    margins are not kept (a streamed fit). Column j stops when
+    ``||r_j|| <= eta ||r0_j||``. ``loop`` runs it: ``jax.lax.while_loop``, or
+    :func:`host_loop` where every product is a pass over files. Returns the
+    step ``s`` (q, p), its margins ``Xa s`` (n, p) (accumulated from the
+    products, no extra product; None without margins) and the number of
+    iterations.
     """
     target = eta * jnp.linalg.norm(r0, axis=0, keepdims=True)
     z = precond(r0)
     rz = jnp.sum(r0 * z, axis=0, keepdims=True)
-    _, xz = jax.eval_shape(hvp, r0)
-    zero_u = jnp.zeros(xz.shape, xz.dtype)
+    if loop is jax.lax.while_loop:
+        _, xz = jax.eval_shape(hvp, r0)
+        zero_u = None if xz is None else jnp.zeros(xz.shape, xz.dtype)
+    else:
+        zero_u = None
 
     def live(r):
         return jnp.linalg.norm(r, axis=0, keepdims=True) > target
@@ -105,7 +114,8 @@ def _cg(hvp, precond, r0, eta, max_iter):
         ad, xd = hvp(d)
         dad = jnp.sum(d * ad, axis=0, keepdims=True)
         step = jnp.where(on, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
-        s, u, r = s + step * d, u + step * xd, r - step * ad
+        s, r = s + step * d, r - step * ad
+        u = None if xd is None else u + step * xd
         z = precond(r)
         rz_new = jnp.sum(r * z, axis=0, keepdims=True)
         beta = rz_new / jnp.where(rz > 0, rz, 1.0)
@@ -113,8 +123,58 @@ def _cg(hvp, precond, r0, eta, max_iter):
         return s, u, r, d, jnp.where(on, rz_new, rz), it + 1
 
     init = (jnp.zeros_like(r0), zero_u, r0, z, rz, jnp.int32(0))
-    s, u, *_, it = jax.lax.while_loop(cond, body, init)
+    s, u, *_, it = loop(cond, body, init)
     return s, u, it
+
+
+def host_loop(cond, body, init):
+    """``jax.lax.while_loop``'s contract run by Python, for bodies that cannot be
+    traced (a Hessian-vector product that reads its frames from disk)."""
+    state = init
+    while bool(cond(state)):
+        state = body(state)
+    return state
+
+
+class NewtonSystem(NamedTuple):
+    """The Newton system ``H s = -g`` as :func:`newton_cg`'s CG takes it.
+
+    ``grad`` (q, p) the gradient in theta (the iterate's dtype); ``hvp``:
+    (q, p) -> ``(scale H v, Xa v or None)``; ``precond``: an approximate inverse
+    of ``scale H``; ``scale``: the factor the system is multiplied by before
+    CG (the step is the same); ``dtype`` CG's; ``loop`` runs CG
+    (``jax.lax.while_loop`` or :func:`host_loop`). :func:`in_memory_system`
+    builds it from the objective and the design; a streamed fit sums it over
+    blocks of frames (:mod:`rhythmic_jax.solvers.streamed`).
+    """
+
+    grad: jax.Array
+    hvp: Any
+    precond: Any
+    scale: Any
+    dtype: Any
+    loop: Any = jax.lax.while_loop
+
+
+def in_memory_system(value_fn, grad: Iterate, params: Iterate, design, spectral, block):
+    """:class:`NewtonSystem` of ``value_fn`` at ``params`` with every frame's
+    margins in memory: :func:`derivatives` and the spectral block preconditioner
+    (:func:`rhythmic_jax.solvers.precondition.block_preconditioner`).
+
+    CG solves ``H s = -g`` divided by the loss's largest curvature (2C for the
+    squared hinge): active frames weigh 1 and the regulariser 1 / (2C). The step
+    is the same in exact arithmetic, but not in float32, where the
+    preconditioner's leading block rounds differently at each scale (~1e-3 on
+    the first step); at this one it rounds as the solver was measured with.
+    """
+    f32 = design.dtype
+    g, hvp, weight, lam = derivatives(value_fn, grad, params, design)
+    top = jnp.max(weight)
+    scale = 1.0 / jnp.where(top > 0, top, 1.0)
+    precond = block_preconditioner(
+        *spectral, (weight * scale).astype(f32), (lam * scale).astype(f32), block
+    )
+    return NewtonSystem(g, lambda v: hvp(v, scale), precond, scale, f32)
 
 
 def newton_cg(
@@ -128,6 +188,11 @@ def newton_cg(
     ``(vecs, lead, rest)`` (:func:`rhythmic_jax.solvers.precondition.spectral_setup`)
     and ``max_cg`` (traced) caps CG for this step. Returns the step as an
     :class:`Iterate` ``(s, Xa s)`` and the new :class:`NewtonCGState`.
+
+    ``update(grad, state, params, *, system, max_cg=None)`` instead takes the
+    system already summed (:class:`NewtonSystem`: a streamed fit's, whose
+    products are passes over blocks of frames); the step's margins are then
+    None.
 
     Args:
       eta: CG forcing term (relative residual at which a template stops).
@@ -148,30 +213,24 @@ def newton_cg(
         state: NewtonCGState,
         params: Iterate,
         *,
-        value_fn,
-        design: jax.Array,
-        spectral: tuple[jax.Array, jax.Array, jax.Array],
+        value_fn=None,
+        design: jax.Array | None = None,
+        spectral: tuple[jax.Array, jax.Array, jax.Array] | None = None,
+        system: NewtonSystem | None = None,
         max_cg: Any = max_cg,
         **extra_args,
     ) -> tuple[Iterate, NewtonCGState]:
         del extra_args
-        f32, dtype = design.dtype, params.theta.dtype
-        grad, hvp, weight, lam = derivatives(value_fn, updates, params, design)
-        # CG solves H s = -g divided by the loss's largest curvature (2C for the
-        # squared hinge): active frames weigh 1 and the regulariser 1 / (2C).
-        # The step is the same in exact arithmetic, but not in float32, where
-        # the preconditioner's leading block rounds differently at each scale
-        # (~1e-3 on the first step); at this one it rounds as the solver was
-        # measured with.
-        top = jnp.max(weight)
-        scale = 1.0 / jnp.where(top > 0, top, 1.0)
-        precond = block_preconditioner(
-            *spectral, (weight * scale).astype(f32), (lam * scale).astype(f32), block
-        )
-        r0 = -(grad * scale).astype(f32)
-        s, u, it = _cg(lambda v: hvp(v, scale), precond, r0, eta, max_cg)
-        s, u = s.astype(dtype), u.astype(dtype)
-        decrement = 0.5 * jnp.sum(-grad * s, axis=0)
+        if system is None:
+            system = in_memory_system(
+                value_fn, updates, params, design, spectral, block
+            )
+        dtype = params.theta.dtype
+        r0 = -(system.grad * system.scale).astype(system.dtype)
+        s, u, it = _cg(system.hvp, system.precond, r0, eta, max_cg, system.loop)
+        s = s.astype(dtype)
+        u = None if u is None else u.astype(dtype)
+        decrement = 0.5 * jnp.sum(-system.grad * s, axis=0)
         new_state = NewtonCGState(state.count + 1, decrement, it)
         return Iterate(s, u), new_state
 

@@ -2,23 +2,32 @@
 
 :func:`rhythmic_jax.solvers.newton.newton_fit` keeps every frame's margins, (n, p)
 float64: 5.8 GB for 10^6 frames and 721 templates. Here nothing of size n is
-kept: every quantity the Newton step needs is a sum over frames, so each is one
-*pass* over the blocks (:class:`rhythmic_jax.io.frame_files.Frames`), recomputing
-a block's margins ``Xa_b theta`` from the current templates as it goes:
+kept. The objective is the one of every fit,
+:func:`rhythmic_jax.objective.margin_objectives`, which is its regulariser plus a
+sum over frames, so it splits into the regulariser (theta alone, no frames) and
+one term per block of frames (:class:`rhythmic_jax.io.frame_files.Frames`) at the
+block's margins ``Xa_b theta``, recomputed from the current templates as the
+block is read. Everything the Newton step needs comes from autodiff of those
+terms, summed over the blocks in float64, one *pass* each:
 
-- the gradient pass: objective, gradient ``lam theta - Xa^T (y h)`` and the
-  Jacobi preconditioner ``lam + (Xa^2)^T D`` (the active set D of the step);
-- one pass per CG iteration: ``Xa^T D Xa v`` with D recomputed per block;
-- two line-search passes: ``phi'(t)`` and its piece's slope at a grid of
-  step lengths, then at a finer grid inside the bracket found; the step is
-  Newton's on the piece at the bracket's left end, kept inside the bracket
-  (exact once the bracket holds one piece).
+- the gradient pass: the objective, its gradient ``g = d/dtheta + sum_b Xa_b^T
+  d/dm_b`` and the Jacobi preconditioner, the Hessian's diagonal
+  ``1 + sum_b (Xa_b^2)^T h_b`` (``h_b`` the loss's curvature at the margins);
+- one pass per CG iteration: ``H v = v + sum_b Xa_b^T (h_b * Xa_b v)``, the
+  linearised gradient (``jax.linearize``) applied to ``Xa_b v``;
+- two line-search passes: ``phi'(t)`` and ``phi''(t)`` along the step at a grid
+  of step lengths (``jax.jvp`` of the block terms), then at a finer grid inside
+  the bracket found; the step is Newton's on the piece at the bracket's left
+  end, kept inside the bracket (exact once the bracket holds one piece).
 
-The objective and stopping rule are :mod:`rhythmic_jax.solvers.newton`'s (a template
-stops once its Newton decrement is below ``gap_tol`` times its objective).
-Every pass's sums go through ``reduce``
-(:func:`rhythmic_jax.solvers.distributed.allreduce`
-when each process streams its own rows), so K processes take the same steps.
+The step itself is the optax transformation
+:func:`rhythmic_jax.solvers.newton_cg.newton_cg`, handed the summed system
+(:class:`~rhythmic_jax.solvers.newton_cg.NewtonSystem`, CG in float64 on the
+host, one pass per product). The stopping rule is
+:mod:`rhythmic_jax.solvers.newton`'s (a template stops once its Newton decrement
+is below ``gap_tol`` times its objective). Every pass's sums go through
+``reduce`` (:func:`rhythmic_jax.solvers.distributed.allreduce` when each process
+streams its own rows), so K processes take the same steps.
 
 Names: n frames, d features, q = d + 1, p templates, B rows per block.
 """
@@ -36,9 +45,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.io.frame_files import Frames
-from rhythmic_jax.objective import Templates, targets
+from rhythmic_jax.objective import Templates, margin_objectives, targets
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.progress import bar as progress_bar
+from rhythmic_jax.solvers.newton_cg import Iterate, NewtonSystem, host_loop, newton_cg
 
 __all__ = [
     "FAST_STREAM",
@@ -103,46 +113,64 @@ def _block(x: np.ndarray, rows: int):
     return jnp.asarray(xa)
 
 
-@partial(jax.jit, static_argnames=("periods",))
-def _y(labels, periods):
-    """Targets (B, p) with 0 on padding rows (label -1)."""
-    return targets(labels, periods) * (labels >= 0)[:, None]
+def _block_loss(m, labels, periods, c):
+    """(p,) the loss term of one block at its margins m (B, p): the objective
+    :func:`~rhythmic_jax.objective.margin_objectives` of the block's frames with
+    no parameters (the regulariser is counted once, in :func:`_regulariser`);
+    padding rows (label -1) weigh 0."""
+    y = targets(jnp.maximum(labels, 0), periods)
+    empty = jnp.zeros((0, m.shape[1]), m.dtype)
+    return margin_objectives(empty, m, y, c, (labels >= 0).astype(m.dtype))
+
+
+def _regulariser(theta, c):
+    """(p,) the objective's term without frames: its regulariser at theta (q, p)."""
+    empty = jnp.zeros((0, theta.shape[1]), theta.dtype)
+    return margin_objectives(theta, empty, empty, c)
+
+
+def _loss_grad(labels, periods, c):
+    """The gradient of a block's summed loss in its margins, ``m -> dL/dm``."""
+    return jax.grad(lambda m: jnp.sum(_block_loss(m, labels, periods, c)))
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _grad_pass(xa, labels, theta, periods):
-    """Sums of one block: ``Xa^T (y h)`` (q, p), ``sum h^2`` (p,), ``(Xa^2)^T D``."""
-    y = _y(labels, periods)
-    h = jnp.maximum(0.0, 1.0 - y * (xa @ theta)) * (y != 0)
-    return xa.T @ (y * h), jnp.sum(h * h, axis=0), (xa * xa).T @ (h > 0).astype(h.dtype)
+def _grad_pass(xa, labels, theta, c, periods):
+    """Sums of one block: the loss (p,), its gradient in theta ``Xa^T dL/dm``
+    (q, p) and its Hessian's diagonal in theta ``(Xa^2)^T h`` (q, p), ``h`` the
+    loss's curvature at the margins (the Hessian in m is diagonal)."""
+    m = xa @ theta
+    grad = _loss_grad(labels, periods, c)
+    dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
+    return _block_loss(m, labels, periods, c), xa.T @ dm, (xa * xa).T @ h
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _hess_pass(xa, labels, theta, v, periods):
-    """``Xa^T D Xa v`` (q, p) over one block, D the active set at theta."""
-    y = _y(labels, periods)
+def _hess_pass(xa, labels, theta, v, c, periods):
+    """``Xa^T (h * Xa v)`` (q, p) over one block: the loss's Hessian in theta
+    applied to v, by linearising its gradient at the block's margins."""
     both = xa @ jnp.concatenate([theta, v], axis=1)
     p = theta.shape[1]
-    mask = ((1.0 - y * both[:, :p]) > 0) & (y != 0)
-    return xa.T @ (mask * both[:, p:])
+    _, hessian = jax.linearize(_loss_grad(labels, periods, c), both[:, :p])
+    return xa.T @ hessian(both[:, p:])
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _line_pass(xa, labels, theta, s, ts, periods):
-    """At step lengths ts (K, p): ``sum act yu slack``, ``sum act yu^2`` and
-    ``sum act slack^2`` (K, p) each, ``slack = 1 - y (m + t u)``."""
-    y = _y(labels, periods)
+def _line_pass(xa, labels, theta, s, ts, c, periods):
+    """The block's loss along the step, ``phi_b(t) = L_b(m + t Xa s)`` per
+    template: ``phi_b'`` and ``phi_b''`` (K, p) at the step lengths ts (K, p)."""
     both = xa @ jnp.concatenate([theta, s], axis=1)
     p = theta.shape[1]
-    yu, slack0, live = y * both[:, p:], 1.0 - y * both[:, :p], y != 0
+    m, u = both[:, :p], both[:, p:]
+
+    def phi(t):
+        return _block_loss(m + t[None, :] * u, labels, periods, c)
+
+    def dphi(t):
+        return jax.jvp(phi, (t,), (jnp.ones_like(t),))[1]
 
     def at(t):
-        slack = slack0 - t[None, :] * yu
-        act = (slack > 0) & live
-        g = jnp.sum(jnp.where(act, yu * slack, 0.0), axis=0)
-        h = jnp.sum(jnp.where(act, yu * yu, 0.0), axis=0)
-        v = jnp.sum(jnp.where(act, slack * slack, 0.0), axis=0)
-        return g, h, v
+        return jax.jvp(dphi, (t,), (jnp.ones_like(t),))
 
     return jax.lax.map(at, ts)
 
@@ -206,77 +234,99 @@ def streamed_newton_fit(
     block = max(1, min(config.block_rows, frames.n))
     stream = _Stream(frames, start, stop, np.asarray(labels, np.int32), periods,
                      block, reduce)  # fmt: skip
-    lam = 0.5 / c
-    theta = np.zeros((q, p))
+    tx = newton_cg(config.eta, config.max_cg)
     done = np.zeros(p, bool)
     info = StreamInfo()
     bar = progress_bar(range(config.max_iter), show=progress, desc="newton (streamed)")
-    for step in bar:
-        th32 = jnp.asarray(theta, jnp.float32)
-        gx, hh, diag = stream.run(_grad_pass, th32)
-        f0 = 0.5 * np.sum(theta * theta, axis=0) + c * hh
-        grad = lam * theta - gx
-        grad[:, done] = 0.0
-        precond = lam + diag
-        s, its = _cg(stream, th32, -grad, precond, lam, config, config.cg_cap(step))
-        dec = c * np.sum(-grad * s, axis=0)
-        t = _line_search(stream, th32, theta, s, c, grad)
-        theta = theta + t[None, :] * s
-        info.steps += 1
-        info.cg_iterations.append(its)
-        gap = dec / np.maximum(np.abs(f0), 1e-300)
-        done |= gap <= config.gap_tol
-        bar.set_postfix(
-            objective=f"{f0.sum():.6g}", gap=f"{gap[~done].max(initial=0):.1e}"
-        )
-        if done.all():
-            break
-    bar.close()
-    _, hh, _ = stream.run(_grad_pass, jnp.asarray(theta, jnp.float32))
-    info.objective = 0.5 * np.sum(theta * theta, axis=0) + c * hh
+    with jax.enable_x64(True):
+        params = Iterate(jnp.zeros((q, p), jnp.float64), None)
+        state = tx.init(params)
+        for step in bar:
+            theta = params.theta
+            th32 = theta.astype(jnp.float32)
+            loss, gx, diag = stream.run(_grad_pass, th32, c)
+            f0, reg_grad = _value_and_grad(theta, c)
+            f0 = np.asarray(f0) + loss
+            grad = jnp.where(done[None, :], 0.0, reg_grad + gx)
+            system = _system(stream, theta, th32, grad, diag, c)
+            cap = config.cg_cap(step)
+            updates, state = tx.update(
+                Iterate(grad, None), state, params, system=system, max_cg=cap
+            )
+            t = _line_search(stream, th32, theta, updates.theta, c, grad)
+            params = Iterate(theta + t[None, :] * updates.theta, None)
+            info.steps += 1
+            info.cg_iterations.append(int(state.cg_iterations))
+            gap = np.asarray(state.decrement) / np.maximum(np.abs(f0), 1e-300)
+            done |= gap <= config.gap_tol
+            bar.set_postfix(
+                objective=f"{f0.sum():.6g}", gap=f"{gap[~done].max(initial=0):.1e}"
+            )
+            if done.all():
+                break
+        bar.close()
+        theta = params.theta
+        loss, _, _ = stream.run(_grad_pass, theta.astype(jnp.float32), c)
+        info.objective = np.asarray(_value_and_grad(theta, c)[0]) + loss
+        theta = np.asarray(theta, np.float32)
     info.pass_seconds = stream.seconds
-    theta = theta.astype(np.float32)
     return Templates(w=theta[:-1], b=theta[-1]), info
 
 
-def _cg(stream, th32, r0, precond, lam, config, cap) -> tuple[np.ndarray, int]:
-    """Jacobi-preconditioned CG for ``(lam I + Xa^T D Xa) s = r0``, per column."""
-    target = config.eta * np.linalg.norm(r0, axis=0)
-    s, r = np.zeros_like(r0), r0.copy()
-    z = r / precond
-    d, rz = z.copy(), np.sum(r * z, axis=0)
-    its = 0
-    while its < cap:
-        on = np.linalg.norm(r, axis=0) > target
-        if not on.any():
-            break
-        ad = stream.run(_hess_pass, th32, jnp.asarray(d, jnp.float32)) + lam * d
-        dad = np.sum(d * ad, axis=0)
-        step = np.where(on, rz / np.where(dad > 0, dad, 1.0), 0.0)
-        s, r = s + step * d, r - step * ad
-        z = r / precond
-        rz_new = np.sum(r * z, axis=0)
-        beta = rz_new / np.where(rz > 0, rz, 1.0)
-        d = np.where(on, z + beta * d, d)
-        rz = np.where(on, rz_new, rz)
-        its += 1
-    return s, its
+def _value_and_grad(theta, c):
+    """The regulariser's value (p,) and gradient (q, p) at theta (float64)."""
+    value, vjp = jax.vjp(lambda th: _regulariser(th, c), theta)
+    return value, vjp(jnp.ones_like(value))[0]
+
+
+def _system(stream, theta, th32, grad, diag, c) -> NewtonSystem:
+    """The Newton system at theta for :func:`newton_cg`: products are passes over
+    the blocks (plus the regulariser's Hessian, by autodiff), preconditioned by
+    the Hessian's diagonal; CG in float64 on the host."""
+
+    def reg_hvp(v):
+        return jax.jvp(
+            jax.grad(lambda th: jnp.sum(_regulariser(th, c))), (theta,), (v,)
+        )
+
+    reg_diag = reg_hvp(jnp.ones_like(theta))[1]
+    precond_diag = reg_diag + diag
+
+    def hvp(v):
+        loss = stream.run(_hess_pass, th32, v.astype(jnp.float32), c)
+        return reg_hvp(v)[1] + loss, None
+
+    return NewtonSystem(
+        grad, hvp, lambda r: r / precond_diag, 1.0, jnp.float64, host_loop
+    )
 
 
 def _line_search(stream, th32, theta, s, c, grad) -> np.ndarray:
-    """Step length (p,) along s: two passes of ``phi'`` on grids (see module)."""
-    b = np.sum(theta * s, axis=0)
-    cc = np.sum(s * s, axis=0)
+    """Step length (p,) along s: two passes of ``phi'`` on grids (see module).
+
+    ``phi(t)`` is the objective along the step: the regulariser's part, a
+    quadratic in t (its slope at 0 and curvature by ``jax.jvp``), plus the
+    blocks' (:func:`_line_pass`)."""
+
+    def reg(t):
+        return _regulariser(theta + t[None, :] * s, c)
+
+    def reg_slope(t):
+        return jax.jvp(reg, (t,), (jnp.ones_like(t),))[1]
+
+    zero = jnp.zeros(theta.shape[1], theta.dtype)
+    b, cc = (np.asarray(v) for v in jax.jvp(reg_slope, (zero,), (jnp.ones_like(zero),)))
+    s = np.asarray(s)
     lo = np.zeros_like(b)
-    g_lo = 2 * c * np.sum(grad * s, axis=0)  # phi'(0)
+    g_lo = np.sum(np.asarray(grad) * s, axis=0)  # phi'(0)
     hi = np.full_like(b, np.inf)
     grid = np.repeat(np.asarray(_GRID)[:, None], len(b), axis=1)
     h_lo = None
     for _ in range(2):
-        gs, hs, _ = stream.run(_line_pass, th32, jnp.asarray(s, jnp.float32),
-                               jnp.asarray(grid, jnp.float32))  # fmt: skip
-        slope = b[None] + grid * cc[None] - 2 * c * gs  # phi'(t) at the grid
-        curv = cc[None] + 2 * c * hs
+        gs, hs = stream.run(_line_pass, th32, jnp.asarray(s, jnp.float32),
+                            jnp.asarray(grid, jnp.float32), c)  # fmt: skip
+        slope = b[None] + grid * cc[None] + gs  # phi'(t) at the grid
+        curv = cc[None] + hs
         left = slope < 0
         t_lo = np.where(left, grid, -np.inf).max(axis=0)
         i_lo = np.where(left, grid, -np.inf).argmax(axis=0)
@@ -290,9 +340,9 @@ def _line_search(stream, th32, theta, s, c, grad) -> np.ndarray:
         hi = np.minimum(hi, t_hi)
         top = np.where(np.isfinite(hi), hi, 2 * lo + 8.0)
         grid = lo[None] + (top - lo)[None] * (np.arange(1, 9)[:, None] / 9.0)
-    # Newton on the piece right of lo (exact if the root is on it), inside the bracket
-    curv0 = cc + 2 * c * (h_lo if h_lo is not None else 0.0)
-    t = lo - g_lo / np.maximum(curv0, 1e-300)
+    # Newton on the piece right of lo (exact if the root is on it), inside the
+    # bracket; h_lo is phi'' there (the regulariser's cc included)
+    t = lo - g_lo / np.maximum(h_lo, 1e-300)
     t = np.clip(t, lo, np.where(np.isfinite(hi), hi, t))
     return np.where(g_lo < 0, t, lo)
 

@@ -1,10 +1,14 @@
 """The streamed Newton-CG solver against the in-memory one."""
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.io.frame_files import ShardWriter, open_frames
-from rhythmic_jax.objective import period_errors, scores, targets
+from rhythmic_jax.objective import margin_objectives, period_errors, scores, targets
+from rhythmic_jax.solvers import streamed
 from rhythmic_jax.solvers.newton import newton_fit
+from rhythmic_jax.solvers.newton_cg import Iterate, scale_by_exact_linesearch
 from rhythmic_jax.solvers.streamed import (
     StreamConfig,
     stream_errors,
@@ -33,3 +37,64 @@ def test_streamed_fit_reaches_the_in_memory_optimum(tmp_path):
     want = np.asarray(period_errors(scores(ref, x), np.arange(n), periods))
     errors = stream_errors(frames, np.arange(n), periods, got, block_rows=96)
     np.testing.assert_allclose(errors, want, atol=1.5 / n)
+
+
+def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_path):
+    """What the streamed solver hands newton_cg (the objective, its gradient and
+    Hessian products summed over blocks, padding included) is autodiff of the
+    one objective over all frames; its line search lands on the exact
+    per-template minimiser along the step (the in-memory optax search's)."""
+    rng = np.random.default_rng(1)
+    n, d, periods, c = 50, 6, (4, 5), 2.5
+    x = rng.normal(size=(n, d)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    with ShardWriter(tmp_path / "s", rows=20) as w:
+        w.write(x)
+    stream = streamed._Stream(
+        open_frames(tmp_path / "s"), 0, n, np.arange(n, dtype=np.int32),
+        periods, 7, lambda tree: tree,
+    )  # fmt: skip
+    xa = np.hstack([x, np.ones((n, 1), np.float32)]).astype(np.float64)
+    y = np.asarray(targets(np.arange(n), periods), np.float64)
+    with jax.enable_x64(True):
+        theta = jnp.asarray(rng.normal(size=(d + 1, sum(periods))) * 0.5)
+
+        def f(th):
+            return margin_objectives(th, jnp.asarray(xa) @ th, jnp.asarray(y), c)
+
+        grad_ref = jax.grad(lambda th: jnp.sum(f(th)))(theta)
+        th32 = theta.astype(jnp.float32)
+        loss, gx, diag = stream.run(streamed._grad_pass, th32, c)
+        reg, reg_grad = streamed._value_and_grad(theta, c)
+        np.testing.assert_allclose(reg + loss, f(theta), rtol=1e-6)
+        grad = reg_grad + gx
+        np.testing.assert_allclose(grad, grad_ref, rtol=1e-4, atol=1e-4)
+        system = streamed._system(stream, theta, th32, grad, diag, c)
+        v = jnp.asarray(rng.normal(size=theta.shape))
+        hv, margins = system.hvp(v)
+        assert margins is None  # nothing of size n is kept
+        hv_ref = jax.jvp(jax.grad(lambda th: jnp.sum(f(th))), (theta,), (v,))[1]
+        np.testing.assert_allclose(hv, hv_ref, rtol=1e-4, atol=1e-4)
+        # the Newton step at theta, then the search along it
+        th, g64 = np.asarray(theta), np.asarray(grad_ref)
+        s = np.empty_like(th)
+        for j in range(th.shape[1]):
+            active = (y[:, j] * (xa @ th[:, j]) < 1)[:, None]
+            hessian = np.eye(d + 1) + 2 * c * xa.T @ (active * xa)
+            s[:, j] = np.linalg.solve(hessian, -g64[:, j])
+        s = jnp.asarray(s)
+        t = streamed._line_search(stream, th32, theta, s, c, grad)
+        it = Iterate(theta, jnp.asarray(xa) @ theta)
+        step = Iterate(s, jnp.asarray(xa) @ s)
+
+        def value_fn(p):
+            return margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
+
+        search = scale_by_exact_linesearch()
+        _, exact = search.update(step, search.init(it), it, value_fn=value_fn)
+        # exact once the bracket holds one piece of phi'; within it otherwise
+        np.testing.assert_allclose(t, exact.step_size[0], rtol=2e-3)
+        end = theta + jnp.asarray(t)[None, :] * s
+        reached = value_fn(Iterate(end, jnp.asarray(xa) @ end))
+        np.testing.assert_allclose(reached, exact.new_value, rtol=1e-5)
+        assert not np.allclose(t, 1.0, rtol=1e-3)  # the search moved the step
