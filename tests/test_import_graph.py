@@ -27,7 +27,7 @@ LAYERS = [
     ["groups"],
     ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline",
      "eval.ground_truth", "embedding"],
-    ["io.ground_truth_files", "closed_form", "solvers.newton_cg"],
+    ["io.ground_truth_files", "closed_form", "solvers.newton_cg", "solvers.candidates"],
     [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
         "features", "solvers.streamed", "learn",

@@ -246,6 +246,7 @@ def newton_fit(
     *,
     bias: jax.Array | None = None,
     init: Templates | None = None,
+    stop=None,
 ) -> tuple[Templates, NewtonInfo]:
     """Minimise the joint squared-hinge objective of p templates.
 
@@ -263,6 +264,10 @@ def newton_fit(
         objective, which is taken off. Default: all ones.
       init: starting templates, w (d, p) and b (p,) (a warm start); default
         zero, from which the first step is the ridge solution.
+      stop: optional ``stop(step, margins) -> (p,) bool``, called after every
+        Newton step with the margins ``Xa theta`` (n, p) of all templates: the
+        templates it marks take no further step (their columns keep their
+        values; e.g. :class:`rhythmic_jax.solvers.candidates.DropLosers`).
 
     Returns:
       Templates with ``w`` (d, p) and ``b`` (p,) as float32, and a
@@ -278,8 +283,9 @@ def newton_fit(
             beta = scipy.linalg.solve_triangular(factor, margins, lower=True)
             init = Templates(jnp.asarray(beta, jnp.float32), init.b)
         params, info = newton_fit(
-            factor.astype(np.float32), y, c, reduced, progress=progress, init=init
-        )
+            factor.astype(np.float32), y, c, reduced, progress=progress, init=init,
+            stop=stop,
+        )  # fmt: skip
         w = lift(np.asarray(x), factor, np.asarray(params.w))
         return Templates(w=jnp.asarray(w, jnp.float32), b=params.b), info
     if bias is None:
@@ -341,6 +347,8 @@ def newton_fit(
                 objective=f"{np.nansum(objective):.6g}", gap=f"{np.max(gap):.1e}"
             )
             todo = np.setdiff1d(todo, cols[done])
+            if stop is not None and len(todo):
+                todo = todo[~np.asarray(stop(step, params.margins), bool)[todo]]
             if len(todo) == 0 or (not config.compact and np.all(gap <= config.gap_tol)):
                 break
         bar.close()
