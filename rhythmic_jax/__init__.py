@@ -88,6 +88,7 @@ _EXPORTS = {
     "project": "rhythmic_jax.projection",
     "MapConfig": "rhythmic_jax.rhythmic_map",
     "RhythmicMap": "rhythmic_jax.rhythmic_map",
+    "DropLosers": "rhythmic_jax.solvers.candidates",
     "check_memory": "rhythmic_jax.solvers.memory",
     "fit_bytes": "rhythmic_jax.solvers.memory",
     "newton_fit": "rhythmic_jax.solvers.newton",
@@ -214,6 +215,7 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     from rhythmic_jax.projection import project as project
     from rhythmic_jax.rhythmic_map import MapConfig as MapConfig
     from rhythmic_jax.rhythmic_map import RhythmicMap as RhythmicMap
+    from rhythmic_jax.solvers.candidates import DropLosers as DropLosers
     from rhythmic_jax.solvers.memory import check_memory as check_memory
     from rhythmic_jax.solvers.memory import fit_bytes as fit_bytes
     from rhythmic_jax.solvers.newton import NewtonConfig as NewtonConfig
