@@ -127,12 +127,12 @@ def markdown(r: dict) -> str:
     full, drop = r["runs"]["full"], r["runs"]["drop"]
     n, cands = r["n"], r["candidates"]
     steps = np.rint(np.asarray(full["step_errors"]) * n).astype(int)
-    final = steps[-1]
+    final = np.rint(np.asarray(full["errors"]) * n).astype(int)
     move = np.abs(steps - final).max(axis=1)
     rows = [
         [k, *(int(v) for v in e), int(mv)]
         for k, (e, mv) in enumerate(zip(steps, move, strict=True))
-    ]
+    ] + [["end", *(int(v) for v in final), 0]]
     act = full["active_per_frame"]
     same = full["chosen"] == drop["chosen"]
     return "\n".join([
@@ -152,6 +152,9 @@ def markdown(r: dict) -> str:
                  str(drop["columns"]), drop["work"], str(drop["chosen"])],
             ],
         ),  # fmt: skip
+        "",
+        "The wall times differ by the machine's load only where the work is"
+        " the same.",
         "",
         f"Candidates stopped (step, periods): {drop['dropped'] or 'none'}. Same"
         f" periods chosen: {same}; largest relative objective difference of the"

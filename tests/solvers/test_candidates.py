@@ -35,11 +35,8 @@ def _two_rhythms(n=400, d=48, seed=0):
     return (x / np.linalg.norm(x, axis=1, keepdims=True)).astype(np.float32)
 
 
-@pytest.mark.parametrize(
-    "config",
-    [FAST, pytest.param(NewtonConfig(), marks=pytest.mark.slow)],
-    ids=["fast", "tight"],
-)
+@pytest.mark.slow  # compiles every width of two solves
+@pytest.mark.parametrize("config", [FAST, NewtonConfig()], ids=["fast", "tight"])
 def test_dropping_losers_keeps_the_choice_and_its_templates(config):
     x = _two_rhythms()
     n = len(x)
