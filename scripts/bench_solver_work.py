@@ -26,7 +26,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _bench_common import begin, header, parser, run_record, table, write_report
+from _bench_common import (
+    begin,
+    header,
+    parser,
+    plain,
+    run_record,
+    table,
+    write_report,
+)
 
 from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
@@ -98,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
             errors=errors.tolist(),
             chosen=list(chosen),
             objective=info.objective.tolist(),
-            step_errors=getattr(stop, "errors", None),
+            step_errors=stop.errors if isinstance(stop, Record) else None,
             dropped=[[k, list(t)] for k, t in getattr(stop, "dropped", [])],
         )
         if name == "full":
@@ -120,7 +128,7 @@ def main(argv: list[str] | None = None) -> None:
         after=args.after, runs=runs,
         chosen_gap=float(np.max(np.abs(f1 - f0) / f0)),
     )  # fmt: skip
-    write_report(args.out, "solver_work", report, markdown(report))
+    write_report(args.out, "solver_work", plain(report), markdown(plain(report)))
 
 
 def markdown(r: dict) -> str:

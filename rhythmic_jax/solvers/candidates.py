@@ -15,8 +15,8 @@ worse than the best set by more than the errors may still move: ``slack`` (a
 fraction of the frames) per period, for each set.
 
 How far errors move after a few Newton steps is data's business: on Nordland
-(3576 frames, 7 candidates 60-66, ``FAST``) one moves by up to 23 frames
-(0.6 %) between the fifth step and the end, 12 from the sixth, while every
+(3576 frames, 7 candidates 60-66, ``FAST``) one moves by up to 19 frames
+(0.5 %) between the fifth step and the end, 14 from the sixth, while every
 other pair of periods ends 5-25 frames behind the chosen pair, so no candidate
 can be stopped safely before the last steps (``reports/solver_work.md``).
 
