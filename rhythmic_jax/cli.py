@@ -90,6 +90,18 @@ def _quiet_logs(verbose: bool) -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
+def _codes_arg(text: str) -> int | str:
+    """``--codes``: a number of bits, or ``int8``."""
+    if text == "int8":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of bits or int8, got {text!r}"
+        ) from None
+
+
 def _add_source_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--descriptor",
@@ -280,10 +292,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--codes",
-        type=int,
+        type=_codes_arg,
         default=None,
-        metavar="BITS",
-        help="also store a BITS-bit ITQ code per place (1 <= BITS <= d); queries "
+        metavar="BITS|int8",
+        help="also store a code per place: BITS-bit ITQ (1 <= BITS <= d), or int8 "
+        "(a byte per dimension: d bytes a place, best on an --embedding); queries "
         "fuse the map's place scores with the code similarities",
     )
     p.add_argument(
@@ -310,8 +323,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--method",
         default="invariant",
-        choices=("invariant", "map", "infonce"),
-        help="closed form (default), learned through the map, or InfoNCE",
+        choices=("invariant", "pca", "map", "infonce"),
+        help="closed form (default), principal axes only, learned through the "
+        "map, or InfoNCE",
     )
     p.add_argument("--head", default="linear", choices=("linear", "mlp"))
     p.add_argument("--k", type=int, default=256, help="output dimensions (256)")

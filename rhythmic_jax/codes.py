@@ -28,18 +28,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.scalar_codes import ScalarCodeBook
 from rhythmic_jax.validate import check_features
 
 __all__ = [
     "CodeBook",
     "CodeTransform",
     "check_bits",
+    "check_codes",
     "code_bytes",
     "code_similarity",
+    "codebook_from_arrays",
+    "fit_codebook",
     "fit_codes",
     "pack_bits",
     "unpack_bits",
 ]
+
+INT8 = "int8"
 
 _F32 = 4
 
@@ -160,6 +166,8 @@ class CodeBook:
     transform: CodeTransform
     codes: np.ndarray
 
+    kind = "itq"
+
     @classmethod
     def fit(cls, x, bits: int, fit_on=None) -> CodeBook:
         """Codes of the places x (n, d); ITQ fitted on ``fit_on`` (default x)."""
@@ -199,3 +207,31 @@ class CodeBook:
             )
         transform = CodeTransform(mean.astype(np.float32), proj.astype(np.float32))
         return cls(transform, unpack_bits(packed, bits))
+
+
+def check_codes(codes, d: int | None = None) -> int | str:
+    """A map's ``codes`` setting: a number of ITQ bits (in [1, d] when d is
+    given) or ``"int8"`` (8-bit scalar codes of every dimension)."""
+    if codes == INT8:
+        return INT8
+    ok = isinstance(codes, int | np.integer) and not isinstance(codes, bool)
+    if not ok or codes < 1:
+        raise InputError(
+            f"codes must be a number of ITQ bits >= 1 or {INT8!r} (a byte per "
+            f"dimension), got {codes!r}"
+        )
+    return int(codes) if d is None else check_bits(int(codes), d)
+
+
+def fit_codebook(x, codes) -> CodeBook | ScalarCodeBook:
+    """The codes of places x (n, d) for a ``codes`` setting (:func:`check_codes`)."""
+    codes = check_codes(codes, np.shape(x)[1])
+    return ScalarCodeBook.fit(x) if codes == INT8 else CodeBook.fit(x, codes)
+
+
+def codebook_from_arrays(arrays: dict, n: int, d: int, codes):
+    """A stored codebook of ``n`` places over d dims (:meth:`CodeBook.arrays`)."""
+    codes = check_codes(codes)
+    if codes == INT8:
+        return ScalarCodeBook.from_arrays(arrays, n, d)
+    return CodeBook.from_arrays(arrays, n, d, codes)

@@ -234,9 +234,12 @@ def fit(job: FitJob, progress: bool = False):
     read = job.reading
     _check_reading(read)
     check_target(job.out)  # before the fit, not after it
-    if job.codes is not None and (isinstance(job.codes, bool) or job.codes < 1):
+    bad = isinstance(job.codes, bool) or not isinstance(job.codes, int | str)
+    if job.codes is not None and (
+        bad or (job.codes != "int8" and (isinstance(job.codes, str) or job.codes < 1))
+    ):
         raise InputError(
-            f"{{opt:codes}} must be a number of bits >= 1, got {job.codes}"
+            f"{{opt:codes}} must be a number of bits >= 1 or int8, got {job.codes}"
         )
     parse_layout(job.layout)  # a bad layout ends here, not after describing
     augmented = _augmented_settings(job) if job.augment else None
@@ -259,7 +262,7 @@ def fit(job: FitJob, progress: bool = False):
         embedding=_embedding_for(job.embedding, feats),
     )  # fmt: skip
     dim = feats.x.shape[1] if model.embedding is None else model.embedding.k
-    if job.codes is not None and job.codes > dim:
+    if isinstance(job.codes, int) and job.codes > dim:
         what = "descriptors'" if model.embedding is None else "embedding's"
         raise InputError(
             f"{{opt:codes}} {job.codes}: at most d={dim} bits (the {what} dimension)"
@@ -385,7 +388,11 @@ def learn_summary(out: str, emb, info: dict[str, Any]) -> str:
 
 def fit_summary(out: str, info: dict[str, Any]) -> str:
     """One line about a saved map: size, periods, storage and compression."""
-    codes = f" with {info['codes_bits']}-bit codes" if info.get("codes_bits") else ""
+    codes = ""
+    if info.get("codes_bits"):
+        kind = info.get("codes_kind") or "itq"
+        bits = f"{info['codes_bits']}-bit"
+        codes = f" with {'int8' if kind == 'int8' else bits} codes"
     return (
         f"map {out}: n={info['n']} d={info['d']} {info['layout']}"
         f"{codes} storage={info['storage_bytes']:,} B "
@@ -445,7 +452,10 @@ INFO_KEYS = (
     "config", "reference", "storage", "codes_bits", "embedding_bytes", "embedding",
     "layout", "groups", "group_errors",
 )  # fmt: skip
-CODE_ARRAYS = {"codes_mean", "codes_projection", "codes_packed"}
+CODE_ARRAYS = {  # by kind of codes (rhythmic_jax.codes, rhythmic_jax.scalar_codes)
+    "itq": {"codes_mean", "codes_projection", "codes_packed"},
+    "int8": {"codes_vmin", "codes_vdiff", "codes_uint8"},
+}
 
 
 def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
@@ -458,7 +468,8 @@ def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
         ok = sum(st["per_period"].values()) == templates
         ok = ok and meta["storage_bytes"] == templates + st["fixed"] + st["per_place"]
         ok = ok and meta["database_bytes"] == n * d * 4
-        arrays = {"w", "b"} | (CODE_ARRAYS if meta["codes_bits"] else set())
+        kind = meta.get("codes_kind") or "itq"
+        arrays = {"w", "b"} | (CODE_ARRAYS[kind] if meta["codes_bits"] else set())
     except (KeyError, TypeError, ValueError, AttributeError):
         return False
     return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
@@ -476,7 +487,9 @@ def info(map_path: str) -> dict[str, Any]:
 
     folder, meta = read_metadata(map_path)
     if _consistent(meta, arrays_listed(folder)):
-        return {key: meta[key] for key in INFO_KEYS}
+        return {key: meta[key] for key in INFO_KEYS} | {
+            "codes_kind": meta.get("codes_kind")
+        }
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     return RhythmicMap.load(map_path).info()

@@ -3,6 +3,9 @@
 Three methods share one head and one data set (row i of every traversal is
 place i, each traversal a different condition: season, time of day, date):
 
+* ``pca``: the leading principal axes of the training frames of every
+  traversal (unsupervised: no pairing of places across conditions used), a
+  baseline with nothing learned about the change of condition.
 * ``invariant``: the closed form of :func:`rhythmic_jax.embedding.fit_invariant`
   (no gradient steps). Every other method starts from it.
 * ``map``: the embedding learned *through the map*. Each step draws an episode:
@@ -43,11 +46,12 @@ from rhythmic_jax.closed_form import (
 from rhythmic_jax.embedding import Embedding, fit_invariant, linear
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import targets
+from rhythmic_jax.projection import fit_pca
 
 __all__ = ["LearnConfig", "learn_embedding", "map_episode_loss"]
 
 log = logging.getLogger(__name__)
-METHODS = ("invariant", "map", "infonce")
+METHODS = ("pca", "invariant", "map", "infonce")
 HEADS = ("linear", "mlp")
 
 
@@ -56,7 +60,7 @@ class LearnConfig:
     """How an embedding is learned (``rhythmic-jax learn A B --out EMB``).
 
     Attributes:
-      method: invariant | map | infonce (see the module docstring).
+      method: pca | invariant | map | infonce (see the module docstring).
       head: linear (k x k) | mlp (plus a residual ReLU layer of ``hidden`` units).
       k, p, shrink: of the closed form (:func:`fit_invariant`).
       window, r, level: an episode's window of places and its periods.
@@ -189,6 +193,11 @@ def learn_embedding(
     xs = _check_traversals(traversals)
     n = xs[0].shape[0]
     t0 = time.perf_counter()
+    if cfg.method == "pca":
+        pca = fit_pca(np.concatenate(xs), min(cfg.k, len(xs) * n - 1, xs[0].shape[1]))
+        info = dict(config=asdict(cfg), places=n, fit_places=n, val_places=0)
+        info.update(seconds=time.perf_counter() - t0, steps=0)
+        return linear(pca.mean, pca.components.T), info
     n_val = int(round(cfg.val_fraction * n)) if cfg.method != "invariant" else 0
     gap = min(20, n // 20) if n_val else 0
     n_fit = n - n_val - gap

@@ -27,7 +27,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.codes import CodeBook, check_bits
+from rhythmic_jax.codes import (
+    CodeBook,
+    check_codes,
+    codebook_from_arrays,
+    fit_codebook,
+)
 from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
 from rhythmic_jax.decoding.fusion import (
     check_weight,
@@ -63,6 +68,7 @@ from rhythmic_jax.periods import (
     period_offsets,
 )
 from rhythmic_jax.quantize import DTYPES, dequantize, quantize, template_bytes
+from rhythmic_jax.scalar_codes import ScalarCodeBook
 from rhythmic_jax.solvers.memory import check_memory
 from rhythmic_jax.solvers.protocol import solver_for
 from rhythmic_jax.validate import (
@@ -100,8 +106,10 @@ class MapConfig:
       dtype: how templates are stored: float32, float16, or int8 with a
         scale per template (:mod:`rhythmic_jax.quantize`); queries are scored
         with the stored values.
-      codes: also store a ``codes``-bit ITQ code per place (a hybrid map,
-        :mod:`rhythmic_jax.decoding.fusion`); None for the map alone.
+      codes: also store a code per place (a hybrid map,
+        :mod:`rhythmic_jax.decoding.fusion`): a number of ITQ bits
+        (:mod:`rhythmic_jax.codes`), or "int8" for a byte per dimension
+        (:mod:`rhythmic_jax.scalar_codes`); None for the map alone.
       fusion: the map's share ``w`` of the fused score (codes: ``1 - w``).
       layout: how frames are labelled (:mod:`rhythmic_jax.groups`): "periods"
         (the paper: co-prime periods chosen by training error), "periods:T1,T2",
@@ -128,7 +136,7 @@ class MapConfig:
     descriptor: str = "features"
     descriptor_settings: dict = field(default_factory=dict, hash=False)
     dtype: str = "float32"
-    codes: int | None = None
+    codes: int | str | None = None
     fusion: float = 0.5
 
     layout: str = "periods"
@@ -138,11 +146,7 @@ class MapConfig:
         if self.dtype not in DTYPES:
             raise InputError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
         if self.codes is not None:
-            bad = isinstance(self.codes, bool) or not isinstance(self.codes, int)
-            if bad or self.codes < 1:
-                raise InputError(
-                    f"codes must be a positive number of bits, got {self.codes!r}"
-                )
+            check_codes(self.codes)
         check_weight(self.fusion)
         if self.solver not in SOLVERS:
             raise InputError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
@@ -180,7 +184,7 @@ class RhythmicMap:
         self.c: float | None = None
         self.group_errors: tuple[float, ...] = ()
         self.extra: dict[str, np.ndarray] = {}
-        self.codebook: CodeBook | None = None
+        self.codebook: CodeBook | ScalarCodeBook | None = None
         # where the reference frames came from (paths, tiling), not the frames:
         # ``rhythmic-jax evaluate`` reads them again for its brute-force line
         self.reference: dict[str, Any] = {}
@@ -216,7 +220,7 @@ class RhythmicMap:
             x = apply_embedding(self.embedding, x)
         cfg = self.config
         if cfg.codes is not None:  # ITQ on the embedded frames when there is one
-            check_bits(cfg.codes, x.shape[1])
+            check_codes(cfg.codes, x.shape[1])
             if not np.array_equal(labels, np.arange(len(x))):
                 raise InputError("codes need one reference frame per place, in order")
         n = int(labels.max()) + 1
@@ -229,7 +233,7 @@ class RhythmicMap:
         if spec.kind != "periods" or spec.sizes:
             self._fit_groups(x, labels, spec, progress, refine, d_in)
             if cfg.codes is not None:
-                self.codebook = CodeBook.fit(x, cfg.codes)
+                self.codebook = fit_codebook(x, cfg.codes)
             return self
         cands, c = self._plan(n)
         check_memory(len(x), x.shape[1], sum(cands))
@@ -250,7 +254,7 @@ class RhythmicMap:
         errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
         self._choose(params, cands, errors, n, d_in, c)
         if cfg.codes is not None:
-            self.codebook = CodeBook.fit(x, cfg.codes)
+            self.codebook = fit_codebook(x, cfg.codes)
         return self
 
     def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
@@ -603,6 +607,7 @@ class RhythmicMap:
             "compression_ratio": self.compression_ratio,
             "storage": self.storage(),
             "codes_bits": self.codebook.bits if self.codebook else None,
+            "codes_kind": self.codebook.kind if self.codebook else None,
             "c": self.c,
             "candidates": list(self.candidates),
             "candidate_errors": list(self.candidate_errors),
@@ -704,7 +709,7 @@ class RhythmicMap:
         self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
         if cfg.codes is not None:
             try:
-                self.codebook = CodeBook.from_arrays(arrays, n, tdim, cfg.codes)
+                self.codebook = codebook_from_arrays(arrays, n, tdim, cfg.codes)
             except KeyError as err:
                 raise InputError(f"{path}: codes are missing ({err})") from None
             except InputError as err:

@@ -108,7 +108,7 @@ def test_bad_codes_in_python(bits):
     assert "\n" not in str(err.value) and "codes" in str(err.value)
 
 
-@pytest.mark.parametrize("bits", ["0", "-8", "41"])
+@pytest.mark.parametrize("bits", ["0", "-8", "41", "int4"])
 def test_bad_codes_on_the_command_line(tmp_path, bits):
     x, _ = _route()
     np.save(tmp_path / "ref.npy", x)
@@ -181,3 +181,29 @@ def test_codes_with_given_periods_and_refused_with_digits():
     assert m.storage_bytes == 16 * 17 * 4 + 60 + (8 * 16 + 16) * 4
     with pytest.raises(InputError, match="periods layout"):
         RhythmicMap(layout="mixed", codes=8).fit(x, progress=False)
+
+
+def test_int8_codes_in_a_map_save_load_and_cli(tmp_path):
+    """codes="int8": a byte per dimension, fused the same way, kept on disk, and
+    ``fit --codes int8`` through the command line with its info line."""
+    x, q = _route()
+    model = RhythmicMap(r=2, level=1, codes="int8", decode="soft").fit(x)
+    st = model.storage()
+    assert st["fixed"] == 2 * 40 * 4 and st["per_place"] == 120 * 40
+    assert model.info()["codes_kind"] == "int8"
+    sims = model.codebook.similarity(q)
+    ref = fused_decode(model.scores(q), sims, model.periods, model.n, 0.5, "soft")
+    assert np.array_equal(model.predict(q), np.asarray(ref.index))
+    model.save(tmp_path / "m")
+    back = RhythmicMap.load(tmp_path / "m")
+    assert np.array_equal(back.predict(q, sequence=5), model.predict(q, sequence=5))
+    np.save(tmp_path / "ref.npy", x)
+    run = [sys.executable, "-m", "rhythmic_jax.cli"]
+    fit = run + ["fit", "ref.npy", "--out", "c", "--codes", "int8"]
+    out = subprocess.run(fit, cwd=tmp_path, check=True, capture_output=True, text=True)
+    assert "with int8 codes" in out.stdout + out.stderr
+    info = subprocess.run(
+        run + ["info", "c", "--json"], cwd=tmp_path, check=True, capture_output=True
+    ).stdout
+    got = json.loads(info)
+    assert got["codes_kind"] == "int8" and got["storage"]["per_place"] == 120 * 40

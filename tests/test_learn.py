@@ -40,3 +40,21 @@ def test_bad_settings_and_inputs():
         learn_embedding([a])
     with pytest.raises(InputError, match="shape"):
         learn_embedding([a, b[:50]])
+
+
+def test_pca_method_is_the_principal_axes_of_every_traversal():
+    """method="pca": scikit-learn's PCA of the stacked traversals (up to sign),
+    then unit rows; no steps."""
+    from sklearn.decomposition import PCA
+
+    from rhythmic_jax.embedding import apply
+
+    a, b = two_conditions(n=120, seed=4)
+    emb, info = learn_embedding([a, b], LearnConfig(method="pca", k=8))
+    assert info["steps"] == 0 and emb.k == 8 and emb.kind == "linear"
+    ref = PCA(8).fit(np.concatenate([a, b]))
+    z = ref.transform(a)
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    got = apply(emb, a)
+    sign = np.sign(np.sum(got * z, axis=0))
+    np.testing.assert_allclose(got * sign, z, atol=2e-4)
