@@ -18,7 +18,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 LAYERS = [
     ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span",
      "progress"],
-    ["validate", "quantize", "cache_files", "scalar_codes"],
+    ["validate", "quantize", "cache_files"],
+    ["scalar_codes"],
     [
         "periods", "projection", "split", "nets", "io.checkpoint", "io.images", "codes",
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
