@@ -373,7 +373,6 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
                                    eval_every=20),
         },
         level=1,
-        augment=False,  # a network pass over every augmented frame: not here
     )  # fmt: skip
     patch = dict(
         levers={"invariant": LearnConfig(method="invariant", k=128, p=256)}, level=1
@@ -393,7 +392,7 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
                  dict(patch, augment=False))]  # fmt: skip
     return [
         ("Nordland EfficientNet-Lite0",
-         lambda r, p: nordland_data(r, "efficientnet_lite0", p, False), lite),
+         lambda r, p: nordland_data(r, "efficientnet_lite0", p, True), lite),
         ("Aerial pairs patchnorm", aerial_data, aerial),
         ("Nordland patchnorm", lambda r, p: nordland_data(r, "patchnorm", p, True),
          patch),
