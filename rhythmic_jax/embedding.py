@@ -128,6 +128,9 @@ def embedding_from_arrays(arrays: dict[str, np.ndarray]) -> Embedding | None:
     return emb
 
 
+VARIANCE_FLOOR = 1e-6  # principal axes below this share of the first are dropped
+
+
 def fit_invariant(
     traversals: list[np.ndarray], k: int = 256, p: int = 512, shrink: float = 0.1
 ) -> Embedding:
@@ -160,6 +163,15 @@ def fit_invariant(
     if not 1 <= k <= p:
         raise InputError(f"embedding: k={k} must lie in [1, {p}]")
     pca = fit_pca(np.concatenate(xs), p)
+    # axes with (numerically) no variance would be whitened by ~1e6: drop them
+    var = np.asarray(pca.explained_variance)
+    p = int(np.sum(var > VARIANCE_FLOOR * var[0]))
+    if k > p:
+        raise InputError(
+            f"embedding: k={k} exceeds the {p} principal axes with variance in "
+            f"the {total} training frames; use k <= {p} or more training places"
+        )
+    pca = type(pca)(pca.mean, pca.components[:p], pca.explained_variance[:p])
     scale = 1.0 / jnp.sqrt(pca.explained_variance + 1e-12)
     zs = [
         ((jnp.asarray(t) - pca.mean[None, :]) @ pca.components.T) * scale[None, :]
@@ -170,6 +182,7 @@ def fit_invariant(
     cw = dev.T @ dev / dev.shape[0]
     cw = cw + shrink * jnp.trace(cw) / p * jnp.eye(p)
     evals, evecs = jnp.linalg.eigh(cw)  # ascending: least within-place change first
+    evals = jnp.maximum(evals, 1e-12 * evals[-1])  # rounding can make one negative
     # each kept direction scaled by C_w^{-1/2}: the condition change is whitened
     proj = pca.components.T @ (
         scale[:, None] * evecs[:, :k] / jnp.sqrt(evals[:k])[None, :]

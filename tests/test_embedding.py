@@ -112,3 +112,20 @@ def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
     with pytest.raises(InputError, match="at most d=24"):
         jobs.fit(jobs.FitJob(job.sources, str(tmp_path / "m2"), codes=32,
                              embedding=job.embedding))  # fmt: skip
+
+
+def test_invariant_embedding_is_finite_with_few_training_frames():
+    """p capped at (frames - 1) keeps an axis of no variance: it is dropped, not
+    whitened to inf; a k above the axes left is refused in one line."""
+    from rhythmic_jax.embedding import apply, fit_invariant
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(150, 40)) @ rng.normal(size=(40, 2048))
+    b = a.copy()
+    b[:, :100] += 0.3 * rng.normal(size=(150, 100))  # rank <= 140 in 300 frames
+    a, b = a.astype(np.float32), b.astype(np.float32)
+    emb = fit_invariant([a, b], k=64, p=512)
+    assert np.isfinite(np.asarray(emb.proj)).all()
+    assert np.isfinite(apply(emb, a)).all()
+    with pytest.raises(InputError, match="principal axes"):
+        fit_invariant([a, b], k=250, p=512)
