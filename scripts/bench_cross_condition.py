@@ -188,12 +188,15 @@ def with_codes(m: RhythmicMap, ref, codes, fusion: float = 0.5) -> RhythmicMap:
     return h
 
 
-def train_weight(train, emb, pair, codes) -> tuple[float, dict]:
-    """The fusion weight learned on the *training* places: a map of the same
-    periods and its codes on one condition of the training segment, queried with
-    the other; the weight of best recall@1 there (:func:`learn_weight`)."""
+def train_weight(train, emb, pair, codes, n: int) -> tuple[float, dict]:
+    """The fusion weight learned on the *training* places: a map and its codes on
+    one condition of the training segment, queried with the other; the weight of
+    best recall@1 there (:func:`learn_weight`). The map's periods are scaled to
+    the training places so that a phase holds as many places as on the ``n``
+    test places (the map's share depends on how many places share a phase)."""
     ref, qry = train
-    m, _ = fit_map(ref, emb=emb, layout=f"periods:{pair[0]},{pair[1]}")
+    t = max(2, round(pair[0] * len(ref) / n))  # as many places a phase as on test
+    m, _ = fit_map(ref, emb=emb, layout=f"periods:{t},{t + 1}")
     h = with_codes(m, ref, codes)
     q = apply(emb, qry) if emb is not None else qry
     sims = h.codebook.similarity(q)
@@ -272,7 +275,7 @@ def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
     if pair8 != pair:
         m, fit_s = fit_map(ref, emb=emb, layout=f"periods:{pair8[0]},{pair8[1]}")
     t0 = time.perf_counter()
-    w, table = train_weight(train, emb, pair8, "int8")
+    w, table = train_weight(train, emb, pair8, "int8", n)
     learn_s = time.perf_counter() - t0
     h8 = with_codes(m, ref, "int8", w)
     row = eval_row(h8, ref, qry, f"hybrid {label} + int8 codes (w = {w:g} "
