@@ -1021,12 +1021,31 @@ def parse(argv: list[str]) -> argparse.Namespace:
     )
     p.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
     p.add_argument("--no-progress", dest="progress", action="store_false")
+    p.add_argument(
+        "--render",
+        action="store_true",
+        help="no fits: rewrite REPRODUCTION.md from --out's reproduction.json with "
+        "the current --decoding and --cross-condition reports",
+    )
     return p.parse_args(argv)
+
+
+def render_only(args: argparse.Namespace) -> dict[str, Any]:
+    """REPRODUCTION.md again from a run's JSON, with the benchmark reports it
+    quotes read afresh (the paper's figures are not recomputed)."""
+    res = json.loads((args.out / "reproduction.json").read_text())
+    res["decoding_md"], res["decoding"] = decoding_markdown(args.decoding)
+    res["cross_condition_md"] = cross_condition_markdown(args.cross_condition)
+    write_file(args.out / "reproduction.json", json.dumps(res, indent=1))
+    write_file(args.out / "REPRODUCTION.md", markdown(res) + "\n")
+    return res
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse(argv)
+    if args.render:
+        return render_only(args)
     settings = dataclasses.replace(QUICK if args.quick else FULL, threads=args.threads)
     preds = args.predictions or args.cache_dir / (
         "reproduction_quick.npz" if args.quick else "reproduction.npz"
