@@ -443,7 +443,9 @@ def _cmd_fit(args) -> int:
         model = jobs.fit(job, progress=not args.no_progress)
     info = model.info()
     if run is not None:
-        info["fit"] = {k: v for k, v in run.items() if k != "pass_seconds"}
+        info["fit"] = dict(run)
+        if "pass_seconds" in run:  # every pass, to the millisecond
+            info["fit"]["pass_seconds"] = [round(t, 3) for t in run["pass_seconds"]]
     print(json.dumps(info, indent=2) if args.json else jobs.fit_summary(args.out, info))
     return 0
 

@@ -302,11 +302,15 @@ class RhythmicMap:
         errors = np.asarray(
             period_errors(scores(params, jnp.asarray(x)), labels, groups)
         )
-        stored = quantize(np.asarray(params.w), np.asarray(params.b), cfg.dtype)
+        return self._keep_groups(params, groups, errors, n, d_in, c)
+
+    def _keep_groups(self, params: Templates, groups, errors, n: int, d: int, c):
+        """Keep every template of fixed ``groups`` (errors (k,) per group)."""
+        stored = quantize(np.asarray(params.w), np.asarray(params.b), self.config.dtype)
         self._set_stored(stored)
         self.groups = groups
         self.periods = groups.sizes if groups.kind == "periods" else ()
-        self.n, self.d, self.c = n, d_in, float(c)
+        self.n, self.d, self.c = n, d, float(c)
         self.candidates, self.candidate_errors = (), ()
         self.group_errors = tuple(float(e) for e in errors)
         log.info("group training errors %s", np.round(errors, 4))

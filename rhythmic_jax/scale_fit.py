@@ -19,12 +19,15 @@ import logging
 import os
 import re
 from collections.abc import Sequence
+from pathlib import Path
 
 import jax
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.groups import parse_layout, resolve_layout
 from rhythmic_jax.io.frame_files import open_frames
+from rhythmic_jax.objective import default_c
 from rhythmic_jax.solvers.distributed import allreduce, fit_newton, row_block
 from rhythmic_jax.solvers.memory import available_memory, fit_bytes
 from rhythmic_jax.solvers.newton import NewtonConfig
@@ -86,6 +89,7 @@ def fit_map_files(
     memory: int | None = None,
     stream: bool = False,
     progress: bool = True,
+    checkpoint: str | os.PathLike | None = None,
 ) -> dict:
     """Fit ``model`` (a :class:`~rhythmic_jax.rhythmic_map.RhythmicMap`) on files.
 
@@ -94,6 +98,9 @@ def fit_map_files(
         places, frame for frame: place of a frame = its row in its traversal).
       memory: bytes this process may use (default: what the machine has free).
       stream: stream even when an in-memory fit would fit.
+      checkpoint: a folder where a streamed fit keeps its state after every
+        Newton step (one file per process), so that the same fit run again goes
+        on from there; the caller removes it once the map is saved.
 
     Returns:
       How it ran: ``mode`` (memory or stream), ``rows`` of this process,
@@ -112,7 +119,10 @@ def fit_map_files(
     k, i = jax.process_count(), jax.process_index()
     start, stop = row_block(frames.n, k, i)
     labels = labels_all[start:stop]
-    cands, c = model._plan(n_place)
+    groups = _fixed_periods(model, n_place)
+    cands, c = model._plan(n_place) if groups is None else (groups.sizes, None)
+    if c is None:
+        c = model.config.c if model.config.c is not None else default_c(n_place)
     p = sum(cands)
     limit = available_memory() if memory is None else memory
     need = sum(fit_bytes(-(-frames.n // k), d, p).values())
@@ -141,18 +151,37 @@ def fit_map_files(
             max_cg=8 if fast else 50,
             cg_start=3 if fast else None,
         )
+        state = (
+            None if checkpoint is None else Path(checkpoint) / f"stream-{i}-of-{k}.npz"
+        )
         params, info = streamed_newton_fit(
-            frames, labels, cands, c, config, (start, stop), allreduce, progress
+            frames, labels, cands, c, config, (start, stop), allreduce, progress, state
         )
         errors = stream_errors(
             frames, labels, cands, params, (start, stop), rows, allreduce
         )
         run.update(block_rows=rows, steps=info.steps, passes=len(info.pass_seconds))
+        run["cg"] = info.cg_iterations
         run.update(pass_seconds=info.pass_seconds)
         run["pass_median_s"] = float(np.median(info.pass_seconds))
-    model._choose(params, cands, np.asarray(errors), n_place, d, c)
+    if groups is None:
+        model._choose(params, cands, np.asarray(errors), n_place, d, c)
+    else:
+        model._keep_groups(params, groups, np.asarray(errors), n_place, d, c)
     log.info("fit from files: %s", {k: v for k, v in run.items() if k[0] != "p"})
     return run
+
+
+def _fixed_periods(model, n: int):
+    """The :class:`~rhythmic_jax.groups.Groups` of a ``periods:T1,..`` layout
+    (fixed periods: no candidate search), or None for the chosen periods."""
+    spec = parse_layout(model.config.layout)
+    if spec.kind != "periods":
+        raise InputError(
+            f"{{opt:layout}} {model.config.layout!r} needs an in-memory fit of one "
+            "process; streamed and multi-process fits take periods or periods:T1,.."
+        )
+    return resolve_layout(spec, n) if spec.sizes else None
 
 
 def _min_over_processes(value: int) -> int:

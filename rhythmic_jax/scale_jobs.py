@@ -8,8 +8,11 @@ itself is :func:`rhythmic_jax.scale_fit.fit_map_files`.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from rhythmic_jax.errors import InputError
 
@@ -138,11 +141,16 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
     name, settings = shard_descriptor(sources[0])
     model = RhythmicMap(
         r=job.r, level=job.level, count=job.count, c=job.c, gap=job.gap,
-        dtype=job.dtype, descriptor=name, descriptor_settings=settings,
+        layout=job.layout, dtype=job.dtype, descriptor=name,
+        descriptor_settings=settings,
     )  # fmt: skip
+    ckpt = Path(job.checkpoint or str(Path(job.out)) + ".ckpt").absolute()
+    if ckpt.exists() and not ckpt.is_dir():
+        raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
     run = fit_map_files(
-        model, sources, memory=memory, stream=scale.stream, progress=progress
-    )
+        model, sources, memory=memory, stream=scale.stream, progress=progress,
+        checkpoint=ckpt,
+    )  # fmt: skip
     if name == "features":
         from dataclasses import replace
 
@@ -152,7 +160,14 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
         "tile": None,
         "stride": None,
     }
+    if jax.process_index() == 0:
+        model.save(job.out)
+    distributed.allreduce(np.zeros(1))  # every process waits for the saved map
+    (ckpt / f"stream-{jax.process_index()}-of-{jax.process_count()}.npz").unlink(
+        missing_ok=True
+    )
+    with contextlib.suppress(OSError):
+        ckpt.rmdir()  # once every process has removed its file
     if jax.process_index() != 0:
         return None, None
-    model.save(job.out)
     return model, run

@@ -15,10 +15,15 @@ Each cell's result is saved as it completes (``--cells``), so a rerun skips the
 cells already measured. ``--probe N`` writes N route-like 256-d frames to one
 memory-mapped ``.npy`` and streams passes of an r = 3 fit over it under
 ``--probe-memory`` in a child process: the seconds per pass and the child's peak
-resident memory, for the projection to 10^6 places.
+resident memory, for the projection to 10^6 places. ``--full N`` runs the whole
+streamed r = 3 fit of N such frames with fixed periods (``--full-periods``, no
+candidate search) under ``--full-memory`` in ``--full-work`` (a scratch folder:
+features and map; delete it afterwards): wall time, passes, peak memory and
+self-query accuracy on 20,000 frames. It resumes from its checkpoint if killed.
 
     python scripts/bench_scale.py --quick          # a small grid (minutes)
-    python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 10
+    python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
+    python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
 """
 
 from __future__ import annotations
@@ -40,8 +45,9 @@ from rhythmic_jax.io.frame_files import open_frames
 
 log = logging.getLogger("bench_scale")
 NORDLAND = Path("/work/cache/nordland_summer_patchnorm.npy")
-NICE = 10  # the machine is shared: every fit runs at this niceness
+NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
+ROOT = Path(__file__).resolve().parents[1]
 _PEAK = """import json, resource, subprocess, sys, time
 t = time.perf_counter()
 done = subprocess.run(sys.argv[1:], capture_output=True, text=True)
@@ -126,6 +132,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         pass_median_s=run.get("pass_median_s"),
         block_rows=run.get("block_rows"),
         accuracy=acc,
+        nice=NICE,
     )
     log.info("%s", row)
     return row
@@ -216,8 +223,10 @@ def _num(v, digits):
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
-        f"Every fit ran under `nice -n 10` beside other jobs (load above): the times"
-        f" are pessimistic. Cells were measured between {report['cells_from']} and"
+        f"Every fit ran niced beside other jobs (load above): the times are"
+        f" pessimistic. Niceness {report['nices']} (each cell's in the JSON; at 19 a"
+        f" fit takes only CPU no one else wants). Cells were measured between"
+        f" {report['cells_from']} and"
         f" {report['cells_to']} at a 1-minute load average of {report['load_cells']}"
         " (each cell's in the JSON); a rerun reuses cells already measured, so the"
         " command above may only have collected them.",
@@ -296,29 +305,16 @@ def markdown(report: dict) -> str:
         worst = max(np.abs(gaps))
         lines += ["", f"float16 against float32 self-query accuracy: at most "
                   f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
+    if report.get("full"):
+        lines += ["", *full_lines(report["full"], report.get("probe"))]
     probe = report.get("probe")
     if probe:
         lines += ["", *probe_lines(probe)]
     if report.get("missing"):
-        lines += ["", "Not measured (time budget, or failed as said): "
+        lines += ["", "Not measured (time budget or --skip, or failed as said): "
                   + ", ".join(report["missing"])]  # fmt: skip
     lines += ["", "Figures: " + ", ".join(report["figures"])]
     return "\n".join(lines)
-
-
-def probe_lines(p: dict) -> list[str]:
-    per = p["pass_seconds"]
-    return [
-        f"Streamed probe: N = {p['n']:,} route-like {p['d']}-d frames"
-        f" ({p['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3,"
-        f" {p['templates']} templates, `--memory {p['memory']}` ({p['block_rows']}"
-        f" rows per block): {len(per)} passes measured, {np.median(per):.1f} s per"
-        f" pass (median; {', '.join(f'{v:.1f}' for v in per)}), peak resident"
-        f" {p['peak_bytes'] / 2**20:.0f} MiB. The whole fit was not run: at"
-        f" {p['passes_assumed']} passes (the most any streamed r = 3 fit above"
-        f" took) it is projected at {p['projected_hours']:.1f} hours on this"
-        f" loaded machine (projection, not a measurement).",
-    ]
 
 
 def grid(quick: bool) -> list[tuple]:
@@ -328,12 +324,12 @@ def grid(quick: bool) -> list[tuple]:
     else:
         ns, ds = (1000, 3000, 10000, 30000, 100000), (256, 2048)
     cells = [("walk", n, d, r, 1, "memory") for d in ds for r in (3, 2) for n in ns]
-    cells += [("walk", n, 256, 3, 2, "memory") for n in ns if n <= 10000]
+    cells += [("walk", n, 256, 3, 2, "memory") for n in ns if n <= 30000]
     cells += [("walk", n, 256, 3, k, "stream") for n in ns if n <= 10000
               for k in (1, 2)]  # fmt: skip
     if NORDLAND.is_file() and not quick:
-        cells += [("nordland", n, 2048, r, 1, "memory") for n in (1000, 3576)
-                  for r in (2, 3)]  # fmt: skip
+        cells += [("nordland", n, 2048, r, 1, "memory")
+                  for n in (1000, 2000, 3000, 3576) for r in (2, 3)]  # fmt: skip
     cost = {"memory": 1, "stream": 4}
 
     def order(c):  # the storage slope at d = 256, r = 3 first, then by cost
@@ -357,22 +353,146 @@ def features(source: str, n: int, d: int, cells: Path) -> Path:
     return path
 
 
-def probe(n: int, memory: str, cells: Path, passes_assumed: int) -> dict:
-    """Stream passes of an r = 3 fit over n memory-mapped 256-d frames in a child
-    process under ``memory``; its seconds per pass and peak memory."""
-    saved = cells / f"probe-{n}-{memory}.json"
-    if saved.exists():
-        return json.loads(saved.read_text())
-    path = cells / f"walk-{n}-256.npy"
+def route_file(path: Path, n: int) -> Path:
+    """n route-like 256-d frames written block by block to a memory-mapped
+    ``.npy`` at ``path`` (kept if it is there)."""
     if not path.exists():
-        part = np.lib.format.open_memmap(
-            cells / "partial.npy", "w+", np.float32, (n, 256)
-        )
+        partial = path.with_name("partial.npy")
+        part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, 256))
         walk(n, 256, out=part)
         part.flush()
         del part
-        os.replace(cells / "partial.npy", path)
-    cmd = [sys.executable, "-c", _CHILD, str(path), memory]
+        os.replace(partial, path)
+    return path
+
+
+def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
+    """Seconds of every pass of a streamed fit by kind: each Newton step is a
+    gradient pass, its CG passes and two line-search passes; then one last
+    gradient pass (the objective at the end)."""
+    kinds, at = {"gradient": [], "cg": [], "line": [], "step": []}, 0
+    for its in cg:
+        kinds["gradient"].append(seconds[at])
+        kinds["cg"] += seconds[at + 1 : at + 1 + its]
+        kinds["line"] += seconds[at + 1 + its : at + 3 + its]
+        kinds["step"].append(sum(seconds[at : at + 3 + its]))
+        at += 3 + its
+    return kinds
+
+
+def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
+    """The whole streamed r = 3 fit of n route-like 256-d frames (``work``, a
+    scratch folder outside the repository) with fixed periods, under ``memory``:
+    wall seconds, passes, peak resident memory and self-query accuracy on 20,000
+    frames spread along the route. The fit is resumable: a rerun after a kill
+    goes on from its checkpoint, and its attempts are summed."""
+    saved = cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
+    if saved.exists():
+        return json.loads(saved.read_text())
+    work.mkdir(parents=True, exist_ok=True)
+    path = route_file(work / f"walk-{n}-256.npy", n)
+    out = work / f"walk-{n}.map"
+    attempts = work / "attempts.jsonl"
+    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out), "--r", "3",
+           "--layout", f"periods:{periods}", "--stream", "--memory", memory,
+           "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
+    if not out.exists():
+        start = time.strftime("%H:%M UTC", time.gmtime())
+        done = subprocess.run(
+            [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
+        )
+        res = json.loads(done.stdout)
+        res.update(start=start, load=bc.load_average())
+        with open(attempts, "a") as fh:
+            fh.write(json.dumps(res) + "\n")
+        if res["rc"] != 0:
+            raise RuntimeError(done.stderr[-2000:])
+    tries = [json.loads(line) for line in attempts.read_text().splitlines()]
+    text = tries[-1]["out"]
+    info = json.loads(text[text.index("{") :])
+    run = info["fit"]
+    model = RhythmicMap.load(out)
+    x = np.load(path, mmap_mode="r")
+    picks = np.linspace(0, n - 1, min(n, 20000)).astype(int)
+    acc = {}
+    for dtype in ("float32", "float16", "int8"):
+        m = model if dtype == "float32" else model.with_dtype(dtype)
+        acc[dtype] = float(np.mean(m.predict(np.asarray(x[picks])) == picks))
+    kinds = pass_kinds(run["cg"], run["pass_seconds"])
+    row = dict(
+        n=n, d=256, r=3, periods=info["periods"], memory=memory,
+        command=" ".join(["nice", "-n", str(NICE), *cmd]),
+        file_bytes=path.stat().st_size, storage_bytes=info["storage_bytes"],
+        wall_seconds=sum(t["seconds"] for t in tries), attempts=len(tries),
+        starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
+        peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
+        passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
+        block_rows=run["block_rows"],
+        pass_median_s=float(np.median(run["pass_seconds"])),
+        kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
+        group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
+        candidates=list(RhythmicMap(r=3)._plan(n)[0]),
+        code=subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                            capture_output=True, text=True).stdout.strip(),
+    )  # fmt: skip
+    saved.write_text(json.dumps(bc.plain(row)))
+    return row
+
+
+def _attempts(f: dict) -> str:
+    if f["attempts"] == 1:
+        return f"started {f['starts'][0]}"
+    return (f"{f['attempts']} attempts started {', '.join(f['starts'])}, each"
+            " resumed from the last one's checkpoint")  # fmt: skip
+
+
+def full_lines(f: dict, probe: dict | None = None) -> list[str]:
+    p = sum(f["periods"])
+    cands = sum(f["candidates"])
+    search = f["pass_median_s"] * cands / p * f["passes"] / 3600
+    how = "this fit's median seconds per pass scaled by the templates"
+    if probe and probe["n"] == f["n"]:  # the candidate set's measured passes
+        sec = probe["sets"][-1]["seconds"]
+        steps, cg = len(f["cg"]), sum(f["cg"])
+        total = (steps + 1) * sec["gradient"] + cg * sec["CG"]
+        search = (total + 2 * steps * sec["line search"]) / 3600
+        how = "the candidate set's measured pass of each kind (below)"
+    k = f["kinds"]
+    return [
+        f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
+        f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
+        f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
+        f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
+        f" wall** ({_attempts(f)}, at a 1-minute load average of"
+        f" {f['loads'][-1][0]:.1f} at its end, nice {NICE}), {f['steps']} Newton"
+        f" steps, {f['passes']}"
+        f" passes, {f['pass_median_s']:.1f} s per pass (median; gradient"
+        f" {k['gradient']:.1f}, CG {k['cg']:.1f}, line search {k['line']:.1f}),"
+        f" {f['block_rows']:,} rows per block, **peak resident"
+        f" {f['peak_bytes'] / 2**20:.0f} MiB** under the 1 GiB bound; per-period"
+        f" training errors {', '.join(f'{e:.3f}' for e in f['group_errors'])};"
+        f" self-query accuracy on {f['sample']:,} frames spread along the route"
+        f" {f['accuracy']['float32']:.4f} (float16 {f['accuracy']['float16']:.4f},"
+        f" int8 {f['accuracy']['int8']:.4f}). Command: `{f['command']}`, with the"
+        f" streamed solver of commit {f.get('code', '?')}.",
+        "",
+        f"The candidate search ({len(f['candidates'])} candidates"
+        f" {f['candidates'][0]} - {f['candidates'][-1]}, {cands} templates) would"
+        f" train {cands / p:.1f}x the templates per pass: with this fit's steps and"
+        f" passes, at {how}, it is projected at {search:.1f} hours (projection, not"
+        " a measurement; the search may take other steps).",
+    ]
+
+
+def probe(n: int, memory: str, cells: Path, work: Path, periods: str) -> dict:
+    """One pass of each kind over n memory-mapped route-like 256-d frames (in
+    ``work``), streamed under ``memory`` in a child process, for the fixed
+    periods and for the r = 3 candidate set: seconds per pass and peak memory."""
+    saved = cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
+    if saved.exists():
+        return json.loads(saved.read_text())
+    path = route_file(work / f"walk-{n}-256.npy", n)
+    cmd = [sys.executable, "-c", _CHILD, str(path), memory, periods]
     done = subprocess.run(
         [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
     )
@@ -381,33 +501,66 @@ def probe(n: int, memory: str, cells: Path, passes_assumed: int) -> dict:
         raise RuntimeError(done.stderr[-2000:])
     out = json.loads(res["out"].strip().splitlines()[-1])
     out.update(peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
-               passes_assumed=passes_assumed, load=bc.load_average())  # fmt: skip
-    out["projected_hours"] = (
-        float(np.median(out["pass_seconds"])) * passes_assumed / 3600
-    )
+               load=bc.load_average(), nice=NICE,
+               measured=time.strftime("%H:%M UTC", time.gmtime()))  # fmt: skip
     saved.write_text(json.dumps(out))
     return out
 
 
-_CHILD = """import json, sys
+def _periods(ts) -> str:
+    """``100x101x103``, or a candidate set as ``100 .. 106 (7 candidates)``."""
+    if len(ts) <= 3:
+        return "x".join(map(str, ts))
+    return f"{ts[0]} .. {ts[-1]} ({len(ts)} candidates)"
+
+
+def probe_lines(p: dict) -> list[str]:
+    kinds = list(p["sets"][0]["seconds"])
+    head = ["periods", "templates", "rows / block", *kinds]
+    rows = [
+        [_periods(s["periods"]), s["templates"], s["block_rows"],
+         *(round(s["seconds"][k], 1) for k in kinds)]
+        for s in p["sets"]
+    ]  # fmt: skip
+    return [
+        f"Seconds of one pass of each kind over N = {p['n']:,} route-like"
+        f" {p['d']}-d frames ({p['file_bytes'] / 2**30:.2f} GiB .npy) under"
+        f" `--memory {p['memory']}` (measured {p['measured']} at nice {p['nice']},"
+        f" load {p['load'][0]:.1f}; peak resident {p['peak_bytes'] / 2**20:.0f} MiB;"
+        " each includes its kernel's compilation):",
+        "",
+        bc.table(head, rows),
+    ]
+
+
+_CHILD = """import json, sys, time
 import jax.numpy as jnp
 import numpy as np
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.io.frame_files import open_frames
+from rhythmic_jax.objective import default_c
 from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
-from rhythmic_jax.solvers import streamed
+from rhythmic_jax.solvers import streamed as S
 frames = open_frames(sys.argv[1])
-cands, c = RhythmicMap(r=3)._plan(frames.n)
-p = sum(cands)
-rows = block_rows_for(parse_bytes(sys.argv[2]), frames.d, p)
-labels = np.arange(frames.n, dtype=np.int32)
-stream = streamed._Stream(frames, 0, frames.n, labels, tuple(cands), rows,
-                          lambda t: t)
-theta = jnp.zeros((frames.d + 1, p), jnp.float32)
-stream.run(streamed._grad_pass, theta)  # a gradient pass and a CG pass
-stream.run(streamed._hess_pass, theta, theta + 1e-3)
-print(json.dumps(dict(n=frames.n, d=frames.d, templates=p, block_rows=rows,
-                      pass_seconds=stream.seconds)))"""
+fixed = tuple(int(t) for t in sys.argv[3].split(","))
+c = default_c(frames.n)
+sets = []
+for periods in (fixed, tuple(RhythmicMap(r=3)._plan(frames.n)[0])):
+    p = sum(periods)
+    rows = min(frames.n, block_rows_for(parse_bytes(sys.argv[2]), frames.d, p))
+    labels = np.arange(frames.n, dtype=np.int32)
+    st = S._Stream(frames, 0, frames.n, labels, periods, rows, lambda t: t)
+    theta = jnp.zeros((frames.d + 1, p), jnp.float32)
+    v = theta + 1e-3
+    ts = jnp.asarray(np.repeat(np.asarray(S._GRID)[:, None], p, 1), jnp.float32)
+    st.run(S._grad_pass, theta, c)
+    st.run(S._hess_pass, theta, v, c)
+    st.run(S._line_pass, theta, v, ts, c)
+    names = ["gradient", "CG", "line search"]
+    sets.append(dict(periods=periods, templates=p, block_rows=rows,
+                     seconds=dict(zip(names, st.seconds))))
+    del st
+print(json.dumps(dict(n=frames.n, d=frames.d, sets=sets)))"""
 
 
 def main(argv=None) -> None:
@@ -418,6 +571,15 @@ def main(argv=None) -> None:
     ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
     ap.add_argument("--probe", type=int, default=0, help="frames of the probe")
     ap.add_argument("--probe-memory", default="1GiB")
+    ap.add_argument("--skip", action="append", default=[],
+                    help="leave out a cell: walk-30000-2048-2-1-memory")  # fmt: skip
+    ap.add_argument("--only", action="append", default=[],
+                    help="measure only this cell (repeatable)")  # fmt: skip
+    ap.add_argument("--full", type=int, default=0, help="frames of the full fit")
+    ap.add_argument("--full-periods", default="100,101,103")
+    ap.add_argument("--full-memory", default="1GiB")
+    ap.add_argument("--full-work", type=Path, default=Path("/tmp/bench_scale_full"),
+                    help="scratch folder of the full fit (features, map)")  # fmt: skip
     args = ap.parse_args(argv)
     if args.render:
         bc.rerender(args.render, markdown)
@@ -438,7 +600,9 @@ def main(argv=None) -> None:
         if failed.exists():
             missing.append(f"{name} (failed: {failed.read_text().strip()})")
             continue
-        if time.perf_counter() - t0 > args.budget:
+        key = _key(cell)
+        left_out = key in args.skip or bool(args.only) and key not in args.only
+        if time.perf_counter() - t0 > args.budget or left_out:
             missing.append(name)
             continue
         x_path = features(cell[0], cell[1], cell[2], args.cells)
@@ -456,14 +620,10 @@ def main(argv=None) -> None:
         rows.append(row)
         stamps.append(row["measured"])
     report = bc.run_record("bench_scale.py", argv, env, load0)
-    passes = [r["passes"] for r in rows if r["mode"] == "stream" and r["r"] == 3]
     if args.probe:
         try:
-            found = probe(args.probe, args.probe_memory, args.cells, 100)
-            per = float(np.median(found["pass_seconds"]))
-            found["passes_assumed"] = max(passes, default=100)
-            found["projected_hours"] = per * found["passes_assumed"] / 3600
-            report["probe"] = found
+            report["probe"] = probe(args.probe, args.probe_memory, args.cells,
+                                    args.full_work, args.full_periods)  # fmt: skip
         except RuntimeError as err:
             log.warning("probe failed: %s", err)
             missing.append(f"probe N={args.probe} (failed)")
@@ -479,6 +639,10 @@ def main(argv=None) -> None:
             max((r["load"][0] for r in rows), default=0),
         ),
         self_rss=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        nices=", ".join(
+            f"{v}: {sum(r.get('nice', 10) == v for r in rows)} cells"
+            for v in sorted({r.get("nice", 10) for r in rows})
+        ),
     )
     report["figures"] = figures(rows, args.out) if rows else []
     bc.write_report(args.out, "scale", bc.plain(report), markdown(bc.plain(report)))

@@ -50,3 +50,24 @@ def test_shards_are_described_from_an_image_folder_and_fitted(tmp_path, nordland
                  "../route.shards")  # fmt: skip
     assert again.returncode == 2 and "exists" in again.stderr
     assert len(again.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_fixed_periods_stream_and_leave_no_checkpoint(tmp_path):
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.normal(size=(300, 16)), axis=0).astype(np.float32)
+    np.save(tmp_path / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
+    args = ["fit", "ref.npy", "--out", "m.map", "--stream", "--memory", "1GiB",
+            "--gap", "1e-3", "--json"]  # fmt: skip
+    done = _run(tmp_path, *args, "--layout", "periods:17,19")
+    assert done.returncode == 0, done.stderr
+    info = json.loads(done.stdout[done.stdout.index("{") :])
+    assert info["periods"] == [17, 19] and info["candidates"] == []
+    assert info["fit"]["mode"] == "stream" and info["fit"]["passes"] > 2
+    assert not (tmp_path / "m.map.ckpt").exists()
+    model = RhythmicMap.load(tmp_path / "m.map")
+    assert model.periods == (17, 19) and model.params.w.shape == (16, 36)
+    # a layout the streamed solver does not train is refused in one line
+    bad = _run(tmp_path, *args[:3], "n.map", *args[4:], "--layout", "mixed")
+    assert bad.returncode == 2 and "--layout" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1

@@ -2,7 +2,8 @@
 
 :func:`rhythmic_jax.solvers.newton.newton_fit` keeps every frame's margins, (n, p)
 float64: 5.8 GB for 10^6 frames and 721 templates. Here nothing of size n is
-kept. The objective is the one of every fit,
+kept but a checkpoint of the state after every Newton step (optional). The
+objective is the one of every fit,
 :func:`rhythmic_jax.objective.margin_objectives`, which is its regulariser plus a
 sum over frames, so it splits into the regulariser (theta alone, no frames) and
 one term per block of frames (:class:`rhythmic_jax.io.frame_files.Frames`) at the
@@ -39,11 +40,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.io.frame_files import Frames
 from rhythmic_jax.objective import Templates, margin_objectives, targets
 from rhythmic_jax.periods import period_offsets
@@ -216,6 +219,7 @@ def streamed_newton_fit(
     rows: tuple[int, int] | None = None,
     reduce: Callable = lambda tree: tree,
     progress: bool = True,
+    checkpoint: str | Path | None = None,
 ) -> tuple[Templates, StreamInfo]:
     """Minimise the joint squared-hinge objective with frames read in blocks.
 
@@ -224,6 +228,9 @@ def streamed_newton_fit(
         process's rows; periods: candidate periods (p = sum); c: C.
       rows: this process's ``(start, stop)`` (default: all frames).
       reduce: sums a tree of arrays over processes (default: one process).
+      checkpoint: a ``.npz`` file this process's state is saved to after every
+        Newton step; a fit of the same frames and settings that finds it goes on
+        from the step it holds (a killed fit loses at most one step).
 
     Returns:
       Templates ``w`` (d, p), ``b`` (p,) float32 (numpy) and a :class:`StreamInfo`.
@@ -237,11 +244,20 @@ def streamed_newton_fit(
     tx = newton_cg(config.eta, config.max_cg)
     done = np.zeros(p, bool)
     info = StreamInfo()
-    bar = progress_bar(range(config.max_iter), show=progress, desc="newton (streamed)")
+    start_theta = np.zeros((q, p))
+    # what the steps depend on (not the block size or the step cap)
+    key = " ".join(map(repr, (frames.n, q, start, stop, periods, c, config.gap_tol,
+                              config.eta, config.max_cg, config.cg_start)))  # fmt: skip
+    first = _resume(checkpoint, key, start_theta, done, info, stream, reduce)
+    bar = progress_bar(range(first, config.max_iter), show=progress,
+                       desc="newton (streamed)")  # fmt: skip
     with jax.enable_x64(True):
-        params = Iterate(jnp.zeros((q, p), jnp.float64), None)
+        params = Iterate(jnp.asarray(start_theta, jnp.float64), None)
         state = tx.init(params)
+        state = state._replace(count=jnp.asarray(first, state.count.dtype))
         for step in bar:
+            if done.all():  # resumed from the last step's checkpoint
+                break
             theta = params.theta
             th32 = theta.astype(jnp.float32)
             loss, gx, diag = stream.run(_grad_pass, th32, c)
@@ -262,6 +278,8 @@ def streamed_newton_fit(
             bar.set_postfix(
                 objective=f"{f0.sum():.6g}", gap=f"{gap[~done].max(initial=0):.1e}"
             )
+            if checkpoint is not None:
+                _save(checkpoint, key, np.asarray(params.theta), done, info, stream)
             if done.all():
                 break
         bar.close()
@@ -271,6 +289,41 @@ def streamed_newton_fit(
         theta = np.asarray(theta, np.float32)
     info.pass_seconds = stream.seconds
     return Templates(w=theta[:-1], b=theta[-1]), info
+
+
+def _save(path, key, theta, done, info, stream) -> None:
+    """Write the state after a Newton step to ``path`` (atomically)."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, key=np.array(key), theta=theta, done=done,
+                 cg=np.array(info.cg_iterations, np.int64),
+                 seconds=np.array(stream.seconds))  # fmt: skip
+
+
+def _resume(path, key, theta, done, info, stream, reduce) -> int:
+    """Load the state saved in ``path`` into theta, done, info and stream (in
+    place) when it is this fit's; the step to go on from (0: none). Every process
+    must hold the same step, or all start afresh."""
+    steps = 0
+    if path is not None and Path(path).is_file():
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["key"]) == key and z["theta"].shape == theta.shape:
+                theta[...], done[...] = z["theta"], z["done"]
+                info.cg_iterations = [int(v) for v in z["cg"]]
+                stream.seconds = [float(v) for v in z["seconds"]]
+                steps = len(info.cg_iterations)
+            else:
+                log.warning("%s: a checkpoint of another fit; starting afresh", path)
+    both = reduce(np.array([steps, steps * steps], np.float64))
+    k = reduce(np.ones(1))[0]
+    if both[0] * both[0] != k * both[1]:  # not the same step everywhere
+        steps = 0
+    if steps == 0:
+        theta[...], done[...] = 0.0, False
+        info.cg_iterations, stream.seconds = [], []
+    else:
+        log.info("resuming the streamed fit at step %d from %s", steps, path)
+    info.steps = steps
+    return steps
 
 
 def _value_and_grad(theta, c):

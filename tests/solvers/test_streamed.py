@@ -98,3 +98,37 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
         reached = value_fn(Iterate(end, jnp.asarray(xa) @ end))
         np.testing.assert_allclose(reached, exact.new_value, rtol=1e-5)
         assert not np.allclose(t, 1.0, rtol=1e-3)  # the search moved the step
+
+
+def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
+    rng = np.random.default_rng(1)
+    n, d = 200, 12
+    x = np.cumsum(rng.normal(size=(n, d)), axis=0).astype(np.float32)
+    np.save(tmp_path / "x.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
+    frames = open_frames(tmp_path / "x.npy")
+    periods, c, ckpt = (14, 15), float(np.log(n)), tmp_path / "state.npz"
+    config = StreamConfig(block_rows=64)
+    whole, whole_info = streamed_newton_fit(
+        frames, np.arange(n), periods, c, config, progress=False
+    )
+    assert whole_info.steps > 2
+    from dataclasses import replace
+
+    streamed_newton_fit(frames, np.arange(n), periods, c,
+                        replace(config, max_iter=2), progress=False,
+                        checkpoint=ckpt)  # fmt: skip
+    assert ckpt.is_file()
+    got, info = streamed_newton_fit(
+        frames, np.arange(n), periods, c, config, progress=False, checkpoint=ckpt
+    )
+    assert info.steps == whole_info.steps
+    assert info.cg_iterations == whole_info.cg_iterations
+    np.testing.assert_allclose(info.objective, whole_info.objective, rtol=1e-9)
+    np.testing.assert_allclose(got.w, whole.w, rtol=1e-5, atol=1e-7)
+    # a checkpoint of other settings is not taken up
+    other, other_info = streamed_newton_fit(
+        frames, np.arange(n), periods, 2 * c, config, progress=False, checkpoint=ckpt
+    )
+    assert other_info.cg_iterations[:2] != info.cg_iterations[:2] or not np.allclose(
+        other.w, got.w
+    )
