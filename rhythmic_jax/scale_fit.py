@@ -141,15 +141,19 @@ def fit_map_files(
         )
         run["steps"] = info.steps
     else:
-        rows = block_rows_for(limit, d, p)
-        if k > 1:  # the same block size on every process
+        bits = (stop - start) * -(-p // 8)  # the kept active sets, one bit each
+        keep = bits <= limit // 8
+        rows = block_rows_for(limit - bits if keep else limit, d, p)
+        if k > 1:  # the same block size and choice on every process
             rows = _min_over_processes(rows)
+            keep = _min_over_processes(int(keep)) == 1
         fast = cfg.gap >= 1e-4  # FAST's CG caps for a loose gap
         config = StreamConfig(
             gap_tol=cfg.gap,
             block_rows=rows,
             max_cg=8 if fast else 50,
             cg_start=3 if fast else None,
+            keep_active=keep,
         )
         state = (
             None if checkpoint is None else Path(checkpoint) / f"stream-{i}-of-{k}.npz"
@@ -161,7 +165,7 @@ def fit_map_files(
             frames, labels, cands, params, (start, stop), rows, allreduce
         )
         run.update(block_rows=rows, steps=info.steps, passes=len(info.pass_seconds))
-        run["cg"] = info.cg_iterations
+        run.update(kept_active_bytes=bits if keep else 0, cg=info.cg_iterations)
         run.update(pass_seconds=info.pass_seconds)
         run["pass_median_s"] = float(np.median(info.pass_seconds))
     if groups is None:

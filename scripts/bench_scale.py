@@ -427,7 +427,7 @@ def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
         starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
         peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
         passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
-        block_rows=run["block_rows"],
+        block_rows=run["block_rows"], kept_active_bytes=run.get("kept_active_bytes"),
         pass_median_s=float(np.median(run["pass_seconds"])),
         kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
         group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
@@ -454,7 +454,7 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
     if probe and probe["n"] == f["n"]:  # the candidate set's measured passes
         sec = probe["sets"][-1]["seconds"]
         steps, cg = len(f["cg"]), sum(f["cg"])
-        total = (steps + 1) * sec["gradient"] + cg * sec["CG"]
+        total = (steps + 1) * sec["gradient + bits"] + cg * sec["CG from bits"]
         search = (total + 2 * steps * sec["line search"]) / 3600
         how = "the candidate set's measured pass of each kind (below)"
     k = f["kinds"]
@@ -527,7 +527,8 @@ def probe_lines(p: dict) -> list[str]:
         f" {p['d']}-d frames ({p['file_bytes'] / 2**30:.2f} GiB .npy) under"
         f" `--memory {p['memory']}` (measured {p['measured']} at nice {p['nice']},"
         f" load {p['load'][0]:.1f}; peak resident {p['peak_bytes'] / 2**20:.0f} MiB;"
-        " each includes its kernel's compilation):",
+        " each includes its kernel's compilation). A CG pass from the kept"
+        " curvature makes one product with the frames instead of two:",
         "",
         bc.table(head, rows),
     ]
@@ -547,16 +548,19 @@ c = default_c(frames.n)
 sets = []
 for periods in (fixed, tuple(RhythmicMap(r=3)._plan(frames.n)[0])):
     p = sum(periods)
-    rows = min(frames.n, block_rows_for(parse_bytes(sys.argv[2]), frames.d, p))
+    bits = frames.n * -(-p // 8)
+    rows = min(frames.n, block_rows_for(parse_bytes(sys.argv[2]) - bits, frames.d, p))
     labels = np.arange(frames.n, dtype=np.int32)
-    st = S._Stream(frames, 0, frames.n, labels, periods, rows, lambda t: t)
+    st = S._Stream(frames, 0, frames.n, labels, periods, rows, lambda t: t, True)
     theta = jnp.zeros((frames.d + 1, p), jnp.float32)
     v = theta + 1e-3
     ts = jnp.asarray(np.repeat(np.asarray(S._GRID)[:, None], p, 1), jnp.float32)
     st.run(S._grad_pass, theta, c)
+    st.run(S._grad_keep, theta, c, bits="write")
     st.run(S._hess_pass, theta, v, c)
+    st.run(S._hess_kept, v, jnp.asarray(st.top, jnp.float32), bits="read")
     st.run(S._line_pass, theta, v, ts, c)
-    names = ["gradient", "CG", "line search"]
+    names = ["gradient", "gradient + bits", "CG", "CG from bits", "line search"]
     sets.append(dict(periods=periods, templates=p, block_rows=rows,
                      seconds=dict(zip(names, st.seconds))))
     del st

@@ -132,3 +132,26 @@ def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
     assert other_info.cg_iterations[:2] != info.cg_iterations[:2] or not np.allclose(
         other.w, got.w
     )
+
+
+def test_kept_active_sets_take_the_same_steps(tmp_path):
+    rng = np.random.default_rng(2)
+    n, d = 150, 10
+    x = np.cumsum(rng.normal(size=(n, d)), axis=0).astype(np.float32)
+    np.save(tmp_path / "x.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
+    frames = open_frames(tmp_path / "x.npy")
+    runs = [
+        streamed_newton_fit(
+            frames,
+            np.arange(n),
+            (11, 13, 14),
+            float(np.log(n)),
+            StreamConfig(block_rows=40, keep_active=keep),
+            progress=False,
+        )  # fmt: skip
+        for keep in (False, True)
+    ]
+    (ref, ref_info), (got, info) = runs
+    assert info.cg_iterations == ref_info.cg_iterations
+    np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
+    np.testing.assert_allclose(got.w, ref.w, rtol=1e-4, atol=1e-6)
