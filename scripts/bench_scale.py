@@ -631,6 +631,13 @@ def main(argv=None) -> None:
         except RuntimeError as err:
             log.warning("probe failed: %s", err)
             missing.append(f"probe N={args.probe} (failed)")
+    if args.full:
+        try:
+            report["full"] = full(args.full, args.full_periods, args.full_memory,
+                                  args.full_work, args.cells)  # fmt: skip
+        except RuntimeError as err:
+            log.warning("full fit failed: %s", err)
+            missing.append(f"full fit N={args.full} (failed)")
     report.update(
         rows=rows,
         slopes=slopes(rows),
