@@ -234,10 +234,8 @@ def fit(job: FitJob, progress: bool = False):
     read = job.reading
     _check_reading(read)
     check_target(job.out)  # before the fit, not after it
-    bad = isinstance(job.codes, bool) or not isinstance(job.codes, int | str)
-    if job.codes is not None and (
-        bad or (job.codes != "int8" and (isinstance(job.codes, str) or job.codes < 1))
-    ):
+    bits = isinstance(job.codes, int) and not isinstance(job.codes, bool)
+    if job.codes not in (None, "int8") and not (bits and job.codes >= 1):
         raise InputError(
             f"{{opt:codes}} must be a number of bits >= 1 or int8, got {job.codes}"
         )

@@ -194,7 +194,7 @@ def learn_embedding(
     n = xs[0].shape[0]
     t0 = time.perf_counter()
     if cfg.method == "pca":
-        pca = fit_pca(np.concatenate(xs), min(cfg.k, len(xs) * n - 1, xs[0].shape[1]))
+        pca = fit_pca(np.concatenate(xs), cfg.k)  # a k it cannot give: one line
         info = dict(config=asdict(cfg), places=n, fit_places=n, val_places=0)
         info.update(seconds=time.perf_counter() - t0, steps=0)
         return linear(pca.mean, pca.components.T), info

@@ -552,8 +552,9 @@ class RhythmicMap:
 
     @property
     def storage_bytes(self) -> int:
-        """Bytes of the templates in their dtype, plus with codes
-        ``n * ceil(bits / 8) + (bits * d + d) * 4``; an embedding is counted apart
+        """Bytes of the templates in their dtype, plus with codes their
+        :meth:`storage` (ITQ: ``n * ceil(bits / 8) + (bits * d + d) * 4``; int8:
+        ``n * d + 2 * d * 4``); an embedding is counted apart
         (:attr:`embedding_bytes`)."""
         return self.storage()["total"]
 

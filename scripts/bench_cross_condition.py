@@ -282,8 +282,9 @@ def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
                    "learned on the training places)", fit_s)  # fmt: skip
     row.update(chosen=True, fusion=w, fusion_table=table, fusion_seconds=learn_s)
     rows.append(row)
-    alone = eval_row(with_codes(m, ref, "int8", 0.0), ref, qry,
-                     f"int8 codes alone {label}", fit_s)  # fmt: skip
+    codes_only = copy.copy(h8)  # the same codes, none of the map's score
+    codes_only.config = replace(h8.config, fusion=0.0)
+    alone = eval_row(codes_only, ref, qry, f"int8 codes alone {label}", fit_s)
     for key in ("layout", "sizes", "fit_seconds"):
         alone.pop(key)  # not a map: the codes' own search
     alone["storage_bytes"] = sq["total"]
