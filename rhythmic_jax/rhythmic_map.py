@@ -387,8 +387,8 @@ class RhythmicMap:
                 x = np.asarray(apply_embedding(self.embedding, x), np.float32)
             if len(x) <= SMALL_BATCH:  # numpy: no dispatch for a single query
                 return self._small_decoder()(x)
-            # scores and decode in one compiled call
-            return localise(self.params, jnp.asarray(x), self.periods, self.n)
+            # host BLAS product, jitted argmaxes and look-ups
+            return localise(self.params, x, self.periods, self.n)
         return decode_scores(
             _scores(self.params, self._queries(q)),
             self.groups,

@@ -16,10 +16,15 @@ a 10^4-place map are 1.6 MB, read once per query). OpenBLAS, numpy's BLAS, runs
 and on its thread pool from there; such a map sits just below, so its matrix
 gets zero rows up to that size when that costs at most
 :data:`PAD_AT_MOST` more bytes and there are cores to share it
-(``reports/single_query.md``: 28 -> 21 us on 2 cores). The zero rows score 0
-and no period's columns reach them. The price is the tail on a busy machine:
-the call waits for the pool's other thread, which the scheduler may hold back
-for milliseconds (the report's p95 under load).
+(``reports/single_query.md``: 28 -> 21 us on 2 cores). The price is the tail on
+a busy machine: the call waits for the pool's other thread, which the scheduler
+may hold back for milliseconds (the report's p95 under load).
+
+Where the periods are near-equal (the paper's), every period's templates start
+a block of the same number of rows (:func:`block_rows`), its spare rows zero
+with a ``-inf`` bias: one ``argmax`` over the (k, block) view of the scores then
+finds every phase at once, a numpy call per period less on every query. The
+spare rows never win a phase and no period's columns reach them.
 
 Names: b queries, d features, p = sum(periods) templates, k periods.
 """
@@ -37,7 +42,7 @@ from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import crt_tables, period_offsets
 
-__all__ = ["GEMV_THREADED", "SMALL_BATCH", "SmallDecoder", "gemv_rows"]
+__all__ = ["GEMV_THREADED", "SMALL_BATCH", "SmallDecoder", "block_rows", "gemv_rows"]
 
 SMALL_BATCH = 8  # up to this many queries numpy beats a jitted call on 2 cores
 GEMV_THREADED = 460_800  # OpenBLAS's sgemv uses its thread pool from this size
@@ -54,13 +59,26 @@ def gemv_rows(p: int, d: int, cores: int | None = None) -> int:
     return need if cores >= 2 and p < need <= PAD_AT_MOST * p else p
 
 
+def block_rows(periods: Sequence[int], d: int, cores: int | None = None) -> int | None:
+    """Rows of every period's block in :class:`SmallDecoder`: the longest period,
+    or more where k blocks reach :func:`gemv_rows` of the templates; None where k
+    blocks of the longest period would hold more than :data:`PAD_AT_MOST` x the
+    templates (very unequal periods keep one contiguous run of rows)."""
+    k, p = len(periods), sum(periods)
+    block = max(periods)
+    if k * block > PAD_AT_MOST * p:
+        return None
+    return max(block, -(-gemv_rows(p, d, cores) // k))
+
+
 @dataclass(frozen=True, eq=False)
 class SmallDecoder:
     """Hard decode in numpy: ``wt`` (rows, d) and ``b`` (rows,) float32 (rows >=
     p: :func:`gemv_rows`' zero padding), the periods' column ``slices``, CRT
     ``tables`` (k lists of ints), their modulus ``big_m``, the place count ``n``
-    (an index >= n is no match, -1) and, for two periods, ``pairs``: the place
-    of every phase pair (lists of ints, -1 no match), or None."""
+    (an index >= n is no match, -1), for two periods ``pairs``: the place of
+    every phase pair (lists of ints, -1 no match), or None, and ``block``: the
+    rows of every period's block (:func:`block_rows`), or None."""
 
     wt: np.ndarray
     b: np.ndarray
@@ -70,6 +88,7 @@ class SmallDecoder:
     n: int
     params: Templates | None = None  # what it was built from (identity check)
     pairs: tuple[list[int], ...] | None = None
+    block: int | None = None
 
     @classmethod
     def build(cls, params: Templates, periods: Sequence[int], n: int):
@@ -78,11 +97,20 @@ class SmallDecoder:
         tables, big_m = crt_tables(periods)
         offs = period_offsets(periods)
         w = np.asarray(params.w, np.float32)
+        bias = np.asarray(params.b, np.float32)
         d, p = w.shape
-        wt = np.zeros((gemv_rows(p, d), d), np.float32)
-        wt[:p] = w.T
-        b = np.zeros(len(wt), np.float32)
-        b[:p] = np.asarray(params.b, np.float32)
+        block = block_rows(periods, d)
+        if block is None:  # one run of rows, zero-padded for the thread pool
+            starts = offs
+            wt = np.zeros((gemv_rows(p, d), d), np.float32)
+            b = np.zeros(len(wt), np.float32)
+        else:  # a block per period; the spare rows never win a phase
+            starts = tuple(i * block for i in range(len(periods)))
+            wt = np.zeros((len(periods) * block, d), np.float32)
+            b = np.full(len(wt), -np.inf, np.float32)
+        for o, start, t in zip(offs, starts, periods, strict=True):
+            wt[start : start + t] = w[:, o : o + t].T
+            b[start : start + t] = bias[o : o + t]
         pairs = None
         if len(periods) == 2 and big_m <= PAIR_TABLE:
             place = (tables[0][:, None] + tables[1][None, :]) % big_m
@@ -90,24 +118,29 @@ class SmallDecoder:
         return cls(
             wt=wt,
             b=b,
-            slices=tuple(slice(o, o + t) for o, t in zip(offs, periods, strict=True)),
+            slices=tuple(slice(o, o + t) for o, t in zip(starts, periods, strict=True)),
             tables=tuple(tuple(int(v) for v in t) for t in tables),
             big_m=big_m,
             n=int(n),
             params=params,
             pairs=pairs,
+            block=block,
         )
+
+    def _phases(self, s: np.ndarray) -> list[int]:
+        """Argmax phase of every period in the scores ``s`` (rows,)."""
+        if self.block is not None:
+            return s.reshape(len(self.slices), self.block).argmax(1).tolist()
+        return [int(s[sl].argmax()) for sl in self.slices]
 
     def index(self, q: np.ndarray) -> int:
         """Place of one query ``q`` (d,) float32; -1 for no match."""
         s = self.wt @ q
         s += self.b
+        phases = self._phases(s)
         if self.pairs is not None:
-            first, second = self.slices
-            return self.pairs[s[first].argmax()][s[second].argmax()]
-        i = 0
-        for sl, table in zip(self.slices, self.tables, strict=True):
-            i += table[int(s[sl].argmax())]
+            return self.pairs[phases[0]][phases[1]]
+        i = sum(table[j] for table, j in zip(self.tables, phases, strict=True))
         i %= self.big_m
         return i if i < self.n else -1
 
@@ -117,18 +150,14 @@ class SmallDecoder:
         score is then NaN or infinite, so this checks the whole query)."""
         s = self.wt @ q
         s += self.b
-        if self.pairs is not None:
-            first, second = self.slices
-            top1, top2 = s[first], s[second]
-            j, k = top1.argmax(), top2.argmax()
-            if math.isfinite(top1[j]) and math.isfinite(top2[k]):
+        if self.pairs is not None and self.block is not None:  # the fast lane
+            j, k = s.reshape(2, self.block).argmax(1).tolist()
+            if math.isfinite(s[j]) and math.isfinite(s[self.block + k]):
                 return self.pairs[j][k]
             return None
         i = 0
-        for sl, table in zip(self.slices, self.tables, strict=True):
-            block = s[sl]
-            j = block.argmax()
-            if not math.isfinite(block[j]):
+        for sl, table, j in zip(self.slices, self.tables, self._phases(s), strict=True):
+            if not math.isfinite(s[sl.start + j]):  # a NaN wins any argmax
                 return None
             i += table[j]
         i %= self.big_m

@@ -14,6 +14,7 @@ from rhythmic_jax.decoding.small import (
     GEMV_THREADED,
     SMALL_BATCH,
     SmallDecoder,
+    block_rows,
     gemv_rows,
 )
 from rhythmic_jax.errors import InputError
@@ -99,8 +100,11 @@ def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
     periods, n = (100, 101), 10_000
     params = _templates(2048, periods, seed=4)
     small = SmallDecoder.build(params, periods, n)
-    assert small.wt.shape[0] == gemv_rows(201, 2048)
-    assert not small.wt[201:].any() and not small.b[201:].any()
+    assert small.block == block_rows(periods, 2048) == 113  # 2 x 113 >= 225 rows
+    assert small.wt.shape[0] == 2 * small.block >= gemv_rows(201, 2048)
+    spare = np.r_[100:113, 214:226]  # below each period's templates
+    assert not small.wt[spare].any() and np.isneginf(small.b[spare]).all()
+    np.testing.assert_array_equal(small.wt[113:214], np.asarray(params.w)[:, 100:].T)
     q = np.random.default_rng(5).standard_normal((200, 2048), dtype=np.float32)
     batch = decode(params, q, periods, n)
     _same(small(q), batch)
@@ -109,7 +113,22 @@ def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
     assert [small.place(x) for x in q] == want
 
 
-@pytest.mark.parametrize("periods,n", [((100, 101), 10_000), ((7, 9, 11), 600)])
+def test_blocks_only_for_near_equal_periods():
+    assert block_rows((7, 9, 11), 32, cores=2) == 11  # 33 rows for 27 templates
+    assert block_rows((2, 11), 32, cores=2) is None  # 22 rows for 13: one run
+    assert block_rows((100, 101), 2048, cores=1) == 101  # nothing to share
+    periods, n = (2, 11), 22
+    params = _templates(32, periods, seed=8)
+    small = SmallDecoder.build(params, periods, n)
+    assert small.block is None and small.wt.shape[0] == 13
+    q = np.random.default_rng(9).standard_normal((100, 32), dtype=np.float32)
+    want = np.asarray(decode(params, q, periods, n).index).tolist()
+    assert [small.index(x) for x in q] == [small.place(x) for x in q] == want
+
+
+@pytest.mark.parametrize(
+    "periods,n", [((100, 101), 10_000), ((7, 9, 11), 600), ((2, 11), 22)]
+)
 def test_place_rejects_non_finite_queries(periods, n):
     small = SmallDecoder.build(_templates(32, periods), periods, n)
     q = np.random.default_rng(6).standard_normal(32, dtype=np.float32)
