@@ -21,7 +21,8 @@ terms, summed over the blocks in float64, one *pass* each:
   10^6 frames and 304 templates) and a CG pass makes one product with the
   frames instead of two;
 - two line-search passes: ``phi'(t)`` and ``phi''(t)`` along the step at a grid
-  of step lengths (``jax.jvp`` of the block terms), then at a finer grid inside
+  of step lengths (``jax.jvp`` of the blocks' gradient in their margins along
+  the step's margins), then at a finer grid inside
   the bracket found; the step is Newton's on the piece at the bracket's left
   end, kept inside the bracket (exact once the bracket holds one piece).
 
@@ -193,19 +194,21 @@ def _hess_pass(xa, labels, theta, v, c, periods):
 @partial(jax.jit, static_argnames=("periods",))
 def _line_pass(xa, labels, theta, s, ts, c, periods):
     """The block's loss along the step, ``phi_b(t) = L_b(m + t Xa s)`` per
-    template: ``phi_b'`` and ``phi_b''`` (K, p) at the step lengths ts (K, p)."""
+    template: ``phi_b'`` and ``phi_b''`` (K, p) at the step lengths ts (K, p).
+
+    In the margins: with ``u = Xa s``, ``phi_b'(t) = sum_i g_i u_i`` and
+    ``phi_b''(t) = sum_i (H u)_i u_i``, g and H u the loss's gradient at
+    ``m + t u`` and its product with u (one ``jax.jvp`` of the gradient), summed
+    over the block's frames per template; 1.5x cheaper than differentiating
+    ``phi_b`` in t twice."""
     both = xa @ jnp.concatenate([theta, s], axis=1)
     p = theta.shape[1]
     m, u = both[:, :p], both[:, p:]
-
-    def phi(t):
-        return _block_loss(m + t[None, :] * u, labels, periods, c)
-
-    def dphi(t):
-        return jax.jvp(phi, (t,), (jnp.ones_like(t),))[1]
+    grad = _loss_grad(labels, periods, c)
 
     def at(t):
-        return jax.jvp(dphi, (t,), (jnp.ones_like(t),))
+        g, hu = jax.jvp(grad, (m + t[None, :] * u,), (u,))
+        return jnp.sum(g * u, axis=0), jnp.sum(hu * u, axis=0)
 
     return jax.lax.map(at, ts)
 

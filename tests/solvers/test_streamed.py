@@ -155,3 +155,29 @@ def test_kept_active_sets_take_the_same_steps(tmp_path):
     assert info.cg_iterations == ref_info.cg_iterations
     np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
     np.testing.assert_allclose(got.w, ref.w, rtol=1e-4, atol=1e-6)
+
+
+def test_line_pass_is_the_loss_along_the_step_differentiated_in_t():
+    rng = np.random.default_rng(5)
+    rows, q, periods, c = 40, 9, (3, 4), 2.0
+    xa = jnp.asarray(rng.normal(size=(rows, q)).astype(np.float32))
+    labels = jnp.asarray(np.r_[np.arange(36), -np.ones(4)].astype(np.int32))  # padding
+    theta = jnp.asarray(rng.normal(size=(q, 7)).astype(np.float32) * 0.3)
+    step = jnp.asarray(rng.normal(size=(q, 7)).astype(np.float32) * 0.3)
+    ts = jnp.asarray(np.repeat([[0.0], [0.5], [2.0]], 7, axis=1).astype(np.float32))
+    slope, curv = streamed._line_pass(xa, labels, theta, step, ts, c, periods)
+
+    def phi(t):  # (p,) -> (p,): the block's loss at theta + t step, per template
+        m = xa @ (theta + t[None, :] * step)
+        return streamed._block_loss(m, labels, periods, c)
+
+    ones = jnp.ones(7, jnp.float32)
+
+    def dphi(t):
+        return jax.jvp(phi, (t,), (ones,))[1]
+
+    for k, t in enumerate(ts):
+        d1 = dphi(t)
+        d2 = jax.jvp(dphi, (t,), (ones,))[1]
+        np.testing.assert_allclose(slope[k], d1, rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(curv[k], d2, rtol=1e-4, atol=1e-4)
