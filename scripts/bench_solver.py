@@ -191,6 +191,7 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
             eta=config.eta,
             max_cg=config.max_cg,
             cg_start=config.cg_start,
+            exact_gradient=config.exact_gradient,
             rank=config.rank,
             block=config.block,
         ),
@@ -333,7 +334,8 @@ def _newton_line(label: str, nw: dict) -> str:
     return (
         f"Newton {label} (gap_tol {cfg['gap_tol']:g}, eta {cfg['eta']:g},"
         f" max_cg {cfg['max_cg']}, cg_start {cfg.get('cg_start')}, rank {cfg['rank']},"
-        f" block {cfg['block']}):"
+        f" block {cfg['block']}, gradient summed in"
+        f" {'float64' if cfg.get('exact_gradient', True) else 'float32'}):"
         f" {nw['steps']} steps, CG iterations {nw['cg_iterations']} over"
         f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their"
         f" products {nw['gflop']:,.4g} GFLOP in float32, i.e."

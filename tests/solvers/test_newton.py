@@ -124,6 +124,13 @@ def test_line_search_finds_the_minimum_along_the_step():
     np.testing.assert_allclose(f, phi(t[None])[0], rtol=1e-12)
     assert np.all(f <= grid.min(axis=0) + 1e-9 * np.abs(grid.min(axis=0)))
     assert np.all(t > 0) and np.all(f < phi(np.zeros((1, 1, p)))[0])
+    # stopping at a slope of 1e-8 of the start's (not only at an exact root)
+    # gives the same minimum to rounding
+    with jax.enable_x64(True):
+        exact = scale_by_exact_linesearch(rtol=0.0)
+        _, ref = exact.update(step, exact.init(start), start, value_fn=value_fn)
+    np.testing.assert_allclose(f, np.asarray(ref.new_value), rtol=1e-13)
+    np.testing.assert_allclose(t, np.asarray(ref.step_size), rtol=1e-6)
 
 
 def test_cg_cap_grows_from_cg_start():

@@ -130,3 +130,27 @@ def test_optax_loop_reaches_the_linearsvc_optimum(search):
         np.testing.assert_allclose(params.margins, xa @ params.theta, atol=1e-4)
     np.testing.assert_allclose(got, ref, rtol=1e-6)
     assert np.all(state[0].decrement <= 1e-8 * got)
+
+
+def test_float32_gradient_sum_is_the_float64_one_to_single_precision():
+    """``exact_gradient=False`` (``FAST``) sums the gradient's product over frames
+    in float32: the same gradient to single precision, the same Hessian."""
+    x, y, c = problem()
+    xa = design(x)
+    with jax.enable_x64(True):
+        it = start(xa, y)
+
+        def value_fn(p):
+            return margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
+
+        grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
+        x32 = jnp.asarray(xa, jnp.float32)
+        g64, hvp64, *_ = derivatives(value_fn, grad, it, x32)
+        g32, hvp32, *_ = derivatives(value_fn, grad, it, x32, exact_gradient=False)
+        assert g32.dtype == g64.dtype
+        scale = np.linalg.norm(np.asarray(g64), axis=0)
+        err = np.linalg.norm(np.asarray(g32) - np.asarray(g64), axis=0)
+        assert np.all(err <= 1e-5 * scale), (err / scale).max()
+        assert np.any(err > 0)  # it did sum in float32
+        v = jnp.asarray(np.random.default_rng(2).normal(size=it.theta.shape))
+        np.testing.assert_array_equal(hvp32(v)[0], hvp64(v)[0])
