@@ -522,7 +522,8 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         f" self-query accuracy on {f['sample']:,} frames spread along the route"
         f" {f['accuracy']['float32']:.4f} (float16 {f['accuracy']['float16']:.4f},"
         f" int8 {f['accuracy']['int8']:.4f}). Command: `{f['command']}`, with the"
-        f" streamed solver of commit {f.get('code', '?')}.",
+        f" streamed solver of commit {f.get('code', '?')}"
+        + (f"; {f['note']}." if f.get("note") else "."),
         "",
         f"The candidate search ({len(f['candidates'])} candidates"
         f" {f['candidates'][0]} - {f['candidates'][-1]}, {cands} templates) would"
