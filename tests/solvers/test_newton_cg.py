@@ -42,14 +42,18 @@ def start(xa, y, seed=1):
     return Iterate(jnp.asarray(theta), jnp.asarray(xa @ theta))
 
 
+def margin_value(y, c):
+    """The templates' objectives at an Iterate's theta and margins: (p,)."""
+    return lambda p: margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
+
+
 def test_gradient_and_hvp_equal_jax_grad_of_the_objective_and_differences():
     x, y, c = problem()
     xa = design(x)
     with jax.enable_x64(True):
         it = start(xa, y)
 
-        def value_fn(p):
-            return margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
+        value_fn = margin_value(y, c)
 
         def f(theta):  # the vmapped objective of the templates, summed
             w, b = theta[:-1], theta[-1]
@@ -140,8 +144,7 @@ def test_float32_gradient_sum_is_the_float64_one_to_single_precision():
     with jax.enable_x64(True):
         it = start(xa, y)
 
-        def value_fn(p):
-            return margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
+        value_fn = margin_value(y, c)
 
         grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
         x32 = jnp.asarray(xa, jnp.float32)

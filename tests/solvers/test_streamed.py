@@ -100,12 +100,17 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
         assert not np.allclose(t, 1.0, rtol=1e-3)  # the search moved the step
 
 
-def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
-    rng = np.random.default_rng(1)
-    n, d = 200, 12
+def _route_file(tmp_path, seed: int, n: int, d: int):
+    """A random-walk route of n unit rows (n, d) float32 in one ``.npy``, opened."""
+    rng = np.random.default_rng(seed)
     x = np.cumsum(rng.normal(size=(n, d)), axis=0).astype(np.float32)
     np.save(tmp_path / "x.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
-    frames = open_frames(tmp_path / "x.npy")
+    return open_frames(tmp_path / "x.npy")
+
+
+def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
+    n = 200
+    frames = _route_file(tmp_path, seed=1, n=n, d=12)
     periods, c, ckpt = (14, 15), float(np.log(n)), tmp_path / "state.npz"
     config = StreamConfig(block_rows=64)
     whole, whole_info = streamed_newton_fit(
@@ -135,11 +140,8 @@ def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
 
 
 def test_kept_active_sets_take_the_same_steps(tmp_path):
-    rng = np.random.default_rng(2)
-    n, d = 150, 10
-    x = np.cumsum(rng.normal(size=(n, d)), axis=0).astype(np.float32)
-    np.save(tmp_path / "x.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
-    frames = open_frames(tmp_path / "x.npy")
+    n = 150
+    frames = _route_file(tmp_path, seed=2, n=n, d=10)
     runs = [
         streamed_newton_fit(
             frames,
