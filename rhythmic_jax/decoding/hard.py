@@ -33,7 +33,7 @@ from rhythmic_jax.objective import scores as decision_values
 from rhythmic_jax.periods import crt_tables, period_offsets
 from rhythmic_jax.validate import check_int
 
-__all__ = ["Decoded", "check_scores", "decode", "hard_decode"]
+__all__ = ["Decoded", "check_scores", "decode", "hard_decode", "host_decode"]
 
 
 class Decoded(NamedTuple):
@@ -127,9 +127,39 @@ def _localise(params: Templates, queries: jax.Array, periods, n) -> Decoded:
     return hard_decode(decision_values(params, queries), periods, n)
 
 
-@functools.partial(jax.jit, static_argnames=("periods", "n"))
-def _decode_products(products: jax.Array, b: jax.Array, periods, n) -> Decoded:
-    return hard_decode(products + b[None, :], periods, n)
+def host_decode(scores: np.ndarray, periods: tuple[int, ...], n: int) -> Decoded:
+    """:func:`hard_decode` in numpy, of scores (b, p) already in host memory,
+    with numpy arrays in the result (the same values; a query whose scores hold
+    a NaN decodes as in JAX, its argmax at the first NaN). ``scores`` is
+    overwritten (each period's top score masked for the runner-up).
+
+    A batch's (b, p) scores are small and in host memory after the product:
+    handing them to a jitted decode costs a copy and a dispatch, three times
+    the argmaxes themselves for 1000 queries and 201 templates.
+    """
+    tables, big_m = crt_tables(periods)
+    b = scores.shape[0]
+    rows = np.arange(b)
+    index = np.zeros(b, np.int64)
+    total = np.zeros(b, scores.dtype)
+    gap = np.full(b, np.inf, scores.dtype)
+    for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
+        block = scores[:, off : off + t]
+        phase = block.argmax(axis=1)
+        top = block[rows, phase]
+        index += table[phase]
+        total += top
+        if t > 1:  # second best by masking the argmax, as hard_decode does
+            block[rows, phase] = -np.inf
+            with np.errstate(invalid="ignore"):  # inf - inf: NaN, as in JAX
+                gap = np.minimum(gap, top - block.max(axis=1))
+    index %= big_m
+    found = index < n
+    return Decoded(
+        np.where(found, index, -1).astype(np.int32),
+        np.where(found, total, scores.dtype.type(-np.inf)),
+        total - gap,
+    )
 
 
 def decode(
@@ -141,8 +171,9 @@ def decode(
     Queries in host memory (a float32 numpy array, what a user's batch usually
     is) are multiplied where they lie, by numpy's BLAS ``sgemm``: handing a large
     numpy batch to XLA copies it first (an unaligned 16 MB batch costs more than
-    the product), while the (b, p) products are small; the bias, argmaxes and
-    table look-ups stay one jitted call. Device arrays take one jitted call.
+    the product), and the small (b, p) products are decoded by numpy where they
+    lie (:func:`host_decode`; the fields are then numpy arrays). Device arrays
+    take one jitted call.
     """
     periods = tuple(int(t) for t in periods)
     if (
@@ -151,5 +182,7 @@ def decode(
         and queries.ndim == 2
         and jax.default_backend() == "cpu"
     ):
-        return _decode_products(queries @ np.asarray(params.w), params.b, periods, n)
+        products = queries @ np.asarray(params.w)
+        products += np.asarray(params.b, products.dtype)
+        return host_decode(products, periods, n)
     return _localise(params, jnp.asarray(queries), periods, n)

@@ -66,7 +66,7 @@ from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
-__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
+__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "bucket", "newton_fit"]
 
 log = logging.getLogger(__name__)
 
@@ -233,7 +233,7 @@ def _cg_cap(config: NewtonConfig, step: int) -> int:
     return min(config.max_cg, config.cg_start + max(step - 1, 0))
 
 
-def _bucket(live: int, p: int) -> int:
+def bucket(live: int, p: int) -> int:
     """Columns to gather for ``live`` templates: p, or a power of two below it
     (few distinct shapes, so few compilations)."""
     size = 8
@@ -330,7 +330,7 @@ def newton_fit(
         widths: list[int] = []
         bar = progress_bar(range(config.max_iter), show=progress, desc="newton")
         for step in bar:
-            width = _bucket(len(todo), p) if config.compact else p
+            width = bucket(len(todo), p) if config.compact else p
             cols = todo if config.compact else np.arange(p)
             cols = np.concatenate([cols, np.full(width - len(cols), cols[0])])
             cap = _cg_cap(config, step)

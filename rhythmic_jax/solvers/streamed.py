@@ -56,6 +56,7 @@ from rhythmic_jax.io.frame_files import Frames
 from rhythmic_jax.objective import Templates, margin_objectives, targets
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.progress import bar as progress_bar
+from rhythmic_jax.solvers.newton import bucket
 from rhythmic_jax.solvers.newton_cg import Iterate, NewtonSystem, host_loop, newton_cg
 
 __all__ = [
@@ -87,6 +88,10 @@ class StreamConfig:
         gradient pass, one bit per frame and template (n p / 8 bytes), so that
         a CG pass makes one product with the frames instead of two (when the
         curvature takes one value wherever it is not 0, as the squared hinge's).
+      compact: passes after a template has stopped carry only the templates
+        still going (padded to a power of two, so few shapes compile): a
+        template that needs more steps than the others no longer costs a pass
+        over every template's columns.
     """
 
     gap_tol: float = 1e-6
@@ -96,6 +101,7 @@ class StreamConfig:
     cg_start: int | None = None
     block_rows: int = 8192
     keep_active: bool = True
+    compact: bool = True
 
     def cg_cap(self, step: int) -> int:
         """CG iterations allowed in Newton step ``step`` (0: the ridge step)."""
@@ -109,10 +115,12 @@ FAST_STREAM = StreamConfig(gap_tol=1e-3, max_cg=8, cg_start=3)
 
 @dataclass
 class StreamInfo:
-    """What a streamed solve did: steps, CG passes per step, seconds per pass."""
+    """What a streamed solve did: steps, CG passes per step, templates each step
+    carried (padding included), seconds per pass."""
 
     steps: int = 0
     cg_iterations: list[int] = field(default_factory=list)
+    columns: list[int] = field(default_factory=list)
     pass_seconds: list[float] = field(default_factory=list)
     objective: np.ndarray | None = None
 
@@ -126,12 +134,15 @@ def _block(x: np.ndarray, rows: int):
     return jnp.asarray(xa)
 
 
-def _block_loss(m, labels, periods, c):
-    """(p,) the loss term of one block at its margins m (B, p): the objective
+def _block_loss(m, labels, periods, c, cols=None):
+    """(b,) the loss term of one block at its margins m (B, b): the objective
     :func:`~rhythmic_jax.objective.margin_objectives` of the block's frames with
     no parameters (the regulariser is counted once, in :func:`_regulariser`);
-    padding rows (label -1) weigh 0."""
+    padding rows (label -1) weigh 0. ``cols`` (b,): the templates m holds
+    (None: all p)."""
     y = targets(jnp.maximum(labels, 0), periods)
+    if cols is not None:
+        y = y[:, cols]
     empty = jnp.zeros((0, m.shape[1]), m.dtype)
     return margin_objectives(empty, m, y, c, (labels >= 0).astype(m.dtype))
 
@@ -142,57 +153,60 @@ def _regulariser(theta, c):
     return margin_objectives(theta, empty, empty, c)
 
 
-def _loss_grad(labels, periods, c):
+def _loss_grad(labels, periods, c, cols=None):
     """The gradient of a block's summed loss in its margins, ``m -> dL/dm``."""
-    return jax.grad(lambda m: jnp.sum(_block_loss(m, labels, periods, c)))
+    return jax.grad(lambda m: jnp.sum(_block_loss(m, labels, periods, c, cols)))
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _grad_pass(xa, labels, theta, c, periods):
+def _grad_pass(xa, labels, theta, c, periods, cols=None):
     """Sums of one block: the loss (p,), its gradient in theta ``Xa^T dL/dm``
     (q, p) and its Hessian's diagonal in theta ``(Xa^2)^T h`` (q, p), ``h`` the
-    loss's curvature at the margins (the Hessian in m is diagonal)."""
+    loss's curvature at the margins (the Hessian in m is diagonal). ``cols``
+    (b,): theta (q, b) holds these templates only, and so do the sums."""
     m = xa @ theta
-    grad = _loss_grad(labels, periods, c)
+    grad = _loss_grad(labels, periods, c, cols)
     dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
-    return _block_loss(m, labels, periods, c), xa.T @ dm, (xa * xa).T @ h
+    return _block_loss(m, labels, periods, c, cols), xa.T @ dm, (xa * xa).T @ h
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _grad_keep(xa, labels, theta, c, periods):
+def _grad_keep(xa, labels, theta, c, periods, cols=None):
     """:func:`_grad_pass`'s sums, and what a CG pass needs of the curvature h
     (B, p) at the block's margins: where it is not 0, packed to bits (B,
     ceil(p / 8)) uint8, its largest value per template (p,), and whether it takes
     that one value wherever it is not 0 (the squared hinge's does: 2C)."""
     m = xa @ theta
-    grad = _loss_grad(labels, periods, c)
+    grad = _loss_grad(labels, periods, c, cols)
     dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
     on, top = h > 0, jnp.max(h, axis=0)
     flat = jnp.all(jnp.where(on, h == top[None, :], True))
-    sums = _block_loss(m, labels, periods, c), xa.T @ dm, (xa * xa).T @ h
+    sums = _block_loss(m, labels, periods, c, cols), xa.T @ dm, (xa * xa).T @ h
     return sums, (jnp.packbits(on, axis=1), top, flat)
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _hess_kept(xa, bits, v, top, periods):
+def _hess_kept(xa, bits, v, top, periods, cols=None):
     """:func:`_hess_pass` from the kept curvature (bits times its one value
-    ``top`` (p,)): one product with the frames fewer."""
-    on = jnp.unpackbits(bits, axis=1, count=sum(periods)).astype(v.dtype)
+    ``top`` (p,)): one product with the frames fewer. The bits are of v's
+    columns (``cols`` only names them)."""
+    del periods, cols
+    on = jnp.unpackbits(bits, axis=1, count=v.shape[1]).astype(v.dtype)
     return xa.T @ (on * top[None, :] * (xa @ v))
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _hess_pass(xa, labels, theta, v, c, periods):
+def _hess_pass(xa, labels, theta, v, c, periods, cols=None):
     """``Xa^T (h * Xa v)`` (q, p) over one block: the loss's Hessian in theta
     applied to v, by linearising its gradient at the block's margins."""
     both = xa @ jnp.concatenate([theta, v], axis=1)
     p = theta.shape[1]
-    _, hessian = jax.linearize(_loss_grad(labels, periods, c), both[:, :p])
+    _, hessian = jax.linearize(_loss_grad(labels, periods, c, cols), both[:, :p])
     return xa.T @ hessian(both[:, p:])
 
 
 @partial(jax.jit, static_argnames=("periods",))
-def _line_pass(xa, labels, theta, s, ts, c, periods):
+def _line_pass(xa, labels, theta, s, ts, c, periods, cols=None):
     """The block's loss along the step, ``phi_b(t) = L_b(m + t Xa s)`` per
     template: ``phi_b'`` and ``phi_b''`` (K, p) at the step lengths ts (K, p).
 
@@ -204,7 +218,7 @@ def _line_pass(xa, labels, theta, s, ts, c, periods):
     both = xa @ jnp.concatenate([theta, s], axis=1)
     p = theta.shape[1]
     m, u = both[:, :p], both[:, p:]
-    grad = _loss_grad(labels, periods, c)
+    grad = _loss_grad(labels, periods, c, cols)
 
     def at(t):
         g, hu = jax.jvp(grad, (m + t[None, :] * u,), (u,))
@@ -222,17 +236,28 @@ class _Stream:
         self.labels, self.periods, self.rows = labels, periods, rows
         self.reduce, self.seconds = reduce, []
         # where every row's curvature is not 0 at the current theta, one bit per
-        # template, and its one value there (None: recompute it in CG passes)
-        width = -(-sum(periods) // 8)
-        self.bits = np.zeros((stop - start, width), np.uint8) if keep else None
+        # template of the last gradient pass, and its one value there (None:
+        # recompute it in CG passes)
+        self.keep = keep
+        self.bits = self._bit_rows(sum(periods)) if keep else None
         self.top = None
 
-    def run(self, kernel, *args, bits: str | None = None):
+    def _bit_rows(self, templates: int) -> np.ndarray:
+        """Zeroed bits of this process's rows for ``templates`` columns."""
+        return np.zeros((self.stop - self.start, -(-templates // 8)), np.uint8)
+
+    def run(self, kernel, *args, bits: str | None = None, cols=None):
         """Sum ``kernel`` over the blocks. ``bits``: "write" keeps the kernel's
         second output (:func:`_grad_keep`'s); "read" passes the kept bits to the
-        kernel in place of the labels."""
+        kernel in place of the labels. ``cols`` (b,): the templates the
+        arguments hold (None: all)."""
         t0 = time.perf_counter()
         total, tops, flat = None, [], True
+        extra = {} if cols is None else {"cols": jnp.asarray(cols, jnp.int32)}
+        if bits == "write":
+            width = len(cols) if cols is not None else sum(self.periods)
+            if self.bits.shape[1] != -(-width // 8):
+                self.bits = self._bit_rows(width)
         for lo in range(self.start, self.stop, self.rows):
             hi = min(self.stop, lo + self.rows)
             xa = _block(self.frames.read(lo, hi), self.rows)
@@ -243,7 +268,7 @@ class _Stream:
             else:
                 side = np.full(self.rows, -1, np.int32)
                 side[: hi - lo] = self.labels[here]
-            part = kernel(xa, jnp.asarray(side), *args, periods=self.periods)
+            part = kernel(xa, jnp.asarray(side), *args, periods=self.periods, **extra)
             if bits == "write":
                 part, (packed, top, ok) = part
                 self.bits[here] = np.asarray(packed)[: hi - lo]
@@ -252,17 +277,16 @@ class _Stream:
             part = jax.tree.map(lambda a: np.asarray(a, np.float64), part)
             total = part if total is None else jax.tree.map(np.add, total, part)
         if total is None:  # a process with no rows still joins the reduction
-            total = self._zeros(kernel, *args, bits=bits)
+            total = self._zeros(kernel, *args, bits=bits, **extra)
         total = self.reduce(total)
         if bits == "write":
-            self.top = self._one_value(tops, flat)
+            self.top = self._one_value(tops, flat, width)
         self.seconds.append(time.perf_counter() - t0)
         return total
 
-    def _one_value(self, tops, flat):
-        """The curvature's one nonzero value per template over every block of
-        every process, or None where it takes more than one."""
-        p = sum(self.periods)
+    def _one_value(self, tops, flat, p):
+        """The curvature's one nonzero value per template (p columns) over every
+        block of every process, or None where it takes more than one."""
         tops = np.stack(tops) if tops else np.zeros((0, p))
         top = tops.max(axis=0, initial=0.0)
         flat &= bool(np.all((tops == 0) | (tops == top[None, :])))
@@ -272,13 +296,13 @@ class _Stream:
             return None
         return s[0] / count
 
-    def _zeros(self, kernel, *args, bits=None):
+    def _zeros(self, kernel, *args, bits=None, **extra):
         xa = jnp.zeros((self.rows, self.frames.d + 1), jnp.float32)
         if bits == "read":
             side = jnp.zeros((self.rows, self.bits.shape[1]), jnp.uint8)
         else:
             side = jnp.full(self.rows, -1, jnp.int32)
-        part = kernel(xa, side, *args, periods=self.periods)
+        part = kernel(xa, side, *args, periods=self.periods, **extra)
         if bits == "write":
             part = part[0]
         return jax.tree.map(lambda a: np.zeros(a.shape), part)
@@ -329,31 +353,44 @@ def streamed_newton_fit(
         params = Iterate(jnp.asarray(start_theta, jnp.float64), None)
         state = tx.init(params)
         state = state._replace(count=jnp.asarray(first, state.count.dtype))
+        objective = np.full(p, np.nan)
         for step in bar:
             if done.all():  # resumed from the last step's checkpoint
                 break
+            cols = _live_columns(done, config.compact)
             theta = params.theta
-            th32 = theta.astype(jnp.float32)
+            part = theta if cols is None else theta[:, cols]
+            live = ~done if cols is None else ~done[cols]
+            th32 = part.astype(jnp.float32)
             if config.keep_active:
-                loss, gx, diag = stream.run(_grad_keep, th32, c, bits="write")
+                loss, gx, diag = stream.run(
+                    _grad_keep, th32, c, bits="write", cols=cols
+                )
             else:
-                loss, gx, diag = stream.run(_grad_pass, th32, c)
-            f0, reg_grad = _value_and_grad(theta, c)
+                loss, gx, diag = stream.run(_grad_pass, th32, c, cols=cols)
+            f0, reg_grad = _value_and_grad(part, c)
             f0 = np.asarray(f0) + loss
-            grad = jnp.where(done[None, :], 0.0, reg_grad + gx)
-            system = _system(stream, theta, th32, grad, diag, c)
+            grad = jnp.where(live[None, :], reg_grad + gx, 0.0)
+            system = _system(stream, part, th32, grad, diag, c, cols)
             cap = config.cg_cap(step)
             updates, state = tx.update(
-                Iterate(grad, None), state, params, system=system, max_cg=cap
-            )
-            t = _line_search(stream, th32, theta, updates.theta, c, grad)
-            params = Iterate(theta + t[None, :] * updates.theta, None)
+                Iterate(grad, None), state, Iterate(part, None), system=system,
+                max_cg=cap,
+            )  # fmt: skip
+            t = _line_search(stream, th32, part, updates.theta, c, grad, cols)
+            part = part + t[None, :] * updates.theta
+            theta = part if cols is None else theta.at[:, cols].set(part)
+            params = Iterate(theta, None)
             info.steps += 1
             info.cg_iterations.append(int(state.cg_iterations))
+            info.columns.append(int(part.shape[1]))
             gap = np.asarray(state.decrement) / np.maximum(np.abs(f0), 1e-300)
-            done |= gap <= config.gap_tol
+            where = slice(None) if cols is None else cols
+            objective[where] = f0
+            done[where] |= live & (gap <= config.gap_tol)
             bar.set_postfix(
-                objective=f"{f0.sum():.6g}", gap=f"{gap[~done].max(initial=0):.1e}"
+                objective=f"{np.nansum(objective):.6g}",
+                gap=f"{gap[live & ~done[where]].max(initial=0):.1e}",
             )
             if checkpoint is not None:
                 _save(checkpoint, key, np.asarray(params.theta), done, info, stream)
@@ -368,11 +405,23 @@ def streamed_newton_fit(
     return Templates(w=theta[:-1], b=theta[-1]), info
 
 
+def _live_columns(done: np.ndarray, compact: bool) -> np.ndarray | None:
+    """The templates a Newton step carries: None (all p) while every template
+    is going or without compaction; else the ones not done, padded with
+    repeats of the first to :func:`rhythmic_jax.solvers.newton.bucket`'s width."""
+    todo = np.flatnonzero(~done)
+    if not compact or len(todo) == len(done):
+        return None
+    width = bucket(len(todo), len(done))
+    return np.concatenate([todo, np.full(width - len(todo), todo[0])])
+
+
 def _save(path, key, theta, done, info, stream) -> None:
     """Write the state after a Newton step to ``path`` (atomically)."""
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, key=np.array(key), theta=theta, done=done,
                  cg=np.array(info.cg_iterations, np.int64),
+                 columns=np.array(info.columns, np.int64),
                  seconds=np.array(stream.seconds))  # fmt: skip
 
 
@@ -386,6 +435,8 @@ def _resume(path, key, theta, done, info, stream, reduce) -> int:
             if str(z["key"]) == key and z["theta"].shape == theta.shape:
                 theta[...], done[...] = z["theta"], z["done"]
                 info.cg_iterations = [int(v) for v in z["cg"]]
+                if "columns" in z:
+                    info.columns = [int(v) for v in z["columns"]]
                 stream.seconds = [float(v) for v in z["seconds"]]
                 steps = len(info.cg_iterations)
             else:
@@ -396,7 +447,7 @@ def _resume(path, key, theta, done, info, stream, reduce) -> int:
         steps = 0
     if steps == 0:
         theta[...], done[...] = 0.0, False
-        info.cg_iterations, stream.seconds = [], []
+        info.cg_iterations, info.columns, stream.seconds = [], [], []
     else:
         log.info("resuming the streamed fit at step %d from %s", steps, path)
     info.steps = steps
@@ -409,10 +460,11 @@ def _value_and_grad(theta, c):
     return value, vjp(jnp.ones_like(value))[0]
 
 
-def _system(stream, theta, th32, grad, diag, c) -> NewtonSystem:
+def _system(stream, theta, th32, grad, diag, c, cols=None) -> NewtonSystem:
     """The Newton system at theta for :func:`newton_cg`: products are passes over
     the blocks (plus the regulariser's Hessian, by autodiff), preconditioned by
-    the Hessian's diagonal; CG in float64 on the host."""
+    the Hessian's diagonal; CG in float64 on the host. ``cols``: the templates
+    theta (q, b) holds (None: all)."""
 
     def reg_hvp(v):
         return jax.jvp(
@@ -426,9 +478,9 @@ def _system(stream, theta, th32, grad, diag, c) -> NewtonSystem:
         v32 = v.astype(jnp.float32)
         if stream.top is not None:  # the curvature kept by the gradient pass
             top = jnp.asarray(stream.top, jnp.float32)
-            loss = stream.run(_hess_kept, v32, top, bits="read")
+            loss = stream.run(_hess_kept, v32, top, bits="read", cols=cols)
         else:
-            loss = stream.run(_hess_pass, th32, v32, c)
+            loss = stream.run(_hess_pass, th32, v32, c, cols=cols)
         return reg_hvp(v)[1] + loss, None
 
     return NewtonSystem(
@@ -436,7 +488,7 @@ def _system(stream, theta, th32, grad, diag, c) -> NewtonSystem:
     )
 
 
-def _line_search(stream, th32, theta, s, c, grad) -> np.ndarray:
+def _line_search(stream, th32, theta, s, c, grad, cols=None) -> np.ndarray:
     """Step length (p,) along s: two passes of ``phi'`` on grids (see module).
 
     ``phi(t)`` is the objective along the step: the regulariser's part, a
@@ -459,7 +511,7 @@ def _line_search(stream, th32, theta, s, c, grad) -> np.ndarray:
     h_lo = None
     for _ in range(2):
         gs, hs = stream.run(_line_pass, th32, jnp.asarray(s, jnp.float32),
-                            jnp.asarray(grid, jnp.float32), c)  # fmt: skip
+                            jnp.asarray(grid, jnp.float32), c, cols=cols)  # fmt: skip
         slope = b[None] + grid * cc[None] + gs  # phi'(t) at the grid
         curv = cc[None] + hs
         left = slope < 0

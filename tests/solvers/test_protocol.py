@@ -37,7 +37,8 @@ def test_full_batch_solvers_share_run_and_reach_the_newton_optimum():
     assert got.info.steps >= 2
     lbfgs = LBFGS(steps=200).run(None, x, y, c)
     f_ref = total(ref, x, y, c)
-    assert f_ref <= total(lbfgs.params, x, y, c) <= f_ref * (1 + 1e-4)
+    # float32 templates and objective: the optimum is known to ~1e-7 relative
+    assert f_ref * (1 - 1e-6) <= total(lbfgs.params, x, y, c) <= f_ref * (1 + 1e-4)
     assert len(lbfgs.info) > 1
     assert solver_for("lbfgs") == LBFGS() and solver_for("newton") == Newton()
     with pytest.raises(ValueError, match="unknown solver"):
