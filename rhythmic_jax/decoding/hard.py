@@ -172,8 +172,8 @@ def decode(
     is) are multiplied where they lie, by numpy's BLAS ``sgemm``: handing a large
     numpy batch to XLA copies it first (an unaligned 16 MB batch costs more than
     the product), and the small (b, p) products are decoded by numpy where they
-    lie (:func:`host_decode`; the fields are then numpy arrays). Device arrays
-    take one jitted call.
+    lie (:func:`host_decode`), the (b,) results handed back as JAX arrays.
+    Device arrays take one jitted call.
     """
     periods = tuple(int(t) for t in periods)
     if (
@@ -184,5 +184,5 @@ def decode(
     ):
         products = queries @ np.asarray(params.w)
         products += np.asarray(params.b, products.dtype)
-        return host_decode(products, periods, n)
+        return Decoded(*(jnp.asarray(f) for f in host_decode(products, periods, n)))
     return _localise(params, jnp.asarray(queries), periods, n)
