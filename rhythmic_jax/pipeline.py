@@ -13,6 +13,7 @@ Names: n frames, b batch, (H, W) frame size, d descriptor length.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import queue
 import threading
@@ -117,10 +118,34 @@ def read_frames(
             yield np.stack(frames)
 
 
-def _to_batch(chunk: np.ndarray) -> torch.Tensor:
-    """uint8 (b, H, W, 3) -> float32 (b, 3, H, W) in [0, 1] (channels-last)."""
-    t = torch.from_numpy(np.ascontiguousarray(chunk))
-    return t.permute(0, 3, 1, 2).float().div_(255.0)
+def _to_batch(
+    chunk: np.ndarray, shrink_to: tuple[int, int] | None = None
+) -> torch.Tensor:
+    """uint8 (b, H, W, 3) -> float32 (b, 3, H, W) in [0, 1] (channels-last).
+
+    ``shrink_to`` (height, width): frames at least that large in both sides are
+    first resized to it in uint8 (antialiased bilinear, half-pixel centres, as
+    :func:`rhythmic_jax.features.resize`, rounded to the nearest level): torch's
+    uint8 kernel is several times faster than its float one, which took as long
+    as reading the JPEGs for 640x320 frames going to a 224x112 network.
+    """
+    t = torch.from_numpy(np.ascontiguousarray(chunk)).permute(0, 3, 1, 2)
+    if shrink_to is not None:
+        h, w = t.shape[-2:]
+        if h >= shrink_to[0] and w >= shrink_to[1] and (h, w) != tuple(shrink_to):
+            t = torch.nn.functional.interpolate(
+                t, tuple(shrink_to), mode="bilinear", align_corners=False,
+                antialias=True,
+            )  # fmt: skip
+    return t.float().div_(255.0)
+
+
+def _network_size(descriptor) -> tuple[int, int] | None:
+    """(height, width) a network descriptor resizes its frames to, or None for
+    descriptors without a network (their own resize is left as it is)."""
+    if getattr(descriptor, "prepare", None) is None:
+        return None
+    return int(descriptor.height), int(descriptor.width)
 
 
 def describe_chunks(
@@ -139,19 +164,28 @@ def describe_chunks(
     when given, sees every chunk (e.g. to keep the frames).
     """
     prepare = getattr(descriptor, "prepare", None)
-    run = network_runner(descriptor, n, policy)
+    size = _network_size(descriptor)
 
     def prepared() -> Iterator[tuple[np.ndarray, torch.Tensor]]:
         with torch.inference_mode():
             for chunk in chunks:
-                batch = _to_batch(chunk)
+                batch = _to_batch(chunk, size)
                 yield chunk, prepare(batch) if prepare is not None else batch
 
     out = np.zeros((n, descriptor.dim), np.float32)
     bar = progress_bar(total=n, show=progress, desc=descriptor.name, unit="frame")
     start = 0
+    # the network loads (a compiled one: ~3 s) while the first chunks are read
+    with ThreadPoolExecutor(1, thread_name_prefix="rhythmic-load") as pool:
+        loading = pool.submit(network_runner, descriptor, n, policy)
+        frames = ahead(prepared(), depth)
+        try:
+            first = next(frames, None)
+        finally:
+            run = loading.result()
+    rest = frames if first is None else itertools.chain([first], frames)
     with torch.inference_mode(), bar:
-        for chunk, x in ahead(prepared(), depth):
+        for chunk, x in rest:
             if start + len(chunk) > n:
                 raise InputError(f"more than the {n} frames announced")
             out[start : start + len(chunk)] = run(x).numpy()
@@ -174,6 +208,8 @@ def files_cache_path(
     cache_key_check(key)
     h = hashlib.sha256()
     ident = [descriptor.name, descriptor.settings()]
+    if _network_size(descriptor) is not None:
+        ident.append("shrunk in uint8")  # values differ from the float resize's
     h.update(json.dumps(ident, sort_keys=True, default=str).encode())
     for f in files:
         data = Path(f).read_bytes()

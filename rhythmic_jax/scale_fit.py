@@ -60,24 +60,30 @@ def resident_bytes() -> int:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-def block_rows_for(memory: int, d: int, p: int, base: int | None = None) -> int:
+def block_rows_for(
+    memory: int, d: int, p: int, base: int | None = None, rank: int = 256
+) -> int:
     """Rows per block that keep a streamed fit under ``memory`` bytes.
 
-    A pass holds per row its features read and as the float32 design (``8 q``)
-    and about fifteen float32 (p,) rows (margins of the templates and of the
-    step, targets, hinge, active set, slacks: ``60 p``); the solver keeps about
-    fifteen float64 (q, p) arrays (``120 q p``). ``base``: resident bytes
-    before the fit (default: now).
+    A pass holds per row its features read and as the float32 design (``8 q``),
+    its projection on the preconditioner's ``rank`` eigenvectors (``8 k``, k =
+    min(rank, q)) and about fifteen float32 (p,) rows (margins of the templates
+    and of the step, targets, hinge, active set, slacks: ``60 p``); the solver
+    keeps about fifteen float64 (q, p) arrays (``120 q p``) and, while it finds
+    the eigenvectors, ``Xa^T Xa`` with its eigen-solve (``32 q^2``). ``base``:
+    resident bytes before the fit (default: now).
     """
     q = d + 1
+    k = min(rank, q)
     base = resident_bytes() if base is None else base
-    room = memory - base - SLACK - 120 * q * p
-    rows = room // (8 * q + 60 * p)
+    room = memory - base - SLACK - 120 * q * p - (32 * q * q if k else 0)
+    rows = room // (8 * q + 8 * k + 60 * p)
     if rows < 64:
         raise InputError(
             f"{{opt:memory}} {memory:,} bytes is too small to stream {d}-d frames for "
             f"{p} templates: {base:,} bytes are in use already and the solver "
-            f"needs {120 * q * p + SLACK:,} more besides the blocks"
+            f"needs {120 * q * p + SLACK + (32 * q * q if k else 0):,} more besides"
+            " the blocks"
         )
     return int(min(rows, 65536))
 

