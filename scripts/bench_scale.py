@@ -442,10 +442,13 @@ def route_file(path: Path, n: int) -> Path:
 
 
 def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
-    """Seconds of every pass of a streamed fit by kind: each Newton step is a
+    """Seconds of every pass of a streamed fit by kind: first the pass that finds
+    the preconditioner's basis (when there is one); each Newton step is a
     gradient pass, its CG passes and two line-search passes; then one last
     gradient pass (the objective at the end)."""
-    kinds, at = {"gradient": [], "cg": [], "line": [], "step": []}, 0
+    at = len(seconds) - (sum(3 + its for its in cg) + 1)
+    kinds = {"basis": list(seconds[:at]), "gradient": [], "cg": [], "line": [],
+             "step": []}  # fmt: skip
     for its in cg:
         kinds["gradient"].append(seconds[at])
         kinds["cg"] += seconds[at + 1 : at + 1 + its]
@@ -543,7 +546,9 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         f" {f['steps']} Newton"
         f" steps, {f['passes']}"
         f" passes, {f['pass_median_s']:.1f} s per pass (median; gradient"
-        f" {k['gradient']:.1f}, CG {k['cg']:.1f}, line search {k['line']:.1f}),"
+        f" {k['gradient']:.1f}, CG {k['cg']:.1f}, line search {k['line']:.1f}"
+        + (f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else "")
+        + "),"
         f" {f['block_rows']:,} rows per block, **peak resident"
         f" {f['peak_bytes'] / 2**20:.0f} MiB** under the 1 GiB bound; per-period"
         f" training errors {', '.join(f'{e:.3f}' for e in f['group_errors'])};"
