@@ -432,6 +432,7 @@ def route_file(path: Path, n: int) -> Path:
     """n route-like 256-d frames written block by block to a memory-mapped
     ``.npy`` at ``path`` (kept if it is there)."""
     if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name("partial.npy")
         part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, 256))
         walk(n, 256, out=part)
