@@ -562,7 +562,9 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         f"The candidate search ({len(f['candidates'])} candidates"
         f" {f['candidates'][0]} - {f['candidates'][-1]}, {cands} templates) would"
         f" train {cands / p:.1f}x the templates per pass: with this fit's steps and"
-        f" passes, at {how}, it is projected at {search:.1f} hours (projection, not"
+        f" passes, at {how}, it is projected at "
+        + (f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes")
+        + " (projection, not"
         " a measurement; the search may take other steps).",
     ]
 
