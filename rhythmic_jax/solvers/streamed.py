@@ -511,6 +511,8 @@ def _spectral_basis(stream, rank: int, first: bool) -> np.ndarray:
     gram = stream.run(_gram_pass)
     vals, vecs = np.linalg.eigh(gram)
     vecs = np.ascontiguousarray(vecs[:, ::-1][:, : min(rank, len(vals))])
+    if stream.reduce(np.ones(1))[0] == 1:  # one process, whichever its rows
+        return vecs.astype(np.float32)
     return stream.reduce(vecs if first else np.zeros_like(vecs)).astype(np.float32)
 
 
