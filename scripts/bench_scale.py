@@ -132,6 +132,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         int8_bytes=model.with_dtype("int8").storage_bytes,
         fit_seconds=fit["seconds"],
         peak_bytes=fit["peak"],
+        memory=memory if mode == "stream" else None,
         passes=run.get("passes"),
         pass_median_s=run.get("pass_median_s"),
         block_rows=run.get("block_rows"),
@@ -283,7 +284,7 @@ def markdown(report: dict) -> str:
             r["d"],
             r["r"],
             r["processes"],
-            r["mode"],
+            f"stream {r['memory']}" if r.get("memory") else r["mode"],
             "x".join(map(str, r["periods"])),
             r["storage_bytes"],
             round(r["bytes_per_place"], 2),
@@ -400,8 +401,8 @@ def grid(quick: bool, real: bool = True) -> list[tuple]:
     cells += [("walk", n, 256, 3, 2, "memory") for n in ns if n <= 30000]
     cells += [("walk", n, 256, 3, k, "stream") for n in ns if n <= 10000
               for k in (1, 2)]  # fmt: skip
-    if not quick:  # in memory, the guard refuses it (about 18 GiB)
-        cells += [("walk", 100000, 256, 2, 1, "stream")]
+    if not quick:  # in memory, the guard refuses them (18 GiB and more)
+        cells += [("walk", 100000, d, 2, 1, "stream") for d in ds]
     if real and not quick:
         cells += [("nordland", n, 2048, r, 1, "memory")
                   for n in (1000, 2000, 3000, 3576) for r in (2, 3)]  # fmt: skip

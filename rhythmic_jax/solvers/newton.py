@@ -62,11 +62,11 @@ from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver
+from rhythmic_jax.solvers.newton_cg import Iterate, bucket, newton_solver
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
-__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "bucket", "newton_fit"]
+__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
 
 log = logging.getLogger(__name__)
 
@@ -231,15 +231,6 @@ def _cg_cap(config: NewtonConfig, step: int) -> int:
     if config.cg_start is None:
         return config.max_cg
     return min(config.max_cg, config.cg_start + max(step - 1, 0))
-
-
-def bucket(live: int, p: int) -> int:
-    """Columns to gather for ``live`` templates: p, or a power of two below it
-    (few distinct shapes, so few compilations)."""
-    size = 8
-    while size < live:
-        size *= 2
-    return min(size, p)
 
 
 # ---------------------------------------------------------------------- solve

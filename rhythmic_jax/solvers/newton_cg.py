@@ -38,6 +38,7 @@ import optax
 from rhythmic_jax.solvers.precondition import block_preconditioner
 
 __all__ = [
+    "bucket",
     "ExactLinesearchState",
     "derivatives",
     "host_loop",
@@ -75,6 +76,15 @@ class ExactLinesearchState(NamedTuple):
     step_size: jax.Array
     value: jax.Array
     new_value: jax.Array
+
+
+def bucket(live: int, p: int) -> int:
+    """Columns to gather for ``live`` templates: p, or a power of two below it
+    (few distinct shapes, so few compilations)."""
+    size = 8
+    while size < live:
+        size *= 2
+    return min(size, p)
 
 
 def _total(value_fn):

@@ -61,8 +61,13 @@ from rhythmic_jax.io.frame_files import Frames
 from rhythmic_jax.objective import Templates, margin_objectives, targets
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.newton import bucket
-from rhythmic_jax.solvers.newton_cg import Iterate, NewtonSystem, host_loop, newton_cg
+from rhythmic_jax.solvers.newton_cg import (
+    Iterate,
+    NewtonSystem,
+    bucket,
+    host_loop,
+    newton_cg,
+)
 
 __all__ = [
     "FAST_STREAM",
@@ -451,7 +456,7 @@ def streamed_newton_fit(
 def _live_columns(done: np.ndarray, compact: bool) -> np.ndarray | None:
     """The templates a Newton step carries: None (all p) while every template
     is going or without compaction; else the ones not done, padded with
-    repeats of the first to :func:`rhythmic_jax.solvers.newton.bucket`'s width."""
+    repeats of the first to :func:`rhythmic_jax.solvers.newton_cg.bucket`'s width."""
     todo = np.flatnonzero(~done)
     if not compact or len(todo) == len(done):
         return None
