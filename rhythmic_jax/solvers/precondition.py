@@ -19,7 +19,13 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-__all__ = ["block_preconditioner", "spectral_setup", "top_eigen"]
+__all__ = [
+    "block_preconditioner",
+    "in_basis",
+    "outside_norms",
+    "spectral_setup",
+    "top_eigen",
+]
 
 
 def top_eigen(gram: jax.Array, k: int, iters: int, key: jax.Array):
@@ -44,8 +50,28 @@ def spectral_setup(xa: jax.Array, rank: int, iters: int, key: jax.Array):
     each frame's squared norm outside them, ``||xa_i||^2 - ||F_i||^2`` (n,)."""
     vecs, _ = top_eigen(xa.T @ xa, rank, iters, key)
     lead = xa @ vecs
+    return vecs, lead, outside_norms(xa, lead)
+
+
+def outside_norms(xa: jax.Array, lead: jax.Array) -> jax.Array:
+    """Each row's squared norm outside an orthonormal basis V (q, k), from the
+    rows ``xa`` (n, q) and their coefficients ``lead = xa V`` (n, k): (n,),
+    ``||xa_i||^2 - ||lead_i||^2`` kept >= 0 against rounding."""
     rest = jnp.sum(xa * xa, axis=1) - jnp.sum(lead * lead, axis=1)
-    return vecs, lead, jnp.maximum(rest, 0.0)
+    return jnp.maximum(rest, 0.0)
+
+
+def in_basis(vecs: jax.Array, inside, tail: jax.Array):
+    """A preconditioner split by an orthonormal basis ``vecs`` (q, k): ``inside``
+    maps the coefficients ``V^T v`` (k, p) to the system's inverse applied there;
+    outside the basis each column is divided by ``tail`` (1, p). Returns
+    ``apply`` mapping (q, p) -> (q, p)."""
+
+    def apply(v):
+        coef = vecs.T @ v
+        return vecs @ (inside(coef) - coef / tail) + v / tail
+
+    return apply
 
 
 def block_preconditioner(vecs, lead, rest, mask, lam, block):
@@ -68,10 +94,8 @@ def block_preconditioner(vecs, lead, rest, mask, lam, block):
     blocks = (outer.T @ mask).T.reshape(-1, kb, kb)
     chol = jnp.linalg.cholesky(blocks + lam * jnp.eye(kb, dtype=lead.dtype)[None])
 
-    def apply(v):
-        coef = vecs.T @ v  # (k, p)
+    def inside(coef):  # (k, p)
         head = jax.scipy.linalg.cho_solve((chol, True), coef[:kb].T[:, :, None])
-        inside = jnp.concatenate([head[:, :, 0].T, coef[kb:] / diag[kb:]], axis=0)
-        return vecs @ (inside - coef / tail) + v / tail
+        return jnp.concatenate([head[:, :, 0].T, coef[kb:] / diag[kb:]], axis=0)
 
-    return apply
+    return in_basis(vecs, inside, tail)

@@ -68,6 +68,7 @@ from rhythmic_jax.solvers.newton_cg import (
     host_loop,
     newton_cg,
 )
+from rhythmic_jax.solvers.precondition import in_basis, outside_norms
 
 __all__ = [
     "FAST_STREAM",
@@ -187,8 +188,7 @@ def _curvature(xa, h, vecs):
     if vecs is None:
         return (xa * xa).T @ h
     lead = xa @ vecs
-    rest = jnp.maximum(jnp.sum(xa * xa, axis=1) - jnp.sum(lead * lead, axis=1), 0.0)
-    return (lead * lead).T @ h, rest @ h
+    return (lead * lead).T @ h, outside_norms(xa, lead) @ h
 
 
 @partial(jax.jit, static_argnames=("periods",))
@@ -280,7 +280,6 @@ class _Stream:
         # where every row's curvature is not 0 at the current theta, one bit per
         # template of the last gradient pass, and its one value there (None:
         # recompute it in CG passes)
-        self.keep = keep
         self.bits = self._bit_rows(sum(periods)) if keep else None
         self.top = None
 
@@ -531,15 +530,9 @@ def _preconditioner(lam, curv, vecs):
         return lambda r: r / diag
     inside, rest = curv
     q, k = vecs.shape
-    v = jnp.asarray(vecs, jnp.float64)
-    inside = lam + jnp.asarray(inside)
+    diag = lam + jnp.asarray(inside)
     tail = lam + jnp.asarray(rest)[None, :] / max(q - k, 1)
-
-    def apply(r):
-        coef = v.T @ r
-        return v @ (coef / inside - coef / tail) + r / tail
-
-    return apply
+    return in_basis(jnp.asarray(vecs, jnp.float64), lambda coef: coef / diag, tail)
 
 
 def _system(stream, theta, th32, grad, curv, c, cols=None, vecs=None) -> NewtonSystem:

@@ -108,6 +108,27 @@ def _route_file(tmp_path, seed: int, n: int, d: int):
     return open_frames(tmp_path / "x.npy")
 
 
+def _fits(frames, periods, configs):
+    """The streamed fit of frames' n places with each of ``configs``, C = log n:
+    a list of (templates, info)."""
+    n = frames.n
+    return [
+        streamed_newton_fit(
+            frames, np.arange(n), periods, float(np.log(n)), config, progress=False
+        )
+        for config in configs
+    ]
+
+
+def _same_optimum(ref, got):
+    """Two fits' (templates, info) reach the same objectives (1e-6) and, as far as
+    the objective pins them near its optimum, the same templates."""
+    (ref, ref_info), (got, info) = ref, got
+    np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
+    # the sums round differently; w is as flat as the objective near its optimum
+    assert np.linalg.norm(got.w - ref.w) / np.linalg.norm(ref.w) < 3e-3
+
+
 def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
     n = 200
     frames = _route_file(tmp_path, seed=1, n=n, d=12)
@@ -142,22 +163,10 @@ def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
 def test_kept_active_sets_take_the_same_steps(tmp_path):
     n = 150
     frames = _route_file(tmp_path, seed=2, n=n, d=10)
-    runs = [
-        streamed_newton_fit(
-            frames,
-            np.arange(n),
-            (11, 13, 14),
-            float(np.log(n)),
-            StreamConfig(block_rows=40, keep_active=keep),
-            progress=False,
-        )  # fmt: skip
-        for keep in (False, True)
-    ]
-    (ref, ref_info), (got, info) = runs
-    assert info.cg_iterations == ref_info.cg_iterations
-    np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
-    # the sums round differently; w is as flat as the objective near its optimum
-    assert np.linalg.norm(got.w - ref.w) / np.linalg.norm(ref.w) < 3e-3
+    configs = [StreamConfig(block_rows=40, keep_active=keep) for keep in (False, True)]
+    ref, got = _fits(frames, (11, 13, 14), configs)
+    assert got[1].cg_iterations == ref[1].cg_iterations
+    _same_optimum(ref, got)
 
 
 def test_line_pass_is_the_loss_along_the_step_differentiated_in_t():
@@ -191,26 +200,18 @@ def test_compacted_passes_take_the_same_steps_on_fewer_columns(tmp_path):
     power of two): the same steps and optimum as passes over every column."""
     n = 240
     frames = _route_file(tmp_path, seed=3, n=n, d=14)
-    runs = [
-        streamed_newton_fit(
-            frames,
-            np.arange(n),
-            (15, 16, 17),
-            float(np.log(n)),
-            StreamConfig(gap_tol=1e-5, block_rows=64, compact=compact),
-            progress=False,
-        )  # fmt: skip
+    configs = [
+        StreamConfig(gap_tol=1e-5, block_rows=64, compact=compact)
         for compact in (False, True)
     ]
-    (ref, ref_info), (got, info) = runs
+    ref, got = _fits(frames, (15, 16, 17), configs)
+    ref_info, info = ref[1], got[1]
     assert set(ref_info.columns) == {48}
     assert info.columns[0] == 48 and min(info.columns) < 48  # compacted
     assert all(w in (8, 16, 32, 48) for w in info.columns)
     assert info.steps == ref_info.steps
     assert info.cg_iterations == ref_info.cg_iterations
-    np.testing.assert_allclose(info.objective, ref_info.objective, rtol=1e-6)
-    # float32 products of other widths round differently; w is as flat as f
-    assert np.linalg.norm(got.w - ref.w) / np.linalg.norm(ref.w) < 3e-3
+    _same_optimum(ref, got)  # float32 products of other widths round differently
 
 
 def test_spectral_preconditioner_inverts_a_hessian_diagonal_in_its_basis():
@@ -241,16 +242,13 @@ def test_spectral_preconditioning_reaches_the_optimum_in_fewer_cg_passes(tmp_pat
     periods, c = (17, 18), float(np.log(n))
     x = frames.read(0, n)
     _, ref = newton_fit(x, targets(np.arange(n), periods), c, progress=False)
-    runs = {
-        rank: streamed_newton_fit(
-            frames, np.arange(n), periods, c,
-            StreamConfig(gap_tol=1e-6, block_rows=128, spectral_rank=rank),
-            progress=False,
-        )[1]
+    configs = [
+        StreamConfig(gap_tol=1e-6, block_rows=128, spectral_rank=rank)
         for rank in (0, 8)
-    }  # fmt: skip
-    for info in runs.values():
+    ]
+    (_, jacobi), (_, spectral) = _fits(frames, periods, configs)
+    for info in (jacobi, spectral):
         rel = np.abs(info.objective - ref.objective) / ref.objective
         assert rel.max() < 1e-5
         assert np.all(info.gap_estimate <= 1e-6)
-    assert sum(runs[8].cg_iterations) < sum(runs[0].cg_iterations)
+    assert sum(spectral.cg_iterations) < sum(jacobi.cg_iterations)
