@@ -44,26 +44,34 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
     ``span`` counts a float64 copy of the frames, ``X X^T``, its shifted copy and
     its Cholesky factor in float64 (``8 n d + 24 n^2``) and the lifted weights
     (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
-    It is an upper estimate: XLA frees and fuses some of these.
+
+    The arrays' sum bounds what XLA's compiled Newton step holds (its arguments,
+    results and temporaries); ``allocator`` adds a quarter of it for what the
+    process holds beyond the arrays: freed buffers the allocator keeps and the
+    threads' scratch. A fit's resident memory ran up to 1.19x the arrays' sum
+    on a loaded machine (n = 3000, d = 128: 147 MB against 124 MB).
     """
     if in_span(n, d):
         reduced = fit_bytes(n, n, p, 4)
-        return {
+        parts = {
             "features": n * d * itemsize,
             "span": 8 * n * d + 24 * n * n + 8 * n * p + 12 * d * p,
             "design": reduced["features"] + reduced["design"],
             "system": reduced["system"],
             "templates": reduced["templates"],
         }
-    q = d + 1
-    k = min(512, q)
-    b = min(32, k)
-    return {
-        "features": n * d * itemsize,
-        "design": 4 * n * d + 12 * n * q,
-        "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
-        "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
-    }
+    else:
+        q = d + 1
+        k = min(512, q)
+        b = min(32, k)
+        parts = {
+            "features": n * d * itemsize,
+            "design": 4 * n * d + 12 * n * q,
+            "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
+            "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
+        }
+    parts["allocator"] = sum(parts.values()) // 4
+    return parts
 
 
 def available_memory() -> int:

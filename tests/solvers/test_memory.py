@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from rhythmic_jax.errors import InputError
@@ -90,5 +91,46 @@ def test_memory_estimate_bounds_a_measured_fit(n, d):
     estimate = sum(fit_bytes(n, d, sum(candidate_periods(n))).values())
     # an upper estimate (0.9: measurement noise), and not a wild one: the growth
     # measured after a warm-up fit undercounts buffers the allocator kept from
-    # it, most on small problems (400 x 1024: 9.6 MB measured, 27.7 MB estimated)
-    assert 0.9 * measured <= estimate <= 4 * measured, (measured, estimate)
+    # it, most on small problems (400 x 1024: 9.6 MB measured, 34.6 MB estimated)
+    assert 0.9 * measured <= estimate <= 5 * measured, (measured, estimate)
+
+
+@pytest.mark.parametrize("n, d", [(1000, 64), (400, 1024)])  # tall; wide: span
+def test_memory_estimate_bounds_the_compiled_newton_step(n, d):
+    """The step's arrays (design, system, templates) hold XLA's own count of a
+    Newton step's arguments, results and temporaries, whole or compacted."""
+    import jax
+    import jax.numpy as jnp
+
+    from rhythmic_jax.solvers import newton
+    from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver
+    from rhythmic_jax.solvers.precondition import spectral_setup
+
+    config = newton.NewtonConfig()
+    p = sum(candidate_periods(n))
+    parts = fit_bytes(n, d, p)
+    arrays = parts["design"] + parts["system"] + parts["templates"]
+    assert 4 * parts["allocator"] <= sum(parts.values()) - parts["allocator"]
+    q = min(n, d) + 1  # wide frames are solved in their (n, n) span
+    rng = np.random.default_rng(0)
+    xa = newton._design(
+        jnp.asarray(rng.normal(size=(n, q - 1)), jnp.float32), jnp.ones(n, jnp.float32)
+    )
+    spectral = spectral_setup(
+        xa, min(config.rank, q), config.power_iters, jax.random.PRNGKey(0)
+    )
+    with jax.enable_x64(True):
+        params = Iterate(jnp.zeros((q, p)), jnp.zeros((n, p)))
+        state = newton_solver(config.eta, config.max_cg, config.block).init(params)
+        for cols in (None, jnp.arange(p // 2)):
+            stats = newton._newton_step.lower(
+                xa, spectral, cols, params, state, jnp.ones((n, p)),
+                jnp.float64(1.0), config.eta, config.block, jnp.int32(10),
+                config.exact_gradient,
+            ).compile().memory_analysis()  # fmt: skip
+            held = (
+                stats.argument_size_in_bytes
+                + stats.output_size_in_bytes
+                + stats.temp_size_in_bytes
+            )
+            assert held <= arrays <= 2 * held, (cols is None, held, arrays)
