@@ -18,7 +18,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 LAYERS = [
     ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span",
      "progress"],
-    ["validate", "quantize", "cache_files"],
+    ["validate", "solvers.precision", "quantize", "cache_files"],
     ["scalar_codes"],
     [
         "periods", "projection", "split", "nets", "io.checkpoint", "io.images", "codes",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from sklearn.svm import LinearSVC
@@ -70,13 +72,15 @@ def test_matches_liblinear_on_synthetic(shape):
     assert np.all(info.gap_estimate <= NewtonConfig().gap_tol)
 
 
-def test_fast_setting_stays_within_its_gap():
+@pytest.mark.parametrize("hessian", ["float32", "bfloat16"])
+def test_fast_setting_stays_within_its_gap(hessian):
     """FAST stops at an estimated 0.1 % gap: the true gap is below it, and above
-    the tight solve's."""
+    the tight solve's; with CG's products in float32 or bfloat16."""
     x = synthetic(300, 120, seed=3)
     y = np.asarray(targets(np.arange(300), (11, 12, 13)))
     c = default_c(300)
-    fast, info = newton_fit(x, y, c, FAST, progress=False)
+    config = dataclasses.replace(FAST, hessian_dtype=hessian)
+    fast, info = newton_fit(x, y, c, config, progress=False)
     tight, _ = newton_fit(x, y, c, progress=False)
     ref = liblinear_reference(x, y, c)
     gap_fast = (ours(fast, x, y, c) - ref) / ref

@@ -157,3 +157,35 @@ def test_float32_gradient_sum_is_the_float64_one_to_single_precision():
         assert np.any(err > 0)  # it did sum in float32
         v = jnp.asarray(np.random.default_rng(2).normal(size=it.theta.shape))
         np.testing.assert_array_equal(hvp32(v)[0], hvp64(v)[0])
+
+
+def test_bfloat16_hessian_products_round_only_the_directions():
+    """``hessian_dtype=bfloat16`` rounds the Hessian's products to bfloat16's 8
+    bits (~4e-3 relative, not float32's 1e-7) and keeps no margins of them; the
+    gradient is untouched, and a Newton step's margins are ``Xa s`` exactly."""
+    x, y, c = problem(n=300, d=40)
+    xa = design(x)
+    with jax.enable_x64(True):
+        it = start(xa, y)
+        value_fn = margin_value(y, c)
+        grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
+        x32 = jnp.asarray(xa, jnp.float32)
+        g32, hvp32, *_ = derivatives(value_fn, grad, it, x32)
+        g16, hvp16, *_ = derivatives(value_fn, grad, it, x32, True, jnp.bfloat16)
+        np.testing.assert_array_equal(g16, g32)
+        v = jnp.asarray(np.random.default_rng(2).normal(size=it.theta.shape))
+        (h32, xv32), (h16, xv16) = hvp32(v), hvp16(v)
+        assert xv32 is not None and xv16 is None
+        assert h16.dtype == jnp.float32
+        err = np.linalg.norm(np.asarray(h16) - np.asarray(h32)) / np.linalg.norm(h32)
+        assert 1e-5 < err < 2e-2, err
+
+        spectral = spectral_setup(x32, 20, 3, jax.random.PRNGKey(0))
+        opt = newton_cg(eta=1e-3, hessian_dtype=jnp.bfloat16)
+        step, _ = opt.update(
+            grad, opt.init(it), it, value_fn=value_fn, design=x32, spectral=spectral
+        )
+        np.testing.assert_allclose(
+            step.margins, np.asarray(x32, np.float64) @ np.asarray(step.theta),
+            rtol=1e-5, atol=1e-6,
+        )  # fmt: skip
