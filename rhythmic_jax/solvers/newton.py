@@ -60,10 +60,11 @@ import optax
 import scipy.linalg
 from threadpoolctl import threadpool_limits
 
+from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton_cg import Iterate, bucket, newton_solver
-from rhythmic_jax.solvers.precision import resolve_hessian_dtype
+from rhythmic_jax.solvers.precision import HESSIAN_DTYPES, resolve_hessian_dtype
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
@@ -135,7 +136,10 @@ class NewtonConfig:
     hessian_dtype: str = "float32"
 
     def __post_init__(self):
-        resolve_hessian_dtype(self.hessian_dtype)  # refuses an unknown name
+        if self.hessian_dtype not in HESSIAN_DTYPES:
+            raise InputError(
+                f"hessian_dtype {self.hessian_dtype!r}: use one of {HESSIAN_DTYPES}"
+            )
 
 
 FAST = NewtonConfig(

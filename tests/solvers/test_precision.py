@@ -33,3 +33,21 @@ def test_hessian_dtype_settings_resolve_and_unknown_ones_are_refused():
     assert FAST.hessian_dtype == "auto" and NewtonConfig().hessian_dtype == "float32"
     with pytest.raises(InputError, match="hessian_dtype 'float16'"):
         NewtonConfig(hessian_dtype="float16")
+
+
+def test_importing_the_solver_leaves_the_backend_for_jax_distributed():
+    """Settings resolve when a fit runs, never on import: a process of a
+    multi-process fit must call ``jax.distributed.initialize`` before XLA's
+    backend starts."""
+    import subprocess
+    import sys
+
+    code = (
+        "import rhythmic_jax, rhythmic_jax.solvers.newton, rhythmic_jax.scale_fit\n"
+        "from jax._src import xla_bridge\n"
+        "print(xla_bridge.backends_are_initialized())\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.split()[-1] == "False", out.stderr[-2000:]
