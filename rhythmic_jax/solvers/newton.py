@@ -63,7 +63,12 @@ from threadpoolctl import threadpool_limits
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.newton_cg import Iterate, bucket, newton_solver
+from rhythmic_jax.solvers.newton_cg import (
+    Iterate,
+    bucket,
+    newton_solver,
+    round_design,
+)
 from rhythmic_jax.solvers.precision import HESSIAN_DTYPES, resolve_hessian_dtype
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
@@ -209,10 +214,10 @@ def _put(tree, part, cols):
     )
 
 
-@partial(jax.jit, static_argnames=("eta", "block", "exact_gradient", "hessian"))
+@partial(jax.jit, static_argnames=("eta", "block", "exact_gradient"))
 def _newton_step(
     xa, spectral, cols, params, opt_state, y, c, eta, block, max_cg,
-    exact_gradient=True, hessian=None,
+    exact_gradient=True, rounded=None,
 ):  # fmt: skip
     """One Newton step of the templates ``cols`` (b,) of ``params`` (an
     :class:`~rhythmic_jax.solvers.newton_cg.Iterate`: theta (q, p), margins
@@ -223,11 +228,10 @@ def _newton_step(
     Returns the updated iterate and optimiser state (other columns unchanged),
     and for the gathered columns the objective before and after (b,), the Newton
     decrement (b,) and the CG iterations (at most ``max_cg``, traced: no
-    recompilation). ``hessian``: the dtype of CG's products (None: the design's).
+    recompilation). ``rounded``: the design rounded for CG's products
+    (:func:`~rhythmic_jax.solvers.newton_cg.round_design`), or None.
     """
-    optimizer = newton_solver(
-        eta=eta, block=block, exact_gradient=exact_gradient, hessian_dtype=hessian
-    )
+    optimizer = newton_solver(eta=eta, block=block, exact_gradient=exact_gradient)
     part, state, yb = _take(params, cols), _take(opt_state, cols), _take(y, cols)
 
     def value_fn(it: Iterate) -> jax.Array:
@@ -236,7 +240,7 @@ def _newton_step(
     grad = jax.grad(lambda it: jnp.sum(value_fn(it)))(part)
     updates, state = optimizer.update(
         grad, state, part, value_fn=value_fn, design=xa, spectral=spectral,
-        max_cg=max_cg,
+        max_cg=max_cg, rounded=rounded,
     )  # fmt: skip
     part = optax.apply_updates(part, updates)
     cg_state, search = state
@@ -313,6 +317,8 @@ def newton_fit(
         bias = jnp.ones((n,), jnp.float32)
     xa = _design(x if isinstance(x, jax.Array) else jnp.asarray(x), bias)
     pad = n - int(np.rint(float(jnp.sum(bias))))  # padding rows: C each
+    narrow = resolve_hessian_dtype(config.hessian_dtype)
+    rounded = None if narrow is None else round_design(xa, narrow)
     rank = min(config.rank, d + 1)
     with threadpool_limits(limits=1):  # LAPACK's threads wait on a busy machine
         vecs, lead, rest = jax.block_until_ready(
@@ -350,8 +356,7 @@ def newton_fit(
             params, opt_state, f0, f1, dec, it = _newton_step(
                 xa, (vecs, lead, rest), None if len(todo) == p else cols,
                 params, opt_state, y64, c64, config.eta, config.block,
-                jnp.int32(cap), config.exact_gradient,
-                resolve_hessian_dtype(config.hessian_dtype),
+                jnp.int32(cap), config.exact_gradient, rounded,
             )  # fmt: skip
             cg_its.append(int(it))
             widths.append(width)

@@ -42,6 +42,7 @@ __all__ = [
     "ExactLinesearchState",
     "derivatives",
     "host_loop",
+    "round_design",
     "in_memory_system",
     "Iterate",
     "NewtonCGState",
@@ -168,7 +169,7 @@ class NewtonSystem(NamedTuple):
 
 def in_memory_system(
     value_fn, grad: Iterate, params: Iterate, design, spectral, block,
-    exact_gradient: bool = True, hessian_dtype=None,
+    exact_gradient: bool = True, rounded=None,
 ):  # fmt: skip
     """:class:`NewtonSystem` of ``value_fn`` at ``params`` with every frame's
     margins in memory: :func:`derivatives` and the spectral block preconditioner
@@ -179,11 +180,11 @@ def in_memory_system(
     is the same in exact arithmetic, but not in float32, where the
     preconditioner's leading block rounds differently at each scale (~1e-3 on
     the first step); at this one it rounds as the solver was measured with.
-    ``exact_gradient``, ``hessian_dtype``: see :func:`derivatives`.
+    ``exact_gradient``, ``rounded``: see :func:`derivatives`.
     """
     f32 = design.dtype
     g, hvp, weight, lam = derivatives(
-        value_fn, grad, params, design, exact_gradient, hessian_dtype
+        value_fn, grad, params, design, exact_gradient, rounded
     )
     top = jnp.max(weight)
     scale = 1.0 / jnp.where(top > 0, top, 1.0)
@@ -194,27 +195,25 @@ def in_memory_system(
 
 
 def newton_cg(
-    eta: float = 0.1,
-    max_cg: int = 200,
-    block: int = 32,
-    exact_gradient: bool = True,
-    hessian_dtype=None,
+    eta: float = 0.1, max_cg: int = 200, block: int = 32, exact_gradient: bool = True
 ) -> optax.GradientTransformationExtraArgs:
     """The Newton step of every template, by preconditioned CG.
 
-    ``update(grad, state, params, *, value_fn, design, spectral, max_cg=None)``:
+    ``update(grad, state, params, *, value_fn, design, spectral, max_cg=None,
+    rounded=None)``:
     ``grad`` is ``jax.grad`` of ``value_fn`` at ``params`` (an :class:`Iterate`),
     ``design`` the (n, q) float32 ``Xa``, ``spectral`` the preconditioner's
     ``(vecs, lead, rest)`` (:func:`rhythmic_jax.solvers.precondition.spectral_setup`)
-    and ``max_cg`` (traced) caps CG for this step. Returns the step as an
+    , ``max_cg`` (traced) caps CG for this step and ``rounded``, optionally, the
+    design rounded for CG's products (:func:`derivatives`). Returns the step as an
     :class:`Iterate` ``(s, Xa s)`` and the new :class:`NewtonCGState`.
 
     ``update(grad, state, params, *, system, max_cg=None)`` instead takes the
     system already summed (:class:`NewtonSystem`: a streamed fit's, whose
     products are passes over blocks of frames); the step's margins are then
     None. In memory the step's margins come from CG's products, or, where
-    those are rounded (``hessian_dtype``), from one product ``Xa s`` in the
-    design's dtype.
+    those are rounded (``rounded``), from one product ``Xa s`` in the design's
+    dtype.
 
     Args:
       eta: CG forcing term (relative residual at which a template stops).
@@ -222,7 +221,6 @@ def newton_cg(
       block: leading eigen-directions the preconditioner inverts exactly.
       exact_gradient: sum the gradient over frames in the iterate's dtype
         (float64) rather than the design's (see :func:`derivatives`).
-      hessian_dtype: the dtype of CG's products (see :func:`derivatives`).
     """
 
     def init_fn(params: Iterate) -> NewtonCGState:
@@ -243,13 +241,14 @@ def newton_cg(
         spectral: tuple[jax.Array, jax.Array, jax.Array] | None = None,
         system: NewtonSystem | None = None,
         max_cg: Any = max_cg,
+        rounded=None,
         **extra_args,
     ) -> tuple[Iterate, NewtonCGState]:
         del extra_args
         if system is None:
             system = in_memory_system(
                 value_fn, updates, params, design, spectral, block, exact_gradient,
-                hessian_dtype,
+                rounded,
             )  # fmt: skip
         dtype = params.theta.dtype
         r0 = -(system.grad * system.scale).astype(system.dtype)
@@ -271,7 +270,7 @@ def derivatives(
     params: Iterate,
     design: jax.Array,
     exact_gradient: bool = True,
-    hessian_dtype=None,
+    rounded=None,
 ):
     """What Newton-CG needs of the objective, by autodiff, at ``params``.
 
@@ -284,27 +283,30 @@ def derivatives(
       exact_gradient: sum the gradient's product over frames in the iterate's
         dtype (float64); False: in the design's (float32), ~3x faster, to
         ~1e-6 relative, which a solve to a 1e-3 gap does not see.
-      hessian_dtype: the inputs' dtype of the Hessian's two products (None:
-        the design's). ``jnp.bfloat16`` rounds ``Xa`` and the vectors to 8
-        bits of mantissa and sums in the design's dtype: half the time of a
-        float32 product where the CPU multiplies bfloat16 natively
-        (:func:`native_bfloat16`), with CG's directions off by ~1e-3, which
-        the exact line search and a 1e-3 gap do not see; the gradient, the
-        margins and the line search keep their dtypes.
+      rounded: None, or the design rounded for the Hessian's two products,
+        ``(Xa, Xa^T)`` as (n, q) and (q, n) arrays of a narrower dtype
+        (:func:`round_design`): the vectors are rounded to it too and the
+        products summed in the design's dtype. In bfloat16 (8 bits of
+        mantissa) that is half the time of a float32 product where the CPU
+        multiplies bfloat16 natively
+        (:func:`rhythmic_jax.solvers.precision.native_bfloat16`), with CG's
+        directions off by ~1e-3, which the exact line search and a 1e-3 gap
+        do not see; the gradient, the margins and the line search keep their
+        dtypes. The transposed copy is stored because XLA's CPU bfloat16
+        product of a transposed operand is the slow one (3x).
 
     Returns:
       ``g`` (q, p): the gradient in theta, ``d/dtheta + Xa^T d/dm`` (the chain
       rule through ``m = Xa theta``); ``hvp``: ``(v (q, p), scale=1)`` ->
       ``(scale H v, Xa v)`` in the design's dtype (``Xa v`` None where
-      ``hessian_dtype`` rounds it), H the (generalised) Hessian in theta
+      ``rounded``), H the (generalised) Hessian in theta
       (scaled before the cast); the Hessian's diagonal in the margins (n, p)
       and its (mean) curvature in theta (), in the iterate's dtype, which the
       preconditioner takes.
     """
     xa, dtype = design, params.theta.dtype
     f32 = xa.dtype
-    rounded = hessian_dtype is not None and jnp.dtype(hessian_dtype) != f32
-    xh = xa.astype(hessian_dtype) if rounded else xa
+    xh, xht = (xa, xa.T) if rounded is None else rounded
     # float64 sums over frames (in the iterate's dtype): the optimum the gradient
     # defines does not move with the order of the sum (rows split over
     # processes), as float32's did by ~1e-6
@@ -322,9 +324,10 @@ def derivatives(
         h = hessian(Iterate(v.astype(dtype), xv.astype(dtype)))
         scale = jnp.asarray(scale, dtype)
         loss = jnp.dot(
-            xh.T, (h.margins * scale).astype(xh.dtype), preferred_element_type=f32
+            xht, (h.margins * scale).astype(xht.dtype), preferred_element_type=f32
         )
-        return loss + h.theta.astype(f32) * scale.astype(f32), None if rounded else xv
+        hv = loss + h.theta.astype(f32) * scale.astype(f32)
+        return hv, xv if rounded is None else None
 
     return g, hvp, curv.margins, jnp.mean(curv.theta)
 
@@ -421,15 +424,17 @@ def scale_by_exact_linesearch(
 
 
 def newton_solver(
-    eta: float = 0.1,
-    max_cg: int = 200,
-    block: int = 32,
-    exact_gradient: bool = True,
-    hessian_dtype=None,
+    eta: float = 0.1, max_cg: int = 200, block: int = 32, exact_gradient: bool = True
 ) -> optax.GradientTransformationExtraArgs:
     """``optax.chain(newton_cg(...), scale_by_exact_linesearch())``: a full
     Newton step; its state is ``(NewtonCGState, ExactLinesearchState)``."""
     return optax.chain(
-        newton_cg(eta, max_cg, block, exact_gradient, hessian_dtype),
-        scale_by_exact_linesearch(),
+        newton_cg(eta, max_cg, block, exact_gradient), scale_by_exact_linesearch()
     )
+
+
+def round_design(design: jax.Array, dtype) -> tuple[jax.Array, jax.Array]:
+    """``(Xa, Xa^T)`` rounded to ``dtype``: (n, q) and a stored (q, n) copy, the
+    ``rounded`` argument of :func:`derivatives`."""
+    xh = design.astype(dtype)
+    return xh, jnp.transpose(xh).copy()

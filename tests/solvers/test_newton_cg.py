@@ -21,6 +21,7 @@ from rhythmic_jax.solvers.newton_cg import (
     derivatives,
     newton_cg,
     newton_solver,
+    round_design,
 )
 from rhythmic_jax.solvers.precondition import spectral_setup
 
@@ -171,7 +172,9 @@ def test_bfloat16_hessian_products_round_only_the_directions():
         grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
         x32 = jnp.asarray(xa, jnp.float32)
         g32, hvp32, *_ = derivatives(value_fn, grad, it, x32)
-        g16, hvp16, *_ = derivatives(value_fn, grad, it, x32, True, jnp.bfloat16)
+        pair = round_design(x32, jnp.bfloat16)
+        assert pair[1].shape == x32.T.shape and pair[1].dtype == jnp.bfloat16
+        g16, hvp16, *_ = derivatives(value_fn, grad, it, x32, True, pair)
         np.testing.assert_array_equal(g16, g32)
         v = jnp.asarray(np.random.default_rng(2).normal(size=it.theta.shape))
         (h32, xv32), (h16, xv16) = hvp32(v), hvp16(v)
@@ -181,10 +184,11 @@ def test_bfloat16_hessian_products_round_only_the_directions():
         assert 1e-5 < err < 2e-2, err
 
         spectral = spectral_setup(x32, 20, 3, jax.random.PRNGKey(0))
-        opt = newton_cg(eta=1e-3, hessian_dtype=jnp.bfloat16)
+        opt = newton_cg(eta=1e-3)
         step, _ = opt.update(
-            grad, opt.init(it), it, value_fn=value_fn, design=x32, spectral=spectral
-        )
+            grad, opt.init(it), it, value_fn=value_fn, design=x32, spectral=spectral,
+            rounded=pair,
+        )  # fmt: skip
         np.testing.assert_allclose(
             step.margins, np.asarray(x32, np.float64) @ np.asarray(step.theta),
             rtol=1e-5, atol=1e-6,
