@@ -12,6 +12,7 @@ Names: n frames, b batch, (H, W) frame size, d descriptor length.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
@@ -93,19 +94,25 @@ def ahead(items: Iterable[T], depth: int = 2) -> Iterator[T]:
 
 
 def read_frames(
-    files: Sequence[Path], batch_size: int, workers: int = 2
+    files: Sequence[Path],
+    batch_size: int,
+    workers: int = 2,
+    at_least: tuple[int, int] | None = None,
 ) -> Iterator[np.ndarray]:
     """Decode image files in order, ``workers`` at a time: uint8 (b, H, W, 3) chunks.
 
     Every frame must have the first one's size (InputError naming the file).
+    ``at_least`` (width, height): JPEGs are decoded at a reduced scale still at
+    least this size (:func:`rhythmic_jax.io.images.read_rgb`).
     """
     from rhythmic_jax.io.images import read_rgb
 
+    read = functools.partial(read_rgb, at_least=at_least)
     first: tuple[int, ...] | None = None
     with ThreadPoolExecutor(workers, thread_name_prefix="rhythmic-read") as pool:
         for i in range(0, len(files), batch_size):
             part = files[i : i + batch_size]
-            frames = list(pool.map(read_rgb, part))
+            frames = list(pool.map(read, part))
             for path, im in zip(part, frames, strict=True):
                 if first is None:
                     first = im.shape
@@ -210,6 +217,7 @@ def files_cache_path(
     ident = [descriptor.name, descriptor.settings()]
     if _network_size(descriptor) is not None:
         ident.append("shrunk in uint8")  # values differ from the float resize's
+        ident.append("JPEG decoded at a reduced scale")  # and from the full decode's
     h.update(json.dumps(ident, sort_keys=True, default=str).encode())
     for f in files:
         data = Path(f).read_bytes()
@@ -233,7 +241,9 @@ def describe_files(
 
     Reading runs ahead of the network (:func:`describe_chunks`). A cache hit reads
     no image unless ``keep_images``. Returns ``(x, images)``, ``images`` uint8
-    (n, H, W, 3) when ``keep_images`` else None.
+    (n, H, W, 3) when ``keep_images`` else None. For a network descriptor,
+    JPEGs are decoded at the smallest reduced scale still at least the
+    network's input (:func:`read_frames`); kept images are decoded in full.
     """
     from rhythmic_jax.cache_files import load_cached, save_cached
 
@@ -252,7 +262,9 @@ def describe_files(
             store.append(np.empty((len(files), *chunk.shape[1:]), np.uint8))
         store[0][start : start + len(chunk)] = chunk
 
-    chunks = read_frames(files, batch_size)
+    size = _network_size(descriptor)
+    at_least = None if keep_images or size is None else (size[1], size[0])
+    chunks = read_frames(files, batch_size, at_least=at_least)
     x = describe_chunks(
         chunks, len(files), descriptor, policy, progress,
         keep if keep_images else None,

