@@ -80,6 +80,7 @@ from rhythmic_jax.objective import (
 )
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
 
 log = logging.getLogger("bench_solver")
@@ -192,6 +193,7 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
             max_cg=config.max_cg,
             cg_start=config.cg_start,
             exact_gradient=config.exact_gradient,
+            hessian=resolve_hessian_dtype(config.hessian_dtype) or "float32",
             rank=config.rank,
             block=config.block,
         ),
@@ -338,7 +340,8 @@ def _newton_line(label: str, nw: dict) -> str:
         f" {'float64' if cfg.get('exact_gradient', True) else 'float32'}):"
         f" {nw['steps']} steps, CG iterations {nw['cg_iterations']} over"
         f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their"
-        f" products {nw['gflop']:,.4g} GFLOP in float32, i.e."
+        f" products {nw['gflop']:,.4g} GFLOP with {cfg.get('hessian', 'float32')}"
+        " inputs, summed in float32, i.e."
         f" {nw['gflop'] / nw['seconds']:.3g} GFLOP/s over the solve's wall time);"
         f" largest estimated gap at the end {nw['max_gap_estimate']:.2e};"
         f" {100 * nw['active_fraction']:.1f} % of (frame, template) margins active"
