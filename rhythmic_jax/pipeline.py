@@ -182,7 +182,8 @@ def describe_chunks(
     out = np.zeros((n, descriptor.dim), np.float32)
     bar = progress_bar(total=n, show=progress, desc=descriptor.name, unit="frame")
     start = 0
-    # the network loads (a compiled one: ~3 s) while the first chunks are read
+    # the network loads (the eager one builds its module) while the first
+    # chunks are read
     with ThreadPoolExecutor(1, thread_name_prefix="rhythmic-load") as pool:
         loading = pool.submit(network_runner, descriptor, n, policy)
         frames = ahead(prepared(), depth)

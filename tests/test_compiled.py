@@ -37,7 +37,7 @@ def fresh(monkeypatch, tmp_path):
 def test_policy_decides_by_frames():
     lite0, patch = get_descriptor("efficientnet_lite0"), get_descriptor("patchnorm")
     auto = CompilePolicy()
-    assert not wants_compiled(lite0, 100, auto, ready=True)
+    assert not wants_compiled(lite0, LOAD_MIN_FRAMES - 1, auto, ready=True)
     assert wants_compiled(lite0, LOAD_MIN_FRAMES, auto, ready=True)
     assert not wants_compiled(lite0, BUILD_MIN_FRAMES - 1, auto, ready=False)
     assert wants_compiled(lite0, BUILD_MIN_FRAMES, auto, ready=False)
@@ -46,7 +46,8 @@ def test_policy_decides_by_frames():
     assert wants_compiled(lite0, 50, CompilePolicy(min_frames=50), ready=False)
     assert not wants_compiled(lite0, 49, CompilePolicy(min_frames=50), ready=True)
     assert not wants_compiled(patch, 10**9, CompilePolicy("always"), ready=True)
-    assert LOAD_MIN_FRAMES > 100  # a 100-frame job never pays a load
+    assert wants_compiled(lite0, 100, auto, ready=True)  # loading is cheap now
+    assert not wants_compiled(lite0, 100, auto, ready=False)  # building is not
 
 
 def test_policy_refuses_bad_settings():
