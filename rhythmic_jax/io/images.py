@@ -23,10 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import skimage.io
-import skimage.transform
-import skimage.util
-from sklearn.cluster import KMeans
 from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.errors import InputError
@@ -161,6 +157,9 @@ def read_rgb(
     decode's on Nordland frames (0.2 on average; a sharp saturated edge's
     chroma moves up to 7). Other files are read in full.
     """
+    import skimage.io  # here, not at import: 0.3 s a job that reads JPEGs skips
+    import skimage.util
+
     path = Path(path)
     if at_least is not None:
         image = _read_jpeg_reduced(path, at_least)
@@ -203,6 +202,8 @@ def _resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     w, h = size
     if image.shape[:2] == (h, w):
         return image
+    import skimage.transform
+
     out = skimage.transform.resize(
         image, (h, w), order=1, anti_aliasing=True, preserve_range=True
     )
@@ -330,6 +331,8 @@ def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
     )
     std = coords.std(axis=0)
     z = (coords - coords.mean(axis=0)) / np.where(std > 0, std, 1.0)
+    from sklearn.cluster import KMeans  # here: importing it costs a query 0.6 s
+
     kmeans = KMeans(n_clusters=int(k), n_init=10, random_state=seed)
     with threadpool_limits(limits=1):  # small 2-D problem: threads only add waiting
         labels = kmeans.fit_predict(z)
