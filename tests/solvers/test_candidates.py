@@ -9,6 +9,7 @@ from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.candidates import DropLosers, losing_candidates
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
 
 def test_losing_candidates_compare_whole_sets():
@@ -56,13 +57,19 @@ def test_dropping_losers_keeps_the_choice_and_its_templates(config):
     assert chosen == choose_periods(cands, errs(part), n, 2) == (21, 23)
     offs = dict(zip(cands, period_offsets(cands), strict=True))
     cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in chosen])
-    # the kept templates are the full solve's (float32 products in other widths)
+    # the kept templates are the full solve's, up to the rounding of the products
+    # in other widths: float32's, or bfloat16's where CG's products take it
+    # (FAST on a CPU with bfloat16 dot instructions), where a float32 sum that
+    # differs in its last bit can round a vector's element the other way
+    rounded = resolve_hessian_dtype(config.hessian_dtype) is not None
     np.testing.assert_allclose(
-        info.objective[cols], full_info.objective[cols], rtol=1e-6
-    )
+        info.objective[cols], full_info.objective[cols],
+        rtol=1e-4 if rounded else 1e-6,
+    )  # fmt: skip
     np.testing.assert_allclose(
-        np.asarray(part.w)[:, cols], np.asarray(full.w)[:, cols], atol=1e-4
-    )
+        np.asarray(part.w)[:, cols], np.asarray(full.w)[:, cols],
+        atol=1e-2 if rounded else 1e-4,  # a 1e-3 gap leaves flat directions loose
+    )  # fmt: skip
     # the stopped ones are not at their optimum: stopping saved work
     lost = np.concatenate([np.arange(offs[t], offs[t] + t) for t in dropped])
     assert np.all(info.objective[lost] >= full_info.objective[lost] * (1 - 1e-9))
