@@ -75,15 +75,15 @@ def block_rows_for(
     """
     q = d + 1
     k = min(rank, q)
+    solver = 120 * q * p + (32 * q * q if k else 0)
     base = resident_bytes() if base is None else base
-    room = memory - base - SLACK - 120 * q * p - (32 * q * q if k else 0)
+    room = memory - base - SLACK - solver
     rows = room // (8 * q + 8 * k + 60 * p)
     if rows < 64:
         raise InputError(
             f"{{opt:memory}} {memory:,} bytes is too small to stream {d}-d frames for "
             f"{p} templates: {base:,} bytes are in use already and the solver "
-            f"needs {120 * q * p + SLACK + (32 * q * q if k else 0):,} more besides"
-            " the blocks"
+            f"needs {solver + SLACK:,} more besides the blocks"
         )
     return int(min(rows, 65536))
 

@@ -80,8 +80,8 @@ from rhythmic_jax.objective import (
 )
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
-from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
+from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
 log = logging.getLogger("bench_solver")
 

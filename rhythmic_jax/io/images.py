@@ -157,14 +157,14 @@ def read_rgb(
     decode's on Nordland frames (0.2 on average; a sharp saturated edge's
     chroma moves up to 7). Other files are read in full.
     """
-    import skimage.io  # here, not at import: 0.3 s a job that reads JPEGs skips
-    import skimage.util
-
     path = Path(path)
     if at_least is not None:
         image = _read_jpeg_reduced(path, at_least)
         if image is not None:
             return image
+    import skimage.io  # here, not at import: 0.3 s a job of JPEGs skips
+    import skimage.util
+
     try:
         image = np.asarray(skimage.io.imread(path))
     except Exception as exc:  # truncated, corrupt or not an image at all

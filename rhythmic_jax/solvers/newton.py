@@ -60,7 +60,6 @@ import optax
 import scipy.linalg
 from threadpoolctl import threadpool_limits
 
-from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton_cg import (
@@ -69,7 +68,7 @@ from rhythmic_jax.solvers.newton_cg import (
     newton_solver,
     round_design,
 )
-from rhythmic_jax.solvers.precision import HESSIAN_DTYPES, resolve_hessian_dtype
+from rhythmic_jax.solvers.precision import check_hessian_dtype, resolve_hessian_dtype
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
@@ -142,10 +141,7 @@ class NewtonConfig:
     hessian_dtype: str = "float32"
 
     def __post_init__(self):
-        if self.hessian_dtype not in HESSIAN_DTYPES:
-            raise InputError(
-                f"hessian_dtype {self.hessian_dtype!r}: use one of {HESSIAN_DTYPES}"
-            )
+        check_hessian_dtype(self.hessian_dtype)
 
 
 FAST = NewtonConfig(

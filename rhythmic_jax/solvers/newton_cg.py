@@ -437,4 +437,4 @@ def round_design(design: jax.Array, dtype) -> tuple[jax.Array, jax.Array]:
     """``(Xa, Xa^T)`` rounded to ``dtype``: (n, q) and a stored (q, n) copy, the
     ``rounded`` argument of :func:`derivatives`."""
     xh = design.astype(dtype)
-    return xh, jnp.transpose(xh).copy()
+    return xh, jnp.transpose(xh)  # eager: a (q, n) array of its own

@@ -14,7 +14,12 @@ import platform
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["HESSIAN_DTYPES", "native_bfloat16", "resolve_hessian_dtype"]
+__all__ = [
+    "HESSIAN_DTYPES",
+    "check_hessian_dtype",
+    "native_bfloat16",
+    "resolve_hessian_dtype",
+]
 
 HESSIAN_DTYPES = ("float32", "bfloat16", "auto")
 _BF16_FLAGS = frozenset({"avx512_bf16", "amx_bf16"})
@@ -45,12 +50,18 @@ def native_bfloat16() -> bool:
     return bool(flags & _BF16_FLAGS)
 
 
+def check_hessian_dtype(name: str) -> None:
+    """Refuse a setting that is not one of :data:`HESSIAN_DTYPES` (InputError);
+    it asks nothing of the machine, so it is safe on import."""
+    if name not in HESSIAN_DTYPES:
+        raise InputError(f"hessian_dtype {name!r}: use one of {HESSIAN_DTYPES}")
+
+
 def resolve_hessian_dtype(name: str) -> str | None:
     """The dtype of CG's products for a setting: ``"float32"`` -> None (the
     design's), ``"bfloat16"``, or ``"auto"`` -> bfloat16 where
     :func:`native_bfloat16`, else None."""
-    if name not in HESSIAN_DTYPES:
-        raise InputError(f"hessian_dtype {name!r}: use one of {HESSIAN_DTYPES}")
+    check_hessian_dtype(name)
     if name == "auto":
         return "bfloat16" if native_bfloat16() else None
     return None if name == "float32" else name

@@ -198,6 +198,16 @@ def _gram_pass(xa, labels, periods):
     return xa.T @ xa
 
 
+def _block_sums(xa, labels, theta, c, vecs, periods, cols):
+    """:func:`_grad_pass`'s sums of one block, and the loss's curvature h (B, p)
+    at its margins."""
+    m = xa @ theta
+    grad = _loss_grad(labels, periods, c, cols)
+    dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
+    loss = _block_loss(m, labels, periods, c, cols)
+    return (loss, xa.T @ dm, _curvature(xa, h, vecs)), h
+
+
 @partial(jax.jit, static_argnames=("periods",))
 def _grad_pass(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     """Sums of one block: the loss (p,), its gradient in theta ``Xa^T dL/dm``
@@ -205,11 +215,7 @@ def _grad_pass(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     h`` (q, p), or in the basis ``vecs``), ``h`` the loss's curvature at the
     margins (the Hessian in m is diagonal). ``cols`` (b,): theta (q, b) holds
     these templates only, and so do the sums."""
-    m = xa @ theta
-    grad = _loss_grad(labels, periods, c, cols)
-    dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
-    loss = _block_loss(m, labels, periods, c, cols)
-    return loss, xa.T @ dm, _curvature(xa, h, vecs)
+    return _block_sums(xa, labels, theta, c, vecs, periods, cols)[0]
 
 
 @partial(jax.jit, static_argnames=("periods",))
@@ -218,12 +224,9 @@ def _grad_keep(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     (B, p) at the block's margins: where it is not 0, packed to bits (B,
     ceil(p / 8)) uint8, its largest value per template (p,), and whether it takes
     that one value wherever it is not 0 (the squared hinge's does: 2C)."""
-    m = xa @ theta
-    grad = _loss_grad(labels, periods, c, cols)
-    dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
+    sums, h = _block_sums(xa, labels, theta, c, vecs, periods, cols)
     on, top = h > 0, jnp.max(h, axis=0)
     flat = jnp.all(jnp.where(on, h == top[None, :], True))
-    sums = _block_loss(m, labels, periods, c, cols), xa.T @ dm, _curvature(xa, h, vecs)
     return sums, (jnp.packbits(on, axis=1), top, flat)
 
 

@@ -137,18 +137,22 @@ def test_optax_loop_reaches_the_linearsvc_optimum(search):
     assert np.all(state[0].decrement <= 1e-8 * got)
 
 
+def _float32_problem(**shape):
+    """A problem at a random start, with its float32 design: ``(x32, it,
+    value_fn, grad)``; call under ``jax.enable_x64``."""
+    x, y, c = problem(**shape)
+    xa = design(x)
+    it = start(xa, y)
+    value_fn = margin_value(y, c)
+    grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
+    return jnp.asarray(xa, jnp.float32), it, value_fn, grad
+
+
 def test_float32_gradient_sum_is_the_float64_one_to_single_precision():
     """``exact_gradient=False`` (``FAST``) sums the gradient's product over frames
     in float32: the same gradient to single precision, the same Hessian."""
-    x, y, c = problem()
-    xa = design(x)
     with jax.enable_x64(True):
-        it = start(xa, y)
-
-        value_fn = margin_value(y, c)
-
-        grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
-        x32 = jnp.asarray(xa, jnp.float32)
+        x32, it, value_fn, grad = _float32_problem()
         g64, hvp64, *_ = derivatives(value_fn, grad, it, x32)
         g32, hvp32, *_ = derivatives(value_fn, grad, it, x32, exact_gradient=False)
         assert g32.dtype == g64.dtype
@@ -164,13 +168,8 @@ def test_bfloat16_hessian_products_round_only_the_directions():
     """``hessian_dtype=bfloat16`` rounds the Hessian's products to bfloat16's 8
     bits (~4e-3 relative, not float32's 1e-7) and keeps no margins of them; the
     gradient is untouched, and a Newton step's margins are ``Xa s`` exactly."""
-    x, y, c = problem(n=300, d=40)
-    xa = design(x)
     with jax.enable_x64(True):
-        it = start(xa, y)
-        value_fn = margin_value(y, c)
-        grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
-        x32 = jnp.asarray(xa, jnp.float32)
+        x32, it, value_fn, grad = _float32_problem(n=300, d=40)
         g32, hvp32, *_ = derivatives(value_fn, grad, it, x32)
         pair = round_design(x32, jnp.bfloat16)
         assert pair[1].shape == x32.T.shape and pair[1].dtype == jnp.bfloat16
