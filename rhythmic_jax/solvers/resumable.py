@@ -213,8 +213,13 @@ def train_run(
       The trained templates. On an exception or Ctrl-C the state reached is saved
       first, then the exception propagates.
     """
+    # Every argument of the step lives committed on one device: a jit caches one
+    # program per placement, so a batch handed over by DLPack (committed) after
+    # one from numpy (not) would otherwise compile the step again.
+    device = jax.local_devices()[0]
     params = Templates(jnp.asarray(init.w), jnp.asarray(init.b))
     state = TrainState.create(params, adam(config.learning_rate))
+    state = jax.device_put(state, device)
     log.info("train_run %s, C=%.4g, n=%d, devices %s", config, c, n, jax.devices())
     manager = saved = None
     if ckpt_dir is not None:
@@ -226,7 +231,7 @@ def train_run(
             _close(manager)
             raise
         if restored is not None:
-            state, saved = restored, int(restored.step)
+            state, saved = jax.device_put(restored, device), int(restored.step)
     skip = int(state.step)
     first = batches_for_epoch(0)
     per_epoch = len(first) if hasattr(first, "__len__") else None
@@ -239,8 +244,8 @@ def train_run(
             batches = first if epoch == 0 else batches_for_epoch(epoch)
             todo, skip = _remaining(batches, skip)
             for xb, yb in todo:
-                xb = jnp.asarray(xb, jnp.float32)
-                yb = jnp.asarray(yb, jnp.float32)
+                xb = jax.device_put(jnp.asarray(xb, jnp.float32), device)
+                yb = jax.device_put(jnp.asarray(yb, jnp.float32), device)
                 scale = n / xb.shape[0]
                 t = time.perf_counter()
                 state, loss = minibatch_step(state, xb, yb, c, scale)

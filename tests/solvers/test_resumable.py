@@ -98,6 +98,27 @@ def test_two_runs_with_one_learning_rate_compile_the_step_once(problem):
     assert minibatch_step._cache_size() == compiled
 
 
+def test_batches_placed_or_not_compile_the_step_as_often(problem):
+    """A batch already on the device (committed, as one handed over from torch by
+    DLPack) and one from numpy run the same compiled step: each placement of the
+    arguments would otherwise be a program of its own."""
+    import jax
+
+    x, labels, _, init = problem
+    device = jax.devices()[0]
+
+    def mixed(epoch):
+        for i, (xb, yb) in enumerate(in_memory(x, labels)(epoch)):
+            yield (jax.device_put(xb, device) if i % 2 else xb), yb
+
+    minibatch_step.clear_cache()
+    train_run(in_memory(x, labels), init, C, N, CONFIG, None, progress=False)
+    from_numpy = minibatch_step._cache_size()
+    minibatch_step.clear_cache()
+    train_run(mixed, init, C, N, CONFIG, None, progress=False)
+    assert minibatch_step._cache_size() == from_numpy == 2  # batches of 8 and of 6
+
+
 @pytest.mark.parametrize("stop", [2, 4, 5, 7])  # mid-epoch, at the boundary, ...
 def test_resume_after_a_stop_equals_an_uninterrupted_run(
     problem, uninterrupted, tmp_path, stop
