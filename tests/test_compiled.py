@@ -62,11 +62,11 @@ def test_policy_refuses_bad_settings():
 def test_package_path_names_the_settings(tmp_path):
     a = get_descriptor("efficientnet_lite0")
     b = get_descriptor("efficientnet_lite0", block=9)
-    shape = (32, 3, 112, 224)
+    shape = (compiled.COMPILE_BATCH, 3, 112, 224)
     assert package_path(a, shape, tmp_path).parent == tmp_path / "compiled"
     assert package_path(a, shape, tmp_path) == package_path(a, shape, tmp_path)
     assert package_path(a, shape, tmp_path) != package_path(b, shape, tmp_path)
-    assert package_path(a, shape, tmp_path) != package_path(a, (16, *shape[1:]))
+    assert package_path(a, shape, tmp_path) != package_path(a, (64, *shape[1:]))
 
 
 def test_chunks_pad_the_last_batch_to_the_fixed_shape():
@@ -82,6 +82,25 @@ def test_chunks_pad_the_last_batch_to_the_fixed_shape():
     torch.testing.assert_close(run(x), x.flatten(1) @ w)
     assert seen == [(4, 5, 1, 1)] * 3  # 4 + 4 + 2 padded: never another shape
     assert run(x[:0]).shape == (0, 3)
+
+
+def test_eager_runs_in_slices_of_the_batch_with_the_same_rows():
+    seen = []
+    module = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.Flatten())
+
+    def spy(mod, args):
+        seen.append(len(args[0]))
+
+    module.register_forward_pre_hook(spy)
+    run = compiled.Sliced(module, 4)
+    x = torch.randn(10, 3, 6, 6)
+    with torch.inference_mode():
+        torch.testing.assert_close(run(x), module(x), rtol=1e-6, atol=1e-6)
+    assert seen == [4, 4, 2, 10]  # sliced, then the one whole call of the reference
+    desc = get_descriptor("efficientnet_lite0")
+    runner = network_runner(desc, 10, CompilePolicy("never"))
+    assert isinstance(runner, compiled.Sliced)
+    assert runner.batch == compiled.COMPILE_BATCH
 
 
 def test_failed_compile_runs_eagerly_with_one_warning(monkeypatch, caplog):
@@ -100,7 +119,7 @@ def test_failed_compile_runs_eagerly_with_one_warning(monkeypatch, caplog):
     assert "compiling the network failed (RuntimeError: C++ compile error)" in lines[0]
     assert lines[0].endswith("running it eagerly")
     run = network_runner(desc, 10**6, CompilePolicy("always"))  # not tried again
-    assert isinstance(run, torch.nn.Module) and len(caplog.records) == 1
+    assert isinstance(run, compiled.Sliced) and len(caplog.records) == 1
 
 
 def test_fast_descriptor_keeps_the_face_of_the_descriptor():
@@ -137,7 +156,7 @@ def test_compiled_equals_eager_descriptors_and_predictions(nordland_root):
     fast = describe(
         winter.images[idx], desc, progress=False, compile=CompilePolicy("always")
     )
-    assert package_path(desc, (32, 3, 112, 224)).is_file()
+    assert package_path(desc, (compiled.COMPILE_BATCH, 3, 112, 224)).is_file()
     rel = np.linalg.norm(fast - eager["winter"], axis=1)  # rows are unit
     assert rel.max() < 1e-4
     model = RhythmicMap(r=2).fit(eager["summer"], progress=False)

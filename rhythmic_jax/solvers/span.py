@@ -18,7 +18,6 @@ primal solver's preconditioner and stopping rule unchanged.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 __all__ = ["in_span", "lift", "row_factor"]
 
@@ -61,6 +60,8 @@ def lift(x: np.ndarray, factor: np.ndarray, beta: np.ndarray) -> np.ndarray:
 
     ``x`` (n, d) the frames, ``factor`` L from :func:`row_factor`.
     """
+    import scipy.linalg  # deferred: 0.2 s, and a query never solves
+
     coef = scipy.linalg.solve_triangular(
         factor.T, np.asarray(beta, np.float64), lower=False
     )
