@@ -5,8 +5,8 @@ runs either eagerly or as an AOTInductor package: ``torch.export`` of the module
 at a fixed batch of :data:`COMPILE_BATCH` frames, compiled by inductor to C++ for
 this CPU with the weights frozen (batch norms folded into the convolutions). A
 batch of any size runs in chunks of that shape, the last chunk padded, so nothing
-is ever compiled again; the eager module runs in slices of the same size
-(:class:`Sliced`). The package is written once (atomically) under
+is ever compiled again; the eager module runs in slices of :data:`EAGER_BATCH`
+frames (:class:`Sliced`). The package is written once (atomically) under
 ``<cache folder>/compiled/`` and keyed by the descriptor's settings, the weights
 file, the input shape, torch's version and thread count and the CPU's vector
 instructions; later jobs load it in a fifth of a second instead of compiling
@@ -14,8 +14,8 @@ instructions; later jobs load it in a fifth of a second instead of compiling
 
 Whether compiling pays is decided per job (:func:`wants_compiled`): loading a
 ready package costs about :data:`LOAD_SECONDS`, building one about
-:data:`BUILD_SECONDS`, and the compiled network saves a few milliseconds a frame,
-so small jobs stay eager. Where compiling cannot work (no C++ compiler, an
+:data:`BUILD_SECONDS`, and the compiled network saves more than a millisecond a
+frame (``reports/network.md``), so small jobs stay eager. Where compiling cannot work (no C++ compiler, an
 unsupported platform) the job logs one warning line and runs eagerly.
 """
 
@@ -40,6 +40,7 @@ __all__ = [
     "BUILD_MIN_FRAMES",
     "COMPILE_BATCH",
     "COMPILE_MODES",
+    "EAGER_BATCH",
     "LOAD_MIN_FRAMES",
     "CompilePolicy",
     "FastDescriptor",
@@ -55,12 +56,14 @@ log = logging.getLogger(__name__)
 if TYPE_CHECKING:
     import torch
 
-# Frames per network call, compiled or eager. Small batches keep each layer's
-# activations in the CPU's caches: EfficientNet-Lite0 at 224x112 compiled ran at
-# 425 frames/s in batches of 8 against 201 in batches of 32 and 210 in batches of
-# 64 on the 2-core reference machine (342 at 16, 418 at 4, 246 at 2), and eagerly
-# at 150-180 frames/s in batches of 8 against 97 in batches of 64.
+# Frames per network call, compiled and eager. Small batches keep each layer's
+# activations in the CPU's caches: on the 2-core reference machine
+# (scripts/bench_network.py, reports/network.md) EfficientNet-Lite0 at 224x112
+# compiled ran at 535 frames/s in batches of 8 against 279 in batches of 32 and
+# 231 in batches of 64, and eagerly at 300 frames/s in batches of 4 against 185
+# at 8 and 97 at 64.
 COMPILE_BATCH = 8
+EAGER_BATCH = 4
 COMPILE_MODES = ("auto", "always", "never")
 # Measured on the 2-core reference machine (scripts/bench_frames.py): loading a
 # ready package and its first call cost about LOAD_SECONDS, building one about
@@ -228,7 +231,7 @@ def _chunked(
 
 class Sliced:
     """The eager ``module`` run on at most ``batch`` rows at a time (faster on a
-    CPU than one large call: see :data:`COMPILE_BATCH`); (m, ...) -> (m, dim)."""
+    CPU than one large call: see :data:`EAGER_BATCH`); (m, ...) -> (m, dim)."""
 
     def __init__(self, module: torch.nn.Module, batch: int):
         self.module, self.batch = module, batch
@@ -284,7 +287,7 @@ def network_runner(
         return descriptor._run
     if not hasattr(descriptor, "network"):
         return descriptor
-    eager = Sliced(descriptor.network().eval(), COMPILE_BATCH)
+    eager = Sliced(descriptor.network().eval(), EAGER_BATCH)
     shape = (COMPILE_BATCH, 3, descriptor.height, descriptor.width)
     ready = package_path(descriptor, shape, cache_dir).is_file()
     if not wants_compiled(descriptor, frames, policy, ready):
@@ -328,7 +331,7 @@ def stages(descriptor) -> tuple[Callable, Callable]:
     if isinstance(descriptor, FastDescriptor):
         return descriptor._prepare or _same, descriptor._run
     if hasattr(descriptor, "network"):
-        return descriptor.prepare, Sliced(descriptor.network().eval(), COMPILE_BATCH)
+        return descriptor.prepare, Sliced(descriptor.network().eval(), EAGER_BATCH)
     return _same, descriptor
 
 

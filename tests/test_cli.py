@@ -157,6 +157,27 @@ def test_bad_arguments_exit_2_without_a_map(npy_route, capsys):
     ]
 
 
+def test_installed_entry_exits_with_mains_status_and_a_frozen_collector(
+    npy_route, capsys, monkeypatch
+):
+    """``rhythmic-jax`` is :func:`rhythmic_jax.cli.run`: main's status becomes the
+    exit status, and the objects left are out of the collector's last walk."""
+    import gc
+    import sys
+
+    from rhythmic_jax import cli
+
+    monkeypatch.setattr(sys, "argv", ["rhythmic-jax", "info", str(npy_route / "no")])
+    before = gc.get_freeze_count()
+    try:
+        with pytest.raises(SystemExit) as done:
+            cli.run()
+        assert done.value.code == 2 and "no such map" in capsys.readouterr().err
+        assert gc.get_freeze_count() > before
+    finally:
+        gc.unfreeze()
+
+
 def test_help_has_examples(capsys):
     for cmd in ("fit", "query", "info", "evaluate", "demo"):
         assert main([cmd, "--help"]) == 0

@@ -100,7 +100,7 @@ def test_eager_runs_in_slices_of_the_batch_with_the_same_rows():
     desc = get_descriptor("efficientnet_lite0")
     runner = network_runner(desc, 10, CompilePolicy("never"))
     assert isinstance(runner, compiled.Sliced)
-    assert runner.batch == compiled.COMPILE_BATCH
+    assert runner.batch == compiled.EAGER_BATCH
 
 
 def test_failed_compile_runs_eagerly_with_one_warning(monkeypatch, caplog):
@@ -183,7 +183,7 @@ def test_help_says_what_compiling_costs():
     for command in ("fit", "query", "evaluate", "learn"):
         text = " ".join(sub[command].format_help().split())
         assert "--compile {auto,always,never}" in text
-    assert "about a minute once per machine" in text and "--compile-min-frames" in text
+    assert "up to a minute once per machine" in text and "--compile-min-frames" in text
 
 
 @pytest.mark.slow

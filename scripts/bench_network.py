@@ -1,0 +1,160 @@
+"""The descriptor network's frames/s by batch size, compiled against eager.
+
+For each batch size the network (EfficientNet-Lite0 block 10 at 224x112 unless
+told otherwise) runs on the same prepared frames (Nordland summer frames resized
+by the descriptor, channels-last) in chunks of that size: eagerly
+(:class:`rhythmic_jax.compiled.Sliced`) and as an AOTInductor package built for
+that batch (:func:`rhythmic_jax.compiled._compiled`, padded last chunk), each
+timed ``--repeats`` times after a warm-up call. The report gives the best and
+median frames/s, CPU over wall seconds, the package's build time, and the
+largest relative row difference of compiled against eager (the rows are unit
+vectors). Jobs use :data:`rhythmic_jax.compiled.COMPILE_BATCH` compiled and
+:data:`rhythmic_jax.compiled.EAGER_BATCH` eager.
+
+    python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+
+import numpy as np
+import torch
+from _bench_common import begin, header, parser, run_record, table, write_report
+
+from rhythmic_jax import compiled
+from rhythmic_jax.features import get_descriptor
+from rhythmic_jax.io.images import nordland
+from rhythmic_jax.pipeline import _to_batch
+
+log = logging.getLogger("bench_network")
+
+
+def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
+    """Best and median frames/s of ``run`` over ``x`` (m, 3, h, w), and CPU/wall."""
+    run(x[: 2 * max(1, len(x) // 64)])  # warm-up
+    walls, cpus = [], []
+    for _ in range(repeats):
+        wall, cpu = time.perf_counter(), time.process_time()
+        run(x)
+        walls.append(time.perf_counter() - wall)
+        cpus.append(time.process_time() - cpu)
+    best = int(np.argmin(walls))
+    return dict(
+        best=len(x) / walls[best],
+        median=len(x) / float(np.median(walls)),
+        cpu_per_wall=cpus[best] / walls[best],
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--batches", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
+    ap.add_argument("--frames", type=int, default=512)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--block", type=int, default=10)
+    args = ap.parse_args(argv)
+    if args.render:
+        from _bench_common import rerender
+
+        rerender(args.render, markdown)
+        return
+    env, load0 = begin(log)
+    desc = get_descriptor("efficientnet_lite0", block=args.block)
+    summer = nordland(args.root / "nordland_64x32", seasons=("summer",), progress=False)
+    images = summer[0].images[: args.frames]
+    with torch.inference_mode():
+        x = desc.prepare(_to_batch(images))
+        net = desc.network().eval()
+        reference = net(x[:64]).numpy()
+        rows = []
+        with tempfile.TemporaryDirectory(prefix="bench_network") as cache:
+            for b in args.batches:
+                eager = frames_per_s(compiled.Sliced(net, b), x, args.repeats)
+                shape = (b, 3, desc.height, desc.width)
+                t = time.perf_counter()
+                fn = compiled._compiled(desc, shape, cache)
+                build = time.perf_counter() - t
+                if fn is None:
+                    raise RuntimeError("the network could not be compiled here")
+                run = compiled._chunked(fn, b)
+                fast = frames_per_s(run, x, args.repeats)
+                diff = np.linalg.norm(run(x[:64]).numpy() - reference, axis=1).max()
+                row = dict(batch=b, eager=eager, compiled=fast, build_s=build,
+                           max_rel_diff=float(diff))  # fmt: skip
+                log.info("%s", row)
+                rows.append(row)
+    report = run_record("bench_network.py", argv, env, load0)
+    report.update(
+        descriptor=desc.name,
+        settings=dict(block=args.block, width=desc.width, height=desc.height),
+        frames=len(x),
+        repeats=args.repeats,
+        job_batch=compiled.COMPILE_BATCH,
+        job_eager_batch=compiled.EAGER_BATCH,
+        rows=rows,
+    )
+    write_report(args.out, "network", report, markdown(report))
+
+
+def markdown(report: dict) -> str:
+    s = report["settings"]
+    rows = [
+        [r["batch"], r["eager"]["best"], r["eager"]["median"],
+         r["compiled"]["best"], r["compiled"]["median"],
+         f"{r['compiled']['best'] / r['eager']['best']:.2f}x",
+         r["compiled"]["cpu_per_wall"], r["build_s"], f"{r['max_rel_diff']:.1e}"]
+        for r in report["rows"]
+    ]  # fmt: skip
+    best = max(report["rows"], key=lambda r: r["compiled"]["best"])
+    eager = max(report["rows"], key=lambda r: r["eager"]["best"])
+    by = {r["batch"]: r for r in report["rows"]}
+    lines = header("The descriptor network's frames/s by batch size", report)
+    lines += [
+        f"{report['descriptor']} block {s['block']} at {s['width']}x{s['height']},"
+        f" {report['frames']} Nordland frames prepared once (channels-last), each"
+        f" figure the best (and median) of {report['repeats']} passes after a"
+        " warm-up call. Compiled: an AOTInductor package built for that batch"
+        " (weights frozen), the last chunk padded; eager: the module called on"
+        " slices of that many frames. The rows are unit vectors, so the last"
+        " column is the largest relative difference of compiled against eager.",
+        "",
+        table(
+            [
+                "batch",
+                "eager best f/s",
+                "eager median f/s",
+                "compiled best f/s",
+                "compiled median f/s",
+                "compiled / eager",
+                "compiled CPU / wall",
+                "build s",
+                "max rel diff",
+            ],
+            rows,
+        ),  # fmt: skip
+        "",
+        f"Fastest compiled: batch {best['batch']} at"
+        f" {best['compiled']['best']:.0f} frames/s; fastest eager: batch"
+        f" {eager['batch']} at {eager['eager']['best']:.0f} frames/s.",
+    ]
+    job, job_eager = report["job_batch"], report.get("job_eager_batch")
+    if job in by:
+        lines.append(
+            f"Jobs run the compiled network in batches of {job}"
+            f" (`rhythmic_jax.compiled.COMPILE_BATCH`,"
+            f" {by[job]['compiled']['best']:.0f} frames/s here)"
+        )
+        if job_eager in by:
+            lines[-1] += (
+                f" and the eager one in batches of {job_eager}"
+                f" (`EAGER_BATCH`, {by[job_eager]['eager']['best']:.0f} frames/s)"
+            )
+        lines[-1] += "."
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
