@@ -15,8 +15,9 @@ instructions; later jobs load it in a fifth of a second instead of compiling
 Whether compiling pays is decided per job (:func:`wants_compiled`): loading a
 ready package costs about :data:`LOAD_SECONDS`, building one about
 :data:`BUILD_SECONDS`, and the compiled network saves more than a millisecond a
-frame (``reports/network.md``), so small jobs stay eager. Where compiling cannot work (no C++ compiler, an
-unsupported platform) the job logs one warning line and runs eagerly.
+frame (``reports/network.md``), so small jobs stay eager. Where compiling cannot
+work (no C++ compiler, an unsupported platform) the job logs one warning line and
+runs eagerly.
 """
 
 from __future__ import annotations

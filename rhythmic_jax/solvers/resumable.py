@@ -209,6 +209,10 @@ def train_run(
       timings: when given, ``timings["step"]`` accumulates the seconds spent in
         optimiser steps.
 
+    The run trains on the first local device: the state and every batch are put
+    there (committed), so the step compiles once whether a batch comes from numpy,
+    from torch by DLPack or from another device.
+
     Returns:
       The trained templates. On an exception or Ctrl-C the state reached is saved
       first, then the exception propagates.
