@@ -133,7 +133,7 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
         default="auto",
         choices=COMPILE_MODES,
         help="run a network descriptor (efficientnet_lite0, vgg16_fc7) compiled "
-        "for this CPU: about 2.5x the frames/s of the eager network, but building "
+        "for this CPU: about 1.5-1.8x the frames/s of the eager network, but building "
         "it costs up to a minute once per machine and settings (kept in the cache "
         "folder) and loading it about 0.2 s per job. auto (default): compile when "
         f"the job describes >= {LOAD_MIN_FRAMES} frames and the compiled network "
