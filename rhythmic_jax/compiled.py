@@ -206,10 +206,11 @@ def _load(path: Path) -> Callable[[torch.Tensor], torch.Tensor]:
 
 
 def _chunked(
-    fn: Callable[[torch.Tensor], torch.Tensor], batch: int
+    fn: Callable[[torch.Tensor], torch.Tensor], batch: int, pad: bool = True
 ) -> Callable[[torch.Tensor], torch.Tensor]:
-    """Run ``fn`` (fixed ``batch`` rows) on any number of rows: chunks, the last
-    padded with zeros and its padding dropped. (m, ...) -> (m, dim)."""
+    """Run ``fn`` on any number of rows in chunks of ``batch``: (m, ...) -> (m,
+    dim). With ``pad`` (``fn`` takes exactly ``batch`` rows) the last chunk is
+    padded with zeros and its padding dropped; without, it goes as it is."""
     import torch
 
     def run(x: torch.Tensor) -> torch.Tensor:
@@ -217,14 +218,14 @@ def _chunked(
         for i in range(0, len(x), batch):
             part = x[i : i + batch]
             m = len(part)
-            if m < batch:
-                pad = part.new_zeros((batch - m, *part.shape[1:]))
-                part = torch.cat([part, pad]).contiguous(
+            if pad and m < batch:
+                zeros = part.new_zeros((batch - m, *part.shape[1:]))
+                part = torch.cat([part, zeros]).contiguous(
                     memory_format=torch.channels_last
                 )
             outs.append(fn(part)[:m])
         if not outs:
-            return fn(x.new_zeros((batch, *x.shape[1:])))[:0]
+            return fn(x.new_zeros((batch, *x.shape[1:])) if pad else x)[:0]
         return outs[0] if len(outs) == 1 else torch.cat(outs)
 
     return run
@@ -236,15 +237,10 @@ class Sliced:
 
     def __init__(self, module: torch.nn.Module, batch: int):
         self.module, self.batch = module, batch
+        self._run = _chunked(module, batch, pad=False)
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        import torch
-
-        if len(x) <= self.batch:
-            return self.module(x)
-        return torch.cat(
-            [self.module(x[i : i + self.batch]) for i in range(0, len(x), self.batch)]
-        )
+        return self._run(x)
 
 
 @functools.lru_cache(maxsize=4)

@@ -22,7 +22,15 @@ import time
 
 import numpy as np
 import torch
-from _bench_common import begin, header, parser, run_record, table, write_report
+from _bench_common import (
+    begin,
+    header,
+    parser,
+    run_record,
+    table,
+    timed,
+    write_report,
+)
 
 from rhythmic_jax import compiled
 from rhythmic_jax.features import get_descriptor
@@ -37,10 +45,9 @@ def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
     run(x[: 2 * max(1, len(x) // 64)])  # warm-up
     walls, cpus = [], []
     for _ in range(repeats):
-        wall, cpu = time.perf_counter(), time.process_time()
-        run(x)
-        walls.append(time.perf_counter() - wall)
-        cpus.append(time.process_time() - cpu)
+        _, wall, cpu = timed(run, x)
+        walls.append(wall)
+        cpus.append(cpu)
     best = int(np.argmin(walls))
     return dict(
         best=len(x) / walls[best],
