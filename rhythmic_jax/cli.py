@@ -14,6 +14,9 @@ import logging
 import os
 import sys
 import textwrap
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 
 from rhythmic_jax import InputError, jobs
 from rhythmic_jax.jobs import (
@@ -21,11 +24,13 @@ from rhythmic_jax.jobs import (
     COMPILE_MODES,
     LOAD_MIN_FRAMES,
     CompilePolicy,
+    Domain,
     FitInterrupted,
     FitJob,
     LearnJob,
     Reading,
     int_option,
+    memory_bytes,
     number_option,
 )
 
@@ -91,18 +96,6 @@ def _quiet_logs(verbose: bool) -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
-def _codes_arg(text: str) -> int | str:
-    """``--codes``: a number of bits, or ``int8``."""
-    if text == "int8":
-        return text
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a number of bits or int8, got {text!r}"
-        ) from None
-
-
 def _add_source_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--descriptor",
@@ -118,13 +111,11 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--tile",
-        type=int_option(1),
         default=None,
         help="tile a large image: size (queries of a tiled map: the map's own)",
     )
     p.add_argument(
         "--stride",
-        type=int_option(1),
         default=None,
         help="tile stride, with --tile (default size/2)",
     )
@@ -143,12 +134,231 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--compile-min-frames",
-        type=int_option(0),
         default=None,
         metavar="N",
         help="with --compile auto, compile from N frames on (built or not)",
     )
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+
+
+# ------------------------------------------------------------- option rules
+# Every numeric option's domain, by destination (the same in every command that
+# has it): the parser reads the option with it and --help states it.
+DOMAINS: dict[str, Domain] = {
+    "r": int_option(2),
+    "level": int_option(1),
+    "count": int_option(2),
+    "c": number_option(0),
+    "gap": number_option(0, 1),
+    "epochs": int_option(1),
+    "batch_size": int_option(1),
+    "checkpoint_every": int_option(1),
+    "pca": int_option(1),
+    "processes": int_option(1),
+    "num_processes": int_option(1),
+    "process_id": int_option(0),
+    "memory": Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"),
+    "places": int_option(1),
+    "codes": Domain(True, 1, words=("int8",)),
+    "fusion": number_option(0, 1, closed=True),
+    "tile": int_option(1),
+    "stride": int_option(1),
+    "compile_min_frames": int_option(0),
+    "k": int_option(1),
+    "steps": int_option(1),
+    "seed": int_option(0, 2**32 - 1),
+    "sequence": int_option(1),
+    "threshold": number_option(),
+    "tolerance": int_option(0),
+    "tolerance_m": number_option(0),
+}
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Where an option acts: given in one of ``commands`` where ``holds(args)``
+    is false, each of ``options`` is refused with the line ``--OPTION says``, or,
+    for options that scripts pass always (``warn``), named in one warning line
+    and ignored."""
+
+    commands: tuple[str, ...]
+    options: tuple[str, ...]
+    says: str
+    holds: Callable[[argparse.Namespace], bool]
+    warn: bool = False
+
+
+def _given(name: str) -> Callable[[argparse.Namespace], bool]:
+    return lambda args: getattr(args, name) not in (None, False)
+
+
+def _layout(args) -> tuple[str, str, str]:
+    """``--layout`` as (kind, its first sizes, hierarchical's fine periods)."""
+    kind, _, rest = str(args.layout).strip().partition(":")
+    sizes, _, fine = rest.partition(":")
+    return kind, sizes, fine
+
+
+def _chooses_sizes(args) -> bool:
+    """Whether the layout leaves sizes for ``--r`` to choose."""
+    kind, sizes, fine = _layout(args)
+    return not sizes or (kind == "hierarchical" and not fine)
+
+
+def _read_sources(args) -> list[str]:
+    srcs = getattr(args, "sources", None) or [args.source]
+    return srcs + ([args.reference] if getattr(args, "reference", None) else [])
+
+
+def _images(args) -> bool:
+    """Whether a source of the job may be images (not only .npy descriptors)."""
+    return not all(str(s).lower().endswith(".npy") for s in _read_sources(args))
+
+
+def _scaled(args) -> bool:
+    """Whether a fit may run from files at scale (where --checkpoint acts too)."""
+    wanted = args.processes != 1 or args.coordinator or args.memory or args.stream
+    dirs = any(Path(s).is_dir() for s in args.sources)
+    return bool(wanted or args.shards or dirs)
+
+
+FIT, READERS = ("fit",), ("fit", "learn", "query", "evaluate")
+RULES: tuple[Rule, ...] = (
+    Rule(READERS, ("stride",), "needs --tile (it is the step between tiles)",
+         _given("tile")),
+    Rule(READERS, ("descriptor", "weights"),
+         "applies to images; .npy files are descriptors", _images),
+    Rule(FIT, ("epochs", "batch_size", "checkpoint_every"),
+         "needs --augment (it shapes the augmented fit)", _given("augment")),
+    Rule(FIT, ("checkpoint",),
+         "needs --augment or a fit from files at scale (it keeps their progress)",
+         lambda a: bool(a.augment) or _scaled(a)),
+    Rule(FIT, ("fusion",), "needs --codes (it weighs the map's scores against "
+         "the codes')", _given("codes")),
+    Rule(FIT, ("codes",), "needs a periods layout (--layout periods or "
+         "periods:T1,T2): codes fuse with its place scores",
+         lambda a: _layout(a)[0] == "periods"),
+    Rule(FIT, ("count",), "acts only with --layout periods (the map chooses its "
+         "periods among --count candidates)",
+         lambda a: _layout(a) == ("periods", "", "")),
+    Rule(FIT, ("level",), "acts only with a --layout that leaves its sizes out",
+         lambda a: not _layout(a)[1]),
+    Rule(FIT, ("r",), "acts only with a --layout that leaves its sizes out",
+         _chooses_sizes),
+    Rule(FIT, ("gap",), "acts only with --solver newton (where Newton stops)",
+         lambda a: a.solver == "newton"),
+    Rule(FIT, ("places",), "needs --positions (it groups the frames by them)",
+         _given("positions")),
+    Rule(FIT, ("num_processes", "process_id"), "needs --coordinator",
+         _given("coordinator")),
+    Rule(FIT, ("coordinator",), "needs --num-processes and --process-id",
+         lambda a: a.num_processes is not None and a.process_id is not None),
+    Rule(FIT, ("process_id",), "must be below --num-processes",
+         lambda a: a.num_processes is None or a.process_id < a.num_processes),
+    Rule(FIT, ("processes",), "acts only without --coordinator (each host then "
+         "runs one process)", lambda a: a.coordinator is None),
+    Rule(("evaluate",), ("tolerance",), "acts only without --ground-truth (which "
+         "names the right places itself)", lambda a: a.ground_truth is None),
+    Rule(("evaluate",), ("tolerance_m",), "needs --ground-truth (positions or "
+         "names: it is their radius of a right match)", _given("ground_truth")),
+    Rule(("learn",), ("head", "steps", "seed"), "acts only with --method map or "
+         "infonce (the closed forms take no steps)",
+         lambda a: a.method in ("map", "infonce")),
+    Rule(READERS, ("compile_min_frames",), "acts only with --compile auto; ignored",
+         lambda a: a.compile == "auto", warn=True),
+    Rule(READERS, ("compile", "compile_min_frames"), "applies to images; .npy "
+         "files are descriptors; ignored", _images, warn=True),
+)  # fmt: skip
+
+# What each command writes and reads, by destination: no path written may be,
+# hold or lie inside another the job reads or writes.
+WRITES = {
+    "fit": ("out", "checkpoint", "shards"),
+    "learn": ("out",),
+    "query": ("out",),
+    "evaluate": ("plot",),
+}
+READS = {
+    "fit": ("sources", "embedding", "positions", "weights"),
+    "learn": ("sources", "weights"),
+    "query": ("map", "source", "weights"),
+    "evaluate": ("map", "source", "reference", "ground_truth", "weights"),
+}
+ROLES = {"map": "the map", "source": "the queries", "sources": "the source"}
+NAMES = ("names",)  # --positions / --ground-truth names: no file
+
+
+def _flag(dest: str) -> str:
+    return ROLES.get(dest) or "--" + dest.replace("_", "-")
+
+
+def _paths(args, dests) -> list[tuple[str, str]]:
+    """(dest, path) of every path given to ``dests`` (lists flattened)."""
+    out = []
+    for dest in dests:
+        value = getattr(args, dest, None)
+        for v in value if isinstance(value, list | tuple) else [value]:
+            if v is not None and v not in NAMES:
+                out.append((dest, str(v)))
+    return out
+
+
+def _clash(w: Path, r: Path) -> str | None:
+    if w == r:
+        return "the same path as"
+    if r in w.parents and not r.is_file():  # under a file: no path (said later)
+        return "inside"
+    if w in r.parents:
+        return "holding"
+    return None
+
+
+def check_paths(args) -> str | None:
+    """The line refusing a path the job would write over something it reads
+    (or writes twice), compared resolved (through links and ``..``), or None."""
+    writes = _paths(args, WRITES.get(args.command, ()))
+    if args.command == "fit" and args.checkpoint is None:
+        writes.append(("checkpoint", str(args.out) + ".ckpt"))  # its default
+    reads = _paths(args, READS.get(args.command, ()))
+    for i, (dest, path) in enumerate(writes):
+        w = Path(path).expanduser().resolve()
+        others = [(d, p, "reads") for d, p in reads]
+        others += [(d, p, "writes") for d, p in writes[i + 1 :]]
+        for other, opath, verb in others:
+            how = _clash(w, Path(opath).expanduser().resolve())
+            if how is not None:
+                return (
+                    f"{_flag(dest)} {path}: {how} {_flag(other)} {opath}, which "
+                    f"this job {verb}; give another path"
+                )
+    return None
+
+
+def check_rules(args, given: set[str]) -> tuple[str | None, list[str]]:
+    """(the line refusing an option given where it has no effect, or None; the
+    warnings for those only warned about), from :data:`RULES`."""
+    warnings: dict[str, str] = {}  # one a option
+    for rule in RULES:
+        if args.command not in rule.commands:
+            continue
+        named = [o for o in rule.options if o in given]
+        if not named or rule.holds(args):
+            continue
+        for option in named:
+            line = f"{_flag(option)} {rule.says}"
+            if not rule.warn:
+                return line, []
+            warnings.setdefault(option, line)
+    return None, list(warnings.values())
+
+
+def _stated(parser: argparse.ArgumentParser) -> None:
+    """Give every numeric option its domain (:data:`DOMAINS`), stated in --help."""
+    for action in parser._actions:
+        domain = DOMAINS.get(action.dest)
+        if domain is not None and action.option_strings:
+            action.type = domain
+            action.help = f"{action.help or ''} [{domain.text()}]".lstrip()
 
 
 class _Parser(argparse.ArgumentParser):
@@ -158,44 +368,68 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+class _Main(_Parser):
+    """The top-level parser: after parsing, every option is checked against the
+    others (:data:`RULES`) and every path written against those read
+    (:func:`check_paths`), before any work."""
+
+    commands: dict[str, argparse.ArgumentParser]
+    checks: bool = True
+
+    def parse_known_args(self, args=None, namespace=None):
+        parsed, extras = super().parse_known_args(args, namespace)
+        if self.checks and getattr(parsed, "command", None) in self.commands:
+            argv = list(sys.argv[1:] if args is None else args)
+            sub = self.commands[parsed.command]
+            line, warnings = check_rules(parsed, _given_options(argv, parsed))
+            line = line or check_paths(parsed)
+            if line is not None:
+                sub.error(line)
+            for warning in warnings:
+                print(f"{sub.prog}: warning: {warning}", file=sys.stderr)
+        return parsed, extras
+
+
+def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
+    """The destinations of the options ``argv`` gives (not left at a default)."""
+    parser = _parser(checks=False)
+    for action in parser.commands[parsed.command]._actions:
+        action.default = argparse.SUPPRESS  # left out: not in the namespace
+    seen, _ = parser.parse_known_args(argv)
+    return set(vars(seen))
+
+
+def _parser(checks: bool = True) -> argparse.ArgumentParser:
+    parser = _Main(
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="run 'rhythmic-jax COMMAND --help' for examples",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser.checks, parser.commands = checks, {}
 
     def add(name: str, help_: str) -> argparse.ArgumentParser:
-        return sub.add_parser(
+        parser.commands[name] = sub.add_parser(
             name,
             help=help_,
             description=help_,
             epilog="examples:" + textwrap.dedent(EXAMPLES[name]),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
+        return parser.commands[name]
 
     p = add("fit", "fit a map on reference frames (.npy, image folders, or --tile)")
     p.add_argument("sources", nargs="+", help="descriptor .npy, image folder(s), image")
     p.add_argument("--out", required=True, help="map folder to write")
-    p.add_argument(
-        "--r", type=int_option(2), default=2, help="number of periods (default 2)"
-    )
-    p.add_argument(
-        "--level", type=int_option(1), default=1, help="period level c (c*N^(1/r))"
-    )
-    p.add_argument(
-        "--count", type=int_option(2), default=7, help="candidate periods (default 7)"
-    )
-    p.add_argument(
-        "--c", type=number_option(0), default=None, help="SVM penalty (default log N)"
-    )
+    p.add_argument("--r", default=2, help="number of periods (default 2)")
+    p.add_argument("--level", default=1, help="period level c (c*N^(1/r))")
+    p.add_argument("--count", default=7, help="candidate periods (default 7)")
+    p.add_argument("--c", default=None, help="SVM penalty (default log N)")
     p.add_argument("--solver", default="newton", choices=("newton", "lbfgs"))
     p.add_argument(
         "--gap",
-        type=number_option(0, 1),
         default=1e-7,
         help="stop the solver at this estimated relative objective gap (default "
         "1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
@@ -217,12 +451,9 @@ def _parser() -> argparse.ArgumentParser:
         "separated names from gaussian_blur, hflip, random_crop, elastic, "
         "contrast, invert, grayscale, or 'all'",
     )
-    p.add_argument(
-        "--epochs", type=int_option(1), default=3, help="augmented epochs (3)"
-    )
+    p.add_argument("--epochs", default=3, help="augmented epochs (3)")
     p.add_argument(
         "--batch-size",
-        type=int_option(1),
         default=128,
         help="augmented frames per step (128)",
     )
@@ -235,13 +466,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint-every",
-        type=int_option(1),
         default=50,
         help="steps between checkpoints of an augmented fit (50)",
     )
     p.add_argument(
         "--pca",
-        type=int_option(1),
         default=None,
         help="project descriptors to K dims (saved)",
     )
@@ -254,13 +483,12 @@ def _parser() -> argparse.ArgumentParser:
     scale = p.add_argument_group("scale (descriptor files or shard folders)")
     scale.add_argument(
         "--processes",
-        type=int,
         default=1,
         help="start this many local processes for one fit (frames split by rows)",
     )
     scale.add_argument("--coordinator", default=None, help="HOST:PORT of process 0")
-    scale.add_argument("--num-processes", type=int, default=None, help="K hosts")
-    scale.add_argument("--process-id", type=int, default=None, help="this one's i")
+    scale.add_argument("--num-processes", default=None, help="K hosts")
+    scale.add_argument("--process-id", default=None, help="this one's i")
     scale.add_argument(
         "--memory",
         default=None,
@@ -286,14 +514,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--places",
-        type=int_option(1),
         default=None,
         help="group the frames into K places by k-means over --positions (the "
         "RobotCar protocol); traversals may then differ in length",
     )
     p.add_argument(
         "--codes",
-        type=_codes_arg,
         default=None,
         metavar="BITS|int8",
         help="also store a code per place: BITS-bit ITQ (1 <= BITS <= d), or int8 "
@@ -302,9 +528,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--fusion",
-        type=float,
         default=0.5,
-        help="the map's share of the fused score with --codes, in [0, 1] (0.5)",
+        help="the map's share of the fused score with --codes (0.5)",
     )
     _add_source_options(p)
 
@@ -329,9 +554,9 @@ def _parser() -> argparse.ArgumentParser:
         "map, or InfoNCE",
     )
     p.add_argument("--head", default="linear", choices=("linear", "mlp"))
-    p.add_argument("--k", type=int, default=256, help="output dimensions (256)")
-    p.add_argument("--steps", type=int, default=300, help="gradient steps (300)")
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed (0)")
+    p.add_argument("--k", default=256, help="output dimensions (256)")
+    p.add_argument("--steps", default=300, help="gradient steps (300)")
+    p.add_argument("--seed", default=0, help="PRNG seed (0)")
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -341,13 +566,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
     p.add_argument(
         "--sequence",
-        type=int_option(1),
         default=None,
         help="sequence length L (at most the number of queries)",
     )
     p.add_argument(
         "--threshold",
-        type=number_option(),
         default=None,
         help="reject queries whose confidence is below this",
     )
@@ -369,14 +592,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--tolerance",
-        type=int_option(0),
         default=0,
         help="frame tolerance (default 0)",
     )
     p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
     p.add_argument(
         "--sequence",
-        type=int_option(1),
         default=None,
         help="sequence length L, at most the number of queries (accuracy, PR and "
         "recall@K use the sequence scores)",
@@ -392,7 +613,6 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--tolerance-m",
-        type=float,
         default=25.0,
         help="radius of a right match for positions, metres (default 25)",
     )
@@ -404,6 +624,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="rhythmic_demo", help="report folder")
     p.add_argument("--quick", action="store_true", help="a smaller route (CI)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    for command in parser.commands.values():
+        _stated(command)
     return parser
 
 

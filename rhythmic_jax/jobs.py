@@ -36,7 +36,7 @@ from rhythmic_jax.compiled import (
 )
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
-from rhythmic_jax.validate import check_int, int_option, number_option
+from rhythmic_jax.validate import Domain, check_int, int_option, number_option
 
 __all__ = [
     "FitInterrupted",
@@ -46,6 +46,7 @@ __all__ = [
     "BUILD_MIN_FRAMES",
     "COMPILE_MODES",
     "CompilePolicy",
+    "Domain",
     "LOAD_MIN_FRAMES",
     "augmentation_ablation",
     "demo",
@@ -62,6 +63,7 @@ __all__ = [
     "learn_summary",
     "LearnJob",
     "learn_config",
+    "memory_bytes",
     "query",
     "int_option",
     "number_option",
@@ -134,6 +136,14 @@ class FitJob:
     positions: tuple[str, ...] | None = None
     places: int | None = None
     embedding: str | None = None
+
+
+def memory_bytes(text: str) -> int:
+    """``--memory``'s text (``1GiB``, ``800M``) in bytes; ``ValueError`` when it
+    is no size (:func:`rhythmic_jax.scale_fit.parse_bytes`)."""
+    from rhythmic_jax.scale_fit import parse_bytes
+
+    return parse_bytes(text)
 
 
 def _check_reading(reading: Reading) -> None:

@@ -46,6 +46,7 @@ def wants_scale(job, scale: ScaleJob) -> bool:
             raise InputError(
                 "{opt:augment} and {opt:pca} need an in-memory fit of one process"
             )
+        _check_in_memory_only(job)
         return True
     if wanted:
         raise InputError(
@@ -54,6 +55,27 @@ def wants_scale(job, scale: ScaleJob) -> bool:
             "files (.npy) or shard folders; describe images with {opt:shards} DIR"
         )
     return False
+
+
+def _check_in_memory_only(job) -> None:
+    """Refuse the settings a fit from files at scale would leave unused."""
+    unused = [
+        name
+        for name, used in (
+            ("codes", job.codes is not None),
+            ("embedding", job.embedding is not None),
+            ("positions", job.positions is not None),
+            ("solver", job.solver != "newton"),
+        )
+        if used
+    ]
+    if unused:
+        opts = ", ".join(f"{{opt:{name}}}" for name in unused)
+        raise InputError(
+            f"{opts}: not used by a fit from files at scale (descriptor files with "
+            "{opt:processes}, {opt:coordinator}, {opt:memory}, {opt:stream}, shard "
+            "folders or {opt:shards}); fit in memory without them"
+        )
 
 
 def _describe_to_shards(job, scale: ScaleJob, progress: bool) -> list[str]:

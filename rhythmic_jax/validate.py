@@ -2,9 +2,9 @@
 
 Arrays (:func:`check_features`, :func:`check_labels`) and single numbers
 (:func:`check_int`, :func:`check_number`). The command line parses every numeric
-option with :func:`int_option` or :func:`number_option`, argparse types built on
-the same two checks, so a bad value ends where it is parsed and 0 or a negative
-number is never read as "unset".
+option with a :class:`Domain` (:func:`int_option`, :func:`number_option`), an
+argparse type that states its domain in words, so a bad value ends where it is
+parsed and 0 or a negative number is never read as "unset".
 """
 
 from __future__ import annotations
@@ -12,12 +12,14 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from rhythmic_jax.errors import InputError
 
 __all__ = [
+    "Domain",
     "check_features",
     "check_int",
     "check_labels",
@@ -73,36 +75,112 @@ def check_number(
     return value
 
 
-def _option(check: Callable, parse: Callable, what: str) -> Callable[[str], object]:
-    def option(text: str):
+def _g(v: float) -> str:
+    """A bound in words: integers in full (4294967295), other numbers by ``g``."""
+    return str(int(v)) if float(v).is_integer() else f"{v:g}"
+
+
+@dataclass(frozen=True)
+class Domain:
+    """The values a numeric option takes; called on its text, an argparse ``type``.
+
+    Integers (``integer``) or finite numbers between ``low`` and ``high`` (each
+    optional; a number's bound is excluded where ``open_low`` / ``open_high``),
+    plus the words in ``words`` taken as they are (``--codes int8``). ``parse``
+    reads the text when it is not a plain number (a size like ``1GiB``): it
+    raises ``ValueError`` on text it cannot read, and the value it returns is
+    checked; the option's value stays the text then.
+
+    ``Domain(True, 2)`` is "an integer >= 2", ``Domain(False, 0, 1, True, True)``
+    "a number in (0, 1)", ``Domain(False, 0, 1)`` "a number in [0, 1]".
+    """
+
+    integer: bool
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+    words: tuple[str, ...] = ()
+    parse: Callable[[str], float] | None = None
+    what: str = ""  # what ``parse`` reads, for "expected ..." lines
+
+    @property
+    def __name__(self) -> str:  # argparse names a type by it
+        return self.what or ("an integer" if self.integer else "a number")
+
+    def bounds(self) -> str:
+        """``">= 2"``, ``"in (0, 1)"``, ``"in [0, 1]"``, or ``""`` when unbounded."""
+        lo, hi = self.low, self.high
+        if lo is not None and hi is not None:
+            left = "(" if self.open_low and not self.integer else "["
+            right = ")" if self.open_high and not self.integer else "]"
+            return f"in {left}{_g(lo)}, {_g(hi)}{right}"
+        if lo is not None:
+            return f"{'>' if self.open_low and not self.integer else '>='} {_g(lo)}"
+        if hi is not None:
+            return f"{'<' if self.open_high and not self.integer else '<='} {_g(hi)}"
+        return ""
+
+    def text(self) -> str:
+        """The domain in words, as ``--help`` states it."""
+        kind = self.__name__
+        if not self.integer and not self.parse and not self.bounds():
+            kind = "a finite number"
+        words = "".join(f" or {w}" for w in self.words)
+        return " ".join(filter(None, (kind, self.bounds()))) + words
+
+    def check(self, value) -> float:
+        """``value`` if it lies in the domain, else :class:`InputError` ("must be
+        ..., got ...")."""
+        if self.integer:
+            if is_int(value) and self._inside(value):
+                return int(value)
+            raise InputError(f"must be {self.text()}, got {value}")
+        ok = isinstance(value, int | float | np.integer | np.floating)
+        if not ok or isinstance(value, bool) or not math.isfinite(value):
+            raise InputError(f"must be a finite number, got {value}")
+        if not self._inside(value):
+            raise InputError(f"must be {self.bounds()}, got {value:g}")
+        return float(value)
+
+    def _inside(self, v) -> bool:
+        shut = self.integer
+        above = self.low is None or v > self.low or (v == self.low and not (
+            self.open_low and not shut))  # fmt: skip
+        below = self.high is None or v < self.high or (v == self.high and not (
+            self.open_high and not shut))  # fmt: skip
+        return above and below
+
+    def __call__(self, text: str):
+        if text in self.words:
+            return text
         try:
-            value = parse(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+            value = (self.parse or (int if self.integer else float))(text)
+        except (ValueError, OverflowError):
+            words = "".join(f" or {w}" for w in self.words)
+            raise argparse.ArgumentTypeError(
+                f"expected {self.__name__}{words}, got {text!r}"
+            ) from None
         try:
-            return check(value)
-        except InputError as err:  # "value must be ..." -> "must be ..."
-            raise argparse.ArgumentTypeError(str(err).removeprefix("value ")) from None
-
-    option.__name__ = what
-    return option
+            checked = self.check(value)
+        except InputError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+        return text if self.parse else checked
 
 
-def int_option(least: int = 1) -> Callable[[str], int]:
-    """An argparse ``type``: the text of an integer >= ``least``."""
-
-    def check(v: int) -> int:
-        msg = f"must be an integer >= {least}, got {v}"
-        return check_int(v, "value", least, msg=msg)
-
-    return _option(check, int, "an integer")
+def int_option(least: int = 1, most: int | None = None) -> Domain:
+    """An argparse ``type``: the text of an integer in [least, most]."""
+    return Domain(True, least, most)
 
 
 def number_option(
-    low: float | None = None, high: float | None = None
-) -> Callable[[str], float]:
-    """An argparse ``type``: the text of a finite number in (low, high)."""
-    return _option(lambda v: check_number(v, "value", low, high), float, "a number")
+    low: float | None = None,
+    high: float | None = None,
+    closed: bool = False,
+) -> Domain:
+    """An argparse ``type``: the text of a finite number in (low, high), or in
+    [low, high] when ``closed``."""
+    return Domain(False, low, high, not closed, not closed)
 
 
 def check_features(x, name: str = "features", d: int | None = None) -> np.ndarray:

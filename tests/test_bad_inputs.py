@@ -223,7 +223,9 @@ class Case(NamedTuple):
 def fit(*sources: Callable[[Path], str], extra=()) -> Callable:
     def argv(src, maps, out):
         paths = [s(src) for s in sources]
-        return ["fit", *paths, "--out", str(out / "route.map"), "--no-progress", *extra]
+        target = str(out / "route.map")
+        more = [e.replace("{out}", target) for e in extra]
+        return ["fit", *paths, "--out", target, "--no-progress", *more]
 
     return argv
 
@@ -714,6 +716,334 @@ CLI_CASES += [  # files that cannot be read are errors, never dropped frames
 ]
 
 
+def learn(*sources: Callable[[Path], str], extra=()) -> Callable:
+    def argv(src, maps, out):
+        paths = [s(src) for s in sources]
+        return ["learn", *paths, "--out", str(out / "e.emb"), "--no-progress", *extra]
+
+    return argv
+
+
+def linked(target: Callable) -> Callable:
+    """A symlink ``link`` in the source folder to what ``target`` makes."""
+
+    def make(src, maps=None):
+        path = target(src, maps) if maps is not None else target(src)
+        (src / "link").symlink_to(path)
+        return str(src / "link")
+
+    return make
+
+
+def source_inside_map(src: Path) -> list[str]:
+    """A map folder holding the descriptor file a fit reads: (file, map)."""
+    shutil.copytree(ok_map(src), src / "held.map")
+    return [npy(src / "held.map", "ok.npy", X), str(src / "held.map")]
+
+
+def ok_map(src: Path) -> Path:
+    """A map of ok.npy in the source folder (written once per case)."""
+    if not (src / "own.map").exists():
+        RhythmicMap().fit(X, progress=False).save(src / "own.map")
+    return src / "own.map"
+
+
+CLI_CASES += [  # an option that has no effect in the combination given
+    Case(
+        "fit-fusion-without-codes",
+        fit(ok, extra=["--fusion", "0.3"]),
+        r"^--fusion needs --codes",
+    ),
+    Case(
+        "fit-epochs-without-augment",
+        fit(ok, extra=["--epochs", "5"]),
+        r"^--epochs needs --augment",
+    ),
+    Case(
+        "fit-batch-size-without-augment",
+        fit(ok, extra=["--batch-size", "8"]),
+        r"^--batch-size needs --augment",
+    ),
+    Case(
+        "fit-checkpoint-every-without-augment",
+        fit(ok, extra=["--checkpoint-every", "9"]),
+        r"^--checkpoint-every needs --augment",
+    ),
+    Case(
+        "fit-checkpoint-in-memory",
+        fit(ok, extra=["--checkpoint", "ckpt"]),
+        r"^--checkpoint needs --augment or a fit from files at scale",
+    ),
+    Case(
+        "fit-count-with-mixed-layout",
+        fit(ok, extra=["--layout", "mixed:8,8", "--count", "5"]),
+        r"^--count acts only with --layout periods",
+    ),
+    Case(
+        "fit-level-with-given-periods",
+        fit(ok, extra=["--layout", "periods:7,9", "--level", "2"]),
+        r"^--level acts only with a --layout that leaves its sizes out",
+    ),
+    Case(
+        "fit-r-with-given-radices",
+        fit(ok, extra=["--layout", "mixed:8,8", "--r", "3"]),
+        r"^--r acts only with a --layout that leaves its sizes out",
+    ),
+    Case(
+        "fit-gap-with-lbfgs",
+        fit(ok, extra=["--solver", "lbfgs", "--gap", "1e-3"]),
+        r"^--gap acts only with --solver newton",
+    ),
+    Case(
+        "fit-places-without-positions",
+        fit(ok, extra=["--places", "5"]),
+        r"^--places needs --positions",
+    ),
+    Case(
+        "fit-process-id-without-coordinator",
+        fit(ok, extra=["--process-id", "0"]),
+        r"^--process-id needs --coordinator",
+    ),
+    Case(
+        "fit-processes-with-coordinator",
+        fit(
+            ok,
+            extra=[
+                "--coordinator",
+                "localhost:1",
+                "--num-processes",
+                "2",
+                "--process-id",
+                "0",
+                "--processes",
+                "2",
+            ],
+        ),
+        r"^--processes acts only without --coordinator",
+    ),
+    Case(
+        "fit-process-id-past-the-processes",
+        fit(
+            ok,
+            extra=[
+                "--coordinator",
+                "localhost:1",
+                "--num-processes",
+                "2",
+                "--process-id",
+                "2",
+            ],
+        ),
+        r"^--process-id must be below --num-processes",
+    ),
+    Case(
+        "fit-codes-with-hierarchical-layout",
+        fit(ok, extra=["--layout", "hierarchical", "--codes", "8"]),
+        r"^--codes needs a periods layout",
+    ),
+    Case(
+        "fit-weights-on-descriptor-files",
+        fit(ok, extra=["--weights", __file__]),
+        r"^--weights applies to images; \.npy files are descriptors",
+    ),
+    Case(
+        "fit-codes-at-scale",
+        fit(ok, extra=["--memory", "1GiB", "--codes", "8"]),
+        r"^--codes: not used by a fit from files at scale",
+    ),
+    Case(
+        "fit-lbfgs-at-scale",
+        fit(ok, extra=["--stream", "--solver", "lbfgs"]),
+        r"^--solver: not used by a fit from files at scale",
+    ),
+    Case(
+        "query-descriptor-on-descriptor-files",
+        query(npy_map, ok, extra=["--descriptor", "hog"]),
+        r"^--descriptor applies to images; \.npy files are descriptors",
+    ),
+    Case(
+        "evaluate-tolerance-with-ground-truth",
+        evaluate(npy_map, ok, extra=["--ground-truth", "names", "--tolerance", "2"]),
+        r"^--tolerance acts only without --ground-truth",
+    ),
+    Case(
+        "evaluate-tolerance-m-without-ground-truth",
+        evaluate(npy_map, ok, extra=["--tolerance-m", "10"]),
+        r"^--tolerance-m needs --ground-truth",
+    ),
+    Case(
+        "learn-steps-of-a-closed-form",
+        learn(ok, ok, extra=["--steps", "5"]),
+        r"^--steps acts only with --method map or infonce",
+    ),
+    Case(
+        "learn-seed-of-pca",
+        learn(ok, ok, extra=["--method", "pca", "--k", "4", "--seed", "3"]),
+        r"^--seed acts only with --method map or infonce",
+    ),
+]
+CLI_CASES += [  # a numeric option outside its domain (stated in --help)
+    Case(
+        "evaluate-tolerance-m-negative",
+        evaluate(npy_map, ok, extra=["--ground-truth", "names", "--tolerance-m=-5"]),
+        r"argument --tolerance-m: must be > 0, got -5",
+    ),
+    Case(
+        "evaluate-tolerance-m-zero",
+        evaluate(npy_map, ok, extra=["--ground-truth", "names", "--tolerance-m", "0"]),
+        r"argument --tolerance-m: must be > 0, got 0",
+    ),
+    Case(
+        "evaluate-tolerance-m-nan",
+        evaluate(
+            npy_map, ok, extra=["--ground-truth", "names", "--tolerance-m", "nan"]
+        ),
+        r"argument --tolerance-m: must be a finite number, got nan",
+    ),
+    Case(
+        "fit-fusion-above-1",
+        fit(ok, extra=["--codes", "8", "--fusion", "1.5"]),
+        r"argument --fusion: must be in \[0, 1\], got 1\.5",
+    ),
+    Case(
+        "fit-fusion-inf",
+        fit(ok, extra=["--codes", "8", "--fusion", "inf"]),
+        r"argument --fusion: must be a finite number, got inf",
+    ),
+    Case(
+        "fit-codes-0",
+        fit(ok, extra=["--codes", "0"]),
+        r"argument --codes: must be an integer >= 1 or int8, got 0",
+    ),
+    Case(
+        "fit-processes-0",
+        fit(ok, extra=["--processes", "0"]),
+        r"argument --processes: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "fit-num-processes-0",
+        fit(
+            ok,
+            extra=["--coordinator", "h:1", "--num-processes", "0", "--process-id", "0"],
+        ),
+        r"argument --num-processes: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "fit-process-id-negative",
+        fit(
+            ok,
+            extra=["--coordinator", "h:1", "--num-processes", "2", "--process-id=-1"],
+        ),
+        r"argument --process-id: must be an integer >= 0, got -1",
+    ),
+    Case(
+        "fit-memory-not-a-size",
+        fit(ok, extra=["--memory", "."]),
+        r"argument --memory: expected a size \(1GiB, 800M\), got '\.'",
+    ),
+    Case(
+        "fit-memory-0",
+        fit(ok, extra=["--memory", "0"]),
+        r"argument --memory: must be a size \(1GiB, 800M\) >= 1, got 0",
+    ),
+    Case(
+        "learn-k-0",
+        learn(ok, ok, extra=["--k", "0"]),
+        r"argument --k: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "learn-steps-0",
+        learn(ok, ok, extra=["--method", "map", "--steps", "0"]),
+        r"argument --steps: must be an integer >= 1, got 0",
+    ),
+    Case(
+        "learn-seed-past-32-bits",
+        learn(ok, ok, extra=["--method", "map", "--seed", str(2**64)]),
+        r"argument --seed: must be an integer in \[0, 4294967295\], got",
+    ),
+]
+CLI_CASES += [  # an output that is, holds or lies inside what the job reads
+    Case(
+        "query-out-is-the-map",
+        lambda src, maps, out: [
+            "query",
+            str(ok_map(src)),
+            ok(src),
+            "--out",
+            str(ok_map(src)),
+        ],
+        r"^--out .*own\.map: the same path as the map .*own\.map, which this "
+        r"job reads; give another path",
+    ),
+    Case(
+        "query-out-is-the-queries",
+        lambda src, maps, out: ["query", npy_map(src, maps), ok(src), "--out", ok(src)],
+        r"^--out .*ok\.npy: the same path as the queries .*ok\.npy",
+    ),
+    Case(
+        "query-out-through-a-link-to-the-queries",
+        lambda src, maps, out: [
+            "query",
+            npy_map(src, maps),
+            ok(src),
+            "--out",
+            linked(ok)(src),
+        ],
+        r"^--out .*link: the same path as the queries .*ok\.npy",
+    ),
+    Case(
+        "query-out-inside-the-map",
+        lambda src, maps, out: [
+            "query",
+            str(ok_map(src)),
+            ok(src),
+            "--out",
+            str(ok_map(src) / "pred.npy"),
+        ],
+        r"^--out .*own\.map/pred\.npy: inside the map .*own\.map",
+    ),
+    Case(
+        "query-out-relative-to-the-queries",
+        lambda src, maps, out: [
+            "query",
+            npy_map(src, maps),
+            ok(src),
+            "--out",
+            str(src / "sub" / ".." / "ok.npy"),
+        ],
+        r"^--out .*sub/\.\./ok\.npy: the same path as the queries",
+    ),
+    Case(
+        "fit-out-holds-the-source",
+        lambda src, maps, out: [
+            "fit",
+            source_inside_map(src)[0],
+            "--out",
+            str(src / "held.map"),
+            "--no-progress",
+        ],
+        r"^--out .*held\.map: holding the source .*held\.map/ok\.npy",
+    ),
+    Case(
+        "fit-checkpoint-is-the-out",
+        fit(ok, extra=["--stream", "--checkpoint", "{out}"]),
+        r"^--out .*route\.map: the same path as --checkpoint",
+    ),
+    Case(
+        "evaluate-plot-inside-the-map",
+        lambda src, maps, out: [
+            "evaluate",
+            str(ok_map(src)),
+            ok(src),
+            "--plot",
+            str(ok_map(src) / "pr.png"),
+            "--no-progress",
+        ],
+        r"^--plot .*own\.map/pr\.png: inside the map .*own\.map",
+    ),
+]
+
+
 def _listing(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
 
@@ -725,6 +1055,7 @@ def test_command_line_refuses(case, maps, tmp_path, capsys, monkeypatch):
     src.mkdir()
     out.mkdir()
     argv = case.argv(src, maps, out)
+    before = _contents(src)
     capsys.readouterr()
     code = main(argv)
     captured = capsys.readouterr()
@@ -737,6 +1068,18 @@ def test_command_line_refuses(case, maps, tmp_path, capsys, monkeypatch):
     assert captured.out == ""
     assert _listing(out) == []  # no map, no prediction, no hidden temporary
     assert not (src / "unpickled").exists()  # nothing was unpickled
+    assert _contents(src) == before  # the inputs untouched
+
+
+def _contents(folder: Path) -> dict[str, bytes | None]:
+    """Every path under ``folder`` with the bytes of its regular files (links
+    and pipes by name only: a pipe is never opened)."""
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        if p.is_file() and not p.is_symlink() and os.access(p, os.R_OK)
+        else None
+        for p in sorted(folder.rglob("*"))
+    }
 
 
 def test_the_catalogue_is_broad():

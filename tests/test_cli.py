@@ -204,3 +204,104 @@ def test_nordland_folders_end_to_end(nordland_root, tmp_path, capsys):
     assert np.mean(pred == np.arange(len(pred))) == pytest.approx(
         methods["map"]["accuracy"]
     )
+
+
+# ------------------------------------------------------------- option rules
+
+
+def _commands():
+    from rhythmic_jax.cli import _parser
+
+    return _parser().commands
+
+
+def test_every_numeric_option_states_its_domain(capsys):
+    """No option is typed outside the DOMAINS table, and --help states each
+    domain; every entry of the table names an option of some command."""
+    import ast
+    from pathlib import Path
+
+    from rhythmic_jax import cli
+
+    tree = ast.parse(Path(cli.__file__).read_text())
+    typed = [
+        node.lineno
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call)
+        and getattr(node.func, "attr", "") == "add_argument"
+        and any(k.arg == "type" for k in node.keywords)
+    ]
+    assert typed == []  # types come from the table only
+    used = set()
+    for name, command in _commands().items():
+        for action in command._actions:
+            if action.dest in cli.DOMAINS and action.option_strings:
+                used.add(action.dest)
+                assert action.type is cli.DOMAINS[action.dest]
+                assert main([name, "--help"]) == 0
+                text = " ".join(capsys.readouterr().out.split())
+                domain = cli.DOMAINS[action.dest].text()
+                assert f"[{domain}]" in text, (name, action.dest)
+    assert used == set(cli.DOMAINS)
+
+
+@pytest.mark.parametrize("value", ["nan", "-1e9", "1e400", "x", ""])
+def test_every_domain_refuses_in_one_line(value, capsys):
+    """Each numeric option of each command refuses a value outside its domain
+    where it is parsed: exit 2, one line naming the flag."""
+    from rhythmic_jax import cli
+
+    for name, command in _commands().items():
+        required = {"fit": ["a.npy", "--out", "m.map"], "learn": ["a", "b", "--out",
+                    "e.emb"], "query": ["m", "q"], "evaluate": ["m", "q"]}  # fmt: skip
+        for action in command._actions:
+            if action.dest not in cli.DOMAINS or not action.option_strings:
+                continue
+            if value == "1e400" and action.dest in ("threshold",):
+                continue  # any finite number: 1e400 is inf, refused by "nan" above
+            flag = action.option_strings[-1]
+            argv = [name, *required.get(name, []), f"{flag}={value}"]
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err.splitlines()
+            assert len(err) == 1 and f"argument {flag}: " in err[0], (argv, err)
+
+
+def test_every_rule_names_options_of_its_commands():
+    from rhythmic_jax import cli
+
+    commands = _commands()
+    for rule in cli.RULES:
+        for name in rule.commands:
+            dests = {a.dest for a in commands[name]._actions}
+            assert set(rule.options) <= dests, (name, rule.options)
+    for table in (cli.WRITES, cli.READS):
+        for name, dests in table.items():
+            assert set(dests) <= {a.dest for a in commands[name]._actions}
+
+
+def test_an_option_scripts_pass_always_is_warned_once(npy_route, capsys):
+    """--compile and --compile-min-frames on descriptor files: one warning line
+    each, and the fit goes on."""
+    code, out, err = run(
+        capsys, "fit", str(npy_route / "ref.npy"), "--out", str(npy_route / "m.map"),
+        "--compile", "never", "--compile-min-frames", "5", "--no-progress",
+    )  # fmt: skip
+    assert code == 0, err
+    assert err.splitlines() == [
+        "rhythmic-jax fit: warning: --compile-min-frames acts only with --compile "
+        "auto; ignored",
+        "rhythmic-jax fit: warning: --compile applies to images; .npy files are "
+        "descriptors; ignored",
+    ]
+    assert "map " in out
+
+
+def test_an_option_at_its_default_given_is_still_refused(npy_route, capsys):
+    """Given explicitly, an option with no effect is refused even at its default
+    value; left out, its default never is."""
+    ref, out = str(npy_route / "ref.npy"), str(npy_route / "m.map")
+    code, _, err = run(capsys, "fit", ref, "--out", out, "--epochs", "3")
+    assert code == 2 and "--epochs needs --augment" in err
+    code, _, err = run(capsys, "fit", ref, "--out", out, "--epochs=3", "--no-progress")
+    assert code == 2 and "--epochs needs --augment" in err
+    assert not (npy_route / "m.map").exists()
