@@ -1,5 +1,5 @@
-"""Strict JAX for every test, the location of the shared real data, and small
-images written to disk."""
+"""Strict JAX for every test, the compile cache shared by the suite's processes,
+the location of the shared real data, and small images written to disk."""
 
 from __future__ import annotations
 
@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 import skimage.io
 
+from rhythmic_jax.jit_cache import ENV, enable_compile_cache
+
 jax.config.update("jax_numpy_rank_promotion", "raise")
+# One compile cache for every worker and every command a test starts (they
+# inherit the folder); RHYTHMIC_JAX_COMPILE_CACHE=0 runs the suite without it.
+_COMPILE_CACHE = enable_compile_cache()
+if _COMPILE_CACHE is not None:
+    os.environ[ENV] = str(_COMPILE_CACHE)
 
 DATA_ROOT = Path(
     os.environ.get(
