@@ -16,6 +16,7 @@ import sys
 import textwrap
 
 from rhythmic_jax import InputError, jobs
+from rhythmic_jax.jit_cache import enable_compile_cache
 from rhythmic_jax.jobs import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
@@ -163,7 +164,10 @@ def _parser() -> argparse.ArgumentParser:
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="run 'rhythmic-jax COMMAND --help' for examples",
+        epilog="run 'rhythmic-jax COMMAND --help' for examples\n\n"
+        "compiled programs are kept in $RHYTHMIC_JAX_CACHE/jax (default\n"
+        "~/.cache/rhythmic_jax/jax): later runs load them instead of compiling;\n"
+        "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -520,6 +524,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(done.code or 0)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     _quiet_logs(args.verbose)
+    if args.command != "info":
+        enable_compile_cache()  # programs kept between runs; see the epilog
     try:
         return COMMANDS[args.command](args)
     except InputError as err:
