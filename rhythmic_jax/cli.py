@@ -136,9 +136,12 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
         help="run a network descriptor (efficientnet_lite0, vgg16_fc7) compiled "
         "for this CPU: about 1.5-1.8x the frames/s of the eager network, but building "
         "it costs up to a minute once per machine and settings (kept in the cache "
-        "folder) and loading it about 0.2 s per job. auto (default): compile when "
-        f"the job describes >= {LOAD_MIN_FRAMES} frames and the compiled network "
-        f"is built, >= {BUILD_MIN_FRAMES} when it must be built first; always; "
+        "folder) and loading it about 0.2 s per job. auto (default): a job of "
+        f">= {LOAD_MIN_FRAMES} frames loads the compiled network; the first such "
+        "job on a machine runs eagerly and pays only for a background build "
+        "(a niced process, about a minute of CPU beside it), so the next job "
+        f"runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
+        "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; "
         "never (the eager reference). Without a C++ compiler the job runs eagerly "
         "and says so",
     )

@@ -19,6 +19,10 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 _COMPILE_CACHE = enable_compile_cache()
 if _COMPILE_CACHE is not None:
     os.environ[ENV] = str(_COMPILE_CACHE)
+# No background builds of the compiled network from tests that describe frames
+# in private cache folders (minutes of CPU each); tests/test_compiled.py turns
+# them on where it tests them.
+os.environ.setdefault("RHYTHMIC_JAX_NETWORK_BUILD", "0")
 
 DATA_ROOT = Path(
     os.environ.get(
