@@ -15,8 +15,7 @@ import os
 import sys
 import textwrap
 
-from rhythmic_jax import InputError, jobs
-from rhythmic_jax.jit_cache import enable_compile_cache
+from rhythmic_jax import InputError, enable_compile_cache, jobs
 from rhythmic_jax.jobs import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,

@@ -19,25 +19,29 @@ than a millisecond a frame (``reports/network.md``), so a job of
 yet, building it costs about :data:`BUILD_SECONDS`: a job of
 :data:`BUILD_MIN_FRAMES` frames or more builds it first; a smaller one runs
 eagerly and hands the build to a detached, niced background process
-(:mod:`rhythmic_jax.network_build`), so the next job on the machine runs
-compiled. One builder at a time holds ``<package>.lock``; the package appears
-whole or not at all (temporary file, ``os.replace``); a damaged package is
-deleted and built again, never loaded. ``RHYTHMIC_JAX_NETWORK_BUILD=0`` keeps
-builds out of the background. Where compiling cannot work (no C++ compiler, an
-unsupported platform) the job logs one warning line and runs eagerly; a
-background build that failed leaves ``<package>.failed`` (delete it to try
-again) and is not started again.
+(:func:`start_build`, :mod:`rhythmic_jax.network_build`), so the next job on the
+machine runs compiled. One builder at a time holds ``<package>.lock``; the
+package appears whole or not at all (temporary file, ``os.replace``); a damaged
+package is deleted and built again, never loaded.
+``RHYTHMIC_JAX_NETWORK_BUILD=0`` keeps builds out of the background. Where
+compiling cannot work (no C++ compiler, an unsupported platform) the job logs
+one warning line and runs eagerly; a background build that failed leaves
+``<package>.failed`` (delete it to try again) and is not started again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
 import logging
 import os
 import platform
+import subprocess
+import sys
 import tempfile
+import time
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -58,9 +62,14 @@ __all__ = [
     "Sliced",
     "network_runner",
     "package_path",
+    "failed_path",
+    "lock_held",
+    "lock_path",
     "package_ready",
     "plan",
     "stages",
+    "start_build",
+    "take_lock",
     "wants_compiled",
 ]
 
@@ -86,6 +95,7 @@ BUILD_SECONDS = 60.0
 LOAD_MIN_FRAMES = 64
 BUILD_MIN_FRAMES = 10_000
 BUILD_ENV = "RHYTHMIC_JAX_NETWORK_BUILD"  # "0": no background builds
+LOCK_STALE_SECONDS = 3600.0  # a builder's lock older than this is abandoned
 
 
 @dataclass(frozen=True)
@@ -193,6 +203,94 @@ def package_ready(path: Path) -> bool:
     log.warning("%s: damaged compiled network (%s); building it again", path, bad)
     path.unlink(missing_ok=True)
     return False
+
+
+def lock_path(package: Path) -> Path:
+    return package.with_suffix(".lock")
+
+
+def failed_path(package: Path) -> Path:
+    return package.with_suffix(".failed")
+
+
+def lock_held(lock: Path) -> bool:
+    """Whether ``lock`` belongs to a running builder (its process is alive and
+    the lock younger than :data:`LOCK_STALE_SECONDS`)."""
+    try:
+        pid = int(lock.read_text().strip() or 0)
+        age = time.time() - lock.stat().st_mtime
+    except (OSError, ValueError):
+        return False
+    if pid <= 0 or age > LOCK_STALE_SECONDS:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def take_lock(lock: Path) -> bool:
+    """Create ``lock`` with this process's id; take over a stale one."""
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            if lock_held(lock):
+                return False
+            lock.unlink(missing_ok=True)  # its builder is gone
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{os.getpid()}\n")
+        return True
+    return False
+
+
+def _spec(descriptor, shape: tuple[int, ...], cache_dir) -> dict:
+    import torch
+
+    fields = {
+        f.name: getattr(descriptor, f.name)
+        for f in dataclasses.fields(descriptor)
+        if f.init
+    }
+    return dict(
+        name=descriptor.name,
+        fields=fields,
+        shape=list(shape),
+        cache_dir=None if cache_dir is None else str(cache_dir),
+        threads=torch.get_num_threads(),
+        package=str(package_path(descriptor, shape, cache_dir)),
+    )
+
+
+def start_build(descriptor, shape: tuple[int, ...], cache_dir=None):
+    """Start a background build of ``descriptor``'s package at ``shape``; the
+    process (``subprocess.Popen``), or None when a builder already runs, one
+    failed before, or the descriptor cannot be described by its fields."""
+    package = package_path(descriptor, shape, cache_dir)
+    if failed_path(package).is_file() or lock_held(lock_path(package)):
+        return None
+    try:
+        spec = json.dumps(_spec(descriptor, shape, cache_dir), default=str)
+    except (TypeError, ValueError):  # not a dataclass of plain settings
+        return None
+    log.info("building the compiled %s in the background", descriptor.name)
+    return _spawn([sys.executable, "-m", "rhythmic_jax.network_build", spec])
+
+
+def _spawn(argv: list[str]) -> subprocess.Popen:
+    """Start ``argv`` detached: its own session, no terminal, not waited for."""
+    return subprocess.Popen(
+        argv,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        close_fds=True,
+    )
 
 
 def _build(module: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
@@ -337,8 +435,6 @@ def network_runner(
     if step == "load" and not package_ready(path):  # damaged: deleted
         step = plan(descriptor, frames, policy, False)
     if step == "background":
-        from rhythmic_jax.network_build import start_build
-
         start_build(descriptor, shape, cache_dir)
     if step in ("eager", "background"):
         return eager

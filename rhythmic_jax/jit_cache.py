@@ -152,8 +152,9 @@ def enable_compile_cache(path: str | os.PathLike | None = None) -> Path | None:
     ``path``: the folder (default ``<cache folder>/jax``, see
     :func:`compile_cache_dir`). Takes effect even after programs were compiled.
     Returns the folder, or None (nothing changed) when
-    ``$RHYTHMIC_JAX_COMPILE_CACHE`` is ``0``/``off``, or when this JAX's cache
-    cannot take checked entries (then it stays off, with one warning).
+    ``$RHYTHMIC_JAX_COMPILE_CACHE`` is ``0``/``off``, or when the folder cannot
+    be made or this JAX's cache cannot take checked entries (then it stays off,
+    with one warning).
 
     Example::
 
@@ -174,7 +175,11 @@ def enable_compile_cache(path: str | os.PathLike | None = None) -> Path | None:
     except (ImportError, AttributeError) as err:
         log.warning("compile cache off: this JAX cannot take checked entries (%s)", err)
         return None
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        log.warning("compile cache off: %s", err)
+        return None
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", MIN_ENTRY_BYTES)

@@ -242,12 +242,9 @@ def test_plan_builds_in_the_background_for_the_next_job(monkeypatch):
 @pytest.fixture
 def spawned(monkeypatch):
     """Background builds allowed; each one recorded instead of started."""
-    from rhythmic_jax import network_build
-
     monkeypatch.delenv(compiled.BUILD_ENV, raising=False)
     calls = []
-
-    monkeypatch.setattr(network_build, "_spawn", calls.append)
+    monkeypatch.setattr(compiled, "_spawn", calls.append)
     return calls
 
 
@@ -293,14 +290,14 @@ def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
 
 
 def test_builder_lock_is_exclusive_and_taken_over_when_stale(tmp_path):
-    from rhythmic_jax.network_build import _take_lock, lock_held
+    from rhythmic_jax.compiled import lock_held, take_lock
 
     lock = tmp_path / "net.lock"
-    assert _take_lock(lock) and lock_held(lock)
-    assert not _take_lock(lock)
+    assert take_lock(lock) and lock_held(lock)
+    assert not take_lock(lock)
     lock.write_text(f"{_dead_pid()}\n")
     assert not lock_held(lock)
-    assert _take_lock(lock) and lock_held(lock)
+    assert take_lock(lock) and lock_held(lock)
     lock.write_text("")
     assert not lock_held(lock)
 
@@ -348,7 +345,7 @@ def test_builder_killed_mid_build_then_the_next_jobs_build_and_load(
     frames = frames.astype(np.uint8)
     eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
 
-    from rhythmic_jax.network_build import start_build
+    from rhythmic_jax.compiled import start_build
 
     proc = start_build(desc, shape)
     lock = package.with_suffix(".lock")
