@@ -35,6 +35,7 @@ _EXPORTS = {
     "Embedding": "rhythmic_jax.embedding",
     "embedding_bytes": "rhythmic_jax.embedding",
     "fit_invariant": "rhythmic_jax.embedding",
+    "enable_compile_cache": "rhythmic_jax.jit_cache",
     "load_embedding": "rhythmic_jax.embedding",
     "save_embedding": "rhythmic_jax.embedding",
     "LearnConfig": "rhythmic_jax.learn",
@@ -192,6 +193,7 @@ if TYPE_CHECKING:  # the same names, spelled out for readers and type checkers
     )
     from rhythmic_jax.io.ground_truth_files import read_positions as read_positions
     from rhythmic_jax.io.ground_truth_files import read_vpr_bench as read_vpr_bench
+    from rhythmic_jax.jit_cache import enable_compile_cache as enable_compile_cache
     from rhythmic_jax.learn import LearnConfig as LearnConfig
     from rhythmic_jax.learn import learn_embedding as learn_embedding
     from rhythmic_jax.objective import Templates as Templates

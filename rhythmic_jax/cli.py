@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from rhythmic_jax import InputError, jobs
+from rhythmic_jax import InputError, enable_compile_cache, jobs
 from rhythmic_jax.jobs import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
@@ -126,9 +126,12 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
         help="run a network descriptor (efficientnet_lite0, vgg16_fc7) compiled "
         "for this CPU: about 1.5-1.8x the frames/s of the eager network, but building "
         "it costs up to a minute once per machine and settings (kept in the cache "
-        "folder) and loading it about 0.2 s per job. auto (default): compile when "
-        f"the job describes >= {LOAD_MIN_FRAMES} frames and the compiled network "
-        f"is built, >= {BUILD_MIN_FRAMES} when it must be built first; always; "
+        "folder) and loading it about 0.2 s per job. auto (default): a job of "
+        f">= {LOAD_MIN_FRAMES} frames loads the compiled network; the first such "
+        "job on a machine runs eagerly and pays only for a background build "
+        "(a niced process, about a minute of CPU beside it), so the next job "
+        f"runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
+        "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; "
         "never (the eager reference). Without a C++ compiler the job runs eagerly "
         "and says so",
     )
@@ -404,7 +407,10 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="run 'rhythmic-jax COMMAND --help' for examples",
+        epilog="run 'rhythmic-jax COMMAND --help' for examples\n\n"
+        "compiled programs are kept in $RHYTHMIC_JAX_CACHE/jax (default\n"
+        "~/.cache/rhythmic_jax/jax): later runs load them instead of compiling;\n"
+        "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -742,6 +748,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(done.code or 0)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     _quiet_logs(args.verbose)
+    if args.command != "info":
+        enable_compile_cache()  # programs kept between runs; see the epilog
     try:
         return COMMANDS[args.command](args)
     except InputError as err:

@@ -12,23 +12,37 @@ file, the input shape, torch's version and thread count and the CPU's vector
 instructions; later jobs load it in a fifth of a second instead of compiling
 (torch's package loader itself, without importing inductor, which took 2.3 s).
 
-Whether compiling pays is decided per job (:func:`wants_compiled`): loading a
-ready package costs about :data:`LOAD_SECONDS`, building one about
-:data:`BUILD_SECONDS`, and the compiled network saves more than a millisecond a
-frame (``reports/network.md``), so small jobs stay eager. Where compiling cannot
-work (no C++ compiler, an unsupported platform) the job logs one warning line and
-runs eagerly.
+Whether compiling pays is decided per job (:func:`plan`): loading a ready
+package costs about :data:`LOAD_SECONDS`, and the compiled network saves more
+than a millisecond a frame (``reports/network.md``), so a job of
+:data:`LOAD_MIN_FRAMES` frames or more loads it. When the package is not built
+yet, building it costs about :data:`BUILD_SECONDS`: a job of
+:data:`BUILD_MIN_FRAMES` frames or more builds it first; a smaller one runs
+eagerly and hands the build to a detached, niced background process
+(:func:`start_build`, :mod:`rhythmic_jax.network_build`), so the next job on the
+machine runs compiled. One builder at a time holds ``<package>.lock``; the
+package appears whole or not at all (temporary file, ``os.replace``); a damaged
+package is deleted and built again, never loaded.
+``RHYTHMIC_JAX_NETWORK_BUILD=0`` keeps builds out of the background. Where
+compiling cannot work (no C++ compiler, an unsupported platform) the job logs
+one warning line and runs eagerly; a background build that failed leaves
+``<package>.failed`` (delete it to try again) and is not started again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
 import logging
 import os
 import platform
+import subprocess
+import sys
 import tempfile
+import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,7 +62,14 @@ __all__ = [
     "Sliced",
     "network_runner",
     "package_path",
+    "failed_path",
+    "lock_held",
+    "lock_path",
+    "package_ready",
+    "plan",
     "stages",
+    "start_build",
+    "take_lock",
     "wants_compiled",
 ]
 
@@ -73,6 +94,8 @@ LOAD_SECONDS = 0.2
 BUILD_SECONDS = 60.0
 LOAD_MIN_FRAMES = 64
 BUILD_MIN_FRAMES = 10_000
+BUILD_ENV = "RHYTHMIC_JAX_NETWORK_BUILD"  # "0": no background builds
+LOCK_STALE_SECONDS = 3600.0  # a builder's lock older than this is abandoned
 
 
 @dataclass(frozen=True)
@@ -136,18 +159,138 @@ def package_path(descriptor, shape: tuple[int, ...], cache_dir=None) -> Path:
     return folder / "compiled" / f"{descriptor.name}-{digest[:16]}.pt2"
 
 
-def wants_compiled(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> bool:
-    """Whether a job of ``frames`` frames runs ``descriptor`` compiled.
+def plan(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> str:
+    """What a job of ``frames`` frames does with ``descriptor``'s network.
 
-    ``ready``: the package is already on disk (loading it is cheap).
+    ``ready``: the package is on disk, whole. Returns ``"eager"``, ``"load"``
+    (the ready package), ``"build"`` (build it in this job, then load it) or
+    ``"background"`` (run eagerly; a background process builds it for the next
+    jobs).
     """
     if policy.mode == "never" or not hasattr(descriptor, "network"):
-        return False
+        return "eager"
+    compiled = "load" if ready else "build"
     if policy.mode == "always":
-        return True
+        return compiled
     if policy.min_frames is not None:
-        return frames >= policy.min_frames
-    return frames >= (LOAD_MIN_FRAMES if ready else BUILD_MIN_FRAMES)
+        return compiled if frames >= policy.min_frames else "eager"
+    if frames < LOAD_MIN_FRAMES:
+        return "eager"
+    if ready or frames >= BUILD_MIN_FRAMES:
+        return compiled
+    off = os.environ.get(BUILD_ENV, "").strip().lower() in ("0", "off", "no", "false")
+    return "eager" if off else "background"
+
+
+def wants_compiled(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> bool:
+    """Whether a job of ``frames`` frames runs ``descriptor`` compiled
+    (:func:`plan` says load or build)."""
+    return plan(descriptor, frames, policy, ready) in ("load", "build")
+
+
+def package_ready(path: Path) -> bool:
+    """Whether the package ``path`` is on disk and whole (every member's CRC
+    checks); a damaged one is deleted, with a warning, to be built again."""
+    if not path.is_file():
+        return False
+    try:
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+    except (OSError, zipfile.BadZipFile, EOFError) as err:
+        bad = f"{type(err).__name__}: {err}"
+    if bad is None:
+        return True
+    log.warning("%s: damaged compiled network (%s); building it again", path, bad)
+    path.unlink(missing_ok=True)
+    return False
+
+
+def lock_path(package: Path) -> Path:
+    return package.with_suffix(".lock")
+
+
+def failed_path(package: Path) -> Path:
+    return package.with_suffix(".failed")
+
+
+def lock_held(lock: Path) -> bool:
+    """Whether ``lock`` belongs to a running builder (its process is alive and
+    the lock younger than :data:`LOCK_STALE_SECONDS`)."""
+    try:
+        pid = int(lock.read_text().strip() or 0)
+        age = time.time() - lock.stat().st_mtime
+    except (OSError, ValueError):
+        return False
+    if pid <= 0 or age > LOCK_STALE_SECONDS:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def take_lock(lock: Path) -> bool:
+    """Create ``lock`` with this process's id; take over a stale one."""
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            if lock_held(lock):
+                return False
+            lock.unlink(missing_ok=True)  # its builder is gone
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{os.getpid()}\n")
+        return True
+    return False
+
+
+def _spec(descriptor, shape: tuple[int, ...], cache_dir) -> dict:
+    import torch
+
+    fields = {
+        f.name: getattr(descriptor, f.name)
+        for f in dataclasses.fields(descriptor)
+        if f.init
+    }
+    return dict(
+        name=descriptor.name,
+        fields=fields,
+        shape=list(shape),
+        cache_dir=None if cache_dir is None else str(cache_dir),
+        threads=torch.get_num_threads(),
+        package=str(package_path(descriptor, shape, cache_dir)),
+    )
+
+
+def start_build(descriptor, shape: tuple[int, ...], cache_dir=None):
+    """Start a background build of ``descriptor``'s package at ``shape``; the
+    process (``subprocess.Popen``), or None when a builder already runs, one
+    failed before, or the descriptor cannot be described by its fields."""
+    package = package_path(descriptor, shape, cache_dir)
+    if failed_path(package).is_file() or lock_held(lock_path(package)):
+        return None
+    try:
+        spec = json.dumps(_spec(descriptor, shape, cache_dir), default=str)
+    except (TypeError, ValueError):  # not a dataclass of plain settings
+        return None
+    log.info("building the compiled %s in the background", descriptor.name)
+    return _spawn([sys.executable, "-m", "rhythmic_jax.network_build", spec])
+
+
+def _spawn(argv: list[str]) -> subprocess.Popen:
+    """Start ``argv`` detached: its own session, no terminal, not waited for."""
+    return subprocess.Popen(
+        argv,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        close_fds=True,
+    )
 
 
 def _build(module: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
@@ -250,7 +393,7 @@ def _compiled(descriptor, shape: tuple[int, ...], cache_dir) -> Callable | None:
 
     path = package_path(descriptor, shape, cache_dir)
     try:
-        if not path.is_file():
+        if not package_ready(path):
             _check_compiler()  # before minutes of export and code generation
             log.info("compiling %s for %s (once per machine)", descriptor.name, shape)
             example = torch.zeros(shape).contiguous(memory_format=torch.channels_last)
@@ -276,8 +419,9 @@ def network_runner(
     """The function a job of ``frames`` frames runs on prepared batches.
 
     ``(m, 3, h, w)`` (``descriptor.prepare``'s output) -> ``(m, dim)`` rows, the
-    compiled package where :func:`wants_compiled` says it pays and it can be
-    built, else the eager module (the reference).
+    compiled package where :func:`plan` says it pays and it can be built, else
+    the eager module (the reference); with ``"background"`` a builder process
+    is started for the next jobs.
     """
 
     if isinstance(descriptor, FastDescriptor):
@@ -286,8 +430,13 @@ def network_runner(
         return descriptor
     eager = Sliced(descriptor.network().eval(), EAGER_BATCH)
     shape = (COMPILE_BATCH, 3, descriptor.height, descriptor.width)
-    ready = package_path(descriptor, shape, cache_dir).is_file()
-    if not wants_compiled(descriptor, frames, policy, ready):
+    path = package_path(descriptor, shape, cache_dir)
+    step = plan(descriptor, frames, policy, path.is_file())
+    if step == "load" and not package_ready(path):  # damaged: deleted
+        step = plan(descriptor, frames, policy, False)
+    if step == "background":
+        start_build(descriptor, shape, cache_dir)
+    if step in ("eager", "background"):
         return eager
     fn = _compiled(descriptor, shape, None if cache_dir is None else str(cache_dir))
     return eager if fn is None else _chunked(fn, COMPILE_BATCH)

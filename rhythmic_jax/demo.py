@@ -133,11 +133,17 @@ def run_demo(
     config: DemoConfig | None = None,
     progress: bool = False,
 ) -> dict:
-    """Build the route, fit, query, compare with brute force, write the report."""
+    """Build the route, fit, query, compare with brute force, write the report.
+
+    Turns on the compile cache (:func:`rhythmic_jax.enable_compile_cache`), so a
+    second demo loads its programs instead of compiling them."""
     from rhythmic_jax.eval.report import evaluate_map, format_evaluation
     from rhythmic_jax.io.sources import describe_images
     from rhythmic_jax.io.tiles import tile_image
+    from rhythmic_jax.jit_cache import enable_compile_cache
     from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    enable_compile_cache()
 
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
     out = Path(out)

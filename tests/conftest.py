@@ -1,5 +1,5 @@
-"""Strict JAX for every test, the location of the shared real data, and small
-images written to disk."""
+"""Strict JAX for every test, the compile cache shared by the suite's processes,
+the location of the shared real data, and small images written to disk."""
 
 from __future__ import annotations
 
@@ -11,7 +11,18 @@ import numpy as np
 import pytest
 import skimage.io
 
+from rhythmic_jax.jit_cache import ENV, enable_compile_cache
+
 jax.config.update("jax_numpy_rank_promotion", "raise")
+# One compile cache for every worker and every command a test starts (they
+# inherit the folder); RHYTHMIC_JAX_COMPILE_CACHE=0 runs the suite without it.
+_COMPILE_CACHE = enable_compile_cache()
+if _COMPILE_CACHE is not None:
+    os.environ[ENV] = str(_COMPILE_CACHE)
+# No background builds of the compiled network from tests that describe frames
+# in private cache folders (minutes of CPU each); tests/test_compiled.py turns
+# them on where it tests them.
+os.environ.setdefault("RHYTHMIC_JAX_NETWORK_BUILD", "0")
 
 DATA_ROOT = Path(
     os.environ.get(

@@ -18,6 +18,7 @@ from rhythmic_jax.compiled import (
     FastDescriptor,
     network_runner,
     package_path,
+    plan,
     stages,
     wants_compiled,
 )
@@ -27,8 +28,10 @@ from rhythmic_jax.features import describe, get_descriptor
 
 @pytest.fixture(autouse=True)
 def fresh(monkeypatch, tmp_path):
-    """A private cache folder, and no compiled network kept from another test."""
+    """A private cache folder, no compiled network kept from another test, and
+    no background build started."""
     monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv(compiled.BUILD_ENV, "0")
     compiled._compiled.cache_clear()
     yield
     compiled._compiled.cache_clear()
@@ -216,3 +219,152 @@ def test_installed_command_without_a_compiler_runs_eagerly(tmp_path, rgb, write_
     assert lines[0].endswith("running it eagerly")
     assert (work / "m.map").is_dir() and "map m.map: n=3" in proc.stdout
     assert not list((tmp_path / "cache" / "compiled").glob("*.pt2"))
+
+
+def test_plan_builds_in_the_background_for_the_next_job(monkeypatch):
+    lite0, patch = get_descriptor("efficientnet_lite0"), get_descriptor("patchnorm")
+    auto = CompilePolicy()
+    monkeypatch.delenv(compiled.BUILD_ENV, raising=False)
+    assert plan(lite0, LOAD_MIN_FRAMES - 1, auto, ready=False) == "eager"
+    assert plan(lite0, LOAD_MIN_FRAMES, auto, ready=False) == "background"
+    assert plan(lite0, BUILD_MIN_FRAMES - 1, auto, ready=False) == "background"
+    assert plan(lite0, BUILD_MIN_FRAMES, auto, ready=False) == "build"
+    assert plan(lite0, LOAD_MIN_FRAMES, auto, ready=True) == "load"
+    assert plan(lite0, 1, CompilePolicy("always"), ready=False) == "build"
+    assert plan(lite0, 10**6, CompilePolicy("never"), ready=True) == "eager"
+    assert plan(lite0, 50, CompilePolicy(min_frames=50), ready=False) == "build"
+    assert plan(patch, 10**6, auto, ready=False) == "eager"
+    monkeypatch.setenv(compiled.BUILD_ENV, "0")
+    assert plan(lite0, 100, auto, ready=False) == "eager"
+    assert plan(lite0, BUILD_MIN_FRAMES, auto, ready=False) == "build"
+
+
+@pytest.fixture
+def spawned(monkeypatch):
+    """Background builds allowed; each one recorded instead of started."""
+    monkeypatch.delenv(compiled.BUILD_ENV, raising=False)
+    calls = []
+    monkeypatch.setattr(compiled, "_spawn", calls.append)
+    return calls
+
+
+def _dead_pid() -> int:
+    import subprocess
+
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid
+
+
+def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
+    import json
+    import os
+
+    desc = get_descriptor("efficientnet_lite0")
+    run = network_runner(desc, 100, CompilePolicy())
+    assert isinstance(run, compiled.Sliced)
+    assert len(spawned) == 1
+    argv = spawned[0]
+    assert argv[1:3] == ["-m", "rhythmic_jax.network_build"]
+    spec = json.loads(argv[3])
+    shape = (compiled.COMPILE_BATCH, 3, 112, 224)
+    package = package_path(desc, shape)
+    assert spec["package"] == str(package) and spec["shape"] == list(shape)
+    assert spec["threads"] == torch.get_num_threads()
+    assert get_descriptor(spec["name"], **spec["fields"]) == desc
+
+    lock = package.with_suffix(".lock")
+    package.parent.mkdir(parents=True)
+    lock.write_text(f"{os.getpid()}\n")  # a builder at work: no second one
+    network_runner(desc, 100, CompilePolicy())
+    assert len(spawned) == 1
+    lock.write_text(f"{_dead_pid()}\n")  # its builder was killed: start again
+    network_runner(desc, 100, CompilePolicy())
+    assert len(spawned) == 2
+    lock.unlink()
+    package.with_suffix(".failed").write_text("RuntimeError: no compiler\n")
+    network_runner(desc, 100, CompilePolicy())  # failed before: not again
+    assert len(spawned) == 2
+    network_runner(desc, LOAD_MIN_FRAMES - 1, CompilePolicy())
+    assert len(spawned) == 2
+
+
+def test_builder_lock_is_exclusive_and_taken_over_when_stale(tmp_path):
+    from rhythmic_jax.compiled import lock_held, take_lock
+
+    lock = tmp_path / "net.lock"
+    assert take_lock(lock) and lock_held(lock)
+    assert not take_lock(lock)
+    lock.write_text(f"{_dead_pid()}\n")
+    assert not lock_held(lock)
+    assert take_lock(lock) and lock_held(lock)
+    lock.write_text("")
+    assert not lock_held(lock)
+
+
+def test_damaged_package_is_deleted_never_loaded_and_rows_match(spawned, caplog):
+    import zipfile
+
+    desc = get_descriptor("efficientnet_lite0")
+    package = package_path(desc, (compiled.COMPILE_BATCH, 3, 112, 224))
+    package.parent.mkdir(parents=True)
+    with zipfile.ZipFile(package, "w") as z:  # a package cut short mid-write
+        z.writestr("model/data/weights", bytes(range(256)) * 400)
+    whole = package.read_bytes()
+    package.write_bytes(whole[: len(whole) // 2])
+    frames = np.random.default_rng(0).integers(0, 256, (LOAD_MIN_FRAMES, 40, 80, 3))
+    frames = frames.astype(np.uint8)
+    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.compiled"):
+        auto = describe(frames, desc, progress=False, compile=CompilePolicy())
+    eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
+    np.testing.assert_array_equal(auto, eager)
+    assert not package.exists()
+    assert [r.getMessage() for r in caplog.records if "damaged" in r.getMessage()]
+    assert len(spawned) == 1  # built again, in the background
+
+    package.write_bytes(b"not a zip at all")  # a foreign file: the same
+    assert not compiled.package_ready(package) and not package.exists()
+
+
+@pytest.mark.slow
+def test_builder_killed_mid_build_then_the_next_jobs_build_and_load(
+    monkeypatch, tmp_path
+):
+    """A real background build killed mid-way leaves no package; the next job
+    runs eagerly (same rows) and starts a builder that finishes; the job after
+    runs compiled (rows within 1e-4). Minutes: two real builds may run."""
+    import os
+    import signal
+    import time
+
+    monkeypatch.delenv(compiled.BUILD_ENV, raising=False)
+    desc = get_descriptor("efficientnet_lite0")
+    shape = (compiled.COMPILE_BATCH, 3, 112, 224)
+    package = package_path(desc, shape)
+    frames = np.random.default_rng(1).integers(0, 256, (LOAD_MIN_FRAMES, 60, 120, 3))
+    frames = frames.astype(np.uint8)
+    eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
+
+    from rhythmic_jax.compiled import start_build
+
+    proc = start_build(desc, shape)
+    lock = package.with_suffix(".lock")
+    deadline = time.time() + 120
+    while not lock.exists() and time.time() < deadline:
+        time.sleep(0.2)
+    time.sleep(5)  # into the export / code generation
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not package.exists() and lock.exists()  # killed: a stale lock
+
+    first = describe(frames, desc, progress=False, compile=CompilePolicy())
+    np.testing.assert_array_equal(first, eager)  # eager while it builds
+    deadline = time.time() + 900
+    while not package.exists() and time.time() < deadline:
+        time.sleep(2)
+    while lock.exists() and time.time() < deadline:
+        time.sleep(0.5)
+    assert compiled.package_ready(package)
+    compiled._compiled.cache_clear()
+    second = describe(frames, desc, progress=False, compile=CompilePolicy())
+    assert np.linalg.norm(second - eager, axis=1).max() < 1e-4

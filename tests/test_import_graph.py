@@ -19,7 +19,7 @@ LAYERS = [
     ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span",
      "progress"],
     ["validate", "solvers.precision", "quantize", "cache_files"],
-    ["scalar_codes"],
+    ["scalar_codes", "jit_cache"],
     [
         "periods", "projection", "split", "nets", "io.checkpoint", "io.images", "codes",
         "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
@@ -33,6 +33,7 @@ LAYERS = [
         "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
         "features", "solvers.streamed", "learn",
     ],
+    ["network_build"],
     [
         "solvers.resumable", "decoding.soft", "solvers.distributed",
         "io.describe_shards", "decoding.small",

@@ -1,0 +1,315 @@
+"""Compiling against solving: XLA programs, compile seconds and wall per job,
+cold and warm compile cache, this checkout against a baseline one.
+
+Each job runs in a fresh process, under a small wrapper that turns on JAX's
+compile log (``jax_log_compiles``) and counts its lines: ``programs`` (XLA
+programs the job obtained, compiled or loaded), ``hits`` (of them, loaded from
+the persistent compile cache), ``compile_s`` (their seconds, loads included).
+Jobs: a default fit of 1000 x 256 synthetic route-like frames (and its
+predictions), a fit of the Nordland patch-normalised summer route (3576 x 2048),
+``rhythmic-jax demo``, and ``rhythmic-jax fit`` / ``query`` of 1000 JPEGs with
+EfficientNet-Lite0 (fresh descriptor cache each time). The new checkout runs
+cold (empty compile cache; the JPEG fit, the machine's first, also starts the
+compiled network's build, waited for before the query) and warm (the cache and
+the network the cold run left); the baseline (``--base``, e.g. ``git -C
+/work/main archive c1267b4 | tar -x -C DIR``) runs as it ships, without a
+compile cache. Predictions of the fits are compared between checkouts.
+
+    python scripts/bench_compile.py --base DIR [--jobs fit,nordland,demo,jpeg]
+    python scripts/bench_compile.py --base DIR --small   (a quick check)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from _bench_common import (
+    REPO,
+    environment,
+    header,
+    load_average,
+    parser,
+    run_record,
+    table,
+    write_report,
+)
+
+# Runs a module (-m NAME ARGS) or a script (PATH ARGS) with JAX's compile log
+# counted; writes {"programs", "hits", "compile_s"} to $COUNT_OUT at exit.
+WRAPPER = r"""
+import atexit, json, logging, os, re, runpy, sys
+count = dict(programs=0, hits=0, compile_s=0.0)
+done = re.compile(r"Finished XLA compilation of .+ in ([0-9.eE+-]+) sec")
+class Count(logging.Handler):
+    def emit(self, record):
+        text = record.getMessage()
+        m = done.search(text)
+        if m:
+            count["programs"] += 1
+            count["compile_s"] += float(m.group(1))
+        elif "compilation cache hit" in text:
+            count["hits"] += 1
+logger = logging.getLogger("jax._src")
+logger.setLevel(logging.WARNING)  # the CLI quiets "jax"; this stays
+logger.addHandler(Count())
+logger.propagate = False
+import jax
+jax.config.update("jax_log_compiles", True)
+atexit.register(lambda: open(os.environ["COUNT_OUT"], "w").write(json.dumps(count)))
+args = sys.argv[1:]
+if args[0] == "-m":
+    sys.argv = args[1:]
+    runpy.run_module(args[1], run_name="__main__", alter_sys=True)
+else:
+    sys.argv = args
+    runpy.run_path(args[0], run_name="__main__")
+"""
+
+# A library user's fit: features (.npy) -> map, predictions saved; the new
+# checkout's one call turns the compile cache on.
+FIT = r"""
+import json, sys
+import numpy as np
+import rhythmic_jax as rj
+if hasattr(rj, "enable_compile_cache"):
+    rj.enable_compile_cache()
+x = np.load(sys.argv[1])
+model = rj.RhythmicMap().fit(x, progress=False)
+np.save(sys.argv[2], np.asarray(model.predict(x)))
+print(json.dumps(dict(periods=list(model.periods))))
+"""
+
+
+def route(n: int, d: int, seed: int = 0) -> np.ndarray:
+    """(n, d) unit rows drifting along a route: a smoothed random walk."""
+    rng = np.random.default_rng(seed)
+    x = np.cumsum(rng.standard_normal((n, d)), axis=0)
+    x += 3.0 * rng.standard_normal((n, d))
+    x -= x.mean(axis=0)
+    return (x / np.linalg.norm(x, axis=1, keepdims=True)).astype(np.float32)
+
+
+def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
+    """Wall seconds and compile counts of one job in a fresh process."""
+    out = tmp / f"count-{time.monotonic_ns()}.json"
+    t = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-c", WRAPPER, *cmd],
+        env={**env, "COUNT_OUT": str(out)},
+        capture_output=True,
+        text=True,
+        cwd=_weights_folder(),
+    )
+    wall = time.perf_counter() - t
+    if done.returncode != 0:
+        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")
+    count = json.loads(out.read_text())
+    count["compiled"] = count["programs"] - count["hits"]
+    return dict(count, wall=wall, load=load_average()[0], stdout=done.stdout[-400:])
+
+
+def _weights_folder() -> Path:
+    """The folder of the Lite0 weights: the baseline's ``query`` looks for them
+    by the bare file name its map records (as scripts/bench_frames.py runs)."""
+    from rhythmic_jax.nets import lite0_weights_path
+
+    return lite0_weights_path().parent
+
+
+def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
+    """Seconds until no builder lock is left under ``cache/compiled``."""
+    t = time.perf_counter()
+    folder = cache / "compiled"
+    while list(folder.glob("*.lock")) and time.perf_counter() - t < timeout:
+        time.sleep(1.0)
+    return time.perf_counter() - t
+
+
+def make_jpegs(root: Path, tmp: Path, n: int) -> dict[str, Path]:
+    """640x320 JPEG folders: ref (n summer frames), q (n winter)."""
+    from PIL import Image
+
+    from rhythmic_jax.io.images import nordland
+
+    summer, winter = nordland(root / "nordland_64x32", progress=False)
+    out = {}
+    for name, frames in (("ref", summer.images[:n]), ("q", winter.images[:n])):
+        folder = tmp / name
+        folder.mkdir()
+        for i, im in enumerate(frames):
+            big = Image.fromarray(im).resize((640, 320), Image.BICUBIC)
+            big.save(folder / f"frame{i:05d}.jpg", quality=90)
+        out[name] = folder
+    return out
+
+
+def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
+    """The patch-normalised summer route as a .npy file."""
+    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.io.images import nordland
+
+    summer = nordland(root / "nordland_64x32", seasons=("summer",), progress=False)
+    images = summer[0].images[:n]
+    path = tmp / "nordland.npy"
+    np.save(path, describe(images, get_descriptor("patchnorm"), progress=False))
+    return path
+
+
+def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
+    """(name, environment) of base, new cold, new warm: the warm run reuses the
+    cold run's compile cache (and network)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPIL")}
+    env.update(JAX_PLATFORMS="cpu", TF_CPP_MIN_LOG_LEVEL="3")
+    env["RHYTHMIC_JAX_NETWORK_BUILD"] = "1"
+    jit = tmp / "jit"
+    new = {**env, "PYTHONPATH": str(REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
+    old = {**env, "PYTHONPATH": str(base.resolve())}
+    old.pop("RHYTHMIC_JAX_COMPILE_CACHE", None)
+    return [("base", old), ("new cold", new), ("new warm", new)]
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
+    ap.add_argument("--jobs", default="fit,nordland,demo,jpeg")
+    ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
+    args = ap.parse_args(argv)
+    if args.render:
+        from _bench_common import rerender
+
+        rerender(args.render, markdown)
+        return
+    jobs = args.jobs.split(",")
+    n_fit, d_fit = (200, 64) if args.small else (1000, 256)
+    n_nord = 300 if args.small else None
+    n_jpeg = 100 if args.small else 1000
+    env0, load0 = environment({}), load_average()
+    exe = ["-m", "rhythmic_jax.cli"]
+    rows: list[dict] = []
+    agree: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_compile") as tmpdir:
+        tmp = Path(tmpdir)
+        script = tmp / "fit.py"
+        script.write_text(FIT)
+        inputs = {}
+        if "fit" in jobs:
+            inputs["fit"] = tmp / "route.npy"
+            np.save(inputs["fit"], route(n_fit, d_fit))
+        if "nordland" in jobs:
+            inputs["nordland"] = nordland_features(args.root, tmp, n_nord)
+        folders = make_jpegs(args.root, tmp, n_jpeg) if "jpeg" in jobs else {}
+        network = tmp / "network"  # the new checkout's cache folder: network
+        for name, env in variants(args.base, tmp):
+            side = name.split()[0]
+            if name == "new cold":
+                shutil.rmtree(network, ignore_errors=True)
+            for job in jobs:
+                cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
+                if side == "new" and (network / "compiled").is_dir():
+                    shutil.copytree(network / "compiled", cache / "compiled")
+                env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
+                tag = name.replace(" ", "_")
+                if job in ("fit", "nordland"):
+                    pred = tmp / f"{job}-{tag}.npy"
+                    cmd = [str(script), str(inputs[job]), str(pred)]
+                    r = run_job(cmd, env_job, tmp)
+                    r["periods"] = json.loads(r.pop("stdout").splitlines()[-1])
+                    agree.setdefault(job, {})[name] = (pred, r["periods"]["periods"])
+                    rows.append(dict(job=job, variant=name, **r))
+                elif job == "demo":
+                    cmd = [*exe, "demo", "--out", str(tmp / f"demo-{tag}")]
+                    r = run_job([*cmd, "--no-progress"], env_job, tmp)
+                    r.pop("stdout")
+                    rows.append(dict(job="demo", variant=name, **r))
+                else:
+                    out_map = tmp / f"jpeg-{tag}.map"
+                    cmd = [*exe, "fit", str(folders["ref"]), "--out", str(out_map)]
+                    cmd += ["--descriptor", "efficientnet_lite0", "--no-progress"]
+                    r = run_job(cmd, env_job, tmp)
+                    r.pop("stdout")
+                    rows.append(dict(job="jpeg fit", variant=name, **r))
+                    if side == "new":
+                        r["build_wait_s"] = wait_for_build(cache)
+                        if (cache / "compiled").is_dir():
+                            shutil.rmtree(network, ignore_errors=True)
+                            shutil.copytree(cache / "compiled", network / "compiled")
+                    cmd = [*exe, "query", str(out_map), str(folders["q"])]
+                    cmd += ["--out", str(tmp / f"q-{tag}.npy"), "--no-progress"]
+                    r = run_job(cmd, env_job, tmp)
+                    r.pop("stdout")
+                    rows.append(dict(job="jpeg query", variant=name, **r))
+                print(json.dumps(rows[-1]), flush=True)
+        same = {}
+        for job, runs in agree.items():
+            base_pred, base_periods = runs["base"]
+            for name in ("new cold", "new warm"):
+                pred, periods = runs[name]
+                same[f"{job}, {name}"] = dict(
+                    periods_equal=periods == base_periods,
+                    predictions_equal=float(
+                        (np.load(pred) == np.load(base_pred)).mean()
+                    ),
+                )
+    report = dict(
+        run_record("bench_compile.py", argv, env0, load0),
+        base=str(args.base),
+        sizes=dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg),
+        rows=rows,
+        agreement=same,
+    )
+    write_report(args.out, "compile" + ("_small" if args.small else ""), report,
+                 markdown(report))  # fmt: skip
+
+
+def markdown(report: dict) -> str:
+    rows = [
+        [r["job"], r["variant"], r["programs"], r["compiled"], r["hits"],
+         r["compile_s"], r["wall"], r["load"]]
+        for r in report["rows"]
+    ]  # fmt: skip
+    agree = [
+        [k, str(v["periods_equal"]), v["predictions_equal"]]
+        for k, v in report["agreement"].items()
+    ]
+    s = report["sizes"]
+    lines = [
+        *header("Compiling: XLA programs, compile seconds and wall per job", report),
+        f"Baseline checkout {report['base']} (no compile cache) against this one, "
+        "cold (empty compile cache) and warm (the cache the cold run left). Each "
+        "job is a fresh process. Programs: XLA programs the job obtained; hits: "
+        "of them, loaded from the persistent cache; compile s: their seconds "
+        f"(loads included); load: 1-minute load average after the job. Sizes: fit "
+        f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
+        f" {s['jpegs']} JPEGs (Lite0).",
+        "",
+        table(
+            [
+                "job",
+                "variant",
+                "programs",
+                "compiled",
+                "hits",
+                "compile s",
+                "wall s",
+                "load",
+            ],
+            rows,
+        ),  # fmt: skip
+        "",
+        "Maps against the baseline's (same periods; share of equal predictions):",
+        "",
+        table(["fit", "periods equal", "predictions equal"], agree),
+    ]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
