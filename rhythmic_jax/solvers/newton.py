@@ -372,7 +372,7 @@ def newton_fit(
             _spectral(xa, rank, config.power_iters, np.uint32(config.seed))
         )
     with jax.enable_x64(True):
-        if isinstance(y, jax.Array) and not y.is_fully_addressable:
+        if isinstance(y, jax.Array) and len(y.sharding.device_set) > 1:  # keep it
             y64 = y.astype(jnp.float64)
         else:
             y64 = jax.device_put(np.asarray(y, dtype=np.float64))
@@ -381,11 +381,10 @@ def newton_fit(
         offset = float(c) * pad
         if init is None:
             zeros = np.zeros((n, p))
-            margins = _zeros_like(y64) if y64.sharding.num_devices > 1 else zeros
+            margins = _zeros_like(y64) if len(y64.sharding.device_set) > 1 else zeros
             params = jax.device_put(Iterate(np.zeros((d + 1, p)), margins))
         else:
-            w = np.asarray(init.w, np.float32)
-            params = _warm(w, np.asarray(init.b, np.float32), xa)
+            params = _warm(init.w, init.b, xa)
         opt_state = _start(params, config.eta, config.max_cg, config.block)
         objective = np.full(p, np.nan)
         gap = np.full(p, np.inf)
