@@ -10,8 +10,11 @@ line:
   ``/jax/core/compile/backend_compile_duration`` events, one per program, the
   same count as ``jax_log_compiles``' "Finished XLA compilation" lines);
 - ``compile_s``: seconds of those compilations, tracing and lowering included;
-- ``wall_s``: seconds of the fit call; ``import_s``: of ``import rhythmic_jax``;
-- ``again_s``: a second fit of the same frames in the same process;
+- ``wall_s``: seconds of the fit call (``cpu_s``: the process's CPU seconds,
+  every thread, less sensitive to other processes' load); ``import_s``: of
+  ``import rhythmic_jax``;
+- ``again_s``, ``again_cpu_s``: a second fit of the same frames in the same
+  process; ``load``: the 1-minute load average at the end;
 - ``periods``, ``objective`` (the chosen templates' objective sum), ``names``
   (``--names``: programs compiled, by name, most first).
 
@@ -74,14 +77,17 @@ else:
         walk[i] = 0.9 * walk[i - 1] + step[i]
     x = walk / np.linalg.norm(walk, axis=1, keepdims=True)
 base = programs[0], seconds[0]
-t = time.perf_counter()
+t, cpu = time.perf_counter(), time.process_time()
 m = rj.RhythmicMap().fit(x)
-wall = time.perf_counter() - t
+wall, cpu = time.perf_counter() - t, time.process_time() - cpu
 out = dict(programs=programs[0] - base[0], compile_s=round(seconds[0] - base[1], 3),
-           wall_s=round(wall, 3), import_s=round(import_s, 3))
-t = time.perf_counter()
+           wall_s=round(wall, 3), cpu_s=round(cpu, 3), import_s=round(import_s, 3))
+t, cpu = time.perf_counter(), time.process_time()
 rj.RhythmicMap().fit(x)
 out["again_s"] = round(time.perf_counter() - t, 3)
+out["again_cpu_s"] = round(time.process_time() - cpu, 3)
+import os
+out["load"] = round(os.getloadavg()[0], 2)
 out["periods"] = list(m.periods)
 out["n"], out["d"] = [int(v) for v in x.shape]
 if args["names"]:
