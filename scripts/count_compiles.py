@@ -43,6 +43,8 @@ import jax
 import numpy as np
 if args["cache"]:
     jax.config.update("jax_compilation_cache_dir", args["cache"])
+else:  # cold: whatever the environment says
+    jax.config.update("jax_enable_compilation_cache", False)
 programs, seconds, names = [0], [0.0], collections.Counter()
 EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
           "/jax/core/compile/jaxpr_to_mlir_module_duration",
