@@ -402,8 +402,9 @@ def newton_fit(
                     xa, (vecs, lead, rest), cols, params, opt_state, y64, c64,
                     config.eta, config.block, cap, config.exact_gradient, rounded,
                 )  # fmt: skip
-                its.append(int(it))
+                its.append(it)  # read after the loop: the calls queue up
                 values.append((f0, f1, dec))
+            its = [int(it) for it in its]
             cg_its.append(max(its))
             widths.append(width * len(parts))
             if max(its) > REFRESH_AFTER:  # CG's float32 margin updates drift
