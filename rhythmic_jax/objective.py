@@ -83,9 +83,18 @@ def targets(
       periods: static tuple of k periods, or the map's groups.
 
     Returns:
-      (n, p) float32 array of ±1, p = sum of the group sizes.
+      (n, p) float32 array of ±1: a NumPy array for host labels (no XLA program
+      is compiled), a JAX array for JAX labels (traced ones included).
     """
-    labels = jnp.asarray(labels)
+    if not isinstance(labels, jax.Array):
+        parts, sizes = _label_parts(np.asarray(labels), periods)
+        return np.concatenate(
+            [
+                np.where(part[:, None] == np.arange(t)[None, :], 1.0, -1.0)
+                for part, t in zip(parts, sizes, strict=True)
+            ],
+            axis=1,
+        ).astype(np.float32)
     parts, sizes = _label_parts(labels, periods)
     cols = [
         jnp.where(
@@ -230,9 +239,20 @@ def period_errors(
       periods: the periods, or a map's groups (then the error of every group).
 
     Returns:
-      (k,) error of each period (paper Sec. III-B, "training error e").
+      (k,) float32 error of each period (paper Sec. III-B, "training error
+      e"): NumPy, computed on the host, unless ``s`` is traced (a JAX array);
+      the same float32 values either way (a wrong count over n, rounded once).
     """
-    parts, sizes = _label_parts(jnp.asarray(labels), periods)
-    pred = phase_predictions(s, sizes)
-    truth = jnp.stack(parts, axis=1)
-    return jnp.mean(pred != truth, axis=0)
+    if isinstance(s, jax.core.Tracer) or isinstance(labels, jax.core.Tracer):
+        parts, sizes = _label_parts(jnp.asarray(labels), periods)
+        pred = phase_predictions(s, sizes)
+        truth = jnp.stack(parts, axis=1)
+        return jnp.mean(pred != truth, axis=0)
+    s, labels = np.asarray(s), np.asarray(labels)
+    parts, sizes = _label_parts(labels, periods)
+    offs = period_offsets(sizes)
+    wrong = [
+        np.count_nonzero(np.argmax(s[:, o : o + t], axis=1) != part)
+        for o, t, part in zip(offs, sizes, parts, strict=True)
+    ]
+    return np.asarray(wrong, np.float32) / np.float32(len(labels))

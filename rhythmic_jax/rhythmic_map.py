@@ -244,14 +244,14 @@ class RhythmicMap:
         params, _ = solver.run(None, x, y, c)
         if refine is not None:
             params = refine(params, cands, c)
-        if not all(bool(jnp.isfinite(v).all()) for v in params):
+        params = Templates(*(np.asarray(v, np.float32) for v in params))
+        if not all(np.isfinite(v).all() for v in params):
             raise InputError(
                 "reference features: the solve gave non-finite templates (largest "
                 f"|feature| {float(np.abs(x).max()):.3g}); scale the features, "
                 "e.g. to unit-length rows"
             )
-        s = scores(params, jnp.asarray(x))
-        errors = np.asarray(period_errors(s, jnp.asarray(labels), cands))
+        errors = period_errors(_host_scores(params, x), labels, cands)
         self._choose(params, cands, errors, n, d_in, c)
         if cfg.codes is not None:
             self.codebook = fit_codebook(x, cfg.codes)
@@ -299,9 +299,8 @@ class RhythmicMap:
         params, _ = solver.run(None, x, y, c)
         if refine is not None:
             params = refine(params, groups, c)
-        errors = np.asarray(
-            period_errors(scores(params, jnp.asarray(x)), labels, groups)
-        )
+        params = Templates(*(np.asarray(v, np.float32) for v in params))
+        errors = period_errors(_host_scores(params, x), labels, groups)
         return self._keep_groups(params, groups, errors, n, d_in, c)
 
     def _keep_groups(self, params: Templates, groups, errors, n: int, d: int, c):
@@ -331,7 +330,8 @@ class RhythmicMap:
         """Keep the stored arrays; queries use them as float32."""
         self._stored = stored
         w, b = dequantize(stored)
-        self.params = Templates(w=jnp.asarray(w), b=jnp.asarray(b))
+        # device_put: a transfer, where jnp.asarray compiles a program
+        self.params = Templates(w=jax.device_put(w), b=jax.device_put(b))
 
     # -------------------------------------------------------------- queries
     def _check_fitted(self) -> None:
@@ -727,3 +727,10 @@ class RhythmicMap:
 @jax.jit
 def _scores(params: Templates, q: jax.Array) -> jax.Array:
     return scores(params, q)
+
+
+def _host_scores(params: Templates, x) -> np.ndarray:
+    """Scores ``x @ w + b`` (n, p) of the reference frames on the host (float32
+    BLAS): a fit's training errors compile no XLA program."""
+    x = np.asarray(x, np.float32)
+    return x @ np.asarray(params.w, np.float32) + np.asarray(params.b, np.float32)

@@ -33,8 +33,13 @@ stopping rule and the span of wide frames.
   model, which estimates ``f - f*`` (exactly once the active set settles; it can
   fall short while frames still leave it, so the fast setting keeps a margin). A
   template whose estimate is below ``gap_tol * f`` takes that last step and
-  leaves; later steps run on the others only (gathered into a power-of-two
-  number of columns, so few shapes compile), until none is left.
+  leaves; later steps run on the others only, until none is left.
+- one program per fit: a step runs on chunks of a fixed number of gathered
+  columns (:func:`chunk_width`, about a quarter of the templates; the last
+  chunk padded by repeating one of its columns), so whichever templates are
+  still running, the step compiles once for a problem's shape. Each template's
+  step is its own (CG and the line search stop per column), so the chunks
+  change no template's result, only the rounding of the products.
 
 - wide frames (d > 2n, deep descriptors): the problem is solved over the
   n-dimensional span of the frames (:mod:`rhythmic_jax.solvers.span`), the same
@@ -62,17 +67,12 @@ from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.newton_cg import (
-    Iterate,
-    bucket,
-    newton_solver,
-    round_design,
-)
+from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver, round_design
 from rhythmic_jax.solvers.precision import check_hessian_dtype, resolve_hessian_dtype
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
-__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "newton_fit"]
+__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "chunk_width", "chunks", "newton_fit"]
 
 log = logging.getLogger(__name__)
 
@@ -194,6 +194,55 @@ def _zeros_like(y: jax.Array) -> jax.Array:
     return y - y
 
 
+@partial(jax.jit, static_argnames=("rank", "iters"))
+def _spectral(xa: jax.Array, rank: int, iters: int, seed) -> tuple:
+    """:func:`~rhythmic_jax.solvers.precondition.spectral_setup` from an integer
+    seed (the key is drawn inside the program: no program of its own)."""
+    return spectral_setup(xa, rank, iters, jax.random.PRNGKey(seed))
+
+
+@partial(jax.jit, static_argnames=("eta", "max_cg", "block"))
+def _start(params: Iterate, eta: float, max_cg: int, block: int):
+    """The optimiser's initial state for ``params`` (one program)."""
+    return newton_solver(eta, max_cg, block).init(params)
+
+
+@jax.jit
+def _warm(w: jax.Array, b: jax.Array, xa: jax.Array) -> Iterate:
+    """The float64 iterate of templates ``w`` (d, p), ``b`` (p,): theta (q, p)
+    and its margins ``Xa theta`` (n, p)."""
+    theta = jnp.concatenate([w, jnp.reshape(b, (1, -1))]).astype(jnp.float64)
+    return Iterate(theta, _margins(xa, theta))
+
+
+@jax.jit
+def _finish(theta: jax.Array, xa: jax.Array, y: jax.Array, c: jax.Array):
+    """Every template's objective (p,) from margins made afresh, and the
+    templates as float32: w (d, p), b (p,)."""
+    final = margin_objectives(theta, _margins(xa, theta), y, c)
+    theta = theta.astype(jnp.float32)
+    return final, theta[:-1], theta[-1]
+
+
+def chunk_width(p: int) -> int:
+    """Columns a compacted Newton step gathers per call for p templates: a
+    multiple of 8 near p / 4, at most p. One width per problem: the step
+    compiles once, and templates still running are stepped in
+    ``ceil(live / width)`` calls (at least a quarter of the step's cost, where
+    powers of two down to 8 would compile once each)."""
+    return min(p, max(8, -(-p // 32) * 8))
+
+
+def chunks(todo: np.ndarray, width: int) -> list[np.ndarray]:
+    """``todo`` (live,) split into (width,) column sets, the last padded by
+    repeating its first column (a repeated column is stepped twice alike)."""
+    out = []
+    for start in range(0, len(todo), width):
+        part = todo[start : start + width]
+        out.append(np.concatenate([part, np.full(width - len(part), part[0])]))
+    return out
+
+
 def _take(tree, cols):
     """Columns ``cols`` (templates, the last axis) of every array of a tree;
     scalars are shared."""
@@ -311,56 +360,59 @@ def newton_fit(
         w = lift(np.asarray(x), factor, np.asarray(params.w))
         return Templates(w=jnp.asarray(w, jnp.float32), b=params.b), info
     if bias is None:
-        bias = jnp.ones((n,), jnp.float32)
-    xa = _design(x if isinstance(x, jax.Array) else jnp.asarray(x), bias)
-    pad = n - int(np.rint(float(jnp.sum(bias))))  # padding rows: C each
+        bias, pad = np.ones((n,), np.float32), 0
+    else:  # padding rows: C each
+        pad = n - int(np.rint(float(jnp.sum(bias))))
+    xa = _design(x if isinstance(x, jax.Array) else jax.device_put(x), bias)
     narrow = resolve_hessian_dtype(config.hessian_dtype)
     rounded = None if narrow is None else round_design(xa, narrow)
     rank = min(config.rank, d + 1)
     with threadpool_limits(limits=1):  # LAPACK's threads wait on a busy machine
         vecs, lead, rest = jax.block_until_ready(
-            spectral_setup(
-                xa, rank, config.power_iters, jax.random.PRNGKey(config.seed)
-            )
+            _spectral(xa, rank, config.power_iters, np.uint32(config.seed))
         )
     with jax.enable_x64(True):
-        if isinstance(y, jax.Array):
+        if isinstance(y, jax.Array) and len(y.sharding.device_set) > 1:  # keep it
             y64 = y.astype(jnp.float64)
         else:
-            y64 = jnp.asarray(np.asarray(y, dtype=np.float64))
+            y64 = jax.device_put(np.asarray(y, dtype=np.float64))
         p = y64.shape[1]
-        c64 = jnp.float64(c)
+        c64 = jax.device_put(np.float64(c))
         offset = float(c) * pad
         if init is None:
-            params = Iterate(jnp.zeros((d + 1, p), jnp.float64), _zeros_like(y64))
+            zeros = np.zeros((n, p))
+            margins = _zeros_like(y64) if len(y64.sharding.device_set) > 1 else zeros
+            params = jax.device_put(Iterate(np.zeros((d + 1, p)), margins))
         else:
-            theta = jnp.concatenate(
-                [jnp.asarray(init.w), jnp.reshape(jnp.asarray(init.b), (1, -1))]
-            ).astype(jnp.float64)
-            params = Iterate(theta, _margins(xa, theta))
-        opt_state = newton_solver(config.eta, config.max_cg, config.block).init(params)
+            params = _warm(init.w, init.b, xa)
+        opt_state = _start(params, config.eta, config.max_cg, config.block)
         objective = np.full(p, np.nan)
         gap = np.full(p, np.inf)
         todo = np.arange(p)
+        width = chunk_width(p) if config.compact else p
         cg_its: list[int] = []
         widths: list[int] = []
         bar = progress_bar(range(config.max_iter), show=progress, desc="newton")
         for step in bar:
-            width = bucket(len(todo), p) if config.compact else p
-            cols = todo if config.compact else np.arange(p)
-            cols = np.concatenate([cols, np.full(width - len(cols), cols[0])])
-            cap = _cg_cap(config, step)
-            params, opt_state, f0, f1, dec, it = _newton_step(
-                xa, (vecs, lead, rest), None if len(todo) == p else cols,
-                params, opt_state, y64, c64, config.eta, config.block,
-                jnp.int32(cap), config.exact_gradient, rounded,
-            )  # fmt: skip
-            cg_its.append(int(it))
-            widths.append(width)
-            if int(it) > REFRESH_AFTER:  # CG's float32 margin updates drift
+            cap = jax.device_put(np.int32(_cg_cap(config, step)))
+            parts = chunks(todo, width) if config.compact else [None]
+            its, values = [], []
+            for cols in parts:
+                params, opt_state, f0, f1, dec, it = _newton_step(
+                    xa, (vecs, lead, rest), cols, params, opt_state, y64, c64,
+                    config.eta, config.block, cap, config.exact_gradient, rounded,
+                )  # fmt: skip
+                its.append(it)  # read after the loop: the calls queue up
+                values.append((f0, f1, dec))
+            its = [int(it) for it in its]
+            cg_its.append(max(its))
+            widths.append(width * len(parts))
+            if max(its) > REFRESH_AFTER:  # CG's float32 margin updates drift
                 params = params._replace(margins=_margins(xa, params.theta))
-            f0, f1, dec = (np.asarray(v) for v in (f0, f1, dec))
+            f0, f1, dec = (np.concatenate([np.asarray(v[i]) for v in values])
+                           for i in range(3))  # fmt: skip
             f0, f1 = f0 - offset, f1 - offset
+            cols = np.concatenate(parts) if config.compact else np.arange(p)
             # padding repeats a column: take each column's values once (all equal)
             cols, first = np.unique(cols, return_index=True)
             f0, f1, dec = f0[first], f1[first], dec[first]
@@ -376,10 +428,8 @@ def newton_fit(
             if len(todo) == 0 or (not config.compact and np.all(gap <= config.gap_tol)):
                 break
         bar.close()
-        theta = params.theta
-        final = margin_objectives(theta, _margins(xa, theta), y64, c64)
+        final, w, b = _finish(params.theta, xa, y64, c64)
         objective = np.asarray(final) - offset
-        theta = theta.astype(jnp.float32)
         info = NewtonInfo(
             steps=len(cg_its),
             cg_iterations=tuple(cg_its),
@@ -388,4 +438,4 @@ def newton_fit(
             gap_estimate=gap,
         )
     log.debug("newton: %d steps, CG %s, columns %s", info.steps, cg_its, widths)
-    return Templates(w=theta[:-1], b=theta[-1]), info
+    return Templates(w=w, b=b), info
