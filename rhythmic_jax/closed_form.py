@@ -37,11 +37,13 @@ def ridge_templates(z: jax.Array, y: jax.Array, ridge: float) -> Templates:
     zbar = z.mean(axis=0)
     ybar = y.mean(axis=0)
     a = z - zbar[None, :]
-    gram = a.T @ a
+    gram = jnp.matmul(a.T, a, precision="highest")
     lam = ridge * jnp.trace(gram) / z.shape[1]
     factor = jax.scipy.linalg.cho_factor(gram + lam * jnp.eye(z.shape[1]))
-    w = jax.scipy.linalg.cho_solve(factor, a.T @ (y - ybar[None, :]))
-    return Templates(w=w, b=ybar - zbar @ w)
+    w = jax.scipy.linalg.cho_solve(
+        factor, jnp.matmul(a.T, y - ybar[None, :], precision="highest")
+    )
+    return Templates(w=w, b=ybar - jnp.matmul(zbar, w, precision="highest"))
 
 
 def place_log_scores(

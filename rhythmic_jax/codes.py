@@ -85,13 +85,15 @@ def unpack_bits(packed: np.ndarray, bits: int) -> np.ndarray:
 
 @jax.jit
 def _encode(mean: jax.Array, projection: jax.Array, x: jax.Array) -> jax.Array:
-    return (x - mean[None, :]) @ projection.T > 0
+    return jnp.matmul(x - mean[None, :], projection.T, precision="highest") > 0
 
 
 @jax.jit
 def _agreements(q_bits: jax.Array, ref_signs: jax.Array) -> jax.Array:
     signs = jnp.where(q_bits, 1.0, -1.0).astype(ref_signs.dtype)
-    return 0.5 * (ref_signs.shape[1] + signs @ ref_signs.T)
+    return 0.5 * (
+        ref_signs.shape[1] + jnp.matmul(signs, ref_signs.T, precision="highest")
+    )
 
 
 def code_similarity(q_bits, ref_bits) -> jax.Array:

@@ -80,8 +80,9 @@ def linear(mean, proj) -> Embedding:
 
 def embed(emb: Embedding, x: jax.Array) -> jax.Array:
     """Embedded, L2-normalised rows: x (n, d) -> (n, k)."""
-    z = (x - emb.mean[None, :]) @ emb.proj
-    z = z + jax.nn.relu(z @ emb.w1 + emb.b1[None, :]) @ emb.w2
+    z = jnp.matmul(x - emb.mean[None, :], emb.proj, precision="highest")
+    h = jax.nn.relu(jnp.matmul(z, emb.w1, precision="highest") + emb.b1[None, :])
+    z = z + jnp.matmul(h, emb.w2, precision="highest")
     return z / jnp.maximum(jnp.linalg.norm(z, axis=1, keepdims=True), 1e-12)
 
 
@@ -174,18 +175,23 @@ def fit_invariant(
     pca = type(pca)(pca.mean, pca.components[:p], pca.explained_variance[:p])
     scale = 1.0 / jnp.sqrt(pca.explained_variance + 1e-12)
     zs = [
-        ((jnp.asarray(t) - pca.mean[None, :]) @ pca.components.T) * scale[None, :]
+        jnp.matmul(
+            jnp.asarray(t) - pca.mean[None, :], pca.components.T, precision="highest"
+        )
+        * scale[None, :]
         for t in xs
     ]
     centre = sum(zs) / len(zs)
     dev = jnp.concatenate([z - centre for z in zs])
-    cw = dev.T @ dev / dev.shape[0]
+    cw = jnp.matmul(dev.T, dev, precision="highest") / dev.shape[0]
     cw = cw + shrink * jnp.trace(cw) / p * jnp.eye(p)
     evals, evecs = jnp.linalg.eigh(cw)  # ascending: least within-place change first
     evals = jnp.maximum(evals, 1e-12 * evals[-1])  # rounding can make one negative
     # each kept direction scaled by C_w^{-1/2}: the condition change is whitened
-    proj = pca.components.T @ (
-        scale[:, None] * evecs[:, :k] / jnp.sqrt(evals[:k])[None, :]
+    proj = jnp.matmul(
+        pca.components.T,
+        scale[:, None] * evecs[:, :k] / jnp.sqrt(evals[:k])[None, :],
+        precision="highest",
     )
     return linear(pca.mean, proj)
 

@@ -115,9 +115,12 @@ def _init_head(key, k: int, head: str, hidden: int) -> dict:
 
 def _head(params: dict, u: jax.Array) -> jax.Array:
     """Head applied to the closed form's output u (n, k) -> normalised (n, k)."""
-    z = u @ params["m"]
+    z = jnp.matmul(u, params["m"], precision="highest")
     if "w1" in params:
-        z = z + jax.nn.relu(z @ params["w1"] + params["b1"][None, :]) @ params["w2"]
+        h = jax.nn.relu(
+            jnp.matmul(z, params["w1"], precision="highest") + params["b1"][None, :]
+        )
+        z = z + jnp.matmul(h, params["w2"], precision="highest")
     return z / jnp.maximum(jnp.linalg.norm(z, axis=1, keepdims=True), 1e-12)
 
 
@@ -140,7 +143,7 @@ def map_episode_loss(
     w = ref.shape[0]
     labels = jnp.arange(w) + offset
     tmpl = ridge_templates(zr, targets(labels, periods), ridge)
-    s = zq @ tmpl.w + tmpl.b[None, :]
+    s = jnp.matmul(zq, tmpl.w, precision="highest") + tmpl.b[None, :]
     scale = params["scale"]
     place = place_log_scores(s, periods, labels, scale)
     loss = -jnp.mean(jnp.diagonal(jax.nn.log_softmax(place, axis=1)))
@@ -155,7 +158,7 @@ def map_episode_loss(
 def infonce_loss(params: dict, a: jax.Array, b: jax.Array, temperature: float):
     """Symmetric InfoNCE between the rows of a and b (same places), (n, k) each."""
     za, zb = _head(params, a), _head(params, b)
-    logits = za @ zb.T / temperature
+    logits = jnp.matmul(za, zb.T, precision="highest") / temperature
     idx = jnp.arange(a.shape[0])
     la = -jnp.mean(jax.nn.log_softmax(logits, axis=1)[idx, idx])
     lb = -jnp.mean(jax.nn.log_softmax(logits, axis=0)[idx, idx])
@@ -163,7 +166,7 @@ def infonce_loss(params: dict, a: jax.Array, b: jax.Array, temperature: float):
 
 
 def _fold(base: Embedding, params: dict) -> Embedding:
-    emb = linear(base.mean, base.proj @ params["m"])
+    emb = linear(base.mean, jnp.matmul(base.proj, params["m"], precision="highest"))
     if "w1" in params:
         emb = emb._replace(w1=params["w1"], b1=params["b1"], w2=params["w2"])
     return emb
@@ -279,4 +282,6 @@ def learn_embedding(
 
 def _base_out(base: Embedding, x: np.ndarray) -> np.ndarray:
     """The closed form's un-normalised output (n, k) (the head normalises)."""
-    return np.asarray((jnp.asarray(x) - base.mean[None, :]) @ base.proj)
+    return np.asarray(
+        jnp.matmul(jnp.asarray(x) - base.mean[None, :], base.proj, precision="highest")
+    )

@@ -138,7 +138,9 @@ def margin_objective(
       () the objective value; :func:`classifier_objective` is this at ``m = x w + b``.
     """
     loss = squared_hinge(m, y)
-    return 0.5 * jnp.vdot(theta, theta) + c * jnp.sum(frame_weight * loss)
+    return 0.5 * jnp.vdot(theta, theta, precision="highest") + c * jnp.sum(
+        frame_weight * loss
+    )
 
 
 def margin_objectives(
@@ -175,7 +177,9 @@ def classifier_objective(
       () the objective value.
     """
     theta = jnp.concatenate([w, jnp.reshape(b, (1,))])
-    return margin_objective(theta, x @ w + b, y, c, frame_weight)
+    return margin_objective(
+        theta, jnp.matmul(x, w, precision="highest") + b, y, c, frame_weight
+    )
 
 
 def objective(
@@ -214,7 +218,7 @@ def total_objective(
 
 def scores(params: Templates, x: jax.Array) -> jax.Array:
     """Decision values ``x @ w + b``: (n, d) -> (n, p)."""
-    return x @ params.w + params.b[None, :]
+    return jnp.matmul(x, params.w, precision="highest") + params.b[None, :]
 
 
 def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:

@@ -33,7 +33,8 @@ from rhythmic_jax.codes import (
     codebook_from_arrays,
     fit_codebook,
 )
-from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
+from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
+from rhythmic_jax.decoding.dispatch import DECODERS
 from rhythmic_jax.decoding.fusion import (
     check_weight,
     fused_decode,
@@ -338,13 +339,14 @@ class RhythmicMap:
         if self.params is None:
             raise InputError("this map is not fitted yet: call fit() or load() first")
 
-    def _queries(self, q) -> jax.Array:
-        """Checked (b, d) queries of a fitted map, as a JAX array."""
+    def _queries(self, q) -> np.ndarray:
+        """Checked (b, d) queries of a fitted map, in host memory (the bucketed
+        decodes pad them there, :mod:`rhythmic_jax.decoding.batch`)."""
         self._check_fitted()
         q = check_features(q, "queries", d=self.d)
         if self.embedding is not None:
             q = apply_embedding(self.embedding, q)
-        return jnp.asarray(q)
+        return q
 
     def scores(self, q) -> jax.Array:
         """Decision values of queries (b, d) -> (b, sum(periods))."""
@@ -389,8 +391,9 @@ class RhythmicMap:
                 return self._small_decoder()(x)
             # host BLAS product, jitted argmaxes and look-ups
             return localise(self.params, x, self.periods, self.n)
-        return decode_scores(
-            _scores(self.params, self._queries(q)),
+        return decode_queries(
+            self.params,
+            self._queries(q),
             self.groups,
             self.n,
             method or self.config.decode,
@@ -520,10 +523,9 @@ class RhythmicMap:
                 m or self.config.m,
             )
         elif sequence is not None and sequence > 1:
-            from rhythmic_jax.decoding.sequence import sequence_decode
-
-            idx, conf = sequence_decode(
-                _scores(self.params, q),
+            idx, conf = sequence_queries(
+                self.params,
+                q,
                 self.groups,
                 self.n,
                 sequence,

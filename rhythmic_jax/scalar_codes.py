@@ -56,7 +56,7 @@ def _cosine(q, codes, vmin, vdiff) -> jax.Array:
     ref = vmin[None, :] + (codes.astype(jnp.float32) + 0.5) * (vdiff / LEVELS)[None, :]
     ref = ref / jnp.maximum(jnp.linalg.norm(ref, axis=1, keepdims=True), 1e-12)
     q = q / jnp.maximum(jnp.linalg.norm(q, axis=1, keepdims=True), 1e-12)
-    return q @ ref.T
+    return jnp.matmul(q, ref.T, precision="highest")
 
 
 @dataclass(frozen=True)

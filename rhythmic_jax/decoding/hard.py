@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.decoding.buckets import head, pad_rows
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.objective import scores as decision_values
@@ -49,8 +50,16 @@ class Decoded(NamedTuple):
 
     @property
     def confidence(self) -> jax.Array:
-        """``score - runner_up`` (``inf`` without a rival, ``0`` for no match)."""
-        return jnp.where(self.index >= 0, self.score - self.runner_up, 0.0)
+        """``score - runner_up`` (``inf`` without a rival, ``0`` for no match).
+
+        Outside a trace it is computed on the host from the (b,) fields: a
+        device-side ``where`` would compile a program for every batch size."""
+        if any(isinstance(f, jax.core.Tracer) for f in self):
+            return jnp.where(self.index >= 0, self.score - self.runner_up, 0.0)
+        index, score, runner = (np.asarray(f) for f in self)
+        with np.errstate(invalid="ignore"):  # -inf - -inf of a no match
+            gap = np.where(index >= 0, score - runner, 0.0).astype(score.dtype)
+        return jax.device_put(gap)
 
 
 def check_scores(
@@ -173,7 +182,10 @@ def decode(
     numpy batch to XLA copies it first (an unaligned 16 MB batch costs more than
     the product), and the small (b, p) products are decoded by numpy where they
     lie (:func:`host_decode`), the (b,) results handed back as JAX arrays.
-    Device arrays take one jitted call.
+    Device arrays, and every batch on a GPU, take one jitted call, the batch
+    padded to a power-of-two bucket of rows
+    (:func:`rhythmic_jax.decoding.buckets.pad_rows`): a new batch size in a
+    bucket compiles nothing.
     """
     periods = tuple(int(t) for t in periods)
     if (
@@ -184,5 +196,6 @@ def decode(
     ):
         products = queries @ np.asarray(params.w)
         products += np.asarray(params.b, products.dtype)
-        return Decoded(*(jnp.asarray(f) for f in host_decode(products, periods, n)))
-    return _localise(params, jnp.asarray(queries), periods, n)
+        return Decoded(*(jax.device_put(f) for f in host_decode(products, periods, n)))
+    padded, b = pad_rows(queries)
+    return head(_localise(params, padded, periods, n), b)

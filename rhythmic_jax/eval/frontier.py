@@ -162,7 +162,9 @@ def _parts(ref, queries, cfg, cache=None):
         w32, b32, per = fitted_map(ref, r, level, cfg.gap, cache)
         for dtype in cfg.dtypes:
             w, b = dequantize(quantize(w32, b32, dtype))
-            s = np.asarray(jax.numpy.asarray(queries) @ w + b[None, :])
+            s = np.asarray(
+                jax.numpy.matmul(queries, w, precision="highest") + b[None, :]
+            )
             maps[(r, level, dtype)] = (per, s, template_bytes(sum(per), d, dtype))
         log.info("map r=%d level %d %s: %.1f s", r, level, per, _since(t))
     codes = {}
@@ -224,7 +226,9 @@ def frontier_rows(
         log.info("%s", out)
         return out
 
-    brute = np.asarray(jax.numpy.asarray(queries) @ jax.numpy.asarray(ref).T)
+    brute = np.asarray(
+        jax.numpy.matmul(queries, np.asarray(ref).T, precision="highest")
+    )
     rows = [
         row("brute force", "brute force", db, similarity_recalls(brute, lengths, tol))
     ]

@@ -54,7 +54,9 @@ def normalise_rows(a: jax.Array) -> jax.Array:
 
 def similarity(queries: jax.Array, references: jax.Array) -> jax.Array:
     """Cosine similarity matrix: queries (T, d), references (N, d) -> S (T, N)."""
-    return normalise_rows(queries) @ normalise_rows(references).T
+    return jnp.matmul(
+        normalise_rows(queries), normalise_rows(references).T, precision="highest"
+    )
 
 
 def enhance_contrast(sim: jax.Array, window: int) -> jax.Array:
@@ -120,7 +122,7 @@ def _chunk_jit(queries, valid, references, start, length, speeds, window, chunk)
     rows = length - 1 + chunk
     q = jax.lax.dynamic_slice_in_dim(queries, start, rows, axis=0)
     ok = jax.lax.dynamic_slice_in_dim(valid, start, rows, axis=0)
-    sim = q @ references.T
+    sim = jnp.matmul(q, references.T, precision="highest")
     if window is not None:
         sim = enhance_contrast(sim, window)
     sim = jnp.where(ok[:, None], sim, 0.0)

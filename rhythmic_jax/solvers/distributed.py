@@ -158,7 +158,7 @@ def _targets(labels: jax.Array, periods: tuple[int, ...]) -> jax.Array:
 @functools.partial(jax.jit, static_argnames=("periods",))
 def _wrong(w, b, x, labels, valid, periods: tuple[int, ...]) -> jax.Array:
     """(k,) frames whose argmax phase is wrong, per period (padding not counted)."""
-    s = x @ w + b[None, :]
+    s = jnp.matmul(x, w, precision="highest") + b[None, :]
     out = []
     for off, t in zip(period_offsets(periods), periods, strict=True):
         pred = jnp.argmax(s[:, off : off + t], axis=1)

@@ -178,7 +178,9 @@ REFRESH_AFTER = 20  # CG iterations after which a step's margins are recomputed
 @jax.jit
 def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
     """Margins ``Xa theta`` (n, p) from scratch: float32 product, float64 result."""
-    return (xa @ theta.astype(jnp.float32)).astype(theta.dtype)
+    return jnp.matmul(xa, theta.astype(jnp.float32), precision="highest").astype(
+        theta.dtype
+    )
 
 
 @jax.jit

@@ -254,7 +254,7 @@ def newton_cg(
         r0 = -(system.grad * system.scale).astype(system.dtype)
         s, u, it = _cg(system.hvp, system.precond, r0, eta, max_cg, system.loop)
         if u is None and design is not None:  # CG's products were rounded
-            u = design @ s
+            u = jnp.matmul(design, s, precision="highest")
         s = s.astype(dtype)
         u = None if u is None else u.astype(dtype)
         decrement = 0.5 * jnp.sum(-system.grad * s, axis=0)
@@ -311,20 +311,29 @@ def derivatives(
     # defines does not move with the order of the sum (rows split over
     # processes), as float32's did by ~1e-6
     if exact_gradient:
-        g = grad.theta + xa.T.astype(dtype) @ grad.margins
+        g = grad.theta + jnp.matmul(
+            xa.T.astype(dtype), grad.margins, precision="highest"
+        )
     else:
-        g = grad.theta + (xa.T @ grad.margins.astype(f32)).astype(dtype)
+        g = grad.theta + jnp.matmul(
+            xa.T, grad.margins.astype(f32), precision="highest"
+        ).astype(dtype)
     _, hessian = jax.linearize(jax.grad(_total(value_fn)), params)
     # The Hessian is block-diagonal in (theta, m) (a regulariser in theta, a
     # per-frame loss in m): applied to ones it gives both diagonals.
     curv = hessian(jax.tree.map(jnp.ones_like, params))
 
     def hvp(v, scale=1.0):
-        xv = jnp.dot(xh, v.astype(xh.dtype), preferred_element_type=f32)
+        xv = jnp.dot(
+            xh, v.astype(xh.dtype), precision="highest", preferred_element_type=f32
+        )
         h = hessian(Iterate(v.astype(dtype), xv.astype(dtype)))
         scale = jnp.asarray(scale, dtype)
         loss = jnp.dot(
-            xht, (h.margins * scale).astype(xht.dtype), preferred_element_type=f32
+            xht,
+            (h.margins * scale).astype(xht.dtype),
+            precision="highest",
+            preferred_element_type=f32,
         )
         hv = loss + h.theta.astype(f32) * scale.astype(f32)
         return hv, xv if rounded is None else None

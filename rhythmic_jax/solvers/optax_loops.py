@@ -134,13 +134,15 @@ def ridge_start(x: jax.Array, y: jax.Array, c: float) -> Templates:
     xa = jnp.concatenate([x, jnp.ones((n, 1), x.dtype)], axis=1)
     lam = 0.5 / c
     if in_span(n, d):
-        g = xa @ xa.T
+        g = jnp.matmul(xa, xa.T, precision="highest")
         alpha = jax.scipy.linalg.solve(g + lam * jnp.eye(n), y, assume_a="pos")
-        theta = xa.T @ alpha
+        theta = jnp.matmul(xa.T, alpha, precision="highest")
     else:
-        g = xa.T @ xa
+        g = jnp.matmul(xa.T, xa, precision="highest")
         theta = jax.scipy.linalg.solve(
-            g + lam * jnp.eye(d + 1), xa.T @ y, assume_a="pos"
+            g + lam * jnp.eye(d + 1),
+            jnp.matmul(xa.T, y, precision="highest"),
+            assume_a="pos",
         )
     return Templates(w=theta[:-1], b=theta[-1])
 

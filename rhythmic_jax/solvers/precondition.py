@@ -39,17 +39,23 @@ def top_eigen(gram: jax.Array, k: int, iters: int, key: jax.Array):
     q = gram.shape[0]
     basis = jax.random.normal(key, (q, k), gram.dtype)
     for _ in range(iters):
-        basis, _ = jnp.linalg.qr(gram @ basis)
-    vals, small = jnp.linalg.eigh(basis.T @ gram @ basis)
-    return (basis @ small)[:, ::-1], jnp.maximum(vals[::-1], 0.0)
+        basis, _ = jnp.linalg.qr(jnp.matmul(gram, basis, precision="highest"))
+    vals, small = jnp.linalg.eigh(
+        jnp.matmul(
+            basis.T, jnp.matmul(gram, basis, precision="highest"), precision="highest"
+        )
+    )
+    return jnp.matmul(basis, small, precision="highest")[:, ::-1], jnp.maximum(
+        vals[::-1], 0.0
+    )
 
 
 @partial(jax.jit, static_argnames=("rank", "iters"))
 def spectral_setup(xa: jax.Array, rank: int, iters: int, key: jax.Array):
     """Leading eigenvectors ``V`` (q, k) of ``Xa^T Xa``, ``F = Xa V`` (n, k), and
     each frame's squared norm outside them, ``||xa_i||^2 - ||F_i||^2`` (n,)."""
-    vecs, _ = top_eigen(xa.T @ xa, rank, iters, key)
-    lead = xa @ vecs
+    vecs, _ = top_eigen(jnp.matmul(xa.T, xa, precision="highest"), rank, iters, key)
+    lead = jnp.matmul(xa, vecs, precision="highest")
     return vecs, lead, outside_norms(xa, lead)
 
 
@@ -68,8 +74,10 @@ def in_basis(vecs: jax.Array, inside, tail: jax.Array):
     ``apply`` mapping (q, p) -> (q, p)."""
 
     def apply(v):
-        coef = vecs.T @ v
-        return vecs @ (inside(coef) - coef / tail) + v / tail
+        coef = jnp.matmul(vecs.T, v, precision="highest")
+        return (
+            jnp.matmul(vecs, inside(coef) - coef / tail, precision="highest") + v / tail
+        )
 
     return apply
 
@@ -87,11 +95,13 @@ def block_preconditioner(vecs, lead, rest, mask, lam, block):
     n, k = lead.shape
     q = vecs.shape[0]
     kb = min(block, k)
-    diag = lam + (lead * lead).T @ mask  # (k, p)
-    tail = lam + (rest[None, :] @ mask) / max(q - k, 1)  # (1, p)
+    diag = lam + jnp.matmul((lead * lead).T, mask, precision="highest")  # (k, p)
+    tail = lam + jnp.matmul(rest[None, :], mask, precision="highest") / max(
+        q - k, 1
+    )  # (1, p)
     top = lead[:, :kb]
     outer = (top[:, :, None] * top[:, None, :]).reshape(n, kb * kb)
-    blocks = (outer.T @ mask).T.reshape(-1, kb, kb)
+    blocks = jnp.matmul(outer.T, mask, precision="highest").T.reshape(-1, kb, kb)
     chol = jnp.linalg.cholesky(blocks + lam * jnp.eye(kb, dtype=lead.dtype)[None])
 
     def inside(coef):  # (k, p)

@@ -186,26 +186,28 @@ def _curvature(xa, h, vecs):
     when ``vecs`` is None; else its diagonal in the basis ``vecs`` (q, k) (k,
     p) and its trace outside that basis (p,)."""
     if vecs is None:
-        return (xa * xa).T @ h
-    lead = xa @ vecs
-    return (lead * lead).T @ h, outside_norms(xa, lead) @ h
+        return jnp.matmul((xa * xa).T, h, precision="highest")
+    lead = jnp.matmul(xa, vecs, precision="highest")
+    return jnp.matmul((lead * lead).T, h, precision="highest"), jnp.matmul(
+        outside_norms(xa, lead), h, precision="highest"
+    )
 
 
 @partial(jax.jit, static_argnames=("periods",))
 def _gram_pass(xa, labels, periods):
     """``Xa^T Xa`` (q, q) of one block (padding rows are zero)."""
     del labels, periods
-    return xa.T @ xa
+    return jnp.matmul(xa.T, xa, precision="highest")
 
 
 def _block_sums(xa, labels, theta, c, vecs, periods, cols):
     """:func:`_grad_pass`'s sums of one block, and the loss's curvature h (B, p)
     at its margins."""
-    m = xa @ theta
+    m = jnp.matmul(xa, theta, precision="highest")
     grad = _loss_grad(labels, periods, c, cols)
     dm, h = jax.jvp(grad, (m,), (jnp.ones_like(m),))
     loss = _block_loss(m, labels, periods, c, cols)
-    return (loss, xa.T @ dm, _curvature(xa, h, vecs)), h
+    return (loss, jnp.matmul(xa.T, dm, precision="highest"), _curvature(xa, h, vecs)), h
 
 
 @partial(jax.jit, static_argnames=("periods",))
@@ -237,17 +239,21 @@ def _hess_kept(xa, bits, v, top, periods, cols=None):
     columns (``cols`` only names them)."""
     del periods, cols
     on = jnp.unpackbits(bits, axis=1, count=v.shape[1]).astype(v.dtype)
-    return xa.T @ (on * top[None, :] * (xa @ v))
+    return jnp.matmul(
+        xa.T,
+        on * top[None, :] * jnp.matmul(xa, v, precision="highest"),
+        precision="highest",
+    )
 
 
 @partial(jax.jit, static_argnames=("periods",))
 def _hess_pass(xa, labels, theta, v, c, periods, cols=None):
     """``Xa^T (h * Xa v)`` (q, p) over one block: the loss's Hessian in theta
     applied to v, by linearising its gradient at the block's margins."""
-    both = xa @ jnp.concatenate([theta, v], axis=1)
+    both = jnp.matmul(xa, jnp.concatenate([theta, v], axis=1), precision="highest")
     p = theta.shape[1]
     _, hessian = jax.linearize(_loss_grad(labels, periods, c, cols), both[:, :p])
-    return xa.T @ hessian(both[:, p:])
+    return jnp.matmul(xa.T, hessian(both[:, p:]), precision="highest")
 
 
 @partial(jax.jit, static_argnames=("periods",))
@@ -260,7 +266,7 @@ def _line_pass(xa, labels, theta, s, ts, c, periods, cols=None):
     ``m + t u`` and its product with u (one ``jax.jvp`` of the gradient), summed
     over the block's frames per template; 1.5x cheaper than differentiating
     ``phi_b`` in t twice."""
-    both = xa @ jnp.concatenate([theta, s], axis=1)
+    both = jnp.matmul(xa, jnp.concatenate([theta, s], axis=1), precision="highest")
     p = theta.shape[1]
     m, u = both[:, :p], both[:, p:]
     grad = _loss_grad(labels, periods, c, cols)
@@ -615,7 +621,7 @@ def _line_search(stream, th32, theta, s, c, grad, cols=None) -> np.ndarray:
 @partial(jax.jit, static_argnames=("periods",))
 def _wrong_pass(xa, labels, w, periods):
     """(k,) frames of a block whose argmax phase is wrong, per period."""
-    s = xa @ w
+    s = jnp.matmul(xa, w, precision="highest")
     out = []
     for off, t in zip(period_offsets(periods), periods, strict=True):
         pred = jnp.argmax(s[:, off : off + t], axis=1)
