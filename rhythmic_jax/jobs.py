@@ -56,9 +56,12 @@ __all__ = [
     "fit_summary",
     "FitInterrupted",
     "FitJob",
+    "embedding_info",
+    "fusion_of",
     "info",
     "info_lines",
     "learn",
+    "learn_fusion",
     "learn_summary",
     "LearnJob",
     "learn_config",
@@ -452,7 +455,8 @@ def learn_config(**settings) -> Any:
 
 
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
-    """Learn, save and return ``(embedding, info)`` of ``job``."""
+    """Learn, save and return ``(embedding, info)`` of ``job``; with ``job.codes``
+    also the fusion weight for them (``info["fusion"]``, saved beside it)."""
     from rhythmic_jax.embedding import save_embedding
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.sources import load_sources
