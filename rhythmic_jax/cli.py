@@ -60,7 +60,10 @@ EXAMPLES = {
       rhythmic-jax learn summer_train.npy winter_train.npy --out route.emb
       rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \
           --method invariant
+      rhythmic-jax info route.emb    (its descriptor and learned fusion weight)
       rhythmic-jax fit summer_test.npy --embedding route.emb --out route.map
+      rhythmic-jax fit summer_test/ --embedding route.emb --codes int8 --out route.map
+        (the embedding's descriptor and the fusion weight it learned for int8)
     """,
     "query": """
       rhythmic-jax query route.map queries.npy --out pred.npy
@@ -534,8 +537,9 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--fusion",
-        default=0.5,
-        help="the map's share of the fused score with --codes (0.5)",
+        default=None,
+        help="the map's share of the fused score with --codes (default: the weight "
+        "the --embedding learned for these codes, else 0.5)",
     )
     _add_source_options(p)
 
@@ -543,7 +547,7 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
         "--embedding",
         default=None,
         help="embedding folder written by 'rhythmic-jax learn' (saved in the map "
-        "and applied to every query)",
+        "and applied to every query; its descriptor unless --descriptor is given)",
     )
 
     p = add(
@@ -563,6 +567,13 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     p.add_argument("--k", default=256, help="output dimensions (256)")
     p.add_argument("--steps", default=300, help="gradient steps (300)")
     p.add_argument("--seed", default=0, help="PRNG seed (0)")
+    p.add_argument(
+        "--codes",
+        default="int8",
+        metavar="BITS|int8",
+        help="codes a map's fusion weight is learned for on these traversals and "
+        "saved with the embedding for fit --embedding (int8)",
+    )
     _add_source_options(p)
 
     p = add("query", "localise queries against a map (-1 = no match)")
@@ -583,8 +594,11 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print predictions as JSON")
     _add_source_options(p)
 
-    p = add("info", "describe a map: n, d, periods, storage, candidate errors")
-    p.add_argument("map", help="map folder")
+    p = add(
+        "info",
+        "describe a map (n, d, periods, storage, candidate errors) or an embedding",
+    )
+    p.add_argument("map", help="map folder (or embedding folder)")
     p.add_argument("--json", action="store_true", help="print JSON")
 
     p = add("evaluate", "accuracy, recall@K, storage and latency beside brute force")
@@ -698,7 +712,7 @@ def _cmd_learn(args) -> int:
     config = jobs.learn_config(
         method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
     )
-    job = LearnJob(tuple(args.sources), args.out, config, _reading(args))
+    job = LearnJob(tuple(args.sources), args.out, config, _reading(args), args.codes)
     emb, info = jobs.learn(job, progress=not args.no_progress)
     print(jobs.learn_summary(args.out, emb, info))
     return 0

@@ -57,9 +57,12 @@ __all__ = [
     "fit_summary",
     "FitInterrupted",
     "FitJob",
+    "embedding_info",
+    "fusion_of",
     "info",
     "info_lines",
     "learn",
+    "learn_fusion",
     "learn_summary",
     "LearnJob",
     "learn_config",
@@ -111,7 +114,9 @@ class FitJob:
     places by k-means over them (the RobotCar protocol; traversals may then
     differ in length). ``embedding`` names a folder written by :func:`learn`: it
     is saved inside the map and applied to every query (with ``codes``, ITQ is
-    fitted on the embedded reference frames).
+    fitted on the embedded reference frames); image sources are described with
+    its descriptor unless ``reading`` names one, and ``fusion`` None takes the
+    weight it learned for these codes (else 0.5, the weight without one).
     """
 
     sources: tuple[str, ...]
@@ -130,7 +135,7 @@ class FitJob:
     checkpoint: str | None = None
     checkpoint_every: int = 50
     codes: int | None = None
-    fusion: float = 0.5
+    fusion: float | None = None
     reading: Reading = Reading()
     dtype: str = "float32"
     positions: tuple[str, ...] | None = None
@@ -254,6 +259,8 @@ def fit(job: FitJob, progress: bool = False):
     check_sources_memory(job.sources, job.r, job.level, job.count)
     if job.places is not None and job.positions is None:
         raise InputError("{opt:places} groups frames by their {opt:positions}")
+    learned = _load_embedding(job.embedding)  # before describing: its descriptor
+    read = _reading_of_embedding(read, learned, job.sources)
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
@@ -262,12 +269,13 @@ def fit(job: FitJob, progress: bool = False):
     if job.positions is not None:
         feats = _with_positions(feats, job)
     _check_map_space(job, feats)  # the size is known now: say so before the solve
+    fusion = fusion_of(job.fusion, job.codes, learned and learned[1])
     model = RhythmicMap(
         r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
         gap=job.gap, layout=job.layout, descriptor=feats.descriptor,
         descriptor_settings=feats.settings, dtype=job.dtype,
-        codes=job.codes, fusion=job.fusion,
-        embedding=_embedding_for(job.embedding, feats),
+        codes=job.codes, fusion=fusion["weight"],
+        embedding=_embedding_for(job.embedding, learned, feats),
     )  # fmt: skip
     dim = feats.x.shape[1] if model.embedding is None else model.embedding.k
     if isinstance(job.codes, int) and job.codes > dim:
@@ -285,6 +293,11 @@ def fit(job: FitJob, progress: bool = False):
         "tile": read.tile,
         "stride": read.stride,
     }
+    if job.embedding is not None:
+        model.reference["embedding"] = str(Path(job.embedding).expanduser().absolute())
+        model.reference["descriptor_from_embedding"] = read != job.reading
+    if job.codes is not None:
+        model.reference["fusion"] = fusion
     model.save(job.out)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
@@ -314,13 +327,61 @@ def _with_positions(feats, job: FitJob):
     return dataclasses.replace(feats, labels=labels, extra=extra)
 
 
-def _embedding_for(path: str | None, feats):
-    """The embedding of ``fit --embedding``, checked against the features."""
+def _load_embedding(path: str | None):
+    """``(embedding, meta)`` of ``fit --embedding``, or None without one."""
     if path is None:
         return None
     from rhythmic_jax.embedding import load_embedding
 
-    emb, meta = load_embedding(path)
+    return load_embedding(path)
+
+
+def _reading_of_embedding(read: Reading, learned, sources) -> Reading:
+    """``read`` with the embedding's descriptor (and weights) when it names none
+    and the sources are images (.npy files are descriptors already)."""
+    import dataclasses
+
+    if learned is None or read.descriptor is not None:
+        return read
+    meta = learned[1]
+    name = meta.get("descriptor")
+    if name in (None, "features") or all(
+        str(s).lower().endswith(".npy") for s in sources
+    ):
+        return read
+    weights = read.weights or (meta.get("descriptor_settings") or {}).get("weights")
+    return dataclasses.replace(read, descriptor=name, weights=weights)
+
+
+def fusion_of(option: float | None, codes, meta: dict | None) -> dict[str, Any]:
+    """The map's share of the fused score and where it comes from: ``option``
+    when given, else the weight an embedding's ``meta`` learned for ``codes``,
+    else 0.5. Returns ``{"weight": w, "from": "option" | "embedding" |
+    "default", "note": why}``."""
+    if option is not None:
+        return {"weight": option, "from": "option", "note": "given with --fusion"}
+    learned = (meta or {}).get("fusion")
+    if meta is None:
+        note = "no embedding"
+    elif not learned:
+        note = "the embedding holds no learned weight (saved before learn kept one)"
+    elif learned.get("codes") != codes:
+        note = f"the embedding's weight was learned for {learned.get('codes')} codes"
+    else:
+        return {
+            "weight": float(learned["weight"]),
+            "from": "embedding",
+            "note": f"learned with the embedding for {codes} codes: R@1 "
+            f"{learned['recall']:.3f} on its {learned['places']} training places",
+        }
+    return {"weight": 0.5, "from": "default", "note": note}
+
+
+def _embedding_for(path: str | None, learned, feats):
+    """The embedding of ``fit --embedding``, checked against the features."""
+    if learned is None:
+        return None
+    emb, meta = learned
     if meta.get("descriptor") != feats.descriptor:
         raise InputError(
             f"{{opt:embedding}} {path}: learned on {meta.get('descriptor')!r} "
@@ -341,13 +402,59 @@ class LearnJob:
 
     ``rhythmic-jax learn a.npy b.npy --out route.emb`` is
     ``learn(LearnJob(("a.npy", "b.npy"), "route.emb"))``; ``config`` is a
-    :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed).
+    :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed). ``codes``
+    (a number of ITQ bits, or int8; None: none) are those a map's fusion weight
+    is learned for on the same traversals (:func:`learn_fusion`), saved with
+    the embedding for ``fit --embedding``.
     """
 
     sources: tuple[str, ...]
     out: str
     config: Any = None
     reading: Reading = Reading()
+    codes: int | str | None = "int8"
+
+
+FUSION_TOLERANCE = 1  # places: a match within one place counts, as in the reports
+
+
+def learn_fusion(traversals, emb, codes="int8") -> dict[str, Any]:
+    """The map's share ``w`` of the fused score, learned on training traversals.
+
+    For each traversal a map of the default settings (:class:`MapConfig`) with
+    ``codes`` is fitted on its embedded frames and queried with every other
+    traversal; ``w`` is the weight of the best recall@1 (within
+    ``FUSION_TOLERANCE`` places) averaged over those pairs, ties nearest 0.5
+    (:func:`rhythmic_jax.decoding.fusion.learn_weight`). traversals: two or
+    more (n, d) arrays, row i = place i. Returns ``{"weight", "codes",
+    "recall", "places", "table": [[w, recall@1], ...], "seconds"}``.
+    """
+    import time
+
+    from rhythmic_jax.decoding.fusion import learn_weight
+    from rhythmic_jax.embedding import apply
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    t0 = time.perf_counter()
+    n = len(traversals[0])
+    gt, tables = np.arange(n), []
+    for a, ref in enumerate(traversals):
+        m = RhythmicMap(embedding=emb, codes=codes).fit(ref, progress=False)
+        for b, qry in enumerate(traversals):
+            if a != b:
+                sims = m.codebook.similarity(apply(emb, qry))
+                _, table = learn_weight(
+                    m.scores(qry), sims, m.periods, m.n, gt, FUSION_TOLERANCE
+                )
+                tables.append(table)
+    mean = {w: float(np.mean([t[w] for t in tables])) for w in tables[0]}
+    best = max(mean.values())
+    w = min((w for w, r in mean.items() if r == best), key=lambda w: abs(w - 0.5))
+    return {
+        "weight": w, "codes": codes, "recall": best, "places": n,
+        "table": [[k, r] for k, r in mean.items()],
+        "seconds": time.perf_counter() - t0,
+    }  # fmt: skip
 
 
 def learn_config(**settings) -> Any:
@@ -358,7 +465,8 @@ def learn_config(**settings) -> Any:
 
 
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
-    """Learn, save and return ``(embedding, info)`` of ``job``."""
+    """Learn, save and return ``(embedding, info)`` of ``job``; with ``job.codes``
+    also the fusion weight for them (``info["fusion"]``, saved beside it)."""
     from rhythmic_jax.embedding import save_embedding
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.sources import load_sources
@@ -367,18 +475,32 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     check_target(job.out)
     if len(job.sources) < 2:
         raise InputError("learn needs two or more traversals of the training route")
+    bits = isinstance(job.codes, int) and not isinstance(job.codes, bool)
+    if job.codes not in (None, "int8") and not (bits and job.codes >= 1):
+        raise InputError(
+            f"{{opt:codes}} must be a number of bits >= 1 or int8, got {job.codes}"
+        )
+    config = job.config or LearnConfig()
+    if bits and job.codes > config.k:
+        raise InputError(
+            f"{{opt:codes}} {job.codes}: at most k={config.k} bits (the embedding's "
+            "dimension)"
+        )
     read = job.reading
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, keep_images=False,
     )  # fmt: skip
     traversals = np.split(feats.x, len(job.sources))
-    emb, info = learn_embedding(traversals, job.config or LearnConfig())
+    emb, info = learn_embedding(traversals, config)
+    if job.codes is not None:
+        info["fusion"] = learn_fusion(traversals, emb, job.codes)
     meta = dict(
         descriptor=feats.descriptor,
         descriptor_settings=feats.settings,
-        learn={k: v for k, v in info.items() if k != "val_loss"},
+        learn={k: v for k, v in info.items() if k not in ("val_loss", "fusion")},
         sources=[str(Path(s).expanduser().absolute()) for s in job.sources],
+        fusion=info.get("fusion"),
     )
     save_embedding(job.out, emb, meta)
     info["traversals"] = len(job.sources)
@@ -386,12 +508,19 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
 
 
 def learn_summary(out: str, emb, info: dict[str, Any]) -> str:
-    """One line about a saved embedding."""
-    return (
+    """One line about a saved embedding (and the fusion weight learned with it)."""
+    line = (
         f"embedding {out}: {emb.kind} {emb.d} -> {emb.k} dims, "
         f"{info['seconds']:.1f} s on {info['places']} places x "
         f"{info['traversals']} traversals"
     )
+    fusion = info.get("fusion")
+    if fusion:
+        line += (
+            f"; fusion {fusion['weight']:g} for {fusion['codes']} codes (R@1 "
+            f"{fusion['recall']:.3f} on the training places, {fusion['seconds']:.1f} s)"
+        )
+    return line
 
 
 def fit_summary(out: str, info: dict[str, Any]) -> str:
@@ -494,6 +623,8 @@ def info(map_path: str) -> dict[str, Any]:
     from rhythmic_jax.io.checkpoint import arrays_listed, read_metadata
 
     folder, meta = read_metadata(map_path)
+    if meta.get("kind") == "embedding":
+        return embedding_info(meta)
     if _consistent(meta, arrays_listed(folder)):
         return {key: meta[key] for key in INFO_KEYS} | {
             "codes_kind": meta.get("codes_kind")
@@ -503,11 +634,23 @@ def info(map_path: str) -> dict[str, Any]:
     return RhythmicMap.load(map_path).info()
 
 
+def embedding_info(meta: dict[str, Any]) -> dict[str, Any]:
+    """What an embedding folder holds (written by :func:`learn`), from its
+    metadata: kind, dimensions, descriptor, how it was learned and the fusion
+    weight learned with it (None in one written before the weight was kept)."""
+    keys = ("kind", "head", "d", "k", "descriptor", "descriptor_settings", "learn",
+            "sources")  # fmt: skip
+    return {key: meta.get(key) for key in keys} | {"fusion": meta.get("fusion")}
+
+
 def info_lines(info: dict[str, Any]) -> str:
     """The text form of :func:`info`: one setting a line, then each candidate."""
+    if info.get("kind") == "embedding":
+        return _embedding_lines(info)
     keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
             "compression_ratio", "c")  # fmt: skip
     lines = [f"{key:>18}: {info[key]}" for key in keys]
+    lines += _learned_lines(info)
     st = info["storage"]
     lines += [
         f"{'storage fixed':>18}: {st['fixed']:,} B (code transform)",
@@ -522,6 +665,51 @@ def info_lines(info: dict[str, Any]) -> str:
         for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)
     ]
     return "\n".join(lines)
+
+
+def _embedding_lines(info: dict[str, Any]) -> str:
+    learned = info.get("learn") or {}
+    method = (learned.get("config") or {}).get("method")
+    lines = [
+        f"{'embedding':>18}: {info['head']} {info['d']} -> {info['k']} dims"
+        + (f", {method} on {learned.get('places')} places" if method else ""),
+        f"{'descriptor':>18}: {info['descriptor']} "
+        + (
+            "(descriptor files: fit --embedding takes .npy)"
+            if info["descriptor"] == "features"
+            else "(fit --embedding describes images with it)"
+        ),
+    ]
+    fusion = info.get("fusion")
+    if fusion:
+        line = (
+            f"{fusion['weight']:g} for {fusion['codes']} codes (R@1 "
+            f"{fusion['recall']:.3f} on the training places; fit --embedding "
+            f"--codes {fusion['codes']} uses it)"
+        )
+    else:
+        line = "none learned (saved before learn kept one): maps fuse at 0.5"
+    lines.append(f"{'fusion':>18}: {line}")
+    return "\n".join(lines)
+
+
+def _learned_lines(info: dict[str, Any]) -> list[str]:
+    """Where a map's embedding, descriptor and fusion weight came from (the
+    fusion line only with codes; maps saved before say only what they hold)."""
+    ref, lines = info.get("reference") or {}, []
+    if ref.get("embedding"):
+        taken = (
+            f"; descriptor {info['descriptor']} taken from it"
+            if ref.get("descriptor_from_embedding")
+            else ""
+        )
+        lines.append(f"{'embedding from':>18}: {ref['embedding']}{taken}")
+    if info.get("codes_bits"):
+        w = (info.get("config") or {}).get("fusion")
+        fusion = ref.get("fusion")
+        how = f" ({fusion['from']}: {fusion['note']})" if fusion else ""
+        lines.append(f"{'fusion':>18}: {w:g}{how}")
+    return lines
 
 
 def evaluate(

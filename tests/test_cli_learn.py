@@ -59,3 +59,53 @@ def test_learn_fit_query_evaluate_from_another_directory(tmp_path):
                          cwd=work, env=env))  # fmt: skip
     assert ev["methods"]["map"]["accuracy"] == np.mean(pred == gt)
     assert ev["methods"]["map"]["embedding_bytes"] == info["embedding_bytes"]
+
+
+@pytest.mark.slow  # a learn and two fits of hog descriptors: about 2 min on 2 cores
+def test_fit_takes_the_descriptor_and_fusion_weight_from_the_embedding(
+    tmp_path, capsys
+):
+    """Learned on hog descriptors, the embedding makes ``fit FOLDER --embedding``
+    describe with hog (not the default patchnorm) and fuse with its weight;
+    ``--fusion`` still wins; ``info`` says where each came from."""
+    from skimage import data as skdata
+    from skimage.io import imsave
+    from skimage.transform import resize
+
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.cli import main
+    from rhythmic_jax.embedding import load_embedding
+
+    photo = resize(skdata.astronaut(), (96, 640), anti_aliasing=True)
+    frames = [(photo[:, 8 * i : 8 * i + 64] * 255).astype(np.uint8) for i in range(72)]
+    rng = np.random.default_rng(0)
+    for name, gain in (("a", 1.0), ("b", 0.6)):
+        (tmp_path / name).mkdir()
+        for i, f in enumerate(frames):
+            f = f * gain + 20 * rng.normal(size=f.shape)
+            img = np.clip(f, 0, 255).astype(np.uint8)
+            imsave(tmp_path / name / f"frame{i:02d}.png", img, check_contrast=False)
+
+    def cli(*argv):
+        code = main([*argv, "--no-progress"] if argv[0] != "info" else list(argv))
+        out, err = capsys.readouterr()
+        assert code == 0, err
+        return out
+
+    emb = str(tmp_path / "e")
+    cli("learn", str(tmp_path / "a"), str(tmp_path / "b"), "--descriptor", "hog",
+        "--k", "16", "--out", emb)  # fmt: skip
+    meta = load_embedding(emb)[1]
+    w = meta["fusion"]["weight"]
+    assert meta["descriptor"] == "hog" and meta["fusion"]["codes"] == "int8"
+    cli("fit", str(tmp_path / "a"), "--embedding", emb, "--codes", "int8",
+        "--out", str(tmp_path / "m"))  # fmt: skip
+    m = RhythmicMap.load(tmp_path / "m")
+    assert m.config.descriptor == "hog" and m.config.fusion == w
+    text = cli("info", str(tmp_path / "m"))
+    assert "descriptor hog taken from it" in text
+    assert f"fusion: {w:g} (embedding: learned with the embedding" in text
+    cli("fit", str(tmp_path / "a"), "--embedding", emb, "--codes", "int8",
+        "--fusion", "0.8", "--out", str(tmp_path / "m2"))  # fmt: skip
+    assert RhythmicMap.load(tmp_path / "m2").config.fusion == 0.8
+    assert "fusion: 0.8 (option" in cli("info", str(tmp_path / "m2"))

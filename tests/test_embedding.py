@@ -129,3 +129,89 @@ def test_invariant_embedding_is_finite_with_few_training_frames():
     assert np.isfinite(apply(emb, a)).all()
     with pytest.raises(InputError, match="principal axes"):
         fit_invariant([a, b], k=250, p=512)
+
+
+def test_fusion_weight_of_an_option_an_embedding_or_the_default():
+    """--fusion wins; else the weight the embedding learned for these codes; an
+    embedding saved before (no weight) or for other codes: 0.5, said why."""
+    from rhythmic_jax.jobs import fusion_of
+
+    learned = {"descriptor": "features", "fusion": {
+        "weight": 0.15, "codes": "int8", "recall": 0.9, "places": 120}}  # fmt: skip
+    got = fusion_of(None, "int8", learned)
+    assert got["weight"] == 0.15 and got["from"] == "embedding"
+    assert "120 training places" in got["note"]
+    assert fusion_of(0.7, "int8", learned) == {
+        "weight": 0.7, "from": "option", "note": "given with --fusion"}  # fmt: skip
+    other = fusion_of(None, 64, learned)
+    assert other["weight"] == 0.5 and "learned for int8 codes" in other["note"]
+    old = fusion_of(None, "int8", {"descriptor": "features"})
+    assert old["weight"] == 0.5 and "no learned weight" in old["note"]
+    assert fusion_of(None, None, None)["from"] == "default"
+
+
+def test_an_embedding_saved_without_a_weight_loads_and_gives_its_descriptor(
+    tmp_path,
+):
+    from rhythmic_jax.jobs import (
+        Reading,
+        _reading_of_embedding,
+        fusion_of,
+        info,
+        info_lines,
+    )
+
+    a, b = two_conditions(n=120)
+    emb = fit_invariant([a, b], k=8, p=16)
+    settings = {"weights": "/w/vgg.pth"}
+    meta = {"descriptor": "vgg16_fc7", "descriptor_settings": settings}
+    save_embedding(tmp_path / "e", emb, meta)  # as learn wrote them before
+    back, meta = load_embedding(tmp_path / "e")
+    assert "fusion" not in meta and fusion_of(None, "int8", meta)["weight"] == 0.5
+    folder = str(tmp_path)
+    taken = _reading_of_embedding(Reading(), (back, meta), [folder])
+    assert taken.descriptor == "vgg16_fc7" and taken.weights == "/w/vgg.pth"
+    given = Reading(descriptor="hog")
+    assert _reading_of_embedding(given, (back, meta), [folder]) is given
+    assert _reading_of_embedding(Reading(), (back, meta), ["x.npy"]) == Reading()
+    assert _reading_of_embedding(Reading(), None, [folder]) == Reading()
+    described = info(str(tmp_path / "e"))  # info says it, without loading JAX arrays
+    assert described["kind"] == "embedding" and described["fusion"] is None
+    text = info_lines(described)
+    assert "8 dims" in text and "vgg16_fc7 (fit --embedding describes" in text
+    assert "none learned (saved before learn kept one): maps fuse at 0.5" in text
+    fusion = {"weight": 0.1, "codes": "int8", "recall": 0.75, "places": 120}
+    save_embedding(tmp_path / "new", emb, {**meta, "fusion": fusion})
+    text = info_lines(info(str(tmp_path / "new")))
+    assert "fusion: 0.1 for int8 codes (R@1 0.750 on the training places" in text
+
+
+@pytest.mark.slow  # learning the weight (two map fits) and three fits: about 2 min
+def test_learn_stores_the_fusion_weight_and_fit_uses_it(tmp_path):
+    from test_learn import noisy_conditions
+
+    from rhythmic_jax import jobs
+
+    a, b = noisy_conditions(n=300)
+    for name, x in (("a", a[:150]), ("b", b[:150]), ("test", a[150:])):
+        np.save(tmp_path / f"{name}.npy", x)
+    src = lambda *names: tuple(str(tmp_path / f"{s}.npy") for s in names)  # noqa: E731
+    config = jobs.learn_config(method="invariant", k=24)
+    emb, info = jobs.learn(jobs.LearnJob(src("a", "b"), str(tmp_path / "e"), config))
+    _, meta = load_embedding(tmp_path / "e")
+    w = meta["fusion"]["weight"]
+    assert meta["fusion"] == pytest.approx(info["fusion"]) and w < 0.5
+    assert meta["descriptor"] == "features" and meta["fusion"]["codes"] == "int8"
+    assert f"fusion {w:g} for int8 codes" in jobs.learn_summary("e", emb, info)
+
+    def fitted(name, **kw):
+        job = jobs.FitJob(src("test"), str(tmp_path / name), codes="int8", **kw)
+        return jobs.fit(job), jobs.info_lines(jobs.info(str(tmp_path / name)))
+
+    m, text = fitted("m", embedding=str(tmp_path / "e"))
+    assert m.config.fusion == w and f"fusion: {w:g} (embedding: learned" in text
+    assert f"embedding from: {tmp_path / 'e'}" in text
+    m, text = fitted("given", embedding=str(tmp_path / "e"), fusion=0.7)
+    assert m.config.fusion == 0.7 and "fusion: 0.7 (option" in text
+    m, text = fitted("plain")
+    assert m.config.fusion == 0.5 and "(default: no embedding)" in text

@@ -58,3 +58,37 @@ def test_pca_method_is_the_principal_axes_of_every_traversal():
     got = apply(emb, a)
     sign = np.sign(np.sum(got * z, axis=0))
     np.testing.assert_allclose(got * sign, z, atol=2e-4)
+
+
+def noisy_conditions(n=180, noise=1.0):
+    """Two conditions where the codes of the embedded frames beat the map alone."""
+    a, b = two_conditions(n=n, strength=4.0, seed=5)
+    rng = np.random.default_rng(1)
+    a = a + noise * rng.normal(size=a.shape).astype(np.float32)
+    b = b + noise * rng.normal(size=b.shape).astype(np.float32)
+    return a, b
+
+
+@pytest.mark.slow  # three map fits with codes: about 60 s on 2 cores
+def test_fusion_weight_is_the_best_recall_of_the_fused_map_on_the_traversals():
+    """learn_fusion's table is the recall@1 (within one place) of a map with codes
+    fitted on one traversal and queried with the other, averaged both ways; its
+    weight is the best of that table, below 0.5 where the codes are stronger."""
+    from rhythmic_jax.embedding import fit_invariant
+    from rhythmic_jax.jobs import learn_fusion
+
+    a, b = noisy_conditions()
+    emb = fit_invariant([a, b], k=40, p=80)
+    got = learn_fusion([a, b], emb, "int8")
+    table = dict(got["table"])
+    assert got["codes"] == "int8" and got["places"] == 180 and len(table) == 21
+    assert table[got["weight"]] == got["recall"] == max(table.values())
+    assert got["weight"] < 0.5 and table[got["weight"]] > table[1.0] + 0.3
+    gt = np.arange(180)
+    for w in (got["weight"], 0.5):
+        both = []
+        for ref, qry in ((a, b), (b, a)):
+            m = RhythmicMap(embedding=emb, codes="int8", fusion=w)
+            pred = m.fit(ref, progress=False).predict(qry, "soft")
+            both.append(np.mean(np.abs(pred - gt) <= 1))
+        assert table[w] == pytest.approx(np.mean(both)), w
