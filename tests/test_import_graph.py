@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 
 LAYERS = [
     ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span",
-     "progress"],
+     "progress", "decoding.buckets"],
     ["validate", "solvers.precision", "quantize", "cache_files"],
     ["scalar_codes", "jit_cache"],
     [
@@ -40,7 +40,7 @@ LAYERS = [
     ],
     ["decoding.group_decode", "solvers.protocol"],
     ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
-    ["decoding.fusion"],
+    ["decoding.fusion", "decoding.batch"],
     [
         "rhythmic_map", "eval.seqslam", "eval.outliers", "eval.report",
         "augment.stream",

@@ -176,7 +176,7 @@ def test_newton_steps_state_their_precision(monkeypatch, config):
     with recorded(monkeypatch) as seen:
         newton_fit(x, y, 2.0, config)
     names = {name.rsplit(".", 1)[-1] for name, _ in seen}
-    assert "_newton_step" in names and "spectral_setup" in names, names
+    assert "_newton_step" in names and "_spectral" in names, names
     _assert_stated(seen)
 
 
