@@ -1,5 +1,9 @@
 """The package's cache folder and its atomically written ``.npy`` files.
 
+An entry is whole or absent: written beside its path and renamed over it, so jobs
+sharing the folder never read one half-written; one damaged another way (a
+truncated copy, a full disk) is recomputed with a warning.
+
 ``$RHYTHMIC_JAX_CACHE`` (default ``~/.cache/rhythmic_jax``) holds descriptor
 files (:func:`rhythmic_jax.features.cached_describe`,
 :func:`rhythmic_jax.pipeline.describe_files`) and the compiled networks
@@ -10,12 +14,12 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.atomic import save_npy
 
 __all__ = ["cache_key_check", "default_cache_dir", "load_cached", "save_cached"]
 
@@ -49,14 +53,10 @@ def load_cached(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
 
 
 def save_cached(path: Path, x: np.ndarray) -> None:
-    """Write ``x`` to the cache file ``path`` atomically (temporary file, replace)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, x, allow_pickle=False)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``x`` to the cache file ``path`` atomically
+    (:func:`rhythmic_jax.io.atomic.save_npy`: a hidden temporary file in the same
+    folder, flushed, then ``os.replace``). Jobs sharing the cache may write one
+    entry at once: each replace puts a whole file in place, and a reader holds
+    the whole file it opened. A writer killed mid-write leaves its hidden
+    temporary file, never a partial entry."""
+    save_npy(path, np.asarray(x))

@@ -33,3 +33,29 @@ def test_keys_and_folder(monkeypatch, tmp_path):
     cache_key_check("route-1")
     monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path))
     assert default_cache_dir() == tmp_path
+
+
+def test_a_write_stopped_midway_keeps_the_previous_entry(monkeypatch, tmp_path):
+    path = tmp_path / "a.npy"
+    old = np.arange(6, dtype=np.float32).reshape(2, 3)
+    save_cached(path, old)
+
+    def half_then_fail(fh, x, allow_pickle=False):
+        fh.write(np.asarray(x).tobytes()[:5])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "save", half_then_fail)
+    with pytest.raises(KeyboardInterrupt):
+        save_cached(path, old + 1)
+    monkeypatch.undo()
+    np.testing.assert_array_equal(load_cached(path, (2, 3)), old)
+    assert [p.name for p in tmp_path.iterdir()] == ["a.npy"]  # no temporary left
+
+
+def test_a_truncated_entry_is_recomputed_with_a_warning(tmp_path, caplog):
+    path = tmp_path / "a.npy"
+    save_cached(path, np.ones((40, 8), np.float32))
+    path.write_bytes(path.read_bytes()[:200])  # what a non-atomic writer leaves
+    with caplog.at_level("WARNING", logger="rhythmic_jax.cache_files"):
+        assert load_cached(path, (40, 8)) is None
+    assert "recomputing unreadable cache file" in caplog.text

@@ -1,9 +1,10 @@
 """How much memory a full-batch fit needs, and a guard that refuses one too large.
 
 :func:`fit_bytes` adds up the solver's arrays (:mod:`rhythmic_jax.solvers.newton`, and
-:mod:`rhythmic_jax.solvers.span` for wide frames); :func:`check_memory` compares the sum
-with what the machine has free and, when it does not fit, refuses before any work
-with the bytes needed and the streaming path named
+:mod:`rhythmic_jax.solvers.span` for wide frames) and XLA's compiling of them;
+:func:`check_memory` compares the sum with what the machine has free and, when it
+does not fit, refuses before any work with the bytes needed and the streaming path
+named
 (:func:`rhythmic_jax.solvers.resumable.memmap_batches` with
 :func:`rhythmic_jax.solvers.resumable.train_run`).
 
@@ -17,11 +18,32 @@ import os
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.solvers.span import in_span
 
-__all__ = ["available_memory", "check_memory", "fit_bytes"]
+__all__ = [
+    "COMPILE_BYTES",
+    "SCRATCH_BYTES",
+    "available_memory",
+    "check_memory",
+    "fit_bytes",
+]
+
+
+# XLA's working memory for compiling the fit's functions for a new shape (the
+# Newton step at each column count it takes, the spectral setup, the margins, the
+# period choice), measured with the allocator trimmed in a process whose runtime a
+# fit of another shape had loaded: the first fits of 3000 x 128, 600 x 64 and
+# 400 x 1024 grew it by 250-360 MB beyond their arrays (reports/memory.md). It
+# does not follow n, d or p.
+COMPILE_BYTES = 384 * 2**20
+
+# What a fit touches whatever its size: the threads' stacks and scratch, the
+# allocator's arenas, the small arrays of the period choice. Fits of 120 x 512
+# (6.4 MB of arrays) peaked at 5.4-7.9 MB.
+SCRATCH_BYTES = 8 * 2**20
 
 
 def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
-    """Peak bytes of a full-batch fit (:func:`rhythmic_jax.solvers.newton.newton_fit`).
+    """Peak bytes a full-batch fit adds to a process
+    (:func:`rhythmic_jax.solvers.newton.newton_fit`), by named part.
 
     With q = d + 1, k = min(512, q) leading eigenvectors and a b = min(32, k)
     block, the solver holds:
@@ -38,18 +60,23 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
       (targets, margins and their update, hinge, mask, CG's margins, the line
       search's slacks: ``80 n``), seven (q,) columns (theta, gradient, step, CG's
       residual, direction and products: ``56 q``), the preconditioner's diagonal
-      and block (``4 k + 4 b^2``).
+      and block (``4 k + 4 b^2``);
+    - ``results``: after the solve, the float32 targets, the float64 final
+      margins and the float32 scores of the period choice (``16 n p``), made
+      while the allocator still holds the solver's freed buffers;
+    - ``compile``: :data:`COMPILE_BYTES`, XLA compiling the fit's functions for
+      this shape (a process that fitted this shape before compiles nothing).
 
     Wide frames (d > 2n) are solved in their span (:mod:`rhythmic_jax.solvers.span`):
     ``span`` counts a float64 copy of the frames, ``X X^T``, its shifted copy and
     its Cholesky factor in float64 (``8 n d + 24 n^2``) and the lifted weights
     (``8 n p + 12 d p``); the other parts are those of an (n, n) problem.
 
-    The arrays' sum bounds what XLA's compiled Newton step holds (its arguments,
-    results and temporaries); ``allocator`` adds a quarter of it for what the
-    process holds beyond the arrays: freed buffers the allocator keeps and the
-    threads' scratch. A fit's resident memory ran up to 1.19x the arrays' sum
-    on a loaded machine (n = 3000, d = 128: 147 MB against 124 MB).
+    The arrays' sum (every part but ``compile``) bounds what XLA's compiled Newton
+    step holds (its arguments, results and temporaries); ``allocator`` adds a
+    quarter of it for what the process holds beyond the arrays (freed buffers the
+    allocator keeps) and :data:`SCRATCH_BYTES` (the threads' scratch). Measured
+    with the allocator trimmed before the fit (``malloc_trim``): reports/memory.md.
     """
     if in_span(n, d):
         reduced = fit_bytes(n, n, p, 4)
@@ -59,6 +86,7 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
             "design": reduced["features"] + reduced["design"],
             "system": reduced["system"],
             "templates": reduced["templates"],
+            "results": reduced["results"],
         }
     else:
         q = d + 1
@@ -69,8 +97,10 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
             "design": 4 * n * d + 12 * n * q,
             "system": 4 * q * q + 12 * q * k + 4 * n * k + 4 * n * b * b,
             "templates": (80 * n + 56 * q + 4 * k + 4 * b * b) * p,
+            "results": 16 * n * p,
         }
-    parts["allocator"] = sum(parts.values()) // 4
+    parts["allocator"] = sum(parts.values()) // 4 + SCRATCH_BYTES
+    parts["compile"] = COMPILE_BYTES
     return parts
 
 
@@ -110,7 +140,8 @@ def check_memory(
         raise InputError(
             f"a full-batch fit of {n} frames x {d} features x {p} templates needs "
             f"about {need:,} bytes ({_gib(need)}: features {_gib(parts['features'])},"
-            f" solver {_gib(need - parts['features'])}) but {limit:,} bytes "
+            f" solver {_gib(need - parts['features'] - parts['compile'])}, compiling"
+            f" {_gib(parts['compile'])}) but {limit:,} bytes "
             f"({_gib(limit)}) are available; stream the frames instead: save them to "
             "a .npy file and train with rhythmic_jax.solvers.resumable.train_run("
             "memmap_batches(path, labels, periods, batch_size, seed), ...)"

@@ -1,0 +1,198 @@
+"""The memory estimate of a full-batch fit against its measured peak, by shape.
+
+For a grid of tall, square and wide shapes (random float32 frames, the default
+map), one child process loads the runtime with a fit of another shape and then,
+for each shape:
+
+- asks the guard (:func:`rhythmic_jax.solvers.memory.check_memory`) with the
+  limit set to the estimate itself (``--memory X`` with X the estimate), which
+  admits the fit;
+- fits it once "cold" (compiling its functions, as a job's first fit does) and
+  ``--repeats`` times "warm" on the same frames (nothing compiles), each peak
+  being the growth of the process's resident memory over a baseline taken with
+  glibc's freed memory handed back (``malloc_trim(0)``), sampled every ms.
+
+The cold peak is checked against the whole estimate (the limit must hold), the
+warm peaks against the estimate without its ``compile`` part.
+
+    python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
+
+Writes reports/memory.json and reports/memory.md and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import gc
+import json
+import logging
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+from _bench_common import (
+    begin,
+    header,
+    parser,
+    rerender,
+    run_record,
+    table,
+    write_report,
+)
+
+from rhythmic_jax.periods import candidate_periods
+from rhythmic_jax.solvers.memory import check_memory, fit_bytes
+
+log = logging.getLogger("bench_memory")
+
+SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
+MB = 1e6
+
+
+def _rss() -> int:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * 4096
+
+
+def peak_growth(x: np.ndarray) -> int:
+    """Bytes a fit of x (n, d) adds to this process at its peak (x included)."""
+    from rhythmic_jax import RhythmicMap
+
+    gc.collect()
+    ctypes.CDLL("libc.so.6").malloc_trim(0)
+    base, peak, done = _rss(), [0], []
+
+    def watch():
+        while not done:
+            peak[0] = max(peak[0], _rss())
+            time.sleep(0.001)
+
+    t = threading.Thread(target=watch)
+    t.start()
+    RhythmicMap().fit(x, progress=False)
+    done.append(1)
+    t.join()
+    return max(peak[0], _rss()) - base + x.nbytes
+
+
+def measure(repeats: int, shapes: list[str]) -> None:
+    """The child: one JSON line per shape."""
+    from rhythmic_jax import RhythmicMap
+
+    rng = np.random.default_rng(0)
+    RhythmicMap().fit(rng.normal(size=(48, 8)).astype(np.float32), progress=False)
+    for shape in shapes:
+        n, d = map(int, shape.split("x"))
+        p = sum(candidate_periods(n))
+        x = rng.normal(size=(n, d)).astype(np.float32)
+        estimate = sum(fit_bytes(n, d, p).values())
+        admitted = check_memory(n, d, p, limit_bytes=estimate) == estimate
+        t0 = time.perf_counter()
+        cold = peak_growth(x)
+        t1 = time.perf_counter()
+        RhythmicMap().fit(x, progress=False)  # the first run of compiled code
+        warm = [peak_growth(x) for _ in range(repeats)]
+        warm_s = (time.perf_counter() - t1) / max(repeats, 1)
+        row = dict(n=n, d=d, p=p, admitted=admitted, cold=cold, warm=warm,
+                   cold_s=t1 - t0, warm_s=warm_s)  # fmt: skip
+        print(json.dumps(row), flush=True)
+
+
+def kind(n: int, d: int) -> str:
+    return "wide (span)" if d > 2 * n else ("tall" if n > 2 * d else "square")
+
+
+def markdown(report: dict) -> str:
+    rows = []
+    for r in report["rows"]:
+        rows.append([
+            f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
+            r["cold"] / MB, r["estimate"] / r["cold"],
+            r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
+            "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO",
+        ])  # fmt: skip
+    kept = all(r["cold"] <= r["estimate"] for r in report["rows"])
+    return "\n".join(
+        header("Memory of a full-batch fit: estimate against measured peak", report)
+        + [
+            "Random float32 frames, the default map (r = 2, 7 candidate periods: p "
+            "templates). Peaks are the growth of the process's resident memory "
+            "during the fit, sampled every ms, over a baseline taken after "
+            "`malloc_trim(0)` (glibc otherwise serves the fit from memory an "
+            "earlier one freed, and the growth undercounts). *Cold*: the shape's "
+            "first fit in a process whose runtime is loaded (its functions "
+            "compile); *warm*: the largest of "
+            f"{report['repeats']} refits of the same frames after one unmeasured "
+            "(nothing compiles). "
+            "*Estimate*: the sum of `fit_bytes`; *arrays*: the same without its "
+            f"`compile` part ({report['compile_bytes'] / MB:.0f} MB). *Limit kept*: "
+            "the guard with its limit set to the estimate (`--memory X`, X = the "
+            "estimate) admits the fit and the cold peak stays under X.",
+            "",
+            table(
+                [
+                    "n x d",
+                    "shape",
+                    "p",
+                    "estimate MB",
+                    "cold MB",
+                    "est / cold",
+                    "arrays MB",
+                    "warm MB",
+                    "arrays / warm",
+                    "limit kept",
+                ],
+                rows,
+            ),  # fmt: skip
+            "",
+            f"The limit held on every shape: {'yes' if kept else 'NO'}.",
+        ]
+    )
+
+
+def main(argv: list[str] | None = None) -> dict | None:
+    ap = parser(__doc__)
+    ap.add_argument("--shapes", nargs="+", default=SHAPES, help="NxD ...")
+    ap.add_argument("--repeats", type=int, default=2, help="warm refits a shape")
+    ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.render:
+        return rerender(args.render, markdown)
+    if args.measure:
+        measure(args.repeats, args.shapes)
+        return None
+    env, load0 = begin(log)
+    child = subprocess.run(
+        [sys.executable, __file__, "--measure", "--repeats", str(args.repeats),
+         "--shapes", *args.shapes],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    rows = []
+    for line in child.stdout.splitlines():
+        if not line.startswith("{"):
+            continue
+        r = json.loads(line)
+        parts = fit_bytes(r["n"], r["d"], r["p"])
+        r.update(
+            kind=kind(r["n"], r["d"]),
+            parts=parts,
+            estimate=sum(parts.values()),
+            arrays=sum(parts.values()) - parts["compile"],
+        )
+        rows.append(r)
+        log.info("%s", r)
+    report = dict(
+        **run_record("bench_memory.py", argv, env, load0),
+        repeats=args.repeats,
+        compile_bytes=rows[0]["parts"]["compile"] if rows else 0,
+        rows=rows,
+    )
+    write_report(args.out, "memory", report, markdown(report))
+    return report
+
+
+if __name__ == "__main__":
+    sys.exit(main() and 0)
