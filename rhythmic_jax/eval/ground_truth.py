@@ -73,10 +73,15 @@ class GroundTruth:
                 f"{ranked.shape[0]} queries but the ground truth ({self.source}) "
                 f"covers {len(self)}"
             )
-        out = np.zeros(ranked.shape, bool)
-        for i, p in enumerate(self.positives):
-            out[i] = np.isin(ranked[i], p) & (ranked[i] >= 0)
-        return out
+        # one sorted search over (query, place) keys, not a search per query
+        n = max(self.n_places, 1)
+        sizes = [len(p) for p in self.positives]
+        rows = np.repeat(np.arange(len(sizes), dtype=np.int64), sizes)
+        keys = rows * n + np.concatenate([np.empty(0, np.int64), *self.positives])
+        ranked = ranked.astype(np.int64)
+        inside = (ranked >= 0) & (ranked < n)
+        asked = np.arange(len(sizes), dtype=np.int64)[:, None] * n + ranked
+        return np.isin(asked, keys) & inside
 
     def describe(self) -> dict:
         """Source and tolerance, as ``evaluate --json`` reports them."""

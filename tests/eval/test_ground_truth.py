@@ -119,3 +119,18 @@ def test_evaluate_map_follows_lists_and_the_sequence(fitted):
     )
     with pytest.raises(InputError, match="60 queries but the ground truth"):
         evaluate_map(model, q, ground_truth=from_lists(lists[:5], 60, "short"))
+
+
+def test_hits_equal_a_search_per_query():
+    """The one sorted search gives each query's own membership, -1 and places
+    past the map never hits."""
+    rng = np.random.default_rng(0)
+    lists = [rng.integers(0, 50, rng.integers(0, 6)) for _ in range(300)]
+    gt = from_lists(lists, 50, "drawn")
+    ranked = rng.integers(-1, 52, (300, 7))
+    want = np.stack(
+        [np.isin(r, p) & (r >= 0) for r, p in zip(ranked, gt.positives, strict=True)]
+    )
+    assert want.sum() > 20
+    np.testing.assert_array_equal(gt.hits(ranked), want)
+    np.testing.assert_array_equal(gt.hits(ranked[:, 0]), want[:, 0])
