@@ -28,12 +28,12 @@ __all__ = [
 
 
 # XLA's working memory for compiling the fit's functions for a new shape (the
-# Newton step at each column count it takes, the spectral setup, the margins, the
-# period choice), measured with the allocator trimmed in a process whose runtime a
-# fit of another shape had loaded: the first fits of 3000 x 128, 600 x 64 and
-# 400 x 1024 grew it by 250-360 MB beyond their arrays (reports/memory.md). It
-# does not follow n, d or p.
-COMPILE_BYTES = 384 * 2**20
+# Newton step, once per fit on its column groups, the spectral setup, the start
+# and finish), measured with the allocator trimmed in a process whose runtime a
+# fit of another shape had loaded: the first fit of a shape grew it by 122-182 MB
+# more than a refit of the same frames, on six tall, square and wide shapes
+# (reports/memory.md). It does not follow n, d or p.
+COMPILE_BYTES = 192 * 2**20
 
 # What a fit touches whatever its size: the threads' stacks and scratch, the
 # allocator's arenas, the small arrays of the period choice. Fits of 120 x 512
