@@ -382,9 +382,11 @@ def newton_fit(
         c64 = jax.device_put(np.float64(c))
         offset = float(c) * pad
         if init is None:
-            zeros = np.zeros((n, p))
-            margins = _zeros_like(y64) if len(y64.sharding.device_set) > 1 else zeros
-            params = jax.device_put(Iterate(np.zeros((d + 1, p)), margins))
+            theta = jax.device_put(np.zeros((d + 1, p)))
+            if len(y64.sharding.device_set) > 1:  # sharded frames: margins alike
+                params = Iterate(theta, _zeros_like(y64))
+            else:
+                params = Iterate(theta, jax.device_put(np.zeros((n, p))))
         else:
             params = _warm(init.w, init.b, xa)
         opt_state = _start(params, config.eta, config.max_cg, config.block)
