@@ -58,7 +58,6 @@ __all__ = [
     "fit_summary",
     "FitInterrupted",
     "FitJob",
-    "embedding_info",
     "fusion_of",
     "info",
     "info_lines",
@@ -608,64 +607,23 @@ def query_summary(pred: np.ndarray, out: str) -> str:
     return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
 
 
-INFO_KEYS = (
-    "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
-    "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
-    "config", "reference", "storage", "codes_bits", "embedding_bytes", "embedding",
-    "layout", "groups", "group_errors",
-)  # fmt: skip
-CODE_ARRAYS = {  # by kind of codes (rhythmic_jax.codes, rhythmic_jax.scalar_codes)
-    "itq": {"codes_mean", "codes_projection", "codes_packed"},
-    "int8": {"codes_vmin", "codes_vdiff", "codes_uint8"},
-}
-
-
-def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
-    """Whether a map's metadata holds every info field, agreeing with itself."""
-    try:
-        n, d, periods = int(meta["n"]), int(meta["d"]), list(meta["periods"])
-        k = int(meta["embedding"]["k"]) if meta["embedding"] else d  # templates' d
-        templates = sum(int(t) for t in periods) * (k + 1) * 4
-        st = meta["storage"]
-        ok = sum(st["per_period"].values()) == templates
-        ok = ok and meta["storage_bytes"] == templates + st["fixed"] + st["per_place"]
-        ok = ok and meta["database_bytes"] == n * d * 4
-        kind = meta.get("codes_kind") or "itq"
-        arrays = {"w", "b"} | (CODE_ARRAYS[kind] if meta["codes_bits"] else set())
-    except (KeyError, TypeError, ValueError, AttributeError):
-        return False
-    return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
-
-
 def info(map_path: str) -> dict[str, Any]:
     """What a map holds (:meth:`rhythmic_jax.RhythmicMap.info`), read from disk.
 
     A map whose metadata is complete and consistent, with its arrays listed as
     saved, is described from ``map.json`` alone (no JAX, no array data read); any
     other goes through :meth:`rhythmic_jax.RhythmicMap.load`, which says what is
-    wrong with it.
+    wrong with it (:func:`rhythmic_jax.map_file.info`).
     """
-    from rhythmic_jax.io.checkpoint import arrays_listed, read_metadata
+    from rhythmic_jax import map_file
 
-    folder, meta = read_metadata(map_path)
-    if meta.get("kind") == "embedding":
-        return embedding_info(meta)
-    if _consistent(meta, arrays_listed(folder)):
-        return {key: meta[key] for key in INFO_KEYS} | {
-            "codes_kind": meta.get("codes_kind")
-        }
+    return map_file.info(map_path, _loaded_info)
+
+
+def _loaded_info(map_path: str) -> dict[str, Any]:
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     return RhythmicMap.load(map_path).info()
-
-
-def embedding_info(meta: dict[str, Any]) -> dict[str, Any]:
-    """What an embedding folder holds (written by :func:`learn`), from its
-    metadata: kind, dimensions, descriptor, how it was learned and the fusion
-    weight learned with it (None in one written before the weight was kept)."""
-    keys = ("kind", "head", "d", "k", "descriptor", "descriptor_settings", "learn",
-            "sources")  # fmt: skip
-    return {key: meta.get(key) for key in keys} | {"fusion": meta.get("fusion")}
 
 
 def info_lines(info: dict[str, Any]) -> str:

@@ -21,7 +21,7 @@ LAYERS = [
     ["periods", "projection", "split", "scalar_codes",
      "io.atomic", "io.images", "io.checkpoint"],
     ["groups", "codes", "embedding", "io.descriptor_files", "io.tiles"],
-    ["objective", "io.frame_files", "frames.cache_files", "frames.nets"],
+    ["objective", "map_file", "io.frame_files", "frames.cache_files", "frames.nets"],
     ["closed_form", "jit_cache", "frames.compiled", "frames.weights",
      "solvers.precondition", "solvers.span", "solvers.precision", "decoding.buckets"],
     ["learn", "frames.pipeline", "solvers.newton_cg", "solvers.memory",
