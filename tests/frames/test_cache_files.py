@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rhythmic_jax.cache_files import (
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames.cache_files import (
     cache_key_check,
     default_cache_dir,
     load_cached,
     save_cached,
 )
-from rhythmic_jax.errors import InputError
 
 
 def test_save_then_load(tmp_path):
