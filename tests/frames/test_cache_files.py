@@ -56,6 +56,6 @@ def test_a_truncated_entry_is_recomputed_with_a_warning(tmp_path, caplog):
     path = tmp_path / "a.npy"
     save_cached(path, np.ones((40, 8), np.float32))
     path.write_bytes(path.read_bytes()[:200])  # what a non-atomic writer leaves
-    with caplog.at_level("WARNING", logger="rhythmic_jax.cache_files"):
+    with caplog.at_level("WARNING", logger="rhythmic_jax.frames.cache_files"):
         assert load_cached(path, (40, 8)) is None
     assert "recomputing unreadable cache file" in caplog.text
