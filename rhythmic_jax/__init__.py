@@ -37,12 +37,12 @@ _API: dict[str, str] = {
     "eval.baselines": "BruteForce default_baselines ITQ KDTreeSearch OPQ",
     "eval.frontier": "crossover_n frontier_rows FrontierConfig projected_bytes",
     "eval.ground_truth": "from_indices from_lists from_positions GroundTruth",
+    "eval.ground_truth_files": "load_ground_truth read_positions read_vpr_bench",
     "eval.metrics": (
         "accuracy pr_auc pr_curve recall_at_100_precision recall_at_k RecallAtK"
     ),
     "eval.seqslam": "seqslam_decode",
     "groups": "choose_radices choose_segment Groups parse_layout resolve_layout",
-    "io.ground_truth_files": "load_ground_truth read_positions read_vpr_bench",
     "jit_cache": "enable_compile_cache",
     "learn": "learn_embedding LearnConfig",
     "objective": (

@@ -138,7 +138,7 @@ def run_demo(
     Turns on the compile cache (:func:`rhythmic_jax.enable_compile_cache`), so a
     second demo loads its programs instead of compiling them."""
     from rhythmic_jax.eval.report import evaluate_map, format_evaluation
-    from rhythmic_jax.io.sources import describe_images
+    from rhythmic_jax.frames.sources import describe_images
     from rhythmic_jax.io.tiles import tile_image
     from rhythmic_jax.jit_cache import enable_compile_cache
     from rhythmic_jax.rhythmic_map import RhythmicMap

@@ -4,7 +4,7 @@ A fresh process compiles every XLA program it runs: about a hundred for a
 default fit, 9-15 s of a 11-20 s first fit on the 2-core reference machine.
 :func:`enable_compile_cache` turns on JAX's own persistent cache
 (``jax_compilation_cache_dir``) in ``<cache folder>/jax`` (``$RHYTHMIC_JAX_CACHE``,
-see :func:`rhythmic_jax.cache_files.default_cache_dir`), so the next process
+see :func:`rhythmic_jax.frames.cache_files.default_cache_dir`), so the next process
 loads each program instead of compiling it.
 
 Thresholds, by measurement (a 1000 x 256 default fit and its predictions, 97
@@ -68,7 +68,7 @@ def compile_cache_dir(path: str | os.PathLike | None = None) -> Path | None:
     """The folder of the compile cache: None when ``$RHYTHMIC_JAX_COMPILE_CACHE``
     switches it off; else ``path``, the folder that variable names, or
     ``<cache folder>/jax``."""
-    from rhythmic_jax.cache_files import default_cache_dir
+    from rhythmic_jax.frames.cache_files import default_cache_dir
 
     setting = os.environ.get(ENV, "").strip()
     if setting.lower() in OFF:

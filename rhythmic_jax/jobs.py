@@ -21,20 +21,21 @@ command line shows.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rhythmic_jax.compiled import (
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames.compiled import (
     AUTO,
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
     LOAD_MIN_FRAMES,
     CompilePolicy,
 )
-from rhythmic_jax.errors import InputError
 from rhythmic_jax.scale_jobs import ScaleJob, fit_scaled, wants_scale
 from rhythmic_jax.validate import Domain, check_int, int_option, number_option
 
@@ -57,7 +58,6 @@ __all__ = [
     "fit_summary",
     "FitInterrupted",
     "FitJob",
-    "embedding_info",
     "fusion_of",
     "info",
     "info_lines",
@@ -78,7 +78,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Reading:
-    """How frames are read from a source (see :mod:`rhythmic_jax.io.sources`).
+    """How frames are read from a source (see :mod:`rhythmic_jax.frames.sources`).
 
     Attributes:
       descriptor: descriptor of image sources (a map remembers its own).
@@ -87,7 +87,7 @@ class Reading:
       tile: cut one large image into tiles of this size.
       stride: the tiles' stride (default ``tile // 2``).
       compile: when a descriptor network runs compiled for this CPU
-        (:class:`rhythmic_jax.compiled.CompilePolicy`; by default when the job
+        (:class:`rhythmic_jax.frames.compiled.CompilePolicy`; by default when the job
         is large enough for compiling to pay).
     """
 
@@ -153,7 +153,7 @@ def memory_bytes(text: str) -> int:
 
 def _check_reading(reading: Reading) -> None:
     if reading.stride is not None and reading.tile is None:
-        from rhythmic_jax.io.sources import STRIDE_NEEDS_TILE
+        from rhythmic_jax.frames.sources import STRIDE_NEEDS_TILE
 
         raise InputError(STRIDE_NEEDS_TILE)
 
@@ -204,8 +204,8 @@ def _fit_augmented(
     model, feats, config, ckpt: Path, progress: bool, policy: CompilePolicy = AUTO
 ) -> None:
     from rhythmic_jax.augment.stream import fit_map_augmented
-    from rhythmic_jax.compiled import FastDescriptor
-    from rhythmic_jax.features import get_descriptor
+    from rhythmic_jax.frames.compiled import FastDescriptor
+    from rhythmic_jax.frames.features import get_descriptor
 
     if feats.images is None:
         raise InputError(
@@ -239,11 +239,35 @@ def _check_map_space(job: FitJob, feats) -> None:
     check_space(job.out, storage_bytes(sorted(cands)[-job.r :], d) + extra)
 
 
+def _check_sources_memory(sources: Sequence[str], r: int, level: int, count: int):
+    """Refuse descriptor files too large for a full-batch fit, from their headers.
+
+    Only ``.npy`` sources that exist are looked at (anything else is reported
+    when it is read); the map's settings ``r``, ``level``, ``count`` give the
+    templates. See :func:`rhythmic_jax.solvers.memory.check_memory`.
+    """
+    from rhythmic_jax.io.descriptor_files import descriptor_shape
+    from rhythmic_jax.periods import candidate_periods
+    from rhythmic_jax.solvers.memory import check_memory
+
+    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources):
+        return
+    shapes = [descriptor_shape(s) for s in sources]
+    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
+        return  # reading them says what is wrong
+    n, d = shapes[0]
+    try:
+        cands = candidate_periods(n, r, level, count)
+    except InputError:
+        return  # the map's settings say what is wrong
+    check_memory(n * len(shapes), d, sum(cands))
+
+
 def fit(job: FitJob, progress: bool = False):
     """Fit, record provenance and save the map of ``job``; returns the map."""
+    from rhythmic_jax.frames.sources import load_sources
     from rhythmic_jax.groups import parse_layout
     from rhythmic_jax.io.checkpoint import check_target
-    from rhythmic_jax.io.sources import check_sources_memory, load_sources
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     read = job.reading
@@ -256,7 +280,7 @@ def fit(job: FitJob, progress: bool = False):
         )
     parse_layout(job.layout)  # a bad layout ends here, not after describing
     augmented = _augmented_settings(job) if job.augment else None
-    check_sources_memory(job.sources, job.r, job.level, job.count)
+    _check_sources_memory(job.sources, job.r, job.level, job.count)
     if job.places is not None and job.positions is None:
         raise InputError("{opt:places} groups frames by their {opt:positions}")
     learned = _load_embedding(job.embedding)  # before describing: its descriptor
@@ -308,7 +332,7 @@ def _with_positions(feats, job: FitJob):
     """Features whose extra holds the frames' positions (and k-means places)."""
     import dataclasses
 
-    from rhythmic_jax.io.ground_truth_files import in_metres, positions_of_sources
+    from rhythmic_jax.eval.ground_truth_files import in_metres, positions_of_sources
     from rhythmic_jax.io.images import gps_places
 
     xy, unit = positions_of_sources(job.positions, job.sources)
@@ -468,8 +492,8 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     """Learn, save and return ``(embedding, info)`` of ``job``; with ``job.codes``
     also the fusion weight for them (``info["fusion"]``, saved beside it)."""
     from rhythmic_jax.embedding import save_embedding
+    from rhythmic_jax.frames.sources import load_sources
     from rhythmic_jax.io.checkpoint import check_target
-    from rhythmic_jax.io.sources import load_sources
     from rhythmic_jax.learn import LearnConfig, learn_embedding
 
     check_target(job.out)
@@ -538,7 +562,7 @@ def fit_summary(out: str, info: dict[str, Any]) -> str:
 
 
 def _load_queries(map_path: str, source: str, reading: Reading, progress: bool):
-    from rhythmic_jax.io.sources import load_query_source
+    from rhythmic_jax.frames.sources import load_query_source
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     _check_reading(reading)
@@ -583,64 +607,23 @@ def query_summary(pred: np.ndarray, out: str) -> str:
     return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
 
 
-INFO_KEYS = (
-    "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
-    "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
-    "config", "reference", "storage", "codes_bits", "embedding_bytes", "embedding",
-    "layout", "groups", "group_errors",
-)  # fmt: skip
-CODE_ARRAYS = {  # by kind of codes (rhythmic_jax.codes, rhythmic_jax.scalar_codes)
-    "itq": {"codes_mean", "codes_projection", "codes_packed"},
-    "int8": {"codes_vmin", "codes_vdiff", "codes_uint8"},
-}
-
-
-def _consistent(meta: dict[str, Any], listed: set[str]) -> bool:
-    """Whether a map's metadata holds every info field, agreeing with itself."""
-    try:
-        n, d, periods = int(meta["n"]), int(meta["d"]), list(meta["periods"])
-        k = int(meta["embedding"]["k"]) if meta["embedding"] else d  # templates' d
-        templates = sum(int(t) for t in periods) * (k + 1) * 4
-        st = meta["storage"]
-        ok = sum(st["per_period"].values()) == templates
-        ok = ok and meta["storage_bytes"] == templates + st["fixed"] + st["per_place"]
-        ok = ok and meta["database_bytes"] == n * d * 4
-        kind = meta.get("codes_kind") or "itq"
-        arrays = {"w", "b"} | (CODE_ARRAYS[kind] if meta["codes_bits"] else set())
-    except (KeyError, TypeError, ValueError, AttributeError):
-        return False
-    return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
-
-
 def info(map_path: str) -> dict[str, Any]:
     """What a map holds (:meth:`rhythmic_jax.RhythmicMap.info`), read from disk.
 
     A map whose metadata is complete and consistent, with its arrays listed as
     saved, is described from ``map.json`` alone (no JAX, no array data read); any
     other goes through :meth:`rhythmic_jax.RhythmicMap.load`, which says what is
-    wrong with it.
+    wrong with it (:func:`rhythmic_jax.map_file.info`).
     """
-    from rhythmic_jax.io.checkpoint import arrays_listed, read_metadata
+    from rhythmic_jax import map_file
 
-    folder, meta = read_metadata(map_path)
-    if meta.get("kind") == "embedding":
-        return embedding_info(meta)
-    if _consistent(meta, arrays_listed(folder)):
-        return {key: meta[key] for key in INFO_KEYS} | {
-            "codes_kind": meta.get("codes_kind")
-        }
+    return map_file.info(map_path, _loaded_info)
+
+
+def _loaded_info(map_path: str) -> dict[str, Any]:
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     return RhythmicMap.load(map_path).info()
-
-
-def embedding_info(meta: dict[str, Any]) -> dict[str, Any]:
-    """What an embedding folder holds (written by :func:`learn`), from its
-    metadata: kind, dimensions, descriptor, how it was learned and the fusion
-    weight learned with it (None in one written before the weight was kept)."""
-    keys = ("kind", "head", "d", "k", "descriptor", "descriptor_settings", "learn",
-            "sources")  # fmt: skip
-    return {key: meta.get(key) for key in keys} | {"fusion": meta.get("fusion")}
 
 
 def info_lines(info: dict[str, Any]) -> str:
@@ -735,12 +718,12 @@ def evaluate(
     Brute force searches ``reference`` when given, else the sources the map was
     fitted on when they are still there; ``reference_note`` says which, or why
     there is no brute-force line. ``ground_truth`` names the right places
-    (:func:`rhythmic_jax.io.ground_truth_files.load_ground_truth`; default: query
+    (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`; default: query
     i is place i, give or take ``tolerance`` frames); ``plot`` writes PR curves
     and recall@K bars (.png). See :func:`rhythmic_jax.eval.report.evaluate_map`.
     """
     from rhythmic_jax.eval.report import evaluate_map
-    from rhythmic_jax.io.sources import reference_features
+    from rhythmic_jax.frames.sources import reference_features
 
     if plot and not str(plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
@@ -753,7 +736,7 @@ def evaluate(
         labels = model.extra["reference_labels"]  # frames grouped into places
     truth = None
     if ground_truth is not None:
-        from rhythmic_jax.io.ground_truth_files import load_ground_truth
+        from rhythmic_jax.eval.ground_truth_files import load_ground_truth
 
         refs = [reference] if reference else model.reference.get("sources") or []
         truth = load_ground_truth(
@@ -809,7 +792,7 @@ def augmentation_ablation(
       routes: name -> (map frames uint8 (n, H, W, 3), query frames of the same
         places, frame tolerance).
       variants: label -> augmentation names (``("all",)``: the seven merged).
-      descriptor: a :mod:`rhythmic_jax.features` descriptor (cached per route).
+      descriptor: a :mod:`rhythmic_jax.frames.features` descriptor (cached per route).
 
     Returns:
       ``(results, timings)``: route -> label -> the map's metrics of
@@ -821,7 +804,7 @@ def augmentation_ablation(
 
     from rhythmic_jax.augment.stream import AugmentedFit, fit_map_augmented
     from rhythmic_jax.eval.report import evaluate_map
-    from rhythmic_jax.features import cached_describe
+    from rhythmic_jax.frames.features import cached_describe
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     results: dict[str, dict[str, dict]] = {}

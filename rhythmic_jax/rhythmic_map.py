@@ -26,12 +26,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from rhythmic_jax.codes import (
-    CodeBook,
-    check_codes,
-    codebook_from_arrays,
-    fit_codebook,
-)
+from rhythmic_jax import map_file
+from rhythmic_jax.codes import CodeBook, check_codes, fit_codebook
 from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
 from rhythmic_jax.decoding.dispatch import DECODERS
 from rhythmic_jax.decoding.fusion import (
@@ -43,16 +39,10 @@ from rhythmic_jax.decoding.fusion import (
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
-from rhythmic_jax.embedding import (
-    Embedding,
-    embedding_arrays,
-    embedding_bytes,
-    embedding_from_arrays,
-)
+from rhythmic_jax.embedding import Embedding, embedding_bytes
 from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
-from rhythmic_jax.io import checkpoint
 from rhythmic_jax.objective import (
     Templates,
     default_c,
@@ -625,19 +615,10 @@ class RhythmicMap:
 
     # ----------------------------------------------------------------- disk
     def save(self, path: str | os.PathLike) -> None:
-        """Save to the folder ``path`` (atomic: :mod:`rhythmic_jax.io.checkpoint`)."""
-        from rhythmic_jax.version import __version__
-
+        """Save to the folder ``path`` (atomic; the format:
+        :mod:`rhythmic_jax.map_file`)."""
         self._check_fitted()
-        arrays = dict(self._stored)
-        arrays.update({f"extra_{k}": np.asarray(v) for k, v in self.extra.items()})
-        if self.codebook is not None:
-            arrays.update(self.codebook.arrays())
-        if self.embedding is not None:
-            arrays.update(embedding_arrays(self.embedding))
-        meta = self.info()
-        meta.update(dtype=self.config.dtype, package_version=__version__)
-        checkpoint.save_map(path, arrays, meta)
+        map_file.save(path, self)
 
     @classmethod
     def load(
@@ -649,79 +630,20 @@ class RhythmicMap:
         d: int | None = None,
     ) -> RhythmicMap:
         """Load a map; refuse it when it was built for another descriptor or d."""
-        arrays, meta = checkpoint.load_map(path)
-        try:
-            cfg = MapConfig(**meta["config"])
-            periods = tuple(int(t) for t in meta["periods"])
-            n, dim = int(meta["n"]), int(meta["d"])
-            c = float(meta["c"])
-            cands = tuple(int(t) for t in meta.get("candidates", ()))
-            errors = tuple(float(e) for e in meta.get("candidate_errors", ()))
-            group_errors = tuple(float(e) for e in meta.get("group_errors", ()))
-            w, b = arrays["w"], arrays["b"]
-            # maps saved before layouts existed are periods maps
-            kind = meta.get("groups", {}).get("kind", "periods")
-            groups = (
-                Groups("periods", periods)
-                if kind == "periods"
-                else Groups.from_dict(meta["groups"])
-            )
-            emb = embedding_from_arrays(arrays)
-        except (KeyError, TypeError, ValueError, AttributeError, InputError) as err:
-            raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
-        tdim = dim if emb is None else emb.k
-        if emb is not None and emb.d != dim:
-            raise InputError(
-                f"{path}: embedding expects {emb.d}-d input, map says {dim}"
-            )
-        if w.shape != (tdim, groups.p) or b.shape != (groups.p,):
-            raise InputError(
-                f"{path}: weights of shape {w.shape} do not fit "
-                f"{groups.describe()}, d={tdim}"
-            )
-        try:
-            groups.check(n)
-        except InputError as err:
-            raise InputError(f"{path}: corrupt map metadata ({err})") from None
-        if descriptor is not None and descriptor != cfg.descriptor:
-            raise InputError(
-                f"{path}: map built with descriptor {cfg.descriptor!r}, "
-                f"queries use {descriptor!r}"
-            )
-        if (
-            descriptor_settings is not None
-            and descriptor_settings != cfg.descriptor_settings
-        ):
-            raise InputError(
-                f"{path}: map built with {cfg.descriptor} settings "
-                f"{cfg.descriptor_settings}, queries use {descriptor_settings}"
-            )
-        if d is not None and d != dim:
-            raise InputError(
-                f"{path}: map built for {dim}-d features, queries are {d}-d"
-            )
-        self = cls(cfg, embedding=emb)
-        stored = {"w": w, "b": b}
-        if "scale" in arrays:
-            stored["scale"] = arrays["scale"]
-        if (w.dtype == np.int8) != ("scale" in stored) or str(w.dtype) != cfg.dtype:
-            raise InputError(
-                f"{path}: weights stored as {w.dtype}, map says {cfg.dtype}"
-            )
-        self._set_stored(stored)
-        self.periods, self.n, self.d = periods, n, dim
-        self.groups, self.group_errors = groups, group_errors
-        self.c, self.candidates, self.candidate_errors = c, cands, errors
-        self.extra = {k[6:]: v for k, v in arrays.items() if k.startswith("extra_")}
-        if cfg.codes is not None:
-            try:
-                self.codebook = codebook_from_arrays(arrays, n, tdim, cfg.codes)
-            except KeyError as err:
-                raise InputError(f"{path}: codes are missing ({err})") from None
-            except InputError as err:
-                raise InputError(f"{path}: {err}") from None
-        reference = meta.get("reference", {})
-        self.reference = reference if isinstance(reference, dict) else {}
+        got = map_file.load(
+            path,
+            MapConfig,
+            descriptor=descriptor,
+            descriptor_settings=descriptor_settings,
+            d=d,
+        )
+        self = cls(got.config, embedding=got.embedding)
+        self._set_stored(got.stored)
+        self.periods, self.n, self.d = got.periods, got.n, got.d
+        self.groups, self.group_errors = got.groups, got.group_errors
+        self.c, self.candidates = got.c, got.candidates
+        self.candidate_errors, self.extra = got.candidate_errors, got.extra
+        self.codebook, self.reference = got.codebook, got.reference
         return self
 
 

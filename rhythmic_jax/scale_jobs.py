@@ -80,7 +80,7 @@ def _check_in_memory_only(job) -> None:
 
 def _describe_to_shards(job, scale: ScaleJob, progress: bool) -> list[str]:
     """Describe image folders into ``--shards`` (one shard folder per source)."""
-    from rhythmic_jax.io.describe_shards import describe_to_shards
+    from rhythmic_jax.frames.describe_shards import describe_to_shards
     from rhythmic_jax.io.frame_files import is_frame_source
 
     root = Path(scale.shards).expanduser().absolute()

@@ -119,7 +119,7 @@ def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
 def _weights_folder() -> Path:
     """The folder of the Lite0 weights: the baseline's ``query`` looks for them
     by the bare file name its map records (as scripts/bench_frames.py runs)."""
-    from rhythmic_jax.nets import lite0_weights_path
+    from rhythmic_jax.frames.nets import lite0_weights_path
 
     return lite0_weights_path().parent
 
@@ -153,7 +153,7 @@ def make_jpegs(root: Path, tmp: Path, n: int) -> dict[str, Path]:
 
 def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
     """The patch-normalised summer route as a .npy file."""
-    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.images import nordland
 
     summer = nordland(root / "nordland_64x32", seasons=("summer",), progress=False)

@@ -50,7 +50,6 @@ import numpy as np
 from _bench_common import begin, parser, run_record, write_report
 from _cross_condition_report import draw, markdown, targets
 
-from rhythmic_jax.cache_files import default_cache_dir
 from rhythmic_jax.codes import fit_codebook
 from rhythmic_jax.decoding.fusion import learn_weight
 from rhythmic_jax.decoding.group_decode import place_scores as group_place_scores
@@ -61,7 +60,8 @@ from rhythmic_jax.embedding import (
     save_embedding,
 )
 from rhythmic_jax.eval.seqslam import seqslam_decode
-from rhythmic_jax.features import cached_describe, describe, get_descriptor
+from rhythmic_jax.frames.cache_files import default_cache_dir
+from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.io.tiles import load_aerial_route
 from rhythmic_jax.learn import LearnConfig, learn_embedding

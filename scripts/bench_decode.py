@@ -51,7 +51,7 @@ from _bench_common import (
 from rhythmic_jax.decoding.hard import decode
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import (

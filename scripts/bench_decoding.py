@@ -60,7 +60,7 @@ from rhythmic_jax.eval.seqslam import (
     seqslam_decode,
     sequence_similarity,
 )
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.atomic import write_file
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.io.tiles import load_aerial_route

@@ -29,7 +29,7 @@ import torch
 from skimage.io import imread
 from tqdm.auto import tqdm
 
-from rhythmic_jax.features import cached_describe, describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
 from rhythmic_jax.io.atomic import write_file
 from rhythmic_jax.projection import fit_pca, project
 

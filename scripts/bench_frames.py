@@ -12,7 +12,7 @@ Nordland frames (upscaled; written under a temporary folder, removed after):
   (``all``), the descriptor at its native size, frames/s over the wall time.
 
 Every job starts with an empty descriptor cache. The compiled network
-(:mod:`rhythmic_jax.compiled`) is built once before the timed runs, as a user's
+(:mod:`rhythmic_jax.frames.compiled`) is built once before the timed runs, as a user's
 first large job does, and then loaded by each job. The baseline is another
 checkout run with ``PYTHONPATH`` pointing at it (e.g. ``git worktree add
 /tmp/base 6ee4e23``). Both variants run interleaved, ``--repeats`` times; the
@@ -48,14 +48,14 @@ except ImportError:  # the flat layout of the baseline checkout
     from rhythmic_jax.augmented import AugmentedFit, fit_augmented
     from rhythmic_jax.data import nordland
     from rhythmic_jax.newton import newton_fit
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.objective import default_c, targets
 from rhythmic_jax.periods import candidate_periods
 root, frames, names = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 images = nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
 desc = get_descriptor("efficientnet_lite0")
 try:
-    from rhythmic_jax.compiled import CompilePolicy, FastDescriptor
+    from rhythmic_jax.frames.compiled import CompilePolicy, FastDescriptor
     desc = FastDescriptor(desc, frames, CompilePolicy(min_frames=0))
 except ImportError:
     pass
@@ -106,7 +106,7 @@ def timed_run(cmd: list[str], env: dict) -> dict:
     It runs in the folder of the Lite0 weights: the baseline's ``query`` looks
     for them by the bare file name its map records.
     """
-    from rhythmic_jax.nets import lite0_weights_path
+    from rhythmic_jax.frames.nets import lite0_weights_path
 
     cwd = lite0_weights_path().parent
     before = resource.getrusage(resource.RUSAGE_CHILDREN)

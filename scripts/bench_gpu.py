@@ -41,7 +41,7 @@ log = logging.getLogger("bench_gpu")
 def write_features(root: Path, path: Path) -> None:
     """Nordland summer and winter patchnorm descriptors as one float16 (2, n, d)
     ``.npy`` at ``path``."""
-    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.atomic import save_npy
     from rhythmic_jax.io.images import nordland
 

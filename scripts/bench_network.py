@@ -3,13 +3,13 @@
 For each batch size the network (EfficientNet-Lite0 block 10 at 224x112 unless
 told otherwise) runs on the same prepared frames (Nordland summer frames resized
 by the descriptor, channels-last) in chunks of that size: eagerly
-(:class:`rhythmic_jax.compiled.Sliced`) and as an AOTInductor package built for
-that batch (:func:`rhythmic_jax.compiled._compiled`, padded last chunk), each
+(:class:`rhythmic_jax.frames.compiled.Sliced`) and as an AOTInductor package built for
+that batch (:func:`rhythmic_jax.frames.compiled._compiled`, padded last chunk), each
 timed ``--repeats`` times after a warm-up call. The report gives the best and
 median frames/s, CPU over wall seconds, the package's build time, and the
 largest relative row difference of compiled against eager (the rows are unit
-vectors). Jobs use :data:`rhythmic_jax.compiled.COMPILE_BATCH` compiled and
-:data:`rhythmic_jax.compiled.EAGER_BATCH` eager.
+vectors). Jobs use :data:`rhythmic_jax.frames.compiled.COMPILE_BATCH` compiled and
+:data:`rhythmic_jax.frames.compiled.EAGER_BATCH` eager.
 
     python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 """
@@ -32,10 +32,10 @@ from _bench_common import (
     write_report,
 )
 
-from rhythmic_jax import compiled
-from rhythmic_jax.features import get_descriptor
+from rhythmic_jax.frames import compiled
+from rhythmic_jax.frames.features import get_descriptor
+from rhythmic_jax.frames.pipeline import _to_batch
 from rhythmic_jax.io.images import nordland
-from rhythmic_jax.pipeline import _to_batch
 
 log = logging.getLogger("bench_network")
 
@@ -151,7 +151,7 @@ def markdown(report: dict) -> str:
     if job in by:
         lines.append(
             f"Jobs run the compiled network in batches of {job}"
-            f" (`rhythmic_jax.compiled.COMPILE_BATCH`,"
+            f" (`rhythmic_jax.frames.compiled.COMPILE_BATCH`,"
             f" {by[job]['compiled']['best']:.0f} frames/s here)"
         )
         if job_eager in by:

@@ -32,7 +32,7 @@ def main() -> None:
 
     from rhythmic_jax.augment.kornia_ops import NAMES
     from rhythmic_jax.augment.stream import AugmentedFit, fit_augmented
-    from rhythmic_jax.features import cached_describe, get_descriptor
+    from rhythmic_jax.frames.features import cached_describe, get_descriptor
     from rhythmic_jax.io.images import nordland
     from rhythmic_jax.objective import default_c, targets
     from rhythmic_jax.periods import candidate_periods

@@ -53,7 +53,7 @@ from rhythmic_jax.eval.frontier import (
     projected_bytes,
     similarity_recalls,
 )
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.split import NORDLAND_SPLIT
 

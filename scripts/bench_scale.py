@@ -47,7 +47,7 @@ import _bench_common as bc
 import numpy as np
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime

@@ -70,7 +70,7 @@ from _bench_common import (
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.objective import (
     default_c,

@@ -12,7 +12,7 @@ template.
     python scripts/bench_span.py [--frames 3576] [--level 1]
 
 Writes reports/span.json and reports/span.md and prints the table. Descriptors
-are computed once and cached (``rhythmic_jax.features.cached_describe``).
+are computed once and cached (``rhythmic_jax.frames.features.cached_describe``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from _bench_common import (
     write_report,
 )
 
-from rhythmic_jax.features import cached_describe, get_descriptor
+from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.images import nordland
 from rhythmic_jax.objective import Templates, default_c, objective, targets
 from rhythmic_jax.periods import candidate_periods

@@ -13,10 +13,10 @@ Fig. 3 (training error against period), Fig. 4 (r = 2, 3, 5), appearance change
 LEVIR pairs), and the tables of ``scripts/bench_decoding.py`` when
 ``reports/decoding.json`` exists.
 
-Descriptors are cached by :func:`rhythmic_jax.features.cached_describe` (under the
-keys ``scripts/bench_decoding.py`` uses), fitted maps and trained ITQ / OPQ indexes
-in ``--cache-dir`` (default ``$TMPDIR/rhythmic_jax_reproduce``), keyed by their
-settings and a hash of the features, so a rerun only evaluates.
+Descriptors are cached by :func:`rhythmic_jax.frames.features.cached_describe`
+(under the keys ``scripts/bench_decoding.py`` uses), fitted maps and trained ITQ /
+OPQ indexes in ``--cache-dir`` (default ``$TMPDIR/rhythmic_jax_reproduce``), keyed
+by their settings and a hash of the features, so a rerun only evaluates.
 ``--quick`` takes the first 600 frames of each season, levels 1-2, two
 augmentations and leaves OPQ out (its training alone takes minutes here); the full
 run trains OPQ with 4 iterations (each an SVD of a 2048 x 2048 matrix).
@@ -298,7 +298,7 @@ class Run:
     """One reproduction: settings, the map cache and the predictions kept."""
 
     def __init__(self, settings: Settings, cache_dir: Path, progress: bool):
-        from rhythmic_jax.features import get_descriptor
+        from rhythmic_jax.frames.features import get_descriptor
 
         self.settings, self.cache_dir, self.progress = settings, cache_dir, progress
         self.desc = get_descriptor(DESCRIPTOR)
@@ -421,7 +421,7 @@ def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
 def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """key -> (map images, map features, query features): Nordland summer ->
     winter, winter (for Table 2), aerial LEVIR A -> B."""
-    from rhythmic_jax.features import cached_describe
+    from rhythmic_jax.frames.features import cached_describe
     from rhythmic_jax.io.images import nordland
     from rhythmic_jax.io.tiles import load_aerial_route
 

@@ -20,7 +20,7 @@ _COMPILE_CACHE = enable_compile_cache()
 if _COMPILE_CACHE is not None:
     os.environ[ENV] = str(_COMPILE_CACHE)
 # No background builds of the compiled network from tests that describe frames
-# in private cache folders (minutes of CPU each); tests/test_compiled.py turns
+# in private cache folders (minutes of CPU each); tests/frames/test_compiled.py turns
 # them on where it tests them.
 os.environ.setdefault("RHYTHMIC_JAX_NETWORK_BUILD", "0")
 
@@ -52,7 +52,7 @@ def aerial_root() -> Path:
 @pytest.fixture(scope="session")
 def nordland_patchnorm(nordland_root):
     """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048)."""
-    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.images import nordland
 
     desc = get_descriptor("patchnorm")
@@ -92,7 +92,7 @@ def small_vgg16():
     """
     import torch
 
-    from rhythmic_jax.nets import VGG16
+    from rhythmic_jax.frames.nets import VGG16
 
     def make(path: Path, seed: int = 0) -> Path:
         with torch.device("meta"):

@@ -35,11 +35,11 @@ from skimage.io import imsave
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.cli import main
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.features import Hog, describe, get_descriptor
+from rhythmic_jax.frames.features import Hog, describe, get_descriptor
+from rhythmic_jax.frames.nets import VGG16, EfficientNetLite0
 from rhythmic_jax.io import checkpoint
 from rhythmic_jax.io.images import read_rgb
 from rhythmic_jax.io.tiles import tile_image
-from rhythmic_jax.nets import VGG16, EfficientNetLite0
 from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches
 
 RNG = np.random.default_rng(0)

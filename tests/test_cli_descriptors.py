@@ -16,7 +16,7 @@ import pytest
 import skimage.io
 from skimage.transform import resize
 
-from rhythmic_jax.io.weights import LITE0_PACKAGE, file_sha256, packaged_path
+from rhythmic_jax.frames.weights import LITE0_PACKAGE, file_sha256, packaged_path
 
 FRAMES = 8
 TILE = ["--tile", "32", "--stride", "32"]

@@ -16,42 +16,34 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 
 LAYERS = [
-    ["errors", "version", "io.atomic", "solvers.precondition", "solvers.span",
-     "progress", "decoding.buckets"],
-    ["validate", "solvers.precision", "quantize", "cache_files"],
-    ["scalar_codes", "jit_cache"],
-    [
-        "periods", "projection", "split", "nets", "io.checkpoint", "io.images", "codes",
-        "io.descriptor_files", "solvers.memory", "augment.kornia_ops",
-        "eval.baselines", "eval.metrics", "eval.figures", "compiled",
-    ],
-    ["groups"],
-    ["objective", "io.tiles", "io.weights", "io.frame_files", "pipeline",
-     "eval.ground_truth", "embedding"],
-    ["io.ground_truth_files", "closed_form", "solvers.newton_cg", "solvers.candidates"],
-    [
-        "solvers.newton", "solvers.optax_loops", "solvers.sharding", "decoding.hard",
-        "features", "solvers.streamed", "learn",
-    ],
-    ["network_build"],
-    [
-        "solvers.resumable", "decoding.soft", "solvers.distributed",
-        "io.describe_shards", "decoding.small",
-    ],
-    ["decoding.group_decode", "solvers.protocol"],
-    ["decoding.dispatch", "decoding.sequence", "io.sources", "scale_fit"],
-    ["decoding.fusion", "decoding.batch"],
-    [
-        "rhythmic_map", "eval.seqslam", "eval.outliers", "eval.report",
-        "augment.stream",
-    ],
-    ["demo", "scale_jobs", "eval.frontier"],
+    ["errors", "version", "progress"],
+    ["validate", "quantize"],
+    ["periods", "projection", "split", "scalar_codes",
+     "io.atomic", "io.images", "io.checkpoint"],
+    ["groups", "codes", "embedding", "io.descriptor_files", "io.tiles"],
+    ["objective", "map_file", "io.frame_files", "frames.cache_files", "frames.nets"],
+    ["closed_form", "jit_cache", "frames.compiled", "frames.weights",
+     "solvers.precondition", "solvers.span", "solvers.precision", "decoding.buckets"],
+    ["learn", "frames.pipeline", "solvers.newton_cg", "solvers.memory",
+     "solvers.optax_loops", "solvers.sharding", "solvers.candidates", "decoding.hard"],
+    ["frames.features", "solvers.newton", "solvers.streamed", "solvers.resumable",
+     "decoding.soft", "decoding.small"],
+    ["frames.sources", "frames.network_build", "frames.describe_shards",
+     "solvers.distributed", "solvers.protocol", "decoding.group_decode",
+     "augment.kornia_ops"],
+    ["augment.stream", "scale_fit", "decoding.dispatch", "decoding.sequence"],
+    ["decoding.batch", "decoding.fusion"],
+    ["rhythmic_map"],
+    ["scale_jobs", "eval.metrics", "eval.baselines", "eval.figures"],
+    ["eval.ground_truth", "eval.seqslam", "eval.outliers"],
+    ["eval.ground_truth_files", "eval.report", "eval.frontier"],
+    ["demo"],
     ["jobs"],
     [""],  # the public face, rhythmic_jax/__init__.py
     ["cli"],
 ]  # fmt: skip
 RANK = {name: i for i, layer in enumerate(LAYERS) for name in layer}
-FOLDERS = ("solvers", "decoding", "augment", "io", "eval")
+FOLDERS = ("io", "frames", "solvers", "decoding", "augment", "eval")
 
 
 def _name(path: Path) -> str:
@@ -118,3 +110,9 @@ def test_the_check_catches_an_upward_import(tmp_path):
     assert _imports(fake) == {"jobs"}
     fake.write_text("from rhythmic_jax import RhythmicMap\n")
     assert _imports(fake) == {""}
+
+
+def test_each_folder_sits_on_consecutive_layers():
+    for folder in FOLDERS:
+        ranks = {RANK[m] for m in RANK if m.startswith(f"{folder}.")}
+        assert ranks == set(range(min(ranks), max(ranks) + 1)), folder

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import BruteForce, InputError, RhythmicMap, jobs
-from rhythmic_jax.jobs import FitJob, Reading
+from rhythmic_jax.jobs import FitJob, Reading, _check_sources_memory
 
 
 @pytest.fixture(scope="module")
@@ -103,3 +103,15 @@ def test_info_reads_the_metadata_alone_and_says_what_load_says(route, tmp_path):
     (broken / "map.json").write_text(json.dumps(meta))
     with pytest.raises(InputError, match="arrays are missing or corrupt"):
         jobs.info(str(broken))
+
+
+def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
+    header = {"descr": "<f4", "fortran_order": False, "shape": (10**8, 2048)}
+    with open(tmp_path / "huge.npy", "wb") as f:
+        np.lib.format.write_array_header_1_0(f, header)
+    with pytest.raises(InputError, match="needs about .* stream the frames instead"):
+        _check_sources_memory([str(tmp_path / "huge.npy")], 2, 1, 7)
+    np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
+    _check_sources_memory([str(tmp_path / "small.npy")], 2, 1, 7)  # fits
+    _check_sources_memory([str(tmp_path / "absent.npy")], 2, 1, 7)  # left to the read
+    _check_sources_memory([str(tmp_path / "small.npy")], 1, 1, 7)  # left to the map

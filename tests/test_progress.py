@@ -7,7 +7,7 @@ import pytest
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.cli import main
-from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.progress import bar, bars_disabled
 
 X = np.random.default_rng(0).normal(size=(40, 8)).astype(np.float32)
@@ -46,7 +46,7 @@ def test_the_scale_out_bars_follow_tqdm_disable(tmp_path, capfd, monkeypatch, va
                                                 hidden):  # fmt: skip
     from PIL import Image
 
-    from rhythmic_jax.io.describe_shards import describe_to_shards
+    from rhythmic_jax.frames.describe_shards import describe_to_shards
     from rhythmic_jax.io.frame_files import open_frames
     from rhythmic_jax.solvers.streamed import StreamConfig, streamed_newton_fit
 

@@ -146,7 +146,7 @@ def test_quick_reproduction_agrees_with_the_library(
         assert model.storage_bytes == rj.storage_bytes(model.periods, model.d)
 
     # a fresh fit with the same settings chooses the periods the report names
-    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.images import nordland
 
     summer, _ = nordland(nordland_root, progress=False)

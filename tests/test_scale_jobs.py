@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.io.frame_files import open_frames, shard_descriptor
 from rhythmic_jax.io.images import list_images, read_rgb
 

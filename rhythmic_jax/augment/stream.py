@@ -110,7 +110,7 @@ class AugmentedEpoch(Sequence):
         rng = np.random.default_rng([config.seed, epoch, 1])
         self._clean_order = rng.permutation(len(clean))
         self._per_half = -(-len(clean) // config.batch_size)
-        from rhythmic_jax.compiled import stages
+        from rhythmic_jax.frames.compiled import stages
 
         self._prepare, self._run = stages(descriptor)
         self._ahead: dict[int, Future] = {}
@@ -130,7 +130,7 @@ class AugmentedEpoch(Sequence):
             )
         import torch
 
-        from rhythmic_jax.features import to_jax
+        from rhythmic_jax.frames.features import to_jax
 
         ahead = self._ahead.pop(i, None)
         for late in self._ahead.values():  # taken out of order: start afresh
@@ -216,7 +216,7 @@ def fit_augmented(
       images: uint8 (n, H, W, 3) reference frames; clean: (n, d) descriptors.
       labels: (n,) place of each frame; periods: every candidate period.
       init: start (e.g. the exact clean optimum), ``w`` (d, p), ``b`` (p,).
-      c: the penalty C; descriptor: a ``rhythmic_jax.features`` descriptor.
+      c: the penalty C; descriptor: a ``rhythmic_jax.frames.features`` descriptor.
       checkpoint: a folder for orbax checkpoints of the run
         (:func:`~rhythmic_jax.solvers.resumable.train_run`: every
         ``config.checkpoint_every`` steps, at the end, and on a stop such as

@@ -1,2 +1,3 @@
-"""Judging a map: metrics, the evaluation report beside brute force, outlier
-rejection, nearest-neighbour baselines, SeqSLAM, and the paper's figures."""
+"""Judging a map: ground truth and its files, metrics, the evaluation report
+beside brute force, outlier rejection, nearest-neighbour baselines, SeqSLAM,
+and the paper's figures."""

@@ -12,7 +12,7 @@ from skimage.transform import resize
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.augment.kornia_ops import AugmentConfig, augmented_batch, epoch_order
 from rhythmic_jax.augment.stream import AugmentedEpoch, AugmentedFit, fit_map_augmented
-from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.objective import targets
 
 

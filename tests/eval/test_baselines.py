@@ -168,7 +168,7 @@ def test_real_nordland_self_retrieval(nordland_root):
     frame within one index, and the storage formulas hold at full size."""
     import torch
 
-    from rhythmic_jax.features import PatchNorm
+    from rhythmic_jax.frames.features import PatchNorm
     from rhythmic_jax.io.images import load_traversal
 
     summer = load_traversal(nordland_root / "summer", progress=False)

@@ -15,8 +15,8 @@ import pytest
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.cli import main
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.features import _cache_settings, get_descriptor
-from rhythmic_jax.io.weights import (
+from rhythmic_jax.frames.features import _cache_settings, get_descriptor
+from rhythmic_jax.frames.weights import (
     LITE0_PACKAGE,
     file_record,
     file_sha256,

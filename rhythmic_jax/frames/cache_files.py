@@ -5,9 +5,9 @@ sharing the folder never read one half-written; one damaged another way (a
 truncated copy, a full disk) is recomputed with a warning.
 
 ``$RHYTHMIC_JAX_CACHE`` (default ``~/.cache/rhythmic_jax``) holds descriptor
-files (:func:`rhythmic_jax.features.cached_describe`,
-:func:`rhythmic_jax.pipeline.describe_files`) and the compiled networks
-(:mod:`rhythmic_jax.compiled`).
+files (:func:`rhythmic_jax.frames.features.cached_describe`,
+:func:`rhythmic_jax.frames.pipeline.describe_files`) and the compiled networks
+(:mod:`rhythmic_jax.frames.compiled`).
 """
 
 from __future__ import annotations

@@ -1,16 +1,17 @@
 """The descriptor network compiled for this CPU (AOTInductor), with eager as reference.
 
-A network descriptor (``prepare`` + ``network``, see :mod:`rhythmic_jax.features`)
-runs either eagerly or as an AOTInductor package: ``torch.export`` of the module
-at a fixed batch of :data:`COMPILE_BATCH` frames, compiled by inductor to C++ for
-this CPU with the weights frozen (batch norms folded into the convolutions). A
-batch of any size runs in chunks of that shape, the last chunk padded, so nothing
-is ever compiled again; the eager module runs in slices of :data:`EAGER_BATCH`
-frames (:class:`Sliced`). The package is written once (atomically) under
-``<cache folder>/compiled/`` and keyed by the descriptor's settings, the weights
-file, the input shape, torch's version and thread count and the CPU's vector
-instructions; later jobs load it in a fifth of a second instead of compiling
-(torch's package loader itself, without importing inductor, which took 2.3 s).
+A network descriptor (``prepare`` + ``network``, see
+:mod:`rhythmic_jax.frames.features`) runs either eagerly or as an AOTInductor
+package: ``torch.export`` of the module at a fixed batch of :data:`COMPILE_BATCH`
+frames, compiled by inductor to C++ for this CPU with the weights frozen (batch
+norms folded into the convolutions). A batch of any size runs in chunks of that
+shape, the last chunk padded, so nothing is ever compiled again; the eager module
+runs in slices of :data:`EAGER_BATCH` frames (:class:`Sliced`). The package is
+written once (atomically) under ``<cache folder>/compiled/`` and keyed by the
+descriptor's settings, the weights file, the input shape, torch's version and thread
+count and the CPU's vector instructions; later jobs load it in a fifth of a second
+instead of compiling (torch's package loader itself, without importing inductor,
+which took 2.3 s).
 
 Whether compiling pays is decided per job (:func:`plan`): loading a ready
 package costs about :data:`LOAD_SECONDS`, and the compiled network saves more
@@ -19,7 +20,7 @@ than a millisecond a frame (``reports/network.md``), so a job of
 yet, building it costs about :data:`BUILD_SECONDS`: a job of
 :data:`BUILD_MIN_FRAMES` frames or more builds it first; a smaller one runs
 eagerly and hands the build to a detached, niced background process
-(:func:`start_build`, :mod:`rhythmic_jax.network_build`), so the next job on the
+(:func:`start_build`, :mod:`rhythmic_jax.frames.network_build`), so the next job on the
 machine runs compiled. One builder at a time holds ``<package>.lock``; the
 package appears whole or not at all (temporary file, ``os.replace``); a damaged
 package is deleted and built again, never loaded.
@@ -143,7 +144,7 @@ def package_path(descriptor, shape: tuple[int, ...], cache_dir=None) -> Path:
     """``<cache>/compiled/<name>-<hash>.pt2`` of ``descriptor`` at input ``shape``."""
     import torch
 
-    from rhythmic_jax.cache_files import default_cache_dir
+    from rhythmic_jax.frames.cache_files import default_cache_dir
 
     ident = dict(
         name=descriptor.name,
@@ -278,7 +279,7 @@ def start_build(descriptor, shape: tuple[int, ...], cache_dir=None):
     except (TypeError, ValueError):  # not a dataclass of plain settings
         return None
     log.info("building the compiled %s in the background", descriptor.name)
-    return _spawn([sys.executable, "-m", "rhythmic_jax.network_build", spec])
+    return _spawn([sys.executable, "-m", "rhythmic_jax.frames.network_build", spec])
 
 
 def _spawn(argv: list[str]) -> subprocess.Popen:
@@ -298,7 +299,7 @@ def _build(module: torch.nn.Module, example: torch.Tensor, path: Path) -> None:
     import torch
     import torch._inductor
 
-    from rhythmic_jax.cache_files import default_cache_dir
+    from rhythmic_jax.frames.cache_files import default_cache_dir
 
     os.environ.setdefault(
         "TORCHINDUCTOR_CACHE_DIR", str(default_cache_dir() / "inductor")

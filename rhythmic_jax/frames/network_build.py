@@ -1,10 +1,10 @@
 """The background builder of the compiled descriptor network.
 
-``python -m rhythmic_jax.network_build SPEC`` is the process that
-:func:`rhythmic_jax.compiled.start_build` starts (detached, ``nice`` 10): it
+``python -m rhythmic_jax.frames.network_build SPEC`` is the process that
+:func:`rhythmic_jax.frames.compiled.start_build` starts (detached, ``nice`` 10): it
 rebuilds the descriptor from SPEC (JSON: its name and fields, the input shape,
 the cache folder, the job's torch thread count, which is part of the package's
-key), takes the package's lock (:func:`rhythmic_jax.compiled.take_lock`), and
+key), takes the package's lock (:func:`rhythmic_jax.frames.compiled.take_lock`), and
 builds the package unless it is ready; a failure is written to
 ``<package>.failed``.
 """
@@ -27,8 +27,8 @@ def build_main(spec: dict) -> int:
     the lock), 1 on failure."""
     import torch
 
-    from rhythmic_jax import compiled
-    from rhythmic_jax.features import get_descriptor
+    from rhythmic_jax.frames import compiled
+    from rhythmic_jax.frames.features import get_descriptor
 
     torch.set_num_threads(spec["threads"])
     descriptor = get_descriptor(spec["name"], **spec["fields"])

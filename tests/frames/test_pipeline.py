@@ -8,12 +8,12 @@ import time
 import numpy as np
 import pytest
 
-from rhythmic_jax import pipeline
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.features import describe, get_descriptor
+from rhythmic_jax.frames import pipeline
+from rhythmic_jax.frames.features import describe, get_descriptor
+from rhythmic_jax.frames.pipeline import ahead, describe_files, read_frames
 from rhythmic_jax.io import images as data
 from rhythmic_jax.io.images import load_traversal
-from rhythmic_jax.pipeline import ahead, describe_files, read_frames
 
 
 def test_ahead_keeps_order_and_stays_bounded():
@@ -121,7 +121,7 @@ def test_frames_larger_than_the_network_input_shrink_in_uint8_as_the_float_resiz
     left to the descriptor's own resize."""
     import torch
 
-    from rhythmic_jax.features import resize
+    from rhythmic_jax.frames.features import resize
 
     rng = np.random.default_rng(0)
     smooth = rng.integers(0, 256, (3, 40, 80, 3)).astype(np.float32)

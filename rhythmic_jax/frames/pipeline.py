@@ -3,7 +3,7 @@
 Reading (JPEG/PNG decoding in a small thread pool), conversion to float and the
 descriptor's resize run in a background thread at most a few batches ahead of
 the network (:func:`ahead`, a bounded queue); the caller's thread only runs the
-network (:func:`rhythmic_jax.compiled.network_runner`: compiled when the job is
+network (:func:`rhythmic_jax.frames.compiled.network_runner`: compiled when the job is
 large enough). Errors raised ahead (a bad image file) are raised in the caller
 when their batch is reached.
 
@@ -26,8 +26,8 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-from rhythmic_jax.compiled import AUTO, CompilePolicy, network_runner
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames.compiled import AUTO, CompilePolicy, network_runner
 from rhythmic_jax.progress import bar as progress_bar
 
 __all__ = [
@@ -132,7 +132,7 @@ def _to_batch(
 
     ``shrink_to`` (height, width): frames at least that large in both sides are
     first resized to it in uint8 (antialiased bilinear, half-pixel centres, as
-    :func:`rhythmic_jax.features.resize`, rounded to the nearest level): torch's
+    :func:`rhythmic_jax.frames.features.resize`, rounded to the nearest level): torch's
     uint8 kernel is several times faster than its float one, which took as long
     as reading the JPEGs for 640x320 frames going to a 224x112 network.
     """
@@ -211,7 +211,7 @@ def files_cache_path(
 ) -> Path:
     """``<cache>/<key>-<name>-<hash>.npy``: the hash covers the descriptor's name
     and settings and the files' names and bytes (in order)."""
-    from rhythmic_jax.cache_files import cache_key_check, default_cache_dir
+    from rhythmic_jax.frames.cache_files import cache_key_check, default_cache_dir
 
     cache_key_check(key)
     h = hashlib.sha256()
@@ -246,7 +246,7 @@ def describe_files(
     JPEGs are decoded at the smallest reduced scale still at least the
     network's input (:func:`read_frames`); kept images are decoded in full.
     """
-    from rhythmic_jax.cache_files import load_cached, save_cached
+    from rhythmic_jax.frames.cache_files import load_cached, save_cached
 
     files = [Path(f) for f in files]
     path = files_cache_path(files, descriptor, key, cache_dir)

@@ -9,8 +9,7 @@ from skimage.io import imsave
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.sources import (
-    check_sources_memory,
+from rhythmic_jax.frames.sources import (
     load_query_source,
     load_sources,
     reference_features,
@@ -68,23 +67,11 @@ def test_queries_must_fit_the_maps_descriptor(tmp_path):
         load_query_source(str(tmp_path / "s"), model, "hog", progress=False)
 
 
-def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
-    header = {"descr": "<f4", "fortran_order": False, "shape": (10**8, 2048)}
-    with open(tmp_path / "huge.npy", "wb") as f:
-        np.lib.format.write_array_header_1_0(f, header)
-    with pytest.raises(InputError, match="needs about .* stream the frames instead"):
-        check_sources_memory([str(tmp_path / "huge.npy")], 2, 1, 7)
-    np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
-    check_sources_memory([str(tmp_path / "small.npy")], 2, 1, 7)  # fits
-    check_sources_memory([str(tmp_path / "absent.npy")], 2, 1, 7)  # left to the read
-    check_sources_memory([str(tmp_path / "small.npy")], 1, 1, 7)  # left to the map
-
-
 def test_folders_are_described_as_read_and_cached(tmp_path, monkeypatch):
     """A folder is read ahead of the descriptor and cached by its files' bytes: a
     second load reads no frame, and without kept frames none are held."""
-    from rhythmic_jax import pipeline
-    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.frames import pipeline
+    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io import images
 
     monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path / "cache"))

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rhythmic_jax.cache_files import (
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames.cache_files import (
     cache_key_check,
     default_cache_dir,
     load_cached,
     save_cached,
 )
-from rhythmic_jax.errors import InputError
 
 
 def test_save_then_load(tmp_path):
@@ -56,6 +56,6 @@ def test_a_truncated_entry_is_recomputed_with_a_warning(tmp_path, caplog):
     path = tmp_path / "a.npy"
     save_cached(path, np.ones((40, 8), np.float32))
     path.write_bytes(path.read_bytes()[:200])  # what a non-atomic writer leaves
-    with caplog.at_level("WARNING", logger="rhythmic_jax.cache_files"):
+    with caplog.at_level("WARNING", logger="rhythmic_jax.frames.cache_files"):
         assert load_cached(path, (40, 8)) is None
     assert "recomputing unreadable cache file" in caplog.text

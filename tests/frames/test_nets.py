@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.nets import (
+from rhythmic_jax.frames.nets import (
     VGG16,
     EfficientNetLite0,
     lite0_weights_path,

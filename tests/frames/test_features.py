@@ -16,7 +16,7 @@ from skimage.io import imread
 from skimage.transform import resize as sk_resize
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.features import (
+from rhythmic_jax.frames.features import (
     DESCRIPTORS,
     cache_path,
     cached_describe,
@@ -27,7 +27,7 @@ from rhythmic_jax.features import (
     resize,
     to_jax,
 )
-from rhythmic_jax.nets import load_efficientnet_lite0
+from rhythmic_jax.frames.nets import load_efficientnet_lite0
 
 
 @pytest.fixture(autouse=True)

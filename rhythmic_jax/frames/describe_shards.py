@@ -32,7 +32,7 @@ def describe_to_shards(
     Returns the descriptor's settings (what a map built on the shards records).
     """
     from rhythmic_jax.errors import InputError
-    from rhythmic_jax.features import describe, get_descriptor
+    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.images import list_images, read_rgb
 
     desc = get_descriptor(descriptor, **(settings or {}))

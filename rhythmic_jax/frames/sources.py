@@ -19,14 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rhythmic_jax.compiled import AUTO, CompilePolicy
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
 from rhythmic_jax.validate import check_int
 
 __all__ = [
     "Features",
     "apply_projection",
-    "check_sources_memory",
     "describe_images",
     "load_query_source",
     "load_sources",
@@ -82,8 +81,8 @@ def describe_images(
     """Describe uint8 frames (n, H, W, 3) with a registered descriptor (cached).
 
     ``compile``: when the descriptor's network runs compiled
-    (:mod:`rhythmic_jax.compiled`)."""
-    from rhythmic_jax.features import cached_describe, get_descriptor
+    (:mod:`rhythmic_jax.frames.compiled`)."""
+    from rhythmic_jax.frames.features import cached_describe, get_descriptor
 
     desc = get_descriptor(name, **settings)
     x = cached_describe(images, desc, key=key, progress=progress, compile=compile)
@@ -94,11 +93,11 @@ def _describe_folder(
     path: Path, name: str, settings: dict, key: str, progress, compile, keep: bool
 ) -> tuple[np.ndarray, dict, np.ndarray | None]:
     """A folder of frames described as it is read: decoding and resizing run ahead
-    of the network (:func:`rhythmic_jax.pipeline.describe_files`), cached by the
+    of the network (:func:`rhythmic_jax.frames.pipeline.describe_files`), cached by the
     files' bytes. ``(x (n, d), settings, uint8 (n, H, W, 3) when keep)``."""
-    from rhythmic_jax.features import get_descriptor
+    from rhythmic_jax.frames.features import get_descriptor
+    from rhythmic_jax.frames.pipeline import describe_files
     from rhythmic_jax.io.images import list_images
-    from rhythmic_jax.pipeline import describe_files
 
     desc = get_descriptor(name, **settings)
     files = list_images(path, "traversal")
@@ -164,7 +163,7 @@ def _one(
 ):
     """(descriptors, settings, images or None) of one source; a folder's frames
     are kept only with ``keep``."""
-    from rhythmic_jax.features import get_descriptor
+    from rhythmic_jax.frames.features import get_descriptor
     from rhythmic_jax.io.descriptor_files import load_descriptors
 
     if kind == "npy":
@@ -375,27 +374,3 @@ def reference_features(
     ]
     labels = np.concatenate([np.arange(len(b)) for b in blocks])
     return np.concatenate(blocks), labels, note
-
-
-def check_sources_memory(sources: Sequence[str], r: int, level: int, count: int):
-    """Refuse descriptor files too large for a full-batch fit, from their headers.
-
-    Only ``.npy`` sources that exist are looked at (anything else is reported
-    when it is read); the map's settings ``r``, ``level``, ``count`` give the
-    templates. See :func:`rhythmic_jax.solvers.memory.check_memory`.
-    """
-    from rhythmic_jax.io.descriptor_files import descriptor_shape
-    from rhythmic_jax.periods import candidate_periods
-    from rhythmic_jax.solvers.memory import check_memory
-
-    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources):
-        return
-    shapes = [descriptor_shape(s) for s in sources]
-    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
-        return  # reading them says what is wrong
-    n, d = shapes[0]
-    try:
-        cands = candidate_periods(n, r, level, count)
-    except InputError:
-        return  # the map's settings say what is wrong
-    check_memory(n * len(shapes), d, sum(cands))

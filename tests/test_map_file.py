@@ -1,0 +1,64 @@
+"""The map's file format: what a saved map folder holds, and ``info`` from its
+metadata alone."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rhythmic_jax import InputError, MapConfig, RhythmicMap, map_file
+from rhythmic_jax.io.checkpoint import arrays_listed, read_metadata
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    x = np.random.default_rng(0).normal(size=(60, 24)).astype(np.float32)
+    path = tmp_path_factory.mktemp("maps") / "m.map"
+    RhythmicMap(r=2, level=1, codes=16).fit(x, progress=False).save(path)
+    return path
+
+
+def _refused(path):
+    raise AssertionError(f"{path}: loaded, though its metadata answers")
+
+
+def test_the_metadata_holds_every_info_key_and_the_arrays_it_needs(saved):
+    folder, meta = read_metadata(saved)
+    model = RhythmicMap.load(saved)
+    assert set(model.info()) == set(map_file.INFO_KEYS) | {"codes_kind"}
+    listed = arrays_listed(folder)
+    assert {"w", "b"} | map_file.CODE_ARRAYS["itq"] <= listed
+    assert map_file.consistent(meta, listed)
+    assert map_file.info(saved, _refused) == model.info()
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda meta: meta.pop("storage"),
+        lambda meta: meta.update(database_bytes=1),
+        lambda meta: meta.update(periods=[5, 6]),
+    ],
+)
+def test_inconsistent_metadata_is_handed_to_the_load(saved, tmp_path, change):
+    folder, meta = read_metadata(saved)
+    change(meta)
+    assert not map_file.consistent(meta, arrays_listed(folder))
+    assert not map_file.consistent(read_metadata(saved)[1], {"w", "b"})  # no codes
+    (tmp_path / "m.map").mkdir()
+    (tmp_path / "m.map" / "map.json").write_text(json.dumps(meta))
+    assert map_file.info(tmp_path / "m.map", lambda p: {"loaded": str(p)}) == {
+        "loaded": str(tmp_path / "m.map")
+    }
+
+
+def test_load_checks_what_queries_need(saved):
+    got = map_file.load(saved, MapConfig)
+    assert isinstance(got.config, MapConfig) and got.codebook is not None
+    assert got.stored["w"].shape == (24, sum(got.periods)) and got.n == 60
+    with pytest.raises(InputError, match="queries are 9-d"):
+        map_file.load(saved, MapConfig, d=9)
+    with pytest.raises(InputError, match="queries use 'hog'"):
+        map_file.load(saved, MapConfig, descriptor="hog")
