@@ -36,11 +36,11 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
-from rhythmic_jax.decoding.hard import Decoded
+from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.soft import calibrate, soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import pr_curve
@@ -60,6 +60,9 @@ __all__ = [
 CONFIDENCES = ("margin", "likelihood")
 
 _BIG = float(np.finfo(np.float64).max)
+
+# the per-period log-softmax as one program (periods static), not one per op
+_calibrated = jax.jit(calibrate, static_argnums=1)
 
 
 def finite_confidence(confidence) -> np.ndarray:
@@ -115,9 +118,10 @@ def decode_confidence(
     if kind not in CONFIDENCES:
         raise InputError(f"kind must be one of {CONFIDENCES}, got kind={kind!r}")
     per = tuple(int(t) for t in periods)
-    scores = jnp.asarray(scores)
+    scores = scores if isinstance(scores, jax.Array) else jax.device_put(scores)
     if kind == "likelihood":
-        scores = calibrate(scores, per)
+        check_scores(scores, per)  # one-line errors before the program
+        scores = _calibrated(scores, per)
     out = _decode(scores, per, n, method, m, exclude)
     conf = out.confidence if kind == "margin" else out.score
     index = np.asarray(out.index).astype(np.int64)

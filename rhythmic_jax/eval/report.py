@@ -19,6 +19,7 @@ import numpy as np
 from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
+from rhythmic_jax.eval.outliers import finite_confidence
 from rhythmic_jax.groups import Groups
 from rhythmic_jax.periods import database_bytes, place_columns
 
@@ -42,10 +43,12 @@ def ranked_places(scores, periods, n: int, k: int = 10) -> np.ndarray:
     :func:`rhythmic_jax.decoding.group_decode.place_scores`).
     """
     if isinstance(periods, Groups) and periods.kind != "periods":
-        total = place_scores(scores, periods, n)
-        return np.asarray(jax.lax.top_k(total, min(k, n))[1])
+        # jitted sums; the ranking on the host (top_k's order: ties by index)
+        total = np.asarray(place_scores(scores, periods, n))
+        return np.argsort(-total, axis=1, kind="stable")[:, : min(k, n)]
     periods = tuple(int(t) for t in getattr(periods, "sizes", periods))
-    return np.asarray(_ranked(jnp.asarray(scores), periods, int(n), min(k, n)))
+    scores = scores if isinstance(scores, jax.Array) else jax.device_put(scores)
+    return np.asarray(_ranked(scores, periods, int(n), min(k, n)))
 
 
 def _latency(fn, queries) -> dict[str, float]:
@@ -89,7 +92,7 @@ def _map_decisions(model, queries, method, sequence):
     if model.codebook is not None:
         conf, total, which = _hybrid_decisions(model, queries, method, sequence)
         ranked = np.argsort(-total, axis=1, kind="stable")[:, : min(max(KS), model.n)]
-        return pred, np.asarray(conf, np.float64), ranked, which
+        return pred, finite_confidence(conf), ranked, which
     s = model.scores(queries)
     if sequence is not None and sequence > 1:
         from rhythmic_jax.decoding.sequence import sequence_decode, sequence_scores
@@ -106,7 +109,7 @@ def _map_decisions(model, queries, method, sequence):
         conf = model.decode(queries, method).confidence
         which = "single-frame scores"
     ranked = ranked_places(s, model.groups, model.n, max(KS))
-    return pred, np.asarray(conf, np.float64), ranked, which
+    return pred, finite_confidence(conf), ranked, which
 
 
 def _scores_of(pred, conf, ranked, truth, exact, ks) -> dict[str, Any]:

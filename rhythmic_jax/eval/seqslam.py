@@ -45,6 +45,7 @@ __all__ = [
 _EPS = 1e-6
 
 
+@jax.jit
 def normalise_rows(a: jax.Array) -> jax.Array:
     """Rows scaled to unit L2 norm (zero rows stay zero): (m, d) -> (m, d)."""
     a = jnp.asarray(a)
@@ -52,6 +53,7 @@ def normalise_rows(a: jax.Array) -> jax.Array:
     return a / jnp.maximum(norm, _EPS)
 
 
+@jax.jit
 def similarity(queries: jax.Array, references: jax.Array) -> jax.Array:
     """Cosine similarity matrix: queries (T, d), references (N, d) -> S (T, N)."""
     return jnp.matmul(
@@ -59,6 +61,7 @@ def similarity(queries: jax.Array, references: jax.Array) -> jax.Array:
     )
 
 
+@functools.partial(jax.jit, static_argnames=("window",))
 def enhance_contrast(sim: jax.Array, window: int) -> jax.Array:
     """Local contrast along the reference axis: S (T, N) -> (S - mu) / sigma (T, N).
 
@@ -110,10 +113,16 @@ def sequence_similarity(sim: jax.Array, length: int, speed: float = 1.0) -> jax.
     ``D[t, i] = sum_{l=0}^{L-1} S[t - l, i - round(l * speed)]``, out-of-range terms
     0. Builds (T, N) arrays: use :func:`seqslam_decode` for large inputs.
     """
-    sim = jnp.asarray(sim)
     length = _check_positive(length, "length")
+    return _sequence_similarity(sim, length, float(speed))
+
+
+@functools.partial(jax.jit, static_argnames=("length", "speed"))
+def _sequence_similarity(sim: jax.Array, length: int, speed: float) -> jax.Array:
+    """:func:`sequence_similarity` once checked, one program."""
+    sim = jnp.asarray(sim)
     ext = jnp.concatenate([jnp.zeros((length - 1, sim.shape[1]), sim.dtype), sim])
-    return _diagonal_sums(ext, length, float(speed))
+    return _diagonal_sums(ext, length, speed)
 
 
 @functools.partial(jax.jit, static_argnames=("length", "speeds", "window", "chunk"))
@@ -152,15 +161,15 @@ def seqslam_decode(
     contrast_window: int | None = None,
     chunk: int = 256,
     progress: bool = False,
-) -> tuple[jax.Array, jax.Array]:
+) -> tuple[np.ndarray, np.ndarray]:
     """SeqSLAM match of every query frame: Q (T, d), X (N, d) -> index (T,), score (T,).
 
     ``index[t] = argmax_i max_v sum_l S~[t - l, i - round(l v)]`` (first speed and
     smallest ``i`` on ties); ``score`` is that maximum. ``contrast_window`` (e.g. 10)
     turns on the local contrast enhancement; ``chunk`` queries are scored at a time.
     """
-    q = jnp.asarray(queries)
-    x = jnp.asarray(references)
+    q = queries if isinstance(queries, jax.Array) else np.asarray(queries)
+    x = references if isinstance(references, jax.Array) else np.asarray(references)
     if q.ndim != 2 or x.ndim != 2 or q.shape[1] != x.shape[1]:
         raise InputError(
             f"queries (T, d) and references (N, d) must share d, got {q.shape} and "
@@ -181,16 +190,14 @@ def seqslam_decode(
         )
     frames = q.shape[0]
     if frames == 0:
-        return jnp.zeros((0,), jnp.int32), jnp.zeros((0,), jnp.float32)
+        return np.zeros((0,), np.int32), np.zeros((0,), np.float32)
     chunk = min(chunk, frames)
     total = math.ceil(frames / chunk) * chunk
-    dtype = jnp.result_type(q.dtype, x.dtype, jnp.float32)
-    qn = normalise_rows(q.astype(dtype))
-    qpad = jnp.pad(qn, ((length - 1, total - frames), (0, 0)))
-    valid = (
-        jnp.zeros(qpad.shape[0], bool).at[length - 1 : length - 1 + frames].set(True)
-    )
-    xn = normalise_rows(x.astype(dtype))
+    # the padded queries and their mask on the host; normalised in one program
+    valid = np.zeros(length - 1 + total, bool)
+    valid[length - 1 : length - 1 + frames] = True
+    qpad, xn = _prepare(q, x, length - 1, total - frames)
+    valid = jax.device_put(valid)
     indices, scores = [], []
     starts = range(0, total, chunk)
     for start in bar(starts, show=progress, desc="seqslam"):
@@ -199,4 +206,15 @@ def seqslam_decode(
         )
         indices.append(i)
         scores.append(s)
-    return jnp.concatenate(indices)[:frames], jnp.concatenate(scores)[:frames]
+    # numpy: joining the chunks compiles nothing
+    index = np.concatenate([np.asarray(i) for i in indices])[:frames]
+    return index, np.concatenate([np.asarray(v) for v in scores])[:frames]
+
+
+@functools.partial(jax.jit, static_argnames=("before", "after"))
+def _prepare(q, x, before: int, after: int):
+    """Unit rows of queries (T, d), padded with ``before`` zero rows on top and
+    ``after`` below, and of references (N, d), in their common float dtype."""
+    dtype = jnp.result_type(q.dtype, x.dtype, jnp.float32)
+    qn = normalise_rows(q.astype(dtype))
+    return jnp.pad(qn, ((before, after), (0, 0))), normalise_rows(x.astype(dtype))

@@ -29,14 +29,20 @@ terms, summed over the blocks in float64, one *pass* each:
   the bracket found; the step is Newton's on the piece at the bracket's left
   end, kept inside the bracket (exact once the bracket holds one piece).
 
-The step itself is the optax transformation
-:func:`rhythmic_jax.solvers.newton_cg.newton_cg`, handed the summed system
-(:class:`~rhythmic_jax.solvers.newton_cg.NewtonSystem`, CG in float64 on the
-host, one pass per product). The stopping rule is
-:mod:`rhythmic_jax.solvers.newton`'s (a template stops once its Newton decrement
-is below ``gap_tol`` times its objective); once a template stops, the passes
-carry only the templates still going (``StreamConfig.compact``). Every pass's
-sums go through
+The step is :func:`rhythmic_jax.solvers.newton_cg.newton_cg`'s (preconditioned CG
+stopping per template at ``||r|| <= eta ||g||``), run on the host in float64
+numpy on the summed system
+(:class:`~rhythmic_jax.solvers.newton_cg.NewtonSystem`, one pass per product),
+as are the preconditioner and the line search between passes: the only
+programs a fit compiles are the pass kernels and one for the regulariser's
+derivatives (about ten, whatever the templates still going). The stopping rule
+is :mod:`rhythmic_jax.solvers.newton`'s (a template stops once its Newton
+decrement is below ``gap_tol`` times its objective); once a template stops, the
+passes carry only the templates still going (``StreamConfig.compact``), in
+kernel calls of one width
+(:func:`rhythmic_jax.solvers.newton.chunk_width`, about p / 4), so each
+kernel compiles for two shapes at most: every column, and that width. Every
+pass's sums go through
 ``reduce`` (:func:`rhythmic_jax.solvers.distributed.allreduce` when each process
 streams its own rows), so K processes take the same steps.
 
@@ -61,14 +67,9 @@ from rhythmic_jax.io.frame_files import Frames
 from rhythmic_jax.objective import Templates, margin_objectives, targets
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.progress import bar as progress_bar
-from rhythmic_jax.solvers.newton_cg import (
-    Iterate,
-    NewtonSystem,
-    bucket,
-    host_loop,
-    newton_cg,
-)
-from rhythmic_jax.solvers.precondition import in_basis, outside_norms
+from rhythmic_jax.solvers.newton import chunk_width
+from rhythmic_jax.solvers.newton_cg import NewtonSystem
+from rhythmic_jax.solvers.precondition import outside_norms
 
 __all__ = [
     "FAST_STREAM",
@@ -107,9 +108,11 @@ class StreamConfig:
         leaves CG's truncated steps so poor that 40 Newton steps do not reach
         a 0.1 % gap.
       compact: passes after a template has stopped carry only the templates
-        still going (padded to a power of two, so few shapes compile): a
-        template that needs more steps than the others no longer costs a pass
-        over every template's columns.
+        still going, in kernel calls of
+        :func:`~rhythmic_jax.solvers.newton.chunk_width` columns (the last
+        padded with repeats; one shape, so a fit compiles each kernel twice at
+        most): a template that needs more steps than the others no longer
+        costs a pass over every template's columns.
     """
 
     gap_tol: float = 1e-6
@@ -153,7 +156,7 @@ def _block(x: np.ndarray, rows: int):
     xa = np.zeros((rows, x.shape[1] + 1), np.float32)
     xa[:m, :-1] = x
     xa[:m, -1] = 1.0
-    return jnp.asarray(xa)
+    return jax.device_put(xa)
 
 
 def _block_loss(m, labels, periods, c, cols=None):
@@ -279,13 +282,19 @@ def _line_pass(xa, labels, theta, s, ts, c, periods, cols=None):
 
 
 class _Stream:
-    """Passes over this process's rows ``start .. stop``, summed by ``reduce``."""
+    """Passes over this process's rows ``start .. stop``, summed by ``reduce``.
+
+    ``width``: the columns (templates) a kernel call carries when a pass is
+    given columns; a pass over ``k * width`` columns makes k calls per block
+    (None: one call, whatever the columns). Every compacted pass of a fit then
+    has one shape, so each kernel compiles at most twice per fit (all p
+    columns, and ``width``)."""
 
     def __init__(self, frames, start, stop, labels, periods, rows, reduce,
-                 keep=False):  # fmt: skip
+                 keep=False, width=None):  # fmt: skip
         self.frames, self.start, self.stop = frames, start, stop
         self.labels, self.periods, self.rows = labels, periods, rows
-        self.reduce, self.seconds = reduce, []
+        self.reduce, self.seconds, self.width = reduce, [], width
         # where every row's curvature is not 0 at the current theta, one bit per
         # template of the last gradient pass, and its one value there (None:
         # recompute it in CG passes)
@@ -296,14 +305,36 @@ class _Stream:
         """Zeroed bits of this process's rows for ``templates`` columns."""
         return np.zeros((self.stop - self.start, -(-templates // 8)), np.uint8)
 
-    def run(self, kernel, *args, bits: str | None = None, cols=None):
-        """Sum ``kernel`` over the blocks. ``bits``: "write" keeps the kernel's
-        second output (:func:`_grad_keep`'s); "read" passes the kept bits to the
-        kernel in place of the labels. ``cols`` (b,): the templates the
-        arguments hold (None: all)."""
+    def _chunks(self, cols) -> list[tuple[jax.Array | None, slice]]:
+        """The kernel calls of a pass over ``cols``: each call's columns (on the
+        device; None: all) and where they sit in ``cols``."""
+        if cols is None:
+            return [(None, slice(None))]
+        width = self.width or len(cols)
+        if len(cols) % width:
+            raise ValueError(f"{len(cols)} columns are not calls of {width}")
+        return [
+            (jax.device_put(np.asarray(cols[i : i + width], np.int32)),
+             slice(i, i + width))
+            for i in range(0, len(cols), width)
+        ]  # fmt: skip
+
+    def run(self, kernel, *args, split: int = 0, bits: str | None = None,
+            cols=None):  # fmt: skip
+        """Sum ``kernel`` over the blocks. The first ``split`` arguments hold
+        the templates on their last axis (cut into the calls of ``cols``); the
+        others are the same for every call. ``bits``: "write" keeps the
+        kernel's second output (:func:`_grad_keep`'s); "read" passes the kept
+        bits to the kernel in place of the labels. ``cols`` (b,): the templates
+        the arguments hold (None: all)."""
         t0 = time.perf_counter()
         total, tops, flat = None, [], True
-        extra = {} if cols is None else {"cols": jnp.asarray(cols, jnp.int32)}
+        calls = self._chunks(cols)
+        shared = [_put(a) for a in args[split:]]
+        cut = [[_put(np.asarray(a)[..., where]) for a in args[:split]]
+               for _, where in calls]  # fmt: skip
+        byte = [slice(None) if w.start is None else slice(w.start // 8, w.stop // 8)
+                for _, w in calls]  # fmt: skip
         if bits == "write":
             width = len(cols) if cols is not None else sum(self.periods)
             if self.bits.shape[1] != -(-width // 8):
@@ -318,21 +349,50 @@ class _Stream:
             else:
                 side = np.full(self.rows, -1, np.int32)
                 side[: hi - lo] = self.labels[here]
-            part = kernel(xa, jnp.asarray(side), *args, periods=self.periods, **extra)
+            part = self._calls(kernel, xa, side, calls, cut, shared, byte, bits)
             if bits == "write":
                 part, (packed, top, ok) = part
-                self.bits[here] = np.asarray(packed)[: hi - lo]
-                tops.append(np.asarray(top, np.float64))
-                flat &= bool(ok)
-            part = jax.tree.map(lambda a: np.asarray(a, np.float64), part)
+                self.bits[here] = packed[: hi - lo]
+                tops.append(top)
+                flat &= ok
             total = part if total is None else jax.tree.map(np.add, total, part)
         if total is None:  # a process with no rows still joins the reduction
-            total = self._zeros(kernel, *args, bits=bits, **extra)
+            xa = _block(np.zeros((0, self.frames.d), np.float32), self.rows)
+            if bits == "read":
+                side = np.zeros((self.rows, self.bits.shape[1]), np.uint8)
+            else:
+                side = np.full(self.rows, -1, np.int32)
+            part = self._calls(kernel, xa, side, calls, cut, shared, byte, bits)
+            total = jax.tree.map(np.zeros_like, part[0] if bits == "write" else part)
         total = self.reduce(total)
         if bits == "write":
             self.top = self._one_value(tops, flat, width)
         self.seconds.append(time.perf_counter() - t0)
         return total
+
+    def _calls(self, kernel, xa, side, calls, cut, shared, byte, bits):
+        """One block's sums over every call of a pass, as numpy (float64 but
+        :func:`_grad_keep`'s bits), the calls' columns side by side."""
+        whole = None if bits == "read" else jax.device_put(side)
+        outs = []
+        for (where, _), mine, nbytes in zip(calls, cut, byte, strict=True):
+            extra = {} if where is None else {"cols": where}
+            # the bits of this call's columns, cut on the host (no program)
+            part_side = jax.device_put(side[:, nbytes]) if whole is None else whole
+            out = kernel(xa, part_side, *mine, *shared, periods=self.periods, **extra)
+            if bits == "write":
+                sums, (packed, top, ok) = out
+                out = (_float64(sums), (np.asarray(packed), _float64(top), bool(ok)))
+            else:
+                out = _float64(out)
+            outs.append(out)
+        if len(outs) == 1:
+            return outs[0]
+        if bits == "write":
+            sums = _side_by_side([o[0] for o in outs])
+            packed, top = (_side_by_side([o[1][i] for o in outs]) for i in (0, 1))
+            return sums, (packed, top, all(o[1][2] for o in outs))
+        return _side_by_side(outs)
 
     def _one_value(self, tops, flat, p):
         """The curvature's one nonzero value per template (p columns) over every
@@ -346,16 +406,21 @@ class _Stream:
             return None
         return s[0] / count
 
-    def _zeros(self, kernel, *args, bits=None, **extra):
-        xa = jnp.zeros((self.rows, self.frames.d + 1), jnp.float32)
-        if bits == "read":
-            side = jnp.zeros((self.rows, self.bits.shape[1]), jnp.uint8)
-        else:
-            side = jnp.full(self.rows, -1, jnp.int32)
-        part = kernel(xa, side, *args, periods=self.periods, **extra)
-        if bits == "write":
-            part = part[0]
-        return jax.tree.map(lambda a: np.zeros(a.shape), part)
+
+def _put(a):
+    """An argument of a kernel on the device once per pass (numpy arrays; Python
+    scalars stay weakly typed, as jit takes them)."""
+    return jax.device_put(a) if isinstance(a, np.ndarray) else a
+
+
+def _float64(tree):
+    """Every array of a tree as a numpy float64 array."""
+    return jax.tree.map(lambda a: np.asarray(a, np.float64), tree)
+
+
+def _side_by_side(trees):
+    """Trees of arrays with the templates on their last axis, joined along it."""
+    return jax.tree.map(lambda *xs: np.concatenate(xs, axis=-1), *trees)
 
 
 def streamed_newton_fit(
@@ -387,89 +452,83 @@ def streamed_newton_fit(
     periods = tuple(int(t) for t in periods)
     p, q = sum(periods), frames.d + 1
     block = max(1, min(config.block_rows, frames.n))
+    width = chunk_width(p) if config.compact else p
     stream = _Stream(frames, start, stop, np.asarray(labels, np.int32), periods,
-                     block, reduce, config.keep_active)  # fmt: skip
-    tx = newton_cg(config.eta, config.max_cg)
+                     block, reduce, config.keep_active, width)  # fmt: skip
     done = np.zeros(p, bool)
     info = StreamInfo()
-    start_theta = np.zeros((q, p))
+    theta = np.zeros((q, p))
     # what the steps depend on (not the block size or the step cap)
     key = " ".join(map(repr, (frames.n, q, start, stop, periods, c, config.gap_tol,
                               config.eta, config.max_cg, config.cg_start,
                               config.spectral_rank)))  # fmt: skip
-    first = _resume(checkpoint, key, start_theta, done, info, stream, reduce)
+    first = _resume(checkpoint, key, theta, done, info, stream, reduce)
     bar = progress_bar(range(first, config.max_iter), show=progress,
                        desc="newton (streamed)")  # fmt: skip
     vecs = None
     if config.spectral_rank > 0 and not done.all():
         vecs = _spectral_basis(stream, config.spectral_rank, start == 0)
     with jax.enable_x64(True):
-        params = Iterate(jnp.asarray(start_theta, jnp.float64), None)
-        state = tx.init(params)
-        state = state._replace(count=jnp.asarray(first, state.count.dtype))
         objective = np.full(p, np.nan)
         info.gap_estimate = np.where(done, 0.0, np.inf)
         for step in bar:
             if done.all():  # resumed from the last step's checkpoint
                 break
-            cols = _live_columns(done, config.compact)
-            theta = params.theta
-            part = theta if cols is None else theta[:, cols]
-            live = ~done if cols is None else ~done[cols]
-            th32 = part.astype(jnp.float32)
+            cols = _live_columns(done, config.compact, width)
+            where = slice(None) if cols is None else cols
+            part, live = theta[:, where], ~done[where]
+            th32 = part.astype(np.float32)
+            value, reg_grad, reg_diag = (
+                a[..., where] for a in _regulariser_terms(theta, c)
+            )
             if config.keep_active:
                 loss, gx, curv = stream.run(
-                    _grad_keep, th32, c, vecs, bits="write", cols=cols
+                    _grad_keep, th32, c, vecs, split=1, bits="write", cols=cols
                 )
             else:
-                loss, gx, curv = stream.run(_grad_pass, th32, c, vecs, cols=cols)
-            f0, reg_grad = _value_and_grad(part, c)
-            f0 = np.asarray(f0) + loss
-            grad = jnp.where(live[None, :], reg_grad + gx, 0.0)
-            system = _system(stream, part, th32, grad, curv, c, cols, vecs)
-            cap = config.cg_cap(step)
-            updates, state = tx.update(
-                Iterate(grad, None), state, Iterate(part, None), system=system,
-                max_cg=cap,
-            )  # fmt: skip
-            t = _line_search(stream, th32, part, updates.theta, c, grad, cols)
-            part = part + t[None, :] * updates.theta
-            theta = part if cols is None else theta.at[:, cols].set(part)
-            params = Iterate(theta, None)
+                loss, gx, curv = stream.run(_grad_pass, th32, c, vecs, split=1,
+                                            cols=cols)  # fmt: skip
+            f0 = value + loss
+            grad = np.where(live[None, :], reg_grad + gx, 0.0)
+            system = _system(stream, th32, grad, curv, c, reg_diag, cols, vecs)
+            s, its = _newton_direction(system, config.eta, config.cg_cap(step))
+            decrement = 0.5 * np.sum(-grad * s, axis=0)
+            t = _line_search(stream, th32, s, c, grad, (reg_grad, reg_diag), cols)
+            theta[:, where] = part + t[None, :] * s
             info.steps += 1
-            info.cg_iterations.append(int(state.cg_iterations))
+            info.cg_iterations.append(its)
             info.columns.append(int(part.shape[1]))
-            gap = np.asarray(state.decrement) / np.maximum(np.abs(f0), 1e-300)
-            where = slice(None) if cols is None else cols
+            gap = decrement / np.maximum(np.abs(f0), 1e-300)
             objective[where] = f0
-            info.gap_estimate[where] = gap
+            # a stopped template carried along keeps its last step's estimate
+            info.gap_estimate[where] = np.where(live, gap, info.gap_estimate[where])
             done[where] |= live & (gap <= config.gap_tol)
             bar.set_postfix(
                 objective=f"{np.nansum(objective):.6g}",
                 gap=f"{gap[live & ~done[where]].max(initial=0):.1e}",
             )
             if checkpoint is not None:
-                _save(checkpoint, key, np.asarray(params.theta), done, info, stream)
+                _save(checkpoint, key, theta, done, info, stream)
             if done.all():
                 break
         bar.close()
-        theta = params.theta
-        loss, _, _ = stream.run(_grad_pass, theta.astype(jnp.float32), c)
-        info.objective = np.asarray(_value_and_grad(theta, c)[0]) + loss
-        theta = np.asarray(theta, np.float32)
+        loss, _, _ = stream.run(_grad_pass, theta.astype(np.float32), c, split=1)
+        info.objective = _regulariser_terms(theta, c)[0] + loss
+        theta = theta.astype(np.float32)
     info.pass_seconds = stream.seconds
     return Templates(w=theta[:-1], b=theta[-1]), info
 
 
-def _live_columns(done: np.ndarray, compact: bool) -> np.ndarray | None:
+def _live_columns(done: np.ndarray, compact: bool, width: int) -> np.ndarray | None:
     """The templates a Newton step carries: None (all p) while every template
-    is going or without compaction; else the ones not done, padded with
-    repeats of the first to :func:`rhythmic_jax.solvers.newton_cg.bucket`'s width."""
+    is going, without compaction, or where the ones going need as many columns
+    as all; else the ones not done, padded with repeats of the first to a
+    multiple of ``width`` (the columns of one kernel call)."""
     todo = np.flatnonzero(~done)
-    if not compact or len(todo) == len(done):
+    calls = -(-len(todo) // width)
+    if not compact or calls * width >= len(done):
         return None
-    width = bucket(len(todo), len(done))
-    return np.concatenate([todo, np.full(width - len(todo), todo[0])])
+    return np.concatenate([todo, np.full(calls * width - len(todo), todo[0])])
 
 
 def _save(path, key, theta, done, info, stream) -> None:
@@ -510,10 +569,23 @@ def _resume(path, key, theta, done, info, stream, reduce) -> int:
     return steps
 
 
-def _value_and_grad(theta, c):
-    """The regulariser's value (p,) and gradient (q, p) at theta (float64)."""
+@jax.jit
+def _regulariser_derivatives(theta, c):
+    """The regulariser's value (p,), gradient (q, p) and Hessian diagonal (q, p)
+    at theta (q, p), by autodiff. Its Hessian is that diagonal (``0.5
+    ||theta||^2`` per template), so its product with v is ``diagonal * v``."""
     value, vjp = jax.vjp(lambda th: _regulariser(th, c), theta)
-    return value, vjp(jnp.ones_like(value))[0]
+    grad = jax.grad(lambda th: jnp.sum(_regulariser(th, c)))
+    diag = jax.jvp(grad, (theta,), (jnp.ones_like(theta),))[1]
+    return value, vjp(jnp.ones_like(value))[0], diag
+
+
+def _regulariser_terms(theta: np.ndarray, c: float) -> tuple[np.ndarray, ...]:
+    """:func:`_regulariser_derivatives` at theta (q, p) float64 as numpy arrays
+    (one program per fit: it is called with every column)."""
+    with jax.enable_x64(True):
+        out = _regulariser_derivatives(jax.device_put(np.asarray(theta, np.float64)), c)
+        return tuple(np.asarray(a, np.float64) for a in out)
 
 
 def _spectral_basis(stream, rank: int, first: bool) -> np.ndarray:
@@ -533,79 +605,108 @@ def _preconditioner(lam, curv, vecs):
     """An approximate inverse of ``lam I + Xa^T diag(h_j) Xa`` for every template
     j, from :func:`_curvature`'s sums: its diagonal (Jacobi) when ``vecs`` is
     None; else the diagonal in the basis ``vecs`` (q, k) and, outside it, the
-    mean of the trace left over the q - k other directions."""
+    mean of the trace left over the q - k other directions (as
+    :func:`rhythmic_jax.solvers.precondition.in_basis`). numpy float64: it
+    runs on the host between passes, no program of its own."""
+    lam = np.asarray(lam, np.float64)
     if vecs is None:
-        diag = lam + curv
-        return lambda r: r / diag
-    inside, rest = curv
-    q, k = vecs.shape
-    diag = lam + jnp.asarray(inside)
-    tail = lam + jnp.asarray(rest)[None, :] / max(q - k, 1)
-    return in_basis(jnp.asarray(vecs, jnp.float64), lambda coef: coef / diag, tail)
+        diag = lam + np.asarray(curv, np.float64)
+        return lambda r: np.asarray(r, np.float64) / diag
+    inside, rest = (np.asarray(a, np.float64) for a in curv)
+    basis = np.asarray(vecs, np.float64)
+    q, k = basis.shape
+    diag = lam + inside
+    tail = lam + rest[None, :] / max(q - k, 1)
+
+    def apply(r):
+        r = np.asarray(r, np.float64)
+        coef = basis.T @ r
+        return basis @ (coef / diag - coef / tail) + r / tail
+
+    return apply
 
 
-def _system(stream, theta, th32, grad, curv, c, cols=None, vecs=None) -> NewtonSystem:
-    """The Newton system at theta for :func:`newton_cg`: products are passes over
-    the blocks (plus the regulariser's Hessian, by autodiff), preconditioned by
-    :func:`_preconditioner` from the gradient pass's curvature sums ``curv``;
-    CG in float64 on the host. ``cols``: the templates theta (q, b) holds
-    (None: all); ``vecs``: the spectral basis (None: Jacobi)."""
-
-    def reg_hvp(v):
-        return jax.jvp(
-            jax.grad(lambda th: jnp.sum(_regulariser(th, c))), (theta,), (v,)
-        )
-
-    reg_diag = reg_hvp(jnp.ones_like(theta))[1]
-    lam = reg_diag if vecs is None else jnp.mean(reg_diag, axis=0, keepdims=True)
+def _system(stream, th32, grad, curv, c, reg_diag, cols=None,
+            vecs=None) -> NewtonSystem:  # fmt: skip
+    """The Newton system at theta for :func:`_newton_direction`: products are
+    passes over the blocks plus the regulariser's Hessian (its diagonal
+    ``reg_diag`` (q, b)), preconditioned by :func:`_preconditioner` from the
+    gradient pass's curvature sums ``curv``; float64 numpy on the host. ``th32``
+    (q, b): theta's columns ``cols`` (None: all) in float32; ``vecs``: the
+    spectral basis (None: Jacobi)."""
+    lam = reg_diag if vecs is None else np.mean(reg_diag, axis=0, keepdims=True)
 
     def hvp(v):
-        v32 = v.astype(jnp.float32)
+        v32 = np.asarray(v, np.float32)
         if stream.top is not None:  # the curvature kept by the gradient pass
-            top = jnp.asarray(stream.top, jnp.float32)
-            loss = stream.run(_hess_kept, v32, top, bits="read", cols=cols)
+            top = np.asarray(stream.top, np.float32)
+            loss = stream.run(_hess_kept, v32, top, split=2, bits="read", cols=cols)
         else:
-            loss = stream.run(_hess_pass, th32, v32, c, cols=cols)
-        return reg_hvp(v)[1] + loss, None
+            loss = stream.run(_hess_pass, th32, v32, c, split=2, cols=cols)
+        return reg_diag * v + loss, None
 
     precond = _preconditioner(lam, curv, vecs)
-    return NewtonSystem(grad, hvp, precond, 1.0, jnp.float64, host_loop)
+    return NewtonSystem(grad, hvp, precond, 1.0, np.float64, None)
 
 
-def _line_search(stream, th32, theta, s, c, grad, cols=None) -> np.ndarray:
+def _newton_direction(system: NewtonSystem, eta: float, max_iter: int):
+    """The Newton step ``s`` (q, b) solving ``H s = -g`` by preconditioned CG
+    from 0 (every column at once, column j stopping at ``||r_j|| <= eta
+    ||g_j||``, as :func:`rhythmic_jax.solvers.newton_cg.newton_cg`'s), and the
+    iterations (passes) it took. numpy float64 on the host: each iteration is
+    one pass (``system.hvp``) and a few (q, b) operations, no program."""
+    r = -np.asarray(system.grad, np.float64)
+    target = eta * np.linalg.norm(r, axis=0, keepdims=True)
+    z = system.precond(r)
+    rz = np.sum(r * z, axis=0, keepdims=True)
+    s, d, it = np.zeros_like(r), z, 0
+    while it < max_iter:
+        on = np.linalg.norm(r, axis=0, keepdims=True) > target
+        if not on.any():
+            break
+        ad = np.asarray(system.hvp(d)[0], np.float64)
+        dad = np.sum(d * ad, axis=0, keepdims=True)
+        step = np.where(on, rz / np.where(dad > 0, dad, 1.0), 0.0)
+        s, r = s + step * d, r - step * ad
+        z = system.precond(r)
+        rz_new = np.sum(r * z, axis=0, keepdims=True)
+        beta = rz_new / np.where(rz > 0, rz, 1.0)
+        d = np.where(on, z + beta * d, d)
+        rz = np.where(on, rz_new, rz)
+        it += 1
+    return s, it
+
+
+def _line_search(stream, th32, s, c, grad, reg, cols=None) -> np.ndarray:
     """Step length (p,) along s: two passes of ``phi'`` on grids (see module).
 
     ``phi(t)`` is the objective along the step: the regulariser's part, a
-    quadratic in t (its slope at 0 and curvature by ``jax.jvp``), plus the
-    blocks' (:func:`_line_pass`)."""
-
-    def reg(t):
-        return _regulariser(theta + t[None, :] * s, c)
-
-    def reg_slope(t):
-        return jax.jvp(reg, (t,), (jnp.ones_like(t),))[1]
-
-    zero = jnp.zeros(theta.shape[1], theta.dtype)
-    b, cc = (np.asarray(v) for v in jax.jvp(reg_slope, (zero,), (jnp.ones_like(zero),)))
-    s = np.asarray(s)
+    quadratic in t (slope ``reg_grad . s`` at 0, curvature ``s . diag s`` from
+    ``reg = (reg_grad, reg_diag)`` (q, b) of :func:`_regulariser_terms`), plus
+    the blocks' (:func:`_line_pass`). numpy on the host between the passes."""
+    reg_grad, reg_diag = (np.asarray(a, np.float64) for a in reg)
+    s = np.asarray(s, np.float64)
+    b = np.sum(reg_grad * s, axis=0)
+    cc = np.sum(reg_diag * s * s, axis=0)
+    s32 = s.astype(np.float32)
     lo = np.zeros_like(b)
     g_lo = np.sum(np.asarray(grad) * s, axis=0)  # phi'(0)
     hi = np.full_like(b, np.inf)
     grid = np.repeat(np.asarray(_GRID)[:, None], len(b), axis=1)
     h_lo = None
+    idx = np.arange(len(b))
     for _ in range(2):
-        gs, hs = stream.run(_line_pass, th32, jnp.asarray(s, jnp.float32),
-                            jnp.asarray(grid, jnp.float32), c, cols=cols)  # fmt: skip
+        gs, hs = stream.run(_line_pass, th32, s32, grid.astype(np.float32), c,
+                            split=3, cols=cols)  # fmt: skip
         slope = b[None] + grid * cc[None] + gs  # phi'(t) at the grid
         curv = cc[None] + hs
         left = slope < 0
         t_lo = np.where(left, grid, -np.inf).max(axis=0)
         i_lo = np.where(left, grid, -np.inf).argmax(axis=0)
         better = left.any(axis=0) & (t_lo > lo)
-        cols = np.arange(len(b))
         lo = np.where(better, t_lo, lo)
-        g_lo = np.where(better, slope[i_lo, cols], g_lo)
-        h_new = curv[i_lo, cols]
+        g_lo = np.where(better, slope[i_lo, idx], g_lo)
+        h_new = curv[i_lo, idx]
         h_lo = h_new if h_lo is None else np.where(better, h_new, h_lo)
         t_hi = np.where(~left, grid, np.inf).min(axis=0)
         hi = np.minimum(hi, t_hi)
@@ -636,7 +737,7 @@ def stream_errors(frames, labels, periods, params: Templates, rows=None,
     periods = tuple(int(t) for t in periods)
     stream = _Stream(frames, start, stop, np.asarray(labels, np.int32), periods,
                      max(1, min(block_rows, frames.n)), reduce)  # fmt: skip
-    theta = jnp.asarray(np.concatenate([params.w, params.b[None]]), jnp.float32)
-    wrong = stream.run(_wrong_pass, theta)
+    theta = np.concatenate([params.w, params.b[None]]).astype(np.float32)
+    wrong = stream.run(_wrong_pass, theta, split=1)
     n = reduce(np.array([stop - start], np.float64))[0]
     return wrong / n

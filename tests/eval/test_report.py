@@ -171,6 +171,20 @@ def test_map_row_with_given_gt_and_decode(case):
     assert row["n_queries"] == N - 1  # the outlier is left out of recall
 
 
+def test_a_top_m_decode_without_rivals_is_scored(case):
+    """A top-m decode whose kept phases leave a query one candidate place has an
+    infinite confidence (no rival): the PR curve ranks it first, not an error."""
+    model, _, q = case
+    conf = np.asarray(model.decode(q, "topm").confidence)
+    assert np.isinf(conf).any()  # the case this covers
+    res = evaluate_map(model, q, method="topm", timing=False)
+    row = res["methods"]["map"]
+    assert row["accuracy"] == pytest.approx(
+        (model.predict(q, "topm") == np.arange(N)).mean()
+    )
+    assert 0.0 <= row["pr_auc"] <= 1.0
+
+
 @pytest.mark.parametrize("tol", [0, 3])
 def test_brute_force_row_matches_sklearn_cosine(case, tol):
     model, x, q = case

@@ -1,5 +1,11 @@
 """The streamed Newton-CG solver against the in-memory one."""
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -63,17 +69,19 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
             return margin_objectives(th, jnp.asarray(xa) @ th, jnp.asarray(y), c)
 
         grad_ref = jax.grad(lambda th: jnp.sum(f(th)))(theta)
-        th32 = theta.astype(jnp.float32)
-        loss, gx, diag = stream.run(streamed._grad_pass, th32, c)
-        reg, reg_grad = streamed._value_and_grad(theta, c)
+        th32 = np.asarray(theta, np.float32)
+        loss, gx, diag = stream.run(streamed._grad_pass, th32, c, split=1)
+        reg, reg_grad, reg_diag = streamed._regulariser_terms(np.asarray(theta), c)
         np.testing.assert_allclose(reg + loss, f(theta), rtol=1e-6)
         grad = reg_grad + gx
         np.testing.assert_allclose(grad, grad_ref, rtol=1e-4, atol=1e-4)
-        system = streamed._system(stream, theta, th32, grad, diag, c)
-        v = jnp.asarray(rng.normal(size=theta.shape))
+        system = streamed._system(stream, th32, grad, diag, c, reg_diag)
+        v = rng.normal(size=theta.shape)
         hv, margins = system.hvp(v)
         assert margins is None  # nothing of size n is kept
-        hv_ref = jax.jvp(jax.grad(lambda th: jnp.sum(f(th))), (theta,), (v,))[1]
+        hv_ref = jax.jvp(
+            jax.grad(lambda th: jnp.sum(f(th))), (theta,), (jnp.asarray(v),)
+        )[1]
         np.testing.assert_allclose(hv, hv_ref, rtol=1e-4, atol=1e-4)
         # the Newton step at theta, then the search along it
         th, g64 = np.asarray(theta), np.asarray(grad_ref)
@@ -82,8 +90,12 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
             active = (y[:, j] * (xa @ th[:, j]) < 1)[:, None]
             hessian = np.eye(d + 1) + 2 * c * xa.T @ (active * xa)
             s[:, j] = np.linalg.solve(hessian, -g64[:, j])
+        # the host CG converges to that step
+        cg, its = streamed._newton_direction(system, 1e-8, 200)
+        assert 0 < its < 200
+        np.testing.assert_allclose(cg, s, rtol=1e-3, atol=1e-4)
+        t = streamed._line_search(stream, th32, s, c, grad, (reg_grad, reg_diag))
         s = jnp.asarray(s)
-        t = streamed._line_search(stream, th32, theta, s, c, grad)
         it = Iterate(theta, jnp.asarray(xa) @ theta)
         step = Iterate(s, jnp.asarray(xa) @ s)
 
@@ -252,3 +264,45 @@ def test_spectral_preconditioning_reaches_the_optimum_in_fewer_cg_passes(tmp_pat
         assert rel.max() < 1e-5
         assert np.all(info.gap_estimate <= 1e-6)
     assert sum(spectral.cg_iterations) < sum(jacobi.cg_iterations)
+
+
+_COUNT = r"""
+import collections, json, sys
+import jax
+jax.config.update("jax_enable_compilation_cache", False)
+import numpy as np
+from rhythmic_jax.io.frame_files import open_frames
+from rhythmic_jax.solvers.streamed import StreamConfig, streamed_newton_fit
+names = collections.Counter()
+def listen(event, duration, **kw):
+    if event == "/jax/core/compile/backend_compile_duration":
+        names["programs"] += 1
+jax.monitoring.register_event_duration_secs_listener(listen)
+frames = open_frames(sys.argv[1])
+n = frames.n
+_, info = streamed_newton_fit(frames, np.arange(n), (15, 16, 17), float(np.log(n)),
+                              StreamConfig(gap_tol=1e-5, block_rows=64), progress=False)
+print("RESULT " + json.dumps(dict(programs=names["programs"], columns=info.columns)))
+"""
+
+
+def test_a_streamed_fit_compiles_a_few_programs_whatever_columns_it_carries(tmp_path):
+    """In a fresh process a compacted streamed fit compiles its pass kernels for
+    two widths and one regulariser program, no eager op: 9 programs (165 when
+    CG ran as eager jnp ops and every power of two compiled)."""
+    _route_file(tmp_path, seed=3, n=240, d=14)
+    env = dict(os.environ, JAX_PLATFORMS="cpu", TF_CPP_MIN_LOG_LEVEL="3")
+    env["PYTHONPATH"] = os.pathsep.join(
+        [str(Path(streamed.__file__).parents[2]), env.get("PYTHONPATH", "")]
+    )
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    proc = subprocess.run(
+        [sys.executable, "-c", _COUNT, str(tmp_path / "x.npy")],
+        env=env, capture_output=True, text=True, check=False, cwd=tmp_path,
+    )  # fmt: skip
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert lines, proc.stderr[-2000:]
+    got = json.loads(lines[-1][len("RESULT ") :])
+    assert min(got["columns"]) < max(got["columns"])  # it compacted
+    # gram, grad, kept Hessian and line kernels (x2 widths), final grad, regulariser
+    assert got["programs"] <= 9
