@@ -171,17 +171,15 @@ def run_demo(
     model.save(out / "map")
     same = evaluate_map(model, x_ref, reference=x_ref, tolerance=cfg.tolerance)
     changed = evaluate_map(model, x_qry, reference=x_ref, tolerance=cfg.tolerance)
-    decodes = {
-        f"{method}, sequence {length}": evaluate_map(
-            model,
-            x_qry,
-            tolerance=cfg.tolerance,
-            method=method,
-            sequence=length,
+    decodes = {}
+    for method, length in (("hard", 1), ("soft", 1), ("soft", 5), ("soft", 10)):
+        if length == 1 and method == changed["decode"]:  # evaluated just above
+            decodes[f"{method}, sequence 1"] = changed["methods"]["map"]["accuracy_tol"]
+            continue
+        decodes[f"{method}, sequence {length}"] = evaluate_map(
+            model, x_qry, tolerance=cfg.tolerance, method=method, sequence=length,
             timing=False,
-        )["methods"]["map"]["accuracy_tol"]
-        for method, length in (("hard", 1), ("soft", 1), ("soft", 5), ("soft", 10))
-    }
+        )["methods"]["map"]["accuracy_tol"]  # fmt: skip
     result = {
         "config": asdict(cfg),
         "n": model.n,
