@@ -93,18 +93,24 @@ def changed_appearance(image: np.ndarray, seed: int = 0) -> np.ndarray:
 
 
 def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
-    """Left: storage against N, map and brute force; right: the accuracies."""
-    import matplotlib
+    """Left: storage against N, map and brute force; right: the accuracies.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Drawn on a bare Agg figure (no pyplot, no GUI backend) with fixed margins:
+    ``tight_layout`` measured every tick label of both log axes again and took
+    twice the drawing's time (0.85 of 1.2 s); the margins are those it chose for
+    this figure's labels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     from rhythmic_jax.periods import candidate_periods, database_bytes, storage_bytes
 
     ns = np.unique(np.logspace(2, 8, 40).astype(int))
     brute = [database_bytes(n, d) for n in ns]
     ours = [storage_bytes(candidate_periods(int(n), r, level)[:r], d) for n in ns]
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    fig = Figure(figsize=(11, 4))
+    FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=0.069, right=0.986, bottom=0.152, top=0.909, wspace=0.696)
+    left, right = fig.subplots(1, 2)
     left.loglog(ns, brute, label="brute force: N d floats")
     left.loglog(ns, ours, label=f"rhythmic map: r={r}, level {level}")
     left.set_xlabel("places N")
@@ -121,9 +127,7 @@ def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
     right.set_xlim(0, 1.1)
     right.set_xlabel("accuracy (within the tolerance)")
     right.set_title("localisation on this route")
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def run_demo(
@@ -167,17 +171,15 @@ def run_demo(
     model.save(out / "map")
     same = evaluate_map(model, x_ref, reference=x_ref, tolerance=cfg.tolerance)
     changed = evaluate_map(model, x_qry, reference=x_ref, tolerance=cfg.tolerance)
-    decodes = {
-        f"{method}, sequence {length}": evaluate_map(
-            model,
-            x_qry,
-            tolerance=cfg.tolerance,
-            method=method,
-            sequence=length,
+    decodes = {}
+    for method, length in (("hard", 1), ("soft", 1), ("soft", 5), ("soft", 10)):
+        if length == 1 and method == changed["decode"]:  # evaluated just above
+            decodes[f"{method}, sequence 1"] = changed["methods"]["map"]["accuracy_tol"]
+            continue
+        decodes[f"{method}, sequence {length}"] = evaluate_map(
+            model, x_qry, tolerance=cfg.tolerance, method=method, sequence=length,
             timing=False,
-        )["methods"]["map"]["accuracy_tol"]
-        for method, length in (("hard", 1), ("soft", 1), ("soft", 5), ("soft", 10))
-    }
+        )["methods"]["map"]["accuracy_tol"]  # fmt: skip
     result = {
         "config": asdict(cfg),
         "n": model.n,

@@ -29,7 +29,6 @@ import math
 
 import faiss
 import numpy as np
-from sklearn.neighbors import KDTree
 
 from rhythmic_jax.errors import InputError
 
@@ -176,6 +175,8 @@ class KDTreeSearch(Baseline):
         self.note = "scikit-learn KDTree keeps its data as float64; counted as such"
 
     def _fit(self, X: np.ndarray) -> None:
+        from sklearn.neighbors import KDTree  # 1.3 s: only where it is used
+
         self.tree = KDTree(X, leaf_size=self.leaf_size)
 
     def _search(self, Q, k):

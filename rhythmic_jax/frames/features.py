@@ -16,6 +16,9 @@ size and returns L2-normalised float32 rows. Registered names:
 * ``hog``: scikit-image HOG of the grey thumbnail.
 
 ``python scripts/bench_descriptors.py`` measures them all on Nordland.
+
+torch (2-3 s to import) and scikit-image's HOG load when a descriptor first
+computes rows: naming a descriptor, its settings and a cache hit need neither.
 """
 
 from __future__ import annotations
@@ -29,15 +32,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
-import jax
 import numpy as np
-import torch
-from skimage.feature import hog as skimage_hog
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames import nets
 from rhythmic_jax.frames.cache_files import default_cache_dir
 from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
 from rhythmic_jax.frames.weights import (
@@ -50,6 +49,12 @@ from rhythmic_jax.frames.weights import (
 )
 from rhythmic_jax.io.atomic import save_npy
 from rhythmic_jax.validate import check_int
+
+if TYPE_CHECKING:
+    import jax
+    import torch
+
+    from rhythmic_jax.frames import nets
 
 __all__ = [
     "DESCRIPTORS",
@@ -93,6 +98,8 @@ def resize(batch: torch.Tensor, height: int, width: int) -> torch.Tensor:
     """
     if tuple(batch.shape[-2:]) == (height, width):
         return batch
+    import torch
+
     return torch.nn.functional.interpolate(
         batch, (height, width), mode="bilinear", align_corners=False, antialias=True
     )
@@ -100,17 +107,23 @@ def resize(batch: torch.Tensor, height: int, width: int) -> torch.Tensor:
 
 def grey(batch: torch.Tensor) -> torch.Tensor:
     """(b, 3, H, W) RGB -> (b, 1, H, W) luma (BT.601 weights)."""
+    import torch
+
     w = torch.tensor(_LUMA, dtype=batch.dtype, device=batch.device)
     return (batch * w.view(1, 3, 1, 1)).sum(dim=1, keepdim=True)
 
 
 def _l2(x: torch.Tensor) -> torch.Tensor:
     """Rows to unit L2 norm; all-zero rows stay zero. (b, d) -> (b, d)."""
-    return torch.nn.functional.normalize(x.float(), dim=1, eps=1e-12)
+    from rhythmic_jax.frames.nets import unit_rows
+
+    return unit_rows(x)
 
 
 def _fit(batch: torch.Tensor, d, to_grey: bool = False) -> torch.Tensor:
     """Check a (b, 3, H, W) batch; resize it (grey first) to d.height x d.width."""
+    import torch
+
     if not isinstance(batch, torch.Tensor) or batch.ndim != 4 or batch.shape[1] != 3:
         shape = tuple(getattr(batch, "shape", ()))
         raise InputError(f"{d.name}: expected a (b, 3, H, W) tensor, got {shape}")
@@ -124,37 +137,18 @@ def _positive(**values: int) -> None:
         )
 
 
-class _Lite0Tap(torch.nn.Module):
-    """(b, 3, H, W) -> the block's map flattened in (h, w, c) order, unit rows."""
-
-    def __init__(self, net: nets.EfficientNetLite0, block: int):
-        super().__init__()
-        self.net, self.block = net, block
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        y = self.net.features(x, self.block)
-        return _l2(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
-
-
-class _Fc7(torch.nn.Module):
-    """(b, 3, H, W) -> VGG16's relu(fc7) (b, 4096), unit rows."""
-
-    def __init__(self, net: nets.VGG16):
-        super().__init__()
-        self.net = net
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return _l2(self.net.fc7(x))
-
-
 @functools.lru_cache(maxsize=2)
 def _lite0(path: str) -> nets.EfficientNetLite0:
-    return nets.load_efficientnet_lite0(path)
+    from rhythmic_jax.frames.nets import load_efficientnet_lite0
+
+    return load_efficientnet_lite0(path)
 
 
 @functools.lru_cache(maxsize=1)
 def _vgg16(path: str) -> nets.VGG16:
-    return nets.load_vgg16(path)
+    from rhythmic_jax.frames.nets import load_vgg16
+
+    return load_vgg16(path)
 
 
 @dataclass(frozen=True)
@@ -211,7 +205,8 @@ class EfficientNetLite0Map:
 
     @property
     def dim(self) -> int:
-        net = nets.EfficientNetLite0
+        from rhythmic_jax.frames.nets import EfficientNetLite0 as net
+
         s = net.block_stride(self.block)
         cells = -(-self.height // s) * -(-self.width // s)
         return net.block_channels(self.block) * cells
@@ -219,15 +214,21 @@ class EfficientNetLite0Map:
     def prepare(self, batch: torch.Tensor) -> torch.Tensor:
         """(b, 3, H, W) in [0, 1] -> the network's input (b, 3, height, width),
         channels-last (the work a prefetch thread can do ahead of the network)."""
+        import torch
+
         return _fit(batch, self).contiguous(memory_format=torch.channels_last)
 
     def network(self) -> torch.nn.Module:
         """The module that maps :meth:`prepare`'s output to the rows (b, dim)."""
-        return _Lite0Tap(_lite0(str(self._path())), self.block)
+        from rhythmic_jax.frames.nets import Lite0Tap
 
-    @torch.inference_mode()
+        return Lite0Tap(_lite0(str(self._path())), self.block)
+
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        return self.network()(self.prepare(batch))
+        import torch
+
+        with torch.inference_mode():
+            return self.network()(self.prepare(batch))
 
 
 @dataclass(frozen=True)
@@ -262,15 +263,21 @@ class VGG16Fc7:
 
     def prepare(self, batch: torch.Tensor) -> torch.Tensor:
         """(b, 3, H, W) in [0, 1] -> the network's input, channels-last."""
+        import torch
+
         return _fit(batch, self).contiguous(memory_format=torch.channels_last)
 
     def network(self) -> torch.nn.Module:
         """The module that maps :meth:`prepare`'s output to the rows (b, 4096)."""
-        return _Fc7(_vgg16(str(self._path().resolve())))
+        from rhythmic_jax.frames.nets import Fc7Tap
 
-    @torch.inference_mode()
+        return Fc7Tap(_vgg16(str(self._path().resolve())))
+
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        return self.network()(self.prepare(batch))
+        import torch
+
+        with torch.inference_mode():
+            return self.network()(self.prepare(batch))
 
 
 @dataclass(frozen=True)
@@ -303,16 +310,18 @@ class PatchNorm:
     def dim(self) -> int:
         return self.width * self.height
 
-    @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        g = _fit(batch, self, to_grey=True)[:, 0]
-        b, p = g.shape[0], self.patch
-        tiles = g.reshape(b, self.height // p, p, self.width // p, p)
-        mean = tiles.mean(dim=(2, 4), keepdim=True)
-        std = tiles.std(dim=(2, 4), keepdim=True, unbiased=False)
-        flat = std > 1e-6
-        out = torch.where(flat, (tiles - mean) / torch.where(flat, std, 1.0), 0.0)
-        return _l2(out.reshape(b, -1))
+        import torch
+
+        with torch.inference_mode():
+            g = _fit(batch, self, to_grey=True)[:, 0]
+            b, p = g.shape[0], self.patch
+            tiles = g.reshape(b, self.height // p, p, self.width // p, p)
+            mean = tiles.mean(dim=(2, 4), keepdim=True)
+            std = tiles.std(dim=(2, 4), keepdim=True, unbiased=False)
+            flat = std > 1e-6
+            out = torch.where(flat, (tiles - mean) / torch.where(flat, std, 1.0), 0.0)
+            return _l2(out.reshape(b, -1))
 
 
 @dataclass(frozen=True)
@@ -340,16 +349,19 @@ class Hog:
         blocks = (self.height // c - k + 1) * (self.width // c - k + 1)
         return blocks * k * k * self.orientations
 
-    @torch.inference_mode()
     def __call__(self, batch: torch.Tensor) -> torch.Tensor:
-        g = _fit(batch, self, to_grey=True)[:, 0].numpy()
-        c, k = self.pixels_per_cell, self.cells_per_block
-        rows = [
-            skimage_hog(im, self.orientations, (c, c), (k, k), feature_vector=True)
-            for im in g
-        ]
-        out = np.stack(rows) if rows else np.zeros((0, self.dim))
-        return _l2(torch.from_numpy(out.astype(np.float32)))
+        import torch
+        from skimage.feature import hog as skimage_hog
+
+        with torch.inference_mode():
+            g = _fit(batch, self, to_grey=True)[:, 0].numpy()
+            c, k = self.pixels_per_cell, self.cells_per_block
+            rows = [
+                skimage_hog(im, self.orientations, (c, c), (k, k), feature_vector=True)
+                for im in g
+            ]
+            out = np.stack(rows) if rows else np.zeros((0, self.dim))
+            return _l2(torch.from_numpy(out.astype(np.float32)))
 
 
 DESCRIPTORS: dict[str, type] = {
@@ -386,6 +398,8 @@ def get_descriptor(name: str, **settings) -> Descriptor:
 @contextmanager
 def _torch_threads(num_threads: int | None) -> Iterator[None]:
     """Run with ``num_threads`` intra-op torch threads, then restore the count."""
+    import torch
+
     before = torch.get_num_threads()
     if num_threads:
         torch.set_num_threads(num_threads)
@@ -431,6 +445,8 @@ def to_jax(t: torch.Tensor) -> jax.Array:
 
     Do not modify ``t`` afterwards: the JAX array sees the change.
     """
+    import jax
+
     return jax.dlpack.from_dlpack(t.detach().contiguous())
 
 

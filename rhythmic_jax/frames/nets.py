@@ -27,11 +27,14 @@ from rhythmic_jax.errors import InputError
 __all__ = [
     "LITE0_STAGES",
     "EfficientNetLite0",
+    "Fc7Tap",
+    "Lite0Tap",
     "VGG16",
     "lite0_weights_path",
     "load_efficientnet_lite0",
     "load_state_dict_file",
     "load_vgg16",
+    "unit_rows",
 ]
 
 # (expand ratio, kernel, stride, output channels, repeats) per stage, as in B0.
@@ -191,6 +194,34 @@ class VGG16(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(b, 3, H, W) in [0, 1] -> ImageNet logits (b, 1000)."""
         return self.classifier(self._trunk(x))
+
+
+def unit_rows(x: torch.Tensor) -> torch.Tensor:
+    """Rows to unit L2 norm, as float32; all-zero rows stay zero. (b, d) -> (b, d)."""
+    return nn.functional.normalize(x.float(), dim=1, eps=1e-12)
+
+
+class Lite0Tap(nn.Module):
+    """(b, 3, H, W) -> the block's map flattened in (h, w, c) order, unit rows."""
+
+    def __init__(self, net: EfficientNetLite0, block: int):
+        super().__init__()
+        self.net, self.block = net, block
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.net.features(x, self.block)
+        return unit_rows(y.permute(0, 2, 3, 1).reshape(y.shape[0], -1))
+
+
+class Fc7Tap(nn.Module):
+    """(b, 3, H, W) -> VGG16's relu(fc7) (b, 4096), unit rows."""
+
+    def __init__(self, net: VGG16):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return unit_rows(self.net.fc7(x))
 
 
 def load_state_dict_file(
