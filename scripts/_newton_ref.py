@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[1]  # no harness: the child imports nothing
 
 
 # ---------------------------------------------------------------------- child
@@ -182,7 +182,7 @@ def compare(rev: str, x: np.ndarray, y: np.ndarray, c: float, runs: int) -> dict
 
 def markdown(r: dict, aim: float) -> str:
     """The comparison's section of the report."""
-    from _bench_common import table
+    from _harness import table
 
     rows = []
     for which, label in (("old", f"{r['ref']} (before)"), ("new", "this checkout")):
