@@ -290,6 +290,7 @@ def parser(doc: str) -> argparse.ArgumentParser:
     ap.add_argument("--render", type=Path, nargs="?", const=Path(), default=None,
                     help="write the Markdown again from this JSON report (default:"
                     " the one in --out), measuring nothing")  # fmt: skip
+    ap.add_argument("--stem", default=None, help="report name (default by mode)")
     return ap
 
 
@@ -300,10 +301,11 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     return None (nothing to write). ``refresh(report, args)`` updates a report
     read back by ``--render`` before it is rendered."""
     ap = parser(doc)
-    ap.set_defaults(stem=stem, md_stem=md_stem)
+    ap.set_defaults(md_stem=md_stem)
     if options:
         options(ap)
     args = ap.parse_args(argv)
+    fixed, args.stem = args.stem, args.stem or stem
     if args.render is not None:
         path = args.render if args.render.name else args.out / f"{args.stem}.json"
         report = json.loads(path.read_text())
@@ -317,6 +319,7 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     log.info("environment %s", env)
     script = sys.modules[run.__module__].__file__ or "script"
     out = run(args)
+    args.stem = fixed or args.stem
     if out is None:
         return None
     report = dict(command=command_line(script, argv), environment=env,
