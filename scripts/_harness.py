@@ -69,6 +69,7 @@ def load_average() -> list[float]:
 
 def git_commit(repo: Path = REPO) -> str:
     """The checkout's short commit, ``+`` when its package has changes."""
+
     def git(*a):
         done = subprocess.run(["git", "-C", str(repo), *a], capture_output=True,
                               text=True, check=False)  # fmt: skip
@@ -246,8 +247,10 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
     """A Markdown table; numbers right-aligned, text left-aligned."""
     numeric = [all(isinstance(r[i], int | float | np.number) for r in rows)
                for i in range(len(headers))]  # fmt: skip
-    lines = ["| " + " | ".join(headers) + " |",
-             "|" + "|".join("---:" if num else "---" for num in numeric) + "|"]
+    lines = [
+        "| " + " | ".join(headers) + " |",
+        "|" + "|".join("---:" if num else "---" for num in numeric) + "|",
+    ]
     lines += ["| " + " | ".join(_cell(v) for v in r) + " |" for r in rows]
     return "\n".join(lines)
 

@@ -227,4 +227,6 @@ def markdown(r: dict, aim: float) -> str:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) != 3 or sys.argv[1].startswith("-"):
+        sys.exit(__doc__)  # --help: what the child does, and who runs it
     child(*sys.argv[1:3])

@@ -80,9 +80,15 @@ def run(args) -> dict:
             batch = torch.rand(args.batch, 3, h, w, generator=generator)
             for label, config in cases():
                 times = time_case(batch, config, args.repeats)
-                rows.append(dict(op=label, size=f"{w}x{h}", threads=threads,
-                                 fps_best=args.batch / min(times),
-                                 fps_median=args.batch / statistics.median(times)))  # fmt: skip
+                rows.append(
+                    dict(
+                        op=label,
+                        size=f"{w}x{h}",
+                        threads=threads,
+                        fps_best=args.batch / min(times),
+                        fps_median=args.batch / statistics.median(times),
+                    )
+                )
                 fps = rows[-1]["fps_best"]
                 print(f"{threads}t {w}x{h:<4} {label:<28} {fps:9.0f} frames/s")
     return dict(batch=args.batch, repeats=args.repeats, torch_threads=args.threads,

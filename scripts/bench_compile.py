@@ -253,8 +253,19 @@ def markdown(report: dict) -> str:
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
         f" {s['jpegs']} JPEGs (Lite0).",
         "",
-        table(["job", "variant", "programs", "compiled", "hits", "compile s",
-               "wall s", "load"], rows),  # fmt: skip
+        table(
+            [
+                "job",
+                "variant",
+                "programs",
+                "compiled",
+                "hits",
+                "compile s",
+                "wall s",
+                "load",
+            ],
+            rows,
+        ),  # fmt: skip
         "",
         "Maps against the baseline's (same periods; share of equal predictions):",
         "",

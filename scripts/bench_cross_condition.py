@@ -390,9 +390,12 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
 
 
 def options(ap) -> None:
-    ap.add_argument("--only", default=None,
-                    help="comma-separated words: run the data sets whose title holds"
-                    " one (e.g. 'Lite0' or 'patchnorm'); the report holds those only")  # fmt: skip
+    ap.add_argument(
+        "--only",
+        default=None,
+        help="comma-separated words: run the data sets whose title holds"
+        " one (e.g. 'Lite0' or 'patchnorm'); the report holds those only",
+    )
 
 
 def run(args) -> dict:

@@ -36,8 +36,15 @@ import logging
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _harness import cores, header, load_average, main, nordland_features, table
-from _harness import unit_rows
+from _harness import (
+    cores,
+    header,
+    load_average,
+    main,
+    nordland_features,
+    table,
+    unit_rows,
+)
 
 from rhythmic_jax.decoding.hard import decode
 from rhythmic_jax.eval.baselines import BruteForce
@@ -101,10 +108,18 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
 
 def case_markdown(c: dict) -> str:
     r, f = c["rhythmic"], c["faiss"]
-    rows = [[label, s["batch"]["queries_per_s"], 1e3 * s["single"]["median_s"],
-             1e3 * s["single"]["p95_s"]]
-            for label, s in ((f"rhythmic decode ({c['p']} templates)", r),
-                             (f"faiss IndexFlatIP ({c['n']} references)", f))]  # fmt: skip
+    rows = [
+        [
+            label,
+            s["batch"]["queries_per_s"],
+            1e3 * s["single"]["median_s"],
+            1e3 * s["single"]["p95_s"],
+        ]
+        for label, s in (
+            (f"rhythmic decode ({c['p']} templates)", r),
+            (f"faiss IndexFlatIP ({c['n']} references)", f),
+        )
+    ]
     head = ["method", f"queries/s (batch {c['batch_size']})", "single ms median"]
     return "\n".join([
         f"## {c['name']}: N = {c['n']}, d = {c['d']}, periods {c['periods']}",

@@ -36,8 +36,14 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _harness import aerial_features, cached_fit, cores, fastest, main
-from _harness import nordland_features
+from _harness import (
+    aerial_features,
+    cached_fit,
+    cores,
+    fastest,
+    main,
+    nordland_features,
+)
 
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
@@ -456,13 +462,14 @@ def target_table(blocks: list[dict]) -> str:
 
 
 def markdown(report: dict) -> str:
+    env = report["environment"]
     parts = [
         "# Decoders beyond the paper",
         "",
         f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
         " from descriptors to indices on "
-        f"{report['environment'].get('cores', report['environment'].get('cpus'))} CPUs, after one compiling call; descriptor"
-        " extraction not included. Maps: r=2, Newton solver, default C = log N."
+        f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
+        " descriptor extraction not included. Maps: r=2, Newton solver, default C = log N."
         f" Command: `{report['command']}`.",
         "",
     ]
@@ -536,8 +543,10 @@ def run(args: argparse.Namespace) -> dict:
     repeats = 3 if args.quick else 5
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
     for name in available(args.descriptors):
-        datasets = {"nordland": nordland_features(args.root, name, **kw),
-                    "aerial LEVIR": aerial_features(args.root, name, **kw)[:2]}  # fmt: skip
+        datasets = {
+            "nordland": nordland_features(args.root, name, **kw),
+            "aerial LEVIR": aerial_features(args.root, name, **kw)[:2],
+        }
         if args.frames:
             datasets = {
                 k: (r[: args.frames], q[: args.frames])

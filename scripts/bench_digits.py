@@ -34,7 +34,6 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-
 from _harness import header, main, table
 
 from rhythmic_jax.decoding.dispatch import decode_scores

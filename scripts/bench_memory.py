@@ -124,8 +124,21 @@ def markdown(report: dict) -> str:
             "the guard with its limit set to the estimate (`--memory X`, X = the "
             "estimate) admits the fit and the cold peak stays under X.",
             "",
-            table(["n x d", "shape", "p", "estimate MB", "cold MB", "est / cold",
-                   "arrays MB", "warm MB", "arrays / warm", "limit kept"], rows),  # fmt: skip
+            table(
+                [
+                    "n x d",
+                    "shape",
+                    "p",
+                    "estimate MB",
+                    "cold MB",
+                    "est / cold",
+                    "arrays MB",
+                    "warm MB",
+                    "arrays / warm",
+                    "limit kept",
+                ],
+                rows,
+            ),  # fmt: skip
             "",
             f"The limit held on every shape: {'yes' if kept else 'NO'}.",
         ]

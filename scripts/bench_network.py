@@ -115,9 +115,20 @@ def markdown(report: dict) -> str:
         " slices of that many frames. The rows are unit vectors, so the last"
         " column is the largest relative difference of compiled against eager.",
         "",
-        table(["batch", "eager best f/s", "eager median f/s", "compiled best f/s",
-               "compiled median f/s", "compiled / eager", "compiled CPU / wall",
-               "build s", "max rel diff"], rows),  # fmt: skip
+        table(
+            [
+                "batch",
+                "eager best f/s",
+                "eager median f/s",
+                "compiled best f/s",
+                "compiled median f/s",
+                "compiled / eager",
+                "compiled CPU / wall",
+                "build s",
+                "max rel diff",
+            ],
+            rows,
+        ),  # fmt: skip
         "",
         f"Fastest compiled: batch {best['batch']} at"
         f" {best['compiled']['best']:.0f} frames/s; fastest eager: batch"

@@ -42,7 +42,9 @@ def run(args) -> dict:
     names_all = [("none",), *((k,) for k in NAMES), ("all",)]
     if args.quick:
         args.frames, names_all = min(args.frames, 160), [("none",), ("hflip",)]
-    args.stem = "pipeline" if args.descriptor == "patchnorm" else f"pipeline_{args.descriptor}"
+    args.stem = (
+        "pipeline" if args.descriptor == "patchnorm" else f"pipeline_{args.descriptor}"
+    )
     args.stem += "_quick" if args.quick else ""
     (summer,) = nordland_images(args.root, ("summer",))
     images = summer.images[: args.frames]
@@ -67,9 +69,16 @@ def run(args) -> dict:
                               cfg, progress=False)  # fmt: skip
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
-        rows.append(dict(augmentation=names[0], frames_per_s=fps,
-                         augment_s=tm["augment"], describe_s=tm["describe"],
-                         step_s=tm["step"], wall_s=time.perf_counter() - t))  # fmt: skip
+        rows.append(
+            dict(
+                augmentation=names[0],
+                frames_per_s=fps,
+                augment_s=tm["augment"],
+                describe_s=tm["describe"],
+                step_s=tm["step"],
+                wall_s=time.perf_counter() - t,
+            )
+        )
         print(rows[-1], flush=True)
     for r in rows:
         r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]

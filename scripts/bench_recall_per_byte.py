@@ -251,9 +251,11 @@ def markdown(rep: dict) -> str:
 def options(ap) -> None:
     ap.add_argument("--cross", action="store_true",
                     help="also ITQ fitted across conditions")  # fmt: skip
-    ap.add_argument("--cache", help="folder keeping fitted templates and codes"
-                    " ('' for none)",
-                    default=str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"))  # fmt: skip
+    ap.add_argument(
+        "--cache",
+        help="folder keeping fitted templates and codes ('' for none)",
+        default=str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
+    )
     ap.add_argument("--maps", default=None, help="maps as r:level,... (e.g. 2:4,3:4)")
     ap.add_argument("--bits", default=None, help="code sizes, e.g. 64,128")
     ap.add_argument("--no-timing", action="store_true", help="skip the speed table")

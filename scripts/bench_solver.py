@@ -52,8 +52,17 @@ import warnings
 import _newton_ref
 import numpy as np
 import optax
-from _harness import cores, header, load_average, main, nordland_features, plain
-from _harness import stats, table, timed
+from _harness import (
+    cores,
+    header,
+    load_average,
+    main,
+    nordland_features,
+    plain,
+    stats,
+    table,
+    timed,
+)
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 

@@ -41,7 +41,8 @@ def markdown(report: dict) -> str:
     rows = [[r["solver"], r["wall_s"], r["cpu_s"], r["steps"], r["cg_iterations"]]
             for r in report["rows"]]  # fmt: skip
     gap = report["gap_span_vs_direct"]
-    return "\n".join(header("Wide frames: solve in the frames' span vs directly", report) + [
+    title = "Wide frames: solve in the frames' span vs directly"
+    return "\n".join(header(title, report) + [
         f"Nordland summer, {report['descriptor']} ({report['settings']}): "
         f"n = {report['n']}, d = {report['d']}, level {report['level']}, "
         f"p = {report['p']} templates, C = log N. Both to the optimum (default "

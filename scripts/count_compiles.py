@@ -1,4 +1,4 @@
-"""XLA programs (and optax calls) a default ``RhythmicMap.fit`` makes, in a fresh process.
+"""XLA programs and optax calls of a default ``RhythmicMap.fit`` in a fresh process.
 
 A child process (``PYTHONPATH`` = the checkout measured, JAX on the CPU, no
 persistent compilation cache unless ``--cache DIR``) imports the package, builds
@@ -127,8 +127,14 @@ def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
     env.setdefault("JAX_PLATFORMS", "cpu")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
-    proc = subprocess.run([sys.executable, "-c", CHILD, json.dumps(args)], env=env,
-                          capture_output=True, text=True, check=False, cwd="/")  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", CHILD, json.dumps(args)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+        cwd="/",
+    )
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     if proc.returncode or not lines:
         tail = proc.stderr[-3000:]
