@@ -228,5 +228,6 @@ def markdown(r: dict, aim: float) -> str:
 
 if __name__ == "__main__":
     if len(sys.argv) != 3 or sys.argv[1].startswith("-"):
-        sys.exit(__doc__)  # --help: what the child does, and who runs it
+        print(__doc__)  # --help: what the child does, and who runs it
+        sys.exit(len(sys.argv) != 2 or sys.argv[1] not in ("-h", "--help"))
     child(*sys.argv[1:3])

@@ -469,7 +469,8 @@ def markdown(report: dict) -> str:
         f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
         " from descriptors to indices on "
         f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
-        " descriptor extraction not included. Maps: r=2, Newton solver, default C = log N."
+        " descriptor extraction not included. Maps: r=2, Newton solver, default"
+        " C = log N."
         f" Command: `{report['command']}`.",
         "",
     ]

@@ -76,6 +76,7 @@ def options(ap) -> None:
 def run(args) -> dict:
     if args.quick:
         args.n, args.singles, args.exact = 2000, 200, 20
+        args.stem = "single_query_quick"
     n, d = args.n, args.d
     cands = candidate_periods(n, 2, 1, 7)
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
