@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from _bench_common import header, table
+from _harness import header, table
 
 LITE = "Nordland EfficientNet-Lite0"
 PATCH = "Nordland patchnorm"

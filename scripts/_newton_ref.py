@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[1]  # no harness: the child imports nothing
 
 
 # ---------------------------------------------------------------------- child
@@ -182,7 +182,7 @@ def compare(rev: str, x: np.ndarray, y: np.ndarray, c: float, runs: int) -> dict
 
 def markdown(r: dict, aim: float) -> str:
     """The comparison's section of the report."""
-    from _bench_common import table
+    from _harness import table
 
     rows = []
     for which, label in (("old", f"{r['ref']} (before)"), ("new", "this checkout")):
@@ -227,4 +227,7 @@ def markdown(r: dict, aim: float) -> str:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) != 3 or sys.argv[1].startswith("-"):
+        print(__doc__)  # --help: what the child does, and who runs it
+        sys.exit(len(sys.argv) != 2 or sys.argv[1] not in ("-h", "--help"))
     child(*sys.argv[1:3])

@@ -10,20 +10,17 @@ timed with kornia's ``RandomElasticTransform`` and with the coarse-grid version
 (``AugmentConfig.elastic_impl="coarse"``), alone and inside the full sequence.
 Each figure is ``batch / time per call`` of the fastest and the median of
 ``--repeats`` runs (each long enough to last 0.2 s) after one warm-up call.
-Writes ``reports/augment.json`` and ``reports/augment.md`` and prints the table.
+Writes ``reports/augment.json`` and ``reports/augment.md`` and prints the table
+(``--quick``: 64x32 only, a batch of 8, one run).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import platform
 import statistics
 import time
-from pathlib import Path
 
 import torch
+from _harness import header, main
 
 from rhythmic_jax.augment.kornia_ops import NAMES, AugmentConfig, augment
 
@@ -66,64 +63,46 @@ def time_case(
     return times
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, default=64)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--threads", type=int, nargs="+", default=[2])
-    parser.add_argument("--out-dir", type=Path, default=Path("reports"))
-    args = parser.parse_args(argv)
+def options(ap) -> None:
+    ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--threads", type=int, nargs="+", default=[2])
+
+
+def run(args) -> dict:
+    if args.quick:
+        args.batch, args.repeats, args.stem = 8, 1, "augment_quick"
     generator = torch.Generator().manual_seed(0)
     rows = []
     for threads in args.threads:
         torch.set_num_threads(threads)
-        for h, w in SIZES:
+        for h, w in SIZES[:1] if args.quick else SIZES:
             batch = torch.rand(args.batch, 3, h, w, generator=generator)
             for label, config in cases():
                 times = time_case(batch, config, args.repeats)
                 rows.append(
-                    {
-                        "op": label,
-                        "size": f"{w}x{h}",
-                        "threads": threads,
-                        "fps_best": args.batch / min(times),
-                        "fps_median": args.batch / statistics.median(times),
-                    }
+                    dict(
+                        op=label,
+                        size=f"{w}x{h}",
+                        threads=threads,
+                        fps_best=args.batch / min(times),
+                        fps_median=args.batch / statistics.median(times),
+                    )
                 )
                 fps = rows[-1]["fps_best"]
                 print(f"{threads}t {w}x{h:<4} {label:<28} {fps:9.0f} frames/s")
-    report = {
-        "batch": args.batch,
-        "repeats": args.repeats,
-        "torch_threads": args.threads,
-        "cpu_count": os.cpu_count(),
-        "load_average": os.getloadavg(),
-        "torch": torch.__version__,
-        "python": platform.python_version(),
-        "rows": rows,
-    }
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    (args.out_dir / "augment.json").write_text(json.dumps(report, indent=2) + "\n")
-    table = markdown(report)
-    (args.out_dir / "augment.md").write_text(table)
-    print(table)
-    return report
+    return dict(batch=args.batch, repeats=args.repeats, torch_threads=args.threads,
+                rows=rows)  # fmt: skip
 
 
 def markdown(report: dict) -> str:
     """One table per thread count: a row per operation, a column per size."""
-    sizes = [f"{w}x{h}" for h, w in SIZES]
+    sizes = list(dict.fromkeys(r["size"] for r in report["rows"]))
     fps = {(r["threads"], r["op"], r["size"]): r for r in report["rows"]}
     ops = list(dict.fromkeys(r["op"] for r in report["rows"]))
-    lines = [
-        "# Augmentation throughput (frames/s, CPU)",
-        "",
+    lines = header("Augmentation throughput (frames/s, CPU)", report) + [
         f"Batch {report['batch']}, p = 1, best (median) of {report['repeats']} runs "
-        f"of >= 0.2 s; torch {report['torch']}, {report['cpu_count']} cores, load "
-        f"average at the end {report['load_average'][0]:.1f} (a shared machine). "
-        "Command: `python scripts/bench_augment.py --threads "
-        + " ".join(map(str, report["torch_threads"]))
-        + "`.",
+        f"of >= 0.2 s."
     ]
     for threads in report["torch_threads"]:
         lines += [
@@ -137,8 +116,8 @@ def markdown(report: dict) -> str:
             cells = [fps[threads, op, s] for s in sizes]
             text = [f"{c['fps_best']:.0f} ({c['fps_median']:.0f})" for c in cells]
             lines.append(f"| {op} | " + " | ".join(text) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="augment")

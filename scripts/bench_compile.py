@@ -31,16 +31,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _bench_common import (
-    REPO,
-    environment,
-    header,
-    load_average,
-    parser,
-    run_record,
-    table,
-    write_report,
-)
+from _harness import REPO, header, load_average, main, nordland_images, table
 
 # Runs a module (-m NAME ARGS) or a script (PATH ARGS) with JAX's compile log
 # counted; writes {"programs", "hits", "compile_s"} to $COUNT_OUT at exit.
@@ -133,31 +124,11 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     return time.perf_counter() - t
 
 
-def make_jpegs(root: Path, tmp: Path, n: int) -> dict[str, Path]:
-    """640x320 JPEG folders: ref (n summer frames), q (n winter)."""
-    from PIL import Image
-
-    from rhythmic_jax.io.images import nordland
-
-    summer, winter = nordland(root / "nordland_64x32", progress=False)
-    out = {}
-    for name, frames in (("ref", summer.images[:n]), ("q", winter.images[:n])):
-        folder = tmp / name
-        folder.mkdir()
-        for i, im in enumerate(frames):
-            big = Image.fromarray(im).resize((640, 320), Image.BICUBIC)
-            big.save(folder / f"frame{i:05d}.jpg", quality=90)
-        out[name] = folder
-    return out
-
-
 def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
     """The patch-normalised summer route as a .npy file."""
     from rhythmic_jax.frames.features import describe, get_descriptor
-    from rhythmic_jax.io.images import nordland
 
-    summer = nordland(root / "nordland_64x32", seasons=("summer",), progress=False)
-    images = summer[0].images[:n]
+    images = nordland_images(root, ("summer",))[0].images[:n]
     path = tmp / "nordland.npy"
     np.save(path, describe(images, get_descriptor("patchnorm"), progress=False))
     return path
@@ -176,22 +147,21 @@ def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
     return [("base", old), ("new cold", new), ("new warm", new)]
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--jobs", default="fit,nordland,demo,jpeg")
     ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        rerender(args.render, markdown)
-        return
+
+def run(args) -> dict:
+    from bench_frames import make_folders
+
+    args.small = args.small or args.quick
+    args.stem = "compile" + ("_small" if args.small else "")
     jobs = args.jobs.split(",")
     n_fit, d_fit = (200, 64) if args.small else (1000, 256)
     n_nord = 300 if args.small else None
     n_jpeg = 100 if args.small else 1000
-    env0, load0 = environment({}), load_average()
     exe = ["-m", "rhythmic_jax.cli"]
     rows: list[dict] = []
     agree: dict[str, dict] = {}
@@ -205,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
             np.save(inputs["fit"], route(n_fit, d_fit))
         if "nordland" in jobs:
             inputs["nordland"] = nordland_features(args.root, tmp, n_nord)
-        folders = make_jpegs(args.root, tmp, n_jpeg) if "jpeg" in jobs else {}
+        folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
         for name, env in variants(args.base, tmp):
             side = name.split()[0]
@@ -258,15 +228,8 @@ def main(argv: list[str] | None = None) -> None:
                         (np.load(pred) == np.load(base_pred)).mean()
                     ),
                 )
-    report = dict(
-        run_record("bench_compile.py", argv, env0, load0),
-        base=str(args.base),
-        sizes=dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg),
-        rows=rows,
-        agreement=same,
-    )
-    write_report(args.out, "compile" + ("_small" if args.small else ""), report,
-                 markdown(report))  # fmt: skip
+    sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
+    return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
 
 def markdown(report: dict) -> str:
@@ -312,4 +275,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="compile")

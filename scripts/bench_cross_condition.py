@@ -38,7 +38,6 @@ learning time reported is that of the run that learned them.
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import logging
 import math
@@ -47,8 +46,8 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
-from _bench_common import begin, parser, run_record, write_report
 from _cross_condition_report import draw, markdown, targets
+from _harness import aerial_features, digest, main, nordland_features, nordland_images
 
 from rhythmic_jax.codes import fit_codebook
 from rhythmic_jax.decoding.fusion import learn_weight
@@ -61,9 +60,7 @@ from rhythmic_jax.embedding import (
 )
 from rhythmic_jax.eval.seqslam import seqslam_decode
 from rhythmic_jax.frames.cache_files import default_cache_dir
-from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
-from rhythmic_jax.io.images import nordland
-from rhythmic_jax.io.tiles import load_aerial_route
+from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.learn import LearnConfig, learn_embedding
 from rhythmic_jax.periods import database_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
@@ -99,14 +96,11 @@ def _unit(x):
 # --------------------------------------------------------------------- data
 def nordland_data(root: Path, name: str, progress: bool, images: bool):
     desc = get_descriptor(name)
-    trav = nordland(root / "nordland_64x32", progress=progress)
-    s, w = (
-        cached_describe(t.images, desc, f"nordland_{season}", progress=progress)
-        for t, season in zip(trav, ("summer", "winter"), strict=True)
-    )
+    s, w = nordland_features(root, desc, key="nordland_", progress=progress)
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
     out = dict(train=[s[tr], w[tr]], test=[s[te], w[te]], names=("summer", "winter"))
     if images:
+        trav = nordland_images(root)
         out.update(images=[trav[0].images[te], trav[1].images[te]], descriptor=desc)
     return out
 
@@ -115,27 +109,19 @@ def aerial_data(root: Path, progress: bool):
     desc = get_descriptor("patchnorm")
     out = dict(names=("A", "B"), descriptor=desc)
     for part, folder in (("train", "samples_DSIFN"), ("test", "samples_LEVIR")):
-        route = load_aerial_route(root / "aerial_pairs" / folder, progress=progress)
-        tiles = (route.map_tiles, route.query_tiles)
-        out[part] = [
-            cached_describe(t, desc, f"{folder}-64-32-{side}", progress=progress)
-            for t, side in zip(tiles, "ab", strict=True)
-        ]
+        a, b, route = aerial_features(root, desc, folder, f"{folder}-64-32-", progress)
+        out[part] = [a, b]
         if part == "test":
-            out["images"] = list(tiles)
+            out["images"] = [route.map_tiles, route.query_tiles]
     return out
 
 
 # --------------------------------------------------------------- embeddings
 def cached_embedding(dataset: str, train, cfg: LearnConfig):
     """Learn (or read back) the embedding of ``cfg`` on ``train`` -> (emb, info)."""
-    digest = hashlib.sha256(
-        json.dumps([dataset, asdict(cfg), [list(t.shape) for t in train]]).encode()
-        + b"".join(
-            np.ascontiguousarray(t[:: max(1, len(t) // 64)]).tobytes() for t in train
-        )  # fmt: skip
-    ).hexdigest()[:16]
-    folder = default_cache_dir() / "cross_condition" / f"{digest}.emb"
+    ident = json.dumps([dataset, asdict(cfg), [list(t.shape) for t in train]])
+    key = digest(ident, *(t[:: max(1, len(t) // 64)] for t in train))
+    folder = default_cache_dir() / "cross_condition" / f"{key}.emb"
     if folder.exists():
         emb, meta = load_embedding(folder)
         return emb, {**meta["learn_info"], "cached": True}
@@ -403,34 +389,20 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
     ]  # fmt: skip
 
 
-def finish(report: dict, out: Path, stem: str) -> None:
-    """Targets, then ``<stem>.json/.md/.png`` under ``out``."""
-    report["targets"] = targets(report)
-    write_report(out, stem, report, markdown(report))
-    draw(report, out / f"{stem}.png")
-
-
-def main(argv=None) -> None:
-    ap = parser(__doc__)
-    ap.add_argument("--quick", action="store_true", help="patchnorm, closed form")
+def options(ap) -> None:
     ap.add_argument(
         "--only",
         default=None,
-        help="comma-separated words: run the data sets whose title holds one "
-        "(e.g. 'Lite0' or 'patchnorm'); the report holds those only",
+        help="comma-separated words: run the data sets whose title holds"
+        " one (e.g. 'Lite0' or 'patchnorm'); the report holds those only",
     )
-    ap.add_argument("--stem", default=None, help="report name (default by mode)")
-    args = ap.parse_args(argv)
-    if args.render:
-        path = Path(args.render)
-        finish(json.loads(path.read_text()), path.parent, path.stem)
-        return
-    env, load0 = begin(log)
+
+
+def run(args) -> dict:
     t0 = time.perf_counter()
-    stem = args.stem or ("cross_condition_quick" if args.quick else "cross_condition")
-    report = dict(**run_record("bench_cross_condition.py", argv, env, load0))
-    report["datasets"] = datasets = {}
-    words = args.only.split(",") if args.only else None
+    args.stem = "cross_condition_quick" if args.quick else "cross_condition"
+    datasets, words = {}, args.only.split(",") if args.only else None
+    partial = args.out / f"{args.stem}.partial.json"
     for title, load, settings in plan(args.quick):
         if words and not any(w in title for w in words):
             continue
@@ -438,13 +410,22 @@ def main(argv=None) -> None:
         datasets[title] = run_dataset(title, data, settings)
         datasets[title]["seconds"] = time.perf_counter() - t0
         log.info("%s done at %.0f s", title, time.perf_counter() - t0)
-        report.update(
-            run_record("bench_cross_condition.py", argv, env, load0),
-            wall_seconds=time.perf_counter() - t0,
-        )
-        finish(report, args.out, stem)  # after every data set: a run cut short
-    # still leaves the ones it finished
+        # after every data set: a run cut short still leaves the ones it finished
+        args.out.mkdir(parents=True, exist_ok=True)
+        partial.write_text(json.dumps(dict(datasets=datasets), default=float))
+    report = dict(datasets=datasets, wall_seconds=time.perf_counter() - t0)
+    report["targets"] = targets(report)
+    draw(report, args.out / f"{args.stem}.png")
+    partial.unlink(missing_ok=True)
+    return report
+
+
+def refresh(report: dict, args) -> None:
+    """Targets and figure again, for ``--render``."""
+    report["targets"] = targets(report)
+    path = args.render if args.render.name else args.out / f"{args.stem}.json"
+    draw(report, path.with_suffix(".png"))
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="cross_condition", refresh=refresh)

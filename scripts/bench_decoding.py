@@ -28,20 +28,22 @@ features and the map settings; descriptors in the descriptor cache
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
-import hashlib
-import json
 import logging
-import os
-import platform
 import tempfile
-import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _harness import (
+    aerial_features,
+    cached_fit,
+    cores,
+    fastest,
+    main,
+    nordland_features,
+)
 
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
@@ -60,16 +62,11 @@ from rhythmic_jax.eval.seqslam import (
     seqslam_decode,
     sequence_similarity,
 )
-from rhythmic_jax.frames.features import cached_describe, get_descriptor
-from rhythmic_jax.io.atomic import write_file
-from rhythmic_jax.io.images import nordland
-from rhythmic_jax.io.tiles import load_aerial_route
+from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 log = logging.getLogger("bench_decoding")
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_ROOT = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
 MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_bench_decoding"
 
 TOLERANCE = 1
@@ -83,78 +80,20 @@ CENTRE_WINDOW = 100  # query frames in a template's running mean
 DESCRIPTORS = ("patchnorm", "efficientnet_lite0")
 
 
-# ------------------------------------------------------------------- features
-
-
-def nordland_features(root: Path, name: str, cache_dir, progress: bool):
-    """(summer (n, d), winter (n, d)) descriptors of Nordland 64x32, cached."""
-    desc = get_descriptor(name)
-    summer, winter = nordland(root / "nordland_64x32", progress=progress)
-    kw = dict(cache_dir=cache_dir, progress=progress)
-    return (
-        cached_describe(summer.images, desc, "nordland64x32-summer", **kw),
-        cached_describe(winter.images, desc, "nordland64x32-winter", **kw),
-    )
-
-
-def aerial_features(root: Path, name: str, cache_dir, progress: bool):
-    """(A tiles (n, d), B tiles (n, d)) of aerial_pairs/samples_LEVIR, cached."""
-    desc = get_descriptor(name)
-    route = load_aerial_route(
-        root / "aerial_pairs" / "samples_LEVIR", progress=progress
-    )
-    kw = dict(cache_dir=cache_dir, progress=progress)
-    return (
-        cached_describe(route.map_tiles, desc, "levir-64-32-a", **kw),
-        cached_describe(route.query_tiles, desc, "levir-64-32-b", **kw),
-    )
-
-
-# ----------------------------------------------------------------------- maps
-
-
 def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
     """``RhythmicMap(r=2, level=level).fit(x)``, cached on disk by features and
     settings (a fit on 3576 frames takes minutes)."""
     settings = get_descriptor(descriptor).settings()
-    model = RhythmicMap(
-        r=2, level=level, descriptor=descriptor, descriptor_settings=settings
-    )
-    ident = dict(config=dataclasses.asdict(model.config), shape=list(x.shape))
-    h = hashlib.sha256(json.dumps(ident, sort_keys=True).encode())
-    h.update(np.ascontiguousarray(x, np.float32).data)
-    path = MAP_CACHE / f"{descriptor}-L{level}-n{len(x)}-{h.hexdigest()[:16]}.map"
-    if (path / "map.json").is_file():
-        return RhythmicMap.load(path)
-    start = time.perf_counter()
-    model.fit(x, progress=progress)
-    log.info(
-        "fitted %s in %.0f s: periods %s",
-        path.name,
-        time.perf_counter() - start,
-        model.periods,
-    )
-    model.save(path)
-    return model
-
-
-# --------------------------------------------------------------------- timing
+    model = RhythmicMap(r=2, level=level, descriptor=descriptor,
+                        descriptor_settings=settings)  # fmt: skip
+    fit = lambda m: m.fit(x, progress=progress)  # noqa: E731
+    return cached_fit(model, x, MAP_CACHE, fit)[0]
 
 
 def timed(fn, repeats: int):
-    """Call ``fn()`` once untimed (compilation), then ``repeats`` timed calls.
-
-    Returns (the first call's output as numpy, the fastest timed call in seconds:
-    on a shared machine the minimum is the least disturbed estimate).
-    """
-    out = jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    first = out[0] if isinstance(out, tuple) else out
-    return np.asarray(first), float(np.min(times))
+    """(the first call's output as numpy, the fastest of ``repeats`` timed calls)."""
+    out, sec = fastest(fn, repeats)
+    return np.asarray(out[0] if isinstance(out, tuple) else out), sec
 
 
 def _row(method, pred, gt, seconds, storage, **extra) -> dict:
@@ -340,7 +279,7 @@ def _speeds(speeds) -> str:
 def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Single-frame brute force and SeqSLAM-style sequences on full descriptors."""
     storage = ref.size * 4
-    flat = BruteForce(n_threads=os.cpu_count() or 1).fit(ref)
+    flat = BruteForce(n_threads=cores()).fit(ref)
     pred, sec = timed(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
     grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
@@ -414,7 +353,7 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
             cases[f"{label}, {kind}"] = decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
-    flat = BruteForce(n_threads=os.cpu_count() or 1).fit(ref[h.fit])
+    flat = BruteForce(n_threads=cores()).fit(ref[h.fit])
     sim, top = flat.search(qry, 1)
     cases["brute force, cosine"] = (top[:, 0], finite_confidence(sim[:, 0]))
     for window in (None, CONTRAST_WINDOW):
@@ -523,13 +462,15 @@ def target_table(blocks: list[dict]) -> str:
 
 
 def markdown(report: dict) -> str:
+    env = report["environment"]
     parts = [
         "# Decoders beyond the paper",
         "",
         f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
         " from descriptors to indices on "
-        f"{report['environment']['cpus']} CPUs, after one compiling call; descriptor"
-        " extraction not included. Maps: r=2, Newton solver, default C = log N."
+        f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
+        " descriptor extraction not included. Maps: r=2, Newton solver, default"
+        " C = log N."
         f" Command: `{report['command']}`.",
         "",
     ]
@@ -592,16 +533,20 @@ def available(names) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> dict:
+    if args.quick:
+        args.frames = args.frames or 500
+        args.levels = args.levels or [1]
+        args.descriptors = args.descriptors or ["patchnorm"]
+        args.stem = "decoding_quick"
+    args.levels = args.levels or [1, 4]
+    args.descriptors = args.descriptors or list(DESCRIPTORS)
     blocks, outliers = [], []
     repeats = 3 if args.quick else 5
+    kw = dict(cache_dir=args.cache_dir, progress=args.progress)
     for name in available(args.descriptors):
         datasets = {
-            "nordland": nordland_features(
-                args.root, name, args.cache_dir, args.progress
-            ),
-            "aerial LEVIR": aerial_features(
-                args.root, name, args.cache_dir, args.progress
-            ),
+            "nordland": nordland_features(args.root, name, **kw),
+            "aerial LEVIR": aerial_features(args.root, name, **kw)[:2],
         }
         if args.frames:
             datasets = {
@@ -617,73 +562,30 @@ def run(args: argparse.Namespace) -> dict:
                 log.info(
                     "%s %s level %d, periods %s", dataset, name, level, model.periods
                 )
-                blocks.append(
-                    dict(
-                        dataset=dataset,
-                        descriptor=name,
-                        settings=get_descriptor(name).settings(),
-                        level=level,
-                        n=int(model.n),
-                        d=int(model.d),
-                        n_queries=len(qry),
-                        periods=list(model.periods),
-                        compression_ratio=model.compression_ratio,
-                        database_bytes=int(ref.size * 4),
-                        rows=map_rows(model, qry, gt, repeats),
-                        references=refs,
-                    )
-                )
+                blocks.append(dict(
+                    dataset=dataset, descriptor=name,
+                    settings=get_descriptor(name).settings(), level=level,
+                    n=int(model.n), d=int(model.d), n_queries=len(qry),
+                    periods=list(model.periods),
+                    compression_ratio=model.compression_ratio,
+                    database_bytes=int(ref.size * 4),
+                    rows=map_rows(model, qry, gt, repeats), references=refs,
+                ))  # fmt: skip
         ref, qry = datasets["nordland"]
         for level in args.levels:
             log.info("outlier protocol, %s level %d", name, level)
             outliers.append(outlier_rows(ref, qry, level, name, args.progress))
-    return dict(decoding=blocks, outliers=outliers)
+    return dict(tolerance=TOLERANCE, lengths=list(LENGTHS), speeds_grid=list(SPEEDS),
+                m=M, exclude=EXCLUDE, holdout=HOLDOUT, decoding=blocks,
+                outliers=outliers)  # fmt: skip
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--root", type=Path, default=DEFAULT_ROOT, help="shared data dir")
-    p.add_argument("--out", type=Path, default=REPO / "reports")
-    p.add_argument("--cache-dir", type=Path, default=None, help="descriptor cache")
-    p.add_argument("--descriptors", nargs="+", default=None)
-    p.add_argument("--levels", type=int, nargs="+", default=None)
-    p.add_argument("--frames", type=int, default=None, help="first frames only")
-    p.add_argument("--quick", action="store_true", help="500 frames, level 1")
-    p.add_argument("--no-progress", dest="progress", action="store_false")
-    args = p.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
-    if args.quick:
-        args.frames = args.frames or 500
-        args.levels = args.levels or [1]
-        args.descriptors = args.descriptors or ["patchnorm"]
-    args.levels = args.levels or [1, 4]
-    args.descriptors = args.descriptors or list(DESCRIPTORS)
-    env = dict(
-        jax=jax.__version__,
-        devices=[str(d) for d in jax.devices()],
-        cpu=platform.processor() or platform.machine(),
-        cpus=os.cpu_count(),
-    )
-    log.info("environment %s", env)
-    command = "python scripts/bench_decoding.py" + (" --quick" if args.quick else "")
-    report = dict(
-        command=command,
-        tolerance=TOLERANCE,
-        lengths=list(LENGTHS),
-        speeds_grid=list(SPEEDS),
-        m=M,
-        exclude=EXCLUDE,
-        holdout=HOLDOUT,
-        environment=env,
-        **run(args),
-    )
-    md = markdown(report)
-    suffix = "_quick" if args.quick else ""
-    write_file(args.out / f"decoding{suffix}.json", json.dumps(report, indent=2))
-    write_file(args.out / f"decoding{suffix}.md", md + "\n")
-    print(md)
+def options(ap) -> None:
+    ap.add_argument("--cache-dir", type=Path, default=None, help="descriptor cache")
+    ap.add_argument("--descriptors", nargs="+", default=None)
+    ap.add_argument("--levels", type=int, nargs="+", default=None)
+    ap.add_argument("--frames", type=int, default=None, help="first frames only")
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="decoding")

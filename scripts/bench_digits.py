@@ -29,23 +29,12 @@ normalisation) on the same frames. Nothing is learned from the places scored
 from __future__ import annotations
 
 import logging
-import sys
 import time
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _bench_common import (
-    begin,
-    header,
-    parser,
-    rerender,
-    run_record,
-    table,
-    write_report,
-)
+from _harness import header, main, table
 
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import sequence_decode
@@ -178,15 +167,15 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--cache", type=Path, default=Path("/work/cache"))
     ap.add_argument("--descriptor", default="efficientnet_lite0")
     ap.add_argument("--levels", default="1,2,4", help="storage levels (1,2,4)")
-    args = ap.parse_args(argv)
-    if args.render:
-        return rerender(args.render, markdown)
-    env, load0 = begin(log)
+
+
+def run(args) -> dict:
+    if args.quick:
+        args.levels, args.stem = "1", "digits_quick"
     test = NORDLAND_SPLIT.test
     files = {
         s: args.cache / f"nordland_{s}_{args.descriptor}.npy"
@@ -200,9 +189,8 @@ def main(argv: list[str] | None = None) -> dict:
     y = jnp.concatenate([targets(gt, g) for _, _, g in maps], axis=1)
     log.info("fitting %d templates on %d x %d", y.shape[1], n, d)
     t0 = time.perf_counter()
-    params, _ = newton_fit(
-        summer, y, default_c(n), NewtonConfig(), progress=args.progress
-    )
+    params, _ = newton_fit(summer, y, default_c(n), NewtonConfig(),
+                           progress=args.progress)  # fmt: skip
     fit_wall = time.perf_counter() - t0
     s_self = np.asarray(scores(params, jnp.asarray(summer)))
     s_query = np.asarray(scores(params, jnp.asarray(winter)))
@@ -212,35 +200,23 @@ def main(argv: list[str] | None = None) -> dict:
         start += groups.p
         row = measure(groups, s_self[:, cols], s_query[:, cols], n, gt)
         row.update(
-            layout=f"{kind} (level {level})",
-            kind=kind,
-            level=level,
-            sizes=groups.describe(),
-            templates=groups.p,
+            layout=f"{kind} (level {level})", kind=kind, level=level,
+            sizes=groups.describe(), templates=groups.p,
             storage_bytes=storage_bytes(groups.sizes, d),
             ratio=storage_bytes(groups.sizes, d, 1) / database_bytes(n, d, 1),
-        )
+        )  # fmt: skip
         log.info("%s", row)
         rows.append(row)
     bf = brute(summer, winter, gt)
-    bf.update(
-        layout="brute force", sizes="-", ratio=1.0, storage_bytes=database_bytes(n, d)
-    )
+    bf.update(layout="brute force", sizes="-", ratio=1.0,
+              storage_bytes=database_bytes(n, d))  # fmt: skip
     rows.append(bf)
-    report = dict(
-        run_record("bench_digits.py", argv, env, load0),
-        descriptor=args.descriptor,
-        places=f"{int(test[0])}-{int(test[-1])}",
-        n=n,
-        d=d,
-        templates_total=int(y.shape[1]),
-        fit_wall_s=fit_wall,
-        tolerance=TOL,
+    return dict(
+        descriptor=args.descriptor, places=f"{int(test[0])}-{int(test[-1])}", n=n,
+        d=d, templates_total=int(y.shape[1]), fit_wall_s=fit_wall, tolerance=TOL,
         rows=rows,
-    )
-    write_report(args.out, "digits", report, markdown(report))
-    return report
+    )  # fmt: skip
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="digits")

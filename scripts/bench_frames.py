@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _bench_common import REPO, load_average, parser, table, write_report
+from _harness import REPO, header, load_average, main, nordland_images, table
 
 AUGMENTED = """
 import json, sys, time
@@ -81,16 +81,16 @@ print(json.dumps(dict(tm, wall=wall, frames_per_s=n / wall)))
 PARTIAL = Path(tempfile.gettempdir()) / "bench_frames_partial.json"
 
 
-def make_folders(root: Path, tmp: Path, n: int) -> dict[str, Path]:
+def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, Path]:
     """640x320 JPEG folders: ref (n summer frames), q (n winter), small (100)."""
     from PIL import Image
 
-    from rhythmic_jax.io.images import nordland
-
-    summer, winter = nordland(root / "nordland_64x32", progress=False)
+    summer, winter = nordland_images(root)
     out = {}
     for name, frames in (("ref", summer.images[:n]), ("q", winter.images[:n]),
-                         ("small", summer.images[n : n + 100])):  # fmt: skip
+                         ("small", summer.images[n : n + small])):  # fmt: skip
+        if not frames.size:
+            continue
         folder = tmp / name
         folder.mkdir()
         for i, im in enumerate(frames):
@@ -134,24 +134,22 @@ def job_env(pythonpath: str, cache: Path) -> dict:
     return {**os.environ, "PYTHONPATH": pythonpath, "RHYTHMIC_JAX_CACHE": str(cache)}
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--aug-frames", type=int, default=256)
     ap.add_argument("--skip-augmented", action="store_true")
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        rerender(args.render, markdown)
-        return
+
+def run(args) -> dict:
+    if args.quick:
+        args.frames, args.repeats, args.aug_frames = 100, 1, 130
+        args.stem = "frames_quick"
     # each checkout's own command line (``python -m rhythmic_jax.cli`` runs what
     # its ``rhythmic-jax`` runs); the installed script imports this checkout's
     exe = [sys.executable, "-m", "rhythmic_jax.cli"]
     paths = {"base": str(args.base.resolve()), "new": str(REPO)}
-    load0 = load_average()
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
         tmp = Path(tmpdir)
         folders = make_folders(args.root, tmp, args.frames)
@@ -204,7 +202,6 @@ def main(argv: list[str] | None = None) -> None:
         within = {v: float((np.abs(p - np.arange(len(p))) <= 2).mean())
                   for v, p in pred.items()}  # fmt: skip
     report = dict(
-        command="python scripts/bench_frames.py " + " ".join(argv or sys.argv[1:]),
         base=paths["base"],
         frames=args.frames,
         aug_frames=args.aug_frames,
@@ -212,11 +209,10 @@ def main(argv: list[str] | None = None) -> None:
         build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
         prediction_agreement=agree,
         prediction_within_2=within,
-        load_average=dict(start=load0, end=load_average()),
         runs=runs,
     )
     report["summary"] = summary(report)
-    write_report(args.out, "frames", report, markdown(report))
+    return report
 
 
 def frames_of(job: str, report: dict) -> int:
@@ -280,17 +276,12 @@ def markdown(report: dict) -> str:
          f"{TARGETS[job][1]}: {'met' if s[job]['met'] else 'not met'}"]
         for job in s
     ]  # fmt: skip
-    load = report["load_average"]
     loads = [r["load"] for by in report["runs"].values() for rs in by.values()
              for r in rs]  # fmt: skip
     return "\n".join([
-        "# Frames per second from images, end to end",
-        "",
-        f"Command: `{report['command']}`; baseline checkout {report['base']} run"
-        " interleaved with this one in the same process tree. Load average"
-        f" (1, 5, 15 min) at start {load['start']}, at end {load['end']}: the"
-        " machine is shared, so walls are pessimistic (CPU seconds count the"
-        " work). Medians of"
+        *header("Frames per second from images, end to end", report),
+        f"Baseline checkout {report['base']} run interleaved with this one in"
+        " the same process tree (CPU seconds count the work). Medians of"
         f" {report['repeats']} runs; every job starts with an empty descriptor"
         " cache; the compiled network was built once before (it took"
         f" {report['build_compiled']['wall']:.0f} s wall in this run, in a"
@@ -323,4 +314,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="frames")

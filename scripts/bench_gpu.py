@@ -26,12 +26,11 @@ column is JAX's CPU device (jitted paths).
 from __future__ import annotations
 
 import logging
-import time
 from pathlib import Path
 
 import jax
 import numpy as np
-from _bench_common import begin, header, parser, run_record, table, write_report
+from _harness import header, main, table, timed
 
 from rhythmic_jax import RhythmicMap
 
@@ -60,10 +59,9 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
 
 
 def seconds(fn, *args, **kwargs) -> tuple[object, float]:
-    """``(result, wall seconds)``, JAX results waited for."""
-    t = time.perf_counter()
-    out = jax.block_until_ready(fn(*args, **kwargs))
-    return out, time.perf_counter() - t
+    """``(result, wall seconds)`` of :func:`_harness.timed`."""
+    out, wall, _ = timed(fn, *args, **kwargs)
+    return out, wall
 
 
 def run_on(device, summer, winter, args) -> dict:
@@ -160,8 +158,7 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--features", type=Path, help="float16 (2, n, d) .npy")
     ap.add_argument("--write-features", type=Path, help="write that .npy and stop")
     ap.add_argument("--rows", type=int, default=None, help="first rows only")
@@ -169,26 +166,24 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--decode", type=int, default=100_000)
     ap.add_argument("--length", type=int, default=10)
     ap.add_argument("--fit-sizes", type=int, nargs="*", default=[20_000, 100_000])
-    ap.add_argument("--stem", default="gpu", help="report name under --out")
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        return rerender(args.render, markdown)
-    env, load = begin(log)
+
+def run(args) -> dict | None:
     if args.write_features:
         write_features(args.root, args.write_features)
-        return {}
+        return None
     if args.features is None:
-        ap.error("--features (or --write-features) is required")
+        raise SystemExit("--features (or --write-features) is required")
+    if args.quick:
+        args.rows, args.batches, args.decode = args.rows or 600, [100], 2000
+        args.fit_sizes, args.stem = [], "gpu_quick"
     both = np.load(args.features)
     summer = np.asarray(both[0][: args.rows], np.float32)
     winter = np.asarray(both[1][: args.rows], np.float32)
     gpu = gpu_device()
     results = {"gpu": run_on(gpu, summer, winter, args) if gpu else None}
     results["cpu"] = run_on(jax.devices("cpu")[0], summer, winter, args)
-    report = run_record("bench_gpu.py", argv, env, load)
-    report.update(
+    report = dict(
         features=str(args.features), n=len(summer), d=summer.shape[1],
         batches=args.batches, decode=args.decode, length=args.length,
         fit_sizes=args.fit_sizes,
@@ -201,13 +196,8 @@ def main(argv: list[str] | None = None) -> dict:
     for side in results.values():
         if side:
             side.pop("self"), side.pop("winter")
-    report.update(results)
-    from _bench_common import plain
-
-    report = plain(report)
-    write_report(args.out, args.stem, report, markdown(report))
-    return report
+    return report | results
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="gpu")

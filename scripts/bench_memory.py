@@ -33,15 +33,7 @@ import threading
 import time
 
 import numpy as np
-from _bench_common import (
-    begin,
-    header,
-    parser,
-    rerender,
-    run_record,
-    table,
-    write_report,
-)
+from _harness import header, main, table
 
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes
@@ -153,18 +145,18 @@ def markdown(report: dict) -> str:
     )
 
 
-def main(argv: list[str] | None = None) -> dict | None:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--shapes", nargs="+", default=SHAPES, help="NxD ...")
     ap.add_argument("--repeats", type=int, default=2, help="warm refits a shape")
     ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
-    args = ap.parse_args(argv)
-    if args.render:
-        return rerender(args.render, markdown)
-    if args.measure:
+
+
+def run(args) -> dict | None:
+    if args.measure:  # the child
         measure(args.repeats, args.shapes)
         return None
-    env, load0 = begin(log)
+    if args.quick:
+        args.shapes, args.repeats, args.stem = ["600x32"], 1, "memory_quick"
     child = subprocess.run(
         [sys.executable, __file__, "--measure", "--repeats", str(args.repeats),
          "--shapes", *args.shapes],
@@ -176,23 +168,14 @@ def main(argv: list[str] | None = None) -> dict | None:
             continue
         r = json.loads(line)
         parts = fit_bytes(r["n"], r["d"], r["p"])
-        r.update(
-            kind=kind(r["n"], r["d"]),
-            parts=parts,
-            estimate=sum(parts.values()),
-            arrays=sum(parts.values()) - parts["compile"],
-        )
+        est = sum(parts.values())
+        r.update(kind=kind(r["n"], r["d"]), parts=parts, estimate=est,
+                 arrays=est - parts["compile"])  # fmt: skip
         rows.append(r)
         log.info("%s", r)
-    report = dict(
-        **run_record("bench_memory.py", argv, env, load0),
-        repeats=args.repeats,
-        compile_bytes=rows[0]["parts"]["compile"] if rows else 0,
-        rows=rows,
-    )
-    write_report(args.out, "memory", report, markdown(report))
-    return report
+    compile_bytes = rows[0]["parts"]["compile"] if rows else 0
+    return dict(repeats=args.repeats, compile_bytes=compile_bytes, rows=rows)
 
 
 if __name__ == "__main__":
-    sys.exit(main() and 0)
+    main(__doc__, run, markdown, options, stem="memory")

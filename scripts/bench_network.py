@@ -22,20 +22,11 @@ import time
 
 import numpy as np
 import torch
-from _bench_common import (
-    begin,
-    header,
-    parser,
-    run_record,
-    table,
-    timed,
-    write_report,
-)
+from _harness import header, main, nordland_images, table, timed
 
 from rhythmic_jax.frames import compiled
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.frames.pipeline import _to_batch
-from rhythmic_jax.io.images import nordland
 
 log = logging.getLogger("bench_network")
 
@@ -56,22 +47,20 @@ def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
     )
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
     ap.add_argument("--frames", type=int, default=512)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--block", type=int, default=10)
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        rerender(args.render, markdown)
-        return
-    env, load0 = begin(log)
+
+def run(args) -> dict:
+    if args.quick:
+        args.batches, args.frames, args.repeats = [8], 64, 1
+        args.stem = "network_quick"
     desc = get_descriptor("efficientnet_lite0", block=args.block)
-    summer = nordland(args.root / "nordland_64x32", seasons=("summer",), progress=False)
-    images = summer[0].images[: args.frames]
+    (summer,) = nordland_images(args.root, ("summer",))
+    images = summer.images[: args.frames]
     with torch.inference_mode():
         x = desc.prepare(_to_batch(images))
         net = desc.network().eval()
@@ -93,8 +82,7 @@ def main(argv: list[str] | None = None) -> None:
                            max_rel_diff=float(diff))  # fmt: skip
                 log.info("%s", row)
                 rows.append(row)
-    report = run_record("bench_network.py", argv, env, load0)
-    report.update(
+    return dict(
         descriptor=desc.name,
         settings=dict(block=args.block, width=desc.width, height=desc.height),
         frames=len(x),
@@ -103,7 +91,6 @@ def main(argv: list[str] | None = None) -> None:
         job_eager_batch=compiled.EAGER_BATCH,
         rows=rows,
     )
-    write_report(args.out, "network", report, markdown(report))
 
 
 def markdown(report: dict) -> str:
@@ -164,4 +151,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="network")

@@ -26,19 +26,7 @@ from pathlib import Path
 import faiss
 import jax
 import numpy as np
-from _bench_common import (
-    command_line,
-    cores,
-    environment,
-    header,
-    load_average,
-    parser,
-    plain,
-    rerender,
-    set_threads,
-    table,
-    write_report,
-)
+from _harness import fastest, header, main, nordland_features, table
 
 from rhythmic_jax.codes import code_bytes, pack_bits
 from rhythmic_jax.decoding.fusion import fused_decode
@@ -53,23 +41,12 @@ from rhythmic_jax.eval.frontier import (
     projected_bytes,
     similarity_recalls,
 )
-from rhythmic_jax.frames.features import cached_describe, get_descriptor
-from rhythmic_jax.io.images import nordland
 from rhythmic_jax.split import NORDLAND_SPLIT
 
 BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
 DS = (256, 2048, 4096, 10976)
 BITS = (64, 128, 256, 512)
-
-
-def load(root, progress):
-    summer, winter = nordland(root / "nordland_64x32", progress=progress)
-    desc = get_descriptor("efficientnet_lite0")
-    kw = dict(progress=progress)
-    s = cached_describe(summer.images, desc, "nordland_summer", **kw)
-    w = cached_describe(winter.images, desc, "nordland_winter", **kw)
-    return s, w
 
 
 def projections() -> list[dict]:
@@ -116,13 +93,8 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
         ("codes alone (faiss IndexBinaryFlat)", binary),
     )
     for name, fn in fns:
-        jax.block_until_ready(fn())
-        times = []
-        for _ in range(5):
-            t = time.perf_counter()
-            jax.block_until_ready(fn())
-            times.append(time.perf_counter() - t)
-        out[name] = {"seconds": min(times), "queries_per_s": len(q) / min(times)}
+        _, sec = fastest(fn, 5)
+        out[name] = {"seconds": sec, "queries_per_s": len(q) / sec}
     base = out["map alone"]["seconds"]
     for v in out.values():
         v["x map alone"] = v["seconds"] / base
@@ -276,29 +248,23 @@ def markdown(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None):
-    ap = parser(__doc__)
-    ap.add_argument("--quick", action="store_true", help="2 maps, 2 code sizes")
-    ap.add_argument(
-        "--cross", action="store_true", help="also ITQ fitted across conditions"
-    )
+def options(ap) -> None:
+    ap.add_argument("--cross", action="store_true",
+                    help="also ITQ fitted across conditions")  # fmt: skip
     ap.add_argument(
         "--cache",
-        default=str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
         help="folder keeping fitted templates and codes ('' for none)",
+        default=str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
     )
     ap.add_argument("--maps", default=None, help="maps as r:level,... (e.g. 2:4,3:4)")
     ap.add_argument("--bits", default=None, help="code sizes, e.g. 64,128")
     ap.add_argument("--no-timing", action="store_true", help="skip the speed table")
-    args = ap.parse_args(argv)
-    if args.render:
-        rerender(args.render, markdown)
-        return
-    logging.basicConfig(format="%(asctime)s %(message)s")
+
+
+def run(args) -> dict:
     logging.getLogger("rhythmic_jax.eval.frontier").setLevel(logging.INFO)
-    threads = set_threads(cores())
-    load_start = load_average()
-    s, w = load(args.root, args.progress)
+    s, w = nordland_features(args.root, "efficientnet_lite0", key="nordland_",
+                             progress=args.progress)  # fmt: skip
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
     cfg = FrontierConfig()
     if args.quick:
@@ -326,8 +292,6 @@ def main(argv=None):
             }
         )
     rep = {
-        "command": command_line("bench_recall_per_byte.py", argv),
-        "environment": environment(threads),
         "protocol": (
             f"Nordland split: test places {int(te[0])}-{int(te[-1])} (N = {len(te)}),"
             f" summer references, winter queries, recall@1 within ±{cfg.tolerance};"
@@ -351,13 +315,12 @@ def main(argv=None):
         "projections": projections(),
         "seconds": time.perf_counter() - t0,
     }
-    rep["load_average"] = {"start": load_start, "end": load_average()}
-    rep = plain(rep)
-    write_report(args.out, "recall_per_byte", rep, markdown(rep))
     from rhythmic_jax.eval.figures import plot_frontier
 
-    plot_frontier(rows, args.out / "recall_per_byte.png", cfg.lengths)
+    args.out.mkdir(parents=True, exist_ok=True)
+    plot_frontier(rows, args.out / f"{args.stem}.png", cfg.lengths)
+    return rep
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="recall_per_byte")

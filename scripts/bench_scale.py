@@ -43,19 +43,16 @@ import sys
 import time
 from pathlib import Path
 
-import _bench_common as bc
+import _harness as bc
 import numpy as np
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.frames.features import cached_describe, get_descriptor
 from rhythmic_jax.io.frame_files import open_frames
-from rhythmic_jax.io.images import nordland
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
 
 log = logging.getLogger("bench_scale")
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
-ROOT = Path(__file__).resolve().parents[1]
 _PEAK = """import json, resource, subprocess, sys, time
 t = time.perf_counter()
 done = subprocess.run(sys.argv[1:], capture_output=True, text=True)
@@ -417,16 +414,11 @@ def markdown(report: dict) -> str:
 
 
 def nordland_summer(root: Path) -> np.ndarray | None:
-    """(3576, 2048) patch-normalised Nordland summer descriptors from the shared
-    data (cached by the descriptor cache), or None where the data is absent."""
-    folder = root / "nordland_64x32"
-    if not (folder / "summer").is_dir():
+    """(3576, 2048) patch-normalised Nordland summer descriptors, or None where
+    the data is absent."""
+    if not (root / bc.NORDLAND / "summer").is_dir():
         return None
-    (summer,) = nordland(folder, ("summer",))
-    return cached_describe(
-        summer.images, get_descriptor("patchnorm"), "nordland64x32-summer",
-        progress=False,
-    )  # fmt: skip
+    return bc.nordland_features(root, seasons=("summer",))[0]
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -559,8 +551,7 @@ def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
         kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
         group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
         candidates=list(RhythmicMap(r=3)._plan(n)[0]),
-        code=subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip(),
+        code=bc.git_commit(),
     )  # fmt: skip
     saved.write_text(json.dumps(bc.plain(row)))
     return row
@@ -700,9 +691,7 @@ for periods in (fixed, tuple(RhythmicMap(r=3)._plan(frames.n)[0])):
 print(json.dumps(dict(n=frames.n, d=frames.d, sets=sets)))"""
 
 
-def main(argv=None) -> None:
-    ap = bc.parser(__doc__)
-    ap.add_argument("--quick", action="store_true", help="a small grid")
+def options(ap) -> None:
     ap.add_argument("--budget", type=float, default=1200.0, help="seconds in all")
     ap.add_argument("--memory", default="1GiB", help="memory bound of stream cells")
     ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
@@ -717,12 +706,10 @@ def main(argv=None) -> None:
     ap.add_argument("--full-memory", default="1GiB")
     ap.add_argument("--full-work", type=Path, default=Path("/tmp/bench_scale_full"),
                     help="scratch folder of the full fit (features, map)")  # fmt: skip
-    args = ap.parse_args(argv)
-    if args.render:
-        bc.rerender(args.render, markdown)
-        return
+
+
+def run(args) -> dict:
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
-    env, load0 = bc.begin(log)
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
     stamps = []
@@ -757,7 +744,7 @@ def main(argv=None) -> None:
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
         stamps.append(row["measured"])
-    report = bc.run_record("bench_scale.py", argv, env, load0)
+    report = {}
     if args.probe:
         try:
             report["probe"] = probe(args.probe, args.probe_memory, args.cells,
@@ -789,9 +776,10 @@ def main(argv=None) -> None:
             for v in sorted({r.get("nice", 10) for r in rows})
         ),
     )
+    args.out.mkdir(parents=True, exist_ok=True)
     report["figures"] = figures(rows, args.out) if rows else []
-    bc.write_report(args.out, "scale", bc.plain(report), markdown(bc.plain(report)))
+    return report
 
 
 if __name__ == "__main__":
-    main()
+    bc.main(__doc__, run, markdown, options, stem="scale")

@@ -26,7 +26,7 @@ import time
 
 import jax.numpy as jnp
 import numpy as np
-from _bench_common import begin, cores, header, parser, run_record, table, write_report
+from _harness import cores, header, main, table, unit_rows
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import decode
@@ -66,31 +66,25 @@ def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
     }
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--n", type=int, default=10_000)
     ap.add_argument("--d", type=int, default=2048)
     ap.add_argument("--singles", type=int, default=2000)
     ap.add_argument("--exact", type=int, default=200, help="single faiss queries")
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        rerender(args.render, markdown)
-        return
-    env, load0 = begin(log)
+
+def run(args) -> dict:
+    if args.quick:
+        args.n, args.singles, args.exact = 2000, 200, 20
+        args.stem = "single_query_quick"
     n, d = args.n, args.d
     cands = candidate_periods(n, 2, 1, 7)
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
     rng = np.random.default_rng(0)
-    refs = rng.standard_normal((n, d), dtype=np.float32)
-    refs /= np.linalg.norm(refs, axis=1, keepdims=True)
+    refs = unit_rows(rng.standard_normal((n, d), dtype=np.float32))
     src = rng.integers(0, n, args.singles)
-    queries = refs[src] + 0.5 / np.sqrt(d) * rng.standard_normal(
-        (args.singles, d), dtype=np.float32
-    )
-    queries /= np.linalg.norm(queries, axis=1, keepdims=True)
-    queries = queries.astype(np.float32)  # the noise's float64 scale made float64
+    noise = rng.standard_normal((args.singles, d), dtype=np.float32)
+    queries = unit_rows(refs[src] + 0.5 / np.sqrt(d) * noise)
     p = sum(periods)
     params = Templates(
         jnp.asarray(rng.standard_normal((d, p), dtype=np.float32) / np.sqrt(d)),
@@ -144,13 +138,11 @@ def main(argv: list[str] | None = None) -> None:
         ),
         "faiss IndexFlatIP": time_batch(exact, queries[:1000], repeats=3),
     }
-    report = run_record("bench_single_query.py", argv, env, load0)
-    report.update(
+    return dict(
         n=n, d=d, periods=list(periods), singles=args.singles,
         single=rows, batch=throughput, same_as_batch_decode=bool(same),
         locate_same_as_batch_decode=bool(same_locate), padded_rows=int(rows_p),
     )  # fmt: skip
-    write_report(args.out, "single_query", report, markdown(report))
 
 
 def markdown(r: dict) -> str:
@@ -209,4 +201,4 @@ def markdown(r: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="single_query")

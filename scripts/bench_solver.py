@@ -48,36 +48,25 @@ from __future__ import annotations
 import logging
 import sys
 import warnings
-from pathlib import Path
 
 import _newton_ref
 import numpy as np
 import optax
-from _bench_common import (
-    begin,
+from _harness import (
     cores,
     header,
     load_average,
-    parser,
+    main,
+    nordland_features,
     plain,
-    rerender,
-    run_record,
     stats,
     table,
     timed,
-    write_report,
 )
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.frames.features import cached_describe, get_descriptor
-from rhythmic_jax.io.images import nordland
-from rhythmic_jax.objective import (
-    default_c,
-    period_errors,
-    scores,
-    targets,
-)
+from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
@@ -92,18 +81,6 @@ VIDEO = dict(rho=0.99, noise=0.3, seed=0)
 
 
 # ------------------------------------------------------------------- features
-
-
-def nordland_summer(root: Path, frames: int, progress: bool) -> np.ndarray:
-    """(frames, 2048) patch-normalised Nordland summer descriptors, cached."""
-    (summer,) = nordland(root / "nordland_64x32", ("summer",), progress=progress)
-    x = cached_describe(
-        summer.images,
-        get_descriptor("patchnorm"),
-        "nordland64x32-summer",
-        progress=progress,
-    )
-    return x[:frames]
 
 
 def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarray:
@@ -174,34 +151,16 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     _, warmup, _ = timed(newton_fit, x, y, c, config, progress=False)
     load = load_average()
     (params, info), seconds, cpu = timed(newton_fit, x, y, c, config, progress=progress)
-    log.info(
-        "Newton %s: %.1f s (%d steps, CG %s, columns %s)",
-        config,
-        seconds,
-        info.steps,
-        info.cg_iterations,
-        info.columns,
-    )
+    log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
+             info.steps, info.cg_iterations, info.columns)  # fmt: skip
+    keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
+    cfg = {k: getattr(config, k) for k in keys}
+    cfg["hessian"] = resolve_hessian_dtype(config.hessian_dtype) or "float32"
     record = dict(
-        seconds=seconds,
-        cpu_s=cpu,
-        warmup_s=warmup,
-        load_average_start=load,
-        config=dict(
-            gap_tol=config.gap_tol,
-            eta=config.eta,
-            max_cg=config.max_cg,
-            cg_start=config.cg_start,
-            exact_gradient=config.exact_gradient,
-            hessian=resolve_hessian_dtype(config.hessian_dtype) or "float32",
-            rank=config.rank,
-            block=config.block,
-        ),
-        steps=info.steps,
-        cg_iterations=list(info.cg_iterations),
-        columns=list(info.columns),
-        max_gap_estimate=float(np.max(info.gap_estimate)),
-    )
+        seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load,
+        config=cfg, steps=info.steps, cg_iterations=list(info.cg_iterations),
+        columns=list(info.columns), max_gap_estimate=float(np.max(info.gap_estimate)),
+    )  # fmt: skip
     return params, record
 
 
@@ -293,21 +252,10 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     for t in (fast, tight, lbfgs):
         t["speedup_vs_linearsvc"] = linearsvc["extrapolated_s"] / t["seconds"]
         t["cpu_speedup_vs_linearsvc"] = linearsvc["extrapolated_cpu_s"] / t["cpu_s"]
-    return plain(
-        dict(
-            name=name,
-            n=n,
-            d=d,
-            xla_threads=cores(),
-            candidates=cands,
-            p=p,
-            c=c,
-            linearsvc=linearsvc,
-            newton_fast=fast,
-            newton_tight=tight,
-            lbfgs=lbfgs,
-        )
-    )
+    return plain(dict(
+        name=name, n=n, d=d, xla_threads=cores(), candidates=cands, p=p, c=c,
+        linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
+    ))  # fmt: skip
 
 
 # -------------------------------------------------------------------- report
@@ -351,12 +299,8 @@ def _newton_line(label: str, nw: dict) -> str:
 
 
 def case_markdown(r: dict) -> str:
-    s, fast, tight, lb = (
-        r["linearsvc"],
-        r["newton_fast"],
-        r["newton_tight"],
-        r["lbfgs"],
-    )
+    s, fast, tight, lb = (r[k] for k in ("linearsvc", "newton_fast", "newton_tight",
+                                         "lbfgs"))  # fmt: skip
     per = s["per_template_s"]
     aim = (
         fast["speedup_vs_linearsvc"] >= AIM_SPEEDUP
@@ -391,19 +335,10 @@ def case_markdown(r: dict) -> str:
             )
         ],
     )
-    errors = table(
-        ["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
-        [
-            list(row)
-            for row in zip(
-                r["candidates"],
-                fast["training_error"],
-                tight["training_error"],
-                lb["training_error"],
-                strict=True,
-            )
-        ],
-    )
+    errs = (r["candidates"], fast["training_error"], tight["training_error"],
+            lb["training_error"])  # fmt: skip
+    errors = table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
+                   [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
     sampled = table(
         [*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
         [
@@ -489,67 +424,51 @@ def markdown(report: dict) -> str:
 # ---------------------------------------------------------------------- main
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--frames", type=int, default=None, help="Nordland frames")
     ap.add_argument("--video-frames", type=int, default=None)
     ap.add_argument("--video-dim", type=int, default=4096)
     ap.add_argument("--samples", type=int, default=None, help="LinearSVC templates")
-    ap.add_argument("--quick", action="store_true", help="800 frames, 4 templates")
-    ap.add_argument(
-        "--compare-ref", metavar="REV", default=None,
-        help="also time Newton (0.1 %% gap) at git commit REV against this checkout",
-    )  # fmt: skip
+    ap.add_argument("--compare-ref", metavar="REV", default=None,
+                    help="also time Newton (0.1 %% gap) at git commit REV against"
+                    " this checkout")  # fmt: skip
     ap.add_argument("--compare-runs", type=int, default=5, help="processes each")
-    ap.add_argument(
-        "--compare-only", action="store_true", help="only the --compare-ref timing"
-    )
-    args = ap.parse_args(argv)
-    if args.render:
-        return rerender(args.render, markdown)
+    ap.add_argument("--compare-only", action="store_true",
+                    help="only the --compare-ref timing")  # fmt: skip
+
+
+def run(args) -> dict:
     if args.compare_only and not args.compare_ref:
-        ap.error("--compare-only needs --compare-ref")
+        sys.exit("--compare-only needs --compare-ref")
     frames = args.frames or (800 if args.quick else 3576)
     video_frames = args.video_frames or (800 if args.quick else 3705)
     samples = args.samples or (4 if args.quick else 12)
-
-    env, load_start = begin(log)
-    cases = []
-    nordland_dir = args.root / "nordland_64x32"
-    x = None
-    if nordland_dir.is_dir():
-        x = nordland_summer(args.root, frames, args.progress)
+    args.stem = "solver_quick" if args.quick else "solver"
+    args.stem += "_compare" if args.compare_only else ""
+    cases, extra, x = [], {}, None
+    if (args.root / "nordland_64x32").is_dir():
+        (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
+        x = x[:frames]
         if not args.compare_only:
             name = "Nordland summer, patchnorm 64x32"
             cases.append(bench_case(name, x, samples, args.progress))
     else:
-        log.warning(
-            "no Nordland data at %s: skipping the real-frame case", nordland_dir
-        )
-    extra = {}
+        log.warning("no Nordland data under %s: the real-frame case is left out",
+                    args.root)  # fmt: skip
     if not args.compare_only:
         xv = video_like(video_frames, args.video_dim, **VIDEO)
         cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
         extra["video_like"] = dict(**VIDEO, cosines=neighbour_cosines(xv))
     if args.compare_ref:
         if x is None:
-            sys.exit(f"--compare-ref needs the Nordland frames under {nordland_dir}")
+            sys.exit(f"--compare-ref needs the Nordland frames under {args.root}")
         n = len(x)
         y = np.asarray(targets(np.arange(n), candidate_periods(n, 2, 1, 7)))
-        extra["compare_ref"] = plain(
-            _newton_ref.compare(args.compare_ref, x, y, default_c(n), args.compare_runs)
-        )
-    report = dict(
-        **run_record("bench_solver.py", argv, env, load_start),
-        aim=dict(speedup=AIM_SPEEDUP, gap=AIM_GAP, newton_ratio=AIM_RATIO),
-        **extra,
-        cases=cases,
-    )
-    stem = "solver_quick" if args.quick else "solver"
-    stem = f"{stem}_compare" if args.compare_only else stem
-    write_report(args.out, stem, report, markdown(report))
-    return report
+        extra["compare_ref"] = _newton_ref.compare(
+            args.compare_ref, x, y, default_c(n), args.compare_runs)  # fmt: skip
+    aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP, newton_ratio=AIM_RATIO)
+    return dict(aim=aim, **extra, cases=cases)
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="solver")

@@ -26,15 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _bench_common import (
-    begin,
-    header,
-    parser,
-    plain,
-    run_record,
-    table,
-    write_report,
-)
+from _harness import header, main, nordland_features, table
 
 from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
@@ -65,25 +57,19 @@ def solve(x, y, c, stop_for):
     return params, info, time.perf_counter() - t, stop
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--frames", type=Path, default=None, help="(n, d) .npy")
     ap.add_argument("--slack", type=float, default=0.005)
     ap.add_argument("--after", type=int, default=4)
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        rerender(args.render, markdown)
-        return
-    env, load0 = begin(log)
-    from bench_solver import nordland_summer
 
-    x = (
-        np.load(args.frames)
-        if args.frames
-        else nordland_summer(args.root, 3576, args.progress)
-    ).astype(np.float32)
+def run(args) -> dict:
+    if args.frames:
+        x = np.load(args.frames).astype(np.float32)
+    else:
+        (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
+    if args.quick:
+        x, args.stem = x[:600], "solver_work_quick"
     n = len(x)
     labels = np.arange(n)
     cands = candidate_periods(n, 2, 1, 7)
@@ -122,13 +108,11 @@ def main(argv: list[str] | None = None) -> None:
     offs = dict(zip(cands, period_offsets(cands), strict=True))
     cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in full["chosen"]])
     f0, f1 = np.asarray(full["objective"])[cols], np.asarray(drop["objective"])[cols]
-    report = run_record("bench_solver_work.py", argv, env, load0)
-    report.update(
+    return dict(
         n=n, d=int(x.shape[1]), candidates=list(cands), c=c, slack=args.slack,
         after=args.after, runs=runs,
         chosen_gap=float(np.max(np.abs(f1 - f0) / f0)),
     )  # fmt: skip
-    write_report(args.out, "solver_work", plain(report), markdown(plain(report)))
 
 
 def markdown(r: dict) -> str:
@@ -184,4 +168,4 @@ def markdown(r: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="solver_work")

@@ -18,86 +18,60 @@ are computed once and cached (``rhythmic_jax.frames.features.cached_describe``).
 from __future__ import annotations
 
 import dataclasses
-import logging
-import sys
 
 import jax
 import numpy as np
-from _bench_common import (
-    begin,
-    header,
-    parser,
-    rerender,
-    run_record,
-    stats,
-    table,
-    timed,
-    write_report,
-)
+from _harness import header, main, nordland_features, stats, table, timed
 
-from rhythmic_jax.frames.features import cached_describe, get_descriptor
-from rhythmic_jax.io.images import nordland
+from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.objective import Templates, default_c, objective, targets
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
-
-log = logging.getLogger("bench_span")
 
 
 def objectives(params: Templates, x, y, c) -> np.ndarray:
     """(p,) objective of every template in float64."""
     with jax.enable_x64(True):
-        p64 = Templates(
-            np.asarray(params.w, np.float64), np.asarray(params.b, np.float64)
-        )
-        return np.asarray(
-            objective(p64, np.asarray(x, np.float64), np.asarray(y, np.float64), c)
-        )
+        w, b = (np.asarray(v, np.float64) for v in params)
+        x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        return np.asarray(objective(Templates(w, b), x64, y64, c))
 
 
 def markdown(report: dict) -> str:
-    rows = [
-        [r["solver"], r["wall_s"], r["cpu_s"], r["steps"], r["cg_iterations"]]
-        for r in report["rows"]
-    ]
+    rows = [[r["solver"], r["wall_s"], r["cpu_s"], r["steps"], r["cg_iterations"]]
+            for r in report["rows"]]  # fmt: skip
     gap = report["gap_span_vs_direct"]
-    return "\n".join(
-        header("Wide frames: solve in the frames' span vs directly", report)
-        + [
-            f"Nordland summer, {report['descriptor']} ({report['settings']}): "
-            f"n = {report['n']}, d = {report['d']}, level {report['level']}, "
-            f"p = {report['p']} templates, C = log N. Both to the optimum (default "
-            "NewtonConfig); each time includes its compilation (a few seconds).",
-            "",
-            table(["solver", "wall s", "CPU s", "Newton steps", "CG iterations"], rows),
-            "",
-            f"Span / direct: {report['speedup_wall']:.2f}x faster (wall), "
-            f"{report['speedup_cpu']:.2f}x (CPU). Relative objective gap, span "
-            f"minus direct, over all templates: max {gap['max']:+.2e}, median "
-            f"{gap['median']:+.2e}, min {gap['min']:+.2e}.",
-        ]
-    )
+    title = "Wide frames: solve in the frames' span vs directly"
+    return "\n".join(header(title, report) + [
+        f"Nordland summer, {report['descriptor']} ({report['settings']}): "
+        f"n = {report['n']}, d = {report['d']}, level {report['level']}, "
+        f"p = {report['p']} templates, C = log N. Both to the optimum (default "
+        "NewtonConfig); each time includes its compilation (a few seconds).",
+        "",
+        table(["solver", "wall s", "CPU s", "Newton steps", "CG iterations"], rows),
+        "",
+        f"Span / direct: {report['speedup_wall']:.2f}x faster (wall), "
+        f"{report['speedup_cpu']:.2f}x (CPU). Relative objective gap, span "
+        f"minus direct, over all templates: max {gap['max']:+.2e}, median "
+        f"{gap['median']:+.2e}, min {gap['min']:+.2e}.",
+    ])  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--frames", type=int, default=3576)
     ap.add_argument("--level", type=int, default=1)
     ap.add_argument("--descriptor", default="efficientnet_lite0")
-    args = ap.parse_args(argv)
-    if args.render:
-        return rerender(args.render, markdown)
+
+
+def run(args) -> dict:
+    if args.quick:
+        args.frames, args.stem = min(args.frames, 400), "span_quick"
     desc = get_descriptor(args.descriptor)
-    summer = nordland(
-        args.root / "nordland_64x32", seasons=("summer",), progress=args.progress
-    )[0]
-    x = cached_describe(
-        summer.images, desc, "nordland64x32-summer", progress=args.progress
-    )[: args.frames]
+    (x,) = nordland_features(args.root, desc, ("summer",), progress=args.progress)
+    x = x[: args.frames]
     n, d = x.shape
     cands = candidate_periods(n, 2, args.level, 7)
     y, c = targets(np.arange(n), cands), default_c(n)
-    env, load0 = begin(log)
     rows, answers = [], {}
     for name, cfg in (
         ("span (n-dim)", NewtonConfig()),
@@ -105,33 +79,18 @@ def main(argv: list[str] | None = None) -> dict:
     ):
         (params, info), wall, cpu = timed(newton_fit, x, y, c, cfg, False)
         answers[name] = objectives(params, x, y, c)
-        rows.append(
-            dict(
-                solver=name,
-                wall_s=wall,
-                cpu_s=cpu,
-                steps=info.steps,
-                cg_iterations=sum(info.cg_iterations),
-            )
-        )
+        rows.append(dict(solver=name, wall_s=wall, cpu_s=cpu, steps=info.steps,
+                         cg_iterations=sum(info.cg_iterations)))  # fmt: skip
         print(rows[-1], flush=True)
     span, direct = answers["span (n-dim)"], answers["direct (d-dim)"]
-    report = dict(
-        **run_record("bench_span.py", argv, env, load0),
-        descriptor=args.descriptor,
-        settings=desc.settings(),
-        n=n,
-        d=d,
-        level=args.level,
-        p=sum(cands),
-        rows=rows,
+    return dict(
+        descriptor=args.descriptor, settings=desc.settings(), n=n, d=d,
+        level=args.level, p=sum(cands), rows=rows,
         speedup_wall=rows[1]["wall_s"] / rows[0]["wall_s"],
         speedup_cpu=rows[1]["cpu_s"] / rows[0]["cpu_s"],
         gap_span_vs_direct=stats((span - direct) / direct),
-    )
-    write_report(args.out, "span", report, markdown(report))
-    return report
+    )  # fmt: skip
 
 
 if __name__ == "__main__":
-    sys.exit(main() and 0)
+    main(__doc__, run, markdown, options, stem="span")

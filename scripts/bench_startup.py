@@ -19,7 +19,6 @@ same turns, and the report gives the ratios. Also recorded: which heavy packages
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
@@ -31,8 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _bench_common import REPO, begin, header, parser, rerender, run_record, table
-from _bench_common import write_report as write
+from _harness import REPO, header, main, table
 
 log = logging.getLogger("bench_startup")
 
@@ -132,40 +130,35 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--before", type=Path, default=None, help="checkout to compare")
     ap.add_argument("--repeats", type=int, default=5)
-    args = ap.parse_args(argv)
-    if args.render:
-        return rerender(args.render, markdown)
-    env, load_start = begin(log)
+
+
+def run(args) -> dict:
+    if args.quick:
+        args.repeats, args.stem = 1, "startup_quick"
     checkouts = {"this": REPO}
     if args.before is not None:
         checkouts = {"before": args.before.resolve(), "after": REPO}
     with tempfile.TemporaryDirectory() as tmp:
         cmds = commands(fit_map(Path(tmp)))
         seconds = {name: {v: [] for v in checkouts} for name in cmds}
-        loads = {
-            name: {v: loaded(path, cmd) for v, path in checkouts.items()}
-            for name, cmd in cmds.items()
-        }
+        loads = {name: {v: loaded(path, cmd) for v, path in checkouts.items()}
+                 for name, cmd in cmds.items()}  # fmt: skip
         for i in range(args.repeats):
             for name, cmd in cmds.items():
                 for v, path in checkouts.items():
                     seconds[name][v].append(wall(path, cmd))
             log.info("turn %d of %d done", i + 1, args.repeats)
-    report = dict(
-        **run_record("bench_startup.py", argv, env, load_start),
+    return dict(
         versions=list(checkouts),
-        checkouts={v: str(p) for v, p in checkouts.items()},
         repeats=args.repeats,
         seconds=seconds,
+        checkouts={v: str(p) for v, p in checkouts.items()},
         loaded=loads,
     )
-    write(args.out, "startup", report, markdown(report))
-    return report
 
 
 if __name__ == "__main__":
-    json.dumps(main(), default=str)
+    main(__doc__, run, markdown, options, stem="startup")

@@ -35,9 +35,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _bench_common import begin, header, parser, run_record, table, write_report
+from _harness import header, main, nordland_features, table
 from bench_scale import walk
-from bench_solver import nordland_summer
 
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.objective import default_c, targets
@@ -75,31 +74,17 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
             log.info("%s %s run %d: %.1f s, %d steps, columns %s", name, label,
                      rep, wall, info.steps, info.columns)  # fmt: skip
             gap = (info.objective - ref.objective) / np.abs(ref.objective)
-            runs[label].append(
-                dict(
-                    wall_s=wall,
-                    steps=info.steps,
-                    passes=len(info.pass_seconds),
-                    cg_iterations=list(info.cg_iterations),
-                    columns=list(info.columns),
-                    column_passes=_column_passes(info),
-                    reached=int(np.sum(info.gap_estimate <= config.gap_tol)),
-                    true_gap_max=float(np.max(gap)),
-                    true_gap_median=float(np.median(gap)),
-                )
-            )
-    return dict(
-        name=name,
-        n=frames.n,
-        d=frames.d,
-        periods=list(periods),
-        templates=int(sum(periods)),
-        reference_s=ref_s,
-        runs=runs,
-        median_wall_s={
-            k: float(np.median([r["wall_s"] for r in v])) for k, v in runs.items()
-        },
-    )
+            runs[label].append(dict(
+                wall_s=wall, steps=info.steps, passes=len(info.pass_seconds),
+                cg_iterations=list(info.cg_iterations), columns=list(info.columns),
+                column_passes=_column_passes(info),
+                reached=int(np.sum(info.gap_estimate <= config.gap_tol)),
+                true_gap_max=float(np.max(gap)), true_gap_median=float(np.median(gap)),
+            ))  # fmt: skip
+    med = {k: float(np.median([r["wall_s"] for r in v])) for k, v in runs.items()}
+    return dict(name=name, n=frames.n, d=frames.d, periods=list(periods),
+                templates=int(sum(periods)), reference_s=ref_s, runs=runs,
+                median_wall_s=med)  # fmt: skip
 
 
 def _column_passes(info) -> int:
@@ -128,43 +113,19 @@ def markdown(report: dict) -> str:
     for case in report["cases"]:
         for label, runs in case["runs"].items():
             first = runs[-1]
-            rows.append(
-                [
-                    case["name"],
-                    f"{case['n']} x {case['d']}",
-                    ", ".join(map(str, case["periods"])),
-                    label,
-                    case["median_wall_s"][label],
-                    ", ".join(f"{r['wall_s']:.1f}" for r in runs),
-                    first["steps"],
-                    first["passes"],
-                    f"{first['reached']} / {case['templates']}",
-                    f"{first['true_gap_max']:.1e}",
-                    f"{first['true_gap_median']:.1e}",
-                    _widths(first["columns"]),
-                    first["column_passes"],
-                ]
-            )
-    lines.append(
-        table(
-            [
-                "case",
-                "frames",
-                "periods",
-                "setting",
-                "median wall s",
-                "runs s",
-                "steps",
-                "passes",
-                "reached",
-                "true gap max",
-                "true gap median",
-                "templates per step",
-                "column-passes",
-            ],
-            rows,
-        )  # fmt: skip
-    )
+            rows.append([
+                case["name"], f"{case['n']} x {case['d']}",
+                ", ".join(map(str, case["periods"])), label,
+                case["median_wall_s"][label],
+                ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
+                first["passes"], f"{first['reached']} / {case['templates']}",
+                f"{first['true_gap_max']:.1e}", f"{first['true_gap_median']:.1e}",
+                _widths(first["columns"]), first["column_passes"],
+            ])  # fmt: skip
+    heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
+             "steps", "passes", "reached", "true gap max", "true gap median",
+             "templates per step", "column-passes"]  # fmt: skip
+    lines.append(table(heads, rows))
     lines.append("")
     for case in report["cases"]:
         med = case["median_wall_s"]
@@ -190,34 +151,30 @@ def _widths(columns: list[int]) -> str:
     return ", ".join(out)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = parser(__doc__)
+def options(ap) -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--walk-frames", type=int, default=100_000)
     ap.add_argument("--walk-periods", default="46,47,49")
-    args = ap.parse_args(argv)
-    if args.render:
-        from _bench_common import rerender
 
-        return rerender(args.render, markdown)
-    env, load0 = begin(log)
+
+def run(args) -> dict:
+    if args.quick:
+        args.repeats, args.walk_frames, args.stem = 1, 5000, "streamed_quick"
+        args.walk_periods = "17,18,19"
     cases = []
     with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
-        if (args.root / "nordland_64x32" / "summer").is_dir():
+        if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
             path = Path(tmp) / "nordland.npy"
-            np.save(path, nordland_summer(args.root, 3576, args.progress))
+            np.save(path, nordland_features(args.root, seasons=("summer",))[0])
             cases.append(run_case("nordland", path, (61, 65), args.repeats))
         else:
-            log.warning("no Nordland frames under %s: that case is left out", args.root)
+            log.warning("the Nordland case is left out (--quick or no frames)")
         path = Path(tmp) / "walk.npy"
         np.save(path, walk(args.walk_frames, 256))
         periods = tuple(int(t) for t in args.walk_periods.split(","))
         cases.append(run_case("walk", path, periods, args.repeats))
-    report = run_record("bench_streamed.py", argv, env, load0)
-    report["cases"] = cases
-    write_report(args.out, "streamed", report, markdown(report))
-    return report
+    return dict(cases=cases)
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="streamed")

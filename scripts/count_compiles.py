@@ -1,10 +1,9 @@
-"""XLA programs a default ``RhythmicMap.fit`` compiles, in a fresh process.
+"""XLA programs and optax calls of a default ``RhythmicMap.fit`` in a fresh process.
 
 A child process (``PYTHONPATH`` = the checkout measured, JAX on the CPU, no
 persistent compilation cache unless ``--cache DIR``) imports the package, builds
 route-like frames (a random walk of unit descriptors: neighbours alike, as
-frames along a route are), fits ``RhythmicMap()`` on them and prints one JSON
-line:
+frames along a route are), fits ``RhythmicMap()`` on them and reports:
 
 - ``programs``: XLA programs compiled during the fit (JAX's
   ``/jax/core/compile/backend_compile_duration`` events, one per program, the
@@ -15,28 +14,32 @@ line:
   ``import rhythmic_jax``;
 - ``again_s``, ``again_cpu_s``: a second fit of the same frames in the same
   process; ``load``: the 1-minute load average at the end;
-- ``periods``, ``objective`` (the chosen templates' objective sum), ``names``
-  (``--names``: programs compiled, by name, most first).
+- ``periods``, ``names`` (``--names``: programs compiled, by name, most first);
+- ``--optax``: every public callable of ``optax`` (and ``optax.tree_utils``) is
+  wrapped with a counter before the package is imported: ``optax_calls`` and
+  ``optax_by_name`` of the first fit.
 
-With ``--npy FILE`` the frames are read from a .npy file instead.
+With ``--npy FILE`` the frames are read from a .npy file instead. The record is
+printed as one JSON line (the last line of the output); ``--out DIR`` also writes
+it as ``compiles.json`` / ``.md``.
 
     python scripts/count_compiles.py                      # this checkout
     python scripts/count_compiles.py --checkout /work/main --names
+    python scripts/count_compiles.py --n 600 --d 64 --optax
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from _harness import REPO, main
 
 CHILD = r"""
-import collections, json, logging, sys, time
+import collections, functools, json, logging, sys, time
 args = json.loads(sys.argv[1])
 t0 = time.perf_counter()
 import jax
@@ -46,6 +49,20 @@ if args["cache"]:
 else:  # cold: whatever the environment says
     jax.config.update("jax_enable_compilation_cache", False)
 programs, seconds, names = [0], [0.0], collections.Counter()
+calls = collections.Counter()
+if args["optax"]:
+    import optax
+    def wrap(module, prefix):
+        for name in dir(module):
+            f = getattr(module, name)
+            if name.startswith("_") or not callable(f) or isinstance(f, type):
+                continue
+            def counted(*a, _f=f, _n=f"{prefix}.{name}", **kw):
+                calls[_n] += 1
+                return _f(*a, **kw)
+            setattr(module, name, functools.wraps(f)(counted))
+    wrap(optax, "optax")
+    wrap(optax.tree_utils, "optax.tree_utils")
 EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
           "/jax/core/compile/jaxpr_to_mlir_module_duration",
           "/jax/core/compile/backend_compile_duration")
@@ -84,6 +101,10 @@ m = rj.RhythmicMap().fit(x)
 wall, cpu = time.perf_counter() - t, time.process_time() - cpu
 out = dict(programs=programs[0] - base[0], compile_s=round(seconds[0] - base[1], 3),
            wall_s=round(wall, 3), cpu_s=round(cpu, 3), import_s=round(import_s, 3))
+if args["optax"]:
+    out["optax_calls"] = sum(calls.values())
+    out["optax_by_name"] = dict(calls.most_common())
+    out["solver"] = m.config.solver
 t, cpu = time.perf_counter(), time.process_time()
 rj.RhythmicMap().fit(x)
 out["again_s"] = round(time.perf_counter() - t, 3)
@@ -92,26 +113,20 @@ import os
 out["load"] = round(os.getloadavg()[0], 2)
 out["periods"] = list(m.periods)
 out["n"], out["d"] = [int(v) for v in x.shape]
+out["package"] = rj.__file__
 if args["names"]:
     out["names"] = dict(names.most_common())
 print("RESULT " + json.dumps(out))
 """
 
 
-def measure(
-    checkout: Path = REPO,
-    n: int = 1000,
-    d: int = 256,
-    seed: int = 0,
-    npy: str | None = None,
-    names: bool = False,
-    cache: str | None = None,
-) -> dict:
+def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
+            cache=None, optax=False) -> dict:  # fmt: skip
     """Run one fit in a fresh process against ``checkout``; its JSON record."""
     env = dict(os.environ, PYTHONPATH=str(checkout), TF_CPP_MIN_LOG_LEVEL="3")
     env.setdefault("JAX_PLATFORMS", "cpu")
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache)
+    args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
     proc = subprocess.run(
         [sys.executable, "-c", CHILD, json.dumps(args)],
         env=env,
@@ -124,27 +139,30 @@ def measure(
     if proc.returncode or not lines:
         tail = proc.stderr[-3000:]
         raise RuntimeError(f"the fit failed ({proc.returncode}):\n{tail}")
-    out = json.loads(lines[-1][len("RESULT ") :])
-    out["checkout"] = str(checkout)
-    return out
+    return json.loads(lines[-1][len("RESULT ") :]) | dict(checkout=str(checkout))
 
 
-def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def options(ap) -> None:
+    ap.set_defaults(out=None)  # printed only, unless --out is given
     ap.add_argument("--checkout", type=Path, default=REPO)
     ap.add_argument("--n", type=int, default=1000)
     ap.add_argument("--d", type=int, default=256)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--npy", help="frames (n, d) to fit instead of a random walk")
     ap.add_argument("--names", action="store_true", help="programs by name")
+    ap.add_argument("--optax", action="store_true", help="count optax calls too")
     ap.add_argument("--cache", help="JAX's persistent compilation cache folder")
-    args = ap.parse_args(argv)
-    out = measure(
-        args.checkout, args.n, args.d, args.seed, args.npy, args.names, args.cache
-    )
-    print(json.dumps(out))
-    return out
+
+
+def run(args) -> dict:
+    return dict(record=measure(args.checkout, args.n, args.d, args.seed, args.npy,
+                               args.names, args.cache, args.optax))  # fmt: skip
+
+
+def markdown(report: dict) -> str:
+    """The record as one JSON line (what callers parse), after the command."""
+    return f"# {report['command']}\n{json.dumps(report['record'])}"
 
 
 if __name__ == "__main__":
-    main()
+    main(__doc__, run, markdown, options, stem="compiles")

@@ -24,21 +24,17 @@ run trains OPQ with 4 iterations (each an SVD of a 2048 x 2048 matrix).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
-import hashlib
 import json
-import os
-import platform
 import re
 import string
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+import _harness as h
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -60,8 +56,6 @@ from rhythmic_jax.periods import (
 )
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
 MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_reproduce"
 DESCRIPTOR = "patchnorm"
 PAPER_D = 4096
@@ -314,35 +308,18 @@ class Run:
             descriptor=DESCRIPTOR,
             descriptor_settings=self.desc.settings(),
         )
-        ident = dict(config=dataclasses.asdict(model.config), shape=list(x.shape))
-        if aug is not None:
-            ident["augmented"] = dataclasses.asdict(aug)
-        h = hashlib.sha256(json.dumps(ident, sort_keys=True).encode())
-        h.update(np.ascontiguousarray(x, np.float32).data)
-        if aug is not None:
-            h.update(np.ascontiguousarray(images).data)
-        name = "aug-" if aug is not None else ""
-        name += f"{DESCRIPTOR}-L{level}-n{len(x)}-{h.hexdigest()[:16]}.map"
-        path, side = self.cache_dir / name, self.cache_dir / (name + ".fit.json")
-        if (path / "map.json").is_file():
-            timing = json.loads(side.read_text()) if side.is_file() else {}
-            return RhythmicMap.load(path), dict(
-                map_path=str(path), cached=True, **timing
-            )
-        wall, cpu = time.perf_counter(), time.process_time()
         if aug is None:
-            model.fit(x, progress=self.progress)
-        else:
-            from rhythmic_jax.augment.stream import fit_map_augmented
+            return h.cached_fit(model, x, self.cache_dir,
+                                lambda m: m.fit(x, progress=self.progress))  # fmt: skip
+        from rhythmic_jax.augment.stream import fit_map_augmented
 
-            fit_map_augmented(model, images, x, self.desc, aug, progress=self.progress)
-        timing = dict(
-            fit_wall_s=time.perf_counter() - wall, fit_cpu_s=time.process_time() - cpu
-        )
-        self.cache_dir.mkdir(parents=True, exist_ok=True)
-        model.save(path)
-        write_file(side, json.dumps(timing))
-        return model, dict(map_path=str(path), cached=False, **timing)
+        def fit(m):
+            return fit_map_augmented(
+                m, images, x, self.desc, aug, progress=self.progress
+            )
+
+        extra = dict(augmented=dataclasses.asdict(aug))
+        return h.cached_fit(model, x, self.cache_dir, fit, extra, (images,), "aug-")
 
     def fit_baseline(self, b, x: np.ndarray) -> float:
         """Fit a faiss-backed baseline (ITQ, OPQ), or restore its trained index
@@ -350,9 +327,8 @@ class Run:
         import faiss
 
         ident = {k: v for k, v in vars(b).items() if k != "n_threads"}
-        h = hashlib.sha256(json.dumps(ident, sort_keys=True, default=str).encode())
-        h.update(np.ascontiguousarray(x, np.float32).data)
-        name = f"{type(b).__name__.lower()}-n{len(x)}-{h.hexdigest()[:16]}.faiss"
+        key = h.digest(ident, np.ascontiguousarray(x, np.float32))
+        name = f"{type(b).__name__.lower()}-n{len(x)}-{key}.faiss"
         path, side = self.cache_dir / name, self.cache_dir / (name + ".json")
         if path.is_file() and side.is_file():
             b.index = faiss.read_index(str(path))
@@ -421,17 +397,10 @@ def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
 def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """key -> (map images, map features, query features): Nordland summer ->
     winter, winter (for Table 2), aerial LEVIR A -> B."""
-    from rhythmic_jax.frames.features import cached_describe
-    from rhythmic_jax.io.images import nordland
-    from rhythmic_jax.io.tiles import load_aerial_route
-
     kw = dict(progress=run.progress)
-    summer, winter = nordland(DATA / "nordland_64x32", progress=run.progress)
-    xs = cached_describe(summer.images, run.desc, "nordland64x32-summer", **kw)
-    xw = cached_describe(winter.images, run.desc, "nordland64x32-winter", **kw)
-    route = load_aerial_route(DATA / "aerial_pairs" / "samples_LEVIR", **kw)
-    xa = cached_describe(route.map_tiles, run.desc, "levir-64-32-a", **kw)
-    xb = cached_describe(route.query_tiles, run.desc, "levir-64-32-b", **kw)
+    summer, winter = h.nordland_images(h.DATA, **kw)
+    xs, xw = h.nordland_features(h.DATA, run.desc, **kw)
+    xa, xb, route = h.aerial_features(h.DATA, run.desc, **kw)
     n = run.settings.frames or len(xs)
     return {
         "nordland": (summer.images[:n], xs[:n], xw[:n]),
@@ -901,7 +870,11 @@ def markdown(res: dict) -> str:
         REPORT,
         cached=sum(maps.values()),
         n_maps=len(maps),
-        m=res["meta"] | dict(predictions=Path(res["meta"]["predictions"]).name),
+        m=res["meta"]
+        | dict(
+            predictions=Path(res["meta"]["predictions"]).name,
+            command=res.get("command", res["meta"].get("command")),
+        ),
         s=res["settings"],
         summer=summer,
         solver_note=SOLVER_NOTE.format(
@@ -975,82 +948,55 @@ def draw(res: dict, out: Path) -> list[str]:
     return names
 
 
-def meta(argv: list[str], run: Run, data, load_start, t0, preds: Path) -> dict:
-    import faiss
-    import jax
-
+def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
+    env = h.machine()
     now = datetime.datetime.now(datetime.UTC)
     return dict(
-        command=" ".join(["python scripts/reproduce.py", *argv]),
-        date=now.strftime("%Y-%m-%d %H:%M UTC"),
-        version=rhythmic_jax.__version__,
-        jax=jax.__version__,
-        faiss=faiss.__version__,
-        numpy=np.__version__,
-        python=platform.python_version(),
-        cpu_count=os.cpu_count(),
-        machine=f"{platform.system()} {platform.machine()}",
-        load_start=load_start,
-        load_end=os.getloadavg(),
-        elapsed_min=(time.perf_counter() - t0) / 60,
-        descriptor=DESCRIPTOR,
-        descriptor_settings=run.desc.settings(),
-        d=int(data["nordland"][1].shape[1]),
-        frames=len(data["nordland"][1]),
+        date=now.strftime("%Y-%m-%d %H:%M UTC"), version=rhythmic_jax.__version__,
+        jax=env["jax"], faiss=env["faiss"], numpy=env["numpy"], python=env["python"],
+        cpu_count=env["cores"], machine=env["cpu"], load_start=load_start,
+        load_end=h.load_average(), elapsed_min=(time.perf_counter() - t0) / 60,
+        descriptor=DESCRIPTOR, descriptor_settings=run.desc.settings(),
+        d=int(data["nordland"][1].shape[1]), frames=len(data["nordland"][1]),
         predictions=str(preds),
-    )
+    )  # fmt: skip
 
 
-def parse(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="600 frames, levels 1-2")
-    p.add_argument("--out", type=Path, default=REPO / "reports")
-    p.add_argument("--cache-dir", type=Path, default=MAP_CACHE, help="fitted maps")
-    p.add_argument(
-        "--predictions",
-        type=Path,
-        default=None,
-        help="npz of predictions (default: in --cache-dir)",
-    )
-    p.add_argument("--decoding", type=Path, default=REPO / "reports" / "decoding.json")
-    p.add_argument(
+def options(ap) -> None:
+    ap.add_argument("--cache-dir", type=Path, default=MAP_CACHE, help="fitted maps")
+    ap.add_argument("--predictions", type=Path, default=None,
+                    help="npz of predictions (default: in --cache-dir)")  # fmt: skip
+    ap.add_argument("--decoding", type=Path,
+                    default=h.REPO / "reports" / "decoding.json")  # fmt: skip
+    ap.add_argument(
         "--cross-condition",
         type=Path,
-        default=REPO / "reports" / "cross_condition.json",
+        default=h.REPO / "reports" / "cross_condition.json",
         help="report of scripts/bench_cross_condition.py to include",
     )
-    p.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
-    p.add_argument("--no-progress", dest="progress", action="store_false")
-    p.add_argument(
-        "--render",
-        action="store_true",
-        help="no fits: rewrite REPRODUCTION.md from --out's reproduction.json with "
-        "the current --decoding and --cross-condition reports",
-    )
-    return p.parse_args(argv)
+    ap.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
 
 
-def render_only(args: argparse.Namespace) -> dict[str, Any]:
-    """REPRODUCTION.md again from a run's JSON, with the benchmark reports it
-    quotes read afresh (the paper's figures are not recomputed)."""
-    res = json.loads((args.out / "reproduction.json").read_text())
+def refresh(res: dict, args) -> None:
+    """For ``--render``: the benchmark reports the report quotes, read afresh
+    (the paper's figures are not recomputed)."""
     res["decoding_md"], res["decoding"] = decoding_markdown(args.decoding)
     res["cross_condition_md"] = cross_condition_markdown(args.cross_condition)
-    write_file(args.out / "reproduction.json", json.dumps(res, indent=1))
-    write_file(args.out / "REPRODUCTION.md", markdown(res) + "\n")
-    return res
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    args = parse(argv)
-    if args.render:
-        return render_only(args)
+    """Run (or ``--render``) the reproduction; writes ``reproduction.json`` and
+    ``REPRODUCTION.md`` into ``--out``."""
+    return h.main(__doc__, run, markdown, options, "reproduction", argv, refresh,
+                  md_stem="REPRODUCTION")  # fmt: skip
+
+
+def run(args) -> dict[str, Any]:
     settings = dataclasses.replace(QUICK if args.quick else FULL, threads=args.threads)
     preds = args.predictions or args.cache_dir / (
         "reproduction_quick.npz" if args.quick else "reproduction.npz"
     )
-    load_start, t0 = os.getloadavg(), time.perf_counter()
+    load_start, t0 = h.load_average(), time.perf_counter()
     run, say = Run(settings, args.cache_dir, args.progress), tqdm.write
     steps = tqdm(total=7, desc="reproduce", disable=not args.progress)
     data = load_features(run)
@@ -1089,19 +1035,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     steps.update()
     res["aerial"] = aerial(run, data, fits)
     say(levels_markdown(res["aerial"]))
-    res["decoding_md"], res["decoding"] = decoding_markdown(args.decoding)
-    res["cross_condition_md"] = cross_condition_markdown(args.cross_condition)
+    refresh(res, args)
     steps.update()
-    res["meta"] = meta(argv, run, data, load_start, t0, preds)
+    res["meta"] = meta(run, data, load_start, t0, preds)
+    args.out.mkdir(parents=True, exist_ok=True)
     res["figures"] = draw(res, args.out)
     with atomic_path(preds) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **run.preds)
-    md = markdown(res)
-    write_file(args.out / "reproduction.json", json.dumps(res, indent=1))
-    write_file(args.out / "REPRODUCTION.md", md + "\n")
     steps.update()
     steps.close()
-    say(f"wrote {args.out / 'REPRODUCTION.md'} ({res['meta']['elapsed_min']:.1f} min)")
     return res
 
 

@@ -28,12 +28,14 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce.py"
 
 @pytest.fixture(scope="module")
 def repro():
+    sys.path.insert(0, str(SCRIPT.parent))  # the scripts' harness
     spec = importlib.util.spec_from_file_location("reproduce", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules["reproduce"] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
     yield module
     sys.modules.pop("reproduce", None)
+    sys.path.remove(str(SCRIPT.parent))
 
 
 def test_table1_paper_rows_are_the_library_bytes(repro):

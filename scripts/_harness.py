@@ -1,0 +1,336 @@
+"""The one harness of the benchmark scripts.
+
+A script defines ``options(ap)`` (its own arguments), ``run(args) -> dict`` (the
+measurements) and ``markdown(report) -> str`` (the report), and ends with
+``main(__doc__, run, markdown, options, stem="...")``. :func:`main` parses the
+common options (``--root`` data, ``--out`` folder, ``--quick``, ``--no-progress``,
+``--render``), pins torch, BLAS and faiss to one thread per core (as XLA's CPU
+client runs), records the machine (devices, versions, cores, threads, load
+average at the start and the end: the machine is shared, timings taken under load
+are pessimistic) and the git commit, runs ``run``, then writes ``<stem>.json``
+and ``<stem>.md`` atomically and prints the Markdown. ``--render [JSON]`` writes
+the Markdown again from a report's numbers, measuring nothing.
+
+Also here: the one timer (:func:`timed`), Nordland and aerial features through
+the descriptor cache, and the sha256-keyed caches of fitted maps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
+NORDLAND = "nordland_64x32"
+log = logging.getLogger("harness")
+_LIMITS: list = []  # keeps the global BLAS limit referenced
+
+
+# ------------------------------------------------------------- the machine
+
+
+def cores() -> int:
+    """Cores this process may run on (XLA sizes its CPU thread pool by this)."""
+    return len(os.sched_getaffinity(0))
+
+
+def set_threads(n: int) -> dict[str, int]:
+    """Pin torch intra-op, BLAS and faiss OpenMP to ``n`` threads; the counts in
+    force afterwards, XLA's included."""
+    import faiss
+    import torch
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    torch.set_num_threads(n)
+    _LIMITS.append(threadpool_limits(limits=n))
+    faiss.omp_set_num_threads(n)
+    blas = sorted({int(p["num_threads"]) for p in threadpool_info()})
+    one = blas[0] if len(blas) == 1 else -1
+    return dict(xla=cores(), torch=torch.get_num_threads(), blas=one, faiss=n)
+
+
+def load_average() -> list[float]:
+    """1, 5 and 15 minute load averages, rounded."""
+    return [round(v, 2) for v in os.getloadavg()]
+
+
+def git_commit(repo: Path = REPO) -> str:
+    """The checkout's short commit, ``+`` when its package has changes."""
+
+    def git(*a):
+        done = subprocess.run(["git", "-C", str(repo), *a], capture_output=True,
+                              text=True, check=False)  # fmt: skip
+        return done.stdout.strip()
+
+    dirty = git("status", "--porcelain", "--untracked-files=no", "rhythmic_jax")
+    return git("rev-parse", "--short", "HEAD") + ("+" if dirty else "")
+
+
+def machine(threads: dict[str, int] | None = None) -> dict:
+    """Devices, versions, cpu, cores, threads, XLA flags and commit of this run."""
+    import faiss
+    import jax
+    import optax
+    import sklearn
+    import torch
+
+    return dict(
+        devices=[str(d) for d in jax.devices()], jax=jax.__version__,
+        optax=optax.__version__, numpy=np.__version__, sklearn=sklearn.__version__,
+        faiss=faiss.__version__, torch=torch.__version__,
+        python=platform.python_version(),
+        cpu=platform.processor() or platform.machine(), cores=cores(),
+        threads=threads or {}, xla_flags=os.environ.get("XLA_FLAGS", ""),
+        commit=git_commit(),
+    )  # fmt: skip
+
+
+# ---------------------------------------------------------------- timing
+
+
+def timed(fn, *args, **kwargs):
+    """``(fn(*args, **kwargs), wall seconds, process CPU seconds)``, JAX results
+    waited for. CPU seconds sum every thread of this process: they count the work
+    and are less sensitive than the wall clock to other processes' load."""
+    import jax
+
+    wall, cpu = time.perf_counter(), time.process_time()
+    out = jax.block_until_ready(fn(*args, **kwargs))
+    return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def fastest(fn: Callable[[], object], repeats: int):
+    """One untimed call (it compiles), then ``repeats`` :func:`timed` calls:
+    (the first call's output, the fastest wall seconds; on a shared machine the
+    minimum is the least disturbed estimate)."""
+    import jax
+
+    out = jax.block_until_ready(fn())
+    return out, min(timed(fn)[1] for _ in range(repeats))
+
+
+def stats(v) -> dict[str, float]:
+    """max, median, min and mean of an array."""
+    v = np.asarray(v, np.float64)
+    return dict(max=float(v.max()), median=float(np.median(v)), min=float(v.min()),
+                mean=float(v.mean()))  # fmt: skip
+
+
+# ------------------------------------------------------------------ data
+
+
+def nordland_images(root: Path, seasons=("summer", "winter"), progress=False):
+    """The Nordland 64x32 traversals of ``seasons`` under ``root``."""
+    from rhythmic_jax.io.images import nordland
+
+    return nordland(Path(root) / NORDLAND, tuple(seasons), progress=progress)
+
+
+def nordland_features(root: Path, descriptor="patchnorm", seasons=("summer", "winter"),
+                      key="nordland64x32-", progress=False, **kw):  # fmt: skip
+    """Descriptors of every season's frames (n, d) from the descriptor cache,
+    under the cache key ``key + season`` (``kw``: ``cached_describe``'s)."""
+    from rhythmic_jax.frames.features import cached_describe, get_descriptor
+
+    desc = get_descriptor(descriptor) if isinstance(descriptor, str) else descriptor
+    trav = nordland_images(root, seasons, progress)
+    return tuple(
+        cached_describe(t.images, desc, key + s, progress=progress, **kw)
+        for t, s in zip(trav, seasons, strict=True)
+    )
+
+
+def aerial_features(root: Path, descriptor="patchnorm", folder="samples_LEVIR",
+                    key="levir-64-32-", progress=False, **kw):  # fmt: skip
+    """(A tiles (n, d), B tiles (n, d), the route) of an aerial pairs folder."""
+    from rhythmic_jax.frames.features import cached_describe, get_descriptor
+    from rhythmic_jax.io.tiles import load_aerial_route
+
+    desc = get_descriptor(descriptor) if isinstance(descriptor, str) else descriptor
+    route = load_aerial_route(Path(root) / "aerial_pairs" / folder, progress=progress)
+    a, b = (
+        cached_describe(t, desc, key + side, progress=progress, **kw)
+        for t, side in ((route.map_tiles, "a"), (route.query_tiles, "b"))
+    )
+    return a, b, route
+
+
+def unit_rows(a) -> np.ndarray:
+    """Rows scaled to unit L2 norm, float32."""
+    a = np.asarray(a, np.float32)
+    return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+# ---------------------------------------------------------------- caches
+
+
+def digest(ident, *arrays) -> str:
+    """16 hex digits of sha256 over ``ident`` (JSON, sorted keys; a str as is)
+    and the bytes of ``arrays``: the key of a cached fit."""
+    text = ident if isinstance(ident, str) else json.dumps(ident, sort_keys=True,
+                                                           default=str)  # fmt: skip
+    h = hashlib.sha256(text.encode())
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).data)
+    return h.hexdigest()[:16]
+
+
+def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
+    """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
+    ``model.fit(x)``), or loaded from ``folder`` where a fit with the same
+    settings (``extra`` too) and features (``arrays`` too) was saved. The record
+    holds the path, ``cached`` and the first fit's wall and CPU seconds."""
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    x = np.ascontiguousarray(x, np.float32)
+    ident = dict(config=dataclasses.asdict(model.config), shape=list(x.shape))
+    h = digest(ident | (extra or {}), x, *arrays)
+    cfg = model.config
+    path = Path(folder) / f"{tag}{cfg.descriptor}-L{cfg.level}-n{len(x)}-{h}.map"
+    side = path.with_name(path.name + ".fit.json")
+    if (path / "map.json").is_file():
+        timing = json.loads(side.read_text()) if side.is_file() else {}
+        return RhythmicMap.load(path), dict(map_path=str(path), cached=True, **timing)
+    _, wall, cpu = timed(fit or (lambda m: m.fit(x, progress=False)), model)
+    log.info("fitted %s in %.0f s: periods %s", path.name, wall, model.periods)
+    model.save(path)
+    timing = dict(fit_wall_s=wall, fit_cpu_s=cpu)
+    _write(side, json.dumps(timing))
+    return model, dict(map_path=str(path), cached=False, **timing)
+
+
+# --------------------------------------------------------------- reports
+
+
+def plain(obj):
+    """``obj`` with numpy scalars and arrays and tuples turned into JSON types."""
+    if isinstance(obj, dict):
+        return {str(k): plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | np.ndarray):
+        return [plain(v) for v in obj]
+    if isinstance(obj, np.integer | np.bool_):
+        return obj.item()
+    if isinstance(obj, np.floating):
+        return float(obj)
+    return obj
+
+
+def header(title: str, report: dict) -> list[str]:
+    """A report's title and its paragraph on the command, machine and load."""
+    env, load = report["environment"], report["load_average"]
+    commit = f" Commit {env['commit']}." if env.get("commit") else ""
+    return [
+        f"# {title}",
+        "",
+        f"Command: `{report['command']}`. Devices {env['devices']}, {env['cores']}"
+        f" cores; threads {env['threads']} (XLA: one per core). Load average"
+        f" (1, 5, 15 min) at start {load['start']}, at end {load['end']}: the"
+        f" machine is shared, so the times are pessimistic.{commit}",
+        "",
+    ]
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
+    """A Markdown table; numbers right-aligned, text left-aligned."""
+    numeric = [all(isinstance(r[i], int | float | np.number) for r in rows)
+               for i in range(len(headers))]  # fmt: skip
+    lines = [
+        "| " + " | ".join(headers) + " |",
+        "|" + "|".join("---:" if num else "---" for num in numeric) + "|",
+    ]
+    lines += ["| " + " | ".join(_cell(v) for v in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _cell(v: object) -> str:
+    if isinstance(v, float | np.floating):
+        return f"{v:,.0f}" if abs(v) >= 100 else f"{v:.4g}"
+    return str(v)
+
+
+def _write(path: Path, text: str) -> None:
+    from rhythmic_jax.io.atomic import write_file
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_file(Path(path), text)
+
+
+def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> None:
+    """Write ``<stem>.json`` and ``<md_stem or stem>.md`` under ``out`` and print
+    the Markdown."""
+    _write(Path(out) / f"{stem}.json", json.dumps(report, indent=1) + "\n")
+    _write(Path(out) / f"{md_stem or stem}.md", md + "\n")
+    print(md)
+
+
+def command_line(script: str, argv: Sequence[str] | None) -> str:
+    """The command that ran ``script`` with ``argv`` (default: this process's)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    return " ".join(["python", f"scripts/{Path(script).name}", *args])
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+    """The options every script takes: --root, --out, --quick, --no-progress,
+    --render."""
+    ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
+    ap.add_argument("--root", type=Path, default=DATA, help="shared data folder")
+    ap.add_argument("--out", type=Path, default=REPO / "reports", help="reports")
+    ap.add_argument("--quick", action="store_true", help="the smallest settings")
+    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    ap.add_argument("--render", type=Path, nargs="?", const=Path(), default=None,
+                    help="write the Markdown again from this JSON report (default:"
+                    " the one in --out), measuring nothing")  # fmt: skip
+    ap.add_argument("--stem", default=None, help="report name (default by mode)")
+    return ap
+
+
+def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report",
+         argv=None, refresh=None, md_stem=None):  # fmt: skip
+    """Parse, record the machine, ``run(args)``, then write and print the
+    report; returns it. ``run`` may set ``args.stem`` (the report's name) and
+    return None (nothing to write). ``refresh(report, args)`` updates a report
+    read back by ``--render`` before it is rendered."""
+    ap = parser(doc)
+    ap.set_defaults(md_stem=md_stem)
+    if options:
+        options(ap)
+    args = ap.parse_args(argv)
+    fixed, args.stem = args.stem, args.stem or stem
+    if args.render is not None:
+        path = args.render if args.render.name else args.out / f"{args.stem}.json"
+        report = json.loads(path.read_text())
+        if refresh:
+            refresh(report, args)
+        write_report(path.parent, path.stem, report, markdown(report), args.md_stem)
+        return report
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
+    env, load0, t0 = machine(set_threads(cores())), load_average(), time.time()
+    log.info("environment %s", env)
+    script = sys.modules[run.__module__].__file__ or "script"
+    out = run(args)
+    args.stem = fixed or args.stem
+    if out is None:
+        return None
+    report = dict(command=command_line(script, argv), environment=env,
+                  load_average=dict(start=load0, end=load_average()),
+                  wall_seconds=time.time() - t0)  # fmt: skip
+    report = plain(report | out)
+    if args.out is None:  # a measurement printed only
+        print(markdown(report))
+    else:
+        write_report(args.out, args.stem, report, markdown(report), args.md_stem)
+    return report
