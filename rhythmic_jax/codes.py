@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.config import INT8, check_bits, check_codes
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.scalar_codes import ScalarCodeBook
 from rhythmic_jax.validate import check_features
@@ -45,8 +46,6 @@ __all__ = [
     "unpack_bits",
 ]
 
-INT8 = "int8"
-
 _F32 = 4
 
 
@@ -61,15 +60,6 @@ def code_bytes(n: int, d: int, bits: int) -> dict[str, int]:
     return {"fixed": fixed, "per_place": per_place, "total": fixed + per_place}
 
 
-def check_bits(bits, d: int, name: str = "codes") -> int:
-    """``bits`` as an int in ``[1, d]`` (PCA cannot add dimensions), else one line."""
-    ok = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
-    if not ok or not 1 <= bits <= d:
-        raise InputError(
-            f"{name} must be a number of bits in [1, d={d}] (ITQ projects the "
-            f"{d}-d descriptors to that many dimensions), got {bits!r}"
-        )
-    return int(bits)
 
 
 def pack_bits(bits: np.ndarray) -> np.ndarray:
@@ -211,18 +201,6 @@ class CodeBook:
         return cls(transform, unpack_bits(packed, bits))
 
 
-def check_codes(codes, d: int | None = None) -> int | str:
-    """A map's ``codes`` setting: a number of ITQ bits (in [1, d] when d is
-    given) or ``"int8"`` (8-bit scalar codes of every dimension)."""
-    if codes == INT8:
-        return INT8
-    ok = isinstance(codes, int | np.integer) and not isinstance(codes, bool)
-    if not ok or codes < 1:
-        raise InputError(
-            f"codes must be a number of ITQ bits >= 1 or {INT8!r} (a byte per "
-            f"dimension), got {codes!r}"
-        )
-    return int(codes) if d is None else check_bits(int(codes), d)
 
 
 def fit_codebook(x, codes) -> CodeBook | ScalarCodeBook:
