@@ -60,8 +60,6 @@ def code_bytes(n: int, d: int, bits: int) -> dict[str, int]:
     return {"fixed": fixed, "per_place": per_place, "total": fixed + per_place}
 
 
-
-
 def pack_bits(bits: np.ndarray) -> np.ndarray:
     """(..., bits) bool -> (..., ceil(bits/8)) uint8, least significant bit first."""
     return np.packbits(np.asarray(bits, bool), axis=-1, bitorder="little")
@@ -199,8 +197,6 @@ class CodeBook:
             )
         transform = CodeTransform(mean.astype(np.float32), proj.astype(np.float32))
         return cls(transform, unpack_bits(packed, bits))
-
-
 
 
 def fit_codebook(x, codes) -> CodeBook | ScalarCodeBook:

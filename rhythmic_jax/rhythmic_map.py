@@ -28,7 +28,7 @@ import numpy as np
 
 from rhythmic_jax import map_file
 from rhythmic_jax.codes import CodeBook, fit_codebook
-from rhythmic_jax.config import MapConfig, check_codes
+from rhythmic_jax.config import MapConfig
 from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
 from rhythmic_jax.decoding.fusion import (
     fused_decode,
@@ -41,24 +41,19 @@ from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
 from rhythmic_jax.embedding import Embedding, embedding_bytes
 from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
+from rhythmic_jax.fit_plan import plan
+from rhythmic_jax.groups import Groups
 from rhythmic_jax.objective import (
     Templates,
-    default_c,
     period_errors,
     scores,
     targets,
 )
 from rhythmic_jax.periods import (
-    candidate_periods,
-    choose_periods,
     database_bytes,
-    nominal_periods,
-    period_offsets,
 )
 from rhythmic_jax.quantize import dequantize, quantize, template_bytes
 from rhythmic_jax.scalar_codes import ScalarCodeBook
-from rhythmic_jax.solvers.memory import check_memory
 from rhythmic_jax.solvers.protocol import solver_for
 from rhythmic_jax.validate import (
     check_features,
@@ -131,31 +126,16 @@ class RhythmicMap:
         if self.embedding is not None:
             x = apply_embedding(self.embedding, x)
         cfg = self.config
-        if cfg.codes is not None:  # ITQ on the embedded frames when there is one
-            check_codes(cfg.codes, x.shape[1])
-            if not np.array_equal(labels, np.arange(len(x))):
-                raise InputError("codes need one reference frame per place, in order")
-        n = int(labels.max()) + 1
-        spec = parse_layout(self.config.layout)
-        if cfg.codes is not None and spec.kind != "periods":
-            raise InputError(
-                f"codes fuse with the place scores of a periods layout, not "
-                f"{cfg.layout!r}"
-            )
-        if spec.kind != "periods" or spec.sizes:
-            self._fit_groups(x, labels, spec, progress, refine, d_in)
-            if cfg.codes is not None:
-                self.codebook = fit_codebook(x, cfg.codes)
-            return self
-        cands, c = self._plan(n)
-        check_memory(len(x), x.shape[1], sum(cands))
-        y = targets(labels, cands)
-        log.info("fitting %d templates (%s) on %d x %d, C=%.3g", sum(cands), cands,
-                 *x.shape, c)  # fmt: skip
-        solver = solver_for(self.config.solver, self.config.gap, progress)
-        params, _ = solver.run(None, x, y, c)
+        fit_plan = plan(cfg, int(labels.max()) + 1, int(x.shape[1]))
+        if cfg.codes is not None and not np.array_equal(labels, np.arange(len(x))):
+            raise InputError("codes need one reference frame per place, in order")
+        fit_plan.check_memory(len(x))
+        trained, c = fit_plan.trained, fit_plan.c
+        log.info("fitting %s on %d x %d, C=%.3g", fit_plan.describe(), *x.shape, c)
+        solver = solver_for(cfg.solver, cfg.gap, progress)
+        params, _ = solver.run(None, x, targets(labels, trained), c)
         if refine is not None:
-            params = refine(params, cands, c)
+            params = refine(params, trained, c)
         params = Templates(*(np.asarray(v, np.float32) for v in params))
         if not all(np.isfinite(v).all() for v in params):
             raise InputError(
@@ -163,68 +143,27 @@ class RhythmicMap:
                 f"|feature| {float(np.abs(x).max()):.3g}); scale the features, "
                 "e.g. to unit-length rows"
             )
-        errors = period_errors(_host_scores(params, x), labels, cands)
-        self._choose(params, cands, errors, n, d_in, c)
+        errors = period_errors(_host_scores(params, x), labels, trained)
+        self._take(fit_plan.keep(params, errors, cfg.dtype), d_in)
         if cfg.codes is not None:
             self.codebook = fit_codebook(x, cfg.codes)
         return self
 
     def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
-        """Candidate periods and the penalty C for n places (impossible r: said
-        here, before any work)."""
-        cfg = self.config
-        cands = candidate_periods(n, cfg.r, cfg.level, cfg.count)
-        nominal_periods(n, cfg.r, cfg.level, cfg.count)  # impossible r: say now
-        return cands, (cfg.c if cfg.c is not None else default_c(n))
+        """Candidate periods and the penalty C for n places
+        (:func:`rhythmic_jax.fit_plan.plan`; they do not depend on d)."""
+        fit_plan = plan(self.config, n, self.d or 1)
+        return fit_plan.candidates, fit_plan.c
 
-    def _choose(self, params: Templates, cands, errors, n: int, d: int, c: float):
-        """Keep the periods of least training error (errors (k,) per candidate)."""
-        chosen = choose_periods(cands, errors, n, self.config.r)
-        self._keep(params, cands, chosen)
-        self.n, self.d, self.c = n, d, float(c)
-        self.candidates = tuple(int(t) for t in cands)
-        self.candidate_errors = tuple(float(e) for e in errors)
-        self.group_errors = tuple(float(errors[cands.index(t)]) for t in self.periods)
-        log.info("chose periods %s (errors %s)", chosen, np.round(errors, 4))
-        return self
-
-    def _keep(self, params: Templates, cands, chosen) -> None:
-        offs = dict(zip(cands, period_offsets(cands), strict=True))
-        cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in chosen])
-        stored = quantize(np.asarray(params.w)[:, cols], np.asarray(params.b)[cols],
-                          self.config.dtype)  # fmt: skip
-        self._set_stored(stored)
-        self.periods = tuple(int(t) for t in chosen)
-        self.groups = Groups("periods", self.periods)
-
-    def _fit_groups(self, x, labels, spec, progress, refine, d_in) -> RhythmicMap:
-        """Fit a layout whose groups are fixed before training (no period choice):
-        the same objective and solver, targets from the groups' labels."""
-        cfg = self.config
-        n = int(labels.max()) + 1
-        groups = resolve_layout(spec, n, cfg.r, cfg.level)
-        check_memory(len(x), x.shape[1], groups.p)
-        c = cfg.c if cfg.c is not None else default_c(n)
-        y = targets(labels, groups)
-        log.info("fitting %s on %d x %d, C=%.3g", groups.describe(), *x.shape, c)
-        solver = solver_for(self.config.solver, self.config.gap, progress)
-        params, _ = solver.run(None, x, y, c)
-        if refine is not None:
-            params = refine(params, groups, c)
-        params = Templates(*(np.asarray(v, np.float32) for v in params))
-        errors = period_errors(_host_scores(params, x), labels, groups)
-        return self._keep_groups(params, groups, errors, n, d_in, c)
-
-    def _keep_groups(self, params: Templates, groups, errors, n: int, d: int, c):
-        """Keep every template of fixed ``groups`` (errors (k,) per group)."""
-        stored = quantize(np.asarray(params.w), np.asarray(params.b), self.config.dtype)
-        self._set_stored(stored)
-        self.groups = groups
-        self.periods = groups.sizes if groups.kind == "periods" else ()
-        self.n, self.d, self.c = n, d, float(c)
-        self.candidates, self.candidate_errors = (), ()
-        self.group_errors = tuple(float(e) for e in errors)
-        log.info("group training errors %s", np.round(errors, 4))
+    def _take(self, kept, d: int) -> RhythmicMap:
+        """Hold the templates and record of ``kept`` (a
+        :class:`~rhythmic_jax.fit_plan.Kept` or a loaded
+        :class:`~rhythmic_jax.map_file.MapFile`), fitted on d-dim frames."""
+        self._set_stored(kept.stored)
+        self.groups, self.periods = kept.groups, kept.periods
+        self.n, self.d, self.c = kept.n, d, float(kept.c)
+        self.candidates, self.candidate_errors = kept.candidates, kept.candidate_errors
+        self.group_errors = kept.group_errors
         return self
 
     def with_dtype(self, dtype: str) -> RhythmicMap:
@@ -559,13 +498,12 @@ class RhythmicMap:
             descriptor_settings=descriptor_settings,
             d=d,
         )
-        self = cls(got.config, embedding=got.embedding)
-        self._set_stored(got.stored)
-        self.periods, self.n, self.d = got.periods, got.n, got.d
-        self.groups, self.group_errors = got.groups, got.group_errors
-        self.c, self.candidates = got.c, got.candidates
-        self.candidate_errors, self.extra = got.candidate_errors, got.extra
-        self.codebook, self.reference = got.codebook, got.reference
+        self = cls(got.config, embedding=got.embedding)._take(got, got.d)
+        self.extra, self.codebook, self.reference = (
+            got.extra,
+            got.codebook,
+            got.reference,
+        )
         return self
 
 

@@ -26,7 +26,7 @@ LAYERS = [
      "solvers.precondition", "solvers.span", "solvers.precision", "decoding.buckets"],
     ["map_file", "learn", "frames.pipeline", "solvers.newton_cg", "solvers.memory",
      "solvers.optax_loops", "solvers.sharding", "solvers.candidates", "decoding.hard"],
-    ["frames.features", "solvers.newton", "solvers.resumable",
+    ["fit_plan", "frames.features", "solvers.newton", "solvers.resumable",
      "decoding.soft", "decoding.small"],
     ["frames.sources", "frames.network_build", "frames.describe_shards",
      "solvers.distributed", "solvers.streamed", "decoding.group_decode",

@@ -56,7 +56,6 @@ __all__ = [
 _EPS = 1e-12
 
 
-
 def _z(v: jax.Array, mean, std) -> jax.Array:
     return (v - mean) / jnp.maximum(std, _EPS)
 
