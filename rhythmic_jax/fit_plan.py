@@ -133,19 +133,21 @@ class FitPlan:
         every fixed group."""
         w, b = np.asarray(params.w), np.asarray(params.b)
         errors = tuple(float(e) for e in errors)
-        if self.groups is not None:
+        groups, cands, kept = self.groups, self.candidates, errors
+        if groups is None:
+            chosen = choose_periods(cands, errors, self.n, self.r)
+            log.info("chose periods %s (errors %s)", chosen, np.round(errors, 4))
+            offs = dict(zip(cands, period_offsets(cands), strict=True))
+            cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in chosen])
+            w, b = w[:, cols], b[cols]
+            kept = tuple(errors[cands.index(t)] for t in chosen)
+            groups = Groups("periods", tuple(int(t) for t in chosen))
+        else:
             log.info("group training errors %s", np.round(errors, 4))
-            stored = quantize(w, b, dtype)
-            return Kept(stored, self.groups, self.n, self.c, (), (), errors)
-        cands = self.candidates
-        chosen = choose_periods(cands, errors, self.n, self.r)
-        log.info("chose periods %s (errors %s)", chosen, np.round(errors, 4))
-        offs = dict(zip(cands, period_offsets(cands), strict=True))
-        cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in chosen])
-        kept = tuple(errors[cands.index(t)] for t in chosen)
-        stored = quantize(w[:, cols], b[cols], dtype)
-        groups = Groups("periods", tuple(int(t) for t in chosen))
-        return Kept(stored, groups, self.n, self.c, cands, errors, kept)
+        stored = quantize(w, b, dtype)
+        return Kept(
+            stored, groups, self.n, self.c, cands, errors if cands else (), kept
+        )
 
 
 def plan(config: MapConfig, n: int, d: int) -> FitPlan:

@@ -41,7 +41,8 @@ from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
 from rhythmic_jax.embedding import Embedding, embedding_bytes
 from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.fit_plan import plan
+from rhythmic_jax.fit_plan import FitPlan
+from rhythmic_jax.fit_plan import plan as plan_fit
 from rhythmic_jax.groups import Groups
 from rhythmic_jax.objective import (
     Templates,
@@ -106,6 +107,7 @@ class RhythmicMap:
         verbose: int = 0,
         progress: bool | None = None,
         refine=None,
+        plan: FitPlan | None = None,
     ) -> RhythmicMap:
         """Train on reference frames x (n_frames, d).
 
@@ -118,6 +120,9 @@ class RhythmicMap:
           refine: optional ``refine(params, candidates, c) -> params`` run after
             the exact solve and before the period choice (e.g. minibatch steps
             over augmented frames, :func:`rhythmic_jax.augment.stream.fit_augmented`).
+          plan: the fit's plan when made already (:func:`rhythmic_jax.fit_plan.plan`
+            of this map's config for these places and the templates' d), its
+            memory checked (:meth:`~rhythmic_jax.fit_plan.FitPlan.check_memory`).
         """
         progress = bool(verbose) if progress is None else bool(progress)
         x = check_features(x, "reference features")
@@ -126,12 +131,16 @@ class RhythmicMap:
         if self.embedding is not None:
             x = apply_embedding(self.embedding, x)
         cfg = self.config
-        fit_plan = plan(cfg, int(labels.max()) + 1, int(x.shape[1]))
+        n, d = int(labels.max()) + 1, int(x.shape[1])
+        if plan is None:  # else planned, and its memory checked, by the caller
+            plan = plan_fit(cfg, n, d)
+            plan.check_memory(len(x))
+        elif (plan.n, plan.d) != (n, d):
+            raise ValueError(f"a plan for {plan.n} x {plan.d}, not {n} x {d}")
         if cfg.codes is not None and not np.array_equal(labels, np.arange(len(x))):
             raise InputError("codes need one reference frame per place, in order")
-        fit_plan.check_memory(len(x))
-        trained, c = fit_plan.trained, fit_plan.c
-        log.info("fitting %s on %d x %d, C=%.3g", fit_plan.describe(), *x.shape, c)
+        trained, c = plan.trained, plan.c
+        log.info("fitting %s on %d x %d, C=%.3g", plan.describe(), *x.shape, c)
         solver = solver_for(cfg.solver, cfg.gap, progress)
         params, _ = solver.run(None, x, targets(labels, trained), c)
         if refine is not None:
@@ -144,7 +153,7 @@ class RhythmicMap:
                 "e.g. to unit-length rows"
             )
         errors = period_errors(_host_scores(params, x), labels, trained)
-        self._take(fit_plan.keep(params, errors, cfg.dtype), d_in)
+        self._take(plan.keep(params, errors, cfg.dtype), d_in)
         if cfg.codes is not None:
             self.codebook = fit_codebook(x, cfg.codes)
         return self
@@ -152,7 +161,7 @@ class RhythmicMap:
     def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
         """Candidate periods and the penalty C for n places
         (:func:`rhythmic_jax.fit_plan.plan`; they do not depend on d)."""
-        fit_plan = plan(self.config, n, self.d or 1)
+        fit_plan = plan_fit(self.config, n, self.d or 1)
         return fit_plan.candidates, fit_plan.c
 
     def _take(self, kept, d: int) -> RhythmicMap:
