@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.config import INT8, check_bits, check_codes
+from rhythmic_jax.config import INT8, codes_setting
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.scalar_codes import ScalarCodeBook
 from rhythmic_jax.validate import check_features
@@ -58,6 +58,17 @@ def code_bytes(n: int, d: int, bits: int) -> dict[str, int]:
     fixed = (int(bits) * int(d) + int(d)) * _F32
     per_place = int(n) * math.ceil(int(bits) / 8)
     return {"fixed": fixed, "per_place": per_place, "total": fixed + per_place}
+
+
+def check_bits(bits, d: int, name: str = "codes") -> int:
+    """``bits`` as an int in ``[1, d]`` (PCA cannot add dimensions), else one line."""
+    ok = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
+    if not ok or not 1 <= bits <= d:
+        raise InputError(
+            f"{name} must be a number of bits in [1, d={d}] (ITQ projects the "
+            f"{d}-d descriptors to that many dimensions), got {bits!r}"
+        )
+    return int(bits)
 
 
 def pack_bits(bits: np.ndarray) -> np.ndarray:
@@ -197,6 +208,13 @@ class CodeBook:
             )
         transform = CodeTransform(mean.astype(np.float32), proj.astype(np.float32))
         return cls(transform, unpack_bits(packed, bits))
+
+
+def check_codes(codes, d: int | None = None) -> int | str:
+    """A map's ``codes`` setting (:func:`rhythmic_jax.config.codes_setting`), its
+    bits in [1, d] when d is given."""
+    codes = codes_setting(codes)
+    return codes if d is None or codes == INT8 else check_bits(codes, d)
 
 
 def fit_codebook(x, codes) -> CodeBook | ScalarCodeBook:

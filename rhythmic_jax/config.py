@@ -28,9 +28,8 @@ __all__ = [
     "INT8",
     "SOLVERS",
     "MapConfig",
-    "check_bits",
-    "check_codes",
     "check_weight",
+    "codes_setting",
 ]
 
 SOLVERS = ("newton", "lbfgs")
@@ -38,20 +37,10 @@ DECODERS = ("hard", "soft", "topm")
 INT8 = "int8"  # the codes setting of a byte per dimension
 
 
-def check_bits(bits, d: int, name: str = "codes") -> int:
-    """``bits`` as an int in ``[1, d]`` (PCA cannot add dimensions), else one line."""
-    ok = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
-    if not ok or not 1 <= bits <= d:
-        raise InputError(
-            f"{name} must be a number of bits in [1, d={d}] (ITQ projects the "
-            f"{d}-d descriptors to that many dimensions), got {bits!r}"
-        )
-    return int(bits)
-
-
-def check_codes(codes, d: int | None = None) -> int | str:
-    """A map's ``codes`` setting: a number of ITQ bits (in [1, d] when d is
-    given) or ``"int8"`` (8-bit scalar codes of every dimension)."""
+def codes_setting(codes) -> int | str:
+    """A map's ``codes`` setting: a number of ITQ bits >= 1 or ``"int8"`` (8-bit
+    scalar codes of every dimension); :func:`rhythmic_jax.codes.check_codes`
+    also holds the bits to a dimension."""
     if codes == INT8:
         return INT8
     ok = isinstance(codes, int | np.integer) and not isinstance(codes, bool)
@@ -60,7 +49,7 @@ def check_codes(codes, d: int | None = None) -> int | str:
             f"codes must be a number of ITQ bits >= 1 or {INT8!r} (a byte per "
             f"dimension), got {codes!r}"
         )
-    return int(codes) if d is None else check_bits(int(codes), d)
+    return int(codes)
 
 
 def check_weight(weight) -> float:
@@ -133,7 +122,7 @@ class MapConfig:
         if self.dtype not in DTYPES:
             raise InputError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
         if self.codes is not None:
-            check_codes(self.codes)
+            codes_setting(self.codes)
         check_weight(self.fusion)
         if self.solver not in SOLVERS:
             raise InputError(f"solver must be one of {SOLVERS}, got {self.solver!r}")

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rhythmic_jax.config import MapConfig, check_codes
+from rhythmic_jax.codes import check_bits
+from rhythmic_jax.config import INT8, MapConfig
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
 from rhythmic_jax.objective import default_c
@@ -38,7 +39,7 @@ from rhythmic_jax.periods import (
     period_offsets,
     storage_bytes,
 )
-from rhythmic_jax.quantize import quantize
+from rhythmic_jax.quantize import dequantize, quantize
 from rhythmic_jax.solvers.memory import check_memory
 
 __all__ = ["FitPlan", "Kept", "plan"]
@@ -52,11 +53,13 @@ class Kept:
 
     ``stored``: ``w`` (d, p_kept), ``b`` (p_kept,) in the map's dtype (and
     ``scale`` (p_kept,) for int8, :func:`rhythmic_jax.quantize.quantize`);
+    ``params``: their float32 values ``(w, b)``, which queries use;
     ``candidate_errors`` (k,) per candidate period (empty for fixed groups);
     ``group_errors`` per kept group.
     """
 
     stored: dict[str, np.ndarray]
+    params: tuple[np.ndarray, np.ndarray]
     groups: Groups
     n: int
     c: float
@@ -146,8 +149,9 @@ class FitPlan:
             log.info("group training errors %s", np.round(errors, 4))
         stored = quantize(w, b, dtype)
         return Kept(
-            stored, groups, self.n, self.c, cands, errors if cands else (), kept
-        )
+            stored, dequantize(stored), groups, self.n, self.c, cands,
+            errors if cands else (), kept,
+        )  # fmt: skip
 
 
 def plan(config: MapConfig, n: int, d: int) -> FitPlan:
@@ -158,8 +162,8 @@ def plan(config: MapConfig, n: int, d: int) -> FitPlan:
     ``n``, and ``r``, ``level``, ``count`` that give no ``r`` pairwise co-prime
     candidates with a product >= n.
     """
-    if config.codes is not None:
-        check_codes(config.codes, d)
+    if config.codes not in (None, INT8):  # a setting the config checked
+        check_bits(config.codes, d)
     spec = parse_layout(config.layout)
     if config.codes is not None and spec.kind != "periods":
         raise InputError(
