@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from rhythmic_jax import BruteForce, InputError, RhythmicMap, jobs
+from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap, jobs
 from rhythmic_jax.jobs import FitJob, Reading, _check_sources_memory
 
 
@@ -110,8 +110,16 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
     with open(tmp_path / "huge.npy", "wb") as f:
         np.lib.format.write_array_header_1_0(f, header)
     with pytest.raises(InputError, match="needs about .* stream the frames instead"):
-        _check_sources_memory([str(tmp_path / "huge.npy")], 2, 1, 7)
+        _check_sources_memory(
+            [str(tmp_path / "huge.npy")], MapConfig(r=2, level=1, count=7)
+        )
     np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
-    _check_sources_memory([str(tmp_path / "small.npy")], 2, 1, 7)  # fits
-    _check_sources_memory([str(tmp_path / "absent.npy")], 2, 1, 7)  # left to the read
-    _check_sources_memory([str(tmp_path / "small.npy")], 1, 1, 7)  # left to the map
+    _check_sources_memory(
+        [str(tmp_path / "small.npy")], MapConfig(r=2, level=1, count=7)
+    )  # fits
+    _check_sources_memory(
+        [str(tmp_path / "absent.npy")], MapConfig(r=2, level=1, count=7)
+    )  # left to the read
+    _check_sources_memory(
+        [str(tmp_path / "small.npy")], MapConfig(r=1, level=1, count=7)
+    )  # left to the map
