@@ -206,15 +206,13 @@ def _fit_augmented(
 ) -> None:
     from rhythmic_jax.augment.stream import fit_map_augmented
     from rhythmic_jax.frames.compiled import FastDescriptor
-    from rhythmic_jax.frames.features import get_descriptor
 
     if feats.images is None:
         raise InputError(
             "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
         )
-    descriptor = get_descriptor(feats.descriptor, **feats.settings)
     frames = len(feats.images) * config.epochs  # frames the network will see
-    descriptor = FastDescriptor(descriptor, frames, policy)
+    descriptor = FastDescriptor(feats.describer, frames, policy)
     try:
         fit_map_augmented(
             model, feats.images, feats.x, descriptor, config, feats.labels,
