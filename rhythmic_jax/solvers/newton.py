@@ -62,7 +62,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import scipy.linalg  # at import, not at first use: loaded mid-process it changed a fit's last bits
+import scipy.linalg  # at import: loaded mid-process it changed a fit's last bits
 from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.objective import Templates, margin_objectives
