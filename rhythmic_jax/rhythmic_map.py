@@ -149,11 +149,6 @@ class RhythmicMap:
                              else ScalarCodeBook.fit(x))  # fmt: skip
         return self._take(kept, d_in)
 
-    def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
-        """(candidate periods, C) for n places (:func:`rhythmic_jax.fit_plan.plan`)."""
-        fit_plan = plan_fit(self.config, n, self.d or 1)
-        return fit_plan.candidates, fit_plan.c
-
     def _take(self, kept, d: int) -> RhythmicMap:
         """Hold the templates and record of ``kept`` (a fit's :class:`Kept` or a
         loaded :class:`~rhythmic_jax.map_file.MapFile`), fitted on d-dim frames."""
