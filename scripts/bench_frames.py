@@ -47,21 +47,20 @@ try:
     from rhythmic_jax.augment.stream import AugmentedFit, fit_augmented
     from rhythmic_jax.io.images import nordland
     from rhythmic_jax.solvers.newton import newton_fit
+    from rhythmic_jax.frames.features import cached_describe, get_descriptor
 except ImportError:  # the flat layout of the baseline checkout
     from rhythmic_jax.augmented import AugmentedFit, fit_augmented
     from rhythmic_jax.data import nordland
     from rhythmic_jax.newton import newton_fit
-from rhythmic_jax.frames.features import cached_describe, get_descriptor
+    from rhythmic_jax.features import cached_describe, get_descriptor
 from rhythmic_jax.objective import default_c, targets
 from rhythmic_jax.periods import candidate_periods
 root, frames, names = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 images = nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
 desc = get_descriptor("efficientnet_lite0")
-try:
+if get_descriptor.__module__ == "rhythmic_jax.frames.features":  # not the baseline
     from rhythmic_jax.frames.compiled import CompilePolicy, FastDescriptor
     desc = FastDescriptor(desc, frames, CompilePolicy(min_frames=0))
-except ImportError:
-    pass
 clean = cached_describe(images, desc, key="bench", progress=False)
 n = len(images)
 periods = candidate_periods(n, 2, 1, 7)
