@@ -1,55 +1,15 @@
-"""Time the joint solve of every candidate's templates against liblinear.
-
-The map's period search trains every template of 7 candidate periods
-(``candidate_periods(n, 2, level=1, count=7)``, p templates in all) jointly. This
-script times that solve three ways on the same features, in the same run:
-
-- Newton-CG (:func:`rhythmic_jax.solvers.newton.newton_fit`), all p templates at once,
-  twice: "0.1 % gap" (``rhythmic_jax.solvers.newton.FAST``: every template stops once
-  its estimated gap, the Newton decrement, is below 1e-3 of its objective) and "tight"
-  (the default ``NewtonConfig()``, estimated gap <= 1e-7, the exact optimum used
-  by the map);
-- optax L-BFGS (:func:`rhythmic_jax.solvers.optax_loops.fit_full_batch`, default
-settings)
-  from the ridge start, all p templates at once;
-- scikit-learn ``LinearSVC(loss="squared_hinge", dual=True, C=log N)`` (liblinear,
-  default ``tol=1e-4``, ``max_iter=1000``), one template after another as the
-  paper did. A liblinear fit takes seconds, so it runs on a fixed sample of
-  templates spread evenly over all candidates (columns
-  ``linspace(0, p - 1, samples)``) and its time is extrapolated linearly to all p
-  templates: ``mean seconds per sampled template * p``.
-
-Objective gaps are relative, ``(f_solver - f_ref) / f_ref`` of liblinear's primal
-``0.5 (||w||^2 + b^2) + C sum_i max(0, 1 - y_i (w.x_i + b))^2`` in float64 numpy
-(negative: the solver went lower than the reference); the 0.1 % setting is also
-compared with the tight solve on all p templates. Each JAX solver is first called
-once on the same inputs (Newton: the same full solve, which compiles every shape
-the timed call uses; L-BFGS: two steps, same optimiser object) so that the timed
-call does not compile; that first call's time is reported too.
-
-Features: (a) Nordland summer, patch-normalised 64x32 (2048-d), all 3576 frames;
-(b) "video-like" 3705 x 4096 rows: a stationary Gaussian random walk
-``z_t = rho z_(t-1) + sqrt(1 - rho^2) e_t`` (rho = 0.99, so neighbours are similar
-and frames a few hundred apart are not) plus per-frame noise of standard
-deviation 0.3, rows L2-normalised, seeded.
+"""Time the joint solve of every candidate's templates (Newton-CG, optax L-BFGS)
+against liblinear's LinearSVC, extrapolated from sampled templates (docs/solvers.md).
 
     python scripts/bench_solver.py           # writes reports/solver.{json,md}
     python scripts/bench_solver.py --quick   # 800 frames, 4 sampled templates
-    python scripts/bench_solver.py --render reports/solver.json  # Markdown again
-    python scripts/bench_solver.py --compare-ref 28e5003  # and Newton at a commit
-
-``--compare-ref REV`` also times the 0.1 % Newton solve on the Nordland frames
-at commit REV against this checkout, alternating processes (``_newton_ref.py``);
-``--compare-only`` runs that comparison alone (``reports/solver_compare``).
 """
 
 from __future__ import annotations
 
 import logging
-import sys
 import warnings
 
-import _newton_ref
 import numpy as np
 import optax
 from _harness import (
@@ -76,7 +36,6 @@ log = logging.getLogger("bench_solver")
 
 AIM_SPEEDUP = 100.0
 AIM_GAP = 1e-3
-AIM_RATIO = 1.10  # Newton at this checkout against --compare-ref, median wall
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
 
 
@@ -416,8 +375,6 @@ def markdown(report: dict) -> str:
             f" seed {v['seed']}; mean cosine of frames lag apart: {cos}.",
             "",
         ]
-    if report.get("compare_ref"):
-        parts.append(_newton_ref.markdown(report["compare_ref"], AIM_RATIO))
     return "\n".join(parts)
 
 
@@ -429,45 +386,26 @@ def options(ap) -> None:
     ap.add_argument("--video-frames", type=int, default=None)
     ap.add_argument("--video-dim", type=int, default=4096)
     ap.add_argument("--samples", type=int, default=None, help="LinearSVC templates")
-    ap.add_argument("--compare-ref", metavar="REV", default=None,
-                    help="also time Newton (0.1 %% gap) at git commit REV against"
-                    " this checkout")  # fmt: skip
-    ap.add_argument("--compare-runs", type=int, default=5, help="processes each")
-    ap.add_argument("--compare-only", action="store_true",
-                    help="only the --compare-ref timing")  # fmt: skip
 
 
 def run(args) -> dict:
-    if args.compare_only and not args.compare_ref:
-        sys.exit("--compare-only needs --compare-ref")
     frames = args.frames or (800 if args.quick else 3576)
     video_frames = args.video_frames or (800 if args.quick else 3705)
     samples = args.samples or (4 if args.quick else 12)
     args.stem = "solver_quick" if args.quick else "solver"
-    args.stem += "_compare" if args.compare_only else ""
-    cases, extra, x = [], {}, None
+    cases = []
     if (args.root / "nordland_64x32").is_dir():
         (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
-        x = x[:frames]
-        if not args.compare_only:
-            name = "Nordland summer, patchnorm 64x32"
-            cases.append(bench_case(name, x, samples, args.progress))
+        name = "Nordland summer, patchnorm 64x32"
+        cases.append(bench_case(name, x[:frames], samples, args.progress))
     else:
         log.warning("no Nordland data under %s: the real-frame case is left out",
                     args.root)  # fmt: skip
-    if not args.compare_only:
-        xv = video_like(video_frames, args.video_dim, **VIDEO)
-        cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
-        extra["video_like"] = dict(**VIDEO, cosines=neighbour_cosines(xv))
-    if args.compare_ref:
-        if x is None:
-            sys.exit(f"--compare-ref needs the Nordland frames under {args.root}")
-        n = len(x)
-        y = np.asarray(targets(np.arange(n), candidate_periods(n, 2, 1, 7)))
-        extra["compare_ref"] = _newton_ref.compare(
-            args.compare_ref, x, y, default_c(n), args.compare_runs)  # fmt: skip
-    aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP, newton_ratio=AIM_RATIO)
-    return dict(aim=aim, **extra, cases=cases)
+    xv = video_like(video_frames, args.video_dim, **VIDEO)
+    cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
+    video = dict(**VIDEO, cosines=neighbour_cosines(xv))
+    aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP)
+    return dict(aim=aim, video_like=video, cases=cases)
 
 
 if __name__ == "__main__":
