@@ -1,17 +1,6 @@
 """Frames per second of each augmentation alone and of all seven in sequence.
 
-Usage: ``python scripts/bench_augment.py [--batch 64] [--repeats 5] [--threads 2 1]``
-
-Every operation runs with ``p = 1`` (each image transformed; kornia computes the
-transform for the whole batch at any ``p`` and then selects, so this is also the
-cost at ``p = 0.5``) on random float32 batches of 64x32, 224x112 and 224x224
-(width x height), with the parameter draws included. The elastic transform is
-timed with kornia's ``RandomElasticTransform`` and with the coarse-grid version
-(``AugmentConfig.elastic_impl="coarse"``), alone and inside the full sequence.
-Each figure is ``batch / time per call`` of the fastest and the median of
-``--repeats`` runs (each long enough to last 0.2 s) after one warm-up call.
-Writes ``reports/augment.json`` and ``reports/augment.md`` and prints the table
-(``--quick``: 64x32 only, a batch of 8, one run).
+python scripts/bench_augment.py
 """
 
 from __future__ import annotations
@@ -46,11 +35,7 @@ def cases() -> list[tuple[str, AugmentConfig]]:
 def time_case(
     batch: torch.Tensor, config: AugmentConfig, repeats: int, min_s: float = 0.2
 ) -> list[float]:
-    """Seconds per call of ``augment`` on ``batch``, one per repeat.
-
-    Each repeat times enough calls (new seeds) to last ``min_s`` seconds, so
-    that fast operations are not measured at the scale of scheduler ticks.
-    """
+    """Seconds per call of ``augment`` on ``batch``, one per repeat."""
     start = time.perf_counter()
     augment(batch, config, seed=0)  # warm-up, also sizes the inner loop
     calls = max(1, round(min_s / (time.perf_counter() - start)))

@@ -1,19 +1,5 @@
-"""Compiling against solving: XLA programs, compile seconds and wall per job,
-cold and warm compile cache, this checkout against a baseline one.
-
-Each job runs in a fresh process, under a small wrapper that turns on JAX's
-compile log (``jax_log_compiles``) and counts its lines: ``programs`` (XLA
-programs the job obtained, compiled or loaded), ``hits`` (of them, loaded from
-the persistent compile cache), ``compile_s`` (their seconds, loads included).
-Jobs: a default fit of 1000 x 256 synthetic route-like frames (and its
-predictions), a fit of the Nordland patch-normalised summer route (3576 x 2048),
-``rhythmic-jax demo``, and ``rhythmic-jax fit`` / ``query`` of 1000 JPEGs with
-EfficientNet-Lite0 (fresh descriptor cache each time). The new checkout runs
-cold (empty compile cache; the JPEG fit, the machine's first, also starts the
-compiled network's build, waited for before the query) and warm (the cache and
-the network the cold run left); the baseline (``--base``, e.g. ``git -C
-/work/main archive c1267b4 | tar -x -C DIR``) runs as it ships, without a
-compile cache. Predictions of the fits are compared between checkouts.
+"""Compiling against solving: XLA programs, compile seconds and wall per job, cold and
+warm compile cache, this checkout against a baseline one.
 
     python scripts/bench_compile.py --base DIR [--jobs fit,nordland,demo,jpeg]
     python scripts/bench_compile.py --base DIR --small   (a quick check)

@@ -175,11 +175,9 @@ def with_codes(m: RhythmicMap, ref, codes, fusion: float = 0.5) -> RhythmicMap:
 
 
 def train_weight(train, emb, pair, codes, n: int) -> tuple[float, dict]:
-    """The fusion weight learned on the *training* places: a map and its codes on
-    one condition of the training segment, queried with the other; the weight of
-    best recall@1 there (:func:`learn_weight`). The map's periods are scaled to
-    the training places so that a phase holds as many places as on the ``n``
-    test places (the map's share depends on how many places share a phase)."""
+    """The fusion weight learned on the *training* places: a map and its codes on one
+    condition of the training segment, queried with the other; the weight of best
+    recall@1 there (:func:`learn_weight`)."""
     ref, qry = train
     t = max(2, round(pair[0] * len(ref) / n))  # as many places a phase as on test
     m, _ = fit_map(ref, emb=emb, layout=f"periods:{t},{t + 1}")
@@ -233,13 +231,11 @@ def budget_periods(n, d_raw, k, budget, fixed=0, per_place=0):
 
 
 def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
-    """The map of the largest periods within 15 % (capped), and its hybrids: the
-    same templates plus ITQ codes (as many bits as the embedding has dims, at
-    most 256) at each budget they fit, and plus 8-bit codes (a byte a dimension)
-    fused with the weight learned on the training places (``train``: the two
-    conditions of the training segment); the codes' transform, the codes and the
-    embedding counted. The 8-bit hybrid is the ``chosen`` row, fixed before any
-    test place was scored; beside it, its codes alone."""
+    """The map of the largest periods within 15 % (capped), and its hybrids: the same
+    templates plus ITQ codes (as many bits as the embedding has dims, at most 256) at
+    each budget they fit, and plus 8-bit codes (a byte a dimension) fused with the
+    weight learned on the training places (``train``: the two conditions of the training
+    segment); the codes' transform, the codes and the embedding counted."""
     k, eb = emb.k, embedding_bytes(emb)
     bits = min(k, 256)
     code = eb + (bits * k + k) * 4

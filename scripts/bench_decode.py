@@ -1,32 +1,8 @@
 """Batch and single-query decoding against exact search, on the same features.
 
-A rhythmic map answers a query with one ``(b, d) x (d, p)`` product, an argmax per
-period and a Chinese-remainder look-up (:func:`rhythmic_jax.decoding.hard.decode`,
-jitted); exact search scores the query against all N references (faiss
-``IndexFlatIP`` through :class:`rhythmic_jax.eval.baselines.BruteForce`). Per query the
-products cost ``p d`` against ``N d`` multiply-adds, so ``N / p`` is the FLOP
-ratio the measured speed-up is set beside.
-
-Cases, both decoders on the same references and queries in the same run:
-
-- N = 10713, d = 4096 (the paper's Nordland spring size), periods (105, 106):
-  random L2-normalised references; queries are 1000 references with Gaussian
-  noise, re-normalised.
-- N = 3576, d = 2048 with the level-1 periods of that size (the pair of
-  ``candidate_periods(3576)`` with the smallest storage): Nordland summer
-  patch-normalised 64x32 descriptors as references and winter as queries when
-  the data is present, random ones otherwise.
-
-The map's templates are random: decoding costs the same whatever their values.
-Throughput: ``time_batch`` over batches of 1000 (median of the timed calls after
-one untimed call). Latency: ``time_single_queries`` (10 warm-up calls, then one
-call per query; JAX results waited for with ``block_until_ready``). faiss runs
-on as many OpenMP threads as XLA has CPU threads (one per core).
-``scripts/bench_single_query.py`` times one query to one place on every path.
-
-    python scripts/bench_decode.py           # writes reports/decode.{json,md}
-    python scripts/bench_decode.py --quick   # 1 timed batch, 30 single queries
-    python scripts/bench_decode.py --render reports/decode.json  # Markdown again
+python scripts/bench_decode.py           # writes reports/decode.{json,md}
+python scripts/bench_decode.py --quick   # 1 timed batch, 30 single queries
+python scripts/bench_decode.py --render reports/decode.json  # Markdown again
 """
 
 from __future__ import annotations

@@ -1,28 +1,7 @@
 """Decoders beyond the paper: hard, soft, top-m and phase-domain sequence decoding.
 
-Two route protocols, with single-frame brute force (faiss ``IndexFlatIP``) and the
-SeqSLAM-style reference (:func:`rhythmic_jax.eval.seqslam.seqslam_decode`, full
-descriptors, same L) beside every rhythmic decode:
-
-- Nordland 64x32: summer frames are the map, winter frames the queries (same
-  index = same place).
-- Aerial pairs (``samples_LEVIR``): tiles of the A images are the map, tiles of
-  the B images the queries; sequences run along the tile order.
-
-Recall@1 counts a match within ``TOLERANCE`` = ±1 index. Queries/s time the
-whole batch from descriptors to indices (map: template scores + decode;
-SeqSLAM: similarities + diagonal sums), after one untimed call that compiles;
-descriptor extraction is not included. The outlier protocol holds 20 % of the
-Nordland route out of the summer map in contiguous blocks (winter queries of
-those places have ``gt = -1``), chooses a threshold at 100 % precision on the
-first half of the route and applies it to the second half.
-
-    python scripts/bench_decoding.py            # writes reports/decoding.{json,md}
-    python scripts/bench_decoding.py --quick    # 500 frames, patchnorm, level 1
-
-Fitted maps are cached in ``$TMPDIR/rhythmic_jax_bench_decoding`` keyed by the
-features and the map settings; descriptors in the descriptor cache
-(``$RHYTHMIC_JAX_CACHE`` or ``~/.cache/rhythmic_jax``).
+python scripts/bench_decoding.py            # writes reports/decoding.{json,md}
+python scripts/bench_decoding.py --quick    # 500 frames, patchnorm, level 1
 """
 
 from __future__ import annotations
@@ -128,13 +107,7 @@ def standardise(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("periods",))
 def spread(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
-    """(T, p) -> (T, p): circular max over phases j-1, j, j+1 of every period.
-
-    Phase ``j +- 1`` of every period is place ``i +- 1``: a frame's evidence
-    spreads to the neighbouring places, so rounded offsets of non-integer speeds
-    still meet it. The max is taken per period, so it also lifts every place
-    whose phases are off by one in some periods only (aliases far along the
-    route)."""
+    """(T, p) -> (T, p): circular max over phases j-1, j, j+1 of every period."""
     out = []
     for b in _blocks(scores, periods):
         rolled = jnp.maximum(jnp.roll(b, 1, axis=-1), jnp.roll(b, -1, axis=-1))
@@ -144,11 +117,8 @@ def spread(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("window",))
 def centre_templates(scores: jax.Array, window: int) -> jax.Array:
-    """(T, p) -> (T, p): each template's score minus its mean over the last
-    ``window`` query frames (causal; frame t uses frames max(0, t-window+1)..t).
-
-    Online it is a running sum per template (O(p) per frame). A template that
-    fires high on every frame of the query condition (winter) stops dominating."""
+    """(T, p) -> (T, p): each template's score minus its mean over the last ``window``
+    query frames (causal; frame t uses frames max(0, t-window+1)..t)."""
     zero = jnp.zeros((1, scores.shape[1]), scores.dtype)
     c = jnp.concatenate([zero, jnp.cumsum(scores, axis=0)])
     t = jnp.arange(1, scores.shape[0] + 1)
@@ -179,12 +149,7 @@ def place_sequence_decode(
     speeds: tuple[float, ...],
     window: int,
 ) -> jax.Array:
-    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,).
-
-    ``S[t, i] = sum_k s_k^t[i mod tau_k]`` (r gathers per place, no descriptors),
-    local contrast over ``window`` places, diagonal sums over ``length`` frames
-    (:mod:`rhythmic_jax.eval.seqslam`), best speed. Costs ``O((r + L) n)`` per frame
-    instead of the phase domain's ``O(L p + r n)``."""
+    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,)."""
     i = np.arange(n)
     cols = np.stack(
         [o + i % t for o, t in zip(period_offsets(periods), periods, strict=True)]
@@ -206,10 +171,7 @@ def place_sequence_decode(
 
 
 def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
-    """Every decode of one map over the whole query sequence.
-
-    The template scores (b, p), shared by every decode, are timed once; each
-    row's queries/s is ``b / (score time + its decode time)``."""
+    """Every decode of one map over the whole query sequence."""
     storage, per, n = model.storage_bytes, model.periods, model.n
     q = jnp.asarray(qry)
     s, score_s = timed(lambda: model.scores(q), repeats)

@@ -1,16 +1,6 @@
 """Descriptor benchmark on Nordland: winter queries against the summer map.
 
-For each descriptor, brute-force cosine nearest neighbour of every winter frame
-among the summer frames; recall@1 counts the exact index, and within +-1 index
-(the usual tolerance at this frame stride). Frames/s is timed on a fixed subset
-of frames, uncached; the full descriptors come from the disk cache
-(``$RHYTHMIC_JAX_CACHE`` or ``~/.cache/rhythmic_jax``).
-
-    python scripts/bench_descriptors.py            # writes reports/descriptors.*
-
-Measured (recall@1, exact index): patchnorm 0.126, HOG 0.212, EfficientNet-Lite0
-block-10 map 0.477 at 224x112 and 0.547 at 224x224, PCA-512 of the 224x112 map
-0.451.
+python scripts/bench_descriptors.py            # writes reports/descriptors.*
 """
 
 from __future__ import annotations

@@ -1,29 +1,6 @@
 """Digits that group frames that look alike: map layouts across seasons on Nordland.
 
-The test places of :data:`rhythmic_jax.split.NORDLAND_SPLIT` (1220-3575, N = 2356)
-are the map (their summer frames) and the queries (their winter frames), with
-cached EfficientNet-Lite0 block-10 descriptors (10,976-d, unit rows: place i is
-row i; ``--cache``). At the storage of a periods map of ``r = 2`` at level
-1, 2 and 4 (4.2 %, 8.3 %, 16.6 % of the raw database), three layouts of
-:mod:`rhythmic_jax.groups`:
-
-- periods: the least-storage co-prime pair among the level's candidates;
-- mixed radix: :func:`~rhythmic_jax.groups.choose_radices` (the most significant
-  digit classifies contiguous segments);
-- hierarchical: :func:`~rhythmic_jax.groups.choose_segment` segments plus fine
-  co-prime periods.
-
-Every template of every layout is one column of ONE joint Newton solve (the
-templates share no parameters, so this equals fitting each map on its own),
-C = log N. Recall@1 within ±1 frame: hard decode, soft decode (raw scores and
-per-group log-softmax, ``rhythmic_jax.decoding.soft.calibrate``), recall@5 of the
-soft
-ranking, and sequences of L = 5, 10, 20 at speed 1 (soft); brute force (cosine on
-the raw descriptor, and its sequence sums at the same L without contrast
-normalisation) on the same frames. Nothing is learned from the places scored
-(no setting is chosen on them).
-
-    python scripts/bench_digits.py          # writes reports/digits.{json,md}
+python scripts/bench_digits.py          # writes reports/digits.{json,md}
 """
 
 from __future__ import annotations

@@ -1,25 +1,6 @@
 """Frames per second from images, end to end: this checkout against a baseline one.
 
-Jobs, each a fresh ``python -m rhythmic_jax.cli`` process of its checkout (what
-that checkout's ``rhythmic-jax`` runs) on 640x320 JPEG folders made from
-Nordland frames (upscaled; written under a temporary folder, removed after):
-
-- ``fit REF/ --descriptor efficientnet_lite0`` on 1000 frames;
-- ``query MAP Q/`` on 1000 frames (the map from the fit);
-- a 100-frame ``fit`` (too small to compile: it must not be slower);
-- augmented training: one epoch of :func:`rhythmic_jax.augmented.fit_augmented`
-  over 256 Nordland frames with no augmentation (``none``) and with all seven
-  (``all``), the descriptor at its native size, frames/s over the wall time.
-
-Every job starts with an empty descriptor cache. The compiled network
-(:mod:`rhythmic_jax.frames.compiled`) is built once before the timed runs, as a user's
-first large job does, and then loaded by each job. The baseline is another
-checkout run with ``PYTHONPATH`` pointing at it (e.g. ``git worktree add
-/tmp/base 6ee4e23``). Both variants run interleaved, ``--repeats`` times; the
-report gives medians and the ratio, with the load average (the machine is
-shared).
-
-    python scripts/bench_frames.py --base /tmp/base [--repeats 2]
+python scripts/bench_frames.py --base /tmp/base [--repeats 2]
 """
 
 from __future__ import annotations
@@ -101,11 +82,7 @@ def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, P
 
 
 def timed_run(cmd: list[str], env: dict) -> dict:
-    """Wall and CPU seconds (children) of one command; fails loudly.
-
-    It runs in the folder of the Lite0 weights: the baseline's ``query`` looks
-    for them by the bare file name its map records.
-    """
+    """Wall and CPU seconds (children) of one command; fails loudly."""
     from rhythmic_jax.frames.nets import lite0_weights_path
 
     cwd = lite0_weights_path().parent

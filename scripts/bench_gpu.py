@@ -1,26 +1,7 @@
 """JAX's GPU against the same machine's CPU: fit, predict, batch and sequence decode.
 
-On Nordland summer patchnorm descriptors (3576 x 2048, loaded from a float16
-``.npy`` of shape (2, n, d): summer, winter; ``--write-features`` writes it from
-the shared frames, so the descriptors travel without the images), every step
-runs once with the GPU as JAX's default device and once with the CPU
-(``jax.default_device``), in one process:
-
-- first fit (compilation included) and a second fit of the same shapes of
-  ``RhythmicMap(r=2, level=1)``; its predictions of the summer (self) and winter
-  queries on both devices, compared place for place;
-- predict with new batch sizes (``--batches``; each its first call);
-- a batch decode of ``--decode`` queries (winter frames with noise), warm;
-- the soft sequence decode, L = ``--length``, of the winter queries, warm;
-- fits of route-like synthetic frames of ``--fit-sizes`` x d, 3 candidates.
-
-Where no GPU is found its column says so and only the CPU runs (a rehearsal;
-such a report is not the GPU report). With the CPU the only backend, the CPU
-column takes the numpy fast paths of a CPU machine; on a GPU machine the CPU
-column is JAX's CPU device (jitted paths).
-
-    python scripts/bench_gpu.py --write-features nordland_f16.npy
-    python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
+python scripts/bench_gpu.py --write-features nordland_f16.npy
+python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
 """
 
 from __future__ import annotations

@@ -1,23 +1,6 @@
 """The memory estimate of a full-batch fit against its measured peak, by shape.
 
-For a grid of tall, square and wide shapes (random float32 frames, the default
-map), one child process loads the runtime with a fit of another shape and then,
-for each shape:
-
-- asks the guard (:func:`rhythmic_jax.solvers.memory.check_memory`) with the
-  limit set to the estimate itself (``--memory X`` with X the estimate), which
-  admits the fit;
-- fits it once "cold" (compiling its functions, as a job's first fit does) and
-  ``--repeats`` times "warm" on the same frames (nothing compiles), each peak
-  being the growth of the process's resident memory over a baseline taken with
-  glibc's freed memory handed back (``malloc_trim(0)``), sampled every ms.
-
-The cold peak is checked against the whole estimate (the limit must hold), the
-warm peaks against the estimate without its ``compile`` part.
-
-    python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
-
-Writes reports/memory.json and reports/memory.md and prints the table.
+python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 """
 
 from __future__ import annotations

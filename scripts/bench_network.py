@@ -1,17 +1,6 @@
 """The descriptor network's frames/s by batch size, compiled against eager.
 
-For each batch size the network (EfficientNet-Lite0 block 10 at 224x112 unless
-told otherwise) runs on the same prepared frames (Nordland summer frames resized
-by the descriptor, channels-last) in chunks of that size: eagerly
-(:class:`rhythmic_jax.frames.compiled.Sliced`) and as an AOTInductor package built for
-that batch (:func:`rhythmic_jax.frames.compiled._compiled`, padded last chunk), each
-timed ``--repeats`` times after a warm-up call. The report gives the best and
-median frames/s, CPU over wall seconds, the package's build time, and the
-largest relative row difference of compiled against eager (the rows are unit
-vectors). Jobs use :data:`rhythmic_jax.frames.compiled.COMPILE_BATCH` compiled and
-:data:`rhythmic_jax.frames.compiled.EAGER_BATCH` eager.
-
-    python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
+python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 """
 
 from __future__ import annotations

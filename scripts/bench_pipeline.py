@@ -1,16 +1,6 @@
 """Frames per second of the augmented training pipeline, and where the time goes.
 
-One epoch of :func:`rhythmic_jax.augment.stream.fit_augmented` on Nordland summer
-frames: kornia augmentation (torch), the descriptor (torch), the DLPack hand-over
-and the optax minibatch step of the vmapped objective (JAX), for each
-augmentation alone and all seven merged, at the descriptor's native input size.
-The peer in the same run is the same epoch with no augmentation (descriptors
-only), so the ratio says what augmenting costs.
-
-    python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
-
-Writes reports/pipeline.json and reports/pipeline.md (``pipeline_<descriptor>.*``
-for another descriptor) and prints the table.
+python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
 """
 
 from __future__ import annotations

@@ -1,19 +1,7 @@
 """Recall per byte: maps, ITQ codes and map + code hybrids at equal storage.
 
-Nordland appearance-change split (:data:`rhythmic_jax.NORDLAND_SPLIT`): maps and
-codes are fitted on the summer frames of the test places (1220-3575, N = 2,356),
-queried with their winter frames, recall@1 within ±1, EfficientNet-Lite0 block 10
-(10,976-d). The hybrids' fusion weights are learned on the training places
-(0-1199: their own maps, codes and winter queries), never on test queries.
-Storage counts every byte search needs (ITQ's mean and projection included), as a
-share of the float32 database. A second ITQ variant fits the codes' transform on
-the training places' summer *and* winter frames ("codes learned across
-conditions"). The fused decode's speed is timed against the map alone and faiss
-``IndexBinaryFlat`` on the same codes (batch of every test query, after a call
-that compiles). The projected-bytes table needs no data.
-
-    python scripts/bench_recall_per_byte.py          # reports/recall_per_byte.*
-    python scripts/bench_recall_per_byte.py --quick  # 2 maps, 2 code sizes
+python scripts/bench_recall_per_byte.py          # reports/recall_per_byte.*
+python scripts/bench_recall_per_byte.py --quick  # 2 maps, 2 code sizes
 """
 
 from __future__ import annotations

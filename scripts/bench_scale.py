@@ -1,33 +1,8 @@
 """Growth from real fits: storage, time, passes and memory against N, d, r, processes.
 
-Every fit is the installed ``rhythmic-jax fit`` on a ``.npy`` file (``--gap
-1e-3``), run under a wrapper that reads its peak resident memory (``ru_maxrss``
-of its children, the processes of a ``--processes 2`` fit included). The growth
-grid fits in memory (the exact Newton solver); ``stream`` cells stream the same
-file under ``--memory`` and give the seconds per pass over the frames. Features
-are route-like: a smooth random walk in feature space (unit rows), and Nordland
-summer sub-routes (patch-normalised, 2048-d) where N allows. Self-query
-accuracy: every reference frame queried against its own map, with the templates
-as float32, float16 and int8. Storage slopes: least squares of log bytes on log
-N per (source, d, r, rule), against 1/r. The rule is how a fit takes its
-periods: ``errors``, the paper's candidate search (the training errors choose r
-co-prime periods among ceil(N^(1/r)) + {0..6}), or ``least``, the least-storage
-co-prime set of the same candidates fixed before training
-(:func:`rhythmic_jax.periods.nominal_periods`, ``--layout periods:...``).
-
-Each cell's result is saved as it completes (``--cells``), so a rerun skips the
-cells already measured. ``--probe N`` writes N route-like 256-d frames to one
-memory-mapped ``.npy`` and streams passes of an r = 3 fit over it under
-``--probe-memory`` in a child process: the seconds per pass and the child's peak
-resident memory, for the projection to 10^6 places. ``--full N`` runs the whole
-streamed r = 3 fit of N such frames with fixed periods (``--full-periods``, no
-candidate search) under ``--full-memory`` in ``--full-work`` (a scratch folder:
-features and map; delete it afterwards): wall time, passes, peak memory and
-self-query accuracy on 20,000 frames. It resumes from its checkpoint if killed.
-
-    python scripts/bench_scale.py --quick          # a small grid (minutes)
-    python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
-    python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
+python scripts/bench_scale.py --quick          # a small grid (minutes)
+python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
+python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
 """
 
 from __future__ import annotations
@@ -63,10 +38,9 @@ print(json.dumps(dict(rc=done.returncode, seconds=time.perf_counter() - t,
 
 
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
-    """Route-like frames (n, d) float32, unit rows: a smooth random walk in
-    feature space (the route's slow change) plus an independent perturbation per
-    frame (what tells neighbouring places apart). ``out``: an (n, d) array to
-    fill (a memory map), block by block."""
+    """Route-like frames (n, d) float32, unit rows: a smooth random walk in feature
+    space (the route's slow change) plus an independent perturbation per frame (what
+    tells neighbouring places apart)."""
     rng = np.random.default_rng(seed)
     x = np.empty((n, d), np.float32) if out is None else out
     pos = rng.normal(size=d) * 4.0
@@ -192,9 +166,8 @@ def least_slope(ns: list[int], r: int) -> float:
 def series(
     rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
 ) -> list[dict]:
-    """One process's fits of (source, d, r) by N with periods by ``rule``: in
-    memory, or streamed at an N with no fit in memory (one the memory guard
-    refuses)."""
+    """One process's fits of (source, d, r) by N with periods by ``rule``: in memory, or
+    streamed at an N with no fit in memory (one the memory guard refuses)."""
     one = [x for x in rows if (x["source"], x["d"], x["r"], x["processes"], _rule(x))
            == (source, d, r, 1, rule)]  # fmt: skip
     held = {x["n"] for x in one if x["mode"] == "memory"}
@@ -423,10 +396,9 @@ def nordland_summer(root: Path) -> np.ndarray | None:
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
     """Cells (source, n, d, r, processes, mode, rule), cheapest first; Nordland's
-    sub-routes where ``real`` (its data is there) and not ``quick``; the
-    one-process fits in memory also with the least periods (rule ``least``),
-    and the streamed N = 10^5, d = 2048 one (the memory guard refuses it in
-    memory)."""
+    sub-routes where ``real`` (its data is there) and not ``quick``; the one-process
+    fits in memory also with the least periods (rule ``least``), and the streamed N =
+    10^5, d = 2048 one (the memory guard refuses it in memory)."""
     if quick:
         ns, ds = (1000, 3000), (256,)
     else:
@@ -500,11 +472,10 @@ def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
 
 
 def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
-    """The whole streamed r = 3 fit of n route-like 256-d frames (``work``, a
-    scratch folder outside the repository) with fixed periods, under ``memory``:
-    wall seconds, passes, peak resident memory and self-query accuracy on 20,000
-    frames spread along the route. The fit is resumable: a rerun after a kill
-    goes on from its checkpoint, and its attempts are summed."""
+    """The whole streamed r = 3 fit of n route-like 256-d frames (``work``, a scratch
+    folder outside the repository) with fixed periods, under ``memory``: wall seconds,
+    passes, peak resident memory and self-query accuracy on 20,000 frames spread along
+    the route."""
     saved = cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
         return json.loads(saved.read_text())

@@ -1,22 +1,6 @@
 """One descriptor -> place: the map's numpy lane against the jitted decode and faiss.
 
-A map of N = 10,000 places, r = 2 periods (the pair ``choose_periods`` takes
-among the level-1 candidates when all errors tie), d = 2048, random unit
-references and templates (decoding costs the same whatever their values);
-queries are references with noise. Latency of one query (median and p95):
-the templates' product with the query alone (unpadded: OpenBLAS's one-thread
-``sgemv``; padded as the map stores them: its thread pool),
-:meth:`rhythmic_jax.RhythmicMap.locate` (one (d,) descriptor -> place),
-``RhythmicMap.predict`` on one row, :class:`rhythmic_jax.decoding.small.SmallDecoder`
-(``index``; ``decode``: the full result), the jitted batch decode called with one
-row, and faiss ``IndexFlatIP`` with one row. The numpy paths are timed in turns
-(a block of 100 calls each, round after round) so the machine's load falls on
-all of them alike; the jitted decode and faiss after them (their thread pools
-spin on after each call and would slow the others). Throughput of batches of
-1000: the jitted decode against faiss
-(the batch path is unchanged).
-
-    python scripts/bench_single_query.py [--singles 2000] [--exact 200]
+python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 """
 
 from __future__ import annotations

@@ -1,22 +1,6 @@
 """Where the 0.1 % gap solve's work could be cut: losing candidates, idle frames.
 
-On the Nordland frames of ``bench_solver.py`` (summer, patchnorm 64x32, 2048-d,
-7 candidate periods, p = 441 templates) this times the 0.1 % gap Newton solve
-(``FAST``) twice, in the same run and after a compiling call each:
-
-- as the benchmark runs it, recording every candidate's training error after
-  every Newton step (a ``stop`` hook that stops nothing);
-- with :class:`rhythmic_jax.solvers.candidates.DropLosers` (``--slack``,
-  ``--after``): candidates that can no longer be chosen stop iterating.
-
-It reports the work of each (columns x CG iterations, each iteration two
-(n, q) x (q, columns) products), the wall times, whether the chosen periods
-and their templates' objectives are the same, how far each candidate's error
-moves after every step (what a safe slack must cover), and, for shrinking the
-frames as liblinear does, how many frames are beyond the margin (inactive) for
-every template at the end: a frame can leave the dense products only then.
-
-    python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
+python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 """
 
 from __future__ import annotations

@@ -1,18 +1,6 @@
 """Wide frames: the joint solve over the frames' span against the direct solve.
 
-Deep descriptors are wider than a route is long (EfficientNet-Lite0 block 10 at
-224x112: 10976-d for 3576 Nordland frames). ``rhythmic_jax.solvers.newton`` then solves
-over the n-dimensional span of the frames (``rhythmic_jax.solvers.span``); the peer
-in the same run is the same solver on the d-dimensional frames
-(``NewtonConfig(span=False)``). Both solve to the optimum (the default
-``NewtonConfig``), compilation included; the report gives wall and CPU seconds,
-their ratio, and the relative objective gap of the two answers, template by
-template.
-
-    python scripts/bench_span.py [--frames 3576] [--level 1]
-
-Writes reports/span.json and reports/span.md and prints the table. Descriptors
-are computed once and cached (``rhythmic_jax.frames.features.cached_describe``).
+python scripts/bench_span.py [--frames 3576] [--level 1]
 """
 
 from __future__ import annotations

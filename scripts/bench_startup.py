@@ -1,20 +1,6 @@
 """Start-up time: ``import rhythmic_jax``, ``rhythmic-jax --help`` and ``info``.
 
-What a user waits for before anything is computed, measured in fresh processes
-(wall clock, the median of ``--repeats`` runs, taken in turns so that load changes
-hit every command alike):
-
-- ``python -c "import rhythmic_jax"`` (the public face; nothing heavy loads until
-  a name is used);
-- ``rhythmic-jax --help`` (target: under 1 s on an idle machine);
-- ``rhythmic-jax info MAP`` on a small map fitted here (target: under 2 s).
-
-With ``--before DIR`` (a checkout of another version, e.g. ``git worktree add
-/tmp/before <commit>``) the same commands run against that checkout too, in the
-same turns, and the report gives the ratios. Also recorded: which heavy packages
-(jax, faiss, scikit-learn, torch) each command loads.
-
-    python scripts/bench_startup.py --before /tmp/before --repeats 7
+python scripts/bench_startup.py --before /tmp/before --repeats 7
 """
 
 from __future__ import annotations

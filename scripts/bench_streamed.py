@@ -1,29 +1,6 @@
 """Streamed Newton-CG: its preconditioner and its compacted passes, in one run.
 
-A streamed fit (:func:`rhythmic_jax.solvers.streamed.streamed_newton_fit`) reads
-its frames from a ``.npy`` in blocks on every pass. Three settings run on the
-same file in turns (``--repeats`` each), with ``FAST_STREAM`` (0.1 % estimated
-gap, CG capped at 3 rising to 8):
-
-- ``Jacobi, every template``: CG preconditioned by the Hessian's diagonal,
-  every pass over all templates (the solver before);
-- ``spectral, every template``: CG preconditioned in the leading 256
-  eigenvectors of ``Xa^T Xa`` (``StreamConfig.spectral_rank``);
-- ``spectral, compacted``: and passes after a template stops carry only the
-  templates still going (``StreamConfig.compact``).
-
-Cases:
-
-- ``nordland``: Nordland summer, patch-normalised 64x32 (3576 x 2048), the
-  periods an in-memory fit of the same frames chooses (61, 65);
-- ``walk``: route-like 256-d frames (``bench_scale.walk``: a smooth random
-  walk, unit rows), N = ``--walk-frames``, r = 3 with fixed periods near N^(1/3).
-
-The report gives each setting's wall time, steps, passes, the templates each
-step carried, how many templates reached the gap, and the true relative gap of
-the final objectives to the in-memory Newton optimum (tight) of the same frames.
-
-    python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
+python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 """
 
 from __future__ import annotations

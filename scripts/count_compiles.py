@@ -1,31 +1,8 @@
 """XLA programs and optax calls of a default ``RhythmicMap.fit`` in a fresh process.
 
-A child process (``PYTHONPATH`` = the checkout measured, JAX on the CPU, no
-persistent compilation cache unless ``--cache DIR``) imports the package, builds
-route-like frames (a random walk of unit descriptors: neighbours alike, as
-frames along a route are), fits ``RhythmicMap()`` on them and reports:
-
-- ``programs``: XLA programs compiled during the fit (JAX's
-  ``/jax/core/compile/backend_compile_duration`` events, one per program, the
-  same count as ``jax_log_compiles``' "Finished XLA compilation" lines);
-- ``compile_s``: seconds of those compilations, tracing and lowering included;
-- ``wall_s``: seconds of the fit call (``cpu_s``: the process's CPU seconds,
-  every thread, less sensitive to other processes' load); ``import_s``: of
-  ``import rhythmic_jax``;
-- ``again_s``, ``again_cpu_s``: a second fit of the same frames in the same
-  process; ``load``: the 1-minute load average at the end;
-- ``periods``, ``names`` (``--names``: programs compiled, by name, most first);
-- ``--optax``: every public callable of ``optax`` (and ``optax.tree_utils``) is
-  wrapped with a counter before the package is imported: ``optax_calls`` and
-  ``optax_by_name`` of the first fit.
-
-With ``--npy FILE`` the frames are read from a .npy file instead. The record is
-printed as one JSON line (the last line of the output); ``--out DIR`` also writes
-it as ``compiles.json`` / ``.md``.
-
-    python scripts/count_compiles.py                      # this checkout
-    python scripts/count_compiles.py --checkout /work/main --names
-    python scripts/count_compiles.py --n 600 --d 64 --optax
+python scripts/count_compiles.py                      # this checkout
+python scripts/count_compiles.py --checkout /work/main --names
+python scripts/count_compiles.py --n 600 --d 64 --optax
 """
 
 from __future__ import annotations

@@ -1,25 +1,7 @@
 """Reproduce the paper's tables and figures on real data, beside the usual baselines.
 
-    python scripts/reproduce.py                            # reports/REPRODUCTION.md
-    python scripts/reproduce.py --quick --out /tmp/repro   # CI: a few minutes
-
-Writes ``REPRODUCTION.md``, ``reproduction.json`` (every number) and the PNG
-figures into ``--out`` (default ``reports/``), and the predictions behind every
-accuracy into ``--predictions`` (``.npz``: arrays ``<key>`` and ``<key>_gt``, the key
-named in the JSON). Sections: Table 1 (storage), Table 2 (queries from the map),
-Table 3 (search time, storage, accuracy beside brute force, KD-tree, ITQ, OPQ),
-Fig. 3 (training error against period), Fig. 4 (r = 2, 3, 5), appearance change
-(Nordland summer -> winter with the seven augmentations, Figs. 6 and 8; aerial
-LEVIR pairs), and the tables of ``scripts/bench_decoding.py`` when
-``reports/decoding.json`` exists.
-
-Descriptors are cached by :func:`rhythmic_jax.frames.features.cached_describe`
-(under the keys ``scripts/bench_decoding.py`` uses), fitted maps and trained ITQ /
-OPQ indexes in ``--cache-dir`` (default ``$TMPDIR/rhythmic_jax_reproduce``), keyed
-by their settings and a hash of the features, so a rerun only evaluates.
-``--quick`` takes the first 600 frames of each season, levels 1-2, two
-augmentations and leaves OPQ out (its training alone takes minutes here); the full
-run trains OPQ with 4 iterations (each an SVD of a 2048 x 2048 matrix).
+python scripts/reproduce.py                            # reports/REPRODUCTION.md
+python scripts/reproduce.py --quick --out /tmp/repro   # CI: a few minutes
 """
 
 from __future__ import annotations
