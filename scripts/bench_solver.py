@@ -1,5 +1,5 @@
 """Time the joint solve of every candidate's templates (Newton-CG, optax L-BFGS)
-against liblinear's LinearSVC, extrapolated from sampled templates (docs/solvers.md).
+against liblinear's LinearSVC, timed on sampled templates (docs/design.md).
 
     python scripts/bench_solver.py           # writes reports/solver.{json,md}
     python scripts/bench_solver.py --quick   # 800 frames, 4 sampled templates
