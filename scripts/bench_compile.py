@@ -79,12 +79,9 @@ def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
     out = tmp / f"count-{time.monotonic_ns()}.json"
     t = time.perf_counter()
     done = subprocess.run(
-        [sys.executable, "-c", WRAPPER, *cmd],
-        env={**env, "COUNT_OUT": str(out)},
-        capture_output=True,
-        text=True,
-        cwd=_weights_folder(),
-    )
+        [sys.executable, "-c", WRAPPER, *cmd], env={**env, "COUNT_OUT": str(out)},
+        capture_output=True, text=True, cwd=_weights_folder(),
+    )  # fmt: skip
     wall = time.perf_counter() - t
     if done.returncode != 0:
         raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")

@@ -174,18 +174,12 @@ def eval_row(m: RhythmicMap, ref, qry, label: str, fit_s: float) -> dict:
         place = group_place_scores(m.scores(qry), m.groups, m.n)
     pred = m.predict(qry, "soft")
     row = dict(
-        method=label,
-        layout=m.groups.describe(),
-        sizes=list(m.groups.sizes),
-        codes_bits=m.codebook.bits if m.codebook else None,
-        r1=_acc(pred),
-        r1_exact=_acc(pred, 0),
-        r5=_recall(place, 5),
-        self_r1=_acc(m.predict(ref[: m.n], "soft"), 0),
-        storage_bytes=m.storage_bytes,
-        embedding_bytes=m.embedding_bytes,
-        fit_seconds=fit_s,
-    )
+        method=label, layout=m.groups.describe(), sizes=list(m.groups.sizes),
+        codes_bits=m.codebook.bits if m.codebook else None, r1=_acc(pred),
+        r1_exact=_acc(pred, 0), r5=_recall(place, 5),
+        self_r1=_acc(m.predict(ref[: m.n], "soft"), 0), storage_bytes=m.storage_bytes,
+        embedding_bytes=m.embedding_bytes, fit_seconds=fit_s,
+    )  # fmt: skip
     for L in LENGTHS:
         row[f"L{L}"] = _acc(m.predict(qry, "soft", sequence=L))
     row["seconds"] = fit_s + time.perf_counter() - t0

@@ -78,13 +78,10 @@ def timed(fn, repeats: int):
 def _row(method, pred, gt, seconds, storage, **extra) -> dict:
     inmap = gt >= 0
     return dict(
-        method=method,
-        **extra,
-        recall_at_1=accuracy(pred[inmap], gt[inmap], TOLERANCE),
+        method=method, **extra, recall_at_1=accuracy(pred[inmap], gt[inmap], TOLERANCE),
         recall_at_1_exact=accuracy(pred[inmap], gt[inmap], 0),
-        queries_per_s=len(pred) / max(seconds, 1e-12),
-        storage_bytes=int(storage),
-    )
+        queries_per_s=len(pred) / max(seconds, 1e-12), storage_bytes=int(storage),
+    )  # fmt: skip
 
 
 # ------------------------------------------------------- phase-domain variants
@@ -332,22 +329,14 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
         rows.append(dict(method=label, **_threshold_metrics(pred, conf, gt, first)))
         r = rows[-1]
         log.info(
-            "  %-40s AUC %.4f  R@100P %.4f  (held-out thr: P %.3f R %.3f)",
-            label,
-            r["pr_auc"],
-            r["recall_at_100_precision"],
-            r["precision_at_threshold"],
+            "  %-40s AUC %.4f  R@100P %.4f  (held-out thr: P %.3f R %.3f)", label,
+            r["pr_auc"], r["recall_at_100_precision"], r["precision_at_threshold"],
             r["recall_at_threshold"],
-        )
+        )  # fmt: skip
     return dict(
-        descriptor=descriptor,
-        level=level,
-        periods=list(per),
-        n_map=int(n),
-        n_held=len(h.held),
-        n_queries=len(qry),
-        rows=rows,
-    )
+        descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
+        n_held=len(h.held), n_queries=len(qry), rows=rows,
+    )  # fmt: skip
 
 
 # ------------------------------------------------------------------- reports

@@ -179,15 +179,10 @@ def run(args) -> dict:
         within = {v: float((np.abs(p - np.arange(len(p))) <= 2).mean())
                   for v, p in pred.items()}  # fmt: skip
     report = dict(
-        base=paths["base"],
-        frames=args.frames,
-        aug_frames=args.aug_frames,
-        repeats=args.repeats,
-        build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
-        prediction_agreement=agree,
-        prediction_within_2=within,
-        runs=runs,
-    )
+        base=paths["base"], frames=args.frames, aug_frames=args.aug_frames,
+        repeats=args.repeats, build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
+        prediction_agreement=agree, prediction_within_2=within, runs=runs,
+    )  # fmt: skip
     report["summary"] = summary(report)
     return report
 

@@ -74,12 +74,9 @@ def run(args) -> dict:
     return dict(
         descriptor=desc.name,
         settings=dict(block=args.block, width=desc.width, height=desc.height),
-        frames=len(x),
-        repeats=args.repeats,
-        job_batch=compiled.COMPILE_BATCH,
-        job_eager_batch=compiled.EAGER_BATCH,
-        rows=rows,
-    )
+        frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
+        job_eager_batch=compiled.EAGER_BATCH, rows=rows,
+    )  # fmt: skip
 
 
 def markdown(report: dict) -> str:

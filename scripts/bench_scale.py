@@ -101,27 +101,15 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         acc[dtype] = accuracy(model.with_dtype(dtype), frames, n)
     info, run = fit["info"], fit["info"].get("fit") or {}
     row = dict(
-        source=source,
-        n=n,
-        d=d,
-        r=r,
-        processes=procs,
-        mode=mode,
-        rule=rule,
-        periods=info["periods"],
-        storage_bytes=info["storage_bytes"],
+        source=source, n=n, d=d, r=r, processes=procs, mode=mode, rule=rule,
+        periods=info["periods"], storage_bytes=info["storage_bytes"],
         bytes_per_place=info["storage_bytes"] / n,
         float16_bytes=model.with_dtype("float16").storage_bytes,
-        int8_bytes=model.with_dtype("int8").storage_bytes,
-        fit_seconds=fit["seconds"],
-        peak_bytes=fit["peak"],
-        memory=memory if mode == "stream" else None,
-        passes=run.get("passes"),
-        pass_median_s=run.get("pass_median_s"),
-        block_rows=run.get("block_rows"),
-        accuracy=acc,
-        nice=os.nice(0),
-    )
+        int8_bytes=model.with_dtype("int8").storage_bytes, fit_seconds=fit["seconds"],
+        peak_bytes=fit["peak"], memory=memory if mode == "stream" else None,
+        passes=run.get("passes"), pass_median_s=run.get("pass_median_s"),
+        block_rows=run.get("block_rows"), accuracy=acc, nice=os.nice(0),
+    )  # fmt: skip
     log.info("%s", row)
     return row
 

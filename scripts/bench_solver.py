@@ -183,15 +183,12 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     cpu = np.array([t["cpu_s"] for t in svc])
     linearsvc = dict(
         settings=dict(loss="squared_hinge", dual=True, tol=1e-4, max_iter=1000, C=c),
-        sampled=len(svc),
-        per_template_s=dict(**stats(wall), std=float(wall.std())),
+        sampled=len(svc), per_template_s=dict(**stats(wall), std=float(wall.std())),
         per_template_cpu_s=dict(**stats(cpu), std=float(cpu.std())),
-        extrapolated_s=float(wall.mean() * p),
-        extrapolated_cpu_s=float(cpu.mean() * p),
+        extrapolated_s=float(wall.mean() * p), extrapolated_cpu_s=float(cpu.mean() * p),
         extrapolated_range_s=[float(wall.min() * p), float(wall.max() * p)],
-        load_average_start=load_svc,
-        templates=svc,
-    )
+        load_average_start=load_svc, templates=svc,
+    )  # fmt: skip
     for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t)):
         margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
         rec.update(

@@ -68,17 +68,13 @@ def run(args) -> dict:
         errors = np.asarray(period_errors(s, labels, cands))
         chosen = choose_periods(cands, errors, n, 2)
         runs[name] = dict(
-            seconds=seconds,
-            steps=info.steps,
-            cg_iterations=list(info.cg_iterations),
+            seconds=seconds, steps=info.steps, cg_iterations=list(info.cg_iterations),
             columns=list(info.columns),
-            work=int(np.dot(info.cg_iterations, info.columns)),
-            errors=errors.tolist(),
-            chosen=list(chosen),
-            objective=info.objective.tolist(),
+            work=int(np.dot(info.cg_iterations, info.columns)), errors=errors.tolist(),
+            chosen=list(chosen), objective=info.objective.tolist(),
             step_errors=stop.errors if isinstance(stop, Record) else None,
             dropped=[[k, list(t)] for k, t in getattr(stop, "dropped", [])],
-        )
+        )  # fmt: skip
         if name == "full":
             ym = y * np.asarray(s, np.float64)
             active = (ym < 1).sum(axis=1)

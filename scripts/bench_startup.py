@@ -138,12 +138,9 @@ def run(args) -> dict:
                     seconds[name][v].append(wall(path, cmd))
             log.info("turn %d of %d done", i + 1, args.repeats)
     return dict(
-        versions=list(checkouts),
-        repeats=args.repeats,
-        seconds=seconds,
-        checkouts={v: str(p) for v, p in checkouts.items()},
-        loaded=loads,
-    )
+        versions=list(checkouts), repeats=args.repeats, seconds=seconds,
+        checkouts={v: str(p) for v, p in checkouts.items()}, loaded=loads,
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

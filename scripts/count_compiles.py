@@ -105,13 +105,9 @@ def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
     proc = subprocess.run(
-        [sys.executable, "-c", CHILD, json.dumps(args)],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-        cwd="/",
-    )
+        [sys.executable, "-c", CHILD, json.dumps(args)], env=env, capture_output=True,
+        text=True, check=False, cwd="/",
+    )  # fmt: skip
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
     if proc.returncode or not lines:
         tail = proc.stderr[-3000:]

@@ -96,14 +96,9 @@ class Settings:
 
 FULL = Settings()
 QUICK = Settings(
-    frames=600,
-    levels=(1, 2),
-    aug_names=("hflip", "contrast"),
-    aug_frames=600,
-    opq=False,
-    timing_queries=50,
-    batch_queries=300,
-)
+    frames=600, levels=(1, 2), aug_names=("hflip", "contrast"), aug_frames=600,
+    opq=False, timing_queries=50, batch_queries=300,
+)  # fmt: skip
 
 
 # --------------------------------------------------------------- Markdown
@@ -205,15 +200,9 @@ def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     periods = [int(t) for t in periods]
     orig, comp = database_bytes(n, d, 4), storage_bytes(periods, d, 4)
     return dict(
-        name=name,
-        n=int(n),
-        d=int(d),
-        periods=periods,
-        sum_tau=sum(periods),
-        original_bytes=orig,
-        compressed_bytes=comp,
-        ratio=comp / orig,
-    )
+        name=name, n=int(n), d=int(d), periods=periods, sum_tau=sum(periods),
+        original_bytes=orig, compressed_bytes=comp, ratio=comp / orig,
+    )  # fmt: skip
 
 
 def table1_paper() -> list[dict[str, Any]]:
@@ -228,12 +217,9 @@ def table1_paper() -> list[dict[str, Any]]:
             flag = f"{kind}: the printed bytes give {ratio:.4f} ({ratio:.6f})"
         same = row["original_bytes"] == orig and row["compressed_bytes"] == comp
         row.update(
-            printed_original_bytes=orig,
-            printed_compressed_bytes=comp,
-            printed_ratio=printed,
-            bytes_match=same,
-            flag=flag,
-        )
+            printed_original_bytes=orig, printed_compressed_bytes=comp,
+            printed_ratio=printed, bytes_match=same, flag=flag,
+        )  # fmt: skip
         rows.append(row)
     return rows
 
@@ -284,12 +270,9 @@ class Run:
         """(map, record): from ``cache_dir`` when fitted before with the same
         settings and features (the key scheme of ``scripts/bench_decoding.py``)."""
         model = RhythmicMap(
-            r=r,
-            level=level,
-            count=count,
-            descriptor=DESCRIPTOR,
+            r=r, level=level, count=count, descriptor=DESCRIPTOR,
             descriptor_settings=self.desc.settings(),
-        )
+        )  # fmt: skip
         if aug is None:
             return h.cached_fit(model, x, self.cache_dir,
                                 lambda m: m.fit(x, progress=self.progress))  # fmt: skip
@@ -339,13 +322,10 @@ class Run:
         self.preds[key], self.preds[key + "_gt"] = pred.astype(np.int32), gt
         rec = recall_at_k(ranked, gt, KS, tolerance=tol)
         return dict(
-            accuracy=accuracy(pred, gt, tol),
-            tolerance=tol,
+            accuracy=accuracy(pred, gt, tol), tolerance=tol,
             **{f"recall_at_{k}": rec[k] for k in KS},
-            no_match=float(np.mean(pred == -1)),
-            n_queries=len(gt),
-            predictions=key,
-        )
+            no_match=float(np.mean(pred == -1)), n_queries=len(gt), predictions=key,
+        )  # fmt: skip
 
     def score_map(self, key: str, model: RhythmicMap, q, tol: int) -> dict[str, Any]:
         ranked = ranked_places(model.scores(q), model.periods, model.n, max(KS))
@@ -359,18 +339,13 @@ class Run:
 def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
     err = dict(zip(model.candidates, model.candidate_errors, strict=True))
     return dict(
-        level=model.config.level,
-        r=model.config.r,
-        n=model.n,
-        d=model.d,
-        periods=list(model.periods),
-        candidates=list(model.candidates),
+        level=model.config.level, r=model.config.r, n=model.n, d=model.d,
+        periods=list(model.periods), candidates=list(model.candidates),
         candidate_errors=list(model.candidate_errors),
         period_errors=[err[t] for t in model.periods],
-        storage_bytes=model.storage_bytes,
-        compression_ratio=model.compression_ratio,
+        storage_bytes=model.storage_bytes, compression_ratio=model.compression_ratio,
         **fit,
-    )
+    )  # fmt: skip
 
 
 # -------------------------------------------------------------- experiments
@@ -477,12 +452,9 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
     threads = dict(faiss=s.threads, kdtree=1, jax="XLA CPU default thread pool")
     skipped = [] if s.opq else [OPQ_SKIPPED]
     return dict(
-        database_bytes=database_bytes(len(x), x.shape[1], 4),
-        rows=rows,
-        query_sets=list(sets),
-        threads=threads,
-        skipped=skipped,
-    )
+        database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
+        query_sets=list(sets), threads=threads, skipped=skipped,
+    )  # fmt: skip
 
 
 def fig4(run: Run, data, fits) -> list[dict]:
@@ -896,12 +868,9 @@ def draw(res: dict, out: Path) -> list[str]:
     figures.plot_training_error(series, "Nordland summer", out / names[0])
     f4 = res["fig4"]
     figures.plot_r(
-        [r["r"] for r in f4],
-        [r["compression_ratio"] for r in f4],
-        [r["accuracy"] for r in f4],
-        "Nordland summer, level 1",
-        out / names[1],
-    )
+        [r["r"] for r in f4], [r["compression_ratio"] for r in f4],
+        [r["accuracy"] for r in f4], "Nordland summer, level 1", out / names[1],
+    )  # fmt: skip
     sub = res["appearance"]["augmentation"]
     figures.plot_augmentation(
         [r["name"] for r in sub["rows"]],
