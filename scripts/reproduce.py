@@ -596,30 +596,20 @@ def decoding_markdown(path: Path) -> tuple[str, dict | None]:
         f"From `{path.name}`, written by `{data.get('command', '?')}`; "
         f"recall@1 within ±{data.get('tolerance', 1)} index."
     ]
-    try:
-        for b in data.get("decoding", []):
-            parts += [
-                "",
-                f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
-                f"{b['level']}**, periods {b['periods']}:",
-                "",
-                render(b["rows"] + b.get("references", []), DECODING),
-            ]
-        for b in data.get("outliers", []):
-            parts += [
-                "",
-                f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
-                "",
-                render(b["rows"], OUTLIERS),
-            ]
-    except (KeyError, TypeError, ValueError, IndexError) as err:
-        md = path.with_suffix(".md")
-        text = md.read_text().replace("\n#", "\n###") if md.is_file() else ""
-        parts = [
-            f"`{path.name}` has a layout this script does not read ({err!r}); "
-            "its own Markdown follows.",
+    for b in data.get("decoding", []):
+        parts += [
             "",
-            text,
+            f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
+            f"{b['level']}**, periods {b['periods']}:",
+            "",
+            render(b["rows"] + b.get("references", []), DECODING),
+        ]
+    for b in data.get("outliers", []):
+        parts += [
+            "",
+            f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
+            "",
+            render(b["rows"], OUTLIERS),
         ]
     return "\n".join(parts), data
 
@@ -646,25 +636,22 @@ def cross_condition_markdown(path: Path) -> str:
         "Targets:",
         "",
     ]
-    try:
-        parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
-        for name, ds in data["datasets"].items():
-            key, rows = next(iter(ds["directions"].items()))
-            head = ["method", *(h for _, h in CROSS_COLUMNS), "share of raw bytes"]
-            body = [
-                "| " + " | ".join(head) + " |",
-                "|---" + "|---:" * (len(head) - 1) + "|",
-            ]
-            for r in rows:
-                cells = ["" if c not in r else f"{r[c]:.3f}" for c, _ in CROSS_COLUMNS]
-                body.append(
-                    f"| {r['method']} | " + " | ".join(cells)
-                    + f" | {100 * r['ratio']:.1f} % |"
-                )  # fmt: skip
-            parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
-            parts += body
-    except (KeyError, TypeError, ValueError, IndexError, StopIteration) as err:
-        return f"`{path.name}` has a layout this script does not read ({err!r})."
+    parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
+    for name, ds in data["datasets"].items():
+        key, rows = next(iter(ds["directions"].items()))
+        head = ["method", *(h for _, h in CROSS_COLUMNS), "share of raw bytes"]
+        body = [
+            "| " + " | ".join(head) + " |",
+            "|---" + "|---:" * (len(head) - 1) + "|",
+        ]
+        for r in rows:
+            cells = ["" if c not in r else f"{r[c]:.3f}" for c, _ in CROSS_COLUMNS]
+            body.append(
+                f"| {r['method']} | " + " | ".join(cells)
+                + f" | {100 * r['ratio']:.1f} % |"
+            )  # fmt: skip
+        parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
+        parts += body
     return "\n".join(parts)
 
 
@@ -948,11 +935,9 @@ def run(args) -> dict[str, Any]:
         "reproduction_quick.npz" if args.quick else "reproduction.npz"
     )
     load_start, t0 = h.load_average(), time.perf_counter()
-    run, say = Run(settings, args.cache_dir, args.progress), tqdm.write
-    steps = tqdm(total=7, desc="reproduce", disable=not args.progress)
+    run = Run(settings, args.cache_dir, args.progress)
     data = load_features(run)
     fits = fit_all(run, data)
-    steps.update()
     here = [
         storage_row(label, *(lambda m: (m.n, m.d, m.periods))(fits[key, 1][0]))
         for key, label in (
@@ -965,36 +950,22 @@ def run(args) -> dict[str, Any]:
         row["ratio_d4096"] = storage_row("", row["n"], PAPER_D, row["periods"])["ratio"]
     res: dict[str, Any] = dict(settings=dataclasses.asdict(settings))
     res["table1"] = dict(paper=table1_paper(), here=here)
-    say(table1_markdown(res["table1"]["paper"], here))
     res["table2"] = table2(run, data, fits)
-    say(render(res["table2"], T2))
-    steps.update()
     res["table3"] = table3(run, data, fits)
-    say(table3_markdown(res["table3"]))
-    steps.update()
     res["fig3"] = {
         lv: (list(m.candidates), list(m.candidate_errors), list(m.periods))
         for lv in settings.levels
         for m in [fits["nordland", lv][0]]
     }
     res["fig4"] = fig4(run, data, fits)
-    say(render(res["fig4"], FIG4))
-    steps.update()
     res["appearance"] = appearance(run, data, fits)
-    say(levels_markdown(res["appearance"]["full"]))
-    say(augmentation_markdown(res["appearance"]["augmentation"]))
-    steps.update()
     res["aerial"] = aerial(run, data, fits)
-    say(levels_markdown(res["aerial"]))
     refresh(res, args)
-    steps.update()
     res["meta"] = meta(run, data, load_start, t0, preds)
     args.out.mkdir(parents=True, exist_ok=True)
     res["figures"] = draw(res, args.out)
     with atomic_path(preds) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **run.preds)
-    steps.update()
-    steps.close()
     return res
 
 
