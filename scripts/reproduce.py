@@ -10,7 +10,6 @@ import dataclasses
 import datetime
 import json
 import re
-import string
 import tempfile
 import time
 from pathlib import Path
@@ -102,30 +101,6 @@ QUICK = Settings(
 
 
 # --------------------------------------------------------------- Markdown
-
-
-class _Format(string.Formatter):
-    """``{x!l}``: a list joined by commas; ``{x!m}``: fractions as x 10^-3;
-    ``{x!c}``: fractions as percent."""
-
-    def convert_field(self, value, conversion):
-        if conversion == "l":
-            return ", ".join(str(v) for v in value)
-        if conversion in ("m", "c"):
-            scale = 1000 if conversion == "m" else 100
-            return ", ".join(f"{scale * v:.2f}" for v in value)
-        return super().convert_field(value, conversion)
-
-
-def render(rows: list[dict], cols: str) -> str:
-    """A Markdown table: ``cols`` holds one ``header = format`` per line, the
-    format filled from each row (e.g. ``accuracy = {accuracy:.4f}``)."""
-    spec = [line.split(" = ", 1) for line in cols.strip().splitlines()]
-    fmt = _Format()
-    lines = ["| " + " | ".join(h for h, _ in spec) + " |", "|" + "---|" * len(spec)]
-    for row in rows:
-        lines.append("| " + " | ".join(fmt.format(f, **row) for _, f in spec) + " |")
-    return "\n".join(lines)
 
 
 T1 = """dataset = {name}
@@ -239,7 +214,7 @@ def table1_markdown(paper: list[dict], here: list[dict]) -> str:
         dict(r, printed="-", note=f"run here; {r['ratio_d4096']:.4f} at d = 4096")
         for r in here
     ]
-    return render(rows, T1)
+    return h.columns(rows, T1)
 
 
 # ------------------------------------------------------------------ helpers
@@ -551,7 +526,7 @@ def table3_markdown(t3: dict) -> str:
             f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']} "
             "queries:",
             "",
-            render(rows, T3),
+            h.columns(rows, T3),
             "",
         ]
     return "\n".join(out + [f"Not run: {x}\n" for x in t3["skipped"]])
@@ -568,13 +543,13 @@ def levels_markdown(block: dict) -> str:
         )
     ]
     rows += [dict(r, method="map") for r in block["levels"]]
-    return render(rows, LEVELS)
+    return h.columns(rows, LEVELS)
 
 
 def augmentation_markdown(sub: dict) -> str:
     rows = [dict(sub["brute_force"], name="brute force (no training)", periods=["-"])]
     rows += [dict(r, name=f"map, {r['name']}") for r in sub["rows"]]
-    return render(
+    return h.columns(
         [
             dict(r, fit=f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-")
             for r in rows
@@ -602,14 +577,14 @@ def decoding_markdown(path: Path) -> tuple[str, dict | None]:
             f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
             f"{b['level']}**, periods {b['periods']}:",
             "",
-            render(b["rows"] + b.get("references", []), DECODING),
+            h.columns(b["rows"] + b.get("references", []), DECODING),
         ]
     for b in data.get("outliers", []):
         parts += [
             "",
             f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
             "",
-            render(b["rows"], OUTLIERS),
+            h.columns(b["rows"], OUTLIERS),
         ]
     return "\n".join(parts), data
 
@@ -656,42 +631,19 @@ def cross_condition_markdown(path: Path) -> str:
 
 
 DEVIATIONS = """\
-- **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d). Here every
-  method, the baselines included, uses SeqSLAM's patch-normalised 64x32 grey
-  thumbnail (`get_descriptor("patchnorm")`: 8x8 patches, 2048-d, L2-normalised):
-  the frames at hand are 64x32 pixels, too small for an ImageNet network, and no
-  VGG16 weights ship with the data. Table 1 is still computed at d = 4096 from the
-  paper's own periods; the rows run here are at d = 2048 (with the ratio their
-  periods would give at d = 4096).
-- **Resolution and datasets.** Nordland is the 64x32 version, every 10th frame of
-  the 1 fps videos: 3576 frames in summer and in winter (the paper: 7403 / 7276
-  keyframes chosen by optical flow, plus spring and fall, not available here).
-  Aerial Brisbane and Oxford RobotCar are not available: the aerial protocol (tile
-  one date as the map, query with the tiles of another) runs on the 12 LEVIR-CD
-  sample pairs cut into 64-pixel tiles every 32 pixels (`load_aerial_route`), 769
-  places, instead of 224 / 112 on a 7526x6562 mosaic (3705 places).
-  Multi-reference training (paper Fig. 7) needs more traversals of the map than the
-  two seasons and is not reproduced.
-- **Solver.** The same objective (a squared-hinge L2-SVM per template, the bias
-  regularised as a feature, C = log N) is solved to its optimum by active-set
-  Newton-CG in JAX (`rhythmic_jax.solvers.newton`), every template of every candidate at
-  once, instead of liblinear's coordinate descent per template. The period choice
-  keeps the r pairwise co-prime candidates with product >= N and the least summed
-  training error (ties: least storage).
-- **Decoding** uses Chinese-remainder lookup tables (O(r) per query) instead of
-  intersecting sorted candidate sets: the same answer, "no match" included when
-  the phases point past N.
-- **r = 5** needs 8 candidates at level 1 here: no five of the seven consecutive
-  candidates 6..12 are pairwise co-prime.
-- **Augmentation** uses kornia versions of the seven operations, drawn afresh each
-  epoch (p = 0.5 each), trained by Adam minibatch steps from the exact optimum on
-  the clean frames, which stay in every epoch as a second exemplar of each place
-  (`rhythmic_jax.augment.stream`). Each fit takes minutes on this machine, so the study
-  runs on a contiguous part of the route, stated with its table.
-- **Timing**: Python 3.11 with faiss, scikit-learn and JAX on a shared 2-core
-  machine (the paper: an i7-7700K, Python 3.6), whole calls from a (b, d) float32
-  array to indices, input checks included. The paper timed Aerial Brisbane; here
-  Nordland.
+The library's own are in `docs/design.md`; this run adds:
+
+- **Descriptor.** Every method, the baselines included, uses `patchnorm` (2048-d):
+  the frames are 64x32 pixels and no VGG16 weights ship with the data. Table 1 is
+  still at d = 4096 from the paper's periods.
+- **Data.** Nordland 64x32, every 10th frame (3576 a season; no spring or fall); the
+  aerial protocol on the 12 LEVIR-CD sample pairs in 64-pixel tiles every 32 pixels
+  (769 places). Multi-reference training (paper Fig. 7) is not reproduced.
+- **r = 5** needs 8 candidates at level 1: no five of 6..12 are pairwise co-prime.
+- **Augmentation**: kornia versions of the seven operations (p = 0.5, drawn each
+  epoch), Adam steps from the exact optimum on the clean frames, on part of the route.
+- **Timing** on a shared 2-core machine (the paper: an i7-7700K), on Nordland (the
+  paper: Aerial Brisbane); whole calls from a (b, d) float32 array to indices.
 """
 
 
@@ -807,7 +759,7 @@ def markdown(res: dict) -> str:
         for lv, (c, e, p) in res["fig3"].items()
     ]
     maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
-    return _Format().format(
+    return h.fill(
         REPORT,
         cached=sum(maps.values()),
         n_maps=len(maps),
@@ -829,11 +781,11 @@ def markdown(res: dict) -> str:
         sub=res["appearance"]["augmentation"],
         ae=res["aerial"],
         table1=table1_markdown(res["table1"]["paper"], res["table1"]["here"]),
-        table2=render(t2, T2),
+        table2=h.columns(t2, T2),
         table3=table3_markdown(res["table3"]),
         paper3=PAPER_TABLE3,
-        fig3=render(fig3, FIG3),
-        fig4=render(res["fig4"], FIG4),
+        fig3=h.columns(fig3, FIG3),
+        fig4=h.columns(res["fig4"], FIG4),
         levels=levels_markdown(res["appearance"]["full"]),
         augmentation=augmentation_markdown(res["appearance"]["augmentation"]),
         aerial=levels_markdown(res["aerial"]),
