@@ -18,6 +18,7 @@ import numpy as np
 from _harness import (
     aerial_features,
     cached_fit,
+    columns,
     cores,
     fastest,
     main,
@@ -177,22 +178,10 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
 
     def add(label, fn, length=None, speeds=None):
         pred, sec = timed(fn, repeats)
-        rows.append(
-            _row(
-                label,
-                pred,
-                gt,
-                score_s + sec,
-                storage,
-                L=length,
-                speeds=speeds,
-                decode_queries_per_s=len(pred) / max(sec, 1e-12),
-            )
-        )
-        r = rows[-1]
-        log.info(
-            "  %-44s R@1 %.4f %9.0f q/s", label, r["recall_at_1"], r["queries_per_s"]
-        )
+        dq = len(pred) / max(sec, 1e-12)
+        row = _row(label, pred, gt, score_s + sec, storage, L=length, speeds=speeds,
+                   decode_queries_per_s=dq)  # fmt: skip
+        rows.append(row)
 
     for method in ("hard", "soft", "topm"):
         label = f"{method} (m={M})" if method == "topm" else method
@@ -256,13 +245,6 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
             rows.append(
                 _row(label, pred, gt, sec, storage, L=length, speeds=list(speeds))
             )
-    for r in rows:
-        log.info(
-            "  %-34s R@1 %.4f  %9.0f q/s",
-            r["method"],
-            r["recall_at_1"],
-            r["queries_per_s"],
-        )
     return rows
 
 
@@ -342,49 +324,43 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
 # ------------------------------------------------------------------- reports
 
 
-def _mb(b: int) -> str:
-    return f"{b / 2**20:.2f}"
+DECODING = """method = {method}
+R@1 (±1) = {recall_at_1:.4f}
+R@1 exact = {recall_at_1_exact:.4f}
+queries/s = {queries_per_s:,.0f}
+storage MiB = {mib:.2f}
+% of database = {pct:.1f}"""
+OUTLIERS = """method, confidence = {method}
+PR AUC = {pr_auc:.4f}
+R@100P = {recall_at_100_precision:.4f}
+threshold = {threshold:.4g}
+kept = {retrieved}
+thr P = {precision_at_threshold:.3f}
+thr R = {recall_at_threshold:.3f}
+outliers rejected = {outliers_rejected:.3f}"""
+TARGET = """descriptor = {descriptor}
+L = {L}
+map decode = {method}
+R@1 = {recall_at_1:.4f}
+SeqSLAM = {ref}
+R@1 = {ref_r1:.4f}
+points = {gap:+.1f}
+speed = {speed:.1f}x
+storage = {store:.1f} %
+met = {met}"""
 
 
 def decoding_table(block: dict) -> str:
     db = block["database_bytes"]
-    lines = [
-        "| method | R@1 (±1) | R@1 exact | queries/s | storage MiB | % of database |",
-        "|---|---:|---:|---:|---:|---:|",
-    ]
-    for r in block["rows"]:
-        lines.append(
-            f"| {r['method']} | {r['recall_at_1']:.4f} | {r['recall_at_1_exact']:.4f}"
-            f" | {r['queries_per_s']:,.0f} | {_mb(r['storage_bytes'])} |"
-            f" {100 * r['storage_bytes'] / db:.1f} |"
-        )
-    return "\n".join(lines)
-
-
-def outlier_table(block: dict) -> str:
-    lines = [
-        "| method, confidence | PR AUC | R@100P | threshold | kept | thr P | thr R |"
-        " outliers rejected |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in block["rows"]:
-        lines.append(
-            f"| {r['method']} | {r['pr_auc']:.4f} | {r['recall_at_100_precision']:.4f}"
-            f" | {r['threshold']:.4g} | {r['retrieved']}"
-            f" | {r['precision_at_threshold']:.3f} | {r['recall_at_threshold']:.3f}"
-            f" | {r['outliers_rejected']:.3f} |"
-        )
-    return "\n".join(lines)
+    rows = [dict(r, mib=r["storage_bytes"] / 2**20,
+                 pct=100 * r["storage_bytes"] / db) for r in block["rows"]]  # fmt: skip
+    return columns(rows, DECODING, "lrrrrr")
 
 
 def target_table(blocks: list[dict]) -> str:
     """The lead's target on Nordland at level 4, L = 10 and 20: recall within 5
     points of the SeqSLAM-style reference at >= 10x its speed, <= 14 % storage."""
-    lines = [
-        "| descriptor | L | map decode | R@1 | SeqSLAM | R@1 | points | speed |"
-        " storage | met |",
-        "|---|---:|---|---:|---|---:|---:|---:|---:|---|",
-    ]
+    rows = []
     for b in blocks:
         if b["dataset"] != "nordland" or b["level"] != 4:
             continue
@@ -403,13 +379,12 @@ def target_table(blocks: list[dict]) -> str:
                     speed = r["queries_per_s"] / ref["queries_per_s"]
                     store = 100 * r["storage_bytes"] / ref["storage_bytes"]
                     met = gap >= -5 and speed >= 10 and store <= 14
-                    lines.append(
-                        f"| {b['descriptor']} | {length} | {r['method']} |"
-                        f" {r['recall_at_1']:.4f} | {label} | {ref['recall_at_1']:.4f}"
-                        f" | {gap:+.1f} | {speed:.1f}x | {store:.1f} % |"
-                        f" {'yes' if met else 'no'} |"
-                    )
-    return "\n".join(lines) if len(lines) > 2 else ""
+                    rows.append(dict(
+                        r, descriptor=b["descriptor"], L=length, ref=label,
+                        ref_r1=ref["recall_at_1"], gap=gap, speed=speed, store=store,
+                        met="yes" if met else "no",
+                    ))  # fmt: skip
+    return columns(rows, TARGET, "lrlrlrrrrl") if rows else ""
 
 
 def markdown(report: dict) -> str:
@@ -463,7 +438,7 @@ def markdown(report: dict) -> str:
             f" Margins exclude rivals within {EXCLUDE} places; recall within"
             f" ±{TOLERANCE}.",
             "",
-            outlier_table(b),
+            columns(b["rows"], OUTLIERS, "lrrrrrrr"),
             "",
         ]
     return "\n".join(parts)
