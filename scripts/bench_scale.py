@@ -278,10 +278,8 @@ def markdown(report: dict) -> str:
             "-" if r["passes"] is None else r["passes"],
             _num(r["pass_median_s"], 3),
             round(r["peak_bytes"] / 2**20),
-            round(r["accuracy"]["float32"], 4),
-            round(r["accuracy"]["float16"], 4),
-            round(r["accuracy"]["int8"], 4),
-        ]  # fmt: skip
+            *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8")),
+        ]
         for r in report["rows"]
     ]
     lines += [
@@ -338,22 +336,10 @@ def markdown(report: dict) -> str:
                   f"{sl.get('rule', 'errors')}: the chosen "
                   f"periods' product M is {m0 / n0:.2f} N at N = {n0:,} and "
                   f"{m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
-              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the "
-              "summed periods, and the bytes, lie between the least and the "
-              "largest valid set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). "
-              "Over a short range of N, or from N where 6 is a large share of "
-              "N^(1/r) (10 at N = 1,000, r = 3), the errors' choice moves the "
-              "fitted slope further than 0.05 either way; the column 'candidate "
-              "rule allows' gives the least and the largest fitted slope that "
-              "the rule permits over the series' N (any choice of periods at "
-              "each N). "
-              "The slope tends to 1/r as N grows, where 6 becomes a small share "
-              "of N^(1/r). Rule 'least' fixes the least-storage co-prime set of "
-              "the same candidates before training (no search): its bytes follow "
-              "r N^(1/r) to within the rounding up to co-prime integers, and the "
-              "column gives that set's slope; the accuracy columns say what the "
-              "errors' choice buys over it."]  # fmt: skip
+    lines += ["", "The candidate rule lets the training errors choose r co-prime"
+              " periods among ceil(N^(1/r)) + {0..6}; 'the rule allows': the least"
+              " and largest slope any such choice gives over the series' N (rule"
+              " 'least': the least-storage set's slope); see docs/SCALE.md."]  # fmt: skip
     gaps = [
         100 * (r["accuracy"]["float32"] - r["accuracy"]["float16"])
         for r in report["rows"]
