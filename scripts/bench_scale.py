@@ -339,7 +339,7 @@ def markdown(report: dict) -> str:
     lines += ["", "The candidate rule lets the training errors choose r co-prime"
               " periods among ceil(N^(1/r)) + {0..6}; 'the rule allows': the least"
               " and largest slope any such choice gives over the series' N (rule"
-              " 'least': the least-storage set's slope); see docs/SCALE.md."]  # fmt: skip
+              " 'least': the least-storage set's slope); docs/SCALE.md."]  # fmt: skip
     gaps = [
         100 * (r["accuracy"]["float32"] - r["accuracy"]["float16"])
         for r in report["rows"]
