@@ -264,21 +264,13 @@ def markdown(report: dict) -> str:
                "base / new CPU s", "target (on frames/s)"],
               rows),  # fmt: skip
         "",
-        "Jobs: each a fresh `python -m rhythmic_jax.cli` of its checkout;"
+        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout;"
         f" `fit` and `query` on {report['frames']} 640x320 JPEG frames"
-        " (Nordland summer as reference, winter as queries) with"
-        " efficientnet_lite0 (block 10, 224x112); `fit100` on 100 frames;"
-        f" `augmented_*`: one epoch over {report['aug_frames']} Nordland frames"
-        " (an augmented and a clean exemplar of each, the network runs compiled"
-        " in the new checkout, as in any job of >= 64 frames once the network"
-        " is built, `fit100` included), frames/s over the"
-        " epoch's wall time (the wall and CPU columns are the whole process:"
-        " loading, the clean descriptors, the exact solve, a warm-up epoch)."
-        " On a machine this loaded a process with more runnable threads (the"
-        " read-ahead) takes a larger share of the cores, so wall ratios flatter"
-        " the change; the CPU-second ratios (the work done) are the figure to"
-        " expect on a quiet machine. The two query runs agree on"
-        f" {100 * report['prediction_agreement']:.1f} % of predictions"
+        " (efficientnet_lite0); `fit100` on 100; `augmented_*`: one epoch over"
+        f" {report['aug_frames']} Nordland frames, frames/s over the epoch. Under"
+        " load, CPU-second ratios are the figure to expect on a quiet machine."
+        f" The two query runs agree on {100 * report['prediction_agreement']:.1f} %"
+        " of predictions"
         f"{_within(report)}."
         f" 1-minute load average at the end of each job: {min(loads):.1f} to"
         f" {max(loads):.1f} (2 cores).",
