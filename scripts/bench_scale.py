@@ -37,6 +37,16 @@ print(json.dumps(dict(rc=done.returncode, seconds=time.perf_counter() - t,
     out=done.stdout)))"""
 
 
+def peaked(cmd: list[str], check: bool = True) -> dict:
+    """``cmd`` under the peak-memory wrapper: rc, seconds, peak bytes, stdout."""
+    done = subprocess.run([sys.executable, "-c", _PEAK, *cmd], capture_output=True,
+                          text=True)  # fmt: skip
+    res = json.loads(done.stdout)
+    if check and res["rc"] != 0:
+        raise RuntimeError(done.stderr[-2000:])
+    return res | dict(stderr=done.stderr[-2000:])
+
+
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
     """Route-like frames (n, d) float32, unit rows: a smooth random walk in feature
     space (the route's slow change) plus an independent perturbation per frame (what
@@ -77,12 +87,7 @@ def run_fit(
         cmd += ["--processes", str(procs)]
     if mode == "stream":
         cmd += ["--stream", "--memory", memory]
-    done = subprocess.run(
-        [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
-    )
-    res = json.loads(done.stdout)
-    if res["rc"] != 0:
-        raise RuntimeError(done.stderr[-2000:])
+    res = peaked(cmd)
     text = res["out"]
     info = json.loads(text[text.index("{") :])
     return dict(seconds=res["seconds"], peak=res["peak"], info=info)
@@ -462,15 +467,13 @@ def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
            "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
     if not out.exists():
         start = time.strftime("%H:%M UTC", time.gmtime())
-        done = subprocess.run(
-            [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
-        )
-        res = json.loads(done.stdout)
+        res = peaked(cmd, check=False)
+        err = res.pop("stderr")
         res.update(start=start, load=bc.load_average())
         with open(attempts, "a") as fh:
             fh.write(json.dumps(res) + "\n")
         if res["rc"] != 0:
-            raise RuntimeError(done.stderr[-2000:])
+            raise RuntimeError(err)
     tries = [json.loads(line) for line in attempts.read_text().splitlines()]
     text = tries[-1]["out"]
     info = json.loads(text[text.index("{") :])
@@ -561,13 +564,7 @@ def probe(n: int, memory: str, cells: Path, work: Path, periods: str) -> dict:
     if saved.exists():
         return json.loads(saved.read_text())
     path = route_file(work / f"walk-{n}-256.npy", n)
-    cmd = [sys.executable, "-c", _CHILD, str(path), memory, periods]
-    done = subprocess.run(
-        [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
-    )
-    res = json.loads(done.stdout)
-    if res["rc"] != 0:
-        raise RuntimeError(done.stderr[-2000:])
+    res = peaked([sys.executable, "-c", _CHILD, str(path), memory, periods])
     out = json.loads(res["out"].strip().splitlines()[-1])
     out.update(peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
                load=bc.load_average(), nice=NICE,
