@@ -652,19 +652,15 @@ REPORT = """\
 
 Command: `{m[command]}`; {m[date]}; rhythmic_jax {m[version]} (jax {m[jax]}, faiss
 {m[faiss]}, numpy {m[numpy]}, Python {m[python]}); {m[machine]}, {m[cpu_count]} cores,
-load average {m[load_start][0]:.1f} at the start and {m[load_end][0]:.1f} at the end
-(a shared machine: timings are pessimistic); {m[elapsed_min]:.1f} minutes, with
-{cached} of the {n_maps} maps loaded from the cache of an earlier run (a map's first
-fit time is in the JSON as fit_wall_s). Descriptor {m[descriptor]}
-{m[descriptor_settings]}, d = {m[d]}; Nordland: {m[frames]} frames per season. Every
-number is in `reproduction.json`; the predictions behind each accuracy are in
-`{m[predictions]}` under the key the JSON names.
+load average {m[load_start][0]:.1f} at the start and {m[load_end][0]:.1f} at the end;
+{m[elapsed_min]:.1f} minutes, {cached} of the {n_maps} maps from the cache. Descriptor
+{m[descriptor]} {m[descriptor_settings]}, d = {m[d]}; Nordland: {m[frames]} frames per
+season. Numbers: `reproduction.json`; predictions: `{m[predictions]}`.
 
 ## Table 1: storage (r = 2, T = sqrt N, float32)
 
-Bytes from `rhythmic_jax.storage_bytes` and `database_bytes`: sum tau x (d + 1) x 4
-against N x d x 4. Paper rows: d = 4096 with the paper's periods (its Table 2), the
-printed ratio beside the one its printed bytes give.
+Bytes: sum tau x (d + 1) x 4 against N x d x 4. Paper rows: d = 4096 with the
+paper's periods, the printed ratio beside the one its printed bytes give.
 
 {table1}
 
@@ -678,13 +674,10 @@ chosen period (x 10^-3, as the paper); every candidate's error is in the JSON.
 
 ## Table 3: search time, storage and accuracy against the baselines
 
-Nordland summer map ({m[frames]} frames, d = {m[d]}), the same descriptors and queries
-for every method. Threads: faiss {threads[faiss]} (OpenMP, set per call), KD-tree 1
-(scikit-learn), JAX: {threads[jax]}. Single query: median and 95th percentile of
-{s[timing_queries]} one-query calls after 10 warm-up calls; batch: {s[batch_queries]}
-queries a call, median of 2 after an untimed call. Storage counts all that search
-needs (codes, rotation, codebooks, tree; the map: its templates). Accuracy is the
-single answer (the map's hard decode may answer "no match"); R@K ranks places.
+Nordland summer map ({m[frames]} frames, d = {m[d]}), the same queries for every
+method. Threads: faiss {threads[faiss]}, KD-tree 1, JAX: {threads[jax]}. Single query:
+median and p95 of {s[timing_queries]} calls; batch: {s[batch_queries]} queries a call.
+Storage counts all that search needs.
 
 {table3}
 Paper Table 3 (Aerial Brisbane, seconds per query): {paper3}.
