@@ -64,6 +64,10 @@ np.save(sys.argv[2], np.asarray(model.predict(x)))
 print(json.dumps(dict(periods=list(model.periods))))
 """
 
+HEAD = [
+    "job", "variant", "programs", "compiled", "hits", "compile s", "wall s", "load"
+]  # fmt: skip
+
 
 def route(n: int, d: int, seed: int = 0) -> np.ndarray:
     """(n, d) unit rows drifting along a route: a smoothed random walk."""
@@ -236,19 +240,7 @@ def markdown(report: dict) -> str:
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
         f" {s['jpegs']} JPEGs (Lite0).",
         "",
-        table(
-            [
-                "job",
-                "variant",
-                "programs",
-                "compiled",
-                "hits",
-                "compile s",
-                "wall s",
-                "load",
-            ],
-            rows,
-        ),  # fmt: skip
+        table(HEAD, rows),
         "",
         "Maps against the baseline's (same periods; share of equal predictions):",
         "",

@@ -26,6 +26,11 @@ log = logging.getLogger("bench_memory")
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
 MB = 1e6
 
+HEAD = [
+    "n x d", "shape", "p", "estimate MB", "cold MB", "est / cold", "arrays MB",
+    "warm MB", "arrays / warm", "limit kept"
+]  # fmt: skip
+
 
 def _rss() -> int:
     with open("/proc/self/statm") as fh:
@@ -101,21 +106,7 @@ def markdown(report: dict) -> str:
             " MB). *Limit kept*: `--memory` at the estimate admits the fit and the"
             " cold peak stays under it.",
             "",
-            table(
-                [
-                    "n x d",
-                    "shape",
-                    "p",
-                    "estimate MB",
-                    "cold MB",
-                    "est / cold",
-                    "arrays MB",
-                    "warm MB",
-                    "arrays / warm",
-                    "limit kept",
-                ],
-                rows,
-            ),  # fmt: skip
+            table(HEAD, rows),
             "",
             f"The limit held on every shape: {'yes' if kept else 'NO'}.",
         ]

@@ -19,6 +19,12 @@ from rhythmic_jax.frames.pipeline import _to_batch
 
 log = logging.getLogger("bench_network")
 
+HEAD = [
+    "batch", "eager best f/s", "eager median f/s", "compiled best f/s",
+    "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
+    "max rel diff",
+]  # fmt: skip
+
 
 def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
     """Best and median frames/s of ``run`` over ``x`` (m, 3, h, w), and CPU/wall."""
@@ -101,20 +107,7 @@ def markdown(report: dict) -> str:
         " slices of that many frames. The rows are unit vectors, so the last"
         " column is the largest relative difference of compiled against eager.",
         "",
-        table(
-            [
-                "batch",
-                "eager best f/s",
-                "eager median f/s",
-                "compiled best f/s",
-                "compiled median f/s",
-                "compiled / eager",
-                "compiled CPU / wall",
-                "build s",
-                "max rel diff",
-            ],
-            rows,
-        ),  # fmt: skip
+        table(HEAD, rows),
         "",
         f"Fastest compiled: batch {best['batch']} at"
         f" {best['compiled']['best']:.0f} frames/s; fastest eager: batch"

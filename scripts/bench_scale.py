@@ -252,6 +252,20 @@ def _num(v, digits):
     return "-" if v is None else round(v, digits)
 
 
+SLOPES = [
+    "source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
+    "slope N >= 10^4", "the rule allows",
+]  # fmt: skip
+
+
+def _allows(s: dict) -> str:
+    if "rule_low" not in s:
+        return "-"
+    if s["rule_low"] == s["rule_high"]:
+        return f"{s['rule_low']:.3f}"
+    return f"{s['rule_low']:.3f} .. {s['rule_high']:.3f}"
+
+
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
@@ -294,41 +308,13 @@ def markdown(report: dict) -> str:
         " streamed at an N the memory guard refuses in memory):",
         "",
     ]
-    lines += [
-        bc.table(
-            [
-                "source",
-                "d",
-                "r",
-                "rule",
-                "points",
-                "slope",
-                "1/r",
-                "within 0.05",
-                "slope N >= 10^4",
-                "the rule allows",
-            ],  # fmt: skip
-            [
-                [
-                    s["source"],
-                    s["d"],
-                    s["r"],
-                    s.get("rule", "errors"),
-                    s["points"],
-                    round(s["slope"], 4),
-                    round(s["target"], 4),
-                    str(s["within"]),
-                    _num(s.get("slope_from_10k"), 4),
-                    "-"
-                    if "rule_low" not in s
-                    else f"{s['rule_low']:.3f}"
-                    if s["rule_low"] == s["rule_high"]
-                    else f"{s['rule_low']:.3f} .. {s['rule_high']:.3f}",
-                ]
-                for s in report["slopes"]
-            ],
-        )
-    ]
+    slopes = [
+        [s["source"], s["d"], s["r"], s.get("rule", "errors"), s["points"],
+         round(s["slope"], 4), round(s["target"], 4), str(s["within"]),
+         _num(s.get("slope_from_10k"), 4), _allows(s)]
+        for s in report["slopes"]
+    ]  # fmt: skip
+    lines.append(bc.table(SLOPES, slopes))
     for sl in report["slopes"]:
         pts = [
             (r["n"], int(np.prod(r["periods"])))
