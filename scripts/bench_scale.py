@@ -192,21 +192,11 @@ def slopes(rows: list[dict]) -> list[dict]:
         upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         ns = [p["n"] for p in pts]
         low, high = rule_range(ns, r) if rule == "errors" else (least_slope(ns, r),) * 2
-        out.append(
-            dict(
-                source=source,
-                d=d,
-                r=r,
-                rule=rule,
-                points=len(pts),
-                slope=slope,
-                slope_from_10k=upper,
-                target=1 / r,
-                within=abs(slope - 1 / r) <= 0.05,
-                rule_low=low,
-                rule_high=high,
-            )
-        )
+        out.append(dict(
+            source=source, d=d, r=r, rule=rule, points=len(pts), slope=slope,
+            slope_from_10k=upper, target=1 / r, within=abs(slope - 1 / r) <= 0.05,
+            rule_low=low, rule_high=high,
+        ))  # fmt: skip
     return out
 
 
@@ -282,25 +272,15 @@ def markdown(report: dict) -> str:
             "fit s", "passes", "s/pass", "peak MiB", "acc f32", "acc f16",
             "acc int8"]  # fmt: skip
     rows = [
-        [
-            r["source"],
-            r["n"],
-            r["d"],
-            r["r"],
-            r["processes"],
-            f"stream {r['memory']}" if r.get("memory") else r["mode"],
-            _rule(r),
-            "x".join(map(str, r["periods"])),
-            r["storage_bytes"],
-            round(r["bytes_per_place"], 2),
-            round(r["fit_seconds"], 1),
-            "-" if r["passes"] is None else r["passes"],
-            _num(r["pass_median_s"], 3),
-            round(r["peak_bytes"] / 2**20),
-            *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8")),
-        ]
+        [r["source"], r["n"], r["d"], r["r"], r["processes"],
+         f"stream {r['memory']}" if r.get("memory") else r["mode"], _rule(r),
+         "x".join(map(str, r["periods"])), r["storage_bytes"],
+         round(r["bytes_per_place"], 2), round(r["fit_seconds"], 1),
+         "-" if r["passes"] is None else r["passes"], _num(r["pass_median_s"], 3),
+         round(r["peak_bytes"] / 2**20),
+         *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8"))]
         for r in report["rows"]
-    ]
+    ]  # fmt: skip
     lines += [
         bc.table(head, rows),
         "",
