@@ -66,17 +66,10 @@ def run(args) -> dict:
         qry = cached_describe(winter, d, key + "winter", **kw)
         exact, tol1 = recall_at_1(qry, ref)
         fps = frames_per_second(timing, d, args.batch_size)
-        rows.append(
-            dict(
-                descriptor=label,
-                name=name,
-                settings=d.settings(),
-                dim=d.dim,
-                recall_at_1=exact,
-                recall_at_1_tol1=tol1,
-                frames_per_s=fps,
-            )
-        )
+        rows.append(dict(
+            descriptor=label, name=name, settings=d.settings(), dim=d.dim,
+            recall_at_1=exact, recall_at_1_tol1=tol1, frames_per_s=fps,
+        ))  # fmt: skip
         log.info(
             "%s: recall@1 %.4f (+-1: %.4f), %.1f frames/s", label, exact, tol1, fps
         )

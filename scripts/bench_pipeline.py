@@ -59,16 +59,11 @@ def run(args) -> dict:
                               cfg, progress=False)  # fmt: skip
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
-        rows.append(
-            dict(
-                augmentation=names[0],
-                frames_per_s=fps,
-                augment_s=tm["augment"],
-                describe_s=tm["describe"],
-                step_s=tm["step"],
-                wall_s=time.perf_counter() - t,
-            )
-        )
+        rows.append(dict(
+            augmentation=names[0], frames_per_s=fps, augment_s=tm["augment"],
+            describe_s=tm["describe"], step_s=tm["step"],
+            wall_s=time.perf_counter() - t,
+        ))  # fmt: skip
         print(rows[-1], flush=True)
     for r in rows:
         r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]
