@@ -22,6 +22,7 @@ from rhythmic_jax.version import __version__ as __version__
 # it exports, separated by spaces. A new public name goes here and nowhere else.
 _API: dict[str, str] = {
     "codes": "code_bytes code_similarity CodeBook CodeTransform fit_codes",
+    "config": "MapConfig",
     "decoding.dispatch": "decode_scores",
     "decoding.fusion": "fused_decode fused_sequence_decode learn_weight",
     "decoding.group_decode": (
@@ -54,7 +55,7 @@ _API: dict[str, str] = {
         "nominal_periods pairwise_coprime storage_bytes"
     ),
     "projection": "fit_pca PCA project",
-    "rhythmic_map": "MapConfig RhythmicMap",
+    "rhythmic_map": "RhythmicMap",
     "solvers.candidates": "DropLosers",
     "solvers.memory": "check_memory fit_bytes",
     "solvers.newton": "newton_fit NewtonConfig",

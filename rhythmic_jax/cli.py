@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rhythmic_jax import InputError, enable_compile_cache, jobs
+from rhythmic_jax.config import DECODERS, DTYPES, SOLVERS, MapConfig
 from rhythmic_jax.jobs import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
@@ -35,6 +36,8 @@ from rhythmic_jax.jobs import (
 )
 
 __all__ = ["main"]
+
+DEFAULTS = MapConfig()  # the defaults of a map's settings, as fit offers them
 
 EXAMPLES = {
     "fit": """
@@ -432,20 +435,26 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     p = add("fit", "fit a map on reference frames (.npy, image folders, or --tile)")
     p.add_argument("sources", nargs="+", help="descriptor .npy, image folder(s), image")
     p.add_argument("--out", required=True, help="map folder to write")
-    p.add_argument("--r", default=2, help="number of periods (default 2)")
-    p.add_argument("--level", default=1, help="period level c (c*N^(1/r))")
-    p.add_argument("--count", default=7, help="candidate periods (default 7)")
-    p.add_argument("--c", default=None, help="SVM penalty (default log N)")
-    p.add_argument("--solver", default="newton", choices=("newton", "lbfgs"))
+    p.add_argument(
+        "--r", default=DEFAULTS.r, help=f"number of periods (default {DEFAULTS.r})"
+    )
+    p.add_argument("--level", default=DEFAULTS.level, help="period level c (c*N^(1/r))")
+    p.add_argument(
+        "--count",
+        default=DEFAULTS.count,
+        help=f"candidate periods (default {DEFAULTS.count})",
+    )
+    p.add_argument("--c", default=DEFAULTS.c, help="SVM penalty (default log N)")
+    p.add_argument("--solver", default=DEFAULTS.solver, choices=SOLVERS)
     p.add_argument(
         "--gap",
-        default=1e-7,
+        default=DEFAULTS.gap,
         help="stop the solver at this estimated relative objective gap (default "
         "1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
     )
     p.add_argument(
         "--layout",
-        default="periods",
+        default=DEFAULTS.layout,
         help="how frames are labelled: periods (default, chosen by training error), "
         "periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix digits, most "
         "significant first: it classifies contiguous segments), hierarchical, "
@@ -485,8 +494,8 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--dtype",
-        default="float32",
-        choices=("float32", "float16", "int8"),
+        default=DEFAULTS.dtype,
+        choices=DTYPES,
         help="how the map stores its templates (int8: a scale per template)",
     )
     scale = p.add_argument_group("scale (descriptor files or shard folders)")
@@ -580,7 +589,7 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     p.add_argument("map", help="map folder")
     p.add_argument("source", help="query descriptors .npy, image folder or image")
     p.add_argument("--out", default=None, help="write predictions to this .npy")
-    p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
+    p.add_argument("--decode", default=None, choices=DECODERS)
     p.add_argument(
         "--sequence",
         default=None,
@@ -615,7 +624,7 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
         default=0,
         help="frame tolerance (default 0)",
     )
-    p.add_argument("--decode", default=None, choices=("hard", "soft", "topm"))
+    p.add_argument("--decode", default=None, choices=DECODERS)
     p.add_argument(
         "--sequence",
         default=None,
@@ -660,17 +669,17 @@ def _reading(args) -> Reading:
 
 
 def _cmd_fit(args) -> int:
+    config = MapConfig(
+        r=args.r, level=args.level, count=args.count, c=args.c, solver=args.solver,
+        gap=args.gap, layout=args.layout, dtype=args.dtype, codes=args.codes,
+    )  # fmt: skip
     job = FitJob(
-        sources=tuple(args.sources), out=args.out, r=args.r, level=args.level,
-        count=args.count, c=args.c, solver=args.solver, gap=args.gap,
-        layout=args.layout, pca=args.pca,
+        sources=tuple(args.sources), out=args.out, config=config, pca=args.pca,
         augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
-        reading=_reading(args), dtype=args.dtype,
+        reading=_reading(args),
         positions=tuple(args.positions) if args.positions else None,
-        places=args.places,
-        codes=args.codes, fusion=args.fusion,
-        embedding=args.embedding,
+        places=args.places, fusion=args.fusion, embedding=args.embedding,
     )  # fmt: skip
     scale = jobs.ScaleJob(
         processes=args.processes, coordinator=args.coordinator,

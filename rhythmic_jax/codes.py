@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.config import INT8, codes_setting
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.scalar_codes import ScalarCodeBook
 from rhythmic_jax.validate import check_features
@@ -44,8 +45,6 @@ __all__ = [
     "pack_bits",
     "unpack_bits",
 ]
-
-INT8 = "int8"
 
 _F32 = 4
 
@@ -212,17 +211,10 @@ class CodeBook:
 
 
 def check_codes(codes, d: int | None = None) -> int | str:
-    """A map's ``codes`` setting: a number of ITQ bits (in [1, d] when d is
-    given) or ``"int8"`` (8-bit scalar codes of every dimension)."""
-    if codes == INT8:
-        return INT8
-    ok = isinstance(codes, int | np.integer) and not isinstance(codes, bool)
-    if not ok or codes < 1:
-        raise InputError(
-            f"codes must be a number of ITQ bits >= 1 or {INT8!r} (a byte per "
-            f"dimension), got {codes!r}"
-        )
-    return int(codes) if d is None else check_bits(int(codes), d)
+    """A map's ``codes`` setting (:func:`rhythmic_jax.config.codes_setting`), its
+    bits in [1, d] when d is given."""
+    codes = codes_setting(codes)
+    return codes if d is None or codes == INT8 else check_bits(codes, d)
 
 
 def fit_codebook(x, codes) -> CodeBook | ScalarCodeBook:

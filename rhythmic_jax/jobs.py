@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import shutil
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rhythmic_jax.config import MapConfig
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compiled import (
     AUTO,
@@ -103,41 +104,35 @@ class FitJob:
     """A map to fit from reference sources and write to ``out``.
 
     ``rhythmic-jax fit ref.npy --out route.map`` is ``fit(FitJob(("ref.npy",),
-    "route.map"))``. The map's settings (``r`` .. ``pca``) are those of
-    :class:`rhythmic_jax.MapConfig`; ``augment`` (comma-separated kornia operation
-    names, or ``"all"``) trains over frames augmented on the fly for ``epochs``
-    passes of ``batch_size`` frames, checkpointed every ``checkpoint_every`` steps
-    in ``checkpoint`` (default ``OUT.ckpt``, removed once the map is saved; a
-    given folder is kept). ``positions`` (one CSV/.npy per source, or
-    ``("names",)`` for ``@easting@northing@`` file names) are saved in the map for
-    :func:`evaluate`'s ground truth; ``places`` groups the frames into that many
-    places by k-means over them (the RobotCar protocol; traversals may then
-    differ in length). ``embedding`` names a folder written by :func:`learn`: it
-    is saved inside the map and applied to every query (with ``codes``, ITQ is
-    fitted on the embedded reference frames); image sources are described with
-    its descriptor unless ``reading`` names one, and ``fusion`` None takes the
-    weight it learned for these codes (else 0.5, the weight without one).
+    "route.map"))``. ``config`` is the map's :class:`rhythmic_jax.MapConfig` (its
+    descriptor is the sources', and its fusion weight ``fusion``'s); ``pca``
+    projects the descriptors to that many dimensions first. ``augment``
+    (comma-separated kornia operation names, or ``"all"``) trains over frames
+    augmented on the fly for ``epochs`` passes of ``batch_size`` frames,
+    checkpointed every ``checkpoint_every`` steps in ``checkpoint`` (default
+    ``OUT.ckpt``, removed once the map is saved; a given folder is kept).
+    ``positions`` (one CSV/.npy per source, or ``("names",)`` for
+    ``@easting@northing@`` file names) are saved in the map for :func:`evaluate`'s
+    ground truth; ``places`` groups the frames into that many places by k-means
+    over them (the RobotCar protocol; traversals may then differ in length).
+    ``embedding`` names a folder written by :func:`learn`: it is saved inside the
+    map and applied to every query (with codes, ITQ is fitted on the embedded
+    reference frames); image sources are described with its descriptor unless
+    ``reading`` names one, and ``fusion`` None takes the weight it learned for
+    the config's codes (else 0.5, the weight without one).
     """
 
     sources: tuple[str, ...]
     out: str
-    r: int = 2
-    level: int = 1
-    count: int = 7
-    c: float | None = None
-    solver: str = "newton"
-    gap: float = 1e-7
-    layout: str = "periods"
+    config: MapConfig = field(default_factory=MapConfig)
     pca: int | None = None
     augment: str | None = None
     epochs: int = 3
     batch_size: int = 128
     checkpoint: str | None = None
     checkpoint_every: int = 50
-    codes: int | None = None
     fusion: float | None = None
     reading: Reading = Reading()
-    dtype: str = "float32"
     positions: tuple[str, ...] | None = None
     places: int | None = None
     embedding: str | None = None
@@ -201,23 +196,27 @@ def _augmented_settings(job: FitJob):
 
 
 def _fit_augmented(
-    model, feats, config, ckpt: Path, progress: bool, policy: CompilePolicy = AUTO
+    model,
+    feats,
+    config,
+    ckpt: Path,
+    progress: bool,
+    policy: CompilePolicy = AUTO,
+    fit_plan=None,
 ) -> None:
     from rhythmic_jax.augment.stream import fit_map_augmented
     from rhythmic_jax.frames.compiled import FastDescriptor
-    from rhythmic_jax.frames.features import get_descriptor
 
     if feats.images is None:
         raise InputError(
             "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
         )
-    descriptor = get_descriptor(feats.descriptor, **feats.settings)
     frames = len(feats.images) * config.epochs  # frames the network will see
-    descriptor = FastDescriptor(descriptor, frames, policy)
+    descriptor = FastDescriptor(feats.describer, frames, policy)
     try:
         fit_map_augmented(
             model, feats.images, feats.x, descriptor, config, feats.labels,
-            progress=progress, checkpoint=ckpt,
+            progress=progress, checkpoint=ckpt, plan=fit_plan,
         )  # fmt: skip
     except KeyboardInterrupt:
         raise FitInterrupted(
@@ -226,29 +225,16 @@ def _fit_augmented(
         ) from None
 
 
-def _check_map_space(job: FitJob, feats) -> None:
-    """Refuse a map that the disk under ``out`` cannot hold, from its largest
-    possible size: the templates of the ``r`` largest candidate periods and the
-    arrays saved with them (a PCA)."""
-    from rhythmic_jax.io.checkpoint import check_space
-    from rhythmic_jax.periods import candidate_periods, storage_bytes
-
-    n, d = int(feats.labels.max()) + 1, int(feats.x.shape[1])
-    cands = candidate_periods(n, job.r, job.level, job.count)
-    extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
-    check_space(job.out, storage_bytes(sorted(cands)[-job.r :], d) + extra)
-
-
-def _check_sources_memory(sources: Sequence[str], r: int, level: int, count: int):
+def _check_sources_memory(sources: Sequence[str], config: MapConfig) -> None:
     """Refuse descriptor files too large for a full-batch fit, from their headers.
 
     Only ``.npy`` sources that exist are looked at (anything else is reported
-    when it is read); the map's settings ``r``, ``level``, ``count`` give the
-    templates. See :func:`rhythmic_jax.solvers.memory.check_memory`.
+    when it is read), planned with ``config``
+    (:func:`rhythmic_jax.fit_plan.plan`); settings that plan no fit are left to
+    the fit to report. See :func:`rhythmic_jax.solvers.memory.check_memory`.
     """
+    from rhythmic_jax.fit_plan import plan
     from rhythmic_jax.io.descriptor_files import descriptor_shape
-    from rhythmic_jax.periods import candidate_periods
-    from rhythmic_jax.solvers.memory import check_memory
 
     if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources):
         return
@@ -257,75 +243,84 @@ def _check_sources_memory(sources: Sequence[str], r: int, level: int, count: int
         return  # reading them says what is wrong
     n, d = shapes[0]
     try:
-        cands = candidate_periods(n, r, level, count)
+        fit_plan = plan(replace(config, codes=None), n, d)
     except InputError:
         return  # the map's settings say what is wrong
-    check_memory(n * len(shapes), d, sum(cands))
+    fit_plan.check_memory(n * len(shapes))
 
 
 def fit(job: FitJob, progress: bool = False):
-    """Fit, record provenance and save the map of ``job``; returns the map."""
+    """Fit, record provenance and save the map of ``job``; returns the map.
+
+    Everything the settings alone decide is refused before any source is read:
+    the map folder, the augmented fit's settings, the memory a fit of descriptor
+    files needs (from their headers); the plan of the fit
+    (:func:`rhythmic_jax.fit_plan.plan`) and the disk it needs, once the frames
+    are read and before the solve.
+    """
+    from rhythmic_jax.fit_plan import plan
     from rhythmic_jax.frames.sources import load_sources
-    from rhythmic_jax.groups import parse_layout
-    from rhythmic_jax.io.checkpoint import check_target
+    from rhythmic_jax.io.checkpoint import check_space, check_target
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
-    read = job.reading
-    _check_reading(read)
-    check_target(job.out)  # before the fit, not after it
-    bits = isinstance(job.codes, int) and not isinstance(job.codes, bool)
-    if job.codes not in (None, "int8") and not (bits and job.codes >= 1):
-        raise InputError(
-            f"{{opt:codes}} must be a number of bits >= 1 or int8, got {job.codes}"
-        )
-    parse_layout(job.layout)  # a bad layout ends here, not after describing
+    _check_reading(job.reading)
     augmented = _augmented_settings(job) if job.augment else None
-    _check_sources_memory(job.sources, job.r, job.level, job.count)
     if job.places is not None and job.positions is None:
         raise InputError("{opt:places} groups frames by their {opt:positions}")
-    learned = _load_embedding(job.embedding)  # before describing: its descriptor
-    read = _reading_of_embedding(read, learned, job.sources)
+    learned, read = _learned(job)  # before describing: its descriptor
+    check_target(job.out)  # before the fit, not after it
+    _check_sources_memory(job.sources, job.config)
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
         compile=read.compile, keep_images=augmented is not None,
     )  # fmt: skip
+    emb = _embedding_for(job.embedding, learned, feats)
+    fusion = fusion_of(job.fusion, job.config.codes, learned and learned[1])
+    reference = _provenance(job, read, fusion)
     if job.positions is not None:
         feats = _with_positions(feats, job)
-    _check_map_space(job, feats)  # the size is known now: say so before the solve
-    fusion = fusion_of(job.fusion, job.codes, learned and learned[1])
-    model = RhythmicMap(
-        r=job.r, level=job.level, count=job.count, c=job.c, solver=job.solver,
-        gap=job.gap, layout=job.layout, descriptor=feats.descriptor,
-        descriptor_settings=feats.settings, dtype=job.dtype,
-        codes=job.codes, fusion=fusion["weight"],
-        embedding=_embedding_for(job.embedding, learned, feats),
+    config = replace(
+        job.config, descriptor=feats.descriptor, descriptor_settings=feats.settings,
+        fusion=fusion["weight"],
     )  # fmt: skip
-    dim = feats.x.shape[1] if model.embedding is None else model.embedding.k
-    if isinstance(job.codes, int) and job.codes > dim:
-        what = "descriptors'" if model.embedding is None else "embedding's"
+    dim = feats.x.shape[1] if emb is None else emb.k
+    if isinstance(config.codes, int) and config.codes > dim:
+        what = "descriptors'" if emb is None else "embedding's"
         raise InputError(
-            f"{{opt:codes}} {job.codes}: at most d={dim} bits (the {what} dimension)"
+            f"{{opt:codes}} {config.codes}: at most d={dim} bits (the {what} dimension)"
         )
+    model = RhythmicMap(config, embedding=emb)
+    fit_plan = plan(config, int(feats.labels.max()) + 1, int(dim))
+    fit_plan.check_memory(len(feats.x))
+    extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
+    check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
     if augmented is not None:
-        _fit_augmented(model, feats, *augmented, progress, read.compile)
+        _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
     else:
-        model.fit(feats.x, feats.labels, progress=progress)
+        model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
     model.extra.update(feats.extra)
-    model.reference = {
+    model.reference = reference
+    model.save(job.out)
+    if augmented is not None and job.checkpoint is None:
+        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
+    return model
+
+
+def _provenance(job: FitJob, read: Reading, fusion: dict[str, Any]) -> dict:
+    """Where a map's reference frames came from (the sources' absolute paths and
+    tiling), and its embedding and fusion weight."""
+    ref = {
         "sources": [str(Path(src).expanduser().absolute()) for src in job.sources],
         "tile": read.tile,
         "stride": read.stride,
     }
     if job.embedding is not None:
-        model.reference["embedding"] = str(Path(job.embedding).expanduser().absolute())
-        model.reference["descriptor_from_embedding"] = read != job.reading
-    if job.codes is not None:
-        model.reference["fusion"] = fusion
-    model.save(job.out)
-    if augmented is not None and job.checkpoint is None:
-        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
-    return model
+        ref["embedding"] = str(Path(job.embedding).expanduser().absolute())
+        ref["descriptor_from_embedding"] = read != job.reading
+    if job.config.codes is not None:
+        ref["fusion"] = fusion
+    return ref
 
 
 def _with_positions(feats, job: FitJob):
@@ -351,20 +346,20 @@ def _with_positions(feats, job: FitJob):
     return dataclasses.replace(feats, labels=labels, extra=extra)
 
 
-def _load_embedding(path: str | None):
-    """``(embedding, meta)`` of ``fit --embedding``, or None without one."""
-    if path is None:
-        return None
+def _learned(job: FitJob) -> tuple[Any, Reading]:
+    """``(embedding, meta)`` of ``fit --embedding`` (None without one) and the
+    reading of the sources that follows from it (:func:`_reading_of_embedding`)."""
+    if job.embedding is None:
+        return None, job.reading
     from rhythmic_jax.embedding import load_embedding
 
-    return load_embedding(path)
+    learned = load_embedding(job.embedding)
+    return learned, _reading_of_embedding(job.reading, learned, job.sources)
 
 
 def _reading_of_embedding(read: Reading, learned, sources) -> Reading:
     """``read`` with the embedding's descriptor (and weights) when it names none
     and the sources are images (.npy files are descriptors already)."""
-    import dataclasses
-
     if learned is None or read.descriptor is not None:
         return read
     meta = learned[1]
@@ -374,7 +369,7 @@ def _reading_of_embedding(read: Reading, learned, sources) -> Reading:
     ):
         return read
     weights = read.weights or (meta.get("descriptor_settings") or {}).get("weights")
-    return dataclasses.replace(read, descriptor=name, weights=weights)
+    return replace(read, descriptor=name, weights=weights)
 
 
 def fusion_of(option: float | None, codes, meta: dict | None) -> dict[str, Any]:

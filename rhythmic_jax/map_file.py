@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,12 +36,15 @@ from rhythmic_jax.io.checkpoint import (
     read_metadata,
     save_map,
 )
+from rhythmic_jax.periods import database_bytes
+from rhythmic_jax.quantize import dequantize
 
 __all__ = [
     "CODE_ARRAYS",
     "INFO_KEYS",
     "MapFile",
     "consistent",
+    "describe",
     "embedding_info",
     "info",
     "load",
@@ -70,6 +73,7 @@ class MapFile:
 
     config: Any  # the map's MapConfig
     stored: dict[str, np.ndarray]
+    params: tuple[np.ndarray, np.ndarray]  # stored's float32 values (w, b)
     periods: tuple[int, ...]
     n: int
     d: int
@@ -82,6 +86,37 @@ class MapFile:
     embedding: Any = None  # rhythmic_jax.embedding.Embedding or None
     codebook: Any = None  # CodeBook, ScalarCodeBook or None
     reference: dict[str, Any] = field(default_factory=dict)
+
+
+def describe(model) -> dict[str, Any]:
+    """The :data:`INFO_KEYS` and ``codes_kind`` of the fitted ``model`` (a
+    :class:`rhythmic_jax.RhythmicMap`): what ``map.json`` and ``rhythmic-jax
+    info --json`` hold."""
+    book, emb = model.codebook, model.embedding
+    storage = model.storage()
+    return {
+        "n": model.n,
+        "d": model.d,
+        "periods": list(model.periods),
+        "layout": model.groups.describe(),
+        "groups": model.groups.to_dict(),
+        "group_errors": list(model.group_errors),
+        "storage_bytes": storage["total"],
+        "embedding_bytes": model.embedding_bytes,
+        "embedding": None if emb is None else {"kind": emb.kind, "k": emb.k},
+        "database_bytes": database_bytes(model.n, model.d, 4),
+        "compression_ratio": storage["share"],
+        "storage": storage,
+        "codes_bits": book.bits if book else None,
+        "codes_kind": book.kind if book else None,
+        "c": model.c,
+        "candidates": list(model.candidates),
+        "candidate_errors": list(model.candidate_errors),
+        "descriptor": model.config.descriptor,
+        "descriptor_settings": model.config.descriptor_settings,
+        "config": dict(asdict(model.config)),
+        "reference": model.reference,
+    }
 
 
 def save(path: str | os.PathLike, model) -> None:
@@ -166,6 +201,7 @@ def load(
     return MapFile(
         config=cfg,
         stored=stored,
+        params=dequantize(stored),
         periods=periods,
         n=n,
         d=dim,

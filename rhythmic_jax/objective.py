@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.errors import InputError
 from rhythmic_jax.groups import Groups
 from rhythmic_jax.periods import period_offsets
 
@@ -35,6 +36,7 @@ __all__ = [
     "Templates",
     "classifier_objective",
     "default_c",
+    "host_templates",
     "margin_objective",
     "margin_objectives",
     "objective",
@@ -57,6 +59,20 @@ class Templates(NamedTuple):
 def default_c(n: int) -> float:
     """The paper's penalty ``C = log N`` (natural log, Sec. III-A)."""
     return float(math.log(n))
+
+
+def host_templates(params, x) -> Templates:
+    """A solve's templates as float32 host arrays ``w`` (d, p), ``b`` (p,);
+    refused (InputError) when not finite, which frames x (n, d) with too large
+    values give."""
+    params = Templates(*(np.asarray(v, np.float32) for v in params))
+    if not all(np.isfinite(v).all() for v in params):
+        raise InputError(
+            "reference features: the solve gave non-finite templates (largest "
+            f"|feature| {float(np.abs(x).max()):.3g}); scale the features, "
+            "e.g. to unit-length rows"
+        )
+    return params
 
 
 def _label_parts(labels, periods) -> tuple[list, tuple[int, ...]]:

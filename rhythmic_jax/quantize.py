@@ -16,7 +16,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 
-__all__ = ["DTYPES", "dequantize", "quantize", "template_bytes"]
+__all__ = ["DTYPES", "dequantize", "quantize", "requantize", "template_bytes"]
 
 DTYPES = ("float32", "float16", "int8")
 
@@ -46,6 +46,13 @@ def dequantize(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         scale = np.asarray(arrays["scale"], np.float32)
         return w.astype(np.float32) * scale, b.astype(np.float32) * scale
     return w.astype(np.float32), b.astype(np.float32)
+
+
+def requantize(arrays: dict[str, np.ndarray], dtype: str):
+    """``(stored, (w, b))``: the values of :func:`quantize`'s ``arrays`` stored
+    again as ``dtype``, and the float32 values of that."""
+    stored = quantize(*dequantize(arrays), dtype)
+    return stored, dequantize(stored)
 
 
 def template_bytes(p: int, d: int, dtype: str) -> int:

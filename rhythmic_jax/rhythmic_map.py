@@ -20,134 +20,47 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import jax
 import numpy as np
 
 from rhythmic_jax import map_file
-from rhythmic_jax.codes import CodeBook, check_codes, fit_codebook
-from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
-from rhythmic_jax.decoding.dispatch import DECODERS
-from rhythmic_jax.decoding.fusion import (
-    check_weight,
-    fused_decode,
-    fused_place_scores,
-    fused_sequence_decode,
-)
+from rhythmic_jax.codes import CodeBook
+from rhythmic_jax.config import INT8, MapConfig
 from rhythmic_jax.decoding.hard import Decoded
-from rhythmic_jax.decoding.hard import decode as localise
-from rhythmic_jax.decoding.small import SMALL_BATCH, SmallDecoder
+from rhythmic_jax.decoding.queries import (
+    decode_map,
+    few_places,
+    locate_fast,
+    map_scores,
+    one_query,
+    place_scores_map,
+    sequence_map,
+)
+from rhythmic_jax.decoding.small import SmallDecoder
 from rhythmic_jax.embedding import Embedding, embedding_bytes
 from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
-from rhythmic_jax.objective import (
-    Templates,
-    default_c,
-    period_errors,
-    scores,
-    targets,
-)
-from rhythmic_jax.periods import (
-    candidate_periods,
-    choose_periods,
-    database_bytes,
-    nominal_periods,
-    period_offsets,
-)
-from rhythmic_jax.quantize import DTYPES, dequantize, quantize, template_bytes
+from rhythmic_jax.fit_plan import FitPlan
+from rhythmic_jax.fit_plan import plan as plan_fit
+from rhythmic_jax.groups import Groups
+from rhythmic_jax.objective import Templates, host_templates, period_errors, targets
+from rhythmic_jax.quantize import requantize
 from rhythmic_jax.scalar_codes import ScalarCodeBook
-from rhythmic_jax.solvers.memory import check_memory
 from rhythmic_jax.solvers.protocol import solver_for
+from rhythmic_jax.storage import map_storage
 from rhythmic_jax.validate import (
     check_features,
-    check_int,
     check_labels,
     check_number,
+    check_sequence,
 )
 
 __all__ = ["MapConfig", "RhythmicMap"]
 
 log = logging.getLogger(__name__)
-SOLVERS = ("newton", "lbfgs")
-
-
-@dataclass(frozen=True)
-class MapConfig:
-    """How a map is built.
-
-    Attributes:
-      r: number of periods kept (paper: 2; 3 and 5 in Fig. 4).
-      level: candidates start at ``level * ceil(N ** (1/r))`` (the paper's
-        "T = level * sqrt N").
-      count: number of candidate periods trained (paper: 7).
-      c: SVM penalty; None means ``log N``.
-      solver: "newton" (exact, fastest) or "lbfgs" (optax, full batch).
-      gap: where the Newton solver stops: the estimated relative objective gap
-        of every template (1e-7: the optimum; 5e-4 keeps it within 0.1 % in
-        about half the time, with the same periods chosen on Nordland).
-      decode: default decode for :meth:`RhythmicMap.predict`: hard | soft | topm.
-      m: phases per period kept by the top-m decode.
-      threshold: confidence below which a query is "no match" (None: never).
-      descriptor: name of the descriptor the features came from.
-      descriptor_settings: its settings (compared when a map is queried).
-      dtype: how templates are stored: float32, float16, or int8 with a
-        scale per template (:mod:`rhythmic_jax.quantize`); queries are scored
-        with the stored values.
-      codes: also store a code per place (a hybrid map,
-        :mod:`rhythmic_jax.decoding.fusion`): a number of ITQ bits
-        (:mod:`rhythmic_jax.codes`), or "int8" for a byte per dimension
-        (:mod:`rhythmic_jax.scalar_codes`); None for the map alone.
-      fusion: the map's share ``w`` of the fused score (codes: ``1 - w``).
-      layout: how frames are labelled (:mod:`rhythmic_jax.groups`): "periods"
-        (the paper: co-prime periods chosen by training error), "periods:T1,T2",
-        "mixed" or "mixed:B1,..,Br" (mixed-radix digits, most significant first:
-        the first digit classifies contiguous segments), "hierarchical",
-        "hierarchical:SEG" or "hierarchical:SEG:T1,T2" (a segment classifier and
-        co-prime fine periods). Sizes left out are chosen for the storage of a
-        periods map of the same ``r`` and ``level``.
-
-    ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
-    summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a
-    self-query accuracy of about 0.93.
-    """
-
-    r: int = 2
-    level: int = 1
-    count: int = 7
-    c: float | None = None
-    solver: str = "newton"
-    gap: float = 1e-7
-    decode: str = "hard"
-    m: int = 3
-    threshold: float | None = None
-    descriptor: str = "features"
-    descriptor_settings: dict = field(default_factory=dict, hash=False)
-    dtype: str = "float32"
-    codes: int | str | None = None
-    fusion: float = 0.5
-
-    layout: str = "periods"
-
-    def __post_init__(self):
-        parse_layout(self.layout)
-        if self.dtype not in DTYPES:
-            raise InputError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
-        if self.codes is not None:
-            check_codes(self.codes)
-        check_weight(self.fusion)
-        if self.solver not in SOLVERS:
-            raise InputError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
-        if self.decode not in DECODERS:
-            raise InputError(f"decode must be one of {DECODERS}, got {self.decode!r}")
-        if not (isinstance(self.gap, int | float) and 0 < self.gap < 1):
-            raise InputError(f"gap must be in (0, 1), got {self.gap!r}")
-        if self.c is not None and not self.c > 0:
-            raise InputError(f"c must be positive, got {self.c}")
-        if self.threshold is not None:
-            check_number(self.threshold, "threshold")
 
 
 class RhythmicMap:
@@ -189,6 +102,7 @@ class RhythmicMap:
         verbose: int = 0,
         progress: bool | None = None,
         refine=None,
+        plan: FitPlan | None = None,
     ) -> RhythmicMap:
         """Train on reference frames x (n_frames, d).
 
@@ -201,6 +115,9 @@ class RhythmicMap:
           refine: optional ``refine(params, candidates, c) -> params`` run after
             the exact solve and before the period choice (e.g. minibatch steps
             over augmented frames, :func:`rhythmic_jax.augment.stream.fit_augmented`).
+          plan: the fit's plan when made already (:func:`rhythmic_jax.fit_plan.plan`
+            of this map's config for these places and the templates' d), its
+            memory checked (:meth:`~rhythmic_jax.fit_plan.FitPlan.check_memory`).
         """
         progress = bool(verbose) if progress is None else bool(progress)
         x = check_features(x, "reference features")
@@ -209,100 +126,37 @@ class RhythmicMap:
         if self.embedding is not None:
             x = apply_embedding(self.embedding, x)
         cfg = self.config
-        if cfg.codes is not None:  # ITQ on the embedded frames when there is one
-            check_codes(cfg.codes, x.shape[1])
-            if not np.array_equal(labels, np.arange(len(x))):
-                raise InputError("codes need one reference frame per place, in order")
-        n = int(labels.max()) + 1
-        spec = parse_layout(self.config.layout)
-        if cfg.codes is not None and spec.kind != "periods":
-            raise InputError(
-                f"codes fuse with the place scores of a periods layout, not "
-                f"{cfg.layout!r}"
-            )
-        if spec.kind != "periods" or spec.sizes:
-            self._fit_groups(x, labels, spec, progress, refine, d_in)
-            if cfg.codes is not None:
-                self.codebook = fit_codebook(x, cfg.codes)
-            return self
-        cands, c = self._plan(n)
-        check_memory(len(x), x.shape[1], sum(cands))
-        y = targets(labels, cands)
-        log.info("fitting %d templates (%s) on %d x %d, C=%.3g", sum(cands), cands,
-                 *x.shape, c)  # fmt: skip
-        solver = solver_for(self.config.solver, self.config.gap, progress)
-        params, _ = solver.run(None, x, y, c)
+        n, d = int(labels.max()) + 1, int(x.shape[1])
+        if plan is None:  # else planned, and its memory checked, by the caller
+            plan = plan_fit(cfg, n, d)
+            plan.check_memory(len(x))
+        elif (plan.n, plan.d) != (n, d):
+            raise ValueError(f"a plan for {plan.n} x {plan.d}, not {n} x {d}")
+        if cfg.codes is not None and not np.array_equal(labels, np.arange(len(x))):
+            raise InputError("codes need one reference frame per place, in order")
+        trained, c = plan.trained, plan.c
+        log.info("fitting %s on %d x %d, C=%.3g", plan.describe(), *x.shape, c)
+        solver = solver_for(cfg.solver, cfg.gap, progress)
+        params, _ = solver.run(None, x, targets(labels, trained), c)
         if refine is not None:
-            params = refine(params, cands, c)
-        params = Templates(*(np.asarray(v, np.float32) for v in params))
-        if not all(np.isfinite(v).all() for v in params):
-            raise InputError(
-                "reference features: the solve gave non-finite templates (largest "
-                f"|feature| {float(np.abs(x).max()):.3g}); scale the features, "
-                "e.g. to unit-length rows"
-            )
-        errors = period_errors(_host_scores(params, x), labels, cands)
-        self._choose(params, cands, errors, n, d_in, c)
-        if cfg.codes is not None:
-            self.codebook = fit_codebook(x, cfg.codes)
-        return self
+            params = refine(params, trained, c)
+        params = host_templates(params, x)
+        # the training errors from scores on the host (float32 BLAS): no XLA program
+        errors = period_errors(x @ params.w + params.b, labels, trained)
+        kept = plan.keep(params, errors, cfg.dtype)
+        if cfg.codes is not None:  # planned: bits within the templates' d
+            self.codebook = (CodeBook.fit(x, cfg.codes) if cfg.codes != INT8
+                             else ScalarCodeBook.fit(x))  # fmt: skip
+        return self._take(kept, d_in)
 
-    def _plan(self, n: int) -> tuple[tuple[int, ...], float]:
-        """Candidate periods and the penalty C for n places (impossible r: said
-        here, before any work)."""
-        cfg = self.config
-        cands = candidate_periods(n, cfg.r, cfg.level, cfg.count)
-        nominal_periods(n, cfg.r, cfg.level, cfg.count)  # impossible r: say now
-        return cands, (cfg.c if cfg.c is not None else default_c(n))
-
-    def _choose(self, params: Templates, cands, errors, n: int, d: int, c: float):
-        """Keep the periods of least training error (errors (k,) per candidate)."""
-        chosen = choose_periods(cands, errors, n, self.config.r)
-        self._keep(params, cands, chosen)
-        self.n, self.d, self.c = n, d, float(c)
-        self.candidates = tuple(int(t) for t in cands)
-        self.candidate_errors = tuple(float(e) for e in errors)
-        self.group_errors = tuple(float(errors[cands.index(t)]) for t in self.periods)
-        log.info("chose periods %s (errors %s)", chosen, np.round(errors, 4))
-        return self
-
-    def _keep(self, params: Templates, cands, chosen) -> None:
-        offs = dict(zip(cands, period_offsets(cands), strict=True))
-        cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in chosen])
-        stored = quantize(np.asarray(params.w)[:, cols], np.asarray(params.b)[cols],
-                          self.config.dtype)  # fmt: skip
-        self._set_stored(stored)
-        self.periods = tuple(int(t) for t in chosen)
-        self.groups = Groups("periods", self.periods)
-
-    def _fit_groups(self, x, labels, spec, progress, refine, d_in) -> RhythmicMap:
-        """Fit a layout whose groups are fixed before training (no period choice):
-        the same objective and solver, targets from the groups' labels."""
-        cfg = self.config
-        n = int(labels.max()) + 1
-        groups = resolve_layout(spec, n, cfg.r, cfg.level)
-        check_memory(len(x), x.shape[1], groups.p)
-        c = cfg.c if cfg.c is not None else default_c(n)
-        y = targets(labels, groups)
-        log.info("fitting %s on %d x %d, C=%.3g", groups.describe(), *x.shape, c)
-        solver = solver_for(self.config.solver, self.config.gap, progress)
-        params, _ = solver.run(None, x, y, c)
-        if refine is not None:
-            params = refine(params, groups, c)
-        params = Templates(*(np.asarray(v, np.float32) for v in params))
-        errors = period_errors(_host_scores(params, x), labels, groups)
-        return self._keep_groups(params, groups, errors, n, d_in, c)
-
-    def _keep_groups(self, params: Templates, groups, errors, n: int, d: int, c):
-        """Keep every template of fixed ``groups`` (errors (k,) per group)."""
-        stored = quantize(np.asarray(params.w), np.asarray(params.b), self.config.dtype)
-        self._set_stored(stored)
-        self.groups = groups
-        self.periods = groups.sizes if groups.kind == "periods" else ()
-        self.n, self.d, self.c = n, d, float(c)
-        self.candidates, self.candidate_errors = (), ()
-        self.group_errors = tuple(float(e) for e in errors)
-        log.info("group training errors %s", np.round(errors, 4))
+    def _take(self, kept, d: int) -> RhythmicMap:
+        """Hold the templates and record of ``kept`` (a fit's :class:`Kept` or a
+        loaded :class:`~rhythmic_jax.map_file.MapFile`), fitted on d-dim frames."""
+        self._set_stored(kept.stored, kept.params)
+        self.groups, self.periods = kept.groups, kept.periods
+        self.n, self.d, self.c = kept.n, d, float(kept.c)
+        self.candidates, self.candidate_errors = kept.candidates, kept.candidate_errors
+        self.group_errors = kept.group_errors
         return self
 
     def with_dtype(self, dtype: str) -> RhythmicMap:
@@ -312,16 +166,14 @@ class RhythmicMap:
         other = RhythmicMap(replace(self.config, dtype=dtype))
         skip = ("config", "params", "_stored")
         other.__dict__.update({k: v for k, v in vars(self).items() if k not in skip})
-        w, b = dequantize(self._stored)
-        other._set_stored(quantize(w, b, dtype))
+        other._set_stored(*requantize(self._stored, dtype))
         return other
 
-    def _set_stored(self, stored: dict[str, np.ndarray]) -> None:
-        """Keep the stored arrays; queries use them as float32."""
+    def _set_stored(self, stored: dict[str, np.ndarray], params) -> None:
+        """Keep the stored arrays and their float32 values (w, b) queries use."""
         self._stored = stored
-        w, b = dequantize(stored)
         # device_put: a transfer, where jnp.asarray compiles a program
-        self.params = Templates(w=jax.device_put(w), b=jax.device_put(b))
+        self.params = Templates(*(jax.device_put(v) for v in params))
 
     # -------------------------------------------------------------- queries
     def _check_fitted(self) -> None:
@@ -339,84 +191,27 @@ class RhythmicMap:
 
     def scores(self, q) -> jax.Array:
         """Decision values of queries (b, d) -> (b, sum(periods))."""
-        return _scores(self.params, self._queries(q))
+        return map_scores(self.params, self._queries(q))
 
     def place_scores(self, q) -> jax.Array:
         """Score of every place for queries (b, d) -> (b, n): the map's summed phase
         scores, or with codes the fused z-scores
         (:mod:`rhythmic_jax.decoding.fusion`)."""
-        q = self._queries(q)
-        book, w = self.codebook, self.config.fusion
-        sims = None if book is None else book.similarity(q)
-        return fused_place_scores(
-            _scores(self.params, q), sims, self.periods, self.n, w
-        )
+        return place_scores_map(self, self._queries(q))
 
     def decode(self, q, method: str | None = None, m: int | None = None) -> Decoded:
         """Decode queries (b, d): index (-1 no match), score, runner-up, confidence.
 
         A map with codes fuses its place scores with the code similarities
-        (``hard`` then scores every place, as ``soft``).
+        (``hard`` then scores every place, as ``soft``;
+        :func:`rhythmic_jax.decoding.queries.decode_map`).
         """
-        if self.codebook is not None:
-            q = self._queries(q)
-            if (method or self.config.decode) == "hard":
-                method = "soft"
-            return fused_decode(
-                _scores(self.params, q),
-                self.codebook.similarity(q),
-                self.periods,
-                self.n,
-                self.config.fusion,
-                method or self.config.decode,
-                m or self.config.m,
-            )
-        self._check_fitted()
-        if (method or self.config.decode) == "hard" and self.groups.kind == "periods":
-            x = check_features(q, "queries", d=self.d)
-            if self.embedding is not None:
-                x = np.asarray(apply_embedding(self.embedding, x), np.float32)
-            if len(x) <= SMALL_BATCH:  # numpy: no dispatch for a single query
-                return self._small_decoder()(x)
-            # host BLAS product, jitted argmaxes and look-ups
-            return localise(self.params, x, self.periods, self.n)
-        return decode_queries(
-            self.params,
-            self._queries(q),
-            self.groups,
-            self.n,
-            method or self.config.decode,
-            m or self.config.m,
-        )
+        method, m = method or self.config.decode, m or self.config.m
+        return decode_map(self, self._queries(q), method, m)
 
     def _few_places(self, q, method: str) -> np.ndarray | None:
-        """Places (b,) int64 of up to :data:`SMALL_BATCH` queries by the numpy hard
-        decode, one matrix-vector product each and nothing else (no runner-up,
-        no dispatch); None where that decode does not apply."""
-        if self.codebook is not None or method != "hard":
-            return None
-        self._check_fitted()
-        if self.groups.kind != "periods":
-            return None
-        if (
-            type(q) is np.ndarray
-            and q.dtype == np.float32
-            and q.ndim == 2
-            and 0 < len(q) <= SMALL_BATCH
-            and q.shape[1] == self.d
-            and self.embedding is None
-        ):  # the fast lane: the scores' finiteness checks the values
-            small = self._small_decoder()
-            found = [small.place(row) for row in q]
-            if None not in found:
-                return np.array(found, np.int64)
-        x = check_features(q, "queries", d=self.d)
-        if len(x) > SMALL_BATCH:
-            return None
-        if self.embedding is not None:
-            x = np.asarray(apply_embedding(self.embedding, x), np.float32)
-        small = self._small_decoder()
-        return np.array([small.index(row) for row in x], np.int64)
+        """:func:`rhythmic_jax.decoding.queries.few_places` of this map."""
+        return few_places(self, q, method)
 
     def locate(self, q) -> int:
         """Place of one descriptor ``q`` (d,), -1 for no match:
@@ -424,32 +219,11 @@ class RhythmicMap:
         decode (no threshold, codes or embedding) a float32 (d,) numpy array
         goes straight to one BLAS product (no dispatch, no copies; a NaN or inf
         is caught on its scores); anything else takes ``predict``'s checks."""
-        small = self._small
-        if (
-            small is not None
-            and small.params is self.params
-            and type(q) is np.ndarray
-            and q.dtype == np.float32
-            and q.shape == (self.d,)
-            and self.embedding is None
-            and self.codebook is None
-            and self.config.decode == "hard"
-            and self.config.threshold is None
-        ):
-            found = small.place(q)
-            if found is not None:
-                return found
+        found = locate_fast(self, q)
+        if found is not None:
+            return found
         self._check_fitted()
-        try:
-            x = np.asarray(q)
-        except ValueError:  # ragged: predict's checks say so
-            x = None
-        if x is not None and x.ndim != 1:
-            raise InputError(
-                f"query: expected one descriptor of shape ({self.d},), "
-                f"got shape {x.shape}"
-            )
-        return int(self.predict([q] if x is None else x[None])[0])
+        return int(self.predict(one_query(q, self.d))[0])
 
     def _small_decoder(self) -> SmallDecoder:
         """The numpy decoder of the current templates (rebuilt when they change)."""
@@ -482,55 +256,24 @@ class RhythmicMap:
           threshold: reject queries whose confidence is below it (finite).
         """
         method = method or self.config.decode
+        thr = self.config.threshold
         if threshold is not None:
-            threshold = check_number(threshold, "{opt:threshold}")
+            thr = check_number(threshold, "{opt:threshold}")
+        sequence = check_sequence(sequence)
+        if sequence is not None and sequence > 1:  # embedded once here; single
+            q = self._queries(q)  # frames go to decode
         if sequence is not None:
-            sequence = check_int(
-                sequence,
-                "sequence",
-                1,
-                msg=f"{{opt:sequence}} length L must be "
-                f"an integer >= 1, got {sequence!r}",
-            )
-            if sequence > 1:  # embedded once here; single frames go to decode
-                q = self._queries(q)
-            if sequence > len(q):
-                raise InputError(
-                    f"{{opt:sequence}} length L={sequence} is longer than the "
-                    f"{len(q)} queries"
-                )
-        if sequence is not None and sequence > 1 and self.codebook is not None:
-            idx, conf = fused_sequence_decode(
-                _scores(self.params, q),
-                self.codebook.similarity(q),
-                self.periods,
-                self.n,
-                sequence,
-                speeds,
-                self.config.fusion,
-                method,
-                m or self.config.m,
-            )
-        elif sequence is not None and sequence > 1:
-            idx, conf = sequence_queries(
-                self.params,
-                q,
-                self.groups,
-                self.n,
-                sequence,
-                speeds,
-                method,
-                m or self.config.m,
-            )
+            check_sequence(sequence, len(q))
+        if sequence is not None and sequence > 1:
+            m = m or self.config.m
+            idx, conf = sequence_map(self, q, sequence, speeds, method, m)
         else:
-            thr = self.config.threshold if threshold is None else threshold
             few = self._few_places(q, method) if thr is None else None
             if few is not None:
                 return few
             out = self.decode(q, method, m)
             idx, conf = out.index, out.confidence
         idx = np.asarray(idx).astype(np.int64)
-        thr = self.config.threshold if threshold is None else threshold
         if thr is not None:
             idx = np.where(np.asarray(conf, np.float64) >= thr, idx, -1)
         return idx
@@ -543,10 +286,8 @@ class RhythmicMap:
 
     @property
     def storage_bytes(self) -> int:
-        """Bytes of the templates in their dtype, plus with codes their
-        :meth:`storage` (ITQ: ``n * ceil(bits / 8) + (bits * d + d) * 4``; int8:
-        ``n * d + 2 * d * 4``); an embedding is counted apart
-        (:attr:`embedding_bytes`)."""
+        """Bytes of the templates in their dtype and of any codes (:meth:`storage`);
+        an embedding is counted apart (:attr:`embedding_bytes`)."""
         return self.storage()["total"]
 
     @property
@@ -558,60 +299,24 @@ class RhythmicMap:
         """Bytes split into a fixed part (the code transform), a per-place part
         (the codes) and a per-period part (``tau`` templates each, stored dtype);
         ``embedding`` is shown apart, and ``share`` counts everything against the
-        n x d float32 database."""
+        n x d float32 database (:func:`rhythmic_jax.storage.map_storage`)."""
         self._check_fitted()
-        codes = self.codebook.storage() if self.codebook else {}
-        per_period = {
-            (str(t) if self.groups.kind == "periods" else f"{k}:{t}"): template_bytes(
-                t, self.template_d, self.config.dtype
-            )
-            for k, t in enumerate(self.groups.sizes)
-        }
-        fixed, per_place = codes.get("fixed", 0), codes.get("per_place", 0)
-        total = fixed + per_place + sum(per_period.values())
-        return {
-            "fixed": fixed,
-            "per_place": per_place,
-            "per_period": per_period,
-            "embedding": self.embedding_bytes,
-            "total": total,
-            "share": (total + self.embedding_bytes) / database_bytes(self.n, self.d, 4),
-        }
+        return map_storage(
+            self.groups.kind, self.groups.sizes, self.template_d, self.config.dtype,
+            self.n, self.d, self.codebook and self.codebook.storage(),
+            self.embedding_bytes,
+        )  # fmt: skip
 
     @property
     def compression_ratio(self) -> float:
         """Bytes search needs (embedding included) over the n x d float32 database."""
-        self._check_fitted()
         return self.storage()["share"]
 
     def info(self) -> dict[str, Any]:
-        """What ``rhythmic-jax info --json`` prints."""
+        """What ``rhythmic-jax info --json`` prints
+        (:func:`rhythmic_jax.map_file.describe`)."""
         self._check_fitted()
-        return {
-            "n": self.n,
-            "d": self.d,
-            "periods": list(self.periods),
-            "layout": self.groups.describe(),
-            "groups": self.groups.to_dict(),
-            "group_errors": list(self.group_errors),
-            "storage_bytes": self.storage_bytes,
-            "embedding_bytes": self.embedding_bytes,
-            "embedding": None
-            if self.embedding is None
-            else {"kind": self.embedding.kind, "k": self.embedding.k},
-            "database_bytes": database_bytes(self.n, self.d, 4),
-            "compression_ratio": self.compression_ratio,
-            "storage": self.storage(),
-            "codes_bits": self.codebook.bits if self.codebook else None,
-            "codes_kind": self.codebook.kind if self.codebook else None,
-            "c": self.c,
-            "candidates": list(self.candidates),
-            "candidate_errors": list(self.candidate_errors),
-            "descriptor": self.config.descriptor,
-            "descriptor_settings": self.config.descriptor_settings,
-            "config": {k: v for k, v in asdict(self.config).items()},
-            "reference": self.reference,
-        }
+        return map_file.describe(self)
 
     # ----------------------------------------------------------------- disk
     def save(self, path: str | os.PathLike) -> None:
@@ -631,29 +336,10 @@ class RhythmicMap:
     ) -> RhythmicMap:
         """Load a map; refuse it when it was built for another descriptor or d."""
         got = map_file.load(
-            path,
-            MapConfig,
-            descriptor=descriptor,
-            descriptor_settings=descriptor_settings,
-            d=d,
-        )
-        self = cls(got.config, embedding=got.embedding)
-        self._set_stored(got.stored)
-        self.periods, self.n, self.d = got.periods, got.n, got.d
-        self.groups, self.group_errors = got.groups, got.group_errors
-        self.c, self.candidates = got.c, got.candidates
-        self.candidate_errors, self.extra = got.candidate_errors, got.extra
-        self.codebook, self.reference = got.codebook, got.reference
+            path, MapConfig, descriptor=descriptor,
+            descriptor_settings=descriptor_settings, d=d,
+        )  # fmt: skip
+        self = cls(got.config, embedding=got.embedding)._take(got, got.d)
+        self.extra, self.codebook = got.extra, got.codebook
+        self.reference = got.reference
         return self
-
-
-@jax.jit
-def _scores(params: Templates, q: jax.Array) -> jax.Array:
-    return scores(params, q)
-
-
-def _host_scores(params: Templates, x) -> np.ndarray:
-    """Scores ``x @ w + b`` (n, p) of the reference frames on the host (float32
-    BLAS): a fit's training errors compile no XLA program."""
-    x = np.asarray(x, np.float32)
-    return x @ np.asarray(params.w, np.float32) + np.asarray(params.b, np.float32)

@@ -25,9 +25,9 @@ import jax
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import parse_layout, resolve_layout
+from rhythmic_jax.fit_plan import plan
+from rhythmic_jax.groups import parse_layout
 from rhythmic_jax.io.frame_files import open_frames
-from rhythmic_jax.objective import default_c
 from rhythmic_jax.solvers.distributed import allreduce, fit_newton, row_block
 from rhythmic_jax.solvers.memory import available_memory, fit_bytes
 from rhythmic_jax.solvers.newton import NewtonConfig
@@ -125,11 +125,9 @@ def fit_map_files(
     k, i = jax.process_count(), jax.process_index()
     start, stop = row_block(frames.n, k, i)
     labels = labels_all[start:stop]
-    groups = _fixed_periods(model, n_place)
-    cands, c = model._plan(n_place) if groups is None else (groups.sizes, None)
-    if c is None:
-        c = model.config.c if model.config.c is not None else default_c(n_place)
-    p = sum(cands)
+    _check_layout(model.config.layout)
+    fit_plan = plan(model.config, n_place, d)
+    cands, c, p = fit_plan.periods, fit_plan.c, fit_plan.p
     limit = available_memory() if memory is None else memory
     need = sum(fit_bytes(-(-frames.n // k), d, p).values())
     in_memory = not stream and resident_bytes() + need + SLACK <= limit
@@ -174,24 +172,19 @@ def fit_map_files(
         run.update(kept_active_bytes=bits if keep else 0, cg=info.cg_iterations)
         run.update(pass_seconds=info.pass_seconds)
         run["pass_median_s"] = float(np.median(info.pass_seconds))
-    if groups is None:
-        model._choose(params, cands, np.asarray(errors), n_place, d, c)
-    else:
-        model._keep_groups(params, groups, np.asarray(errors), n_place, d, c)
+    model._take(fit_plan.keep(params, np.asarray(errors), cfg.dtype), d)
     log.info("fit from files: %s", {k: v for k, v in run.items() if k[0] != "p"})
     return run
 
 
-def _fixed_periods(model, n: int):
-    """The :class:`~rhythmic_jax.groups.Groups` of a ``periods:T1,..`` layout
-    (fixed periods: no candidate search), or None for the chosen periods."""
-    spec = parse_layout(model.config.layout)
-    if spec.kind != "periods":
+def _check_layout(layout: str) -> None:
+    """Refuse a layout other than periods: only the in-memory fit of one process
+    trains mixed-radix and hierarchical groups."""
+    if parse_layout(layout).kind != "periods":
         raise InputError(
-            f"{{opt:layout}} {model.config.layout!r} needs an in-memory fit of one "
+            f"{{opt:layout}} {layout!r} needs an in-memory fit of one "
             "process; streamed and multi-process fits take periods or periods:T1,.."
         )
-    return resolve_layout(spec, n) if spec.sizes else None
 
 
 def _min_over_processes(value: int) -> int:

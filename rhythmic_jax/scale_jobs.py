@@ -9,7 +9,7 @@ itself is :func:`rhythmic_jax.scale_fit.fit_map_files`.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -62,10 +62,10 @@ def _check_in_memory_only(job) -> None:
     unused = [
         name
         for name, used in (
-            ("codes", job.codes is not None),
+            ("codes", job.config.codes is not None),
             ("embedding", job.embedding is not None),
             ("positions", job.positions is not None),
-            ("solver", job.solver != "newton"),
+            ("solver", job.config.solver != "newton"),
         )
         if used
     ]
@@ -162,10 +162,8 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
 
     name, settings = shard_descriptor(sources[0])
     model = RhythmicMap(
-        r=job.r, level=job.level, count=job.count, c=job.c, gap=job.gap,
-        layout=job.layout, dtype=job.dtype, descriptor=name,
-        descriptor_settings=settings,
-    )  # fmt: skip
+        replace(job.config, descriptor=name, descriptor_settings=settings)
+    )
     ckpt = Path(job.checkpoint or str(Path(job.out)) + ".ckpt").absolute()
     if ckpt.exists() and not ckpt.is_dir():
         raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
@@ -174,8 +172,6 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
         checkpoint=ckpt,
     )  # fmt: skip
     if name == "features":
-        from dataclasses import replace
-
         model.config = replace(model.config, descriptor_settings={"dim": model.d})
     model.reference = {
         "sources": [str(Path(src).expanduser().absolute()) for src in sources],

@@ -24,6 +24,7 @@ __all__ = [
     "check_int",
     "check_labels",
     "check_number",
+    "check_sequence",
     "int_option",
     "is_int",
     "number_option",
@@ -54,6 +55,20 @@ def check_int(
         else:
             msg = f"{name} must be an integer, got {name}={value!r}"
     raise InputError(msg)
+
+
+def check_sequence(sequence, b: int | None = None) -> int | None:
+    """A sequence length L as an int >= 1 (None: single frames), at most ``b``
+    queries when ``b`` is given; else one line naming ``{opt:sequence}``."""
+    if sequence is None:
+        return None
+    msg = f"{{opt:sequence}} length L must be an integer >= 1, got {sequence!r}"
+    sequence = check_int(sequence, "sequence", 1, msg=msg)
+    if b is not None and sequence > b:
+        raise InputError(
+            f"{{opt:sequence}} length L={sequence} is longer than the {b} queries"
+        )
+    return sequence
 
 
 def check_number(

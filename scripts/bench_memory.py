@@ -6,20 +6,17 @@ python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 from __future__ import annotations
 
 import argparse
-import ctypes
-import gc
 import json
 import logging
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
 from _harness import header, main, table
 
 from rhythmic_jax.periods import candidate_periods
-from rhythmic_jax.solvers.memory import check_memory, fit_bytes
+from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
 
 log = logging.getLogger("bench_memory")
 
@@ -32,30 +29,11 @@ HEAD = [
 ]  # fmt: skip
 
 
-def _rss() -> int:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * 4096
-
-
-def peak_growth(x: np.ndarray) -> int:
+def fit_peak(x: np.ndarray) -> int:
     """Bytes a fit of x (n, d) adds to this process at its peak (x included)."""
     from rhythmic_jax import RhythmicMap
 
-    gc.collect()
-    ctypes.CDLL("libc.so.6").malloc_trim(0)
-    base, peak, done = _rss(), [0], []
-
-    def watch():
-        while not done:
-            peak[0] = max(peak[0], _rss())
-            time.sleep(0.001)
-
-    t = threading.Thread(target=watch)
-    t.start()
-    RhythmicMap().fit(x, progress=False)
-    done.append(1)
-    t.join()
-    return max(peak[0], _rss()) - base + x.nbytes
+    return peak_growth(lambda: RhythmicMap().fit(x, progress=False)) + x.nbytes
 
 
 def measure(repeats: int, shapes: list[str]) -> None:
@@ -71,10 +49,10 @@ def measure(repeats: int, shapes: list[str]) -> None:
         estimate = sum(fit_bytes(n, d, p).values())
         admitted = check_memory(n, d, p, limit_bytes=estimate) == estimate
         t0 = time.perf_counter()
-        cold = peak_growth(x)
+        cold = fit_peak(x)
         t1 = time.perf_counter()
         RhythmicMap().fit(x, progress=False)  # the first run of compiled code
-        warm = [peak_growth(x) for _ in range(repeats)]
+        warm = [fit_peak(x) for _ in range(repeats)]
         warm_s = (time.perf_counter() - t1) / max(repeats, 1)
         row = dict(n=n, d=d, p=p, admitted=admitted, cold=cold, warm=warm,
                    cold_s=t1 - t0, warm_s=warm_s)  # fmt: skip

@@ -22,6 +22,8 @@ import _harness as bc
 import numpy as np
 
 from rhythmic_jax import RhythmicMap
+from rhythmic_jax.config import MapConfig
+from rhythmic_jax.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
 
@@ -464,7 +466,7 @@ def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
         pass_median_s=float(np.median(run["pass_seconds"])),
         kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
         group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
-        candidates=list(RhythmicMap(r=3)._plan(n)[0]),
+        candidates=list(plan(MapConfig(r=3), n, 1).candidates),
         code=bc.git_commit(),
     )  # fmt: skip
     saved.write_text(json.dumps(bc.plain(row)))
@@ -569,7 +571,8 @@ def probe_lines(p: dict) -> list[str]:
 _CHILD = """import json, sys, time
 import jax.numpy as jnp
 import numpy as np
-from rhythmic_jax import RhythmicMap
+from rhythmic_jax.config import MapConfig
+from rhythmic_jax.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.objective import default_c
 from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
@@ -578,7 +581,7 @@ frames = open_frames(sys.argv[1])
 fixed = tuple(int(t) for t in sys.argv[3].split(","))
 c = default_c(frames.n)
 sets = []
-for periods in (fixed, tuple(RhythmicMap(r=3)._plan(frames.n)[0])):
+for periods in (fixed, plan(MapConfig(r=3), frames.n, 1).candidates):
     p = sum(periods)
     bits = frames.n * -(-p // 8)
     rows = min(frames.n, block_rows_for(parse_bytes(sys.argv[2]) - bits, frames.d, p))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rhythmic_jax import RhythmicMap
+from rhythmic_jax import MapConfig, RhythmicMap
 from rhythmic_jax.embedding import (
     apply,
     embedding_bytes,
@@ -86,8 +86,8 @@ def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
     save_embedding(tmp_path / "e", emb, {"descriptor": "features"})
     np.save(tmp_path / "ref.npy", a[150:])
     job = jobs.FitJob(
-        (str(tmp_path / "ref.npy"),), str(tmp_path / "m"), codes=16,
-        embedding=str(tmp_path / "e"),
+        (str(tmp_path / "ref.npy"),), str(tmp_path / "m"),
+        config=MapConfig(codes=16), embedding=str(tmp_path / "e"),
     )  # fmt: skip
     m = jobs.fit(job)
     # ITQ fitted on the embedded frames: a (16, k) projection, not (16, d)
@@ -110,7 +110,8 @@ def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
     text = jobs.info_lines(on_disk)
     assert f"{n * 2:,} B (codes)" in text and "embedding_bytes" in text
     with pytest.raises(InputError, match="at most d=24"):
-        jobs.fit(jobs.FitJob(job.sources, str(tmp_path / "m2"), codes=32,
+        jobs.fit(jobs.FitJob(job.sources, str(tmp_path / "m2"),
+                             config=MapConfig(codes=32),
                              embedding=job.embedding))  # fmt: skip
 
 
@@ -205,7 +206,9 @@ def test_learn_stores_the_fusion_weight_and_fit_uses_it(tmp_path):
     assert f"fusion {w:g} for int8 codes" in jobs.learn_summary("e", emb, info)
 
     def fitted(name, **kw):
-        job = jobs.FitJob(src("test"), str(tmp_path / name), codes="int8", **kw)
+        job = jobs.FitJob(
+            src("test"), str(tmp_path / name), config=MapConfig(codes="int8"), **kw
+        )
         return jobs.fit(job), jobs.info_lines(jobs.info(str(tmp_path / name)))
 
     m, text = fitted("m", embedding=str(tmp_path / "e"))

@@ -2,8 +2,8 @@
 
 Every ``rhythmic_jax`` import in the package, including those inside functions,
 is read from the source. Modules sit in layers, lowest first; a module may import
-only from lower layers. The command line imports only the jobs and the public
-face, and nothing imports the public face.
+only from lower layers. The command line imports only the jobs, the map's
+configuration and the public face, and nothing imports the public face.
 """
 
 from __future__ import annotations
@@ -20,19 +20,21 @@ LAYERS = [
     ["validate", "quantize"],
     ["periods", "projection", "split", "scalar_codes",
      "io.atomic", "io.images", "io.checkpoint"],
-    ["groups", "codes", "embedding", "io.descriptor_files", "io.tiles"],
-    ["objective", "map_file", "io.frame_files", "frames.cache_files", "frames.nets"],
-    ["closed_form", "jit_cache", "frames.compiled", "frames.weights",
+    ["groups", "embedding", "storage", "io.descriptor_files", "io.tiles"],
+    ["config", "objective", "io.frame_files", "frames.cache_files", "frames.nets"],
+    ["codes", "closed_form", "jit_cache", "frames.compiled", "frames.weights",
      "solvers.precondition", "solvers.span", "solvers.precision", "decoding.buckets"],
-    ["learn", "frames.pipeline", "solvers.newton_cg", "solvers.memory",
+    ["map_file", "learn", "frames.pipeline", "solvers.newton_cg", "solvers.memory",
      "solvers.optax_loops", "solvers.sharding", "solvers.candidates", "decoding.hard"],
-    ["frames.features", "solvers.newton", "solvers.resumable",
+    ["fit_plan", "frames.features", "solvers.newton", "solvers.resumable",
      "decoding.soft", "decoding.small"],
-    ["solvers.streamed", "frames.network_build", "decoding.group_decode"],
-    ["frames.sources", "frames.describe_shards",
-     "solvers.distributed", "solvers.protocol", "decoding.dispatch", "decoding.sequence",
+    ["frames.sources", "frames.network_build", "frames.describe_shards",
+     "solvers.distributed", "solvers.streamed", "decoding.group_decode",
      "augment.kornia_ops"],
-    ["augment.stream", "scale_fit", "decoding.batch", "decoding.fusion"],
+    ["solvers.protocol", "augment.stream", "scale_fit", "decoding.dispatch",
+     "decoding.sequence"],
+    ["decoding.batch", "decoding.fusion"],
+    ["decoding.queries"],
     ["rhythmic_map"],
     ["scale_jobs", "eval.metrics", "eval.baselines", "eval.figures"],
     ["eval.ground_truth", "eval.seqslam", "eval.outliers"],
@@ -93,8 +95,8 @@ def test_imports_point_down(path):
     assert not up, f"{name} imports from {up}, not below it"
 
 
-def test_the_command_line_imports_only_jobs_and_the_public_face():
-    assert _imports(PACKAGE / "cli.py") <= {"jobs", ""}
+def test_the_command_line_imports_only_jobs_the_config_and_the_public_face():
+    assert _imports(PACKAGE / "cli.py") <= {"jobs", "config", ""}
 
 
 def test_folders_say_what_they_hold_and_import_nothing():

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from rhythmic_jax import BruteForce, InputError, RhythmicMap, jobs
+from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap, jobs
 from rhythmic_jax.jobs import FitJob, Reading, _check_sources_memory
 
 
@@ -110,8 +110,54 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
     with open(tmp_path / "huge.npy", "wb") as f:
         np.lib.format.write_array_header_1_0(f, header)
     with pytest.raises(InputError, match="needs about .* stream the frames instead"):
-        _check_sources_memory([str(tmp_path / "huge.npy")], 2, 1, 7)
+        _check_sources_memory(
+            [str(tmp_path / "huge.npy")], MapConfig(r=2, level=1, count=7)
+        )
     np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
-    _check_sources_memory([str(tmp_path / "small.npy")], 2, 1, 7)  # fits
-    _check_sources_memory([str(tmp_path / "absent.npy")], 2, 1, 7)  # left to the read
-    _check_sources_memory([str(tmp_path / "small.npy")], 1, 1, 7)  # left to the map
+    _check_sources_memory(
+        [str(tmp_path / "small.npy")], MapConfig(r=2, level=1, count=7)
+    )  # fits
+    _check_sources_memory(
+        [str(tmp_path / "absent.npy")], MapConfig(r=2, level=1, count=7)
+    )  # left to the read
+    _check_sources_memory(
+        [str(tmp_path / "small.npy")], MapConfig(r=1, level=1, count=7)
+    )  # left to the map
+
+
+def test_the_descriptor_is_resolved_once_and_carried_to_the_augmented_fit(
+    tmp_path, monkeypatch
+):
+    from skimage.io import imsave
+
+    from rhythmic_jax.augment import stream
+    from rhythmic_jax.frames import features
+
+    rng = np.random.default_rng(1)
+    sources = []
+    for name in ("summer", "winter"):
+        (tmp_path / name).mkdir()
+        for i in range(12):
+            pixels = rng.integers(0, 256, (16, 32, 3), dtype=np.uint8)
+            imsave(tmp_path / name / f"f{i}.png", pixels, check_contrast=False)
+        sources.append(str(tmp_path / name))
+    resolved = []
+
+    def counted(name, **settings):
+        resolved.append(features.DESCRIPTORS[name](**settings))
+        return resolved[-1]
+
+    seen = {}
+
+    def augmented(model, images, x, descriptor, config, labels, **kw):
+        seen["descriptor"] = descriptor.descriptor
+        return model.fit(x, labels, progress=False)
+
+    monkeypatch.setattr(features, "get_descriptor", counted)
+    monkeypatch.setattr(stream, "fit_map_augmented", augmented)
+    job = FitJob(tuple(sources), str(tmp_path / "m.map"), augment="all")
+    model = jobs.fit(job, progress=False)
+    assert len(resolved) == 1 and seen["descriptor"] is resolved[0]
+    saved = RhythmicMap.load(tmp_path / "m.map").config
+    assert saved.descriptor == model.config.descriptor == "patchnorm"
+    assert saved.descriptor_settings == resolved[0].settings()

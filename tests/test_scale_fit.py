@@ -55,11 +55,11 @@ def test_a_streamed_fit_keeps_a_bound_the_in_memory_fit_exceeds(tmp_path):
             out.write(x[lo : lo + 1000])
     np.save(tmp_path / "ref.npy", x)
     del x
-    bound = 700 * 2**20
+    bound = 600 * 2**20
     common = ["--r", "3", "--gap", "1e-3"]
     whole = _peak(["fit", "ref.npy", "--out", "whole.map", *common], tmp_path)
     streamed = _peak(
-        ["fit", "shards", "--out", "streamed.map", "--memory", "700M", *common],
+        ["fit", "shards", "--out", "streamed.map", "--memory", "600M", *common],
         tmp_path,
     )
     assert whole > bound, f"the in-memory fit took only {whole:,} bytes"

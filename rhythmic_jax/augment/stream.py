@@ -270,13 +270,15 @@ def fit_map_augmented(
     *,
     progress: bool = False,
     checkpoint: str | os.PathLike | None = None,
+    plan=None,
 ):
     """Fit a :class:`~rhythmic_jax.RhythmicMap` with augmented epochs, in place.
 
     Exact solve on the clean descriptors (n, d) of ``images`` (n, H, W, 3), then
     :func:`fit_augmented` over every candidate (resumable from ``checkpoint``),
     then the period choice. Returns the model; ``model.timings`` holds the
-    pipeline's timings.
+    pipeline's timings. ``plan``: the fit's
+    :class:`~rhythmic_jax.fit_plan.FitPlan` when already made.
     """
     labels = np.arange(len(clean)) if labels is None else np.asarray(labels)
     timings: dict[str, float] = {}
@@ -289,6 +291,6 @@ def fit_map_augmented(
         timings.update(t)
         return params
 
-    model.fit(clean, labels, progress=progress, refine=refine)
+    model.fit(clean, labels, progress=progress, refine=refine, plan=plan)
     model.timings = timings
     return model

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
+from rhythmic_jax.config import DECODERS
 from rhythmic_jax.decoding.group_decode import (
     group_hard_decode,
     group_soft_decode,
@@ -19,8 +20,6 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.groups import Groups
 
 __all__ = ["DECODERS", "decode_scores"]
-
-DECODERS = ("hard", "soft", "topm")
 
 _hard_jit = functools.partial(jax.jit, static_argnames=("periods", "n"))(hard_decode)
 

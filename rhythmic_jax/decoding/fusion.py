@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.config import check_weight
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.sequence import _accumulate, _shift_columns, frame_offsets
 from rhythmic_jax.decoding.soft import _best_two
@@ -53,14 +54,6 @@ __all__ = [
 ]
 
 _EPS = 1e-12
-
-
-def check_weight(weight) -> float:
-    """The map's share ``w`` as a float in [0, 1], else one line."""
-    ok = isinstance(weight, int | float | np.floating) and not isinstance(weight, bool)
-    if not ok or not 0.0 <= float(weight) <= 1.0:
-        raise InputError(f"fusion weight must be a number in [0, 1], got {weight!r}")
-    return float(weight)
 
 
 def _z(v: jax.Array, mean, std) -> jax.Array:

@@ -41,6 +41,7 @@ import numpy as np
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import crt_tables, period_offsets
+from rhythmic_jax.validate import check_features
 
 __all__ = ["GEMV_THREADED", "SMALL_BATCH", "SmallDecoder", "block_rows", "gemv_rows"]
 
@@ -162,6 +163,30 @@ class SmallDecoder:
             i += table[j]
         i %= self.big_m
         return i if i < self.n else -1
+
+    def places(self, q, d: int, embed=None) -> np.ndarray | None:
+        """Places (b,) int64 of up to :data:`SMALL_BATCH` queries (b, d), one
+        matrix-vector product each and nothing else (no runner-up, no dispatch);
+        None for more queries. ``embed``: applied to checked queries first (an
+        embedding's (b, d) -> (b, k)). A float32 (b, d) array without ``embed``
+        takes the fast lane: the scores' finiteness checks the values."""
+        if (
+            embed is None
+            and type(q) is np.ndarray
+            and q.dtype == np.float32
+            and q.ndim == 2
+            and 0 < len(q) <= SMALL_BATCH
+            and q.shape[1] == d
+        ):
+            found = [self.place(row) for row in q]
+            if None not in found:
+                return np.array(found, np.int64)
+        x = check_features(q, "queries", d=d)
+        if len(x) > SMALL_BATCH:
+            return None
+        if embed is not None:
+            x = np.asarray(embed(x), np.float32)
+        return np.array([self.index(row) for row in x], np.int64)
 
     def __call__(self, q: np.ndarray) -> Decoded:
         """Decode queries (b, d) float32: index (b,) int32 (-1 no match), score

@@ -16,12 +16,16 @@ import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
 from rhythmic_jax.validate import check_int
+
+if TYPE_CHECKING:
+    from rhythmic_jax.frames.features import Descriptor
 
 __all__ = [
     "Features",
@@ -39,7 +43,12 @@ STRIDE_NEEDS_TILE = "{opt:stride} needs {opt:tile} (it is the step between tiles
 
 @dataclass(frozen=True)
 class Features:
-    """Descriptors ``x`` (n, d) float32 with place ``labels`` (n,) and provenance."""
+    """Descriptors ``x`` (n, d) float32 with place ``labels`` (n,) and provenance.
+
+    ``descriptor`` and ``settings`` name what described the rows (saved with a
+    map); ``describer`` is that descriptor, resolved once when the sources were
+    read (None for ``.npy`` files), for whatever describes frames again.
+    """
 
     x: np.ndarray
     labels: np.ndarray
@@ -47,6 +56,7 @@ class Features:
     settings: dict
     extra: dict = field(default_factory=dict)
     images: np.ndarray | None = None  # uint8 (n, H, W, 3) for image sources
+    describer: Descriptor | None = field(default=None, compare=False)
 
 
 def _kind(path: Path, tile: int | None) -> str:
@@ -82,29 +92,32 @@ def describe_images(
 
     ``compile``: when the descriptor's network runs compiled
     (:mod:`rhythmic_jax.frames.compiled`)."""
-    from rhythmic_jax.frames.features import cached_describe, get_descriptor
+    desc = _resolve(name, settings)
+    return _describe_images(images, desc, key, progress, compile), desc.settings()
 
-    desc = get_descriptor(name, **settings)
-    x = cached_describe(images, desc, key=key, progress=progress, compile=compile)
-    return x, desc.settings()
+
+def _describe_images(
+    images: np.ndarray, desc: Descriptor, key: str, progress: bool, compile
+) -> np.ndarray:
+    """uint8 frames (n, H, W, 3) -> rows (n, d) of the resolved ``desc`` (cached)."""
+    from rhythmic_jax.frames.features import cached_describe
+
+    return cached_describe(images, desc, key=key, progress=progress, compile=compile)
 
 
 def _describe_folder(
-    path: Path, name: str, settings: dict, key: str, progress, compile, keep: bool
-) -> tuple[np.ndarray, dict, np.ndarray | None]:
+    path: Path, desc: Descriptor, key: str, progress, compile, keep: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
     """A folder of frames described as it is read: decoding and resizing run ahead
     of the network (:func:`rhythmic_jax.frames.pipeline.describe_files`), cached by the
-    files' bytes. ``(x (n, d), settings, uint8 (n, H, W, 3) when keep)``."""
-    from rhythmic_jax.frames.features import get_descriptor
+    files' bytes. ``(x (n, d), uint8 (n, H, W, 3) when keep)``."""
     from rhythmic_jax.frames.pipeline import describe_files
     from rhythmic_jax.io.images import list_images
 
-    desc = get_descriptor(name, **settings)
     files = list_images(path, "traversal")
-    x, images = describe_files(
+    return describe_files(
         files, desc, key, keep_images=keep, progress=progress, policy=compile
     )
-    return x, desc.settings(), images
 
 
 def _images(path: Path, kind: str, tile: int | None, stride: int | None, progress):
@@ -150,30 +163,35 @@ def _key(path: Path, tile, stride) -> str:
     return f"{path.name}-{hashlib.sha1(raw.encode()).hexdigest()[:12]}"
 
 
+def _resolve(name: str, settings: dict) -> Descriptor:
+    """The descriptor ``name`` with ``settings``: bad settings or weights end
+    here, before any source is read."""
+    from rhythmic_jax.frames.features import get_descriptor
+
+    return get_descriptor(name, **settings)
+
+
 def _one(
     path: Path,
     kind: str,
-    name: str,
-    settings: dict,
+    desc: Descriptor | None,
     tile,
     stride,
     progress,
     compile: CompilePolicy = AUTO,
     keep: bool = True,
-):
-    """(descriptors, settings, images or None) of one source; a folder's frames
-    are kept only with ``keep``."""
-    from rhythmic_jax.frames.features import get_descriptor
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(descriptors, images or None) of one source, described with the resolved
+    ``desc`` (None for ``.npy``); a folder's frames are kept only with ``keep``."""
     from rhythmic_jax.io.descriptor_files import load_descriptors
 
     if kind == "npy":
-        return load_descriptors(path), settings, None
-    get_descriptor(name, **settings)  # bad settings or weights: before any reading
+        return load_descriptors(path), None
     key = _key(path, tile, stride)
     if kind == "folder":
-        return _describe_folder(path, name, settings, key, progress, compile, keep)
+        return _describe_folder(path, desc, key, progress, compile, keep)
     images = _images(path, kind, tile, stride, progress)
-    return (*describe_images(images, name, settings, key, progress, compile), images)
+    return _describe_images(images, desc, key, progress, compile), images
 
 
 def load_sources(
@@ -210,16 +228,16 @@ def load_sources(
                 "{option} applies to images; .npy files are descriptors",
                 option="descriptor",
             )
-        name, settings = NPY_DESCRIPTOR, {}
+        name, settings, desc = NPY_DESCRIPTOR, {}, None
     else:
         name, settings = descriptor or DEFAULT_DESCRIPTOR, {}
         if weights is not None:
             settings = {"weights": str(Path(weights).expanduser().absolute())}
+        desc = _resolve(name, settings)
+        settings = desc.settings()
     blocks, images = [], []
     for p in paths:
-        x, settings, imgs = _one(
-            p, kind, name, settings, tile, stride, progress, compile, keep_images
-        )
+        x, imgs = _one(p, kind, desc, tile, stride, progress, compile, keep_images)
         blocks.append(x)
         images.append(imgs)
     n, d = blocks[0].shape
@@ -238,7 +256,9 @@ def load_sources(
     if pca is not None:
         x, extra = _fit_pca(x, pca)
         settings = {**settings, "pca": int(pca)}
-    return Features(x, labels, name, settings, extra=extra, images=stacked)
+    return Features(
+        x, labels, name, settings, extra=extra, images=stacked, describer=desc
+    )
 
 
 def _fit_pca(x: np.ndarray, k: int) -> tuple[np.ndarray, dict]:
@@ -312,14 +332,15 @@ def load_query_source(
         raise InputError(
             f"{path}: the map was built from descriptor files; give queries as .npy"
         )
-    x, _, _ = _one(path, kind, name, settings, tile, stride, progress, compile, False)
+    desc = None if kind == "npy" else _resolve(name, settings)
+    x, _ = _one(path, kind, desc, tile, stride, progress, compile, False)
     if kind != "npy" or "pca_components" in model.extra and x.shape[1] != model.d:
         x = apply_projection(x, model.extra)
     if x.shape[1] != model.d:
         raise InputError(
             f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"
         )
-    return Features(x, np.arange(len(x)), name, settings)
+    return Features(x, np.arange(len(x)), name, settings, describer=desc)
 
 
 def _moved_weights(name: str, settings: dict, weights: str) -> dict:

@@ -13,7 +13,12 @@ Names: n frames, d features, p templates (sum of the candidate periods).
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import os
+import threading
+import time
+from collections.abc import Callable
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.solvers.span import in_span
@@ -24,6 +29,7 @@ __all__ = [
     "available_memory",
     "check_memory",
     "fit_bytes",
+    "peak_growth",
 ]
 
 
@@ -114,6 +120,38 @@ def available_memory() -> int:
     except OSError:
         pass
     return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def _resident() -> int:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def peak_growth(work: Callable[[], object]) -> int:
+    """Bytes ``work()`` adds to this process's resident memory at its peak.
+
+    Measures what ``fit_bytes`` estimates (Linux, glibc): the memory glibc holds
+    freed is handed back first (``malloc_trim``), since otherwise the allocator
+    serves the work from it and the growth undercounts; a thread samples the
+    resident set every millisecond while the work runs.
+    """
+    gc.collect()
+    ctypes.CDLL("libc.so.6").malloc_trim(0)
+    base, peak, done = _resident(), [0], threading.Event()
+
+    def watch():
+        while not done.is_set():
+            peak[0] = max(peak[0], _resident())
+            time.sleep(0.001)
+
+    sampler = threading.Thread(target=watch)
+    sampler.start()
+    try:
+        work()
+    finally:
+        done.set()
+        sampler.join()
+    return max(peak[0], _resident()) - base
 
 
 def _gib(v: float) -> str:

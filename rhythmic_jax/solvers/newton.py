@@ -62,6 +62,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import scipy.linalg  # at import: loaded mid-process it changed a fit's last bits
 from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.objective import Templates, margin_objectives
@@ -351,8 +352,6 @@ def newton_fit(
         factor = row_factor(np.asarray(x))
         reduced = dataclasses.replace(config, span=False)
         if init is not None:  # the same margins in the span: L beta = X w
-            import scipy.linalg  # deferred: 0.3 s to import, for warm starts only
-
             margins = np.asarray(x, np.float64) @ np.asarray(init.w, np.float64)
             beta = scipy.linalg.solve_triangular(factor, margins, lower=True)
             init = Templates(jnp.asarray(beta, jnp.float32), init.b)

@@ -57,32 +57,13 @@ def test_memory_estimate_grows_with_every_size():
 # "warm" on the same frames (the same column counts: nothing compiles). Prints
 # one JSON line per shape.
 MEASURE = """
-import ctypes, gc, json, sys, threading, time
+import json, sys
 import numpy as np
 from rhythmic_jax import RhythmicMap
-
-trim = ctypes.CDLL("libc.so.6").malloc_trim
-
-def rss():
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * 4096
+from rhythmic_jax.solvers.memory import peak_growth as grows
 
 def peak_growth(x):
-    gc.collect()
-    trim(0)
-    base, peak, done = rss(), [0], []
-
-    def watch():
-        while not done:
-            peak[0] = max(peak[0], rss())
-            time.sleep(0.001)
-
-    t = threading.Thread(target=watch)
-    t.start()
-    RhythmicMap().fit(x, progress=False)
-    done.append(1)
-    t.join()
-    return max(peak[0], rss()) - base + x.nbytes
+    return grows(lambda: RhythmicMap().fit(x, progress=False)) + x.nbytes
 
 rng = np.random.default_rng(0)
 repeats, cold_too = int(sys.argv[1]), sys.argv[2] == "cold"
