@@ -1,0 +1,184 @@
+"""JAX's GPU against the same machine's CPU: fit, predict, batch and sequence decode.
+
+python scripts/bench_gpu.py --write-features nordland_f16.npy
+python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import jax
+import numpy as np
+from _harness import header, main, table, timed
+
+from rhythmic_jax import RhythmicMap
+
+log = logging.getLogger("bench_gpu")
+
+
+def write_features(root: Path, path: Path) -> None:
+    """Nordland summer and winter patchnorm descriptors as one float16 (2, n, d)
+    ``.npy`` at ``path``."""
+    from rhythmic_jax.frames.features import describe, get_descriptor
+    from rhythmic_jax.io.atomic import save_npy
+    from rhythmic_jax.io.images import nordland
+
+    desc = get_descriptor("patchnorm")
+    summer, winter = nordland(root / "nordland_64x32", progress=False)
+    both = [describe(t.images, desc, progress=False) for t in (summer, winter)]
+    save_npy(path, np.stack(both).astype(np.float16))
+    log.info("wrote %s %s", path, (2, *both[0].shape))
+
+
+def route(n: int, d: int, seed: int = 0) -> np.ndarray:
+    """Route-like unit frames (n, d) float32: a random walk, rows normalised."""
+    rng = np.random.default_rng(seed)
+    x = np.cumsum(rng.normal(size=(n, d)).astype(np.float32), axis=0)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def seconds(fn, *args, **kwargs) -> tuple[object, float]:
+    """``(result, wall seconds)`` of :func:`_harness.timed`."""
+    out, wall, _ = timed(fn, *args, **kwargs)
+    return out, wall
+
+
+def run_on(device, summer, winter, args) -> dict:
+    """Every step of the report with ``device`` as JAX's default device."""
+    out: dict = {"device": str(device), "kind": getattr(device, "device_kind", "")}
+    rng = np.random.default_rng(0)
+    with jax.default_device(device):
+        fit = lambda x, **kw: RhythmicMap(r=2, level=1, **kw).fit(x)  # noqa: E731
+        _, out["fit_first_s"] = seconds(fit, summer)
+        m, out["fit_second_s"] = seconds(fit, summer)
+        out["periods"] = list(m.periods)
+        out["self"] = m.predict(summer)
+        out["winter"] = m.predict(winter)
+        out["self_recall"] = float(np.mean(out["self"] == np.arange(len(summer))))
+        out["predict_s"] = {}
+        for b in args.batches:
+            _, out["predict_s"][b] = seconds(m.predict, winter[:b])
+        picks = rng.integers(0, len(winter), args.decode)
+        noise = rng.normal(scale=0.01, size=(args.decode, winter.shape[1]))
+        q = (winter[picks] + noise.astype(np.float32)).astype(np.float32)
+        _, out["decode_first_s"] = seconds(m.predict, q)
+        _, out["decode_s"] = seconds(m.predict, q)
+        seq = dict(method="soft", sequence=args.length)
+        _, out["sequence_first_s"] = seconds(m.predict, winter, **seq)
+        _, out["sequence_s"] = seconds(m.predict, winter, **seq)
+        out["fits_s"] = {}
+        for n in args.fit_sizes:
+            x = route(n, summer.shape[1], seed=n)
+            _, out["fits_s"][n] = seconds(fit, x, count=3)
+            log.info("%s fit %d x %d: %.1f s", device, n, x.shape[1],
+                     out["fits_s"][n])  # fmt: skip
+    log.info("%s: %s", device, {k: v for k, v in out.items() if k[-1] == "s"})
+    return out
+
+
+def gpu_device():
+    """The first GPU JAX sees, or None."""
+    try:
+        return jax.devices("gpu")[0]
+    except RuntimeError:
+        return None
+
+
+def markdown(report: dict) -> str:
+    gpu, cpu = report["gpu"], report["cpu"]
+    name = gpu["kind"] if gpu else "no GPU"
+    lines = header("JAX on a GPU against the same machine's CPU", report)
+    if not gpu:
+        lines += [
+            "**No GPU was found: this is a rehearsal of the script on the CPU, "
+            "not the GPU report.**",
+            "",
+        ]
+
+    def row(label, key, sub=None):
+        def get(side):
+            if not side:
+                return "-"
+            v = side[key] if sub is None else side[key][str(sub)]
+            return v
+
+        g, c = get(gpu), get(cpu)
+        ratio = c / g if gpu and isinstance(g, float) and g > 0 else "-"
+        return [label, g, c, ratio]
+
+    rows = [
+        row("first fit, compile included (s)", "fit_first_s"),
+        row("second fit, same shapes (s)", "fit_second_s"),
+    ]
+    rows += [row(f"predict {b} queries, first call (s)", "predict_s", b)
+             for b in report["batches"]]  # fmt: skip
+    rows += [
+        row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
+        row(f"soft sequence decode L = {report['length']}, warm (s)", "sequence_s"),
+    ]
+    rows += [row(f"fit {n:,} x {report['d']}, 3 candidates (s)", "fits_s", n)
+             for n in report["fit_sizes"]]  # fmt: skip
+    lines += [
+        f"Nordland summer patchnorm {report['n']} x {report['d']} "
+        f"(`{report['features']}`); GPU: {name}; CPU: {cpu['device']} "
+        f"({report['environment']['cores']} cores).",
+        "",
+        table(["step", f"GPU ({name})", "CPU", "CPU / GPU"], rows),
+        "",
+    ]
+    if gpu:
+        lines.append(
+            f"Predictions equal to the CPU's: self-query {report['equal_self']:.4f},"
+            f" winter {report['equal_winter']:.4f} (self-query recall@1 "
+            f"{gpu['self_recall']:.3f} GPU, {cpu['self_recall']:.3f} CPU)."
+        )
+    else:
+        lines.append(f"CPU self-query recall@1 {cpu['self_recall']:.3f}.")
+    return "\n".join(lines)
+
+
+def options(ap) -> None:
+    ap.add_argument("--features", type=Path, help="float16 (2, n, d) .npy")
+    ap.add_argument("--write-features", type=Path, help="write that .npy and stop")
+    ap.add_argument("--rows", type=int, default=None, help="first rows only")
+    ap.add_argument("--batches", type=int, nargs="*", default=[100, 300, 700])
+    ap.add_argument("--decode", type=int, default=100_000)
+    ap.add_argument("--length", type=int, default=10)
+    ap.add_argument("--fit-sizes", type=int, nargs="*", default=[20_000, 100_000])
+
+
+def run(args) -> dict | None:
+    if args.write_features:
+        write_features(args.root, args.write_features)
+        return None
+    if args.features is None:
+        raise SystemExit("--features (or --write-features) is required")
+    if args.quick:
+        args.rows, args.batches, args.decode = args.rows or 600, [100], 2000
+        args.fit_sizes, args.stem = [], "gpu_quick"
+    both = np.load(args.features)
+    summer = np.asarray(both[0][: args.rows], np.float32)
+    winter = np.asarray(both[1][: args.rows], np.float32)
+    gpu = gpu_device()
+    results = {"gpu": run_on(gpu, summer, winter, args) if gpu else None}
+    results["cpu"] = run_on(jax.devices("cpu")[0], summer, winter, args)
+    report = dict(
+        features=str(args.features), n=len(summer), d=summer.shape[1],
+        batches=args.batches, decode=args.decode, length=args.length,
+        fit_sizes=args.fit_sizes,
+        compilation_cache=str(jax.config.jax_compilation_cache_dir),
+    )  # fmt: skip
+    if gpu:
+        for key in ("self", "winter"):
+            same = results["gpu"][key] == results["cpu"][key]
+            report[f"equal_{key}"] = float(np.mean(same))
+    for side in results.values():
+        if side:
+            side.pop("self"), side.pop("winter")
+    return report | results
+
+
+if __name__ == "__main__":
+    main(__doc__, run, markdown, options, stem="gpu")
