@@ -30,11 +30,7 @@ from rhythmic_jax.eval.metrics import (
 )
 from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.io.atomic import atomic_path, write_file
-from rhythmic_jax.periods import (
-    database_bytes,
-    nominal_periods,
-    storage_bytes,
-)
+from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_reproduce"
@@ -201,19 +197,13 @@ def table1_paper() -> list[dict[str, Any]]:
 
 def table1_markdown(paper: list[dict], here: list[dict]) -> str:
     """Markdown of :func:`table1_paper` rows and of the rows run here."""
-    rows = [
-        dict(
-            r,
-            printed=f"{r['printed_ratio']:.4f}",
-            note=(r["flag"] or "agrees")
-            + ("" if r["bytes_match"] else "; BYTES DIFFER"),
-        )
-        for r in paper
-    ]
-    rows += [
-        dict(r, printed="-", note=f"run here; {r['ratio_d4096']:.4f} at d = 4096")
-        for r in here
-    ]
+    rows = []
+    for r in paper:
+        note = (r["flag"] or "agrees") + ("" if r["bytes_match"] else "; BYTES DIFFER")
+        rows.append(dict(r, printed=f"{r['printed_ratio']:.4f}", note=note))
+    for r in here:
+        note = f"run here; {r['ratio_d4096']:.4f} at d = 4096"
+        rows.append(dict(r, printed="-", note=note))
     return h.columns(rows, T1)
 
 
@@ -249,8 +239,8 @@ class Run:
             descriptor_settings=self.desc.settings(),
         )  # fmt: skip
         if aug is None:
-            return h.cached_fit(model, x, self.cache_dir,
-                                lambda m: m.fit(x, progress=self.progress))  # fmt: skip
+            fit = lambda m: m.fit(x, progress=self.progress)  # noqa: E731
+            return h.cached_fit(model, x, self.cache_dir, fit)
         from rhythmic_jax.augment.stream import fit_map_augmented
 
         def fit(m):
@@ -276,17 +266,11 @@ class Run:
             for k, v in state["attributes"].items():
                 setattr(b, k, v)
             return state["fit_s"]
-        start = time.perf_counter()
-        b.fit(x)
-        fit_s = time.perf_counter() - start
+        _, fit_s, _ = h.timed(b.fit, x)
         self.cache_dir.mkdir(parents=True, exist_ok=True)
         write_file(path, faiss.serialize_index(b.index).tobytes())
-        scalars = (int, float, str, bool)
-        attrs = {
-            k: v
-            for k, v in vars(b).items()
-            if isinstance(v, scalars) and k != "n_threads"
-        }
+        attrs = {k: v for k, v in vars(b).items() if isinstance(v, int | float | str)}
+        attrs.pop("n_threads", None)
         write_file(side, json.dumps(dict(attributes=attrs, fit_s=fit_s)))
         return fit_s
 
@@ -361,29 +345,22 @@ def table2(run: Run, data, fits) -> list[dict]:
         for level in run.settings.levels[:2]:
             model, fit = fits[key, level]
             p = PAPER_TABLE2[paper].get(level)
-            rec = dict(
-                map_record(model, fit),
-                dataset=label,
-                paper_dataset=paper,
-                paper_periods=f"{p[0]}, {p[1]}" if p else "-",
-                paper_e=f"{p[2]:.2f}, {p[3]:.2f}" if p else "-",
-                paper_accuracy=f"{p[4]:.4f}" if p else "-",
-            )
-            out.append(
-                rec | run.score_map(f"t2_{key}_L{level}", model, data[key][1], 0)
-            )
+            rec = dict(map_record(model, fit), dataset=label, paper_dataset=paper)
+            rec.update(paper_periods="-", paper_e="-", paper_accuracy="-")
+            if p:
+                rec.update(paper_periods=f"{p[0]}, {p[1]}", paper_e=f"{p[2]:.2f}, "
+                           f"{p[3]:.2f}", paper_accuracy=f"{p[4]:.4f}")  # fmt: skip
+            score = run.score_map(f"t2_{key}_L{level}", model, data[key][1], 0)
+            out.append(rec | score)
     return out
 
 
 def timing(fn, q: np.ndarray, s: Settings) -> dict[str, float]:
     single = time_single_queries(fn, q[: s.timing_queries], warmup=10)
     batch = time_batch(fn, q[: s.batch_queries], repeats=2)
-    return dict(
-        single_median_s=single["median_s"],
-        single_p95_s=single["p95_s"],
-        batch_queries_per_s=batch["queries_per_s"],
-        batch_size=batch["batch_size"],
-    )
+    return dict(single_median_s=single["median_s"], single_p95_s=single["p95_s"],
+                batch_queries_per_s=batch["queries_per_s"],
+                batch_size=batch["batch_size"])  # fmt: skip
 
 
 def table3(run: Run, data, fits) -> dict[str, Any]:
@@ -402,11 +379,8 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
     if s.opq:
         baselines.append(OPQ(256, 8, niter=s.opq_niter, n_threads=s.threads))
     for b in tqdm(baselines, desc="baselines", disable=not run.progress):
-        fit_s = run.fit_baseline(b, x) if isinstance(b, ITQ | OPQ) else None
-        if fit_s is None:
-            start = time.perf_counter()
-            b.fit(x)
-            fit_s = time.perf_counter() - start
+        cached = isinstance(b, ITQ | OPQ)
+        fit_s = run.fit_baseline(b, x) if cached else h.timed(b.fit, x)[1]
         note = b.note
         if isinstance(b, OPQ):
             note = "; ".join(filter(None, [note, f"{s.opq_niter} iterations"]))
@@ -417,18 +391,16 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
         for label, (tag, qq, tol) in sets.items():
             key = f"t3_{tag}_" + re.sub(r"\W+", "_", name.lower())
             if isinstance(obj, RhythmicMap):
-                row[label] = run.score_map(key, obj, qq, tol)
-                fn = obj.predict
+                row[label], fn = run.score_map(key, obj, qq, tol), obj.predict
             else:
                 row[label] = run.score_search(key, obj, qq, tol)
                 fn = lambda b, o=obj: o.search(b, 1)  # noqa: E731
             row[label] |= timing(fn, qq, s)
         rows.append(row)
     threads = dict(faiss=s.threads, kdtree=1, jax="XLA CPU default thread pool")
-    skipped = [] if s.opq else [OPQ_SKIPPED]
     return dict(
         database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
-        query_sets=list(sets), threads=threads, skipped=skipped,
+        query_sets=list(sets), threads=threads, skipped=[] if s.opq else [OPQ_SKIPPED],
     )  # fmt: skip
 
 
@@ -447,11 +419,13 @@ def fig4(run: Run, data, fits) -> list[dict]:
 
 def by_level(run: Run, fits, key: str, q, tol: int) -> list[dict]:
     """The map at each level, queried with q."""
-    return [
-        map_record(*fits[key, lv])
-        | run.score_map(f"{key}_q_L{lv}", fits[key, lv][0], q, tol)
-        for lv in run.settings.levels
-    ]
+    out = []
+    for lv in run.settings.levels:
+        model, fit = fits[key, lv]
+        out.append(
+            map_record(model, fit) | run.score_map(f"{key}_q_L{lv}", model, q, tol)
+        )
+    return out
 
 
 def appearance(run: Run, data, fits) -> dict[str, Any]:
@@ -463,29 +437,20 @@ def appearance(run: Run, data, fits) -> dict[str, Any]:
 
     s = run.settings
     images, x, q = data["nordland"]
-    full = dict(
-        brute_force=run.score_search("ap_bf", BruteForce(s.threads).fit(x), q, 1),
-        levels=by_level(run, fits, "nordland", q, 1),
-    )
+    bf = run.score_search("ap_bf", BruteForce(s.threads).fit(x), q, 1)
+    full = dict(brute_force=bf, levels=by_level(run, fits, "nordland", q, 1))
     m = min(s.aug_frames, len(x))
     bf = run.score_search("aug_bf", BruteForce(s.threads).fit(x[:m]), q[:m], 1)
     sub = dict(
         frames=m, level=s.aug_level, epochs=s.aug_epochs, brute_force=bf, rows=[]
     )
     variants = [("none", None)] + [(n, (n,)) for n in s.aug_names or NAMES]
-    for label, names in tqdm(
-        variants + [("all merged", ("all",))],
-        desc="augmentations",
-        disable=not run.progress,
-    ):
+    variants.append(("all merged", ("all",)))
+    for label, names in tqdm(variants, desc="augmentations", disable=not run.progress):
         aug = None if names is None else AugmentedFit(names=names, epochs=s.aug_epochs)
         model, fit = run.fit(x[:m], level=s.aug_level, images=images[:m], aug=aug)
-        key = "aug_" + label.replace(" ", "_")
-        sub["rows"].append(
-            map_record(model, fit)
-            | dict(name=label)
-            | run.score_map(key, model, q[:m], 1)
-        )
+        score = run.score_map("aug_" + label.replace(" ", "_"), model, q[:m], 1)
+        sub["rows"].append(map_record(model, fit) | dict(name=label) | score)
     return dict(tolerance=1, full=full, augmentation=sub)
 
 
@@ -495,12 +460,8 @@ def aerial(run: Run, data, fits) -> dict[str, Any]:
 
     _, xa, xb = data["aerial"]
     bf = run.score_search("aerial_bf", BruteForce(run.settings.threads).fit(xa), xb, 0)
-    return dict(
-        tolerance=0,
-        n=len(xa),
-        brute_force=bf,
-        levels=by_level(run, fits, "aerial", xb, 0),
-    )
+    levels = by_level(run, fits, "aerial", xb, 0)
+    return dict(tolerance=0, n=len(xa), brute_force=bf, levels=levels)
 
 
 # ------------------------------------------------------------------- report
@@ -512,95 +473,61 @@ def table3_markdown(t3: dict) -> str:
         rows = []
         for row in t3["rows"]:
             r = row | row[label]
-            rows.append(
-                r
-                | dict(
-                    single_ms=1e3 * r["single_median_s"],
-                    p95_ms=1e3 * r["single_p95_s"],
-                    percent=100 * r["storage_bytes"] / t3["database_bytes"],
-                    fit="cached" if r["fit_s"] is None else f"{r['fit_s']:.1f}",
-                )
+            fit = "cached" if r["fit_s"] is None else f"{r['fit_s']:.1f}"
+            pct = 100 * r["storage_bytes"] / t3["database_bytes"]
+            ms = dict(
+                single_ms=1e3 * r["single_median_s"], p95_ms=1e3 * r["single_p95_s"]
             )
+            rows.append(r | ms | dict(fit=fit, percent=pct))
         r = rows[0]
-        out += [
-            f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']} "
-            "queries:",
-            "",
-            h.columns(rows, T3),
-            "",
-        ]
+        out += [f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']}"
+                " queries:", "", h.columns(rows, T3), ""]  # fmt: skip
     return "\n".join(out + [f"Not run: {x}\n" for x in t3["skipped"]])
 
 
 def levels_markdown(block: dict) -> str:
-    rows = [
-        dict(
-            block["brute_force"],
-            method="brute force",
-            level="-",
-            periods=["-"],
-            compression_ratio=1.0,
-        )
-    ]
-    rows += [dict(r, method="map") for r in block["levels"]]
-    return h.columns(rows, LEVELS)
+    bf = dict(block["brute_force"], method="brute force", level="-", periods=["-"])
+    rows = [bf | dict(compression_ratio=1.0)]
+    return h.columns(rows + [dict(r, method="map") for r in block["levels"]], LEVELS)
 
 
 def augmentation_markdown(sub: dict) -> str:
     rows = [dict(sub["brute_force"], name="brute force (no training)", periods=["-"])]
     rows += [dict(r, name=f"map, {r['name']}") for r in sub["rows"]]
-    return h.columns(
-        [
-            dict(r, fit=f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-")
-            for r in rows
-        ],
-        AUG,
-    )
+    for r in rows:
+        r["fit"] = f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-"
+    return h.columns(rows, AUG)
 
 
 def decoding_markdown(path: Path) -> tuple[str, dict | None]:
     """Tables of ``scripts/bench_decoding.py``'s ``decoding.json``, if present."""
     if not path.is_file():
-        return (
-            "This section is produced by `python scripts/bench_decoding.py` (it "
-            "writes `reports/decoding.json`, absent when this report was made).",
-            None,
-        )
+        return ("This section is produced by `python scripts/bench_decoding.py` (it"
+                " writes `reports/decoding.json`, absent when this report was made).",
+                None)  # fmt: skip
     data = json.loads(path.read_text())
-    parts = [
-        f"From `{path.name}`, written by `{data.get('command', '?')}`; "
-        f"recall@1 within ±{data.get('tolerance', 1)} index."
-    ]
+    parts = [f"From `{path.name}`, written by `{data.get('command', '?')}`; "
+             f"recall@1 within ±{data.get('tolerance', 1)} index."]  # fmt: skip
     for b in data.get("decoding", []):
-        parts += [
-            "",
-            f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
-            f"{b['level']}**, periods {b['periods']}:",
-            "",
-            h.columns(b["rows"] + b.get("references", []), DECODING),
-        ]
+        parts += ["", f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
+                  f"{b['level']}**, periods {b['periods']}:", "",
+                  h.columns(b["rows"] + b.get("references", []), DECODING)]  # fmt: skip
     for b in data.get("outliers", []):
-        parts += [
-            "",
-            f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
-            "",
-            h.columns(b["rows"], OUTLIERS),
-        ]
+        parts += ["", f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
+                  "", h.columns(b["rows"], OUTLIERS)]  # fmt: skip
     return "\n".join(parts), data
 
 
-CROSS_COLUMNS = (("r1", "R@1 ±1"), ("r1_exact", "exact"), ("r5", "R@5"),
-                 ("L10", "L = 10"), ("self_r1", "self"))  # fmt: skip
+CROSS = "r1 R@1 ±1|r1_exact exact|r5 R@5|L10 L = 10|self_r1 self"
 
 
 def cross_condition_markdown(path: Path) -> str:
     """Targets and the first direction of every data set of
     ``scripts/bench_cross_condition.py``'s ``cross_condition.json``, if present."""
     if not path.is_file():
-        return (
-            "This section is produced by `python scripts/bench_cross_condition.py` "
-            f"(it writes `reports/{path.name}`, absent when this report was made)."
-        )
+        return ("This section is produced by `python scripts/bench_cross_condition.py`"
+                f" (it writes `reports/{path.name}`, absent when this report was"
+                " made).")  # fmt: skip
     data = json.loads(path.read_text())
     parts = [
         f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
@@ -612,21 +539,16 @@ def cross_condition_markdown(path: Path) -> str:
         "",
     ]
     parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
+    cols = [c.split(" ", 1) for c in CROSS.split("|")]
+    spec = "\n".join(["method = {method}", *(f"{t} = {{{k}}}" for k, t in cols),
+                      "share of raw bytes = {share}"])  # fmt: skip
     for name, ds in data["datasets"].items():
         key, rows = next(iter(ds["directions"].items()))
-        head = ["method", *(h for _, h in CROSS_COLUMNS), "share of raw bytes"]
-        body = [
-            "| " + " | ".join(head) + " |",
-            "|---" + "|---:" * (len(head) - 1) + "|",
-        ]
-        for r in rows:
-            cells = ["" if c not in r else f"{r[c]:.3f}" for c, _ in CROSS_COLUMNS]
-            body.append(
-                f"| {r['method']} | " + " | ".join(cells)
-                + f" | {100 * r['ratio']:.1f} % |"
-            )  # fmt: skip
+        rows = [{k: "" if k not in r else f"{r[k]:.3f}" for k, _ in cols}
+                | dict(method=r["method"], share=f"{100 * r['ratio']:.1f} %")
+                for r in rows]  # fmt: skip
         parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
-        parts += body
+        parts.append(h.columns(rows, spec, "l" + "r" * len(cols) + "r"))
     return "\n".join(parts)
 
 
@@ -652,32 +574,27 @@ REPORT = """\
 
 Command: `{m[command]}`; {m[date]}; rhythmic_jax {m[version]} (jax {m[jax]}, faiss
 {m[faiss]}, numpy {m[numpy]}, Python {m[python]}); {m[machine]}, {m[cpu_count]} cores,
-load average {m[load_start][0]:.1f} at the start and {m[load_end][0]:.1f} at the end;
-{m[elapsed_min]:.1f} minutes, {cached} of the {n_maps} maps from the cache. Descriptor
-{m[descriptor]} {m[descriptor_settings]}, d = {m[d]}; Nordland: {m[frames]} frames per
-season. Numbers: `reproduction.json`; predictions: `{m[predictions]}`.
+load {m[load_start][0]:.1f} to {m[load_end][0]:.1f}; {m[elapsed_min]:.1f} minutes,
+{cached} of {n_maps} maps cached. {m[descriptor]} {m[descriptor_settings]}, d = {m[d]};
+{m[frames]} Nordland frames a season. Predictions: `{m[predictions]}`.
 
 ## Table 1: storage (r = 2, T = sqrt N, float32)
 
-Bytes: sum tau x (d + 1) x 4 against N x d x 4. Paper rows: d = 4096 with the
-paper's periods, the printed ratio beside the one its printed bytes give.
+sum tau x (d + 1) x 4 bytes against N x d x 4; paper rows at d = 4096.
 
 {table1}
 
 ## Table 2: queries from the map (exact accuracy)
 
-r = 2, seven candidates from c x ceil(sqrt N) at level c; e: training error of each
-chosen period (x 10^-3, as the paper); every candidate's error is in the JSON.
+r = 2, seven candidates from c x ceil(sqrt N) at level c; e: training error (x 10^-3).
 {solver_note}
 
 {table2}
 
 ## Table 3: search time, storage and accuracy against the baselines
 
-Nordland summer map ({m[frames]} frames, d = {m[d]}), the same queries for every
-method. Threads: faiss {threads[faiss]}, KD-tree 1, JAX: {threads[jax]}. Single query:
-median and p95 of {s[timing_queries]} calls; batch: {s[batch_queries]} queries a call.
-Storage counts all that search needs.
+Nordland summer map. Threads: faiss {threads[faiss]}, KD-tree 1, JAX: {threads[jax]}.
+Single query: median and p95 of {s[timing_queries]} calls; batch: {s[batch_queries]}.
 
 {table3}
 Paper Table 3 (Aerial Brisbane, seconds per query): {paper3}.
@@ -694,29 +611,23 @@ Paper Table 3 (Aerial Brisbane, seconds per query): {paper3}.
 
 {fig4}
 
-The paper: a larger r compresses more, but accuracy falls sharply.
-
 ## Appearance change: summer map, winter queries (±1 frame)
 
-The whole route ({m[frames]} frames), the map at each level (paper Fig. 8):
+The whole route, the map at each level (paper Fig. 8):
 
 {levels}
 
-Augmentation (paper Fig. 6) on the first {sub[frames]} frames of the route (to fit the
-time budget), level {sub[level]}, {sub[epochs]} augmented epochs a fit; each operation
-alone, then the seven merged:
+Augmentation (paper Fig. 6), first {sub[frames]} frames, level {sub[level]},
+{sub[epochs]} augmented epochs a fit; each operation alone, then all seven:
 
 {augmentation}
 
 ![augmentation](fig6_augmentation.png) ![levels](fig8_levels.png)
 
 The paper (Aerial Brisbane / RobotCar): brute force 0.9582 / 0.236, the map alone
-0.6835 / 0.183, all augmentations merged about +2 / +1 points; longer periods raise
-accuracy (ratio 0.131 at T = 4 sqrt N on Aerial Brisbane).
+0.6835 / 0.183, all augmentations merged about +2 / +1 points.
 
-## Aerial pairs (LEVIR-CD samples): A tiles the map, B tiles the queries
-
-{ae[n]} places, exact index (tolerance 0):
+## Aerial pairs (LEVIR-CD): A tiles the map, B the queries, {ae[n]} places, exact
 
 {aerial}
 
@@ -745,57 +656,36 @@ def _tree(node):
 
 def markdown(res: dict) -> str:
     """The report: :data:`REPORT` filled from the results."""
-    t2 = res["table2"]
+    t2, meta = res["table2"], res["meta"]
     summer = next(r for r in t2 if r["dataset"] == "Nordland summer")
-    fig3 = [
-        dict(level=lv, candidates=c, candidate_errors=e, periods=p)
-        for lv, (c, e, p) in res["fig3"].items()
-    ]
-    maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
-    return h.fill(
-        REPORT,
-        cached=sum(maps.values()),
-        n_maps=len(maps),
-        m=res["meta"]
-        | dict(
-            predictions=Path(res["meta"]["predictions"]).name,
-            command=res.get("command", res["meta"].get("command")),
-        ),
-        s=res["settings"],
-        summer=summer,
-        solver_note=SOLVER_NOTE.format(
-            summer["accuracy"],
-            100 * min(summer["candidate_errors"]),
-            100 * max(summer["candidate_errors"]),
-        )
-        if summer["n"] == 3576
-        else "",
-        threads=res["table3"]["threads"],
-        sub=res["appearance"]["augmentation"],
-        ae=res["aerial"],
-        table1=table1_markdown(res["table1"]["paper"], res["table1"]["here"]),
-        table2=h.columns(t2, T2),
-        table3=table3_markdown(res["table3"]),
-        paper3=PAPER_TABLE3,
-        fig3=h.columns(fig3, FIG3),
-        fig4=h.columns(res["fig4"], FIG4),
-        levels=levels_markdown(res["appearance"]["full"]),
-        augmentation=augmentation_markdown(res["appearance"]["augmentation"]),
-        aerial=levels_markdown(res["aerial"]),
-        decoding=res["decoding_md"],
-        cross_condition=res.get("cross_condition_md", ""),
-        deviations=DEVIATIONS,
+    errors = [100 * f(summer["candidate_errors"]) for f in (min, max)]
+    note = (
+        SOLVER_NOTE.format(summer["accuracy"], *errors) if summer["n"] == 3576 else ""
     )
+    fig3 = [dict(level=lv, candidates=c, candidate_errors=e, periods=p)
+            for lv, (c, e, p) in res["fig3"].items()]  # fmt: skip
+    maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
+    app, t1 = res["appearance"], res["table1"]
+    m = meta | dict(predictions=Path(meta["predictions"]).name,
+                    command=res.get("command", meta.get("command")))  # fmt: skip
+    return h.fill(
+        REPORT, cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
+        solver_note=note, threads=res["table3"]["threads"],
+        sub=app["augmentation"], ae=res["aerial"],
+        table1=table1_markdown(t1["paper"], t1["here"]), table2=h.columns(t2, T2),
+        table3=table3_markdown(res["table3"]), paper3=PAPER_TABLE3,
+        fig3=h.columns(fig3, FIG3), fig4=h.columns(res["fig4"], FIG4),
+        levels=levels_markdown(app["full"]),
+        augmentation=augmentation_markdown(app["augmentation"]),
+        aerial=levels_markdown(res["aerial"]), decoding=res["decoding_md"],
+        cross_condition=res.get("cross_condition_md", ""), deviations=DEVIATIONS,
+    )  # fmt: skip
 
 
 def draw(res: dict, out: Path) -> list[str]:
     """Write the PNG figures into ``out``; returns their file names."""
-    names = [
-        "fig3_training_error.png",
-        "fig4_r.png",
-        "fig6_augmentation.png",
-        "fig8_levels.png",
-    ]
+    names = ["fig3_training_error.png", "fig4_r.png", "fig6_augmentation.png",
+             "fig8_levels.png"]  # fmt: skip
     series = {f"level {lv}": v for lv, v in res["fig3"].items()}
     figures.plot_training_error(series, "Nordland summer", out / names[0])
     f4 = res["fig4"]
@@ -804,30 +694,24 @@ def draw(res: dict, out: Path) -> list[str]:
         [r["accuracy"] for r in f4], "Nordland summer, level 1", out / names[1],
     )  # fmt: skip
     sub = res["appearance"]["augmentation"]
+    title = f"summer map, winter queries, first {sub['frames']} frames, level "
+    title += str(sub["level"])
     figures.plot_augmentation(
-        [r["name"] for r in sub["rows"]],
-        [r["accuracy"] for r in sub["rows"]],
-        {"brute force": sub["brute_force"]["accuracy"]},
-        f"summer map, winter queries, first {sub['frames']} frames, "
-        f"level {sub['level']}",
-        "accuracy (±1 frame)",
-        out / names[2],
-    )
+        [r["name"] for r in sub["rows"]], [r["accuracy"] for r in sub["rows"]],
+        {"brute force": sub["brute_force"]["accuracy"]}, title,
+        "accuracy (±1 frame)", out / names[2],
+    )  # fmt: skip
     series = {}
-    for label, block in (
-        ("Nordland summer -> winter (±1)", res["appearance"]["full"]),
-        ("LEVIR A -> B (exact)", res["aerial"]),
-    ):
+    for label, block in (("Nordland summer -> winter (±1)", res["appearance"]["full"]),
+                         ("LEVIR A -> B (exact)", res["aerial"])):  # fmt: skip
         lv = block["levels"]
         series[label] = dict(
-            levels=[r["level"] for r in lv],
-            accuracy=[r["accuracy"] for r in lv],
+            levels=[r["level"] for r in lv], accuracy=[r["accuracy"] for r in lv],
             ratio=[r["compression_ratio"] for r in lv],
             brute_force=block["brute_force"]["accuracy"],
-        )
-    figures.plot_levels(
-        series, "accuracy and compression against the level", out / names[3]
-    )
+        )  # fmt: skip
+    title = "accuracy and compression against the level"
+    figures.plot_levels(series, title, out / names[3])
     return names
 
 
