@@ -1,18 +1,11 @@
 """The one harness of the benchmark scripts.
 
-A script defines ``options(ap)`` (its own arguments), ``run(args) -> dict`` (the
-measurements) and ``markdown(report) -> str`` (the report), and ends with
-``main(__doc__, run, markdown, options, stem="...")``. :func:`main` parses the
-common options (``--root`` data, ``--out`` folder, ``--quick``, ``--no-progress``,
-``--render``), pins torch, BLAS and faiss to one thread per core (as XLA's CPU
-client runs), records the machine (devices, versions, cores, threads, load
-average at the start and the end: the machine is shared, timings taken under load
-are pessimistic) and the git commit, runs ``run``, then writes ``<stem>.json``
-and ``<stem>.md`` atomically and prints the Markdown. ``--render [JSON]`` writes
-the Markdown again from a report's numbers, measuring nothing.
-
-Also here: the one timer (:func:`timed`), Nordland and aerial features through
-the descriptor cache, and the sha256-keyed caches of fitted maps.
+A script defines ``options(ap)``, ``run(args) -> dict`` (the measurements) and
+``markdown(report) -> str``, and ends with ``main(__doc__, run, markdown, options,
+stem="...")``: common options, threads pinned to one per core, the machine and load
+recorded, then ``<stem>.json`` and ``<stem>.md`` written (``--render [JSON]``: the
+Markdown again from a report). Also: the timer, a command in a fresh process, the
+Nordland and aerial features and the cache of fitted maps.
 """
 
 from __future__ import annotations
@@ -24,9 +17,11 @@ import json
 import logging
 import os
 import platform
+import resource
 import string
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -38,9 +33,6 @@ DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
 NORDLAND = "nordland_64x32"
 log = logging.getLogger("harness")
 _LIMITS: list = []  # keeps the global BLAS limit referenced
-
-
-# ------------------------------------------------------------- the machine
 
 
 def cores() -> int:
@@ -99,9 +91,6 @@ def machine(threads: dict[str, int] | None = None) -> dict:
     )  # fmt: skip
 
 
-# ---------------------------------------------------------------- timing
-
-
 def timed(fn, *args, **kwargs):
     """``(fn(*args, **kwargs), wall seconds, process CPU seconds)``, JAX results
     waited for. CPU seconds sum every thread of this process: they count the work
@@ -123,14 +112,38 @@ def fastest(fn: Callable[[], object], repeats: int):
     return out, min(timed(fn)[1] for _ in range(repeats))
 
 
+def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
+    """``cmd`` in a fresh process (``checkout``'s package first on the path, JAX on
+    the CPU unless said, ``extra`` in its environment): rc, wall and CPU seconds
+    (its process tree), stdout, stderr and the 1-minute load after it."""
+    env = dict(os.environ if env is None else env, TF_CPP_MIN_LOG_LEVEL="3", **extra)
+    env.setdefault("JAX_PLATFORMS", "cpu")
+    if checkout is not None:
+        env["PYTHONPATH"] = str(checkout)
+    before, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True,
+                          cwd=cwd or tempfile.gettempdir())  # fmt: skip
+    wall, after = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
+    if check and done.returncode != 0:
+        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return dict(rc=done.returncode, wall=wall, cpu=cpu, stdout=done.stdout,
+                stderr=done.stderr, load=load_average()[0])  # fmt: skip
+
+
+def weights_folder() -> Path:
+    """The Lite0 weights' folder: a baseline checkout's ``query`` finds them by the
+    bare file name its map records, from there."""
+    from rhythmic_jax.frames.nets import lite0_weights_path
+
+    return lite0_weights_path().parent
+
+
 def stats(v) -> dict[str, float]:
     """max, median, min and mean of an array."""
     v = np.asarray(v, np.float64)
     return dict(max=float(v.max()), median=float(np.median(v)), min=float(v.min()),
                 mean=float(v.mean()))  # fmt: skip
-
-
-# ------------------------------------------------------------------ data
 
 
 def nordland_images(root: Path, seasons=("summer", "winter"), progress=False):
@@ -175,9 +188,6 @@ def unit_rows(a) -> np.ndarray:
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
-# ---------------------------------------------------------------- caches
-
-
 def digest(ident, *arrays) -> str:
     """16 hex digits of sha256 over ``ident`` (JSON, sorted keys; a str as is)
     and the bytes of ``arrays``: the key of a cached fit."""
@@ -211,9 +221,6 @@ def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
     timing = dict(fit_wall_s=wall, fit_cpu_s=cpu)
     _write(side, json.dumps(timing))
     return model, dict(map_path=str(path), cached=False, **timing)
-
-
-# --------------------------------------------------------------- reports
 
 
 def plain(obj):

@@ -10,14 +10,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, header, load_average, main, nordland_images, table
+from _harness import REPO, child, header, main, nordland_images, table, weights_folder
 
 # Runs a module (-m NAME ARGS) or a script (PATH ARGS) with JAX's compile log
 # counted; writes {"programs", "hits", "compile_s"} to $COUNT_OUT at exit.
@@ -79,27 +78,13 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
 
 
 def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
-    """Wall seconds and compile counts of one job in a fresh process."""
+    """(wall seconds and compile counts, stdout) of one job in a fresh process."""
     out = tmp / f"count-{time.monotonic_ns()}.json"
-    t = time.perf_counter()
-    done = subprocess.run(
-        [sys.executable, "-c", WRAPPER, *cmd], env={**env, "COUNT_OUT": str(out)},
-        capture_output=True, text=True, cwd=_weights_folder(),
-    )  # fmt: skip
-    wall = time.perf_counter() - t
-    if done.returncode != 0:
-        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")
+    r = child([sys.executable, "-c", WRAPPER, *cmd], None, weights_folder(), env=env,
+              COUNT_OUT=str(out))  # fmt: skip
     count = json.loads(out.read_text())
     count["compiled"] = count["programs"] - count["hits"]
-    return dict(count, wall=wall, load=load_average()[0], stdout=done.stdout[-400:])
-
-
-def _weights_folder() -> Path:
-    """The folder of the Lite0 weights: the baseline's ``query`` looks for them
-    by the bare file name its map records (as scripts/bench_frames.py runs)."""
-    from rhythmic_jax.frames.nets import lite0_weights_path
-
-    return lite0_weights_path().parent
+    return dict(count, wall=r["wall"], load=r["load"]), r["stdout"]
 
 
 def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
@@ -125,8 +110,7 @@ def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
     """(name, environment) of base, new cold, new warm: the warm run reuses the
     cold run's compile cache (and network)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPIL")}
-    env.update(JAX_PLATFORMS="cpu", TF_CPP_MIN_LOG_LEVEL="3")
-    env["RHYTHMIC_JAX_NETWORK_BUILD"] = "1"
+    env.update(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
     jit = tmp / "jit"
     new = {**env, "PYTHONPATH": str(REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
     old = {**env, "PYTHONPATH": str(base.resolve())}
@@ -177,44 +161,36 @@ def run(args) -> dict:
                 if job in ("fit", "nordland"):
                     pred = tmp / f"{job}-{tag}.npy"
                     cmd = [str(script), str(inputs[job]), str(pred)]
-                    r = run_job(cmd, env_job, tmp)
-                    r["periods"] = json.loads(r.pop("stdout").splitlines()[-1])
+                    r, out = run_job(cmd, env_job, tmp)
+                    r["periods"] = json.loads(out.splitlines()[-1])
                     agree.setdefault(job, {})[name] = (pred, r["periods"]["periods"])
                     rows.append(dict(job=job, variant=name, **r))
-                elif job == "demo":
-                    cmd = [*exe, "demo", "--out", str(tmp / f"demo-{tag}")]
-                    r = run_job([*cmd, "--no-progress"], env_job, tmp)
-                    r.pop("stdout")
-                    rows.append(dict(job="demo", variant=name, **r))
-                else:
-                    out_map = tmp / f"jpeg-{tag}.map"
-                    cmd = [*exe, "fit", str(folders["ref"]), "--out", str(out_map)]
-                    cmd += ["--descriptor", "efficientnet_lite0", "--no-progress"]
-                    r = run_job(cmd, env_job, tmp)
-                    r.pop("stdout")
-                    rows.append(dict(job="jpeg fit", variant=name, **r))
-                    if side == "new":
-                        r["build_wait_s"] = wait_for_build(cache)
+                jpeg_map = str(tmp / f"jpeg-{tag}.map")
+                ref, q = folders.get("ref"), folders.get("q")
+                steps = {
+                    "demo": [("demo", ["demo", "--out", str(tmp / f"demo-{tag}")])],
+                    "jpeg": [("jpeg fit", ["fit", str(ref), "--out", jpeg_map,
+                                           "--descriptor", "efficientnet_lite0"]),
+                             ("jpeg query", ["query", jpeg_map, str(q), "--out",
+                                             str(tmp / f"q-{tag}.npy")])],
+                }.get(job, [])  # fmt: skip
+                for label, cmd in steps:
+                    r = run_job([*exe, *cmd, "--no-progress"], env_job, tmp)[0]
+                    rows.append(dict(job=label, variant=name, **r))
+                    if label == "jpeg fit" and side == "new":
+                        wait_for_build(cache)
                         if (cache / "compiled").is_dir():
                             shutil.rmtree(network, ignore_errors=True)
                             shutil.copytree(cache / "compiled", network / "compiled")
-                    cmd = [*exe, "query", str(out_map), str(folders["q"])]
-                    cmd += ["--out", str(tmp / f"q-{tag}.npy"), "--no-progress"]
-                    r = run_job(cmd, env_job, tmp)
-                    r.pop("stdout")
-                    rows.append(dict(job="jpeg query", variant=name, **r))
                 print(json.dumps(rows[-1]), flush=True)
         same = {}
         for job, runs in agree.items():
             base_pred, base_periods = runs["base"]
             for name in ("new cold", "new warm"):
                 pred, periods = runs[name]
-                same[f"{job}, {name}"] = dict(
-                    periods_equal=periods == base_periods,
-                    predictions_equal=float(
-                        (np.load(pred) == np.load(base_pred)).mean()
-                    ),
-                )
+                equal = float((np.load(pred) == np.load(base_pred)).mean())
+                same[f"{job}, {name}"] = dict(periods_equal=periods == base_periods,
+                                              predictions_equal=equal)  # fmt: skip
     sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 

@@ -6,17 +6,13 @@ python scripts/bench_frames.py --base /tmp/base [--repeats 2]
 from __future__ import annotations
 
 import json
-import os
-import resource
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, header, load_average, main, nordland_images, table
+from _harness import REPO, child, header, main, nordland_images, table, weights_folder
 
 AUGMENTED = """
 import json, sys, time
@@ -81,21 +77,10 @@ def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, P
     return out
 
 
-def timed_run(cmd: list[str], env: dict) -> dict:
-    """Wall and CPU seconds (children) of one command; fails loudly."""
-    from rhythmic_jax.frames.nets import lite0_weights_path
-
-    cwd = lite0_weights_path().parent
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t = time.perf_counter()
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=cwd)
-    wall = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if done.returncode != 0:
-        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-2000:]}")
-    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
-    return dict(wall=wall, cpu=cpu, stdout=done.stdout[-2000:],
-                stderr=done.stderr[-500:], load=load_average()[0])  # fmt: skip
+def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
+    """Wall and CPU seconds of one command of ``checkout`` with its cache folder."""
+    r = child(cmd, checkout, weights_folder(), RHYTHMIC_JAX_CACHE=str(cache))
+    return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
 def fresh_cache(tmp: Path, compiled: Path | None) -> Path:
@@ -106,11 +91,6 @@ def fresh_cache(tmp: Path, compiled: Path | None) -> Path:
     return cache
 
 
-def job_env(pythonpath: str, cache: Path) -> dict:
-    """The environment of one job: which checkout, which cache folder."""
-    return {**os.environ, "PYTHONPATH": pythonpath, "RHYTHMIC_JAX_CACHE": str(cache)}
-
-
 def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--frames", type=int, default=1000)
@@ -119,60 +99,51 @@ def options(ap) -> None:
     ap.add_argument("--skip-augmented", action="store_true")
 
 
+def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]:
+    """One job's command line: each checkout's own ``python -m rhythmic_jax.cli``
+    (the installed script imports this checkout's)."""
+    if job.startswith("augmented"):
+        root = str(args.root / "nordland_64x32")
+        return [sys.executable, "-c", AUGMENTED, root, str(args.aug_frames), job[10:]]
+    exe, out_map = [sys.executable, "-m", "rhythmic_jax.cli"], tmp / f"{variant}.map"
+    if job == "query":
+        out = str(tmp / f"{variant}.npy")
+        return [*exe, "query", str(out_map), str(folders["q"]), "--out", out,
+                "--no-progress"]  # fmt: skip
+    if job == "fit100":
+        out_map = tmp / f"{variant}_small.map"
+    shutil.rmtree(out_map, ignore_errors=True)
+    src = folders["ref" if job == "fit" else "small"]
+    return [*exe, "fit", str(src), "--out", str(out_map), "--descriptor",
+            "efficientnet_lite0", "--no-progress"]  # fmt: skip
+
+
 def run(args) -> dict:
     if args.quick:
         args.frames, args.repeats, args.aug_frames = 100, 1, 130
         args.stem = "frames_quick"
-    # each checkout's own command line (``python -m rhythmic_jax.cli`` runs what
-    # its ``rhythmic-jax`` runs); the installed script imports this checkout's
-    exe = [sys.executable, "-m", "rhythmic_jax.cli"]
     paths = {"base": str(args.base.resolve()), "new": str(REPO)}
+    jobs = ["fit", "query", "fit100"]
+    jobs += [] if args.skip_augmented else ["augmented_none", "augmented_all"]
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
         tmp = Path(tmpdir)
         folders = make_folders(args.root, tmp, args.frames)
         warm = tmp / "warm"  # the new checkout's compiled network, built once
-        env_new = {**os.environ, "PYTHONPATH": paths["new"],
-                   "RHYTHMIC_JAX_CACHE": str(warm)}  # fmt: skip
-        built = timed_run([*exe, "fit", str(folders["small"]), "--out",
-                           str(tmp / "warm.map"), "--descriptor",
-                           "efficientnet_lite0", "--compile", "always",
-                           "--no-progress"], env_new)  # fmt: skip
+        cmd = job_cmd("fit100", "warm", tmp, folders, args) + ["--compile", "always"]
+        built = timed_run(cmd, paths["new"], warm)
         runs: dict[str, dict[str, list]] = {}
         for rep in range(args.repeats):
             # alternate which side goes first, so drifting load hits both alike
             for variant in ("base", "new") if rep % 2 == 0 else ("new", "base"):
                 compiled = warm / "compiled" if variant == "new" else None
-                for job in ("fit", "query", "fit100"):
-                    env = job_env(paths[variant], fresh_cache(tmp, compiled))
-                    out_map = tmp / f"{variant}.map"
-                    if job == "fit":
-                        shutil.rmtree(out_map, ignore_errors=True)
-                        cmd = [*exe, "fit", str(folders["ref"]), "--out", str(out_map)]
-                        cmd += ["--descriptor", "efficientnet_lite0"]
-                    elif job == "query":
-                        cmd = [*exe, "query", str(out_map), str(folders["q"]),
-                               "--out", str(tmp / f"{variant}.npy")]  # fmt: skip
-                    else:
-                        small = tmp / f"{variant}_small.map"
-                        shutil.rmtree(small, ignore_errors=True)
-                        cmd = [*exe, "fit", str(folders["small"]), "--out", str(small)]
-                        cmd += ["--descriptor", "efficientnet_lite0"]
-                    r = timed_run([*cmd, "--no-progress"], env)
+                for job in jobs:
+                    cmd = job_cmd(job, variant, tmp, folders, args)
+                    r = timed_run(cmd, paths[variant], fresh_cache(tmp, compiled))
+                    if job.startswith("augmented"):
+                        r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
                     print(variant, job, rep, round(r["wall"], 1), r["load"], flush=True)
                     runs.setdefault(job, {}).setdefault(variant, []).append(r)
                     PARTIAL.write_text(json.dumps(runs))
-                if not args.skip_augmented:
-                    for names in ("none", "all"):
-                        env = job_env(paths[variant], fresh_cache(tmp, compiled))
-                        root = str(args.root / "nordland_64x32")
-                        r = timed_run([sys.executable, "-c", AUGMENTED, root,
-                                       str(args.aug_frames), names], env)  # fmt: skip
-                        r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
-                        fps = r["inner"]["frames_per_s"]
-                        print(variant, names, rep, fps, flush=True)
-                        job = f"augmented_{names}"
-                        runs.setdefault(job, {}).setdefault(variant, []).append(r)
-                        PARTIAL.write_text(json.dumps(runs))
         pred = {v: np.load(tmp / f"{v}.npy") for v in ("base", "new")}
         agree = float((pred["base"] == pred["new"]).mean())
         # winter frame i was taken at summer frame i's place

@@ -50,9 +50,8 @@ def peaked(cmd: list[str], check: bool = True) -> dict:
 
 
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
-    """Route-like frames (n, d) float32, unit rows: a smooth random walk in feature
-    space (the route's slow change) plus an independent perturbation per frame (what
-    tells neighbouring places apart)."""
+    """Route-like frames (n, d) float32, unit rows: a smooth random walk plus an
+    independent perturbation per frame."""
     rng = np.random.default_rng(seed)
     x = np.empty((n, d), np.float32) if out is None else out
     pos = rng.normal(size=d) * 4.0
@@ -79,8 +78,7 @@ def run_fit(
     path: Path, out: Path, r: int, procs: int, mode: str, memory: str,
     periods: tuple[int, ...] | None = None,
 ):  # fmt: skip
-    """``rhythmic-jax fit`` under the peak-memory wrapper: seconds, peak, its JSON.
-    ``periods``: fixed periods (no candidate search)."""
+    """``rhythmic-jax fit`` (``periods``: fixed) under the peak-memory wrapper."""
     cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
            "--r", str(r), "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
     if periods is not None:
@@ -122,9 +120,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
 
 
 def rule_sums(n: int, r: int) -> tuple[int, int]:
-    """Least and largest summed periods the paper's candidate rule can choose at
-    ``n`` places: r pairwise co-prime of ``ceil(n^(1/r)) + {0..6}`` with a
-    product >= n (which of them it takes is the training errors' call)."""
+    """Least and largest summed periods the candidate rule can choose at n places."""
     sums = [
         sum(c)
         for c in itertools.combinations(candidate_periods(n, r), r)
@@ -134,12 +130,8 @@ def rule_sums(n: int, r: int) -> tuple[int, int]:
 
 
 def rule_range(ns: list[int], r: int) -> tuple[float, float]:
-    """Least and largest least-squares storage slope (log bytes on log N) that
-    the candidate rule allows over the places ``ns``: the slope is
-    ``sum_i w_i log S_i`` with ``w_i`` the regression's weights of log N_i, so
-    it is least with the least sum where ``w_i > 0`` and the largest where
-    ``w_i < 0``, and the other way round for the largest (storage is the summed
-    periods S times a constant, which the slope does not see)."""
+    """Least and largest storage slope (log bytes on log N) the candidate rule
+    allows over ``ns``: the slope is ``sum_i w_i log S_i`` (docs/SCALE.md)."""
     lx = np.log(np.asarray(ns, float))
     w = (lx - lx.mean()) / np.sum((lx - lx.mean()) ** 2)
     sums = np.log([rule_sums(int(n), r) for n in ns])  # (points, 2): least, largest
@@ -161,8 +153,7 @@ def least_slope(ns: list[int], r: int) -> float:
 def series(
     rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
 ) -> list[dict]:
-    """One process's fits of (source, d, r) by N with periods by ``rule``: in memory, or
-    streamed at an N with no fit in memory (one the memory guard refuses)."""
+    """One process's fits of (source, d, r, rule) by N: in memory, else streamed."""
     one = [x for x in rows if (x["source"], x["d"], x["r"], x["processes"], _rule(x))
            == (source, d, r, 1, rule)]  # fmt: skip
     held = {x["n"] for x in one if x["mode"] == "memory"}
@@ -173,16 +164,9 @@ def series(
 
 
 def slopes(rows: list[dict]) -> list[dict]:
-    """Least-squares slope of log storage on log N per (source, d, r, rule):
-    one process (:func:`series`)."""
-    out = []
-    keys = sorted(
-        {
-            (r["source"], r["d"], r["r"], _rule(r))
-            for r in rows
-            if r["processes"] == 1 and r["mode"] == "memory"
-        }
-    )
+    """Least-squares slope of log storage on log N per (source, d, r, rule)."""
+    out, one = [], [r for r in rows if r["processes"] == 1 and r["mode"] == "memory"]
+    keys = sorted({(r["source"], r["d"], r["r"], _rule(r)) for r in one})
     for source, d, r, rule in keys:
         pts = series(rows, source, d, r, rule)
         if len({p["n"] for p in pts}) < 2:
@@ -213,25 +197,16 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     names = []
-    for key, label, stem in (
-        ("storage_bytes", "map bytes", "scale_storage"),
-        ("fit_seconds", "fit seconds", "scale_time"),
-        ("pass_median_s", "seconds per pass", "scale_pass"),
-    ):
+    for key, label, stem in (("storage_bytes", "map bytes", "scale_storage"),
+                             ("fit_seconds", "fit seconds", "scale_time"),
+                             ("pass_median_s", "seconds per pass", "scale_pass")):  # fmt: skip
         fig, ax = plt.subplots(figsize=(5, 4))
-        groups = sorted({_group(r) for r in rows if r[key] is not None})
-        for g in groups:
-            pts = sorted(
-                (r["n"], r[key]) for r in rows if _group(r) == g and r[key] is not None
-            )
-            if pts:
-                ax.loglog(
-                    *zip(*pts, strict=True),
-                    "o-",
-                    label=f"{g[0]} d={g[1]} r={g[2]} K={g[3]} {g[4]} {g[5]}",
-                )
-        ax.set_xlabel("N (places)")
-        ax.set_ylabel(label)
+        for g in sorted({_group(r) for r in rows if r[key] is not None}):
+            pts = sorted((r["n"], r[key]) for r in rows
+                         if _group(r) == g and r[key] is not None)  # fmt: skip
+            label_g = "{} d={} r={} K={} {} {}".format(*g)
+            ax.loglog(*zip(*pts, strict=True), "o-", label=label_g)
+        ax.set(xlabel="N (places)", ylabel=label)
         ax.legend(fontsize=6)
         fig.tight_layout()
         fig.savefig(out_dir / f"{stem}.png", dpi=110)
@@ -261,13 +236,9 @@ def _allows(s: dict) -> str:
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
-        f"Every fit ran niced beside other jobs (load above): the times are"
-        f" pessimistic. Niceness {report['nices']} (each cell's in the JSON; at 19 a"
-        f" fit takes only CPU no one else wants). Cells were measured between"
-        f" {report['cells_from']} and"
-        f" {report['cells_to']} at a 1-minute load average of {report['load_cells']}"
-        " (each cell's in the JSON); a rerun reuses cells already measured, so the"
-        " command above may only have collected them.",
+        f"Every fit ran niced beside other jobs: niceness {report['nices']}. Cells"
+        f" measured between {report['cells_from']} and {report['cells_to']} at a"
+        f" 1-minute load of {report['load_cells']}; a rerun reuses measured cells.",
         "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
@@ -298,25 +269,18 @@ def markdown(report: dict) -> str:
     ]  # fmt: skip
     lines.append(bc.table(SLOPES, slopes))
     for sl in report["slopes"]:
-        pts = [
-            (r["n"], int(np.prod(r["periods"])))
-            for r in series(
-                report["rows"], sl["source"], sl["d"], sl["r"], sl.get("rule", "errors")
-            )
-        ]
+        rule = sl.get("rule", "errors")
+        pts = series(report["rows"], sl["source"], sl["d"], sl["r"], rule)
+        pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
         lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, "
                   f"{sl.get('rule', 'errors')}: the chosen "
                   f"periods' product M is {m0 / n0:.2f} N at N = {n0:,} and "
                   f"{m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule lets the training errors choose r co-prime"
-              " periods among ceil(N^(1/r)) + {0..6}; 'the rule allows': the least"
-              " and largest slope any such choice gives over the series' N (rule"
-              " 'least': the least-storage set's slope); docs/SCALE.md."]  # fmt: skip
-    gaps = [
-        100 * (r["accuracy"]["float32"] - r["accuracy"]["float16"])
-        for r in report["rows"]
-    ]
+    lines += ["", "'the rule allows': the least and largest slope any choice of the"
+              " candidate rule gives over the series' N; docs/SCALE.md."]  # fmt: skip
+    acc = [r["accuracy"] for r in report["rows"]]
+    gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
         worst = max(np.abs(gaps))
         lines += ["", f"float16 against float32 self-query accuracy: at most "
@@ -334,18 +298,14 @@ def markdown(report: dict) -> str:
 
 
 def nordland_summer(root: Path) -> np.ndarray | None:
-    """(3576, 2048) patch-normalised Nordland summer descriptors, or None where
-    the data is absent."""
+    """(3576, 2048) Nordland summer patchnorm descriptors, or None without data."""
     if not (root / bc.NORDLAND / "summer").is_dir():
         return None
     return bc.nordland_features(root, seasons=("summer",))[0]
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
-    """Cells (source, n, d, r, processes, mode, rule), cheapest first; Nordland's
-    sub-routes where ``real`` (its data is there) and not ``quick``; the one-process
-    fits in memory also with the least periods (rule ``least``), and the streamed N =
-    10^5, d = 2048 one (the memory guard refuses it in memory)."""
+    """Cells (source, n, d, r, processes, mode, rule), cheapest first."""
     if quick:
         ns, ds = (1000, 3000), (256,)
     else:
@@ -373,8 +333,7 @@ def grid(quick: bool, real: bool = True) -> list[tuple]:
 
 
 def _key(cell: tuple) -> str:
-    """A cell's file name: its fields, the rule only where it is not the
-    candidate search (``errors``)."""
+    """A cell's file name: its fields, the rule unless ``errors``."""
     return "-".join(map(str, cell[:6] if cell[6:] in ((), ("errors",)) else cell))
 
 
@@ -388,8 +347,7 @@ def features(source: str, n: int, d: int, cells: Path, root: Path) -> Path:
 
 
 def route_file(path: Path, n: int) -> Path:
-    """n route-like 256-d frames written block by block to a memory-mapped
-    ``.npy`` at ``path`` (kept if it is there)."""
+    """n route-like 256-d frames in a memory-mapped ``.npy`` at ``path`` (kept)."""
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name("partial.npy")
@@ -402,10 +360,8 @@ def route_file(path: Path, n: int) -> Path:
 
 
 def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
-    """Seconds of every pass of a streamed fit by kind: first the pass that finds
-    the preconditioner's basis (when there is one); each Newton step is a
-    gradient pass, its CG passes and two line-search passes; then one last
-    gradient pass (the objective at the end)."""
+    """Seconds of every pass of a streamed fit by kind: basis, then per Newton step
+    gradient, CG and two line-search passes, then a last gradient pass."""
     at = len(seconds) - (sum(3 + its for its in cg) + 1)
     kinds = {"basis": list(seconds[:at]), "gradient": [], "cg": [], "line": [],
              "step": []}  # fmt: skip
@@ -419,10 +375,8 @@ def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
 
 
 def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
-    """The whole streamed r = 3 fit of n route-like 256-d frames (``work``, a scratch
-    folder outside the repository) with fixed periods, under ``memory``: wall seconds,
-    passes, peak resident memory and self-query accuracy on 20,000 frames spread along
-    the route."""
+    """The whole streamed r = 3 fit of n route-like 256-d frames (in ``work``) with
+    fixed periods under ``memory``: wall, passes, peak memory, accuracy."""
     saved = cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
         return json.loads(saved.read_text())
@@ -525,9 +479,8 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
 
 
 def probe(n: int, memory: str, cells: Path, work: Path, periods: str) -> dict:
-    """One pass of each kind over n memory-mapped route-like 256-d frames (in
-    ``work``), streamed under ``memory`` in a child process, for the fixed
-    periods and for the r = 3 candidate set: seconds per pass and peak memory."""
+    """Seconds of one streamed pass of each kind over n route-like 256-d frames,
+    fixed periods and the r = 3 candidate set, and the peak memory."""
     saved = cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
     if saved.exists():
         return json.loads(saved.read_text())
@@ -608,10 +561,6 @@ def options(ap) -> None:
     ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
     ap.add_argument("--probe", type=int, default=0, help="frames of the probe")
     ap.add_argument("--probe-memory", default="1GiB")
-    ap.add_argument("--skip", action="append", default=[],
-                    help="leave out a cell: walk-30000-2048-2-1-memory")  # fmt: skip
-    ap.add_argument("--only", action="append", default=[],
-                    help="measure only this cell (repeatable)")  # fmt: skip
     ap.add_argument("--full", type=int, default=0, help="frames of the full fit")
     ap.add_argument("--full-periods", default="100,101,103")
     ap.add_argument("--full-memory", default="1GiB")
@@ -636,9 +585,7 @@ def run(args) -> dict:
         if failed.exists():
             missing.append(f"{name} (failed: {failed.read_text().strip()})")
             continue
-        key = _key(cell)
-        left_out = key in args.skip or bool(args.only) and key not in args.only
-        if time.perf_counter() - t0 > args.budget or left_out:
+        if time.perf_counter() - t0 > args.budget:
             missing.append(name)
             continue
         x_path = features(cell[0], cell[1], cell[2], args.cells, args.root)
@@ -670,23 +617,15 @@ def run(args) -> dict:
         except RuntimeError as err:
             log.warning("full fit failed: %s", err)
             missing.append(f"full fit N={args.full} (failed)")
+    loads = [r["load"][0] for r in rows] or [0]
+    nices = [r.get("nice", 10) for r in rows]
     report.update(
-        rows=rows,
-        slopes=slopes(rows),
-        missing=missing,
-        memory=args.memory,
-        cells_from=min(stamps, default="-"),
-        cells_to=max(stamps, default="-"),
-        load_cells="{:.1f} - {:.1f}".format(
-            min((r["load"][0] for r in rows), default=0),
-            max((r["load"][0] for r in rows), default=0),
-        ),
+        rows=rows, slopes=slopes(rows), missing=missing, memory=args.memory,
+        cells_from=min(stamps, default="-"), cells_to=max(stamps, default="-"),
+        load_cells=f"{min(loads):.1f} - {max(loads):.1f}",
         self_rss=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
-        nices=", ".join(
-            f"{v}: {sum(r.get('nice', 10) == v for r in rows)} cells"
-            for v in sorted({r.get("nice", 10) for r in rows})
-        ),
-    )
+        nices=", ".join(f"{v}: {nices.count(v)} cells" for v in sorted(set(nices))),
+    )  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     report["figures"] = figures(rows, args.out) if rows else []
     return report

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
-from _harness import REPO, main
+from _harness import REPO, child, main
 
 CHILD = r"""
 import collections, functools, json, logging, sys, time
@@ -100,18 +99,13 @@ print("RESULT " + json.dumps(out))
 def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
             cache=None, optax=False) -> dict:  # fmt: skip
     """Run one fit in a fresh process against ``checkout``; its JSON record."""
-    env = dict(os.environ, PYTHONPATH=str(checkout), TF_CPP_MIN_LOG_LEVEL="3")
-    env.setdefault("JAX_PLATFORMS", "cpu")
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
-    proc = subprocess.run(
-        [sys.executable, "-c", CHILD, json.dumps(args)], env=env, capture_output=True,
-        text=True, check=False, cwd="/",
-    )  # fmt: skip
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-    if proc.returncode or not lines:
-        tail = proc.stderr[-3000:]
-        raise RuntimeError(f"the fit failed ({proc.returncode}):\n{tail}")
+    cmd = [sys.executable, "-c", CHILD, json.dumps(args)]
+    proc = child(cmd, checkout, "/", check=False, env=env)
+    lines = [ln for ln in proc["stdout"].splitlines() if ln.startswith("RESULT ")]
+    if proc["rc"] or not lines:
+        raise RuntimeError(f"the fit failed ({proc['rc']}):\n{proc['stderr'][-3000:]}")
     return json.loads(lines[-1][len("RESULT ") :]) | dict(checkout=str(checkout))
 
 
