@@ -197,9 +197,10 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     names = []
-    for key, label, stem in (("storage_bytes", "map bytes", "scale_storage"),
-                             ("fit_seconds", "fit seconds", "scale_time"),
-                             ("pass_median_s", "seconds per pass", "scale_pass")):  # fmt: skip
+    plots = (("storage_bytes", "map bytes", "scale_storage"),
+             ("fit_seconds", "fit seconds", "scale_time"),
+             ("pass_median_s", "seconds per pass", "scale_pass"))  # fmt: skip
+    for key, label, stem in plots:
         fig, ax = plt.subplots(figsize=(5, 4))
         for g in sorted({_group(r) for r in rows if r[key] is not None}):
             pts = sorted((r["n"], r[key]) for r in rows
@@ -435,8 +436,12 @@ def _attempts(f: dict) -> str:
 
 
 def full_lines(f: dict, probe: dict | None = None) -> list[str]:
-    p = sum(f["periods"])
-    cands = sum(f["candidates"])
+    p, cands, k, acc = (
+        sum(f["periods"]),
+        sum(f["candidates"]),
+        f["kinds"],
+        f["accuracy"],
+    )
     search = f["pass_median_s"] * cands / p * f["passes"] / 3600
     how = "this fit's median seconds per pass scaled by the templates"
     if probe and probe["n"] == f["n"]:  # the candidate set's measured passes
@@ -445,36 +450,27 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         total = (steps + 1) * sec["gradient + bits"] + cg * sec["CG from bits"]
         search = (total + 2 * steps * sec["line search"]) / 3600
         how = "the candidate set's measured pass of each kind (below)"
-    k = f["kinds"]
+    basis = f", basis {k['basis']:.1f}" if "basis" in k else ""
+    errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
+    took = f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes"
     return [
         f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
-        f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
-        f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
-        f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
-        f" wall** ({_attempts(f)}, at a 1-minute load average of"
+        f" ({f['file_bytes'] / 2**30:.2f} GiB .npy), r = 3, fixed periods"
+        f" {'x'.join(map(str, f['periods']))} ({p} templates), `--memory"
+        f" {f['memory']}`: **{f['wall_seconds']:.0f} s wall** ({_attempts(f)}, load"
         f" {f['loads'][-1][0]:.1f} at its end, nice {f.get('nice', NICE)}),"
-        f" {f['steps']} Newton"
-        f" steps, {f['passes']}"
-        f" passes, {f['pass_median_s']:.1f} s per pass (median; gradient"
-        f" {k['gradient']:.1f}, CG {k['cg']:.1f}, line search {k['line']:.1f}"
-        + (f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else "")
-        + "),"
-        f" {f['block_rows']:,} rows per block, **peak resident"
-        f" {f['peak_bytes'] / 2**20:.0f} MiB** under the 1 GiB bound; per-period"
-        f" training errors {', '.join(f'{e:.3f}' for e in f['group_errors'])};"
-        f" self-query accuracy on {f['sample']:,} frames spread along the route"
-        f" {f['accuracy']['float32']:.4f} (float16 {f['accuracy']['float16']:.4f},"
-        f" int8 {f['accuracy']['int8']:.4f}). Command: `{f['command']}`, with the"
-        f" streamed solver of commit {f.get('code', '?')}"
-        + (f"; {f['note']}." if f.get("note") else "."),
+        f" {f['steps']} Newton steps, {f['passes']} passes, {f['pass_median_s']:.1f}"
+        f" s per pass (median; gradient {k['gradient']:.1f}, CG {k['cg']:.1f}, line"
+        f" search {k['line']:.1f}{basis}), {f['block_rows']:,} rows per block, **peak"
+        f" resident {f['peak_bytes'] / 2**20:.0f} MiB**; per-period training errors"
+        f" {errors};"
+        f" self-query accuracy on {f['sample']:,} frames {acc['float32']:.4f} (float16"
+        f" {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command: `{f['command']}`,"
+        f" commit {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
         "",
-        f"The candidate search ({len(f['candidates'])} candidates"
-        f" {f['candidates'][0]} - {f['candidates'][-1]}, {cands} templates) would"
-        f" train {cands / p:.1f}x the templates per pass: with this fit's steps and"
-        f" passes, at {how}, it is projected at "
-        + (f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes")
-        + " (projection, not"
-        " a measurement; the search may take other steps).",
+        f"The candidate search ({len(f['candidates'])} candidates {f['candidates'][0]}"
+        f" - {f['candidates'][-1]}, {cands} templates) trains {cands / p:.1f}x the"
+        f" templates per pass: at {how}, projected at {took} (not a measurement).",
     ]
 
 
