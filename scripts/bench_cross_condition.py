@@ -16,16 +16,8 @@ import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
+import _harness as h
 import numpy as np
-from _harness import (
-    aerial_features,
-    digest,
-    header,
-    main,
-    nordland_features,
-    nordland_images,
-    table,
-)
 
 from rhythmic_jax.codes import fit_codebook
 from rhythmic_jax.decoding.fusion import learn_weight
@@ -66,19 +58,14 @@ def _recall(scores, k: int) -> float:
     return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
 
 
-def _unit(x):
-    x = np.asarray(x, np.float32)
-    return x / np.linalg.norm(x, axis=1, keepdims=True)
-
-
 # --------------------------------------------------------------------- data
 def nordland_data(root: Path, name: str, progress: bool, images: bool):
     desc = get_descriptor(name)
-    s, w = nordland_features(root, desc, key="nordland_", progress=progress)
+    s, w = h.nordland_features(root, desc, key="nordland_", progress=progress)
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
     out = dict(train=[s[tr], w[tr]], test=[s[te], w[te]], names=("summer", "winter"))
     if images:
-        trav = nordland_images(root)
+        trav = h.nordland_images(root)
         out.update(images=[trav[0].images[te], trav[1].images[te]], descriptor=desc)
     return out
 
@@ -87,7 +74,9 @@ def aerial_data(root: Path, progress: bool):
     desc = get_descriptor("patchnorm")
     out = dict(names=("A", "B"), descriptor=desc)
     for part, folder in (("train", "samples_DSIFN"), ("test", "samples_LEVIR")):
-        a, b, route = aerial_features(root, desc, folder, f"{folder}-64-32-", progress)
+        a, b, route = h.aerial_features(
+            root, desc, folder, f"{folder}-64-32-", progress
+        )
         out[part] = [a, b]
         if part == "test":
             out["images"] = [route.map_tiles, route.query_tiles]
@@ -98,7 +87,7 @@ def aerial_data(root: Path, progress: bool):
 def cached_embedding(dataset: str, train, cfg: LearnConfig):
     """Learn (or read back) the embedding of ``cfg`` on ``train`` -> (emb, info)."""
     ident = json.dumps([dataset, asdict(cfg), [list(t.shape) for t in train]])
-    key = digest(ident, *(t[:: max(1, len(t) // 64)] for t in train))
+    key = h.digest(ident, *(t[:: max(1, len(t) // 64)] for t in train))
     folder = default_cache_dir() / "cross_condition" / f"{key}.emb"
     if folder.exists():
         emb, meta = load_embedding(folder)
@@ -112,7 +101,7 @@ def cached_embedding(dataset: str, train, cfg: LearnConfig):
 # --------------------------------------------------------------------- rows
 def brute_row(ref, qry, label, emb_bytes=0) -> dict:
     t0 = time.perf_counter()
-    r, q = _unit(ref), _unit(qry)
+    r, q = h.unit_rows(ref), h.unit_rows(qry)
     sim = q @ r.T
     pred = sim.argmax(1)
     return dict(
@@ -141,27 +130,23 @@ def fit_map(ref, *, labels=None, emb=None, **kw) -> tuple[RhythmicMap, float]:
 
 
 def with_codes(m: RhythmicMap, ref, codes, fusion: float = 0.5) -> RhythmicMap:
-    """The hybrid of a fitted periods map: the same templates plus codes of the
-    (embedded) reference frames (``bits`` of ITQ, or ``"int8"``), exactly what
-    ``RhythmicMap(..., codes=codes, fusion=fusion).fit`` stores (one solve serves
-    every row)."""
-    h = copy.copy(m)
-    h.config = replace(m.config, codes=codes, fusion=fusion)
+    """A fitted map plus ``codes`` of its (embedded) reference frames: what
+    ``RhythmicMap(..., codes=codes, fusion=fusion).fit`` stores, with no new solve."""
+    hy = copy.copy(m)
+    hy.config = replace(m.config, codes=codes, fusion=fusion)
     x = ref if m.embedding is None else apply(m.embedding, ref)
-    h.codebook = fit_codebook(x, codes)
-    return h
+    hy.codebook = fit_codebook(x, codes)
+    return hy
 
 
 def train_weight(train, emb, pair, codes, n: int) -> tuple[float, dict]:
-    """The fusion weight learned on the *training* places: a map and its codes on one
-    condition of the training segment, queried with the other; the weight of best
-    recall@1 there (:func:`learn_weight`)."""
+    """The fusion weight of best recall@1 on the *training* places' two conditions."""
     ref, qry = train
     t = max(2, round(pair[0] * len(ref) / n))  # as many places a phase as on test
     m, _ = fit_map(ref, emb=emb, layout=f"periods:{t},{t + 1}")
-    h = with_codes(m, ref, codes)
+    hy = with_codes(m, ref, codes)
     q = apply(emb, qry) if emb is not None else qry
-    sims = h.codebook.similarity(q)
+    sims = hy.codebook.similarity(q)
     return learn_weight(m.scores(qry), sims, m.periods, m.n, np.arange(len(qry)), TOL)
 
 
@@ -193,9 +178,8 @@ def map_row(ref, qry, label, *, labels=None, emb=None, **kw) -> dict:
 
 
 def budget_periods(n, d_raw, k, budget, fixed=0, per_place=0):
-    """The largest co-prime pair (t, t + 1), t <= ``MAX_LEVEL`` * ceil(sqrt n),
-    whose r = 2 map of k-dim float32 templates plus ``fixed`` and ``per_place``
-    bytes per place fits in ``budget`` of the raw database; None when none does."""
+    """The largest pair (t, t + 1), t <= ``MAX_LEVEL`` ceil(sqrt n), whose k-dim map
+    plus ``fixed`` and ``per_place`` bytes fits ``budget`` of the raw database."""
     room = budget * database_bytes(n, d_raw, 4) - fixed - n * per_place
     cap = MAX_LEVEL * (math.isqrt(n - 1) + 1)
     t = min(int((room / (4 * (k + 1)) - 1) // 2), cap, n - 1)
@@ -203,11 +187,8 @@ def budget_periods(n, d_raw, k, budget, fixed=0, per_place=0):
 
 
 def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
-    """The map of the largest periods within 15 % (capped), and its hybrids: the same
-    templates plus ITQ codes (as many bits as the embedding has dims, at most 256) at
-    each budget they fit, and plus 8-bit codes (a byte a dimension) fused with the
-    weight learned on the training places (``train``: the two conditions of the training
-    segment); the codes' transform, the codes and the embedding counted."""
+    """The map of the largest periods within 15 % and its hybrids with ITQ codes and
+    with 8-bit codes (weight learned on ``train``), every byte counted."""
     k, eb = emb.k, embedding_bytes(emb)
     bits = min(k, 256)
     code = eb + (bits * k + k) * 4
@@ -216,11 +197,11 @@ def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
         return []
     m, fit_s = fit_map(ref, emb=emb, layout=f"periods:{pair[0]},{pair[1]}")
     rows = [eval_row(m, ref, qry, f"map {label}, periods near {pair[0]}", fit_s)]
-    h = with_codes(m, ref, bits)
-    share = (h.storage_bytes + eb) / database_bytes(n, d_raw, 4)
+    hy = with_codes(m, ref, bits)
+    share = (hy.storage_bytes + eb) / database_bytes(n, d_raw, 4)
     fits = [b for b in BUDGETS if share <= b]
     where = f"<= {100 * fits[0]:.0f} %" if fits else f"{100 * share:.1f} %"
-    rows.append(eval_row(h, ref, qry, f"hybrid {label} + {bits} bits ({where})",
+    rows.append(eval_row(hy, ref, qry, f"hybrid {label} + {bits} bits ({where})",
                          fit_s))  # fmt: skip
     sq = scalar_code_bytes(n, k)
     pair8 = budget_periods(n, d_raw, k, BUDGETS[0], eb + sq["fixed"], k)
@@ -247,8 +228,7 @@ def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
 
 
 def augmented_row(ref, images, desc, qry, level, seed=0) -> dict:
-    """The map fitted on the reference frames and one copy of each augmented by
-    the seven operations (p = 0.5 each), both labelled with their place."""
+    """The map fitted on the reference frames and an augmented copy of each."""
     import torch
 
     from rhythmic_jax.augment.kornia_ops import (
@@ -358,12 +338,7 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
 
 
 def options(ap) -> None:
-    ap.add_argument(
-        "--only",
-        default=None,
-        help="comma-separated words: run the data sets whose title holds"
-        " one (e.g. 'Lite0' or 'patchnorm'); the report holds those only",
-    )
+    ap.add_argument("--only", help="comma-separated words of the data sets to run")
 
 
 def run(args) -> dict:
@@ -419,10 +394,8 @@ def best(rows, key, budget=None, where=is_map) -> dict | None:
 
 
 def chosen(rows, key, budget=None) -> dict | None:
-    """The configuration fixed before scoring: the 8-bit hybrid with its weight
-    learned on the training places, on the data set's first lever (the order of
-    the plan, never the scores), when the run has one within ``budget``; else
-    the best map row (older reports)."""
+    """The configuration fixed before scoring (the 8-bit hybrid on the first lever)
+    within ``budget``; else the best map row (older reports)."""
     picks = [r for r in rows if r.get("chosen") and key in r]
     if budget is not None:
         picks = [r for r in picks if r["ratio"] <= budget + 1e-12]
@@ -511,30 +484,26 @@ def _fmt(v):
 
 
 def markdown(report: dict) -> str:
-    lines = header("Recognition under appearance change (split by place)", report)
+    lines = h.header("Recognition under appearance change (split by place)", report)
     walls = report.get("wall_seconds_by_process")
-    wall = (
-        "Data sets run in parallel processes (the commands above, joined by ';'); "
-        "wall time of each: "
-        + ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
-        if walls
-        else f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
-    )
+    wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
+    if walls:
+        wall = "Data sets run in parallel processes (the commands above, joined by "
+        wall += "';'); wall time of each: "
+        wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
     lines += [
         wall + ".",
         "",
-        "Maps are fitted on one condition of the test places and queried with the "
-        "other; embeddings are learned on the training places only. R@1, R@5 within "
-        "+-1 place, `exact` without; L: sequences of that length; `self`: reference "
-        "frames as queries. ratio: storage and embedding bytes over the raw float32 "
-        "database. `chosen` (the 8-bit hybrid, weight learned on the training "
-        "places) is fixed before any test place is scored. Rows: docs/appearance.md.",
+        "Maps fitted on one condition of the test places, queried with the other;"
+        " embeddings learned on the training places. R@1, R@5 within +-1 place,"
+        " `exact` without; L: sequence length; `self`: reference frames as queries;"
+        " ratio: bytes over the raw float32 database. The `chosen` row is fixed"
+        " before any test place is scored. Rows: docs/appearance.md.",
         "",
         "## Targets",
         "",
     ]
-    lines += [f"- {t}: **{v}**" for t, v in targets(report)]
-    lines.append("")
+    lines += [f"- {t}: **{v}**" for t, v in targets(report)] + [""]
     for name, ds in report["datasets"].items():
         lines += [f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})", ""]
         learn = "; ".join(
@@ -545,20 +514,11 @@ def markdown(report: dict) -> str:
         )
         lines += [f"Embeddings: {learn}.", ""]
         for key, rows in ds["directions"].items():
-            lines += [f"### {key}", ""]
-            body = [
-                [r["method"]]
-                + [_fmt(r.get(c, "")) for c in COLS]
-                + [
-                    r.get("storage_bytes", ""),
-                    r.get("embedding_bytes", 0),
-                    _fmt(r["ratio"]),
-                    str(tuple(r.get("sizes", ()))) or "",
-                    _fmt(r.get("fit_seconds", "")),
-                ]  # fmt: skip
-                for r in rows
-            ]
-            lines += [table(HEADS, body), ""]
+            body = [[r["method"], *(_fmt(r.get(c, "")) for c in COLS),
+                     r.get("storage_bytes", ""), r.get("embedding_bytes", 0),
+                     _fmt(r["ratio"]), str(tuple(r.get("sizes", ()))),
+                     _fmt(r.get("fit_seconds", ""))] for r in rows]  # fmt: skip
+            lines += [f"### {key}", "", h.table(HEADS, body), ""]
     return "\n".join(lines)
 
 
@@ -590,4 +550,4 @@ def draw(report: dict, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="cross_condition", refresh=refresh)
+    h.main(__doc__, run, markdown, options, stem="cross_condition", refresh=refresh)
