@@ -12,18 +12,10 @@ import logging
 import tempfile
 from pathlib import Path
 
+import _harness as h
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _harness import (
-    aerial_features,
-    cached_fit,
-    columns,
-    cores,
-    fastest,
-    main,
-    nordland_features,
-)
 
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
@@ -67,12 +59,12 @@ def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
     model = RhythmicMap(r=2, level=level, descriptor=descriptor,
                         descriptor_settings=settings)  # fmt: skip
     fit = lambda m: m.fit(x, progress=progress)  # noqa: E731
-    return cached_fit(model, x, MAP_CACHE, fit)[0]
+    return h.cached_fit(model, x, MAP_CACHE, fit)[0]
 
 
 def timed(fn, repeats: int):
     """(the first call's output as numpy, the fastest of ``repeats`` timed calls)."""
-    out, sec = fastest(fn, repeats)
+    out, sec = h.fastest(fn, repeats)
     return np.asarray(out[0] if isinstance(out, tuple) else out), sec
 
 
@@ -179,44 +171,29 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
     def add(label, fn, length=None, speeds=None):
         pred, sec = timed(fn, repeats)
         dq = len(pred) / max(sec, 1e-12)
-        row = _row(label, pred, gt, score_s + sec, storage, L=length, speeds=speeds,
-                   decode_queries_per_s=dq)  # fmt: skip
-        rows.append(row)
+        speeds = None if speeds is None else list(speeds)
+        rows.append(_row(label, pred, gt, score_s + sec, storage, L=length,
+                         speeds=speeds, decode_queries_per_s=dq))  # fmt: skip
 
     for method in ("hard", "soft", "topm"):
         label = f"{method} (m={M})" if method == "topm" else method
         add(label, lambda method=method: decode_scores(s, per, n, method, M).index)
     grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
-    for length, speeds in grids:
-        add(
-            f"sequence soft L={length} {_speeds(speeds)}",
-            lambda length=length, speeds=speeds: sequence_decode(
-                s, per, n, length, speeds
-            ),
-            length,
-            list(speeds),
-        )
+    for length, v in grids:
+        fn = lambda length=length, v=v: sequence_decode(s, per, n, length, v)  # noqa: E731
+        add(f"sequence soft L={length} {_speeds(v)}", fn, length, v)
     for name, transform in TRANSFORMS.items():
-        for length, speeds in grids[1:]:
-            if name == "calibrated" and len(speeds) > 1:
+        for length, v in grids[1:]:
+            if name == "calibrated" and len(v) > 1:
                 continue
-            add(
-                f"sequence soft L={length} {_speeds(speeds)}, {name}",
-                lambda length=length, speeds=speeds, transform=transform: (
-                    sequence_decode(transform(s, per), per, n, length, speeds)
-                ),
-                length,
-                list(speeds),
+            fn = lambda length=length, v=v, t=transform: sequence_decode(  # noqa: E731
+                t(s, per), per, n, length, v
             )
+            add(f"sequence soft L={length} {_speeds(v)}, {name}", fn, length, v)
+    w = CONTRAST_WINDOW
     for length in LENGTHS[1:]:
-        add(
-            f"place-domain L={length} v=1, contrast w={CONTRAST_WINDOW}",
-            lambda length=length: place_sequence_decode(
-                s, per, n, length, (1.0,), CONTRAST_WINDOW
-            ),
-            length,
-            [1.0],
-        )
+        fn = lambda length=length: place_sequence_decode(s, per, n, length, (1.0,), w)  # noqa: E731
+        add(f"place-domain L={length} v=1, contrast w={w}", fn, length, [1.0])
     return rows
 
 
@@ -227,7 +204,7 @@ def _speeds(speeds) -> str:
 def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Single-frame brute force and SeqSLAM-style sequences on full descriptors."""
     storage = ref.size * 4
-    flat = BruteForce(n_threads=cores()).fit(ref)
+    flat = BruteForce(n_threads=h.cores()).fit(ref)
     pred, sec = timed(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
     grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
@@ -271,10 +248,10 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
 
 def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     """Hold 20 % of the route out of the map; query every winter frame."""
-    h = holdout_split(len(ref), **HOLDOUT)
-    gt = h.gt()
+    hold = holdout_split(len(ref), **HOLDOUT)
+    gt = hold.gt()
     first = np.arange(len(qry)) < len(qry) // 2
-    model = fitted_map(ref[h.fit], level, descriptor, progress)
+    model = fitted_map(ref[hold.fit], level, descriptor, progress)
     per, n = model.periods, model.n
     scores = model.scores(qry)
     seq = {
@@ -294,12 +271,12 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
             cases[f"{label}, {kind}"] = decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
-    flat = BruteForce(n_threads=cores()).fit(ref[h.fit])
+    flat = BruteForce(n_threads=h.cores()).fit(ref[hold.fit])
     sim, top = flat.search(qry, 1)
     cases["brute force, cosine"] = (top[:, 0], finite_confidence(sim[:, 0]))
     for window in (None, CONTRAST_WINDOW):
         idx, score = seqslam_decode(
-            qry, ref[h.fit], GRID_LENGTH, contrast_window=window, progress=False
+            qry, ref[hold.fit], GRID_LENGTH, contrast_window=window, progress=False
         )
         label = f"SeqSLAM L={GRID_LENGTH}" + (
             f", contrast w={window}" if window else ""
@@ -309,15 +286,9 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     for label, (pred, conf) in cases.items():
         pred = np.asarray(pred).astype(np.int64)
         rows.append(dict(method=label, **_threshold_metrics(pred, conf, gt, first)))
-        r = rows[-1]
-        log.info(
-            "  %-40s AUC %.4f  R@100P %.4f  (held-out thr: P %.3f R %.3f)", label,
-            r["pr_auc"], r["recall_at_100_precision"], r["precision_at_threshold"],
-            r["recall_at_threshold"],
-        )  # fmt: skip
     return dict(
         descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
-        n_held=len(h.held), n_queries=len(qry), rows=rows,
+        n_held=len(hold.held), n_queries=len(qry), rows=rows,
     )  # fmt: skip
 
 
@@ -354,7 +325,7 @@ def decoding_table(block: dict) -> str:
     db = block["database_bytes"]
     rows = [dict(r, mib=r["storage_bytes"] / 2**20,
                  pct=100 * r["storage_bytes"] / db) for r in block["rows"]]  # fmt: skip
-    return columns(rows, DECODING, "lrrrrr")
+    return h.columns(rows, DECODING, "lrrrrr")
 
 
 def target_table(blocks: list[dict]) -> str:
@@ -384,7 +355,7 @@ def target_table(blocks: list[dict]) -> str:
                         ref_r1=ref["recall_at_1"], gap=gap, speed=speed, store=store,
                         met="yes" if met else "no",
                     ))  # fmt: skip
-    return columns(rows, TARGET, "lrlrlrrrrl") if rows else ""
+    return h.columns(rows, TARGET, "lrlrlrrrrl") if rows else ""
 
 
 def markdown(report: dict) -> str:
@@ -433,7 +404,7 @@ def markdown(report: dict) -> str:
             " half of the route, the threshold chosen on the first; margins"
             f" exclude rivals within {EXCLUDE} places; recall within ±{TOLERANCE}.",
             "",
-            columns(b["rows"], OUTLIERS, "lrrrrrrr"),
+            h.columns(b["rows"], OUTLIERS, "lrrrrrrr"),
             "",
         ]
     return "\n".join(parts)
@@ -466,8 +437,8 @@ def run(args: argparse.Namespace) -> dict:
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
     for name in available(args.descriptors):
         datasets = {
-            "nordland": nordland_features(args.root, name, **kw),
-            "aerial LEVIR": aerial_features(args.root, name, **kw)[:2],
+            "nordland": h.nordland_features(args.root, name, **kw),
+            "aerial LEVIR": h.aerial_features(args.root, name, **kw)[:2],
         }
         if args.frames:
             datasets = {
@@ -509,4 +480,4 @@ def options(ap) -> None:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="decoding")
+    h.main(__doc__, run, markdown, options, stem="decoding")
