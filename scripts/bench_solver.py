@@ -10,19 +10,9 @@ from __future__ import annotations
 import logging
 import warnings
 
+import _harness as h
 import numpy as np
 import optax
-from _harness import (
-    cores,
-    header,
-    load_average,
-    main,
-    nordland_features,
-    plain,
-    stats,
-    table,
-    timed,
-)
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 
@@ -95,7 +85,7 @@ def run_linearsvc(x64: np.ndarray, y: np.ndarray, c: float, picks: list[dict]):
         svc = LinearSVC(C=c, loss="squared_hinge", dual=True, random_state=0)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
-            _, seconds, cpu = timed(svc.fit, x64, y[:, pick["column"]])
+            _, seconds, cpu = h.timed(svc.fit, x64, y[:, pick["column"]])
         converged = not any(issubclass(w.category, ConvergenceWarning) for w in caught)
         rows.append(
             dict(**pick, seconds=seconds, cpu_s=cpu, n_iter=int(svc.n_iter_))
@@ -107,9 +97,11 @@ def run_linearsvc(x64: np.ndarray, y: np.ndarray, c: float, picks: list[dict]):
 
 def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     """First call (compiles every shape), then the timed call of the same solve."""
-    _, warmup, _ = timed(newton_fit, x, y, c, config, progress=False)
-    load = load_average()
-    (params, info), seconds, cpu = timed(newton_fit, x, y, c, config, progress=progress)
+    _, warmup, _ = h.timed(newton_fit, x, y, c, config, progress=False)
+    load = h.load_average()
+    (params, info), seconds, cpu = h.timed(
+        newton_fit, x, y, c, config, progress=progress
+    )
     log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
              info.steps, info.cg_iterations, info.columns)  # fmt: skip
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
@@ -127,17 +119,14 @@ def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
     """Warm-up (two steps, compiles), then the timed full solve (default
     settings; the same ``optax.lbfgs()`` object so the jitted step is reused)."""
     opt = optax.lbfgs()
-    _, warmup, _ = timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
-    load = load_average()
-    (params, history), seconds, cpu = timed(
+    _, warmup, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
+    load = h.load_average()
+    (params, history), seconds, cpu = h.timed(
         fit_full_batch, x, y, c, optimizer=opt, progress=progress
     )
     log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
-    return (
-        params,
-        history,
-        dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load),
-    )
+    record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load)
+    return params, history, record
 
 
 # ---------------------------------------------------------------------- cases
@@ -156,7 +145,7 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     x64, y64 = x.astype(np.float64), y.astype(np.float64)
     log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
 
-    load_svc = load_average()
+    load_svc = h.load_average()
     svc = run_linearsvc(x64, y64, c, sampled_columns(cands, samples))
     w_f, fast = run_newton(x, y, c, FAST, progress)
     w_t, tight = run_newton(x, y, c, NewtonConfig(), progress)
@@ -166,25 +155,19 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     f_t = liblinear_objectives(w_t.w, w_t.b, x64, y64, c)
     f_l = liblinear_objectives(w_l.w, w_l.b, x64, y64, c)
     cols = [t["column"] for t in svc]
-    f_svc = np.array(
-        [
-            liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
-            for t, j in zip(svc, cols, strict=True)
-        ]
-    )
-    for t, f, j in zip(svc, f_svc, cols, strict=True):
-        t.update(
-            objective=f,
-            fast_gap=_gap(f_f[j], f),
-            tight_gap=_gap(f_t[j], f),
-            lbfgs_gap=_gap(f_l[j], f),
-        )
+    f_svc = []
+    for t, j in zip(svc, cols, strict=True):
+        f = liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
+        f_svc.append(f)
+        t.update(objective=f, fast_gap=_gap(f_f[j], f), tight_gap=_gap(f_t[j], f),
+                 lbfgs_gap=_gap(f_l[j], f))  # fmt: skip
+    f_svc = np.array(f_svc)
     wall = np.array([t["seconds"] for t in svc])
     cpu = np.array([t["cpu_s"] for t in svc])
     linearsvc = dict(
         settings=dict(loss="squared_hinge", dual=True, tol=1e-4, max_iter=1000, C=c),
-        sampled=len(svc), per_template_s=dict(**stats(wall), std=float(wall.std())),
-        per_template_cpu_s=dict(**stats(cpu), std=float(cpu.std())),
+        sampled=len(svc), per_template_s=dict(**h.stats(wall), std=float(wall.std())),
+        per_template_cpu_s=dict(**h.stats(cpu), std=float(cpu.std())),
         extrapolated_s=float(wall.mean() * p), extrapolated_cpu_s=float(cpu.mean() * p),
         extrapolated_range_s=[float(wall.min() * p), float(wall.max() * p)],
         load_average_start=load_svc, templates=svc,
@@ -193,23 +176,23 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
         rec.update(
             active_fraction=float(np.mean(margins < 1.0)),
-            gap_vs_linearsvc=stats(_gap(f[cols], f_svc)),
-            gap_vs_tight=stats(_gap(f, f_t)),
+            gap_vs_linearsvc=h.stats(_gap(f[cols], f_svc)),
+            gap_vs_tight=h.stats(_gap(f, f_t)),
             training_error=np.asarray(period_errors(scores(w, x), labels, cands)),
             gflop=cg_gflop(n, d, rec),
         )
         rec["chosen_periods"] = choose_periods(cands, rec["training_error"], n, 2)
     lbfgs.update(
         steps=len(hist),
-        gap_vs_linearsvc=stats(_gap(f_l[cols], f_svc)),
-        gap_vs_tight=stats(_gap(f_l, f_t)),
+        gap_vs_linearsvc=h.stats(_gap(f_l[cols], f_svc)),
+        gap_vs_tight=h.stats(_gap(f_l, f_t)),
         training_error=np.asarray(period_errors(scores(w_l, x), labels, cands)),
     )
     for t in (fast, tight, lbfgs):
         t["speedup_vs_linearsvc"] = linearsvc["extrapolated_s"] / t["seconds"]
         t["cpu_speedup_vs_linearsvc"] = linearsvc["extrapolated_cpu_s"] / t["cpu_s"]
-    return plain(dict(
-        name=name, n=n, d=d, xla_threads=cores(), candidates=cands, p=p, c=c,
+    return h.plain(dict(
+        name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
         linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
     ))  # fmt: skip
 
@@ -257,11 +240,8 @@ def _newton_line(label: str, nw: dict) -> str:
 def case_markdown(r: dict) -> str:
     s, fast, tight, lb = (r[k] for k in ("linearsvc", "newton_fast", "newton_tight",
                                          "lbfgs"))  # fmt: skip
-    per = s["per_template_s"]
-    aim = (
-        fast["speedup_vs_linearsvc"] >= AIM_SPEEDUP
-        and fast["gap_vs_linearsvc"]["max"] <= AIM_GAP
-    )
+    per, top = s["per_template_s"], fast["gap_vs_linearsvc"]["max"]
+    aim = fast["speedup_vs_linearsvc"] >= AIM_SPEEDUP and top <= AIM_GAP
     solvers = [
         (f"LinearSVC, {r['p']} templates (extrapolated from {s['sampled']})", s),
         ("Newton-CG, joint, 0.1 % gap", fast),
@@ -276,34 +256,28 @@ def case_markdown(r: dict) -> str:
         gap = "0" if gap is None else _rel(gap)
         load = f"{t['load_average_start'][0]:.1f}"
         rows.append([label, wall, wall0 / wall, cpu, cpu0 / cpu, gap, load])
-    timing = table([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
-    sampled_label, keys = f"{s['sampled']} sampled", ("max", "median", "min")
-    gaps = table(
-        GAPS,
-        [
-            [label, which, *(_rel(g[k]) for k in keys)]
-            for label, which, g in (
-                ("Newton 0.1 % vs LinearSVC", sampled_label, fast["gap_vs_linearsvc"]),
-                ("Newton tight vs LinearSVC", sampled_label, tight["gap_vs_linearsvc"]),
-                ("L-BFGS vs LinearSVC", sampled_label, lb["gap_vs_linearsvc"]),
-                ("Newton 0.1 % vs Newton tight", f"all {r['p']}", fast["gap_vs_tight"]),
-                ("L-BFGS vs Newton tight", f"all {r['p']}", lb["gap_vs_tight"]),
-            )
-        ],
+    timing = h.table([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
+    few, every = f"{s['sampled']} sampled", f"all {r['p']}"
+    comparisons = (
+        ("Newton 0.1 % vs LinearSVC", few, fast["gap_vs_linearsvc"]),
+        ("Newton tight vs LinearSVC", few, tight["gap_vs_linearsvc"]),
+        ("L-BFGS vs LinearSVC", few, lb["gap_vs_linearsvc"]),
+        ("Newton 0.1 % vs Newton tight", every, fast["gap_vs_tight"]),
+        ("L-BFGS vs Newton tight", every, lb["gap_vs_tight"]),
     )
+    gaps = [[label, which, *(_rel(g[k]) for k in ("max", "median", "min"))]
+            for label, which, g in comparisons]  # fmt: skip
+    gaps = h.table(GAPS, gaps)
     errs = (r["candidates"], fast["training_error"], tight["training_error"],
             lb["training_error"])  # fmt: skip
-    errors = table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
-                   [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
-    sampled = table(
-        [*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
-        [
-            [t["period"], t["phase"], t["seconds"], t["n_iter"]]
-            + ["yes" if t["converged"] else "no", t["objective"]]
-            + [_rel(t["fast_gap"]), _rel(t["tight_gap"]), _rel(t["lbfgs_gap"])]
-            for t in s["templates"]
-        ],
-    )
+    errors = h.table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
+                     [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
+    sampled = [[t["period"], t["phase"], t["seconds"], t["n_iter"],
+                "yes" if t["converged"] else "no", t["objective"],
+                *(_rel(t[k]) for k in ("fast_gap", "tight_gap", "lbfgs_gap"))]
+               for t in s["templates"]]  # fmt: skip
+    sampled = h.table([*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
+                      sampled)  # fmt: skip
     lo, hi = s["extrapolated_range_s"]
     return "\n".join(
         [
@@ -353,7 +327,7 @@ def case_markdown(r: dict) -> str:
 
 def markdown(report: dict) -> str:
     title = "Joint solve of all candidate templates: Newton-CG, L-BFGS, liblinear"
-    parts = header(title, report)
+    parts = h.header(title, report)
     for r in report["cases"]:
         parts.append(case_markdown(r))
     if report.get("video_like"):
@@ -384,7 +358,9 @@ def run(args) -> dict:
     args.stem = "solver_quick" if args.quick else "solver"
     cases = []
     if (args.root / "nordland_64x32").is_dir():
-        (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
+        (x,) = h.nordland_features(
+            args.root, seasons=("summer",), progress=args.progress
+        )
         name = "Nordland summer, patchnorm 64x32"
         cases.append(bench_case(name, x[:frames], samples, args.progress))
     else:
@@ -398,4 +374,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="solver")
+    h.main(__doc__, run, markdown, options, stem="solver")
