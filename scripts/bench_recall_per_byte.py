@@ -153,57 +153,33 @@ def markdown(rep: dict) -> str:
     ls = rep["lengths"]
     heads = ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["weight"]
-    rows = sorted(rep["rows"], key=lambda r: r["share"])
-    lines.append(
-        table(
-            heads,
-            [
-                [r["name"], r["kind"], r["storage_bytes"], 100 * r["share"]]
-                + [_num(r[f"recall@1 L={k}"]) for k in ls]
-                + [r.get("weight", "-")]
-                for r in rows
-            ],
-        )
-    )
+    rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
+             *(_num(r[f"recall@1 L={k}"]) for k in ls), r.get("weight", "-")]
+            for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
+    lines.append(table(heads, rows))
     for length in ls:
+        key = f"recall@1 L={length}"
+
+        def cell(r, key=key):
+            return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
+
+        body = [[f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"]),
+                 cell(b["itq"]), round(b["own_minus_itq"], 3)]
+                for b in rep["budgets"][str(length)]]  # fmt: skip
         lines += ["", f"### Budget by budget, L = {length}", ""]
-        body = []
-        for b in rep["budgets"][str(length)]:
-            key = f"recall@1 L={length}"
-
-            def cell(r, key=key):
-                return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
-
-            body.append(
-                [f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"])]
-                + [cell(b["itq"]), round(b["own_minus_itq"], 3)]
-            )
         lines.append(
             table(["budget", "best", "map or hybrid", "ITQ", "own - ITQ"], body)
         )
     if rep.get("cross_rows"):
         lines += ["", "### ITQ fitted across conditions on the training places", ""]
-        lines.append(
-            table(
-                ["codes", "share %"] + [f"R@1 L={k}" for k in ls],
-                [
-                    [r["name"], 100 * r["share"]] + [r[f"recall@1 L={k}"] for k in ls]
-                    for r in rep["cross_rows"]
-                ],
-            )
-        )
+        body = [[r["name"], 100 * r["share"], *(r[f"recall@1 L={k}"] for k in ls)]
+                for r in rep["cross_rows"]]  # fmt: skip
+        lines.append(table(["codes", "share %"] + [f"R@1 L={k}" for k in ls], body))
     t = rep["timing"] or {"setting": "not measured in this run"}
     lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
-    lines.append(
-        table(
-            ["decode", "seconds", "queries/s", "time / map alone"],
-            [
-                [k, v["seconds"], v["queries_per_s"], v["x map alone"]]
-                for k, v in t.items()
-                if k != "setting"
-            ],
-        )
-    )
+    body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
+            for k, v in t.items() if k != "setting"]  # fmt: skip
+    lines.append(table(["decode", "seconds", "queries/s", "time / map alone"], body))
     lines += ["", "### Projected bytes (level 1) and the N from which the map is "
               "smaller than each code", "",
               "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods"
@@ -211,28 +187,14 @@ def markdown(rep: dict) -> str:
               ""]  # fmt: skip
     proj = rep["projections"]
     keys = [k for k in proj[0] if k.startswith("map")]
-    lines.append(
-        table(
-            ["d", "r"] + keys + [f"map < ITQ {b}: N" for b in BITS],
-            [
-                [p["d"], p["r"]]
-                + [f"{p[k]:.3g}" for k in keys]
-                + [
-                    _span(p[f"until {b}"], p[f"since {b}"])
-                    if b <= p["d"]
-                    else "bits > d"
-                    for b in BITS
-                ]
-                for p in proj
-            ],
-        )
-    )
+    body = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
+             *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
+               for b in BITS)] for p in proj]  # fmt: skip
+    lines.append(table(["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], body))
     lines += ["", "Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): "]
     for b in BITS:
-        lines.append(
-            f"- ITQ {b}: "
-            + ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
-        )
+        sizes = ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
+        lines.append(f"- ITQ {b}: {sizes}")
     return "\n".join(lines)
 
 
