@@ -68,6 +68,11 @@ HEAD = [
 ]  # fmt: skip
 
 
+# What every fit's process pays before it fits: the interpreter, importing JAX
+# and the fit's modules, and exiting (measured as a job of its own).
+IMPORTS = "import jax, jax.numpy\nimport rhythmic_jax.rhythmic_map\n"
+
+
 def route(n: int, d: int, seed: int = 0) -> np.ndarray:
     """(n, d) unit rows drifting along a route: a smoothed random walk."""
     rng = np.random.default_rng(seed)
@@ -120,7 +125,7 @@ def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
 
 def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
-    ap.add_argument("--jobs", default="fit,nordland,demo,jpeg")
+    ap.add_argument("--jobs", default="imports,fit,nordland,demo,jpeg")
     ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
 
 
@@ -140,6 +145,7 @@ def run(args) -> dict:
         tmp = Path(tmpdir)
         script = tmp / "fit.py"
         script.write_text(FIT)
+        (tmp / "imports.py").write_text(IMPORTS)
         inputs = {}
         if "fit" in jobs:
             inputs["fit"] = tmp / "route.npy"
@@ -164,6 +170,9 @@ def run(args) -> dict:
                     r, out = run_job(cmd, env_job, tmp)
                     r["periods"] = json.loads(out.splitlines()[-1])
                     agree.setdefault(job, {})[name] = (pred, r["periods"]["periods"])
+                    rows.append(dict(job=job, variant=name, **r))
+                if job == "imports":
+                    r = run_job([str(tmp / "imports.py")], env_job, tmp)[0]
                     rows.append(dict(job=job, variant=name, **r))
                 jpeg_map = str(tmp / f"jpeg-{tag}.map")
                 ref, q = folders.get("ref"), folders.get("q")
@@ -195,6 +204,36 @@ def run(args) -> dict:
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
 
+# (target, job, variant, measure(row, the job's baseline row), limit, format):
+# met when the measure is at most the limit
+TARGETS = [
+    ("fit: programs, cold", "fit", "new cold",
+     lambda r, b: r["programs"], 20, "{:.0f}"),
+    ("fit: wall / baseline's, cold", "fit", "new cold",
+     lambda r, b: r["wall"] / b["wall"], 0.4, "{:.2f}x"),
+    ("fit: wall, warm, imports included", "fit", "new warm",
+     lambda r, b: r["wall"], 2.0, "{:.2f} s"),
+    ("imports and exit alone (no work), warm", "imports", "new warm",
+     lambda r, b: r["wall"], 2.0, "{:.2f} s"),
+    ("Nordland: compiling / cold fit's wall", "nordland", "new cold",
+     lambda r, b: r["compile_s"] / r["wall"], 0.15, "{:.1%}"),
+    ("demo: wall, cold", "demo", "new cold", lambda r, b: r["wall"], 15.0, "{:.1f} s"),
+    ("demo: wall, warm", "demo", "new warm", lambda r, b: r["wall"], 8.0, "{:.1f} s"),
+]  # fmt: skip
+
+
+def targets(report: dict) -> list[list]:
+    """[target, limit, measured, met] for the targets this run's jobs answer."""
+    rows = {(r["job"], r["variant"]): r for r in report["rows"]}
+    out = []
+    for what, job, variant, measure, limit, fmt in TARGETS:
+        if (job, variant) in rows and (job, "base") in rows:
+            value = measure(rows[job, variant], rows[job, "base"])
+            ok = "met" if value <= limit else "not met"
+            out.append([what, fmt.format(limit), fmt.format(value), ok])
+    return out
+
+
 def markdown(report: dict) -> str:
     rows = [
         [r["job"], r["variant"], r["programs"], r["compiled"], r["hits"],
@@ -217,6 +256,10 @@ def markdown(report: dict) -> str:
         f" {s['jpegs']} JPEGs (Lite0).",
         "",
         table(HEAD, rows),
+        "",
+        "Targets (the imports row is the floor under any fit's wall):",
+        "",
+        table(["target", "at most", "measured", ""], targets(report)),
         "",
         "Maps against the baseline's (same periods; share of equal predictions):",
         "",
