@@ -80,8 +80,10 @@ def run_fit(
 ):  # fmt: skip
     """``rhythmic-jax fit`` (``periods``: fixed) under the peak-memory wrapper."""
     cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
-           "--r", str(r), "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
-    if periods is not None:
+           "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
+    if periods is None:  # fixed periods imply r
+        cmd += ["--r", str(r)]
+    else:
         cmd += ["--layout", "periods:" + ",".join(map(str, periods))]
     if procs > 1:
         cmd += ["--processes", str(procs)]
@@ -385,7 +387,7 @@ def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
     path = route_file(work / f"walk-{n}-256.npy", n)
     out = work / f"walk-{n}.map"
     attempts = work / "attempts.jsonl"
-    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out), "--r", "3",
+    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
            "--layout", f"periods:{periods}", "--stream", "--memory", memory,
            "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
     if not out.exists():
