@@ -131,6 +131,46 @@ def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
                 stderr=done.stderr, load=load_average()[0])  # fmt: skip
 
 
+def compile_counter(out=None) -> dict:
+    """Counts of this process's XLA programs from here on, from JAX's compile log:
+    ``programs`` obtained, of them persistent-cache ``hits``, their ``compile_s``
+    (loads included), ``trace_s`` (tracing and lowering) and ``names`` (programs
+    by name); written as JSON to ``out`` at exit when given."""
+    import atexit
+    import collections
+    import re
+
+    import jax
+
+    count = dict(programs=0, hits=0, compile_s=0.0, trace_s=0.0,
+                 names=collections.Counter())  # fmt: skip
+    done = re.compile(r"Finished XLA compilation of (\S+) in ([0-9.eE+-]+) sec")
+
+    class Count(logging.Handler):
+        def emit(self, record):
+            text = record.getMessage()
+            if m := done.search(text):
+                count["programs"] += 1
+                count["compile_s"] += float(m.group(2))
+                count["names"][m.group(1)] += 1
+            elif "compilation cache hit" in text:
+                count["hits"] += 1
+
+    def listen(event, duration, **_):
+        if event.endswith(("/jaxpr_trace_duration", "/jaxpr_to_mlir_module_duration")):
+            count["trace_s"] += duration
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    logger = logging.getLogger("jax._src")
+    logger.setLevel(logging.WARNING)  # the CLI quiets "jax"; this stays
+    logger.addHandler(Count())
+    logger.propagate = False
+    jax.config.update("jax_log_compiles", True)
+    if out:
+        atexit.register(lambda: Path(out).write_text(json.dumps(count)))
+    return count
+
+
 def weights_folder() -> Path:
     """The Lite0 weights' folder: a baseline checkout's ``query`` finds them by the
     bare file name its map records, from there."""

@@ -18,35 +18,18 @@ from pathlib import Path
 import numpy as np
 from _harness import REPO, child, header, main, nordland_images, table, weights_folder
 
-# Runs a module (-m NAME ARGS) or a script (PATH ARGS) with JAX's compile log
-# counted; writes {"programs", "hits", "compile_s"} to $COUNT_OUT at exit.
-WRAPPER = r"""
-import atexit, json, logging, os, re, runpy, sys
-count = dict(programs=0, hits=0, compile_s=0.0)
-done = re.compile(r"Finished XLA compilation of .+ in ([0-9.eE+-]+) sec")
-class Count(logging.Handler):
-    def emit(self, record):
-        text = record.getMessage()
-        m = done.search(text)
-        if m:
-            count["programs"] += 1
-            count["compile_s"] += float(m.group(1))
-        elif "compilation cache hit" in text:
-            count["hits"] += 1
-logger = logging.getLogger("jax._src")
-logger.setLevel(logging.WARNING)  # the CLI quiets "jax"; this stays
-logger.addHandler(Count())
-logger.propagate = False
-import jax
-jax.config.update("jax_log_compiles", True)
-atexit.register(lambda: open(os.environ["COUNT_OUT"], "w").write(json.dumps(count)))
-args = sys.argv[1:]
-if args[0] == "-m":
-    sys.argv = args[1:]
-    runpy.run_module(args[1], run_name="__main__", alter_sys=True)
+# Runs a module (-m NAME ARGS) or a script (PATH ARGS) with its XLA programs counted
+# (the harness's compile counter) into $COUNT_OUT at exit.
+WRAPPER = f"""
+import os, runpy, sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+__import__("_harness").compile_counter(os.environ["COUNT_OUT"])
+module = sys.argv[1] == "-m"
+sys.argv = sys.argv[1 + module :]
+if module:
+    runpy.run_module(sys.argv[0], run_name="__main__", alter_sys=True)
 else:
-    sys.argv = args
-    runpy.run_path(args[0], run_name="__main__")
+    runpy.run_path(sys.argv[0], run_name="__main__")
 """
 
 # A library user's fit: features (.npy) -> map, predictions saved; the new
@@ -87,8 +70,9 @@ def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
     out = tmp / f"count-{time.monotonic_ns()}.json"
     r = child([sys.executable, "-c", WRAPPER, *cmd], None, weights_folder(), env=env,
               COUNT_OUT=str(out))  # fmt: skip
-    count = json.loads(out.read_text())
-    count["compiled"] = count["programs"] - count["hits"]
+    c = json.loads(out.read_text())
+    count = dict(programs=c["programs"], compiled=c["programs"] - c["hits"],
+                 hits=c["hits"], compile_s=c["compile_s"])  # fmt: skip
     return dict(count, wall=r["wall"], load=r["load"]), r["stdout"]
 
 

@@ -14,17 +14,20 @@ from pathlib import Path
 
 from _harness import REPO, child, main
 
+# One fit (and a second, warm) in a fresh process, its XLA programs counted by the
+# harness's compile counter; prints "RESULT {json}".
 CHILD = r"""
-import collections, functools, json, logging, sys, time
+import collections, functools, json, os, sys, time
 args = json.loads(sys.argv[1])
 t0 = time.perf_counter()
+sys.path.insert(0, args["scripts"])
 import jax
 import numpy as np
+count = __import__("_harness").compile_counter()
 if args["cache"]:
     jax.config.update("jax_compilation_cache_dir", args["cache"])
 else:  # cold: whatever the environment says
     jax.config.update("jax_enable_compilation_cache", False)
-programs, seconds, names = [0], [0.0], collections.Counter()
 calls = collections.Counter()
 if args["optax"]:
     import optax
@@ -39,44 +42,24 @@ if args["optax"]:
             setattr(module, name, functools.wraps(f)(counted))
     wrap(optax, "optax")
     wrap(optax.tree_utils, "optax.tree_utils")
-EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
-          "/jax/core/compile/jaxpr_to_mlir_module_duration",
-          "/jax/core/compile/backend_compile_duration")
-def listen(event, duration, **kw):
-    if event in EVENTS:
-        seconds[0] += duration
-    if event == EVENTS[2]:
-        programs[0] += 1
-jax.monitoring.register_event_duration_secs_listener(listen)
-class Names(logging.Handler):
-    def emit(self, record):
-        msg = record.getMessage()
-        if msg.startswith("Finished XLA compilation of "):
-            names[msg.split(" ")[4]] += 1
-if args["names"]:
-    jax.config.update("jax_log_compiles", True)
-    handler = Names()
-    for name in ("jax._src.dispatch", "jax._src.interpreters.pxla"):
-        logging.getLogger(name).addHandler(handler)
-        logging.getLogger(name).propagate = False
 import rhythmic_jax as rj
 import_s = time.perf_counter() - t0
 if args["npy"]:
     x = np.load(args["npy"]).astype(np.float32)
 else:
     rng = np.random.default_rng(args["seed"])
-    step = rng.standard_normal((args["n"], args["d"])).astype(np.float32)
-    walk = np.empty_like(step)
-    walk[0] = step[0]
-    for i in range(1, len(step)):
-        walk[i] = 0.9 * walk[i - 1] + step[i]
+    walk = rng.standard_normal((args["n"], args["d"])).astype(np.float32)
+    for i in range(1, len(walk)):
+        walk[i] += 0.9 * walk[i - 1]
     x = walk / np.linalg.norm(walk, axis=1, keepdims=True)
-base = programs[0], seconds[0]
+seconds = lambda: count["compile_s"] + count["trace_s"]
+base = count["programs"], seconds()
 t, cpu = time.perf_counter(), time.process_time()
 m = rj.RhythmicMap().fit(x)
 wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-out = dict(programs=programs[0] - base[0], compile_s=round(seconds[0] - base[1], 3),
-           wall_s=round(wall, 3), cpu_s=round(cpu, 3), import_s=round(import_s, 3))
+out = dict(programs=count["programs"] - base[0],
+           compile_s=round(seconds() - base[1], 3), wall_s=round(wall, 3),
+           cpu_s=round(cpu, 3), import_s=round(import_s, 3))
 if args["optax"]:
     out["optax_calls"] = sum(calls.values())
     out["optax_by_name"] = dict(calls.most_common())
@@ -85,13 +68,12 @@ t, cpu = time.perf_counter(), time.process_time()
 rj.RhythmicMap().fit(x)
 out["again_s"] = round(time.perf_counter() - t, 3)
 out["again_cpu_s"] = round(time.process_time() - cpu, 3)
-import os
 out["load"] = round(os.getloadavg()[0], 2)
 out["periods"] = list(m.periods)
 out["n"], out["d"] = [int(v) for v in x.shape]
 out["package"] = rj.__file__
 if args["names"]:
-    out["names"] = dict(names.most_common())
+    out["names"] = dict(count["names"].most_common())
 print("RESULT " + json.dumps(out))
 """
 
@@ -101,6 +83,7 @@ def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
     """Run one fit in a fresh process against ``checkout``; its JSON record."""
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
+    args["scripts"] = str(Path(__file__).parent)
     cmd = [sys.executable, "-c", CHILD, json.dumps(args)]
     proc = child(cmd, checkout, "/", check=False, env=env)
     lines = [ln for ln in proc["stdout"].splitlines() if ln.startswith("RESULT ")]
