@@ -411,71 +411,57 @@ def _verdict(value, goal) -> str:
     return f"{word} ({value:.3f} vs {goal:.3f}, {value - goal:+.3f})"
 
 
+def _check(row, key, goal, share=True) -> str:
+    """The verdict of ``row[key]`` against ``goal``, naming the row (and its share)."""
+    if row is None:
+        return "no map row fits 15 %"
+    tail = f", {100 * row['ratio']:.1f} %" if share else ""
+    return _verdict(row[key], goal) + f": {row['method']}{tail}"
+
+
 def targets(report: dict) -> list[tuple[str, str]]:
     """(target, verdict with figures) of every target the report can judge."""
     sets, out = report["datasets"], []
     if LITE in sets:
         rows = next(iter(sets[LITE]["directions"].values()))
         brute, seq = _row(rows, "brute force raw"), _row(rows, "SeqSLAM raw")
-        b = chosen(rows, "r1", 0.15)
-        out.append((
-            "Lite0, summer map, winter queries: map R@1 >= raw brute force at "
-            "<= 15 % of the raw database, embedding included",
-            _verdict(b["r1"], brute["r1"]) + f": {b['method']}, "
-            f"{100 * b['ratio']:.1f} %" if b else "no map row fits 15 %",
-        ))  # fmt: skip
-        s = chosen(rows, "L10", 0.15)
-        out.append((
-            "Lite0: the map's L = 10 sequence >= SeqSLAM L = 10 on raw Lite0",
-            _verdict(s["L10"], seq["L10"]) + f": {s['method']}, "
-            f"{100 * s['ratio']:.1f} %" if s else "no map row fits 15 %",
-        ))  # fmt: skip
-        learn = sets[LITE]["learn"]
-        slow = max(learn.items(), key=lambda kv: kv[1]["seconds"])
-        out.append((
-            "Learning from cached descriptors <= 5 minutes on 2 cores",
-            f"{'met' if slow[1]['seconds'] <= 300 else 'NOT met'} (slowest "
-            f"Lite0 lever, {slow[0]}: {slow[1]['seconds']:.0f} s, under the "
-            "load below)",
-        ))  # fmt: skip
+        lever, slow = max(sets[LITE]["learn"].items(), key=lambda kv: kv[1]["seconds"])
+        out += [
+            ("Lite0, summer map, winter queries: map R@1 >= raw brute force at "
+             "<= 15 % of the raw database, embedding included",
+             _check(chosen(rows, "r1", 0.15), "r1", brute["r1"])),
+            ("Lite0: the map's L = 10 sequence >= SeqSLAM L = 10 on raw Lite0",
+             _check(chosen(rows, "L10", 0.15), "L10", seq["L10"])),
+            ("Learning from cached descriptors <= 5 minutes on 2 cores",
+             f"{'met' if slow['seconds'] <= 300 else 'NOT met'} (slowest Lite0 "
+             f"lever, {lever}: {slow['seconds']:.0f} s, under the load below)"),
+        ]  # fmt: skip
     for name, what in ((PATCH, "patchnorm: map single frame"),
                        (AERIAL, "Aerial pairs: the map")):  # fmt: skip
-        if name not in sets:
-            continue
-        rows = next(iter(sets[name]["directions"].values()))
-        brute = _row(rows, "brute force raw")
-        b = chosen(rows, "r1")
-        out.append((
-            f"{what} >= half of raw brute force",
-            _verdict(b["r1"], brute["r1"] / 2)
-            + f": {b['method']}, {100 * b['ratio']:.1f} %",
-        ))  # fmt: skip
-        for other in [r for r in rows if r.get("chosen") and r is not b]:
-            out.append((
-                f"{what} >= half of raw brute force, with a later lever (not the "
-                "data set's first: chosen after an earlier run, so not blind)",
-                _verdict(other["r1"], brute["r1"] / 2)
-                + f": {other['method']}, {100 * other['ratio']:.1f} %",
-            ))  # fmt: skip
+        if name in sets:
+            rows = next(iter(sets[name]["directions"].values()))
+            b, half = chosen(rows, "r1"), _row(rows, "brute force raw")["r1"] / 2
+            out.append((f"{what} >= half of raw brute force", _check(b, "r1", half)))
+            out += [(f"{what} >= half of raw brute force, with a later lever (not the "
+                     "data set's first: chosen after an earlier run, so not blind)",
+                     _check(r, "r1", half))
+                    for r in rows if r.get("chosen") and r is not b]  # fmt: skip
     for name, ds in sets.items():
         for key, rows in ds["directions"].items():
             raw = _row(rows, "map raw")
             emb = next((r for r in rows if r["method"].startswith("map ")
                         and r["method"] != "map raw" and "self_r1" in r
                         and "+" not in r["method"]), None)  # fmt: skip
-            if raw and emb:
-                out.append((
-                    f"Self-query with the embedding no lower than without ({name}, "
-                    f"{key}, same level)",
-                    _verdict(emb["self_r1"], raw["self_r1"]) + f": {emb['method']}",
-                ))  # fmt: skip
             pick = next((r for r in rows if r.get("chosen")), None)
-            if raw and pick:
-                out.append((
-                    f"Self-query of the chosen configuration no lower than the map "
-                    f"without embedding ({name}, {key})",
-                    _verdict(pick["self_r1"], raw["self_r1"]) + f": {pick['method']}",
-                ))  # fmt: skip
+            for row, what in (
+                (emb, f"with the embedding no lower than without ({name}, {key}, "
+                 "same level)"),
+                (pick, "of the chosen configuration no lower than the map without "
+                 f"embedding ({name}, {key})"),
+            ):  # fmt: skip
+                if raw and row:
+                    verdict = _check(row, "self_r1", raw["self_r1"], False)
+                    out.append((f"Self-query {what}", verdict))
     return out
 
 
