@@ -20,20 +20,10 @@ import numpy as np
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
 from rhythmic_jax.decoding.soft import calibrate
+from rhythmic_jax.eval import outliers as ol
+from rhythmic_jax.eval import seqslam as sq
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import accuracy, pr_auc, recall_at_100_precision
-from rhythmic_jax.eval.outliers import (
-    choose_threshold,
-    decode_confidence,
-    finite_confidence,
-    holdout_split,
-    reject,
-)
-from rhythmic_jax.eval.seqslam import (
-    enhance_contrast,
-    seqslam_decode,
-    sequence_similarity,
-)
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
@@ -128,26 +118,16 @@ TRANSFORMS = {
 }
 
 
-@functools.partial(
-    jax.jit, static_argnames=("periods", "n", "length", "speeds", "window")
-)
-def place_sequence_decode(
-    scores: jax.Array,
-    periods: tuple[int, ...],
-    n: int,
-    length: int,
-    speeds: tuple[float, ...],
-    window: int,
-) -> jax.Array:
-    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,)."""
-    i = np.arange(n)
-    cols = np.stack(
-        [o + i % t for o, t in zip(period_offsets(periods), periods, strict=True)]
-    )
-    sim = enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
+@functools.partial(jax.jit, static_argnums=(1, 2, 3, 4, 5))
+def place_sequence_decode(scores, periods, n, length, speeds, window) -> jax.Array:
+    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,); periods,
+    places, length, speeds (a tuple) and contrast window are static."""
+    i, offsets = np.arange(n), period_offsets(periods)
+    cols = np.stack([o + i % t for o, t in zip(offsets, periods, strict=True)])
+    sim = sq.enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
     best = index = None
     for v in speeds:
-        d = sequence_similarity(sim, length, v)
+        d = sq.sequence_similarity(sim, length, v)
         score, arg = jnp.max(d, axis=1), jnp.argmax(d, axis=1)
         if best is None:
             best, index = score, arg
@@ -213,15 +193,11 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
             label = f"SeqSLAM L={length} {_speeds(speeds)}"
             if window:
                 label += f", contrast w={window}"
-            pred, sec = timed(
-                lambda length=length, speeds=speeds, window=window: seqslam_decode(
-                    qry, ref, length, speeds, contrast_window=window, progress=False
-                ),
-                max(1, repeats // 3),
+            fn = lambda L=length, v=speeds, w=window: sq.seqslam_decode(  # noqa: E731
+                qry, ref, L, v, contrast_window=w, progress=False
             )
-            rows.append(
-                _row(label, pred, gt, sec, storage, L=length, speeds=list(speeds))
-            )
+            pred, sec = timed(fn, max(1, repeats // 3))
+            rows.append(_row(label, pred, gt, sec, storage, L=length, speeds=[*speeds]))
     return rows
 
 
@@ -232,8 +208,8 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
     """Threshold-free metrics on the second half, and a first-half threshold."""
     second = ~first
     p2, c2, g2 = pred[second], conf[second], gt[second]
-    thr = choose_threshold(pred[first], conf[first], gt[first], tolerance=TOLERANCE)
-    kept = reject(p2, c2, thr)
+    thr = ol.choose_threshold(pred[first], conf[first], gt[first], tolerance=TOLERANCE)
+    kept = ol.reject(p2, c2, thr)
     ok = (kept >= 0) & (g2 >= 0) & (np.abs(kept - g2) <= TOLERANCE)
     return dict(
         pr_auc=pr_auc(p2, c2, g2, TOLERANCE),
@@ -248,7 +224,7 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
 
 def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     """Hold 20 % of the route out of the map; query every winter frame."""
-    hold = holdout_split(len(ref), **HOLDOUT)
+    hold = ol.holdout_split(len(ref), **HOLDOUT)
     gt = hold.gt()
     first = np.arange(len(qry)) < len(qry) // 2
     model = fitted_map(ref[hold.fit], level, descriptor, progress)
@@ -263,25 +239,20 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     cases = {}
     for kind in ("margin", "likelihood"):
         ex = EXCLUDE if kind == "margin" else 0
-        cases[f"hard, {kind}"] = decode_confidence(scores, per, n, "hard", kind=kind)
-        cases[f"soft, {kind}"] = decode_confidence(
-            scores, per, n, "soft", kind=kind, exclude=ex
-        )
-        for label, acc in seq.items():
-            cases[f"{label}, {kind}"] = decode_confidence(
+        cases[f"hard, {kind}"] = ol.decode_confidence(scores, per, n, "hard", kind=kind)
+        for label, acc in {"soft": scores, **seq}.items():
+            cases[f"{label}, {kind}"] = ol.decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
     flat = BruteForce(n_threads=h.cores()).fit(ref[hold.fit])
     sim, top = flat.search(qry, 1)
-    cases["brute force, cosine"] = (top[:, 0], finite_confidence(sim[:, 0]))
-    for window in (None, CONTRAST_WINDOW):
-        idx, score = seqslam_decode(
-            qry, ref[hold.fit], GRID_LENGTH, contrast_window=window, progress=False
+    cases["brute force, cosine"] = (top[:, 0], ol.finite_confidence(sim[:, 0]))
+    for w in (None, CONTRAST_WINDOW):
+        idx, score = sq.seqslam_decode(
+            qry, ref[hold.fit], GRID_LENGTH, contrast_window=w, progress=False
         )
-        label = f"SeqSLAM L={GRID_LENGTH}" + (
-            f", contrast w={window}" if window else ""
-        )
-        cases[label + ", score"] = (np.asarray(idx), finite_confidence(score))
+        label = f"SeqSLAM L={GRID_LENGTH}" + (f", contrast w={w}" if w else "")
+        cases[label + ", score"] = (np.asarray(idx), ol.finite_confidence(score))
     rows = []
     for label, (pred, conf) in cases.items():
         pred = np.asarray(pred).astype(np.int64)
@@ -441,19 +412,16 @@ def run(args: argparse.Namespace) -> dict:
             "aerial LEVIR": h.aerial_features(args.root, name, **kw)[:2],
         }
         if args.frames:
-            datasets = {
-                k: (r[: args.frames], q[: args.frames])
-                for k, (r, q) in datasets.items()
-            }
+            f = args.frames
+            datasets = {k: (r[:f], q[:f]) for k, (r, q) in datasets.items()}
         for dataset, (ref, qry) in datasets.items():
             gt = np.arange(len(qry))
             log.info("%s %s: references", dataset, name)
             refs = reference_rows(ref, qry, gt, repeats)
             for level in args.levels:
                 model = fitted_map(ref, level, name, args.progress)
-                log.info(
-                    "%s %s level %d, periods %s", dataset, name, level, model.periods
-                )
+                log.info("%s %s level %d, periods %s", dataset, name, level,
+                         model.periods)  # fmt: skip
                 blocks.append(dict(
                     dataset=dataset, descriptor=name,
                     settings=get_descriptor(name).settings(), level=level,

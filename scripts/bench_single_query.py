@@ -25,9 +25,8 @@ log = logging.getLogger("bench_single_query")
 
 
 def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
-    """Median and p95 seconds of every ``fn(q)`` of ``cases`` over rows ``q`` of
-    ``queries``: ``calls[name]`` calls each (after 50 of warm-up), timed in
-    turns, a block of ``block`` calls per case and round."""
+    """Median and p95 seconds of ``calls[name]`` calls ``fn(q)`` of each case on
+    rows of ``queries`` (after 50 of warm-up), in turns of ``block`` calls."""
     for fn in cases.values():
         for q in queries[:50]:
             fn(q)
@@ -40,14 +39,8 @@ def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
                 fn(q)
                 ts[name].append(time.perf_counter() - t)
         done = (done + block) % len(queries)
-    return {
-        name: dict(
-            median_s=float(np.median(v)),
-            p95_s=float(np.percentile(v, 95)),
-            calls=len(v),
-        )
-        for name, v in ts.items()
-    }
+    return {name: dict(median_s=float(np.median(v)), p95_s=float(np.percentile(v, 95)),
+                       calls=len(v)) for name, v in ts.items()}  # fmt: skip
 
 
 def options(ap) -> None:
@@ -91,11 +84,10 @@ def run(args) -> dict:
 
     wt, rows_p = small.wt, small.wt.shape[0]
     unpadded = np.ascontiguousarray(wt[:p])
+    alone = "templates x query alone, "
     cases = {
-        f"templates x query alone, {p} rows (one-thread sgemv)": lambda q: unpadded @ q,
-        f"templates x query alone, padded to {rows_p} rows (the map's)": lambda q: (
-            wt @ q
-        ),
+        alone + f"{p} rows (one-thread sgemv)": lambda q: unpadded @ q,
+        alone + f"padded to {rows_p} rows (the map's)": lambda q: wt @ q,
         "RhythmicMap.locate (1 descriptor)": model.locate,
         "RhythmicMap.predict (1 row)": lambda q: model.predict(q[None]),
         "numpy index (SmallDecoder.index)": small.index,
@@ -105,23 +97,17 @@ def run(args) -> dict:
     }
     rows = latencies(cases, queries, dict.fromkeys(cases, args.singles))
     # after the numpy paths: XLA's and faiss's threads spin on after a call
-    jitted = {
-        "jitted decode (1 row)": lambda q: decode(
-            params, q[None], periods, n
-        ).index.block_until_ready()
-    }
-    rows.update(latencies(jitted, queries, dict.fromkeys(jitted, args.singles)))
+    jit = lambda q: decode(params, q, periods, n).index.block_until_ready()  # noqa: E731
+    one = {"jitted decode (1 row)": lambda q: jit(q[None])}
+    rows.update(latencies(one, queries, dict.fromkeys(one, args.singles)))
     exact(queries[:1])
     one = {"faiss IndexFlatIP (1 row)": lambda q: exact(q[None])}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.exact)))
     for name, row in rows.items():
         log.info("%s: %.1f us", name, 1e6 * row["median_s"])
-    throughput = {
-        "jitted decode": time_batch(
-            lambda q: decode(params, q, periods, n), queries[:1000], repeats=5
-        ),
-        "faiss IndexFlatIP": time_batch(exact, queries[:1000], repeats=3),
-    }
+    batch = queries[:1000]
+    throughput = {"jitted decode": time_batch(jit, batch, repeats=5),
+                  "faiss IndexFlatIP": time_batch(exact, batch, repeats=3)}  # fmt: skip
     return dict(
         n=n, d=d, periods=list(periods), singles=args.singles,
         single=rows, batch=throughput, same_as_batch_decode=bool(same),
@@ -135,18 +121,12 @@ def markdown(r: dict) -> str:
         for k, v in r["single"].items()
     ]
     thr = r["batch"]
-    ratio = (
-        thr["jitted decode"]["queries_per_s"]
-        / thr["faiss IndexFlatIP"]["queries_per_s"]
+    ratio = thr["jitted decode"]["queries_per_s"]
+    ratio /= thr["faiss IndexFlatIP"]["queries_per_s"]
+    locate, predict, faiss_one = (
+        next(1e6 * v["median_s"] for k, v in r["single"].items() if k.startswith(s))
+        for s in ("RhythmicMap.locate", "RhythmicMap.predict", "faiss")
     )
-    single = {k: 1e6 * v["median_s"] for k, v in r["single"].items()}
-
-    def pick(start: str) -> float:
-        return next(v for k, v in single.items() if k.startswith(start))
-
-    locate = pick("RhythmicMap.locate")
-    predict = pick("RhythmicMap.predict")
-    faiss_one = pick("faiss")
     p = sum(r["periods"])
     tbytes = 4 * r["d"] * p
     met = "met" if locate <= 20 else "not met"
