@@ -19,15 +19,11 @@ from pathlib import Path
 import _harness as h
 import numpy as np
 
+from rhythmic_jax import embedding as emb_files
 from rhythmic_jax.codes import fit_codebook
 from rhythmic_jax.decoding.fusion import learn_weight
 from rhythmic_jax.decoding.group_decode import place_scores as group_place_scores
-from rhythmic_jax.embedding import (
-    apply,
-    embedding_bytes,
-    load_embedding,
-    save_embedding,
-)
+from rhythmic_jax.embedding import apply, embedding_bytes
 from rhythmic_jax.eval.seqslam import seqslam_decode
 from rhythmic_jax.frames.cache_files import default_cache_dir
 from rhythmic_jax.frames.features import describe, get_descriptor
@@ -90,11 +86,11 @@ def cached_embedding(dataset: str, train, cfg: LearnConfig):
     key = h.digest(ident, *(t[:: max(1, len(t) // 64)] for t in train))
     folder = default_cache_dir() / "cross_condition" / f"{key}.emb"
     if folder.exists():
-        emb, meta = load_embedding(folder)
+        emb, meta = emb_files.load_embedding(folder)
         return emb, {**meta["learn_info"], "cached": True}
     emb, info = learn_embedding(train, cfg)
     folder.parent.mkdir(parents=True, exist_ok=True)
-    save_embedding(folder, emb, {"descriptor": dataset, "learn_info": info})
+    emb_files.save_embedding(folder, emb, {"descriptor": dataset, "learn_info": info})
     return emb, {**info, "cached": False}
 
 

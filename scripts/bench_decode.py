@@ -9,18 +9,10 @@ from __future__ import annotations
 
 import logging
 
+import _harness as h
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _harness import (
-    cores,
-    header,
-    load_average,
-    main,
-    nordland_features,
-    table,
-    unit_rows,
-)
 
 from rhythmic_jax.decoding.hard import decode
 from rhythmic_jax.eval.baselines import BruteForce
@@ -36,10 +28,10 @@ NOISE = 0.5  # query noise relative to a unit reference
 def random_features(n: int, d: int, b: int, seed: int):
     """(references (n, d), queries (b, d), source index of each query (b,))."""
     rng = np.random.default_rng(seed)
-    refs = unit_rows(rng.standard_normal((n, d), dtype=np.float32))
+    refs = h.unit_rows(rng.standard_normal((n, d), dtype=np.float32))
     src = rng.choice(n, size=b, replace=False)
     noise = rng.standard_normal((b, d), dtype=np.float32) * np.float32(NOISE)
-    return refs, unit_rows(refs[src] + noise / np.sqrt(d, dtype=np.float32)), src
+    return refs, h.unit_rows(refs[src] + noise / np.sqrt(d, dtype=np.float32)), src
 
 
 def random_map(d: int, periods: tuple[int, ...], seed: int) -> Templates:
@@ -57,10 +49,10 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     p = sum(periods)
     log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
     params = random_map(d, periods, seed=1)
-    flat = BruteForce(n_threads=cores()).fit(refs)
+    flat = BruteForce(n_threads=h.cores()).fit(refs)
     fns = dict(rhythmic=lambda q: decode(params, q, periods, n),
                faiss=lambda q: flat.search(q, 1))  # fmt: skip
-    load, out = load_average(), {}
+    load, out = h.load_average(), {}
     for label, fn in fns.items():
         batch = time_batch(fn, queries, repeats=repeats)
         single = time_single_queries(fn, queries[:singles], warmup=10)
@@ -72,7 +64,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     return dict(
         name=name, n=n, d=d, periods=list(periods), p=p, batch_size=len(queries),
         single_queries=singles, load_average_start=load,
-        threads=dict(xla=cores(), faiss=flat.n_threads),
+        threads=dict(xla=h.cores(), faiss=flat.n_threads),
         map_bytes=storage_bytes(periods, d), database_bytes=database_bytes(n, d),
         flop_ratio=n / p, faiss_top1_is_source=float(np.mean(top[:, 0] == src)),
         rhythmic=r, faiss=f,
@@ -84,23 +76,15 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
 
 def case_markdown(c: dict) -> str:
     r, f = c["rhythmic"], c["faiss"]
-    rows = [
-        [
-            label,
-            s["batch"]["queries_per_s"],
-            1e3 * s["single"]["median_s"],
-            1e3 * s["single"]["p95_s"],
-        ]
-        for label, s in (
-            (f"rhythmic decode ({c['p']} templates)", r),
-            (f"faiss IndexFlatIP ({c['n']} references)", f),
-        )
-    ]
+    rows = [[label, s["batch"]["queries_per_s"], 1e3 * s["single"]["median_s"],
+             1e3 * s["single"]["p95_s"]]
+            for label, s in ((f"rhythmic decode ({c['p']} templates)", r),
+                             (f"faiss IndexFlatIP ({c['n']} references)", f))]  # fmt: skip
     head = ["method", f"queries/s (batch {c['batch_size']})", "single ms median"]
     return "\n".join([
         f"## {c['name']}: N = {c['n']}, d = {c['d']}, periods {c['periods']}",
         "",
-        table([*head, "single ms p95"], rows),
+        h.table([*head, "single ms p95"], rows),
         "",
         f"Rhythmic / faiss: **{c['batch_speedup']:.1f}x** batch throughput,"
         f" **{c['single_speedup_median']:.1f}x** single-query median latency"
@@ -120,7 +104,7 @@ def case_markdown(c: dict) -> str:
 
 def markdown(report: dict) -> str:
     title = "Decoding: rhythmic map against exact search (faiss IndexFlatIP)"
-    parts = header(title, report) + [
+    parts = h.header(title, report) + [
         "The map's templates are random (decoding cost does not depend on their"
         " values); both decoders see the same references and queries.",
         "",
@@ -144,7 +128,7 @@ def run(args) -> dict:
     periods = nominal_periods(3576, 2, 1, 7)
     if (args.root / "nordland_64x32").is_dir():
         name = "Nordland summer map, winter queries, patchnorm"
-        refs, qry = nordland_features(args.root, progress=args.progress)
+        refs, qry = h.nordland_features(args.root, progress=args.progress)
         qry, src = qry[:BATCH], np.arange(BATCH)
     else:
         log.warning("no Nordland data under %s: random features", args.root)
@@ -155,4 +139,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="decode")
+    h.main(__doc__, run, markdown, options, stem="decode")

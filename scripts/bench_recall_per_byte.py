@@ -19,16 +19,7 @@ from _harness import fastest, header, main, nordland_features, table
 from rhythmic_jax.codes import code_bytes, pack_bits
 from rhythmic_jax.decoding.fusion import fused_decode
 from rhythmic_jax.decoding.soft import soft_decode
-from rhythmic_jax.eval.frontier import (
-    FrontierConfig,
-    budget_table,
-    crossover_n,
-    fitted_codes,
-    fitted_map,
-    frontier_rows,
-    projected_bytes,
-    similarity_recalls,
-)
+from rhythmic_jax.eval import frontier as fr
 from rhythmic_jax.split import NORDLAND_SPLIT
 
 BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
@@ -43,9 +34,9 @@ def projections() -> list[dict]:
     for d in DS:
         for r in (2, 3):
             row = {"d": d, "r": r}
-            row.update({f"map N={n:.0e}": projected_bytes(n, d, r) for n in NS})
+            row.update({f"map N={n:.0e}": fr.projected_bytes(n, d, r) for n in NS})
             for b in BITS:
-                row[f"until {b}"], row[f"since {b}"] = crossover_n(d, b, r)
+                row[f"until {b}"], row[f"since {b}"] = fr.crossover_n(d, b, r)
             out.append(row)
     return out
 
@@ -53,8 +44,8 @@ def projections() -> list[dict]:
 def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
     faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
-    w, b, per = fitted_map(ref, r, level, gap, cache)
-    book = fitted_codes(ref, bits, cache)
+    w, b, per = fr.fitted_map(ref, r, level, gap, cache)
+    book = fr.fitted_codes(ref, bits, cache)
     n = len(ref)
     wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
 
@@ -216,7 +207,7 @@ def run(args) -> dict:
     s, w = nordland_features(args.root, "efficientnet_lite0", key="nordland_",
                              progress=args.progress)  # fmt: skip
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
-    cfg = FrontierConfig()
+    cfg = fr.FrontierConfig()
     if args.quick:
         cfg = dataclasses.replace(cfg, maps=((2, 1), (3, 2)), bits=(64, 128))
     if args.maps:
@@ -226,13 +217,13 @@ def run(args) -> dict:
         cfg = dataclasses.replace(cfg, bits=tuple(int(b) for b in args.bits.split(",")))
     t0 = time.perf_counter()
     cache = args.cache or None
-    rows = frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
+    rows = fr.frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
     both = np.concatenate([s[tr], w[tr]])
     cross_rows = []
     for bits in cfg.bits if args.cross else ():
-        book = fitted_codes(s[te], bits, cache, fit_on=both)
+        book = fr.fitted_codes(s[te], bits, cache, fit_on=both)
         sims = np.asarray(book.similarity(w[te]))
-        rec = similarity_recalls(sims, cfg.lengths, cfg.tolerance)
+        rec = fr.similarity_recalls(sims, cfg.lengths, cfg.tolerance)
         size = code_bytes(len(te), s.shape[1], bits)["total"]
         cross_rows.append(
             {
@@ -258,7 +249,7 @@ def run(args) -> dict:
         "lengths": list(cfg.lengths),
         "rows": rows,
         "cross_rows": cross_rows,
-        "budgets": {str(k): budget_table(rows, BUDGETS, k) for k in cfg.lengths},
+        "budgets": {str(k): fr.budget_table(rows, BUDGETS, k) for k in cfg.lengths},
         "timing": {}
         if args.no_timing
         else timing(s[te], w[te], cache, cfg.bits[0], *cfg.maps[-1], cfg.gap),

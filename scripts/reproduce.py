@@ -21,13 +21,7 @@ from tqdm.auto import tqdm
 
 import rhythmic_jax
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval import figures
-from rhythmic_jax.eval.metrics import (
-    accuracy,
-    recall_at_k,
-    time_batch,
-    time_single_queries,
-)
+from rhythmic_jax.eval import figures, metrics
 from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.io.atomic import atomic_path, write_file
 from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
@@ -279,9 +273,9 @@ class Run:
         ground truth ``arange`` (query i is place i); keeps the predictions."""
         pred, gt = np.asarray(pred, np.int64), np.arange(len(pred))
         self.preds[key], self.preds[key + "_gt"] = pred.astype(np.int32), gt
-        rec = recall_at_k(ranked, gt, KS, tolerance=tol)
+        rec = metrics.recall_at_k(ranked, gt, KS, tolerance=tol)
         return dict(
-            accuracy=accuracy(pred, gt, tol), tolerance=tol,
+            accuracy=metrics.accuracy(pred, gt, tol), tolerance=tol,
             **{f"recall_at_{k}": rec[k] for k in KS},
             no_match=float(np.mean(pred == -1)), n_queries=len(gt), predictions=key,
         )  # fmt: skip
@@ -356,8 +350,8 @@ def table2(run: Run, data, fits) -> list[dict]:
 
 
 def timing(fn, q: np.ndarray, s: Settings) -> dict[str, float]:
-    single = time_single_queries(fn, q[: s.timing_queries], warmup=10)
-    batch = time_batch(fn, q[: s.batch_queries], repeats=2)
+    single = metrics.time_single_queries(fn, q[: s.timing_queries], warmup=10)
+    batch = metrics.time_batch(fn, q[: s.batch_queries], repeats=2)
     return dict(single_median_s=single["median_s"], single_p95_s=single["p95_s"],
                 batch_queries_per_s=batch["queries_per_s"],
                 batch_size=batch["batch_size"])  # fmt: skip
