@@ -76,10 +76,10 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
 
 def case_markdown(c: dict) -> str:
     r, f = c["rhythmic"], c["faiss"]
+    cases = ((f"rhythmic decode ({c['p']} templates)", r),
+             (f"faiss IndexFlatIP ({c['n']} references)", f))  # fmt: skip
     rows = [[label, s["batch"]["queries_per_s"], 1e3 * s["single"]["median_s"],
-             1e3 * s["single"]["p95_s"]]
-            for label, s in ((f"rhythmic decode ({c['p']} templates)", r),
-                             (f"faiss IndexFlatIP ({c['n']} references)", f))]  # fmt: skip
+             1e3 * s["single"]["p95_s"]] for label, s in cases]  # fmt: skip
     head = ["method", f"queries/s (batch {c['batch_size']})", "single ms median"]
     return "\n".join([
         f"## {c['name']}: N = {c['n']}, d = {c['d']}, periods {c['periods']}",
