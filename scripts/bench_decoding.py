@@ -160,7 +160,7 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
         add(label, lambda method=method: decode_scores(s, per, n, method, M).index)
     grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
     for length, v in grids:
-        fn = lambda length=length, v=v: sequence_decode(s, per, n, length, v)  # noqa: E731
+        fn = lambda L=length, v=v: sequence_decode(s, per, n, L, v)  # noqa: E731
         add(f"sequence soft L={length} {_speeds(v)}", fn, length, v)
     for name, transform in TRANSFORMS.items():
         for length, v in grids[1:]:
@@ -170,9 +170,9 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
                 t(s, per), per, n, length, v
             )
             add(f"sequence soft L={length} {_speeds(v)}, {name}", fn, length, v)
-    w = CONTRAST_WINDOW
+    w, one = CONTRAST_WINDOW, (1.0,)
     for length in LENGTHS[1:]:
-        fn = lambda length=length: place_sequence_decode(s, per, n, length, (1.0,), w)  # noqa: E731
+        fn = lambda L=length: place_sequence_decode(s, per, n, L, one, w)  # noqa: E731
         add(f"place-domain L={length} v=1, contrast w={w}", fn, length, [1.0])
     return rows
 

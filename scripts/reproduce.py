@@ -235,12 +235,10 @@ class Run:
         if aug is None:
             fit = lambda m: m.fit(x, progress=self.progress)  # noqa: E731
             return h.cached_fit(model, x, self.cache_dir, fit)
-        from rhythmic_jax.augment.stream import fit_map_augmented
+        from rhythmic_jax.augment.stream import fit_map_augmented as augmented
 
         def fit(m):
-            return fit_map_augmented(
-                m, images, x, self.desc, aug, progress=self.progress
-            )
+            return augmented(m, images, x, self.desc, aug, progress=self.progress)
 
         extra = dict(augmented=dataclasses.asdict(aug))
         return h.cached_fit(model, x, self.cache_dir, fit, extra, (images,), "aug-")
@@ -402,24 +400,16 @@ def fig4(run: Run, data, fits) -> list[dict]:
     """Paper Fig. 4: r = 2, 3, 5 at level 1, queries from the map (exact)."""
     x, out = data["nordland"][1], []
     for r in run.settings.rs:
-        fit = (
-            fits["nordland", 1]
-            if r == 2
-            else run.fit(x, r=r, count=min_count(len(x), r, 1))
-        )
+        count = min_count(len(x), r, 1)
+        fit = fits["nordland", 1] if r == 2 else run.fit(x, r=r, count=count)
         out.append(map_record(*fit) | run.score_map(f"f4_r{r}", fit[0], x, 0))
     return out
 
 
 def by_level(run: Run, fits, key: str, q, tol: int) -> list[dict]:
     """The map at each level, queried with q."""
-    out = []
-    for lv in run.settings.levels:
-        model, fit = fits[key, lv]
-        out.append(
-            map_record(model, fit) | run.score_map(f"{key}_q_L{lv}", model, q, tol)
-        )
-    return out
+    return [map_record(m, fit) | run.score_map(f"{key}_q_L{lv}", m, q, tol)
+            for lv in run.settings.levels for m, fit in [fits[key, lv]]]  # fmt: skip
 
 
 def appearance(run: Run, data, fits) -> dict[str, Any]:
