@@ -47,11 +47,8 @@ def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarra
 
 def neighbour_cosines(x: np.ndarray, lags=(1, 10, 100, 1000)) -> dict[str, float]:
     """Mean cosine of frames ``lag`` apart (rows are unit vectors)."""
-    return {
-        str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
-        for lag in lags
-        if lag < len(x)
-    }
+    return {str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
+            for lag in lags if lag < len(x)}  # fmt: skip
 
 
 # ------------------------------------------------------------------- solvers
@@ -66,8 +63,7 @@ def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
 
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
-    """``samples`` template columns spread evenly over all p, with their
-    (period, phase)."""
+    """``samples`` columns spread evenly over all p, with (period, phase)."""
     p = sum(periods)
     cols = np.unique(np.linspace(0, p - 1, samples).round().astype(int))
     offs = period_offsets(periods)
@@ -99,9 +95,8 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     """First call (compiles every shape), then the timed call of the same solve."""
     _, warmup, _ = h.timed(newton_fit, x, y, c, config, progress=False)
     load = h.load_average()
-    (params, info), seconds, cpu = h.timed(
-        newton_fit, x, y, c, config, progress=progress
-    )
+    (params, info), seconds, cpu = h.timed(newton_fit, x, y, c, config,
+                                           progress=progress)  # fmt: skip
     log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
              info.steps, info.cg_iterations, info.columns)  # fmt: skip
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
@@ -121,9 +116,8 @@ def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
     opt = optax.lbfgs()
     _, warmup, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
     load = h.load_average()
-    (params, history), seconds, cpu = h.timed(
-        fit_full_batch, x, y, c, optimizer=opt, progress=progress
-    )
+    (params, history), seconds, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
+                                              progress=progress)  # fmt: skip
     log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
     record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load)
     return params, history, record
@@ -151,9 +145,8 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     w_t, tight = run_newton(x, y, c, NewtonConfig(), progress)
     w_l, hist, lbfgs = run_lbfgs(x, y, c, progress)
 
-    f_f = liblinear_objectives(w_f.w, w_f.b, x64, y64, c)
-    f_t = liblinear_objectives(w_t.w, w_t.b, x64, y64, c)
-    f_l = liblinear_objectives(w_l.w, w_l.b, x64, y64, c)
+    f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
+                     for w in (w_f, w_t, w_l))  # fmt: skip
     cols = [t["column"] for t in svc]
     f_svc = []
     for t, j in zip(svc, cols, strict=True):
@@ -183,11 +176,10 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         )
         rec["chosen_periods"] = choose_periods(cands, rec["training_error"], n, 2)
     lbfgs.update(
-        steps=len(hist),
-        gap_vs_linearsvc=h.stats(_gap(f_l[cols], f_svc)),
+        steps=len(hist), gap_vs_linearsvc=h.stats(_gap(f_l[cols], f_svc)),
         gap_vs_tight=h.stats(_gap(f_l, f_t)),
         training_error=np.asarray(period_errors(scores(w_l, x), labels, cands)),
-    )
+    )  # fmt: skip
     for t in (fast, tight, lbfgs):
         t["speedup_vs_linearsvc"] = linearsvc["extrapolated_s"] / t["seconds"]
         t["cpu_speedup_vs_linearsvc"] = linearsvc["extrapolated_cpu_s"] / t["cpu_s"]
@@ -279,50 +271,34 @@ def case_markdown(r: dict) -> str:
     sampled = h.table([*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
                       sampled)  # fmt: skip
     lo, hi = s["extrapolated_range_s"]
-    return "\n".join(
-        [
-            f"## {r['name']}: n = {r['n']}, d = {r['d']}",
-            "",
-            f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
-            f" {r['c']:.4f}. The load changed between solvers: see each row.",
-            "",
-            timing,
-            "",
-            f"LinearSVC ran on {s['sampled']} of the {r['p']} templates; its time is"
-            f" EXTRAPOLATED: {per['mean']:.2f} s a template (std {per['std']:.2f},"
-            f" min {per['min']:.2f}, max {per['max']:.2f}) times p = {r['p']}:"
-            f" {s['extrapolated_s']:.0f} s (range {lo:.0f}-{hi:.0f} s). liblinear"
-            f" runs on one thread, the JAX solvers on {r['xla_threads']}.",
-            "",
-            _newton_line("0.1 % gap", fast),
-            "",
-            _newton_line("tight", tight),
-            "",
-            f"L-BFGS: {lb['steps']} steps (warm-up of two steps"
-            f" {lb['warmup_s']:.1f} s).",
-            "",
-            f"Aim (>= {AIM_SPEEDUP:.0f}x over LinearSVC at <= {100 * AIM_GAP:.1f} %"
-            f" objective gap, the 0.1 % setting): {'met' if aim else 'NOT met'}"
-            f" ({fast['speedup_vs_linearsvc']:.1f}x wall,"
-            f" {fast['cpu_speedup_vs_linearsvc']:.1f}x CPU, max gap"
-            f" {_rel(fast['gap_vs_linearsvc']['max'])}).",
-            "",
-            "Relative objective gaps (f_solver - f_ref) / f_ref, liblinear's primal"
-            " in float64 (negative: lower than the reference):",
-            "",
-            gaps,
-            "",
-            "Training error of every candidate (fraction of frames whose argmax"
-            " phase is wrong):",
-            "",
-            errors,
-            "",
-            "Sampled templates:",
-            "",
-            sampled,
-            "",
-        ]
-    )
+    return "\n\n".join([
+        f"## {r['name']}: n = {r['n']}, d = {r['d']}",
+        f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
+        f" {r['c']:.4f}. The load changed between solvers: see each row.",
+        timing,
+        f"LinearSVC ran on {s['sampled']} of the {r['p']} templates; its time is"
+        f" EXTRAPOLATED: {per['mean']:.2f} s a template (std {per['std']:.2f},"
+        f" min {per['min']:.2f}, max {per['max']:.2f}) times p = {r['p']}:"
+        f" {s['extrapolated_s']:.0f} s (range {lo:.0f}-{hi:.0f} s). liblinear"
+        f" runs on one thread, the JAX solvers on {r['xla_threads']}.",
+        _newton_line("0.1 % gap", fast),
+        _newton_line("tight", tight),
+        f"L-BFGS: {lb['steps']} steps (warm-up of two steps"
+        f" {lb['warmup_s']:.1f} s).",
+        f"Aim (>= {AIM_SPEEDUP:.0f}x over LinearSVC at <= {100 * AIM_GAP:.1f} %"
+        f" objective gap, the 0.1 % setting): {'met' if aim else 'NOT met'}"
+        f" ({fast['speedup_vs_linearsvc']:.1f}x wall,"
+        f" {fast['cpu_speedup_vs_linearsvc']:.1f}x CPU, max gap"
+        f" {_rel(fast['gap_vs_linearsvc']['max'])}).",
+        "Relative objective gaps (f_solver - f_ref) / f_ref, liblinear's primal"
+        " in float64 (negative: lower than the reference):",
+        gaps,
+        "Training error of every candidate (fraction of frames whose argmax"
+        " phase is wrong):",
+        errors,
+        "Sampled templates:",
+        sampled,
+    ]) + "\n"  # fmt: skip
 
 
 def markdown(report: dict) -> str:
