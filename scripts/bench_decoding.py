@@ -333,52 +333,41 @@ def markdown(report: dict) -> str:
     env = report["environment"]
     parts = [
         "# Decoders beyond the paper",
-        "",
         f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
         " from descriptors to indices on "
         f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
         " descriptor extraction not included. Maps: r=2, Newton solver, default"
         " C = log N."
         f" Command: `{report['command']}`.",
-        "",
-    ]
+    ]  # fmt: skip
     for b in report["decoding"]:
         parts += [
             f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
-            "",
             f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"
             f" ({100 * b['compression_ratio']:.1f} % of the database).",
-            "",
             decoding_table({"rows": b["rows"] + b["references"], **b}),
-            "",
         ]
     target = target_table(report["decoding"])
     if target:
         parts += [
             "## Target: level 4, within 5 points of SeqSLAM, >= 10x its speed,"
             " <= 14 % of its storage",
-            "",
             "Each map decode at L beside the SeqSLAM-style reference at the same L"
             " (without and with contrast enhancement); the plain phase-domain"
             " decode and the best map decode at that L.",
-            "",
             target,
-            "",
         ]
     for b in report["outliers"]:
         parts += [
             f"## Outliers: Nordland, {b['descriptor']}, level {b['level']}",
-            "",
             f"{b['n_held']} of {b['n_queries']} route frames held out of the summer"
             f" map in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
             f" {b['n_map']} frames, periods {b['periods']}. Metrics on the second"
             " half of the route, the threshold chosen on the first; margins"
             f" exclude rivals within {EXCLUDE} places; recall within ±{TOLERANCE}.",
-            "",
             h.columns(b["rows"], OUTLIERS, "lrrrrrrr"),
-            "",
         ]
-    return "\n".join(parts)
+    return "\n\n".join(parts) + "\n"
 
 
 # ---------------------------------------------------------------------- main
