@@ -46,9 +46,7 @@ np.save(sys.argv[2], np.asarray(model.predict(x)))
 print(json.dumps(dict(periods=list(model.periods))))
 """
 
-HEAD = [
-    "job", "variant", "programs", "compiled", "hits", "compile s", "wall s", "load"
-]  # fmt: skip
+HEAD = ["job", "variant", "programs", "compiled", "hits", "compile s", "wall s", "load"]
 
 
 # What every fit's process pays before it fits: the interpreter, importing JAX
@@ -219,18 +217,13 @@ def targets(report: dict) -> list[list]:
 
 
 def markdown(report: dict) -> str:
-    rows = [
-        [r["job"], r["variant"], r["programs"], r["compiled"], r["hits"],
-         r["compile_s"], r["wall"], r["load"]]
-        for r in report["rows"]
-    ]  # fmt: skip
-    agree = [
-        [k, str(v["periods_equal"]), v["predictions_equal"]]
-        for k, v in report["agreement"].items()
-    ]
+    keys = "job variant programs compiled hits compile_s wall load".split()
+    rows = [[r[k] for k in keys] for r in report["rows"]]
+    agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
+             for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
-    lines = [
-        *header("Compiling: XLA programs, compile seconds and wall per job", report),
+    title = "Compiling: XLA programs, compile seconds and wall per job"
+    return "\n".join(header(title, report)) + "\n" + "\n\n".join([
         f"Baseline checkout {report['base']} (no compile cache) against this one, "
         "cold (empty compile cache) and warm (the cache the cold run left). Each "
         "job is a fresh process. Programs: XLA programs the job obtained; hits: "
@@ -238,18 +231,12 @@ def markdown(report: dict) -> str:
         f"(loads included); load: 1-minute load average after the job. Sizes: fit "
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
         f" {s['jpegs']} JPEGs (Lite0).",
-        "",
         table(HEAD, rows),
-        "",
         "Targets (the imports row is the floor under any fit's wall):",
-        "",
         table(["target", "at most", "measured", ""], targets(report)),
-        "",
         "Maps against the baseline's (same periods; share of equal predictions):",
-        "",
         table(["fit", "periods equal", "predictions equal"], agree),
-    ]
-    return "\n".join(lines)
+    ])  # fmt: skip
 
 
 if __name__ == "__main__":
