@@ -70,10 +70,7 @@ def markdown(report: dict) -> str:
     name = gpu["kind"] if gpu else "no GPU"
     lines = header("JAX on a GPU against the same machine's CPU", report)
     if not gpu:
-        lines += [
-            "**No GPU was found: a rehearsal on the CPU, not the GPU report.**",
-            "",
-        ]
+        lines += ["**No GPU was found: a CPU rehearsal, not the GPU report.**", ""]
 
     def row(label, key, sub=None):
         g, c = ("-" if not s else s[key] if sub is None else s[key][str(sub)]

@@ -438,12 +438,8 @@ def _attempts(f: dict) -> str:
 
 
 def full_lines(f: dict, probe: dict | None = None) -> list[str]:
-    p, cands, k, acc = (
-        sum(f["periods"]),
-        sum(f["candidates"]),
-        f["kinds"],
-        f["accuracy"],
-    )
+    p, cands = sum(f["periods"]), sum(f["candidates"])
+    k, acc = f["kinds"], f["accuracy"]
     search = f["pass_median_s"] * cands / p * f["passes"] / 3600
     how = "this fit's median seconds per pass scaled by the templates"
     if probe and probe["n"] == f["n"]:  # the candidate set's measured passes

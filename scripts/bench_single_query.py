@@ -132,21 +132,17 @@ def markdown(r: dict) -> str:
     p = sum(r["periods"])
     tbytes = 4 * r["d"] * p
     met = "met" if locate <= 20 else "not met"
-    return "\n".join([
-        *header("One query to one place", r),
+    return "\n".join(header("One query to one place", r)) + "\n" + "\n\n".join([
         f"Map: N = {r['n']}, d = {r['d']}, periods {r['periods']}"
         f" ({p} templates, {tbytes / 1e6:.2f} MB of float32, stored as"
         f" {r.get('padded_rows', p)} rows).",
-        "",
         table(["path", "median us", "p95 us", "calls"], lat),
-        "",
         "Batches of 1000: jitted decode"
         f" {thr['jitted decode']['queries_per_s']:,.0f} queries/s, faiss flat"
         f" {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}: **{ratio:.1f}x**."
         " The numpy path gives the batch decode's place for every query:"
         f" {r['same_as_batch_decode']} (SmallDecoder.index),"
         f" {r.get('locate_same_as_batch_decode', 'not run')} (RhythmicMap.locate).",
-        "",
         f"Targets: one descriptor -> place <= 20 us median: {met} by"
         f" RhythmicMap.locate ({locate:.1f} us; predict on one row {predict:.1f} us;"
         f" faiss flat on one row {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x"
