@@ -54,7 +54,6 @@ def _recall(scores, k: int) -> float:
     return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
 
 
-# --------------------------------------------------------------------- data
 def nordland_data(root: Path, name: str, progress: bool, images: bool):
     desc = get_descriptor(name)
     s, w = h.nordland_features(root, desc, key="nordland_", progress=progress)
@@ -79,7 +78,6 @@ def aerial_data(root: Path, progress: bool):
     return out
 
 
-# --------------------------------------------------------------- embeddings
 def cached_embedding(dataset: str, train, cfg: LearnConfig):
     """Learn (or read back) the embedding of ``cfg`` on ``train`` -> (emb, info)."""
     ident = json.dumps([dataset, asdict(cfg), [list(t.shape) for t in train]])
@@ -94,7 +92,6 @@ def cached_embedding(dataset: str, train, cfg: LearnConfig):
     return emb, {**info, "cached": False}
 
 
-# --------------------------------------------------------------------- rows
 def brute_row(ref, qry, label, emb_bytes=0) -> dict:
     t0 = time.perf_counter()
     r, q = h.unit_rows(ref), h.unit_rows(qry)
@@ -249,7 +246,6 @@ def augmented_row(ref, images, desc, qry, level, seed=0) -> dict:
     return row
 
 
-# ------------------------------------------------------------------ driver
 def run_dataset(name: str, data: dict, cfg: dict) -> dict:
     train, test = data["train"], data["test"]
     n, d_raw = test[0].shape
@@ -365,8 +361,6 @@ def refresh(report: dict, args) -> None:
     path = args.render if args.render.name else args.out / f"{args.stem}.json"
     draw(report, path.with_suffix(".png"))
 
-
-# ---------------------------------------------------------------- report
 
 LITE = "Nordland EfficientNet-Lite0"
 PATCH = "Nordland patchnorm"

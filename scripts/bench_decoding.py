@@ -67,9 +67,6 @@ def _row(method, pred, gt, seconds, storage, **extra) -> dict:
     )  # fmt: skip
 
 
-# ------------------------------------------------------- phase-domain variants
-
-
 def _blocks(scores: jax.Array, periods: tuple[int, ...]) -> list[jax.Array]:
     return jnp.split(scores, np.cumsum(periods)[:-1].tolist(), axis=-1)
 
@@ -137,9 +134,6 @@ def place_sequence_decode(scores, periods, n, length, speeds, window) -> jax.Arr
     return index
 
 
-# ------------------------------------------------------------------- benches
-
-
 def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Every decode of one map over the whole query sequence."""
     storage, per, n = model.storage_bytes, model.periods, model.n
@@ -201,9 +195,6 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
     return rows
 
 
-# ------------------------------------------------------------ outlier protocol
-
-
 def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
     """Threshold-free metrics on the second half, and a first-half threshold."""
     second = ~first
@@ -261,9 +252,6 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
         descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
         n_held=len(hold.held), n_queries=len(qry), rows=rows,
     )  # fmt: skip
-
-
-# ------------------------------------------------------------------- reports
 
 
 DECODING = """method = {method}
@@ -368,9 +356,6 @@ def markdown(report: dict) -> str:
             h.columns(b["rows"], OUTLIERS, "lrrrrrrr"),
         ]
     return "\n\n".join(parts) + "\n"
-
-
-# ---------------------------------------------------------------------- main
 
 
 def available(names) -> list[str]:

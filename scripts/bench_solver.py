@@ -29,9 +29,6 @@ AIM_GAP = 1e-3
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
 
 
-# ------------------------------------------------------------------- features
-
-
 def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarray:
     """(n, d) float32 unit rows: AR(1) Gaussian walk plus per-frame noise."""
     rng = np.random.default_rng(seed)
@@ -49,9 +46,6 @@ def neighbour_cosines(x: np.ndarray, lags=(1, 10, 100, 1000)) -> dict[str, float
     """Mean cosine of frames ``lag`` apart (rows are unit vectors)."""
     return {str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
             for lag in lags if lag < len(x)}  # fmt: skip
-
-
-# ------------------------------------------------------------------- solvers
 
 
 def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
@@ -123,9 +117,6 @@ def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
     return params, history, record
 
 
-# ---------------------------------------------------------------------- cases
-
-
 def _gap(ours, ref):
     return (ours - ref) / np.abs(ref)
 
@@ -187,9 +178,6 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
         linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
     ))  # fmt: skip
-
-
-# -------------------------------------------------------------------- report
 
 
 def cg_gflop(n: int, d: int, rec: dict) -> float:
@@ -315,9 +303,6 @@ def markdown(report: dict) -> str:
             "",
         ]
     return "\n".join(parts)
-
-
-# ---------------------------------------------------------------------- main
 
 
 def options(ap) -> None:
