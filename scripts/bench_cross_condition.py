@@ -224,19 +224,13 @@ def augmented_row(ref, images, desc, qry, level, seed=0) -> dict:
     """The map fitted on the reference frames and an augmented copy of each."""
     import torch
 
-    from rhythmic_jax.augment.kornia_ops import (
-        AugmentConfig,
-        augment,
-        to_batch,
-        to_images,
-    )
+    from rhythmic_jax.augment import kornia_ops as ko
 
     t0 = time.perf_counter()
     torch.manual_seed(seed)
-    aug = [
-        to_images(augment(to_batch(images[i : i + 256]), AugmentConfig(), seed + i)[0])
-        for i in range(0, len(images), 256)
-    ]
+    cfg = ko.AugmentConfig()
+    aug = [ko.to_images(ko.augment(ko.to_batch(images[i : i + 256]), cfg, seed + i)[0])
+           for i in range(0, len(images), 256)]  # fmt: skip
     x_aug = describe(np.concatenate(aug), desc)
     x = np.concatenate([ref, x_aug])
     labels = np.concatenate([np.arange(len(ref))] * 2)
