@@ -23,10 +23,8 @@ log = logging.getLogger("bench_memory")
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
 MB = 1e6
 
-HEAD = [
-    "n x d", "shape", "p", "estimate MB", "cold MB", "est / cold", "arrays MB",
-    "warm MB", "arrays / warm", "limit kept"
-]  # fmt: skip
+HEAD = ["n x d", "shape", "p", "estimate MB", "cold MB", "est / cold", "arrays MB",
+        "warm MB", "arrays / warm", "limit kept"]  # fmt: skip
 
 
 def fit_peak(x: np.ndarray) -> int:
@@ -64,14 +62,11 @@ def kind(n: int, d: int) -> str:
 
 
 def markdown(report: dict) -> str:
-    rows = []
-    for r in report["rows"]:
-        rows.append([
-            f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
-            r["cold"] / MB, r["estimate"] / r["cold"],
-            r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
-            "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO",
-        ])  # fmt: skip
+    rows = [[f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
+             r["cold"] / MB, r["estimate"] / r["cold"],
+             r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
+             "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO"]
+            for r in report["rows"]]  # fmt: skip
     kept = all(r["cold"] <= r["estimate"] for r in report["rows"])
     return "\n".join(
         header("Memory of a full-batch fit: estimate against measured peak", report)
@@ -109,10 +104,7 @@ def run(args) -> dict | None:
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     rows = []
-    for line in child.stdout.splitlines():
-        if not line.startswith("{"):
-            continue
-        r = json.loads(line)
+    for r in (json.loads(ln) for ln in child.stdout.splitlines() if ln[:1] == "{"):
         parts = fit_bytes(r["n"], r["d"], r["p"])
         est = sum(parts.values())
         r.update(kind=kind(r["n"], r["d"]), parts=parts, estimate=est,

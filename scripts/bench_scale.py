@@ -566,13 +566,11 @@ def run(args) -> dict:
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
-    stamps = []
     real = (args.root / "nordland_64x32" / "summer").is_dir()
     for cell in grid(args.quick, real):
         saved = args.cells / f"{_key(cell)}.json"
         if saved.exists():
             rows.append(json.loads(saved.read_text()))
-            stamps.append(rows[-1]["measured"])
             continue
         name = "{} N={} d={} r={} K={} {} {}".format(*cell)
         failed = args.cells / f"{_key(cell)}.failed"
@@ -595,22 +593,20 @@ def run(args) -> dict:
                    load=bc.load_average())  # fmt: skip
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
-        stamps.append(row["measured"])
-    report = {}
-    if args.probe:
+    report, stamps = {}, [r["measured"] for r in rows]
+    extra = {
+        "probe": lambda: probe(args.probe, args.probe_memory, args.cells,
+                               args.full_work, args.full_periods),
+        "full fit": lambda: full(args.full, args.full_periods, args.full_memory,
+                                 args.full_work, args.cells),
+    }  # fmt: skip
+    for what, n in (("probe", args.probe), ("full fit", args.full)):
         try:
-            report["probe"] = probe(args.probe, args.probe_memory, args.cells,
-                                    args.full_work, args.full_periods)  # fmt: skip
+            if n:
+                report[what.split()[0]] = extra[what]()
         except RuntimeError as err:
-            log.warning("probe failed: %s", err)
-            missing.append(f"probe N={args.probe} (failed)")
-    if args.full:
-        try:
-            report["full"] = full(args.full, args.full_periods, args.full_memory,
-                                  args.full_work, args.cells)  # fmt: skip
-        except RuntimeError as err:
-            log.warning("full fit failed: %s", err)
-            missing.append(f"full fit N={args.full} (failed)")
+            log.warning("%s failed: %s", what, err)
+            missing.append(f"{what} N={n} (failed)")
     loads = [r["load"][0] for r in rows] or [0]
     nices = [r.get("nice", 10) for r in rows]
     report.update(
