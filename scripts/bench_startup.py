@@ -70,14 +70,10 @@ def markdown(report: dict) -> str:
     ]
     rows = []
     for name, by_version in report["seconds"].items():
-        row = [name]
-        for v in versions:
-            row.append(statistics.median(by_version[v]))
-        if len(versions) == 2:
-            a, b = (statistics.median(by_version[v]) for v in versions)
-            row.append(f"{a / b:.2f}x")
-        row += [", ".join(report["loaded"][name][v]) or "-" for v in versions]
-        rows.append(row)
+        med = [statistics.median(by_version[v]) for v in versions]
+        ratio = [f"{med[0] / med[1]:.2f}x"] if len(versions) == 2 else []
+        heavy = [", ".join(report["loaded"][name][v]) or "-" for v in versions]
+        rows.append([name, *med, *ratio, *heavy])
     heads = ["command", *(f"{v} (s)" for v in versions)]
     if len(versions) == 2:
         heads.append(f"{versions[0]} / {versions[1]}")
