@@ -18,23 +18,15 @@ SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
 
 def cases() -> list[tuple[str, AugmentConfig]]:
     """(label, config) of every timed pipeline."""
-    out = [(name, AugmentConfig((name,), p=1.0)) for name in NAMES]
-    out.append(
-        ("elastic (coarse)", AugmentConfig(("elastic",), 1.0, elastic_impl="coarse"))
-    )
-    out.append(("all seven (kornia elastic)", AugmentConfig(("all",), p=1.0)))
-    out.append(
-        (
-            "all seven (coarse elastic)",
-            AugmentConfig(("all",), 1.0, elastic_impl="coarse"),
-        )
-    )
-    return out
+    coarse = dict(elastic_impl="coarse")
+    return [(name, AugmentConfig((name,), p=1.0)) for name in NAMES] + [
+        ("elastic (coarse)", AugmentConfig(("elastic",), 1.0, **coarse)),
+        ("all seven (kornia elastic)", AugmentConfig(("all",), p=1.0)),
+        ("all seven (coarse elastic)", AugmentConfig(("all",), 1.0, **coarse)),
+    ]
 
 
-def time_case(
-    batch: torch.Tensor, config: AugmentConfig, repeats: int, min_s: float = 0.2
-) -> list[float]:
+def time_case(batch, config: AugmentConfig, repeats: int, min_s=0.2) -> list[float]:
     """Seconds per call of ``augment`` on ``batch``, one per repeat."""
     start = time.perf_counter()
     augment(batch, config, seed=0)  # warm-up, also sizes the inner loop
@@ -65,16 +57,9 @@ def run(args) -> dict:
             batch = torch.rand(args.batch, 3, h, w, generator=generator)
             for label, config in cases():
                 times = time_case(batch, config, args.repeats)
-                rows.append(
-                    dict(
-                        op=label,
-                        size=f"{w}x{h}",
-                        threads=threads,
-                        fps_best=args.batch / min(times),
-                        fps_median=args.batch / statistics.median(times),
-                    )
-                )
-                fps = rows[-1]["fps_best"]
+                fps, median = args.batch / min(times), statistics.median(times)
+                row = dict(op=label, size=f"{w}x{h}", threads=threads, fps_best=fps)
+                rows.append(row | dict(fps_median=args.batch / median))
                 print(f"{threads}t {w}x{h:<4} {label:<28} {fps:9.0f} frames/s")
     return dict(batch=args.batch, repeats=args.repeats, torch_threads=args.threads,
                 rows=rows)  # fmt: skip
