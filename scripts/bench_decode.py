@@ -81,11 +81,9 @@ def case_markdown(c: dict) -> str:
     rows = [[label, s["batch"]["queries_per_s"], 1e3 * s["single"]["median_s"],
              1e3 * s["single"]["p95_s"]] for label, s in cases]  # fmt: skip
     head = ["method", f"queries/s (batch {c['batch_size']})", "single ms median"]
-    return "\n".join([
+    return "\n\n".join([
         f"## {c['name']}: N = {c['n']}, d = {c['d']}, periods {c['periods']}",
-        "",
         h.table([*head, "single ms p95"], rows),
-        "",
         f"Rhythmic / faiss: **{c['batch_speedup']:.1f}x** batch throughput,"
         f" **{c['single_speedup_median']:.1f}x** single-query median latency"
         f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p ="
@@ -98,8 +96,7 @@ def case_markdown(c: dict) -> str:
         f" {r['batch']['repeats']} each. faiss top-1 = the query's own"
         f" reference (same index) for {100 * c['faiss_top1_is_source']:.1f} %"
         " of queries.",
-        "",
-    ])  # fmt: skip
+    ]) + "\n"  # fmt: skip
 
 
 def markdown(report: dict) -> str:

@@ -29,17 +29,10 @@ HEAD = [
 def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
     """Best and median frames/s of ``run`` over ``x`` (m, 3, h, w), and CPU/wall."""
     run(x[: 2 * max(1, len(x) // 64)])  # warm-up
-    walls, cpus = [], []
-    for _ in range(repeats):
-        _, wall, cpu = timed(run, x)
-        walls.append(wall)
-        cpus.append(cpu)
+    walls, cpus = zip(*(timed(run, x)[1:] for _ in range(repeats)), strict=True)
     best = int(np.argmin(walls))
-    return dict(
-        best=len(x) / walls[best],
-        median=len(x) / float(np.median(walls)),
-        cpu_per_wall=cpus[best] / walls[best],
-    )
+    return dict(best=len(x) / walls[best], median=len(x) / float(np.median(walls)),
+                cpu_per_wall=cpus[best] / walls[best])  # fmt: skip
 
 
 def options(ap) -> None:

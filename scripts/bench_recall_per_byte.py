@@ -48,30 +48,19 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     book = fr.fitted_codes(ref, bits, cache)
     n = len(ref)
     wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
-
-    def map_alone():
-        return soft_decode(qj @ wj + bj, per, n).index
-
-    def hybrid():
-        return fused_decode(qj @ wj + bj, book.similarity(qj), per, n).index
-
-    def codes_alone():
-        return book.similarity(qj).argmax(1)
-
     index = faiss.IndexBinaryFlat(bits)
     index.add(pack_bits(book.codes))
-
-    def binary():
-        return index.search(pack_bits(book.transform.encode(q)), 1)[1]
-
+    codes = lambda: pack_bits(book.transform.encode(q))  # noqa: E731
+    fns = {
+        "map alone": lambda: soft_decode(qj @ wj + bj, per, n).index,
+        "hybrid (map + codes, fused)": lambda: (
+            fused_decode(qj @ wj + bj, book.similarity(qj), per, n).index
+        ),
+        "codes alone (JAX)": lambda: book.similarity(qj).argmax(1),
+        "codes alone (faiss IndexBinaryFlat)": lambda: index.search(codes(), 1)[1],
+    }
     out = {}
-    fns = (
-        ("map alone", map_alone),
-        ("hybrid (map + codes, fused)", hybrid),
-        ("codes alone (JAX)", codes_alone),
-        ("codes alone (faiss IndexBinaryFlat)", binary),
-    )
-    for name, fn in fns:
+    for name, fn in fns.items():
         _, sec = fastest(fn, 5)
         out[name] = {"seconds": sec, "queries_per_s": len(q) / sec}
     base = out["map alone"]["seconds"]

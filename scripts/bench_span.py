@@ -30,19 +30,17 @@ def markdown(report: dict) -> str:
             for r in report["rows"]]  # fmt: skip
     gap = report["gap_span_vs_direct"]
     title = "Wide frames: solve in the frames' span vs directly"
-    return "\n".join(header(title, report) + [
+    return "\n".join([*header(title, report), "\n\n".join([
         f"Nordland summer, {report['descriptor']} ({report['settings']}): "
         f"n = {report['n']}, d = {report['d']}, level {report['level']}, "
         f"p = {report['p']} templates, C = log N. Both to the optimum (default "
         "NewtonConfig); each time includes its compilation (a few seconds).",
-        "",
         table(["solver", "wall s", "CPU s", "Newton steps", "CG iterations"], rows),
-        "",
         f"Span / direct: {report['speedup_wall']:.2f}x faster (wall), "
         f"{report['speedup_cpu']:.2f}x (CPU). Relative objective gap, span "
         f"minus direct, over all templates: max {gap['max']:+.2e}, median "
         f"{gap['median']:+.2e}, min {gap['min']:+.2e}.",
-    ])  # fmt: skip
+    ])])  # fmt: skip
 
 
 def options(ap) -> None:
