@@ -298,18 +298,12 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
         },
         level=1,
     )  # fmt: skip
-    patch = dict(
-        levers={"invariant": LearnConfig(method="invariant", k=128, p=256)}, level=1
-    )
+    patch = dict(levers={"invariant": LearnConfig(method="invariant", k=128, p=256)},
+                 level=1)  # fmt: skip
     # 769 places: k = 128 alone would be 17 % of the raw database
-    aerial = dict(
-        levers={
-            "invariant": LearnConfig(method="invariant", k=64, p=256),
-            "PCA": LearnConfig(method="pca", k=64),
-        },
-        map_levers=("invariant", "PCA"),
-        level=1,
-    )
+    aerial = dict(levers={"invariant": LearnConfig(method="invariant", k=64, p=256),
+                          "PCA": LearnConfig(method="pca", k=64)},
+                  map_levers=("invariant", "PCA"), level=1)  # fmt: skip
     if quick:
         return [("Nordland patchnorm", lambda r, p: nordland_data(r, "patchnorm", p,
                                                                    False),

@@ -32,10 +32,8 @@ def run(args) -> dict:
     names_all = [("none",), *((k,) for k in NAMES), ("all",)]
     if args.quick:
         args.frames, names_all = min(args.frames, 160), [("none",), ("hflip",)]
-    args.stem = (
-        "pipeline" if args.descriptor == "patchnorm" else f"pipeline_{args.descriptor}"
-    )
-    args.stem += "_quick" if args.quick else ""
+    own = "" if args.descriptor == "patchnorm" else "_" + args.descriptor
+    args.stem = "pipeline" + own + ("_quick" if args.quick else "")
     (summer,) = nordland_images(args.root, ("summer",))
     images = summer.images[: args.frames]
     desc = get_descriptor(args.descriptor)
