@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import logging
 import tempfile
-import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _harness import header, main, nordland_features, table
+from _harness import header, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax.io.frame_files import open_frames
@@ -34,20 +33,14 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
     frames = open_frames(path)
     labels = np.arange(frames.n)
     c = default_c(frames.n)
-    t0 = time.perf_counter()
-    x = frames.read(0, frames.n)
-    _, ref = newton_fit(x, targets(labels, periods), c)
-    ref_s = time.perf_counter() - t0
-    del x
+    y = targets(labels, periods)
+    (_, ref), ref_s, _ = timed(lambda: newton_fit(frames.read(0, frames.n), y, c))
     runs: dict[str, list[dict]] = {label: [] for label, _ in SETTINGS}
     for rep in range(repeats):
         for label, settings in SETTINGS:
             config = replace(FAST_STREAM, block_rows=BLOCK_ROWS, **settings)
-            t0 = time.perf_counter()
-            _, info = streamed_newton_fit(
-                frames, labels, periods, c, config, progress=False
-            )
-            wall = time.perf_counter() - t0
+            fit = frames, labels, periods, c, config
+            (_, info), wall, _ = timed(streamed_newton_fit, *fit, progress=False)
             log.info("%s %s run %d: %.1f s, %d steps, columns %s", name, label,
                      rep, wall, info.steps, info.columns)  # fmt: skip
             gap = (info.objective - ref.objective) / np.abs(ref.objective)
@@ -67,9 +60,8 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
 def _column_passes(info) -> int:
     """Template-columns carried over all passes: each step's gradient pass,
     CG passes and two line-search passes times its width."""
-    return int(
-        sum(w * (3 + k) for w, k in zip(info.columns, info.cg_iterations, strict=True))
-    )
+    pairs = zip(info.columns, info.cg_iterations, strict=True)
+    return int(sum(w * (3 + k) for w, k in pairs))
 
 
 def markdown(report: dict) -> str:
