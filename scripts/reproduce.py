@@ -513,15 +513,11 @@ def cross_condition_markdown(path: Path) -> str:
                 f" (it writes `reports/{path.name}`, absent when this report was"
                 " made).")  # fmt: skip
     data = json.loads(path.read_text())
-    parts = [
-        f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
-        f"directions in `cross_condition.md`), written by `{data.get('command')}`; "
-        "load average at the start and end "
-        f"{data['load_average']['start']} / {data['load_average']['end']}.",
-        "",
-        "Targets:",
-        "",
-    ]
+    load = data["load_average"]
+    parts = [f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
+             f"directions in `cross_condition.md`), written by `{data.get('command')}`;"
+             f" load average at the start and end {load['start']} / {load['end']}.",
+             "", "Targets:", ""]  # fmt: skip
     parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
     cols = [c.split(" ", 1) for c in CROSS.split("|")]
     spec = "\n".join(["method = {method}", *(f"{t} = {{{k}}}" for k, t in cols),
