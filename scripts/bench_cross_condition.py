@@ -455,18 +455,13 @@ def markdown(report: dict) -> str:
         wall = "Data sets run in parallel processes (the commands above, joined by "
         wall += "';'); wall time of each: "
         wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
-    lines += [
-        wall + ".",
-        "",
-        "Maps fitted on one condition of the test places, queried with the other;"
-        " embeddings learned on the training places. R@1, R@5 within +-1 place,"
-        " `exact` without; L: sequence length; `self`: reference frames as queries;"
-        " ratio: bytes over the raw float32 database. The `chosen` row is fixed"
-        " before any test place is scored. Rows: docs/appearance.md.",
-        "",
-        "## Targets",
-        "",
-    ]
+    lines += [wall + ".", "",
+              "Maps fitted on one condition of the test places, queried with the"
+              " other; embeddings learned on the training places. R@1, R@5 within"
+              " +-1 place, `exact` without; L: sequence length; `self`: reference"
+              " frames as queries; ratio: bytes over the raw float32 database. The"
+              " `chosen` row is fixed before any test place is scored. Rows:"
+              " docs/appearance.md.", "", "## Targets", ""]  # fmt: skip
     lines += [f"- {t}: **{v}**" for t, v in targets(report)] + [""]
     for name, ds in report["datasets"].items():
         lines += [f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})", ""]
