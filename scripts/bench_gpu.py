@@ -57,10 +57,8 @@ def run_on(device, summer, winter, args) -> dict:
         seq = dict(method="soft", sequence=args.length)
         seconds("sequence_first_s", m.predict, winter, **seq)
         seconds("sequence_s", m.predict, winter, **seq)
-        d = summer.shape[1]
-        out["fits_s"] = {
-            n: timed(fit, walk(n, d, n), count=3)[1] for n in args.fit_sizes
-        }
+        d, sizes = summer.shape[1], args.fit_sizes
+        out["fits_s"] = {n: timed(fit, walk(n, d, n), count=3)[1] for n in sizes}
     log.info("%s: %s", device, {k: v for k, v in out.items() if k[-1] == "s"})
     return out
 
