@@ -1,18 +1,11 @@
 """The one harness of the benchmark scripts.
 
-A script defines ``options(ap)`` (its own arguments), ``run(args) -> dict`` (the
-measurements) and ``markdown(report) -> str`` (the report), and ends with
-``main(__doc__, run, markdown, options, stem="...")``. :func:`main` parses the
-common options (``--root`` data, ``--out`` folder, ``--quick``, ``--no-progress``,
-``--render``), pins torch, BLAS and faiss to one thread per core (as XLA's CPU
-client runs), records the machine (devices, versions, cores, threads, load
-average at the start and the end: the machine is shared, timings taken under load
-are pessimistic) and the git commit, runs ``run``, then writes ``<stem>.json``
-and ``<stem>.md`` atomically and prints the Markdown. ``--render [JSON]`` writes
-the Markdown again from a report's numbers, measuring nothing.
-
-Also here: the one timer (:func:`timed`), Nordland and aerial features through
-the descriptor cache, and the sha256-keyed caches of fitted maps.
+A script defines ``options(ap)``, ``run(args) -> dict`` (the measurements) and
+``markdown(report) -> str``, and ends with ``main(__doc__, run, markdown, options,
+stem="...")``: common options, threads pinned to one per core, the machine and load
+recorded, then ``<stem>.json`` and ``<stem>.md`` written (``--render [JSON]``: the
+Markdown again from a report). Also: the timer, a command in a fresh process, the
+Nordland and aerial features and the cache of fitted maps.
 """
 
 from __future__ import annotations
@@ -24,8 +17,11 @@ import json
 import logging
 import os
 import platform
+import resource
+import string
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -37,9 +33,6 @@ DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
 NORDLAND = "nordland_64x32"
 log = logging.getLogger("harness")
 _LIMITS: list = []  # keeps the global BLAS limit referenced
-
-
-# ------------------------------------------------------------- the machine
 
 
 def cores() -> int:
@@ -98,9 +91,6 @@ def machine(threads: dict[str, int] | None = None) -> dict:
     )  # fmt: skip
 
 
-# ---------------------------------------------------------------- timing
-
-
 def timed(fn, *args, **kwargs):
     """``(fn(*args, **kwargs), wall seconds, process CPU seconds)``, JAX results
     waited for. CPU seconds sum every thread of this process: they count the work
@@ -122,14 +112,78 @@ def fastest(fn: Callable[[], object], repeats: int):
     return out, min(timed(fn)[1] for _ in range(repeats))
 
 
+def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
+    """``cmd`` in a fresh process (``checkout``'s package first on the path, JAX on
+    the CPU unless said, ``extra`` in its environment): rc, wall and CPU seconds
+    (its process tree), stdout, stderr and the 1-minute load after it."""
+    env = dict(os.environ if env is None else env, TF_CPP_MIN_LOG_LEVEL="3", **extra)
+    env.setdefault("JAX_PLATFORMS", "cpu")
+    if checkout is not None:
+        env["PYTHONPATH"] = str(checkout)
+    before, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True,
+                          cwd=cwd or tempfile.gettempdir())  # fmt: skip
+    wall, after = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
+    if check and done.returncode != 0:
+        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return dict(rc=done.returncode, wall=wall, cpu=cpu, stdout=done.stdout,
+                stderr=done.stderr, load=load_average()[0])  # fmt: skip
+
+
+def compile_counter(out=None) -> dict:
+    """Counts of this process's XLA programs from here on, from JAX's compile log:
+    ``programs`` obtained, of them persistent-cache ``hits``, their ``compile_s``
+    (loads included), ``trace_s`` (tracing and lowering) and ``names`` (programs
+    by name); written as JSON to ``out`` at exit when given."""
+    import atexit
+    import collections
+    import re
+
+    import jax
+
+    count = dict(programs=0, hits=0, compile_s=0.0, trace_s=0.0,
+                 names=collections.Counter())  # fmt: skip
+    done = re.compile(r"Finished XLA compilation of (\S+) in ([0-9.eE+-]+) sec")
+
+    class Count(logging.Handler):
+        def emit(self, record):
+            text = record.getMessage()
+            if m := done.search(text):
+                count["programs"] += 1
+                count["compile_s"] += float(m.group(2))
+                count["names"][m.group(1)] += 1
+            elif "compilation cache hit" in text:
+                count["hits"] += 1
+
+    def listen(event, duration, **_):
+        if event.endswith(("/jaxpr_trace_duration", "/jaxpr_to_mlir_module_duration")):
+            count["trace_s"] += duration
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    logger = logging.getLogger("jax._src")
+    logger.setLevel(logging.WARNING)  # the CLI quiets "jax"; this stays
+    logger.addHandler(Count())
+    logger.propagate = False
+    jax.config.update("jax_log_compiles", True)
+    if out:
+        atexit.register(lambda: Path(out).write_text(json.dumps(count)))
+    return count
+
+
+def weights_folder() -> Path:
+    """The Lite0 weights' folder: a baseline checkout's ``query`` finds them by the
+    bare file name its map records, from there."""
+    from rhythmic_jax.frames.nets import lite0_weights_path
+
+    return lite0_weights_path().parent
+
+
 def stats(v) -> dict[str, float]:
     """max, median, min and mean of an array."""
     v = np.asarray(v, np.float64)
     return dict(max=float(v.max()), median=float(np.median(v)), min=float(v.min()),
                 mean=float(v.mean()))  # fmt: skip
-
-
-# ------------------------------------------------------------------ data
 
 
 def nordland_images(root: Path, seasons=("summer", "winter"), progress=False):
@@ -174,9 +228,6 @@ def unit_rows(a) -> np.ndarray:
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
-# ---------------------------------------------------------------- caches
-
-
 def digest(ident, *arrays) -> str:
     """16 hex digits of sha256 over ``ident`` (JSON, sorted keys; a str as is)
     and the bytes of ``arrays``: the key of a cached fit."""
@@ -210,9 +261,6 @@ def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
     timing = dict(fit_wall_s=wall, fit_cpu_s=cpu)
     _write(side, json.dumps(timing))
     return model, dict(map_path=str(path), cached=False, **timing)
-
-
-# --------------------------------------------------------------- reports
 
 
 def plain(obj):
@@ -252,6 +300,39 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
         "|" + "|".join("---:" if num else "---" for num in numeric) + "|",
     ]
     lines += ["| " + " | ".join(_cell(v) for v in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+class _Format(string.Formatter):
+    """``{x!l}``: a list joined by commas; ``{x!m}``, ``{x!c}``: fractions as
+    x 10^-3, as percent."""
+
+    def convert_field(self, value, conversion):
+        if conversion == "l":
+            return ", ".join(str(v) for v in value)
+        if conversion in ("m", "c"):
+            scale = 1000 if conversion == "m" else 100
+            return ", ".join(f"{scale * v:.2f}" for v in value)
+        return super().convert_field(value, conversion)
+
+
+def fill(template: str, **fields) -> str:
+    """``template`` formatted with ``fields`` and the conversions of :func:`columns`."""
+    return _Format().format(template, **fields)
+
+
+def columns(rows: Sequence[dict], cols: str, align: str = "") -> str:
+    """A Markdown table: ``cols`` holds one ``header = format`` per line, filled
+    from each row (``accuracy = {accuracy:.4f}``); ``align``: ``l`` or ``r`` per
+    column, ``l`` where it stops."""
+    spec = [line.rsplit(" = ", 1) for line in cols.strip().splitlines()]
+    fmt, seps = _Format(), align.ljust(len(spec), "l")
+    lines = [
+        "| " + " | ".join(h for h, _ in spec) + " |",
+        "|" + "|".join("---:" if a == "r" else "---" for a in seps) + "|",
+    ]
+    lines += ["| " + " | ".join(fmt.format(f, **r) for _, f in spec) + " |"
+              for r in rows]  # fmt: skip
     return "\n".join(lines)
 
 

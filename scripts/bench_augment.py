@@ -1,17 +1,6 @@
 """Frames per second of each augmentation alone and of all seven in sequence.
 
-Usage: ``python scripts/bench_augment.py [--batch 64] [--repeats 5] [--threads 2 1]``
-
-Every operation runs with ``p = 1`` (each image transformed; kornia computes the
-transform for the whole batch at any ``p`` and then selects, so this is also the
-cost at ``p = 0.5``) on random float32 batches of 64x32, 224x112 and 224x224
-(width x height), with the parameter draws included. The elastic transform is
-timed with kornia's ``RandomElasticTransform`` and with the coarse-grid version
-(``AugmentConfig.elastic_impl="coarse"``), alone and inside the full sequence.
-Each figure is ``batch / time per call`` of the fastest and the median of
-``--repeats`` runs (each long enough to last 0.2 s) after one warm-up call.
-Writes ``reports/augment.json`` and ``reports/augment.md`` and prints the table
-(``--quick``: 64x32 only, a batch of 8, one run).
+python scripts/bench_augment.py
 """
 
 from __future__ import annotations
@@ -29,28 +18,16 @@ SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
 
 def cases() -> list[tuple[str, AugmentConfig]]:
     """(label, config) of every timed pipeline."""
-    out = [(name, AugmentConfig((name,), p=1.0)) for name in NAMES]
-    out.append(
-        ("elastic (coarse)", AugmentConfig(("elastic",), 1.0, elastic_impl="coarse"))
-    )
-    out.append(("all seven (kornia elastic)", AugmentConfig(("all",), p=1.0)))
-    out.append(
-        (
-            "all seven (coarse elastic)",
-            AugmentConfig(("all",), 1.0, elastic_impl="coarse"),
-        )
-    )
-    return out
+    coarse = dict(elastic_impl="coarse")
+    return [(name, AugmentConfig((name,), p=1.0)) for name in NAMES] + [
+        ("elastic (coarse)", AugmentConfig(("elastic",), 1.0, **coarse)),
+        ("all seven (kornia elastic)", AugmentConfig(("all",), p=1.0)),
+        ("all seven (coarse elastic)", AugmentConfig(("all",), 1.0, **coarse)),
+    ]
 
 
-def time_case(
-    batch: torch.Tensor, config: AugmentConfig, repeats: int, min_s: float = 0.2
-) -> list[float]:
-    """Seconds per call of ``augment`` on ``batch``, one per repeat.
-
-    Each repeat times enough calls (new seeds) to last ``min_s`` seconds, so
-    that fast operations are not measured at the scale of scheduler ticks.
-    """
+def time_case(batch, config: AugmentConfig, repeats: int, min_s=0.2) -> list[float]:
+    """Seconds per call of ``augment`` on ``batch``, one per repeat."""
     start = time.perf_counter()
     augment(batch, config, seed=0)  # warm-up, also sizes the inner loop
     calls = max(1, round(min_s / (time.perf_counter() - start)))
@@ -80,16 +57,9 @@ def run(args) -> dict:
             batch = torch.rand(args.batch, 3, h, w, generator=generator)
             for label, config in cases():
                 times = time_case(batch, config, args.repeats)
-                rows.append(
-                    dict(
-                        op=label,
-                        size=f"{w}x{h}",
-                        threads=threads,
-                        fps_best=args.batch / min(times),
-                        fps_median=args.batch / statistics.median(times),
-                    )
-                )
-                fps = rows[-1]["fps_best"]
+                fps, median = args.batch / min(times), statistics.median(times)
+                row = dict(op=label, size=f"{w}x{h}", threads=threads, fps_best=fps)
+                rows.append(row | dict(fps_median=args.batch / median))
                 print(f"{threads}t {w}x{h:<4} {label:<28} {fps:9.0f} frames/s")
     return dict(batch=args.batch, repeats=args.repeats, torch_threads=args.threads,
                 rows=rows)  # fmt: skip

@@ -1,19 +1,5 @@
-"""Compiling against solving: XLA programs, compile seconds and wall per job,
-cold and warm compile cache, this checkout against a baseline one.
-
-Each job runs in a fresh process, under a small wrapper that turns on JAX's
-compile log (``jax_log_compiles``) and counts its lines: ``programs`` (XLA
-programs the job obtained, compiled or loaded), ``hits`` (of them, loaded from
-the persistent compile cache), ``compile_s`` (their seconds, loads included).
-Jobs: a default fit of 1000 x 256 synthetic route-like frames (and its
-predictions), a fit of the Nordland patch-normalised summer route (3576 x 2048),
-``rhythmic-jax demo``, and ``rhythmic-jax fit`` / ``query`` of 1000 JPEGs with
-EfficientNet-Lite0 (fresh descriptor cache each time). The new checkout runs
-cold (empty compile cache; the JPEG fit, the machine's first, also starts the
-compiled network's build, waited for before the query) and warm (the cache and
-the network the cold run left); the baseline (``--base``, e.g. ``git -C
-/work/main archive c1267b4 | tar -x -C DIR``) runs as it ships, without a
-compile cache. Predictions of the fits are compared between checkouts.
+"""Compiling against solving: XLA programs, compile seconds and wall per job, cold and
+warm compile cache, this checkout against a baseline one.
 
     python scripts/bench_compile.py --base DIR [--jobs fit,nordland,demo,jpeg]
     python scripts/bench_compile.py --base DIR --small   (a quick check)
@@ -24,44 +10,26 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, header, load_average, main, nordland_images, table
+from _harness import REPO, child, header, main, nordland_images, table, weights_folder
 
-# Runs a module (-m NAME ARGS) or a script (PATH ARGS) with JAX's compile log
-# counted; writes {"programs", "hits", "compile_s"} to $COUNT_OUT at exit.
-WRAPPER = r"""
-import atexit, json, logging, os, re, runpy, sys
-count = dict(programs=0, hits=0, compile_s=0.0)
-done = re.compile(r"Finished XLA compilation of .+ in ([0-9.eE+-]+) sec")
-class Count(logging.Handler):
-    def emit(self, record):
-        text = record.getMessage()
-        m = done.search(text)
-        if m:
-            count["programs"] += 1
-            count["compile_s"] += float(m.group(1))
-        elif "compilation cache hit" in text:
-            count["hits"] += 1
-logger = logging.getLogger("jax._src")
-logger.setLevel(logging.WARNING)  # the CLI quiets "jax"; this stays
-logger.addHandler(Count())
-logger.propagate = False
-import jax
-jax.config.update("jax_log_compiles", True)
-atexit.register(lambda: open(os.environ["COUNT_OUT"], "w").write(json.dumps(count)))
-args = sys.argv[1:]
-if args[0] == "-m":
-    sys.argv = args[1:]
-    runpy.run_module(args[1], run_name="__main__", alter_sys=True)
+# Runs a module (-m NAME ARGS) or a script (PATH ARGS) with its XLA programs counted
+# (the harness's compile counter) into $COUNT_OUT at exit.
+WRAPPER = f"""
+import os, runpy, sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+__import__("_harness").compile_counter(os.environ["COUNT_OUT"])
+module = sys.argv[1] == "-m"
+sys.argv = sys.argv[1 + module :]
+if module:
+    runpy.run_module(sys.argv[0], run_name="__main__", alter_sys=True)
 else:
-    sys.argv = args
-    runpy.run_path(args[0], run_name="__main__")
+    runpy.run_path(sys.argv[0], run_name="__main__")
 """
 
 # A library user's fit: features (.npy) -> map, predictions saved; the new
@@ -77,6 +45,8 @@ model = rj.RhythmicMap().fit(x, progress=False)
 np.save(sys.argv[2], np.asarray(model.predict(x)))
 print(json.dumps(dict(periods=list(model.periods))))
 """
+
+HEAD = ["job", "variant", "programs", "compiled", "hits", "compile s", "wall s", "load"]
 
 
 # What every fit's process pays before it fits: the interpreter, importing JAX
@@ -94,30 +64,14 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
 
 
 def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
-    """Wall seconds and compile counts of one job in a fresh process."""
+    """(wall seconds and compile counts, stdout) of one job in a fresh process."""
     out = tmp / f"count-{time.monotonic_ns()}.json"
-    t = time.perf_counter()
-    done = subprocess.run(
-        [sys.executable, "-c", WRAPPER, *cmd],
-        env={**env, "COUNT_OUT": str(out)},
-        capture_output=True,
-        text=True,
-        cwd=_weights_folder(),
-    )
-    wall = time.perf_counter() - t
-    if done.returncode != 0:
-        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")
-    count = json.loads(out.read_text())
-    count["compiled"] = count["programs"] - count["hits"]
-    return dict(count, wall=wall, load=load_average()[0], stdout=done.stdout[-400:])
-
-
-def _weights_folder() -> Path:
-    """The folder of the Lite0 weights: the baseline's ``query`` looks for them
-    by the bare file name its map records (as scripts/bench_frames.py runs)."""
-    from rhythmic_jax.frames.nets import lite0_weights_path
-
-    return lite0_weights_path().parent
+    r = child([sys.executable, "-c", WRAPPER, *cmd], None, weights_folder(), env=env,
+              COUNT_OUT=str(out))  # fmt: skip
+    c = json.loads(out.read_text())
+    count = dict(programs=c["programs"], compiled=c["programs"] - c["hits"],
+                 hits=c["hits"], compile_s=c["compile_s"])  # fmt: skip
+    return dict(count, wall=r["wall"], load=r["load"]), r["stdout"]
 
 
 def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
@@ -143,8 +97,7 @@ def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
     """(name, environment) of base, new cold, new warm: the warm run reuses the
     cold run's compile cache (and network)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPIL")}
-    env.update(JAX_PLATFORMS="cpu", TF_CPP_MIN_LOG_LEVEL="3")
-    env["RHYTHMIC_JAX_NETWORK_BUILD"] = "1"
+    env.update(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
     jit = tmp / "jit"
     new = {**env, "PYTHONPATH": str(REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
     old = {**env, "PYTHONPATH": str(base.resolve())}
@@ -196,48 +149,39 @@ def run(args) -> dict:
                 if job in ("fit", "nordland"):
                     pred = tmp / f"{job}-{tag}.npy"
                     cmd = [str(script), str(inputs[job]), str(pred)]
-                    r = run_job(cmd, env_job, tmp)
-                    r["periods"] = json.loads(r.pop("stdout").splitlines()[-1])
+                    r, out = run_job(cmd, env_job, tmp)
+                    r["periods"] = json.loads(out.splitlines()[-1])
                     agree.setdefault(job, {})[name] = (pred, r["periods"]["periods"])
                     rows.append(dict(job=job, variant=name, **r))
-                elif job == "imports":
-                    r = run_job([str(tmp / "imports.py")], env_job, tmp)
-                    r.pop("stdout")
+                if job == "imports":
+                    r = run_job([str(tmp / "imports.py")], env_job, tmp)[0]
                     rows.append(dict(job=job, variant=name, **r))
-                elif job == "demo":
-                    cmd = [*exe, "demo", "--out", str(tmp / f"demo-{tag}")]
-                    r = run_job([*cmd, "--no-progress"], env_job, tmp)
-                    r.pop("stdout")
-                    rows.append(dict(job="demo", variant=name, **r))
-                else:
-                    out_map = tmp / f"jpeg-{tag}.map"
-                    cmd = [*exe, "fit", str(folders["ref"]), "--out", str(out_map)]
-                    cmd += ["--descriptor", "efficientnet_lite0", "--no-progress"]
-                    r = run_job(cmd, env_job, tmp)
-                    r.pop("stdout")
-                    rows.append(dict(job="jpeg fit", variant=name, **r))
-                    if side == "new":
-                        r["build_wait_s"] = wait_for_build(cache)
+                jpeg_map = str(tmp / f"jpeg-{tag}.map")
+                ref, q = folders.get("ref"), folders.get("q")
+                steps = {
+                    "demo": [("demo", ["demo", "--out", str(tmp / f"demo-{tag}")])],
+                    "jpeg": [("jpeg fit", ["fit", str(ref), "--out", jpeg_map,
+                                           "--descriptor", "efficientnet_lite0"]),
+                             ("jpeg query", ["query", jpeg_map, str(q), "--out",
+                                             str(tmp / f"q-{tag}.npy")])],
+                }.get(job, [])  # fmt: skip
+                for label, cmd in steps:
+                    r = run_job([*exe, *cmd, "--no-progress"], env_job, tmp)[0]
+                    rows.append(dict(job=label, variant=name, **r))
+                    if label == "jpeg fit" and side == "new":
+                        wait_for_build(cache)
                         if (cache / "compiled").is_dir():
                             shutil.rmtree(network, ignore_errors=True)
                             shutil.copytree(cache / "compiled", network / "compiled")
-                    cmd = [*exe, "query", str(out_map), str(folders["q"])]
-                    cmd += ["--out", str(tmp / f"q-{tag}.npy"), "--no-progress"]
-                    r = run_job(cmd, env_job, tmp)
-                    r.pop("stdout")
-                    rows.append(dict(job="jpeg query", variant=name, **r))
                 print(json.dumps(rows[-1]), flush=True)
         same = {}
         for job, runs in agree.items():
             base_pred, base_periods = runs["base"]
             for name in ("new cold", "new warm"):
                 pred, periods = runs[name]
-                same[f"{job}, {name}"] = dict(
-                    periods_equal=periods == base_periods,
-                    predictions_equal=float(
-                        (np.load(pred) == np.load(base_pred)).mean()
-                    ),
-                )
+                equal = float((np.load(pred) == np.load(base_pred)).mean())
+                same[f"{job}, {name}"] = dict(periods_equal=periods == base_periods,
+                                              predictions_equal=equal)  # fmt: skip
     sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
@@ -273,18 +217,13 @@ def targets(report: dict) -> list[list]:
 
 
 def markdown(report: dict) -> str:
-    rows = [
-        [r["job"], r["variant"], r["programs"], r["compiled"], r["hits"],
-         r["compile_s"], r["wall"], r["load"]]
-        for r in report["rows"]
-    ]  # fmt: skip
-    agree = [
-        [k, str(v["periods_equal"]), v["predictions_equal"]]
-        for k, v in report["agreement"].items()
-    ]
+    keys = "job variant programs compiled hits compile_s wall load".split()
+    rows = [[r[k] for k in keys] for r in report["rows"]]
+    agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
+             for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
-    lines = [
-        *header("Compiling: XLA programs, compile seconds and wall per job", report),
+    title = "Compiling: XLA programs, compile seconds and wall per job"
+    return "\n".join(header(title, report)) + "\n" + "\n\n".join([
         f"Baseline checkout {report['base']} (no compile cache) against this one, "
         "cold (empty compile cache) and warm (the cache the cold run left). Each "
         "job is a fresh process. Programs: XLA programs the job obtained; hits: "
@@ -292,30 +231,12 @@ def markdown(report: dict) -> str:
         f"(loads included); load: 1-minute load average after the job. Sizes: fit "
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
         f" {s['jpegs']} JPEGs (Lite0).",
-        "",
-        table(
-            [
-                "job",
-                "variant",
-                "programs",
-                "compiled",
-                "hits",
-                "compile s",
-                "wall s",
-                "load",
-            ],
-            rows,
-        ),  # fmt: skip
-        "",
+        table(HEAD, rows),
         "Targets (the imports row is the floor under any fit's wall):",
-        "",
         table(["target", "at most", "measured", ""], targets(report)),
-        "",
         "Maps against the baseline's (same periods; share of equal predictions):",
-        "",
         table(["fit", "periods equal", "predictions equal"], agree),
-    ]
-    return "\n".join(lines)
+    ])  # fmt: skip
 
 
 if __name__ == "__main__":

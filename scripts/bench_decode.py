@@ -1,50 +1,18 @@
 """Batch and single-query decoding against exact search, on the same features.
 
-A rhythmic map answers a query with one ``(b, d) x (d, p)`` product, an argmax per
-period and a Chinese-remainder look-up (:func:`rhythmic_jax.decoding.hard.decode`,
-jitted); exact search scores the query against all N references (faiss
-``IndexFlatIP`` through :class:`rhythmic_jax.eval.baselines.BruteForce`). Per query the
-products cost ``p d`` against ``N d`` multiply-adds, so ``N / p`` is the FLOP
-ratio the measured speed-up is set beside.
-
-Cases, both decoders on the same references and queries in the same run:
-
-- N = 10713, d = 4096 (the paper's Nordland spring size), periods (105, 106):
-  random L2-normalised references; queries are 1000 references with Gaussian
-  noise, re-normalised.
-- N = 3576, d = 2048 with the level-1 periods of that size (the pair of
-  ``candidate_periods(3576)`` with the smallest storage): Nordland summer
-  patch-normalised 64x32 descriptors as references and winter as queries when
-  the data is present, random ones otherwise.
-
-The map's templates are random: decoding costs the same whatever their values.
-Throughput: ``time_batch`` over batches of 1000 (median of the timed calls after
-one untimed call). Latency: ``time_single_queries`` (10 warm-up calls, then one
-call per query; JAX results waited for with ``block_until_ready``). faiss runs
-on as many OpenMP threads as XLA has CPU threads (one per core).
-``scripts/bench_single_query.py`` times one query to one place on every path.
-
-    python scripts/bench_decode.py           # writes reports/decode.{json,md}
-    python scripts/bench_decode.py --quick   # 1 timed batch, 30 single queries
-    python scripts/bench_decode.py --render reports/decode.json  # Markdown again
+python scripts/bench_decode.py           # writes reports/decode.{json,md}
+python scripts/bench_decode.py --quick   # 1 timed batch, 30 single queries
+python scripts/bench_decode.py --render reports/decode.json  # Markdown again
 """
 
 from __future__ import annotations
 
 import logging
 
+import _harness as h
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _harness import (
-    cores,
-    header,
-    load_average,
-    main,
-    nordland_features,
-    table,
-    unit_rows,
-)
 
 from rhythmic_jax.decoding.hard import decode
 from rhythmic_jax.eval.baselines import BruteForce
@@ -60,10 +28,10 @@ NOISE = 0.5  # query noise relative to a unit reference
 def random_features(n: int, d: int, b: int, seed: int):
     """(references (n, d), queries (b, d), source index of each query (b,))."""
     rng = np.random.default_rng(seed)
-    refs = unit_rows(rng.standard_normal((n, d), dtype=np.float32))
+    refs = h.unit_rows(rng.standard_normal((n, d), dtype=np.float32))
     src = rng.choice(n, size=b, replace=False)
     noise = rng.standard_normal((b, d), dtype=np.float32) * np.float32(NOISE)
-    return refs, unit_rows(refs[src] + noise / np.sqrt(d, dtype=np.float32)), src
+    return refs, h.unit_rows(refs[src] + noise / np.sqrt(d, dtype=np.float32)), src
 
 
 def random_map(d: int, periods: tuple[int, ...], seed: int) -> Templates:
@@ -81,10 +49,10 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     p = sum(periods)
     log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
     params = random_map(d, periods, seed=1)
-    flat = BruteForce(n_threads=cores()).fit(refs)
+    flat = BruteForce(n_threads=h.cores()).fit(refs)
     fns = dict(rhythmic=lambda q: decode(params, q, periods, n),
                faiss=lambda q: flat.search(q, 1))  # fmt: skip
-    load, out = load_average(), {}
+    load, out = h.load_average(), {}
     for label, fn in fns.items():
         batch = time_batch(fn, queries, repeats=repeats)
         single = time_single_queries(fn, queries[:singles], warmup=10)
@@ -96,7 +64,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     return dict(
         name=name, n=n, d=d, periods=list(periods), p=p, batch_size=len(queries),
         single_queries=singles, load_average_start=load,
-        threads=dict(xla=cores(), faiss=flat.n_threads),
+        threads=dict(xla=h.cores(), faiss=flat.n_threads),
         map_bytes=storage_bytes(periods, d), database_bytes=database_bytes(n, d),
         flop_ratio=n / p, faiss_top1_is_source=float(np.mean(top[:, 0] == src)),
         rhythmic=r, faiss=f,
@@ -108,24 +76,14 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
 
 def case_markdown(c: dict) -> str:
     r, f = c["rhythmic"], c["faiss"]
-    rows = [
-        [
-            label,
-            s["batch"]["queries_per_s"],
-            1e3 * s["single"]["median_s"],
-            1e3 * s["single"]["p95_s"],
-        ]
-        for label, s in (
-            (f"rhythmic decode ({c['p']} templates)", r),
-            (f"faiss IndexFlatIP ({c['n']} references)", f),
-        )
-    ]
+    cases = ((f"rhythmic decode ({c['p']} templates)", r),
+             (f"faiss IndexFlatIP ({c['n']} references)", f))  # fmt: skip
+    rows = [[label, s["batch"]["queries_per_s"], 1e3 * s["single"]["median_s"],
+             1e3 * s["single"]["p95_s"]] for label, s in cases]  # fmt: skip
     head = ["method", f"queries/s (batch {c['batch_size']})", "single ms median"]
-    return "\n".join([
+    return "\n\n".join([
         f"## {c['name']}: N = {c['n']}, d = {c['d']}, periods {c['periods']}",
-        "",
-        table([*head, "single ms p95"], rows),
-        "",
+        h.table([*head, "single ms p95"], rows),
         f"Rhythmic / faiss: **{c['batch_speedup']:.1f}x** batch throughput,"
         f" **{c['single_speedup_median']:.1f}x** single-query median latency"
         f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p ="
@@ -138,13 +96,12 @@ def case_markdown(c: dict) -> str:
         f" {r['batch']['repeats']} each. faiss top-1 = the query's own"
         f" reference (same index) for {100 * c['faiss_top1_is_source']:.1f} %"
         " of queries.",
-        "",
-    ])  # fmt: skip
+    ]) + "\n"  # fmt: skip
 
 
 def markdown(report: dict) -> str:
     title = "Decoding: rhythmic map against exact search (faiss IndexFlatIP)"
-    parts = header(title, report) + [
+    parts = h.header(title, report) + [
         "The map's templates are random (decoding cost does not depend on their"
         " values); both decoders see the same references and queries.",
         "",
@@ -168,7 +125,7 @@ def run(args) -> dict:
     periods = nominal_periods(3576, 2, 1, 7)
     if (args.root / "nordland_64x32").is_dir():
         name = "Nordland summer map, winter queries, patchnorm"
-        refs, qry = nordland_features(args.root, progress=args.progress)
+        refs, qry = h.nordland_features(args.root, progress=args.progress)
         qry, src = qry[:BATCH], np.arange(BATCH)
     else:
         log.warning("no Nordland data under %s: random features", args.root)
@@ -179,4 +136,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="decode")
+    h.main(__doc__, run, markdown, options, stem="decode")

@@ -1,28 +1,7 @@
 """Decoders beyond the paper: hard, soft, top-m and phase-domain sequence decoding.
 
-Two route protocols, with single-frame brute force (faiss ``IndexFlatIP``) and the
-SeqSLAM-style reference (:func:`rhythmic_jax.eval.seqslam.seqslam_decode`, full
-descriptors, same L) beside every rhythmic decode:
-
-- Nordland 64x32: summer frames are the map, winter frames the queries (same
-  index = same place).
-- Aerial pairs (``samples_LEVIR``): tiles of the A images are the map, tiles of
-  the B images the queries; sequences run along the tile order.
-
-Recall@1 counts a match within ``TOLERANCE`` = ±1 index. Queries/s time the
-whole batch from descriptors to indices (map: template scores + decode;
-SeqSLAM: similarities + diagonal sums), after one untimed call that compiles;
-descriptor extraction is not included. The outlier protocol holds 20 % of the
-Nordland route out of the summer map in contiguous blocks (winter queries of
-those places have ``gt = -1``), chooses a threshold at 100 % precision on the
-first half of the route and applies it to the second half.
-
-    python scripts/bench_decoding.py            # writes reports/decoding.{json,md}
-    python scripts/bench_decoding.py --quick    # 500 frames, patchnorm, level 1
-
-Fitted maps are cached in ``$TMPDIR/rhythmic_jax_bench_decoding`` keyed by the
-features and the map settings; descriptors in the descriptor cache
-(``$RHYTHMIC_JAX_CACHE`` or ``~/.cache/rhythmic_jax``).
+python scripts/bench_decoding.py            # writes reports/decoding.{json,md}
+python scripts/bench_decoding.py --quick    # 500 frames, patchnorm, level 1
 """
 
 from __future__ import annotations
@@ -33,35 +12,18 @@ import logging
 import tempfile
 from pathlib import Path
 
+import _harness as h
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _harness import (
-    aerial_features,
-    cached_fit,
-    cores,
-    fastest,
-    main,
-    nordland_features,
-)
 
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
 from rhythmic_jax.decoding.soft import calibrate
+from rhythmic_jax.eval import outliers as ol
+from rhythmic_jax.eval import seqslam as sq
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import accuracy, pr_auc, recall_at_100_precision
-from rhythmic_jax.eval.outliers import (
-    choose_threshold,
-    decode_confidence,
-    finite_confidence,
-    holdout_split,
-    reject,
-)
-from rhythmic_jax.eval.seqslam import (
-    enhance_contrast,
-    seqslam_decode,
-    sequence_similarity,
-)
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
@@ -87,28 +49,22 @@ def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
     model = RhythmicMap(r=2, level=level, descriptor=descriptor,
                         descriptor_settings=settings)  # fmt: skip
     fit = lambda m: m.fit(x, progress=progress)  # noqa: E731
-    return cached_fit(model, x, MAP_CACHE, fit)[0]
+    return h.cached_fit(model, x, MAP_CACHE, fit)[0]
 
 
 def timed(fn, repeats: int):
     """(the first call's output as numpy, the fastest of ``repeats`` timed calls)."""
-    out, sec = fastest(fn, repeats)
+    out, sec = h.fastest(fn, repeats)
     return np.asarray(out[0] if isinstance(out, tuple) else out), sec
 
 
 def _row(method, pred, gt, seconds, storage, **extra) -> dict:
     inmap = gt >= 0
     return dict(
-        method=method,
-        **extra,
-        recall_at_1=accuracy(pred[inmap], gt[inmap], TOLERANCE),
+        method=method, **extra, recall_at_1=accuracy(pred[inmap], gt[inmap], TOLERANCE),
         recall_at_1_exact=accuracy(pred[inmap], gt[inmap], 0),
-        queries_per_s=len(pred) / max(seconds, 1e-12),
-        storage_bytes=int(storage),
-    )
-
-
-# ------------------------------------------------------- phase-domain variants
+        queries_per_s=len(pred) / max(seconds, 1e-12), storage_bytes=int(storage),
+    )  # fmt: skip
 
 
 def _blocks(scores: jax.Array, periods: tuple[int, ...]) -> list[jax.Array]:
@@ -128,13 +84,7 @@ def standardise(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("periods",))
 def spread(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
-    """(T, p) -> (T, p): circular max over phases j-1, j, j+1 of every period.
-
-    Phase ``j +- 1`` of every period is place ``i +- 1``: a frame's evidence
-    spreads to the neighbouring places, so rounded offsets of non-integer speeds
-    still meet it. The max is taken per period, so it also lifts every place
-    whose phases are off by one in some periods only (aliases far along the
-    route)."""
+    """(T, p) -> (T, p): circular max over phases j-1, j, j+1 of every period."""
     out = []
     for b in _blocks(scores, periods):
         rolled = jnp.maximum(jnp.roll(b, 1, axis=-1), jnp.roll(b, -1, axis=-1))
@@ -144,11 +94,8 @@ def spread(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("window",))
 def centre_templates(scores: jax.Array, window: int) -> jax.Array:
-    """(T, p) -> (T, p): each template's score minus its mean over the last
-    ``window`` query frames (causal; frame t uses frames max(0, t-window+1)..t).
-
-    Online it is a running sum per template (O(p) per frame). A template that
-    fires high on every frame of the query condition (winter) stops dominating."""
+    """(T, p) -> (T, p): each template's score minus its mean over the last ``window``
+    query frames (causal; frame t uses frames max(0, t-window+1)..t)."""
     zero = jnp.zeros((1, scores.shape[1]), scores.dtype)
     c = jnp.concatenate([zero, jnp.cumsum(scores, axis=0)])
     t = jnp.arange(1, scores.shape[0] + 1)
@@ -168,31 +115,16 @@ TRANSFORMS = {
 }
 
 
-@functools.partial(
-    jax.jit, static_argnames=("periods", "n", "length", "speeds", "window")
-)
-def place_sequence_decode(
-    scores: jax.Array,
-    periods: tuple[int, ...],
-    n: int,
-    length: int,
-    speeds: tuple[float, ...],
-    window: int,
-) -> jax.Array:
-    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,).
-
-    ``S[t, i] = sum_k s_k^t[i mod tau_k]`` (r gathers per place, no descriptors),
-    local contrast over ``window`` places, diagonal sums over ``length`` frames
-    (:mod:`rhythmic_jax.eval.seqslam`), best speed. Costs ``O((r + L) n)`` per frame
-    instead of the phase domain's ``O(L p + r n)``."""
-    i = np.arange(n)
-    cols = np.stack(
-        [o + i % t for o, t in zip(period_offsets(periods), periods, strict=True)]
-    )
-    sim = enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
+@functools.partial(jax.jit, static_argnums=(1, 2, 3, 4, 5))
+def place_sequence_decode(scores, periods, n, length, speeds, window) -> jax.Array:
+    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,); periods,
+    places, length, speeds (a tuple) and contrast window are static."""
+    i, offsets = np.arange(n), period_offsets(periods)
+    cols = np.stack([o + i % t for o, t in zip(offsets, periods, strict=True)])
+    sim = sq.enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
     best = index = None
     for v in speeds:
-        d = sequence_similarity(sim, length, v)
+        d = sq.sequence_similarity(sim, length, v)
         score, arg = jnp.max(d, axis=1), jnp.argmax(d, axis=1)
         if best is None:
             best, index = score, arg
@@ -202,14 +134,8 @@ def place_sequence_decode(
     return index
 
 
-# ------------------------------------------------------------------- benches
-
-
 def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
-    """Every decode of one map over the whole query sequence.
-
-    The template scores (b, p), shared by every decode, are timed once; each
-    row's queries/s is ``b / (score time + its decode time)``."""
+    """Every decode of one map over the whole query sequence."""
     storage, per, n = model.storage_bytes, model.periods, model.n
     q = jnp.asarray(qry)
     s, score_s = timed(lambda: model.scores(q), repeats)
@@ -218,57 +144,30 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
 
     def add(label, fn, length=None, speeds=None):
         pred, sec = timed(fn, repeats)
-        rows.append(
-            _row(
-                label,
-                pred,
-                gt,
-                score_s + sec,
-                storage,
-                L=length,
-                speeds=speeds,
-                decode_queries_per_s=len(pred) / max(sec, 1e-12),
-            )
-        )
-        r = rows[-1]
-        log.info(
-            "  %-44s R@1 %.4f %9.0f q/s", label, r["recall_at_1"], r["queries_per_s"]
-        )
+        dq = len(pred) / max(sec, 1e-12)
+        speeds = None if speeds is None else list(speeds)
+        rows.append(_row(label, pred, gt, score_s + sec, storage, L=length,
+                         speeds=speeds, decode_queries_per_s=dq))  # fmt: skip
 
     for method in ("hard", "soft", "topm"):
         label = f"{method} (m={M})" if method == "topm" else method
         add(label, lambda method=method: decode_scores(s, per, n, method, M).index)
     grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
-    for length, speeds in grids:
-        add(
-            f"sequence soft L={length} {_speeds(speeds)}",
-            lambda length=length, speeds=speeds: sequence_decode(
-                s, per, n, length, speeds
-            ),
-            length,
-            list(speeds),
-        )
+    for length, v in grids:
+        fn = lambda L=length, v=v: sequence_decode(s, per, n, L, v)  # noqa: E731
+        add(f"sequence soft L={length} {_speeds(v)}", fn, length, v)
     for name, transform in TRANSFORMS.items():
-        for length, speeds in grids[1:]:
-            if name == "calibrated" and len(speeds) > 1:
+        for length, v in grids[1:]:
+            if name == "calibrated" and len(v) > 1:
                 continue
-            add(
-                f"sequence soft L={length} {_speeds(speeds)}, {name}",
-                lambda length=length, speeds=speeds, transform=transform: (
-                    sequence_decode(transform(s, per), per, n, length, speeds)
-                ),
-                length,
-                list(speeds),
+            fn = lambda length=length, v=v, t=transform: sequence_decode(  # noqa: E731
+                t(s, per), per, n, length, v
             )
+            add(f"sequence soft L={length} {_speeds(v)}, {name}", fn, length, v)
+    w, one = CONTRAST_WINDOW, (1.0,)
     for length in LENGTHS[1:]:
-        add(
-            f"place-domain L={length} v=1, contrast w={CONTRAST_WINDOW}",
-            lambda length=length: place_sequence_decode(
-                s, per, n, length, (1.0,), CONTRAST_WINDOW
-            ),
-            length,
-            [1.0],
-        )
+        fn = lambda L=length: place_sequence_decode(s, per, n, L, one, w)  # noqa: E731
+        add(f"place-domain L={length} v=1, contrast w={w}", fn, length, [1.0])
     return rows
 
 
@@ -279,7 +178,7 @@ def _speeds(speeds) -> str:
 def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Single-frame brute force and SeqSLAM-style sequences on full descriptors."""
     storage = ref.size * 4
-    flat = BruteForce(n_threads=cores()).fit(ref)
+    flat = BruteForce(n_threads=h.cores()).fit(ref)
     pred, sec = timed(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
     grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
@@ -288,34 +187,20 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
             label = f"SeqSLAM L={length} {_speeds(speeds)}"
             if window:
                 label += f", contrast w={window}"
-            pred, sec = timed(
-                lambda length=length, speeds=speeds, window=window: seqslam_decode(
-                    qry, ref, length, speeds, contrast_window=window, progress=False
-                ),
-                max(1, repeats // 3),
+            fn = lambda L=length, v=speeds, w=window: sq.seqslam_decode(  # noqa: E731
+                qry, ref, L, v, contrast_window=w, progress=False
             )
-            rows.append(
-                _row(label, pred, gt, sec, storage, L=length, speeds=list(speeds))
-            )
-    for r in rows:
-        log.info(
-            "  %-34s R@1 %.4f  %9.0f q/s",
-            r["method"],
-            r["recall_at_1"],
-            r["queries_per_s"],
-        )
+            pred, sec = timed(fn, max(1, repeats // 3))
+            rows.append(_row(label, pred, gt, sec, storage, L=length, speeds=[*speeds]))
     return rows
-
-
-# ------------------------------------------------------------ outlier protocol
 
 
 def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
     """Threshold-free metrics on the second half, and a first-half threshold."""
     second = ~first
     p2, c2, g2 = pred[second], conf[second], gt[second]
-    thr = choose_threshold(pred[first], conf[first], gt[first], tolerance=TOLERANCE)
-    kept = reject(p2, c2, thr)
+    thr = ol.choose_threshold(pred[first], conf[first], gt[first], tolerance=TOLERANCE)
+    kept = ol.reject(p2, c2, thr)
     ok = (kept >= 0) & (g2 >= 0) & (np.abs(kept - g2) <= TOLERANCE)
     return dict(
         pr_auc=pr_auc(p2, c2, g2, TOLERANCE),
@@ -330,10 +215,10 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
 
 def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     """Hold 20 % of the route out of the map; query every winter frame."""
-    h = holdout_split(len(ref), **HOLDOUT)
-    gt = h.gt()
+    hold = ol.holdout_split(len(ref), **HOLDOUT)
+    gt = hold.gt()
     first = np.arange(len(qry)) < len(qry) // 2
-    model = fitted_map(ref[h.fit], level, descriptor, progress)
+    model = fitted_map(ref[hold.fit], level, descriptor, progress)
     per, n = model.periods, model.n
     scores = model.scores(qry)
     seq = {
@@ -345,95 +230,67 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     cases = {}
     for kind in ("margin", "likelihood"):
         ex = EXCLUDE if kind == "margin" else 0
-        cases[f"hard, {kind}"] = decode_confidence(scores, per, n, "hard", kind=kind)
-        cases[f"soft, {kind}"] = decode_confidence(
-            scores, per, n, "soft", kind=kind, exclude=ex
-        )
-        for label, acc in seq.items():
-            cases[f"{label}, {kind}"] = decode_confidence(
+        cases[f"hard, {kind}"] = ol.decode_confidence(scores, per, n, "hard", kind=kind)
+        for label, acc in {"soft": scores, **seq}.items():
+            cases[f"{label}, {kind}"] = ol.decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
-    flat = BruteForce(n_threads=cores()).fit(ref[h.fit])
+    flat = BruteForce(n_threads=h.cores()).fit(ref[hold.fit])
     sim, top = flat.search(qry, 1)
-    cases["brute force, cosine"] = (top[:, 0], finite_confidence(sim[:, 0]))
-    for window in (None, CONTRAST_WINDOW):
-        idx, score = seqslam_decode(
-            qry, ref[h.fit], GRID_LENGTH, contrast_window=window, progress=False
+    cases["brute force, cosine"] = (top[:, 0], ol.finite_confidence(sim[:, 0]))
+    for w in (None, CONTRAST_WINDOW):
+        idx, score = sq.seqslam_decode(
+            qry, ref[hold.fit], GRID_LENGTH, contrast_window=w, progress=False
         )
-        label = f"SeqSLAM L={GRID_LENGTH}" + (
-            f", contrast w={window}" if window else ""
-        )
-        cases[label + ", score"] = (np.asarray(idx), finite_confidence(score))
+        label = f"SeqSLAM L={GRID_LENGTH}" + (f", contrast w={w}" if w else "")
+        cases[label + ", score"] = (np.asarray(idx), ol.finite_confidence(score))
     rows = []
     for label, (pred, conf) in cases.items():
         pred = np.asarray(pred).astype(np.int64)
         rows.append(dict(method=label, **_threshold_metrics(pred, conf, gt, first)))
-        r = rows[-1]
-        log.info(
-            "  %-40s AUC %.4f  R@100P %.4f  (held-out thr: P %.3f R %.3f)",
-            label,
-            r["pr_auc"],
-            r["recall_at_100_precision"],
-            r["precision_at_threshold"],
-            r["recall_at_threshold"],
-        )
     return dict(
-        descriptor=descriptor,
-        level=level,
-        periods=list(per),
-        n_map=int(n),
-        n_held=len(h.held),
-        n_queries=len(qry),
-        rows=rows,
-    )
+        descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
+        n_held=len(hold.held), n_queries=len(qry), rows=rows,
+    )  # fmt: skip
 
 
-# ------------------------------------------------------------------- reports
-
-
-def _mb(b: int) -> str:
-    return f"{b / 2**20:.2f}"
+DECODING = """method = {method}
+R@1 (±1) = {recall_at_1:.4f}
+R@1 exact = {recall_at_1_exact:.4f}
+queries/s = {queries_per_s:,.0f}
+storage MiB = {mib:.2f}
+% of database = {pct:.1f}"""
+OUTLIERS = """method, confidence = {method}
+PR AUC = {pr_auc:.4f}
+R@100P = {recall_at_100_precision:.4f}
+threshold = {threshold:.4g}
+kept = {retrieved}
+thr P = {precision_at_threshold:.3f}
+thr R = {recall_at_threshold:.3f}
+outliers rejected = {outliers_rejected:.3f}"""
+TARGET = """descriptor = {descriptor}
+L = {L}
+map decode = {method}
+R@1 = {recall_at_1:.4f}
+SeqSLAM = {ref}
+R@1 = {ref_r1:.4f}
+points = {gap:+.1f}
+speed = {speed:.1f}x
+storage = {store:.1f} %
+met = {met}"""
 
 
 def decoding_table(block: dict) -> str:
     db = block["database_bytes"]
-    lines = [
-        "| method | R@1 (±1) | R@1 exact | queries/s | storage MiB | % of database |",
-        "|---|---:|---:|---:|---:|---:|",
-    ]
-    for r in block["rows"]:
-        lines.append(
-            f"| {r['method']} | {r['recall_at_1']:.4f} | {r['recall_at_1_exact']:.4f}"
-            f" | {r['queries_per_s']:,.0f} | {_mb(r['storage_bytes'])} |"
-            f" {100 * r['storage_bytes'] / db:.1f} |"
-        )
-    return "\n".join(lines)
-
-
-def outlier_table(block: dict) -> str:
-    lines = [
-        "| method, confidence | PR AUC | R@100P | threshold | kept | thr P | thr R |"
-        " outliers rejected |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in block["rows"]:
-        lines.append(
-            f"| {r['method']} | {r['pr_auc']:.4f} | {r['recall_at_100_precision']:.4f}"
-            f" | {r['threshold']:.4g} | {r['retrieved']}"
-            f" | {r['precision_at_threshold']:.3f} | {r['recall_at_threshold']:.3f}"
-            f" | {r['outliers_rejected']:.3f} |"
-        )
-    return "\n".join(lines)
+    rows = [dict(r, mib=r["storage_bytes"] / 2**20,
+                 pct=100 * r["storage_bytes"] / db) for r in block["rows"]]  # fmt: skip
+    return h.columns(rows, DECODING, "lrrrrr")
 
 
 def target_table(blocks: list[dict]) -> str:
     """The lead's target on Nordland at level 4, L = 10 and 20: recall within 5
     points of the SeqSLAM-style reference at >= 10x its speed, <= 14 % storage."""
-    lines = [
-        "| descriptor | L | map decode | R@1 | SeqSLAM | R@1 | points | speed |"
-        " storage | met |",
-        "|---|---:|---|---:|---|---:|---:|---:|---:|---|",
-    ]
+    rows = []
     for b in blocks:
         if b["dataset"] != "nordland" or b["level"] != 4:
             continue
@@ -452,73 +309,53 @@ def target_table(blocks: list[dict]) -> str:
                     speed = r["queries_per_s"] / ref["queries_per_s"]
                     store = 100 * r["storage_bytes"] / ref["storage_bytes"]
                     met = gap >= -5 and speed >= 10 and store <= 14
-                    lines.append(
-                        f"| {b['descriptor']} | {length} | {r['method']} |"
-                        f" {r['recall_at_1']:.4f} | {label} | {ref['recall_at_1']:.4f}"
-                        f" | {gap:+.1f} | {speed:.1f}x | {store:.1f} % |"
-                        f" {'yes' if met else 'no'} |"
-                    )
-    return "\n".join(lines) if len(lines) > 2 else ""
+                    rows.append(dict(
+                        r, descriptor=b["descriptor"], L=length, ref=label,
+                        ref_r1=ref["recall_at_1"], gap=gap, speed=speed, store=store,
+                        met="yes" if met else "no",
+                    ))  # fmt: skip
+    return h.columns(rows, TARGET, "lrlrlrrrrl") if rows else ""
 
 
 def markdown(report: dict) -> str:
     env = report["environment"]
     parts = [
         "# Decoders beyond the paper",
-        "",
         f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
         " from descriptors to indices on "
         f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
         " descriptor extraction not included. Maps: r=2, Newton solver, default"
         " C = log N."
         f" Command: `{report['command']}`.",
-        "",
-    ]
+    ]  # fmt: skip
     for b in report["decoding"]:
         parts += [
             f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
-            "",
             f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"
             f" ({100 * b['compression_ratio']:.1f} % of the database).",
-            "",
             decoding_table({"rows": b["rows"] + b["references"], **b}),
-            "",
         ]
     target = target_table(report["decoding"])
     if target:
         parts += [
             "## Target: level 4, within 5 points of SeqSLAM, >= 10x its speed,"
             " <= 14 % of its storage",
-            "",
             "Each map decode at L beside the SeqSLAM-style reference at the same L"
             " (without and with contrast enhancement); the plain phase-domain"
             " decode and the best map decode at that L.",
-            "",
             target,
-            "",
         ]
     for b in report["outliers"]:
         parts += [
             f"## Outliers: Nordland, {b['descriptor']}, level {b['level']}",
-            "",
             f"{b['n_held']} of {b['n_queries']} route frames held out of the summer"
             f" map in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
-            f" {b['n_map']} frames, periods {b['periods']}. PR AUC and recall at 100 %"
-            " precision on the second half of the route. Threshold: chosen on the"
-            " first half (largest recall at 100 % precision; inf when none reaches"
-            " it, so everything is rejected); kept, thr P, thr R: second-half"
-            " queries kept at that threshold, their precision and recall;"
-            " outliers rejected: share of held-out places' queries rejected."
-            f" Margins exclude rivals within {EXCLUDE} places; recall within"
-            f" ±{TOLERANCE}.",
-            "",
-            outlier_table(b),
-            "",
+            f" {b['n_map']} frames, periods {b['periods']}. Metrics on the second"
+            " half of the route, the threshold chosen on the first; margins"
+            f" exclude rivals within {EXCLUDE} places; recall within ±{TOLERANCE}.",
+            h.columns(b["rows"], OUTLIERS, "lrrrrrrr"),
         ]
-    return "\n".join(parts)
-
-
-# ---------------------------------------------------------------------- main
+    return "\n\n".join(parts) + "\n"
 
 
 def available(names) -> list[str]:
@@ -545,23 +382,20 @@ def run(args: argparse.Namespace) -> dict:
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
     for name in available(args.descriptors):
         datasets = {
-            "nordland": nordland_features(args.root, name, **kw),
-            "aerial LEVIR": aerial_features(args.root, name, **kw)[:2],
+            "nordland": h.nordland_features(args.root, name, **kw),
+            "aerial LEVIR": h.aerial_features(args.root, name, **kw)[:2],
         }
         if args.frames:
-            datasets = {
-                k: (r[: args.frames], q[: args.frames])
-                for k, (r, q) in datasets.items()
-            }
+            f = args.frames
+            datasets = {k: (r[:f], q[:f]) for k, (r, q) in datasets.items()}
         for dataset, (ref, qry) in datasets.items():
             gt = np.arange(len(qry))
             log.info("%s %s: references", dataset, name)
             refs = reference_rows(ref, qry, gt, repeats)
             for level in args.levels:
                 model = fitted_map(ref, level, name, args.progress)
-                log.info(
-                    "%s %s level %d, periods %s", dataset, name, level, model.periods
-                )
+                log.info("%s %s level %d, periods %s", dataset, name, level,
+                         model.periods)  # fmt: skip
                 blocks.append(dict(
                     dataset=dataset, descriptor=name,
                     settings=get_descriptor(name).settings(), level=level,
@@ -588,4 +422,4 @@ def options(ap) -> None:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="decoding")
+    h.main(__doc__, run, markdown, options, stem="decoding")

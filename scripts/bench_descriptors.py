@@ -1,16 +1,6 @@
 """Descriptor benchmark on Nordland: winter queries against the summer map.
 
-For each descriptor, brute-force cosine nearest neighbour of every winter frame
-among the summer frames; recall@1 counts the exact index, and within +-1 index
-(the usual tolerance at this frame stride). Frames/s is timed on a fixed subset
-of frames, uncached; the full descriptors come from the disk cache
-(``$RHYTHMIC_JAX_CACHE`` or ``~/.cache/rhythmic_jax``).
-
-    python scripts/bench_descriptors.py            # writes reports/descriptors.*
-
-Measured (recall@1, exact index): patchnorm 0.126, HOG 0.212, EfficientNet-Lite0
-block-10 map 0.477 at 224x112 and 0.547 at 224x224, PCA-512 of the 224x112 map
-0.451.
+python scripts/bench_descriptors.py            # writes reports/descriptors.*
 """
 
 from __future__ import annotations
@@ -56,9 +46,8 @@ def frames_per_second(images: np.ndarray, descriptor, batch_size: int) -> float:
 
 def run(args) -> dict:
     torch.set_num_threads(args.threads)
-    summer, winter = (
-        t.images for t in nordland_images(args.root, progress=args.progress)
-    )
+    trav = nordland_images(args.root, progress=args.progress)
+    summer, winter = (t.images for t in trav)
     if args.quick:
         summer, winter, args.stem = summer[:300], winter[:300], "descriptors_quick"
         args.timing_frames = min(args.timing_frames, 32)
@@ -66,30 +55,20 @@ def run(args) -> dict:
     log.info("summer %s, winter %s, timing on %d frames", summer.shape, winter.shape,
              len(timing))  # fmt: skip
     rows, kept = [], {}
-    kw = dict(
-        cache_dir=args.cache_dir, batch_size=args.batch_size, progress=args.progress
-    )
+    kw = dict(cache_dir=args.cache_dir, batch_size=args.batch_size)
     for label, name, settings in DESCRIPTORS[:1] if args.quick else DESCRIPTORS:
         d = get_descriptor(name, **settings)
         key = "nordland64x32-" + (f"first{len(summer)}-" if args.quick else "")
-        ref = cached_describe(summer, d, key + "summer", **kw)
-        qry = cached_describe(winter, d, key + "winter", **kw)
+        ref = cached_describe(summer, d, key + "summer", progress=args.progress, **kw)
+        qry = cached_describe(winter, d, key + "winter", progress=args.progress, **kw)
         exact, tol1 = recall_at_1(qry, ref)
         fps = frames_per_second(timing, d, args.batch_size)
-        rows.append(
-            dict(
-                descriptor=label,
-                name=name,
-                settings=d.settings(),
-                dim=d.dim,
-                recall_at_1=exact,
-                recall_at_1_tol1=tol1,
-                frames_per_s=fps,
-            )
-        )
-        log.info(
-            "%s: recall@1 %.4f (+-1: %.4f), %.1f frames/s", label, exact, tol1, fps
-        )
+        rows.append(dict(
+            descriptor=label, name=name, settings=d.settings(), dim=d.dim,
+            recall_at_1=exact, recall_at_1_tol1=tol1, frames_per_s=fps,
+        ))  # fmt: skip
+        log.info("%s: recall@1 %.4f (+-1: %.4f), %.1f frames/s", label, exact, tol1,
+                 fps)  # fmt: skip
         kept[label] = (ref, qry, fps)
     ref, qry, fps = kept.get(PCA_OF) or next(iter(kept.values()))
     args.pca_dim = min(args.pca_dim, ref.shape[1] // 2, len(ref) - 1)

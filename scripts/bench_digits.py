@@ -1,29 +1,6 @@
 """Digits that group frames that look alike: map layouts across seasons on Nordland.
 
-The test places of :data:`rhythmic_jax.split.NORDLAND_SPLIT` (1220-3575, N = 2356)
-are the map (their summer frames) and the queries (their winter frames), with
-cached EfficientNet-Lite0 block-10 descriptors (10,976-d, unit rows: place i is
-row i; ``--cache``). At the storage of a periods map of ``r = 2`` at level
-1, 2 and 4 (4.2 %, 8.3 %, 16.6 % of the raw database), three layouts of
-:mod:`rhythmic_jax.groups`:
-
-- periods: the least-storage co-prime pair among the level's candidates;
-- mixed radix: :func:`~rhythmic_jax.groups.choose_radices` (the most significant
-  digit classifies contiguous segments);
-- hierarchical: :func:`~rhythmic_jax.groups.choose_segment` segments plus fine
-  co-prime periods.
-
-Every template of every layout is one column of ONE joint Newton solve (the
-templates share no parameters, so this equals fitting each map on its own),
-C = log N. Recall@1 within ±1 frame: hard decode, soft decode (raw scores and
-per-group log-softmax, ``rhythmic_jax.decoding.soft.calibrate``), recall@5 of the
-soft
-ranking, and sequences of L = 5, 10, 20 at speed 1 (soft); brute force (cosine on
-the raw descriptor, and its sequence sums at the same L without contrast
-normalisation) on the same frames. Nothing is learned from the places scored
-(no setting is chosen on them).
-
-    python scripts/bench_digits.py          # writes reports/digits.{json,md}
+python scripts/bench_digits.py          # writes reports/digits.{json,md}
 """
 
 from __future__ import annotations
@@ -96,9 +73,8 @@ def measure(groups: Groups, s_self, s_query, n: int, gt) -> dict:
         ranked = ranked_places(sc, groups, n, 5)
         row[f"soft_{name}"] = accuracy(soft[name], gt, TOL)
         row[f"soft_{name}_exact"] = accuracy(soft[name], gt, 0)
-        row[f"recall@5_{name}"] = recall_at_k(
-            ranked, gt, (5,), tolerance=TOL
-        ).as_dict()["recall@5"]
+        recall = recall_at_k(ranked, gt, (5,), tolerance=TOL).as_dict()
+        row[f"recall@5_{name}"] = recall["recall@5"]
         for length in LENGTHS:
             idx, _ = sequence_decode(sc, groups, n, length, (1.0,), "soft")
             row[f"seq{length}_{name}"] = accuracy(np.asarray(idx), gt, TOL)
@@ -141,25 +117,18 @@ def markdown(report: dict) -> str:
             r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
             r["soft_raw_exact"], r["recall@5_raw"],
             *(r[f"seq{length}_raw"] for length in LENGTHS),
-            " ".join(
-                f"{a:.3f} ({c:.3f})"
-                for a, c in zip(
-                    r.get("label_accuracy", ()), r.get("label_chance", ()), strict=True
-                )
-            ) or "-",
+            " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
+                     r.get("label_chance", ()), strict=True)) or "-",
         ])  # fmt: skip
     lines += ["", table(cols, rows), ""]
+    same = [r for r in report["rows"] if "calibrated_same_index" in r]
     lines.append(
         "soft: argmax of the summed template scores of every group (a log-softmax "
         "within every group, rhythmic_jax.decoding.soft.calibrate, shifts every "
         "place of a query by the same constant: the same argmax, checked here); "
         "sequences sum the place scores at speed 1 (brute force: cosine sums along the "
         "diagonal); same index after calibration: "
-        + ", ".join(
-            f"{r['calibrated_same_index']:.3f}"
-            for r in report["rows"]
-            if "calibrated_same_index" in r
-        )
+        + ", ".join(f"{r['calibrated_same_index']:.3f}" for r in same)
         + ". label acc.: per group, the fraction of winter queries whose "
         "argmax class is their place's label (most significant digit / segment "
         "first), beside chance 1 / size."

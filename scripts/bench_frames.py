@@ -1,44 +1,19 @@
 """Frames per second from images, end to end: this checkout against a baseline one.
 
-Jobs, each a fresh ``python -m rhythmic_jax.cli`` process of its checkout (what
-that checkout's ``rhythmic-jax`` runs) on 640x320 JPEG folders made from
-Nordland frames (upscaled; written under a temporary folder, removed after):
-
-- ``fit REF/ --descriptor efficientnet_lite0`` on 1000 frames;
-- ``query MAP Q/`` on 1000 frames (the map from the fit);
-- a 100-frame ``fit`` (too small to compile: it must not be slower);
-- augmented training: one epoch of :func:`rhythmic_jax.augmented.fit_augmented`
-  over 256 Nordland frames with no augmentation (``none``) and with all seven
-  (``all``), the descriptor at its native size, frames/s over the wall time.
-
-Every job starts with an empty descriptor cache. The new checkout's jobs are a
-user's second jobs on the machine: before the timed runs a first 100-frame fit
-builds the compiled network (:mod:`rhythmic_jax.frames.compiled`) and a first
-1000-frame fit and query fill the compile cache; each timed job starts from a
-copy of both (never of the descriptors). The baseline keeps nothing between
-processes, so each of its jobs starts empty. The baseline is another
-checkout run with ``PYTHONPATH`` pointing at it (e.g. ``git worktree add
-/tmp/base 6ee4e23``). Both variants run interleaved, ``--repeats`` times; the
-report gives medians and the ratio, with the load average (the machine is
-shared).
-
-    python scripts/bench_frames.py --base /tmp/base [--repeats 2]
+python scripts/bench_frames.py --base /tmp/base [--repeats 2]
 """
 
 from __future__ import annotations
 
 import json
 import os
-import resource
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, header, load_average, main, nordland_images, table
+from _harness import REPO, child, header, main, nordland_images, table, weights_folder
 
 AUGMENTED = """
 import json, sys, time
@@ -102,25 +77,11 @@ def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, P
     return out
 
 
-def timed_run(cmd: list[str], env: dict) -> dict:
-    """Wall and CPU seconds (children) of one command; fails loudly.
-
-    It runs in the folder of the Lite0 weights: the baseline's ``query`` looks
-    for them by the bare file name its map records.
-    """
-    from rhythmic_jax.frames.nets import lite0_weights_path
-
-    cwd = lite0_weights_path().parent
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t = time.perf_counter()
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=cwd)
-    wall = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if done.returncode != 0:
-        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-2000:]}")
-    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
-    return dict(wall=wall, cpu=cpu, stdout=done.stdout[-2000:],
-                stderr=done.stderr[-500:], load=load_average()[0])  # fmt: skip
+def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
+    """Wall and CPU seconds of one command of ``checkout`` with its cache folder."""
+    env = {k: v for k, v in os.environ.items() if k != "RHYTHMIC_JAX_COMPILE_CACHE"}
+    r = child(cmd, checkout, weights_folder(), env=env, RHYTHMIC_JAX_CACHE=str(cache))
+    return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
 def fresh_cache(tmp: Path, warm: Path | None) -> Path:
@@ -133,12 +94,6 @@ def fresh_cache(tmp: Path, warm: Path | None) -> Path:
     return cache
 
 
-def job_env(pythonpath: str, cache: Path) -> dict:
-    """The environment of one job: which checkout, which cache folder."""
-    env = {k: v for k, v in os.environ.items() if k != "RHYTHMIC_JAX_COMPILE_CACHE"}
-    return {**env, "PYTHONPATH": pythonpath, "RHYTHMIC_JAX_CACHE": str(cache)}
-
-
 def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--frames", type=int, default=1000)
@@ -147,80 +102,63 @@ def options(ap) -> None:
     ap.add_argument("--skip-augmented", action="store_true")
 
 
+def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]:
+    """One job's command line: each checkout's own ``python -m rhythmic_jax.cli``
+    (the installed script imports this checkout's)."""
+    if job.startswith("augmented"):
+        root = str(args.root / "nordland_64x32")
+        return [sys.executable, "-c", AUGMENTED, root, str(args.aug_frames), job[10:]]
+    exe, out_map = [sys.executable, "-m", "rhythmic_jax.cli"], tmp / f"{variant}.map"
+    if job == "query":
+        out = str(tmp / f"{variant}.npy")
+        return [*exe, "query", str(out_map), str(folders["q"]), "--out", out,
+                "--no-progress"]  # fmt: skip
+    if job == "fit100":
+        out_map = tmp / f"{variant}_small.map"
+    shutil.rmtree(out_map, ignore_errors=True)
+    src = folders["ref" if job == "fit" else "small"]
+    return [*exe, "fit", str(src), "--out", str(out_map), "--descriptor",
+            "efficientnet_lite0", "--no-progress"]  # fmt: skip
+
+
 def run(args) -> dict:
     if args.quick:
         args.frames, args.repeats, args.aug_frames = 100, 1, 130
         args.stem = "frames_quick"
-    # each checkout's own command line (``python -m rhythmic_jax.cli`` runs what
-    # its ``rhythmic-jax`` runs); the installed script imports this checkout's
-    exe = [sys.executable, "-m", "rhythmic_jax.cli"]
     paths = {"base": str(args.base.resolve()), "new": str(REPO)}
+    jobs = ["fit", "query", "fit100"]
+    jobs += [] if args.skip_augmented else ["augmented_none", "augmented_all"]
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
         tmp = Path(tmpdir)
         folders = make_folders(args.root, tmp, args.frames)
         warm = tmp / "warm"  # the new checkout's compiled network, built once
-        env_new = job_env(paths["new"], warm)
-        built = timed_run([*exe, "fit", str(folders["small"]), "--out",
-                           str(tmp / "warm.map"), "--descriptor",
-                           "efficientnet_lite0", "--compile", "always",
-                           "--no-progress"], env_new)  # fmt: skip
-        first = tmp / "first.map"  # the first 1000-frame jobs compile the programs
-        timed_run([*exe, "fit", str(folders["ref"]), "--out", str(first),
-                   "--descriptor", "efficientnet_lite0", "--no-progress"],
-                  env_new)  # fmt: skip
-        timed_run([*exe, "query", str(first), str(folders["q"]), "--out",
-                   str(tmp / "first.npy"), "--no-progress"], env_new)  # fmt: skip
+        cmd = job_cmd("fit100", "warm", tmp, folders, args) + ["--compile", "always"]
+        built = timed_run(cmd, paths["new"], warm)
+        for job in ("fit", "query"):  # the first 1000-frame jobs compile the programs
+            timed_run(job_cmd(job, "first", tmp, folders, args), paths["new"], warm)
         runs: dict[str, dict[str, list]] = {}
         for rep in range(args.repeats):
             # alternate which side goes first, so drifting load hits both alike
             for variant in ("base", "new") if rep % 2 == 0 else ("new", "base"):
                 kept = warm if variant == "new" else None
-                for job in ("fit", "query", "fit100"):
-                    env = job_env(paths[variant], fresh_cache(tmp, kept))
-                    out_map = tmp / f"{variant}.map"
-                    if job == "fit":
-                        shutil.rmtree(out_map, ignore_errors=True)
-                        cmd = [*exe, "fit", str(folders["ref"]), "--out", str(out_map)]
-                        cmd += ["--descriptor", "efficientnet_lite0"]
-                    elif job == "query":
-                        cmd = [*exe, "query", str(out_map), str(folders["q"]),
-                               "--out", str(tmp / f"{variant}.npy")]  # fmt: skip
-                    else:
-                        small = tmp / f"{variant}_small.map"
-                        shutil.rmtree(small, ignore_errors=True)
-                        cmd = [*exe, "fit", str(folders["small"]), "--out", str(small)]
-                        cmd += ["--descriptor", "efficientnet_lite0"]
-                    r = timed_run([*cmd, "--no-progress"], env)
+                for job in jobs:
+                    cmd = job_cmd(job, variant, tmp, folders, args)
+                    r = timed_run(cmd, paths[variant], fresh_cache(tmp, kept))
+                    if job.startswith("augmented"):
+                        r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
                     print(variant, job, rep, round(r["wall"], 1), r["load"], flush=True)
                     runs.setdefault(job, {}).setdefault(variant, []).append(r)
                     PARTIAL.write_text(json.dumps(runs))
-                if not args.skip_augmented:
-                    for names in ("none", "all"):
-                        env = job_env(paths[variant], fresh_cache(tmp, kept))
-                        root = str(args.root / "nordland_64x32")
-                        r = timed_run([sys.executable, "-c", AUGMENTED, root,
-                                       str(args.aug_frames), names], env)  # fmt: skip
-                        r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
-                        fps = r["inner"]["frames_per_s"]
-                        print(variant, names, rep, fps, flush=True)
-                        job = f"augmented_{names}"
-                        runs.setdefault(job, {}).setdefault(variant, []).append(r)
-                        PARTIAL.write_text(json.dumps(runs))
         pred = {v: np.load(tmp / f"{v}.npy") for v in ("base", "new")}
         agree = float((pred["base"] == pred["new"]).mean())
         # winter frame i was taken at summer frame i's place
         within = {v: float((np.abs(p - np.arange(len(p))) <= 2).mean())
                   for v, p in pred.items()}  # fmt: skip
     report = dict(
-        base=paths["base"],
-        frames=args.frames,
-        aug_frames=args.aug_frames,
-        repeats=args.repeats,
-        build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
-        prediction_agreement=agree,
-        prediction_within_2=within,
-        runs=runs,
-    )
+        base=paths["base"], frames=args.frames, aug_frames=args.aug_frames,
+        repeats=args.repeats, build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
+        prediction_agreement=agree, prediction_within_2=within, runs=runs,
+    )  # fmt: skip
     report["summary"] = summary(report)
     return report
 
@@ -242,24 +180,18 @@ TARGETS = {
 
 
 def summary(report: dict) -> dict:
+    """Per job: each checkout's median wall, CPU and frames/s; speedup, target."""
     out = {}
     for job, by in report["runs"].items():
         row = {}
         for variant, rs in by.items():
-            if job.startswith("augmented"):
-                fps = [r["inner"]["frames_per_s"] for r in rs]
-            else:
-                fps = [frames_of(job, report) / r["wall"] for r in rs]
-            row[variant] = dict(
-                wall=float(np.median([r["wall"] for r in rs])),
-                cpu=float(np.median([r["cpu"] for r in rs])),
-                frames_per_s=float(np.median(fps)),
-            )
-        row["speedup"] = row["new"]["frames_per_s"] / row["base"]["frames_per_s"]
-        need, _ = TARGETS[job]
-        row["target"] = need
-        row["met"] = bool(row["speedup"] >= need)
-        out[job] = row
+            fps = [r["inner"]["frames_per_s"] if job.startswith("augmented")
+                   else frames_of(job, report) / r["wall"] for r in rs]  # fmt: skip
+            med = {k: float(np.median([r[k] for r in rs])) for k in ("wall", "cpu")}
+            row[variant] = med | dict(frames_per_s=float(np.median(fps)))
+        speedup = row["new"]["frames_per_s"] / row["base"]["frames_per_s"]
+        need = TARGETS[job][0]
+        out[job] = row | dict(speedup=speedup, target=need, met=bool(speedup >= need))
     return out
 
 
@@ -293,32 +225,23 @@ def markdown(report: dict) -> str:
         f"Baseline checkout {report['base']} run interleaved with this one in"
         " the same process tree (CPU seconds count the work). Medians of"
         f" {report['repeats']} runs; every job starts with an empty descriptor"
-        " cache. The new checkout's jobs are second jobs on the machine: the"
-        " compiled network was built once before (it took"
-        f" {report['build_compiled']['wall']:.0f} s wall in this run, in a"
-        " 100-frame `--compile always` fit) and a first 1000-frame fit and query"
-        " filled the compile cache; each job starts from a copy of both.",
+        " cache. The new checkout's are second jobs: the compiled network was"
+        f" built before (it took {report['build_compiled']['wall']:.0f} s wall in"
+        " this run, in a 100-frame `--compile always` fit) and a first 1000-frame"
+        " fit and query filled the compile cache; each job starts from a copy.",
         "",
         table(["job", "base wall s", "new wall s", "base frames/s",
                "new frames/s", "base CPU s", "new CPU s", "new / base frames/s",
                "base / new CPU s", "target (on frames/s)"],
               rows),  # fmt: skip
         "",
-        "Jobs: each a fresh `python -m rhythmic_jax.cli` of its checkout;"
+        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout;"
         f" `fit` and `query` on {report['frames']} 640x320 JPEG frames"
-        " (Nordland summer as reference, winter as queries) with"
-        " efficientnet_lite0 (block 10, 224x112); `fit100` on 100 frames;"
-        f" `augmented_*`: one epoch over {report['aug_frames']} Nordland frames"
-        " (an augmented and a clean exemplar of each, the network runs compiled"
-        " in the new checkout, as in any job of >= 64 frames once the network"
-        " is built, `fit100` included), frames/s over the"
-        " epoch's wall time (the wall and CPU columns are the whole process:"
-        " loading, the clean descriptors, the exact solve, a warm-up epoch)."
-        " On a machine this loaded a process with more runnable threads (the"
-        " read-ahead) takes a larger share of the cores, so wall ratios flatter"
-        " the change; the CPU-second ratios (the work done) are the figure to"
-        " expect on a quiet machine. The two query runs agree on"
-        f" {100 * report['prediction_agreement']:.1f} % of predictions"
+        " (efficientnet_lite0); `fit100` on 100; `augmented_*`: one epoch over"
+        f" {report['aug_frames']} Nordland frames, frames/s over the epoch. Under"
+        " load, CPU-second ratios are the figure to expect on a quiet machine."
+        f" The two query runs agree on {100 * report['prediction_agreement']:.1f} %"
+        " of predictions"
         f"{_within(report)}."
         f" 1-minute load average at the end of each job: {min(loads):.1f} to"
         f" {max(loads):.1f} (2 cores).",

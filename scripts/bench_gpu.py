@@ -1,26 +1,7 @@
 """JAX's GPU against the same machine's CPU: fit, predict, batch and sequence decode.
 
-On Nordland summer patchnorm descriptors (3576 x 2048, loaded from a float16
-``.npy`` of shape (2, n, d): summer, winter; ``--write-features`` writes it from
-the shared frames, so the descriptors travel without the images), every step
-runs once with the GPU as JAX's default device and once with the CPU
-(``jax.default_device``), in one process:
-
-- first fit (compilation included) and a second fit of the same shapes of
-  ``RhythmicMap(r=2, level=1)``; its predictions of the summer (self) and winter
-  queries on both devices, compared place for place;
-- predict with new batch sizes (``--batches``; each its first call);
-- a batch decode of ``--decode`` queries (winter frames with noise), warm;
-- the soft sequence decode, L = ``--length``, of the winter queries, warm;
-- fits of route-like synthetic frames of ``--fit-sizes`` x d, 3 candidates.
-
-Where no GPU is found its column says so and only the CPU runs (a rehearsal;
-such a report is not the GPU report). With the CPU the only backend, the CPU
-column takes the numpy fast paths of a CPU machine; on a GPU machine the CPU
-column is JAX's CPU device (jitted paths).
-
-    python scripts/bench_gpu.py --write-features nordland_f16.npy
-    python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
+python scripts/bench_gpu.py --write-features nordland_f16.npy
+python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
 """
 
 from __future__ import annotations
@@ -31,6 +12,7 @@ from pathlib import Path
 import jax
 import numpy as np
 from _harness import header, main, table, timed
+from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
 
@@ -38,8 +20,7 @@ log = logging.getLogger("bench_gpu")
 
 
 def write_features(root: Path, path: Path) -> None:
-    """Nordland summer and winter patchnorm descriptors as one float16 (2, n, d)
-    ``.npy`` at ``path``."""
+    """Nordland summer and winter patchnorm descriptors: one float16 (2, n, d) .npy."""
     from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.atomic import save_npy
     from rhythmic_jax.io.images import nordland
@@ -51,58 +32,35 @@ def write_features(root: Path, path: Path) -> None:
     log.info("wrote %s %s", path, (2, *both[0].shape))
 
 
-def route(n: int, d: int, seed: int = 0) -> np.ndarray:
-    """Route-like unit frames (n, d) float32: a random walk, rows normalised."""
-    rng = np.random.default_rng(seed)
-    x = np.cumsum(rng.normal(size=(n, d)).astype(np.float32), axis=0)
-    return x / np.linalg.norm(x, axis=1, keepdims=True)
-
-
-def seconds(fn, *args, **kwargs) -> tuple[object, float]:
-    """``(result, wall seconds)`` of :func:`_harness.timed`."""
-    out, wall, _ = timed(fn, *args, **kwargs)
-    return out, wall
-
-
 def run_on(device, summer, winter, args) -> dict:
     """Every step of the report with ``device`` as JAX's default device."""
     out: dict = {"device": str(device), "kind": getattr(device, "device_kind", "")}
     rng = np.random.default_rng(0)
+
+    def seconds(key, fn, *a, **kw):
+        result, out[key], _ = timed(fn, *a, **kw)
+        return result
+
     with jax.default_device(device):
         fit = lambda x, **kw: RhythmicMap(r=2, level=1, **kw).fit(x)  # noqa: E731
-        _, out["fit_first_s"] = seconds(fit, summer)
-        m, out["fit_second_s"] = seconds(fit, summer)
-        out["periods"] = list(m.periods)
-        out["self"] = m.predict(summer)
+        seconds("fit_first_s", fit, summer)
+        m = seconds("fit_second_s", fit, summer)
+        out.update(periods=list(m.periods), self=m.predict(summer))
         out["winter"] = m.predict(winter)
         out["self_recall"] = float(np.mean(out["self"] == np.arange(len(summer))))
-        out["predict_s"] = {}
-        for b in args.batches:
-            _, out["predict_s"][b] = seconds(m.predict, winter[:b])
+        out["predict_s"] = {b: timed(m.predict, winter[:b])[1] for b in args.batches}
         picks = rng.integers(0, len(winter), args.decode)
         noise = rng.normal(scale=0.01, size=(args.decode, winter.shape[1]))
         q = (winter[picks] + noise.astype(np.float32)).astype(np.float32)
-        _, out["decode_first_s"] = seconds(m.predict, q)
-        _, out["decode_s"] = seconds(m.predict, q)
+        seconds("decode_first_s", m.predict, q)
+        seconds("decode_s", m.predict, q)
         seq = dict(method="soft", sequence=args.length)
-        _, out["sequence_first_s"] = seconds(m.predict, winter, **seq)
-        _, out["sequence_s"] = seconds(m.predict, winter, **seq)
-        out["fits_s"] = {}
-        for n in args.fit_sizes:
-            x = route(n, summer.shape[1], seed=n)
-            _, out["fits_s"][n] = seconds(fit, x, count=3)
-            log.info("%s fit %d x %d: %.1f s", device, n, x.shape[1],
-                     out["fits_s"][n])  # fmt: skip
+        seconds("sequence_first_s", m.predict, winter, **seq)
+        seconds("sequence_s", m.predict, winter, **seq)
+        d, sizes = summer.shape[1], args.fit_sizes
+        out["fits_s"] = {n: timed(fit, walk(n, d, n), count=3)[1] for n in sizes}
     log.info("%s: %s", device, {k: v for k, v in out.items() if k[-1] == "s"})
     return out
-
-
-def gpu_device():
-    """The first GPU JAX sees, or None."""
-    try:
-        return jax.devices("gpu")[0]
-    except RuntimeError:
-        return None
 
 
 def markdown(report: dict) -> str:
@@ -110,39 +68,25 @@ def markdown(report: dict) -> str:
     name = gpu["kind"] if gpu else "no GPU"
     lines = header("JAX on a GPU against the same machine's CPU", report)
     if not gpu:
-        lines += [
-            "**No GPU was found: this is a rehearsal of the script on the CPU, "
-            "not the GPU report.**",
-            "",
-        ]
+        lines += ["**No GPU was found: a CPU rehearsal, not the GPU report.**", ""]
 
     def row(label, key, sub=None):
-        def get(side):
-            if not side:
-                return "-"
-            v = side[key] if sub is None else side[key][str(sub)]
-            return v
+        g, c = ("-" if not s else s[key] if sub is None else s[key][str(sub)]
+                for s in (gpu, cpu))  # fmt: skip
+        return [label, g, c, c / g if gpu and isinstance(g, float) and g > 0 else "-"]
 
-        g, c = get(gpu), get(cpu)
-        ratio = c / g if gpu and isinstance(g, float) and g > 0 else "-"
-        return [label, g, c, ratio]
-
-    rows = [
-        row("first fit, compile included (s)", "fit_first_s"),
-        row("second fit, same shapes (s)", "fit_second_s"),
-    ]
+    rows = [row("first fit, compile included (s)", "fit_first_s"),
+            row("second fit, same shapes (s)", "fit_second_s")]  # fmt: skip
     rows += [row(f"predict {b} queries, first call (s)", "predict_s", b)
              for b in report["batches"]]  # fmt: skip
-    rows += [
-        row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
-        row(f"soft sequence decode L = {report['length']}, warm (s)", "sequence_s"),
-    ]
+    rows += [row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
+             row(f"soft sequence decode L = {report['length']}, warm (s)",
+                 "sequence_s")]  # fmt: skip
     rows += [row(f"fit {n:,} x {report['d']}, 3 candidates (s)", "fits_s", n)
              for n in report["fit_sizes"]]  # fmt: skip
     lines += [
-        f"Nordland summer patchnorm {report['n']} x {report['d']} "
-        f"(`{report['features']}`); GPU: {name}; CPU: {cpu['device']} "
-        f"({report['environment']['cores']} cores).",
+        f"Nordland summer patchnorm {report['n']} x {report['d']}"
+        f" (`{report['features']}`); GPU: {name}; CPU: {cpu['device']}.",
         "",
         table(["step", f"GPU ({name})", "CPU", "CPU / GPU"], rows),
         "",
@@ -178,9 +122,9 @@ def run(args) -> dict | None:
         args.rows, args.batches, args.decode = args.rows or 600, [100], 2000
         args.fit_sizes, args.stem = [], "gpu_quick"
     both = np.load(args.features)
-    summer = np.asarray(both[0][: args.rows], np.float32)
-    winter = np.asarray(both[1][: args.rows], np.float32)
-    gpu = gpu_device()
+    summer, winter = (np.asarray(x[: args.rows], np.float32) for x in both[:2])
+    gpus = [d for d in jax.devices() if d.platform == "gpu"]
+    gpu = gpus[0] if gpus else None
     results = {"gpu": run_on(gpu, summer, winter, args) if gpu else None}
     results["cpu"] = run_on(jax.devices("cpu")[0], summer, winter, args)
     report = dict(
@@ -189,13 +133,11 @@ def run(args) -> dict | None:
         fit_sizes=args.fit_sizes,
         compilation_cache=str(jax.config.jax_compilation_cache_dir),
     )  # fmt: skip
-    if gpu:
-        for key in ("self", "winter"):
-            same = results["gpu"][key] == results["cpu"][key]
-            report[f"equal_{key}"] = float(np.mean(same))
-    for side in results.values():
-        if side:
-            side.pop("self"), side.pop("winter")
+    for key in ("self", "winter") if gpu else ():
+        same = results["gpu"][key] == results["cpu"][key]
+        report[f"equal_{key}"] = float(np.mean(same))
+    for side in filter(None, results.values()):
+        side.pop("self"), side.pop("winter")
     return report | results
 
 

@@ -1,23 +1,6 @@
 """The memory estimate of a full-batch fit against its measured peak, by shape.
 
-For a grid of tall, square and wide shapes (random float32 frames, the default
-map), one child process loads the runtime with a fit of another shape and then,
-for each shape:
-
-- asks the guard (:func:`rhythmic_jax.solvers.memory.check_memory`) with the
-  limit set to the estimate itself (``--memory X`` with X the estimate), which
-  admits the fit;
-- fits it once "cold" (compiling its functions, as a job's first fit does) and
-  ``--repeats`` times "warm" on the same frames (nothing compiles), each peak
-  being the growth of the process's resident memory over a baseline taken with
-  glibc's freed memory handed back (``malloc_trim(0)``), sampled every ms.
-
-The cold peak is checked against the whole estimate (the limit must hold), the
-warm peaks against the estimate without its ``compile`` part.
-
-    python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
-
-Writes reports/memory.json and reports/memory.md and prints the table.
+python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 """
 
 from __future__ import annotations
@@ -39,6 +22,9 @@ log = logging.getLogger("bench_memory")
 
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
 MB = 1e6
+
+HEAD = ["n x d", "shape", "p", "estimate MB", "cold MB", "est / cold", "arrays MB",
+        "warm MB", "arrays / warm", "limit kept"]  # fmt: skip
 
 
 def fit_peak(x: np.ndarray) -> int:
@@ -76,47 +62,24 @@ def kind(n: int, d: int) -> str:
 
 
 def markdown(report: dict) -> str:
-    rows = []
-    for r in report["rows"]:
-        rows.append([
-            f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
-            r["cold"] / MB, r["estimate"] / r["cold"],
-            r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
-            "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO",
-        ])  # fmt: skip
+    rows = [[f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
+             r["cold"] / MB, r["estimate"] / r["cold"],
+             r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
+             "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO"]
+            for r in report["rows"]]  # fmt: skip
     kept = all(r["cold"] <= r["estimate"] for r in report["rows"])
     return "\n".join(
         header("Memory of a full-batch fit: estimate against measured peak", report)
         + [
-            "Random float32 frames, the default map (r = 2, 7 candidate periods: p "
-            "templates). Peaks are the growth of the process's resident memory "
-            "during the fit, sampled every ms, over a baseline taken after "
-            "`malloc_trim(0)` (glibc otherwise serves the fit from memory an "
-            "earlier one freed, and the growth undercounts). *Cold*: the shape's "
-            "first fit in a process whose runtime is loaded (its functions "
-            "compile); *warm*: the largest of "
-            f"{report['repeats']} refits of the same frames after one unmeasured "
-            "(nothing compiles). "
-            "*Estimate*: the sum of `fit_bytes`; *arrays*: the same without its "
-            f"`compile` part ({report['compile_bytes'] / MB:.0f} MB). *Limit kept*: "
-            "the guard with its limit set to the estimate (`--memory X`, X = the "
-            "estimate) admits the fit and the cold peak stays under X.",
+            "Random float32 frames, the default map. Peaks: resident memory growth"
+            " during the fit, sampled every ms, over a baseline after"
+            " `malloc_trim(0)`. *Cold*: the shape's first fit (it compiles); *warm*:"
+            f" the largest of {report['repeats']} refits. *Estimate*: `fit_bytes`;"
+            f" *arrays*: without its `compile` part ({report['compile_bytes'] / MB:.0f}"
+            " MB). *Limit kept*: `--memory` at the estimate admits the fit and the"
+            " cold peak stays under it.",
             "",
-            table(
-                [
-                    "n x d",
-                    "shape",
-                    "p",
-                    "estimate MB",
-                    "cold MB",
-                    "est / cold",
-                    "arrays MB",
-                    "warm MB",
-                    "arrays / warm",
-                    "limit kept",
-                ],
-                rows,
-            ),  # fmt: skip
+            table(HEAD, rows),
             "",
             f"The limit held on every shape: {'yes' if kept else 'NO'}.",
         ]
@@ -141,10 +104,7 @@ def run(args) -> dict | None:
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     rows = []
-    for line in child.stdout.splitlines():
-        if not line.startswith("{"):
-            continue
-        r = json.loads(line)
+    for r in (json.loads(ln) for ln in child.stdout.splitlines() if ln[:1] == "{"):
         parts = fit_bytes(r["n"], r["d"], r["p"])
         est = sum(parts.values())
         r.update(kind=kind(r["n"], r["d"]), parts=parts, estimate=est,

@@ -1,17 +1,6 @@
 """The descriptor network's frames/s by batch size, compiled against eager.
 
-For each batch size the network (EfficientNet-Lite0 block 10 at 224x112 unless
-told otherwise) runs on the same prepared frames (Nordland summer frames resized
-by the descriptor, channels-last) in chunks of that size: eagerly
-(:class:`rhythmic_jax.frames.compiled.Sliced`) and as an AOTInductor package built for
-that batch (:func:`rhythmic_jax.frames.compiled._compiled`, padded last chunk), each
-timed ``--repeats`` times after a warm-up call. The report gives the best and
-median frames/s, CPU over wall seconds, the package's build time, and the
-largest relative row difference of compiled against eager (the rows are unit
-vectors). Jobs use :data:`rhythmic_jax.frames.compiled.COMPILE_BATCH` compiled and
-:data:`rhythmic_jax.frames.compiled.EAGER_BATCH` eager.
-
-    python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
+python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 """
 
 from __future__ import annotations
@@ -30,21 +19,20 @@ from rhythmic_jax.frames.pipeline import _to_batch
 
 log = logging.getLogger("bench_network")
 
+HEAD = [
+    "batch", "eager best f/s", "eager median f/s", "compiled best f/s",
+    "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
+    "max rel diff",
+]  # fmt: skip
+
 
 def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
     """Best and median frames/s of ``run`` over ``x`` (m, 3, h, w), and CPU/wall."""
     run(x[: 2 * max(1, len(x) // 64)])  # warm-up
-    walls, cpus = [], []
-    for _ in range(repeats):
-        _, wall, cpu = timed(run, x)
-        walls.append(wall)
-        cpus.append(cpu)
+    walls, cpus = zip(*(timed(run, x)[1:] for _ in range(repeats)), strict=True)
     best = int(np.argmin(walls))
-    return dict(
-        best=len(x) / walls[best],
-        median=len(x) / float(np.median(walls)),
-        cpu_per_wall=cpus[best] / walls[best],
-    )
+    return dict(best=len(x) / walls[best], median=len(x) / float(np.median(walls)),
+                cpu_per_wall=cpus[best] / walls[best])  # fmt: skip
 
 
 def options(ap) -> None:
@@ -85,12 +73,9 @@ def run(args) -> dict:
     return dict(
         descriptor=desc.name,
         settings=dict(block=args.block, width=desc.width, height=desc.height),
-        frames=len(x),
-        repeats=args.repeats,
-        job_batch=compiled.COMPILE_BATCH,
-        job_eager_batch=compiled.EAGER_BATCH,
-        rows=rows,
-    )
+        frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
+        job_eager_batch=compiled.EAGER_BATCH, rows=rows,
+    )  # fmt: skip
 
 
 def markdown(report: dict) -> str:
@@ -115,20 +100,7 @@ def markdown(report: dict) -> str:
         " slices of that many frames. The rows are unit vectors, so the last"
         " column is the largest relative difference of compiled against eager.",
         "",
-        table(
-            [
-                "batch",
-                "eager best f/s",
-                "eager median f/s",
-                "compiled best f/s",
-                "compiled median f/s",
-                "compiled / eager",
-                "compiled CPU / wall",
-                "build s",
-                "max rel diff",
-            ],
-            rows,
-        ),  # fmt: skip
+        table(HEAD, rows),
         "",
         f"Fastest compiled: batch {best['batch']} at"
         f" {best['compiled']['best']:.0f} frames/s; fastest eager: batch"

@@ -1,16 +1,6 @@
 """Frames per second of the augmented training pipeline, and where the time goes.
 
-One epoch of :func:`rhythmic_jax.augment.stream.fit_augmented` on Nordland summer
-frames: kornia augmentation (torch), the descriptor (torch), the DLPack hand-over
-and the optax minibatch step of the vmapped objective (JAX), for each
-augmentation alone and all seven merged, at the descriptor's native input size.
-The peer in the same run is the same epoch with no augmentation (descriptors
-only), so the ratio says what augmenting costs.
-
-    python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
-
-Writes reports/pipeline.json and reports/pipeline.md (``pipeline_<descriptor>.*``
-for another descriptor) and prints the table.
+python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
 """
 
 from __future__ import annotations
@@ -42,10 +32,8 @@ def run(args) -> dict:
     names_all = [("none",), *((k,) for k in NAMES), ("all",)]
     if args.quick:
         args.frames, names_all = min(args.frames, 160), [("none",), ("hflip",)]
-    args.stem = (
-        "pipeline" if args.descriptor == "patchnorm" else f"pipeline_{args.descriptor}"
-    )
-    args.stem += "_quick" if args.quick else ""
+    own = "" if args.descriptor == "patchnorm" else "_" + args.descriptor
+    args.stem = "pipeline" + own + ("_quick" if args.quick else "")
     (summer,) = nordland_images(args.root, ("summer",))
     images = summer.images[: args.frames]
     desc = get_descriptor(args.descriptor)
@@ -69,16 +57,11 @@ def run(args) -> dict:
                               cfg, progress=False)  # fmt: skip
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
-        rows.append(
-            dict(
-                augmentation=names[0],
-                frames_per_s=fps,
-                augment_s=tm["augment"],
-                describe_s=tm["describe"],
-                step_s=tm["step"],
-                wall_s=time.perf_counter() - t,
-            )
-        )
+        rows.append(dict(
+            augmentation=names[0], frames_per_s=fps, augment_s=tm["augment"],
+            describe_s=tm["describe"], step_s=tm["step"],
+            wall_s=time.perf_counter() - t,
+        ))  # fmt: skip
         print(rows[-1], flush=True)
     for r in rows:
         r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]

@@ -1,19 +1,7 @@
 """Recall per byte: maps, ITQ codes and map + code hybrids at equal storage.
 
-Nordland appearance-change split (:data:`rhythmic_jax.NORDLAND_SPLIT`): maps and
-codes are fitted on the summer frames of the test places (1220-3575, N = 2,356),
-queried with their winter frames, recall@1 within ±1, EfficientNet-Lite0 block 10
-(10,976-d). The hybrids' fusion weights are learned on the training places
-(0-1199: their own maps, codes and winter queries), never on test queries.
-Storage counts every byte search needs (ITQ's mean and projection included), as a
-share of the float32 database. A second ITQ variant fits the codes' transform on
-the training places' summer *and* winter frames ("codes learned across
-conditions"). The fused decode's speed is timed against the map alone and faiss
-``IndexBinaryFlat`` on the same codes (batch of every test query, after a call
-that compiles). The projected-bytes table needs no data.
-
-    python scripts/bench_recall_per_byte.py          # reports/recall_per_byte.*
-    python scripts/bench_recall_per_byte.py --quick  # 2 maps, 2 code sizes
+python scripts/bench_recall_per_byte.py          # reports/recall_per_byte.*
+python scripts/bench_recall_per_byte.py --quick  # 2 maps, 2 code sizes
 """
 
 from __future__ import annotations
@@ -31,16 +19,7 @@ from _harness import fastest, header, main, nordland_features, table
 from rhythmic_jax.codes import code_bytes, pack_bits
 from rhythmic_jax.decoding.fusion import fused_decode
 from rhythmic_jax.decoding.soft import soft_decode
-from rhythmic_jax.eval.frontier import (
-    FrontierConfig,
-    budget_table,
-    crossover_n,
-    fitted_codes,
-    fitted_map,
-    frontier_rows,
-    projected_bytes,
-    similarity_recalls,
-)
+from rhythmic_jax.eval import frontier as fr
 from rhythmic_jax.split import NORDLAND_SPLIT
 
 BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
@@ -55,9 +34,9 @@ def projections() -> list[dict]:
     for d in DS:
         for r in (2, 3):
             row = {"d": d, "r": r}
-            row.update({f"map N={n:.0e}": projected_bytes(n, d, r) for n in NS})
+            row.update({f"map N={n:.0e}": fr.projected_bytes(n, d, r) for n in NS})
             for b in BITS:
-                row[f"until {b}"], row[f"since {b}"] = crossover_n(d, b, r)
+                row[f"until {b}"], row[f"since {b}"] = fr.crossover_n(d, b, r)
             out.append(row)
     return out
 
@@ -65,34 +44,23 @@ def projections() -> list[dict]:
 def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
     faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
-    w, b, per = fitted_map(ref, r, level, gap, cache)
-    book = fitted_codes(ref, bits, cache)
+    w, b, per = fr.fitted_map(ref, r, level, gap, cache)
+    book = fr.fitted_codes(ref, bits, cache)
     n = len(ref)
     wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
-
-    def map_alone():
-        return soft_decode(qj @ wj + bj, per, n).index
-
-    def hybrid():
-        return fused_decode(qj @ wj + bj, book.similarity(qj), per, n).index
-
-    def codes_alone():
-        return book.similarity(qj).argmax(1)
-
     index = faiss.IndexBinaryFlat(bits)
     index.add(pack_bits(book.codes))
-
-    def binary():
-        return index.search(pack_bits(book.transform.encode(q)), 1)[1]
-
+    codes = lambda: pack_bits(book.transform.encode(q))  # noqa: E731
+    fns = {
+        "map alone": lambda: soft_decode(qj @ wj + bj, per, n).index,
+        "hybrid (map + codes, fused)": lambda: (
+            fused_decode(qj @ wj + bj, book.similarity(qj), per, n).index
+        ),
+        "codes alone (JAX)": lambda: book.similarity(qj).argmax(1),
+        "codes alone (faiss IndexBinaryFlat)": lambda: index.search(codes(), 1)[1],
+    }
     out = {}
-    fns = (
-        ("map alone", map_alone),
-        ("hybrid (map + codes, fused)", hybrid),
-        ("codes alone (JAX)", codes_alone),
-        ("codes alone (faiss IndexBinaryFlat)", binary),
-    )
-    for name, fn in fns:
+    for name, fn in fns.items():
         _, sec = fastest(fn, 5)
         out[name] = {"seconds": sec, "queries_per_s": len(q) / sec}
     base = out["map alone"]["seconds"]
@@ -165,57 +133,33 @@ def markdown(rep: dict) -> str:
     ls = rep["lengths"]
     heads = ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["weight"]
-    rows = sorted(rep["rows"], key=lambda r: r["share"])
-    lines.append(
-        table(
-            heads,
-            [
-                [r["name"], r["kind"], r["storage_bytes"], 100 * r["share"]]
-                + [_num(r[f"recall@1 L={k}"]) for k in ls]
-                + [r.get("weight", "-")]
-                for r in rows
-            ],
-        )
-    )
+    rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
+             *(_num(r[f"recall@1 L={k}"]) for k in ls), r.get("weight", "-")]
+            for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
+    lines.append(table(heads, rows))
     for length in ls:
+        key = f"recall@1 L={length}"
+
+        def cell(r, key=key):
+            return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
+
+        body = [[f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"]),
+                 cell(b["itq"]), round(b["own_minus_itq"], 3)]
+                for b in rep["budgets"][str(length)]]  # fmt: skip
         lines += ["", f"### Budget by budget, L = {length}", ""]
-        body = []
-        for b in rep["budgets"][str(length)]:
-            key = f"recall@1 L={length}"
-
-            def cell(r, key=key):
-                return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
-
-            body.append(
-                [f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"])]
-                + [cell(b["itq"]), round(b["own_minus_itq"], 3)]
-            )
         lines.append(
             table(["budget", "best", "map or hybrid", "ITQ", "own - ITQ"], body)
         )
     if rep.get("cross_rows"):
         lines += ["", "### ITQ fitted across conditions on the training places", ""]
-        lines.append(
-            table(
-                ["codes", "share %"] + [f"R@1 L={k}" for k in ls],
-                [
-                    [r["name"], 100 * r["share"]] + [r[f"recall@1 L={k}"] for k in ls]
-                    for r in rep["cross_rows"]
-                ],
-            )
-        )
+        body = [[r["name"], 100 * r["share"], *(r[f"recall@1 L={k}"] for k in ls)]
+                for r in rep["cross_rows"]]  # fmt: skip
+        lines.append(table(["codes", "share %"] + [f"R@1 L={k}" for k in ls], body))
     t = rep["timing"] or {"setting": "not measured in this run"}
     lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
-    lines.append(
-        table(
-            ["decode", "seconds", "queries/s", "time / map alone"],
-            [
-                [k, v["seconds"], v["queries_per_s"], v["x map alone"]]
-                for k, v in t.items()
-                if k != "setting"
-            ],
-        )
-    )
+    body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
+            for k, v in t.items() if k != "setting"]  # fmt: skip
+    lines.append(table(["decode", "seconds", "queries/s", "time / map alone"], body))
     lines += ["", "### Projected bytes (level 1) and the N from which the map is "
               "smaller than each code", "",
               "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods"
@@ -223,28 +167,14 @@ def markdown(rep: dict) -> str:
               ""]  # fmt: skip
     proj = rep["projections"]
     keys = [k for k in proj[0] if k.startswith("map")]
-    lines.append(
-        table(
-            ["d", "r"] + keys + [f"map < ITQ {b}: N" for b in BITS],
-            [
-                [p["d"], p["r"]]
-                + [f"{p[k]:.3g}" for k in keys]
-                + [
-                    _span(p[f"until {b}"], p[f"since {b}"])
-                    if b <= p["d"]
-                    else "bits > d"
-                    for b in BITS
-                ]
-                for p in proj
-            ],
-        )
-    )
+    body = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
+             *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
+               for b in BITS)] for p in proj]  # fmt: skip
+    lines.append(table(["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], body))
     lines += ["", "Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): "]
     for b in BITS:
-        lines.append(
-            f"- ITQ {b}: "
-            + ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
-        )
+        sizes = ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
+        lines.append(f"- ITQ {b}: {sizes}")
     return "\n".join(lines)
 
 
@@ -266,7 +196,7 @@ def run(args) -> dict:
     s, w = nordland_features(args.root, "efficientnet_lite0", key="nordland_",
                              progress=args.progress)  # fmt: skip
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
-    cfg = FrontierConfig()
+    cfg = fr.FrontierConfig()
     if args.quick:
         cfg = dataclasses.replace(cfg, maps=((2, 1), (3, 2)), bits=(64, 128))
     if args.maps:
@@ -276,13 +206,13 @@ def run(args) -> dict:
         cfg = dataclasses.replace(cfg, bits=tuple(int(b) for b in args.bits.split(",")))
     t0 = time.perf_counter()
     cache = args.cache or None
-    rows = frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
+    rows = fr.frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
     both = np.concatenate([s[tr], w[tr]])
     cross_rows = []
     for bits in cfg.bits if args.cross else ():
-        book = fitted_codes(s[te], bits, cache, fit_on=both)
+        book = fr.fitted_codes(s[te], bits, cache, fit_on=both)
         sims = np.asarray(book.similarity(w[te]))
-        rec = similarity_recalls(sims, cfg.lengths, cfg.tolerance)
+        rec = fr.similarity_recalls(sims, cfg.lengths, cfg.tolerance)
         size = code_bytes(len(te), s.shape[1], bits)["total"]
         cross_rows.append(
             {
@@ -308,7 +238,7 @@ def run(args) -> dict:
         "lengths": list(cfg.lengths),
         "rows": rows,
         "cross_rows": cross_rows,
-        "budgets": {str(k): budget_table(rows, BUDGETS, k) for k in cfg.lengths},
+        "budgets": {str(k): fr.budget_table(rows, BUDGETS, k) for k in cfg.lengths},
         "timing": {}
         if args.no_timing
         else timing(s[te], w[te], cache, cfg.bits[0], *cfg.maps[-1], cfg.gap),

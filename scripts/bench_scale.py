@@ -1,33 +1,8 @@
 """Growth from real fits: storage, time, passes and memory against N, d, r, processes.
 
-Every fit is the installed ``rhythmic-jax fit`` on a ``.npy`` file (``--gap
-1e-3``), run under a wrapper that reads its peak resident memory (``ru_maxrss``
-of its children, the processes of a ``--processes 2`` fit included). The growth
-grid fits in memory (the exact Newton solver); ``stream`` cells stream the same
-file under ``--memory`` and give the seconds per pass over the frames. Features
-are route-like: a smooth random walk in feature space (unit rows), and Nordland
-summer sub-routes (patch-normalised, 2048-d) where N allows. Self-query
-accuracy: every reference frame queried against its own map, with the templates
-as float32, float16 and int8. Storage slopes: least squares of log bytes on log
-N per (source, d, r, rule), against 1/r. The rule is how a fit takes its
-periods: ``errors``, the paper's candidate search (the training errors choose r
-co-prime periods among ceil(N^(1/r)) + {0..6}), or ``least``, the least-storage
-co-prime set of the same candidates fixed before training
-(:func:`rhythmic_jax.periods.nominal_periods`, ``--layout periods:...``).
-
-Each cell's result is saved as it completes (``--cells``), so a rerun skips the
-cells already measured. ``--probe N`` writes N route-like 256-d frames to one
-memory-mapped ``.npy`` and streams passes of an r = 3 fit over it under
-``--probe-memory`` in a child process: the seconds per pass and the child's peak
-resident memory, for the projection to 10^6 places. ``--full N`` runs the whole
-streamed r = 3 fit of N such frames with fixed periods (``--full-periods``, no
-candidate search) under ``--full-memory`` in ``--full-work`` (a scratch folder:
-features and map; delete it afterwards): wall time, passes, peak memory and
-self-query accuracy on 20,000 frames. It resumes from its checkpoint if killed.
-
-    python scripts/bench_scale.py --quick          # a small grid (minutes)
-    python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
-    python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
+python scripts/bench_scale.py --quick          # a small grid (minutes)
+python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
+python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
 """
 
 from __future__ import annotations
@@ -64,11 +39,19 @@ print(json.dumps(dict(rc=done.returncode, seconds=time.perf_counter() - t,
     out=done.stdout)))"""
 
 
+def peaked(cmd: list[str], check: bool = True) -> dict:
+    """``cmd`` under the peak-memory wrapper: rc, seconds, peak bytes, stdout."""
+    done = subprocess.run([sys.executable, "-c", _PEAK, *cmd], capture_output=True,
+                          text=True)  # fmt: skip
+    res = json.loads(done.stdout)
+    if check and res["rc"] != 0:
+        raise RuntimeError(done.stderr[-2000:])
+    return res | dict(stderr=done.stderr[-2000:])
+
+
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
-    """Route-like frames (n, d) float32, unit rows: a smooth random walk in
-    feature space (the route's slow change) plus an independent perturbation per
-    frame (what tells neighbouring places apart). ``out``: an (n, d) array to
-    fill (a memory map), block by block."""
+    """Route-like frames (n, d) float32, unit rows: a smooth random walk plus an
+    independent perturbation per frame."""
     rng = np.random.default_rng(seed)
     x = np.empty((n, d), np.float32) if out is None else out
     pos = rng.normal(size=d) * 4.0
@@ -95,22 +78,18 @@ def run_fit(
     path: Path, out: Path, r: int, procs: int, mode: str, memory: str,
     periods: tuple[int, ...] | None = None,
 ):  # fmt: skip
-    """``rhythmic-jax fit`` under the peak-memory wrapper: seconds, peak, its JSON.
-    ``periods``: fixed periods (no candidate search)."""
+    """``rhythmic-jax fit`` (``periods``: fixed) under the peak-memory wrapper."""
     cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
-           "--r", str(r), "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
-    if periods is not None:
+           "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
+    if periods is None:  # fixed periods imply r
+        cmd += ["--r", str(r)]
+    else:
         cmd += ["--layout", "periods:" + ",".join(map(str, periods))]
     if procs > 1:
         cmd += ["--processes", str(procs)]
     if mode == "stream":
         cmd += ["--stream", "--memory", memory]
-    done = subprocess.run(
-        [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
-    )
-    res = json.loads(done.stdout)
-    if res["rc"] != 0:
-        raise RuntimeError(done.stderr[-2000:])
+    res = peaked(cmd)
     text = res["out"]
     info = json.loads(text[text.index("{") :])
     return dict(seconds=res["seconds"], peak=res["peak"], info=info)
@@ -129,35 +108,21 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         acc[dtype] = accuracy(model.with_dtype(dtype), frames, n)
     info, run = fit["info"], fit["info"].get("fit") or {}
     row = dict(
-        source=source,
-        n=n,
-        d=d,
-        r=r,
-        processes=procs,
-        mode=mode,
-        rule=rule,
-        periods=info["periods"],
-        storage_bytes=info["storage_bytes"],
+        source=source, n=n, d=d, r=r, processes=procs, mode=mode, rule=rule,
+        periods=info["periods"], storage_bytes=info["storage_bytes"],
         bytes_per_place=info["storage_bytes"] / n,
         float16_bytes=model.with_dtype("float16").storage_bytes,
-        int8_bytes=model.with_dtype("int8").storage_bytes,
-        fit_seconds=fit["seconds"],
-        peak_bytes=fit["peak"],
-        memory=memory if mode == "stream" else None,
-        passes=run.get("passes"),
-        pass_median_s=run.get("pass_median_s"),
-        block_rows=run.get("block_rows"),
-        accuracy=acc,
-        nice=os.nice(0),
-    )
+        int8_bytes=model.with_dtype("int8").storage_bytes, fit_seconds=fit["seconds"],
+        peak_bytes=fit["peak"], memory=memory if mode == "stream" else None,
+        passes=run.get("passes"), pass_median_s=run.get("pass_median_s"),
+        block_rows=run.get("block_rows"), accuracy=acc, nice=os.nice(0),
+    )  # fmt: skip
     log.info("%s", row)
     return row
 
 
 def rule_sums(n: int, r: int) -> tuple[int, int]:
-    """Least and largest summed periods the paper's candidate rule can choose at
-    ``n`` places: r pairwise co-prime of ``ceil(n^(1/r)) + {0..6}`` with a
-    product >= n (which of them it takes is the training errors' call)."""
+    """Least and largest summed periods the candidate rule can choose at n places."""
     sums = [
         sum(c)
         for c in itertools.combinations(candidate_periods(n, r), r)
@@ -167,12 +132,8 @@ def rule_sums(n: int, r: int) -> tuple[int, int]:
 
 
 def rule_range(ns: list[int], r: int) -> tuple[float, float]:
-    """Least and largest least-squares storage slope (log bytes on log N) that
-    the candidate rule allows over the places ``ns``: the slope is
-    ``sum_i w_i log S_i`` with ``w_i`` the regression's weights of log N_i, so
-    it is least with the least sum where ``w_i > 0`` and the largest where
-    ``w_i < 0``, and the other way round for the largest (storage is the summed
-    periods S times a constant, which the slope does not see)."""
+    """Least and largest storage slope (log bytes on log N) the candidate rule
+    allows over ``ns``: the slope is ``sum_i w_i log S_i`` (docs/SCALE.md)."""
     lx = np.log(np.asarray(ns, float))
     w = (lx - lx.mean()) / np.sum((lx - lx.mean()) ** 2)
     sums = np.log([rule_sums(int(n), r) for n in ns])  # (points, 2): least, largest
@@ -194,9 +155,7 @@ def least_slope(ns: list[int], r: int) -> float:
 def series(
     rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
 ) -> list[dict]:
-    """One process's fits of (source, d, r) by N with periods by ``rule``: in
-    memory, or streamed at an N with no fit in memory (one the memory guard
-    refuses)."""
+    """One process's fits of (source, d, r, rule) by N: in memory, else streamed."""
     one = [x for x in rows if (x["source"], x["d"], x["r"], x["processes"], _rule(x))
            == (source, d, r, 1, rule)]  # fmt: skip
     held = {x["n"] for x in one if x["mode"] == "memory"}
@@ -207,16 +166,9 @@ def series(
 
 
 def slopes(rows: list[dict]) -> list[dict]:
-    """Least-squares slope of log storage on log N per (source, d, r, rule):
-    one process (:func:`series`)."""
-    out = []
-    keys = sorted(
-        {
-            (r["source"], r["d"], r["r"], _rule(r))
-            for r in rows
-            if r["processes"] == 1 and r["mode"] == "memory"
-        }
-    )
+    """Least-squares slope of log storage on log N per (source, d, r, rule)."""
+    out, one = [], [r for r in rows if r["processes"] == 1 and r["mode"] == "memory"]
+    keys = sorted({(r["source"], r["d"], r["r"], _rule(r)) for r in one})
     for source, d, r, rule in keys:
         pts = series(rows, source, d, r, rule)
         if len({p["n"] for p in pts}) < 2:
@@ -228,21 +180,11 @@ def slopes(rows: list[dict]) -> list[dict]:
         upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         ns = [p["n"] for p in pts]
         low, high = rule_range(ns, r) if rule == "errors" else (least_slope(ns, r),) * 2
-        out.append(
-            dict(
-                source=source,
-                d=d,
-                r=r,
-                rule=rule,
-                points=len(pts),
-                slope=slope,
-                slope_from_10k=upper,
-                target=1 / r,
-                within=abs(slope - 1 / r) <= 0.05,
-                rule_low=low,
-                rule_high=high,
-            )
-        )
+        out.append(dict(
+            source=source, d=d, r=r, rule=rule, points=len(pts), slope=slope,
+            slope_from_10k=upper, target=1 / r, within=abs(slope - 1 / r) <= 0.05,
+            rule_low=low, rule_high=high,
+        ))  # fmt: skip
     return out
 
 
@@ -257,25 +199,17 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
     import matplotlib.pyplot as plt
 
     names = []
-    for key, label, stem in (
-        ("storage_bytes", "map bytes", "scale_storage"),
-        ("fit_seconds", "fit seconds", "scale_time"),
-        ("pass_median_s", "seconds per pass", "scale_pass"),
-    ):
+    plots = (("storage_bytes", "map bytes", "scale_storage"),
+             ("fit_seconds", "fit seconds", "scale_time"),
+             ("pass_median_s", "seconds per pass", "scale_pass"))  # fmt: skip
+    for key, label, stem in plots:
         fig, ax = plt.subplots(figsize=(5, 4))
-        groups = sorted({_group(r) for r in rows if r[key] is not None})
-        for g in groups:
-            pts = sorted(
-                (r["n"], r[key]) for r in rows if _group(r) == g and r[key] is not None
-            )
-            if pts:
-                ax.loglog(
-                    *zip(*pts, strict=True),
-                    "o-",
-                    label=f"{g[0]} d={g[1]} r={g[2]} K={g[3]} {g[4]} {g[5]}",
-                )
-        ax.set_xlabel("N (places)")
-        ax.set_ylabel(label)
+        for g in sorted({_group(r) for r in rows if r[key] is not None}):
+            pts = sorted((r["n"], r[key]) for r in rows
+                         if _group(r) == g and r[key] is not None)  # fmt: skip
+            label_g = "{} d={} r={} K={} {} {}".format(*g)
+            ax.loglog(*zip(*pts, strict=True), "o-", label=label_g)
+        ax.set(xlabel="N (places)", ylabel=label)
         ax.legend(fontsize=6)
         fig.tight_layout()
         fig.savefig(out_dir / f"{stem}.png", dpi=110)
@@ -288,43 +222,41 @@ def _num(v, digits):
     return "-" if v is None else round(v, digits)
 
 
+SLOPES = [
+    "source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
+    "slope N >= 10^4", "the rule allows",
+]  # fmt: skip
+
+
+def _allows(s: dict) -> str:
+    if "rule_low" not in s:
+        return "-"
+    if s["rule_low"] == s["rule_high"]:
+        return f"{s['rule_low']:.3f}"
+    return f"{s['rule_low']:.3f} .. {s['rule_high']:.3f}"
+
+
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
-        f"Every fit ran niced beside other jobs (load above): the times are"
-        f" pessimistic. Niceness {report['nices']} (each cell's in the JSON; at 19 a"
-        f" fit takes only CPU no one else wants). Cells were measured between"
-        f" {report['cells_from']} and"
-        f" {report['cells_to']} at a 1-minute load average of {report['load_cells']}"
-        " (each cell's in the JSON); a rerun reuses cells already measured, so the"
-        " command above may only have collected them.",
+        f"Every fit ran niced beside other jobs: niceness {report['nices']}. Cells"
+        f" measured between {report['cells_from']} and {report['cells_to']} at a"
+        f" 1-minute load of {report['load_cells']}; a rerun reuses measured cells.",
         "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
             "fit s", "passes", "s/pass", "peak MiB", "acc f32", "acc f16",
             "acc int8"]  # fmt: skip
     rows = [
-        [
-            r["source"],
-            r["n"],
-            r["d"],
-            r["r"],
-            r["processes"],
-            f"stream {r['memory']}" if r.get("memory") else r["mode"],
-            _rule(r),
-            "x".join(map(str, r["periods"])),
-            r["storage_bytes"],
-            round(r["bytes_per_place"], 2),
-            round(r["fit_seconds"], 1),
-            "-" if r["passes"] is None else r["passes"],
-            _num(r["pass_median_s"], 3),
-            round(r["peak_bytes"] / 2**20),
-            round(r["accuracy"]["float32"], 4),
-            round(r["accuracy"]["float16"], 4),
-            round(r["accuracy"]["int8"], 4),
-        ]  # fmt: skip
+        [r["source"], r["n"], r["d"], r["r"], r["processes"],
+         f"stream {r['memory']}" if r.get("memory") else r["mode"], _rule(r),
+         "x".join(map(str, r["periods"])), r["storage_bytes"],
+         round(r["bytes_per_place"], 2), round(r["fit_seconds"], 1),
+         "-" if r["passes"] is None else r["passes"], _num(r["pass_median_s"], 3),
+         round(r["peak_bytes"] / 2**20),
+         *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8"))]
         for r in report["rows"]
-    ]
+    ]  # fmt: skip
     lines += [
         bc.table(head, rows),
         "",
@@ -332,73 +264,26 @@ def markdown(report: dict) -> str:
         " streamed at an N the memory guard refuses in memory):",
         "",
     ]
-    lines += [
-        bc.table(
-            [
-                "source",
-                "d",
-                "r",
-                "rule",
-                "points",
-                "slope",
-                "1/r",
-                "within 0.05",
-                "slope N >= 10^4",
-                "the rule allows",
-            ],  # fmt: skip
-            [
-                [
-                    s["source"],
-                    s["d"],
-                    s["r"],
-                    s.get("rule", "errors"),
-                    s["points"],
-                    round(s["slope"], 4),
-                    round(s["target"], 4),
-                    str(s["within"]),
-                    _num(s.get("slope_from_10k"), 4),
-                    "-"
-                    if "rule_low" not in s
-                    else f"{s['rule_low']:.3f}"
-                    if s["rule_low"] == s["rule_high"]
-                    else f"{s['rule_low']:.3f} .. {s['rule_high']:.3f}",
-                ]
-                for s in report["slopes"]
-            ],
-        )
-    ]
+    slopes = [
+        [s["source"], s["d"], s["r"], s.get("rule", "errors"), s["points"],
+         round(s["slope"], 4), round(s["target"], 4), str(s["within"]),
+         _num(s.get("slope_from_10k"), 4), _allows(s)]
+        for s in report["slopes"]
+    ]  # fmt: skip
+    lines.append(bc.table(SLOPES, slopes))
     for sl in report["slopes"]:
-        pts = [
-            (r["n"], int(np.prod(r["periods"])))
-            for r in series(
-                report["rows"], sl["source"], sl["d"], sl["r"], sl.get("rule", "errors")
-            )
-        ]
+        rule = sl.get("rule", "errors")
+        pts = series(report["rows"], sl["source"], sl["d"], sl["r"], rule)
+        pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
         lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, "
                   f"{sl.get('rule', 'errors')}: the chosen "
                   f"periods' product M is {m0 / n0:.2f} N at N = {n0:,} and "
                   f"{m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
-              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the "
-              "summed periods, and the bytes, lie between the least and the "
-              "largest valid set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). "
-              "Over a short range of N, or from N where 6 is a large share of "
-              "N^(1/r) (10 at N = 1,000, r = 3), the errors' choice moves the "
-              "fitted slope further than 0.05 either way; the column 'candidate "
-              "rule allows' gives the least and the largest fitted slope that "
-              "the rule permits over the series' N (any choice of periods at "
-              "each N). "
-              "The slope tends to 1/r as N grows, where 6 becomes a small share "
-              "of N^(1/r). Rule 'least' fixes the least-storage co-prime set of "
-              "the same candidates before training (no search): its bytes follow "
-              "r N^(1/r) to within the rounding up to co-prime integers, and the "
-              "column gives that set's slope; the accuracy columns say what the "
-              "errors' choice buys over it."]  # fmt: skip
-    gaps = [
-        100 * (r["accuracy"]["float32"] - r["accuracy"]["float16"])
-        for r in report["rows"]
-    ]
+    lines += ["", "'the rule allows': the least and largest slope any choice of the"
+              " candidate rule gives over the series' N; docs/SCALE.md."]  # fmt: skip
+    acc = [r["accuracy"] for r in report["rows"]]
+    gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
         worst = max(np.abs(gaps))
         lines += ["", f"float16 against float32 self-query accuracy: at most "
@@ -416,19 +301,14 @@ def markdown(report: dict) -> str:
 
 
 def nordland_summer(root: Path) -> np.ndarray | None:
-    """(3576, 2048) patch-normalised Nordland summer descriptors, or None where
-    the data is absent."""
+    """(3576, 2048) Nordland summer patchnorm descriptors, or None without data."""
     if not (root / bc.NORDLAND / "summer").is_dir():
         return None
     return bc.nordland_features(root, seasons=("summer",))[0]
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
-    """Cells (source, n, d, r, processes, mode, rule), cheapest first; Nordland's
-    sub-routes where ``real`` (its data is there) and not ``quick``; the
-    one-process fits in memory also with the least periods (rule ``least``),
-    and the streamed N = 10^5, d = 2048 one (the memory guard refuses it in
-    memory)."""
+    """Cells (source, n, d, r, processes, mode, rule), cheapest first."""
     if quick:
         ns, ds = (1000, 3000), (256,)
     else:
@@ -456,8 +336,7 @@ def grid(quick: bool, real: bool = True) -> list[tuple]:
 
 
 def _key(cell: tuple) -> str:
-    """A cell's file name: its fields, the rule only where it is not the
-    candidate search (``errors``)."""
+    """A cell's file name: its fields, the rule unless ``errors``."""
     return "-".join(map(str, cell[:6] if cell[6:] in ((), ("errors",)) else cell))
 
 
@@ -471,8 +350,7 @@ def features(source: str, n: int, d: int, cells: Path, root: Path) -> Path:
 
 
 def route_file(path: Path, n: int) -> Path:
-    """n route-like 256-d frames written block by block to a memory-mapped
-    ``.npy`` at ``path`` (kept if it is there)."""
+    """n route-like 256-d frames in a memory-mapped ``.npy`` at ``path`` (kept)."""
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name("partial.npy")
@@ -485,10 +363,8 @@ def route_file(path: Path, n: int) -> Path:
 
 
 def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
-    """Seconds of every pass of a streamed fit by kind: first the pass that finds
-    the preconditioner's basis (when there is one); each Newton step is a
-    gradient pass, its CG passes and two line-search passes; then one last
-    gradient pass (the objective at the end)."""
+    """Seconds of every pass of a streamed fit by kind: basis, then per Newton step
+    gradient, CG and two line-search passes, then a last gradient pass."""
     at = len(seconds) - (sum(3 + its for its in cg) + 1)
     kinds = {"basis": list(seconds[:at]), "gradient": [], "cg": [], "line": [],
              "step": []}  # fmt: skip
@@ -502,11 +378,8 @@ def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
 
 
 def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
-    """The whole streamed r = 3 fit of n route-like 256-d frames (``work``, a
-    scratch folder outside the repository) with fixed periods, under ``memory``:
-    wall seconds, passes, peak resident memory and self-query accuracy on 20,000
-    frames spread along the route. The fit is resumable: a rerun after a kill
-    goes on from its checkpoint, and its attempts are summed."""
+    """The whole streamed r = 3 fit of n route-like 256-d frames (in ``work``) with
+    fixed periods under ``memory``: wall, passes, peak memory, accuracy."""
     saved = cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
         return json.loads(saved.read_text())
@@ -514,20 +387,18 @@ def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
     path = route_file(work / f"walk-{n}-256.npy", n)
     out = work / f"walk-{n}.map"
     attempts = work / "attempts.jsonl"
-    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out), "--r", "3",
+    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
            "--layout", f"periods:{periods}", "--stream", "--memory", memory,
            "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
     if not out.exists():
         start = time.strftime("%H:%M UTC", time.gmtime())
-        done = subprocess.run(
-            [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
-        )
-        res = json.loads(done.stdout)
+        res = peaked(cmd, check=False)
+        err = res.pop("stderr")
         res.update(start=start, load=bc.load_average())
         with open(attempts, "a") as fh:
             fh.write(json.dumps(res) + "\n")
         if res["rc"] != 0:
-            raise RuntimeError(done.stderr[-2000:])
+            raise RuntimeError(err)
     tries = [json.loads(line) for line in attempts.read_text().splitlines()]
     text = tries[-1]["out"]
     info = json.loads(text[text.index("{") :])
@@ -567,8 +438,8 @@ def _attempts(f: dict) -> str:
 
 
 def full_lines(f: dict, probe: dict | None = None) -> list[str]:
-    p = sum(f["periods"])
-    cands = sum(f["candidates"])
+    p, cands = sum(f["periods"]), sum(f["candidates"])
+    k, acc = f["kinds"], f["accuracy"]
     search = f["pass_median_s"] * cands / p * f["passes"] / 3600
     how = "this fit's median seconds per pass scaled by the templates"
     if probe and probe["n"] == f["n"]:  # the candidate set's measured passes
@@ -577,54 +448,38 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         total = (steps + 1) * sec["gradient + bits"] + cg * sec["CG from bits"]
         search = (total + 2 * steps * sec["line search"]) / 3600
         how = "the candidate set's measured pass of each kind (below)"
-    k = f["kinds"]
+    basis = f", basis {k['basis']:.1f}" if "basis" in k else ""
+    errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
+    took = f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes"
     return [
         f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
-        f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
-        f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
-        f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
-        f" wall** ({_attempts(f)}, at a 1-minute load average of"
+        f" ({f['file_bytes'] / 2**30:.2f} GiB .npy), r = 3, fixed periods"
+        f" {'x'.join(map(str, f['periods']))} ({p} templates), `--memory"
+        f" {f['memory']}`: **{f['wall_seconds']:.0f} s wall** ({_attempts(f)}, load"
         f" {f['loads'][-1][0]:.1f} at its end, nice {f.get('nice', NICE)}),"
-        f" {f['steps']} Newton"
-        f" steps, {f['passes']}"
-        f" passes, {f['pass_median_s']:.1f} s per pass (median; gradient"
-        f" {k['gradient']:.1f}, CG {k['cg']:.1f}, line search {k['line']:.1f}"
-        + (f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else "")
-        + "),"
-        f" {f['block_rows']:,} rows per block, **peak resident"
-        f" {f['peak_bytes'] / 2**20:.0f} MiB** under the 1 GiB bound; per-period"
-        f" training errors {', '.join(f'{e:.3f}' for e in f['group_errors'])};"
-        f" self-query accuracy on {f['sample']:,} frames spread along the route"
-        f" {f['accuracy']['float32']:.4f} (float16 {f['accuracy']['float16']:.4f},"
-        f" int8 {f['accuracy']['int8']:.4f}). Command: `{f['command']}`, with the"
-        f" streamed solver of commit {f.get('code', '?')}"
-        + (f"; {f['note']}." if f.get("note") else "."),
+        f" {f['steps']} Newton steps, {f['passes']} passes, {f['pass_median_s']:.1f}"
+        f" s per pass (median; gradient {k['gradient']:.1f}, CG {k['cg']:.1f}, line"
+        f" search {k['line']:.1f}{basis}), {f['block_rows']:,} rows per block, **peak"
+        f" resident {f['peak_bytes'] / 2**20:.0f} MiB**; per-period training errors"
+        f" {errors};"
+        f" self-query accuracy on {f['sample']:,} frames {acc['float32']:.4f} (float16"
+        f" {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command: `{f['command']}`,"
+        f" commit {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
         "",
-        f"The candidate search ({len(f['candidates'])} candidates"
-        f" {f['candidates'][0]} - {f['candidates'][-1]}, {cands} templates) would"
-        f" train {cands / p:.1f}x the templates per pass: with this fit's steps and"
-        f" passes, at {how}, it is projected at "
-        + (f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes")
-        + " (projection, not"
-        " a measurement; the search may take other steps).",
+        f"The candidate search ({len(f['candidates'])} candidates {f['candidates'][0]}"
+        f" - {f['candidates'][-1]}, {cands} templates) trains {cands / p:.1f}x the"
+        f" templates per pass: at {how}, projected at {took} (not a measurement).",
     ]
 
 
 def probe(n: int, memory: str, cells: Path, work: Path, periods: str) -> dict:
-    """One pass of each kind over n memory-mapped route-like 256-d frames (in
-    ``work``), streamed under ``memory`` in a child process, for the fixed
-    periods and for the r = 3 candidate set: seconds per pass and peak memory."""
+    """Seconds of one streamed pass of each kind over n route-like 256-d frames,
+    fixed periods and the r = 3 candidate set, and the peak memory."""
     saved = cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
     if saved.exists():
         return json.loads(saved.read_text())
     path = route_file(work / f"walk-{n}-256.npy", n)
-    cmd = [sys.executable, "-c", _CHILD, str(path), memory, periods]
-    done = subprocess.run(
-        [sys.executable, "-c", _PEAK, *cmd], capture_output=True, text=True
-    )
-    res = json.loads(done.stdout)
-    if res["rc"] != 0:
-        raise RuntimeError(done.stderr[-2000:])
+    res = peaked([sys.executable, "-c", _CHILD, str(path), memory, periods])
     out = json.loads(res["out"].strip().splitlines()[-1])
     out.update(peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
                load=bc.load_average(), nice=NICE,
@@ -700,10 +555,6 @@ def options(ap) -> None:
     ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
     ap.add_argument("--probe", type=int, default=0, help="frames of the probe")
     ap.add_argument("--probe-memory", default="1GiB")
-    ap.add_argument("--skip", action="append", default=[],
-                    help="leave out a cell: walk-30000-2048-2-1-memory")  # fmt: skip
-    ap.add_argument("--only", action="append", default=[],
-                    help="measure only this cell (repeatable)")  # fmt: skip
     ap.add_argument("--full", type=int, default=0, help="frames of the full fit")
     ap.add_argument("--full-periods", default="100,101,103")
     ap.add_argument("--full-memory", default="1GiB")
@@ -715,22 +566,18 @@ def run(args) -> dict:
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
-    stamps = []
     real = (args.root / "nordland_64x32" / "summer").is_dir()
     for cell in grid(args.quick, real):
         saved = args.cells / f"{_key(cell)}.json"
         if saved.exists():
             rows.append(json.loads(saved.read_text()))
-            stamps.append(rows[-1]["measured"])
             continue
         name = "{} N={} d={} r={} K={} {} {}".format(*cell)
         failed = args.cells / f"{_key(cell)}.failed"
         if failed.exists():
             missing.append(f"{name} (failed: {failed.read_text().strip()})")
             continue
-        key = _key(cell)
-        left_out = key in args.skip or bool(args.only) and key not in args.only
-        if time.perf_counter() - t0 > args.budget or left_out:
+        if time.perf_counter() - t0 > args.budget:
             missing.append(name)
             continue
         x_path = features(cell[0], cell[1], cell[2], args.cells, args.root)
@@ -746,39 +593,29 @@ def run(args) -> dict:
                    load=bc.load_average())  # fmt: skip
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
-        stamps.append(row["measured"])
-    report = {}
-    if args.probe:
+    report, stamps = {}, [r["measured"] for r in rows]
+    extra = {
+        "probe": lambda: probe(args.probe, args.probe_memory, args.cells,
+                               args.full_work, args.full_periods),
+        "full fit": lambda: full(args.full, args.full_periods, args.full_memory,
+                                 args.full_work, args.cells),
+    }  # fmt: skip
+    for what, n in (("probe", args.probe), ("full fit", args.full)):
         try:
-            report["probe"] = probe(args.probe, args.probe_memory, args.cells,
-                                    args.full_work, args.full_periods)  # fmt: skip
+            if n:
+                report[what.split()[0]] = extra[what]()
         except RuntimeError as err:
-            log.warning("probe failed: %s", err)
-            missing.append(f"probe N={args.probe} (failed)")
-    if args.full:
-        try:
-            report["full"] = full(args.full, args.full_periods, args.full_memory,
-                                  args.full_work, args.cells)  # fmt: skip
-        except RuntimeError as err:
-            log.warning("full fit failed: %s", err)
-            missing.append(f"full fit N={args.full} (failed)")
+            log.warning("%s failed: %s", what, err)
+            missing.append(f"{what} N={n} (failed)")
+    loads = [r["load"][0] for r in rows] or [0]
+    nices = [r.get("nice", 10) for r in rows]
     report.update(
-        rows=rows,
-        slopes=slopes(rows),
-        missing=missing,
-        memory=args.memory,
-        cells_from=min(stamps, default="-"),
-        cells_to=max(stamps, default="-"),
-        load_cells="{:.1f} - {:.1f}".format(
-            min((r["load"][0] for r in rows), default=0),
-            max((r["load"][0] for r in rows), default=0),
-        ),
+        rows=rows, slopes=slopes(rows), missing=missing, memory=args.memory,
+        cells_from=min(stamps, default="-"), cells_to=max(stamps, default="-"),
+        load_cells=f"{min(loads):.1f} - {max(loads):.1f}",
         self_rss=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
-        nices=", ".join(
-            f"{v}: {sum(r.get('nice', 10) == v for r in rows)} cells"
-            for v in sorted({r.get("nice", 10) for r in rows})
-        ),
-    )
+        nices=", ".join(f"{v}: {nices.count(v)} cells" for v in sorted(set(nices))),
+    )  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     report["figures"] = figures(rows, args.out) if rows else []
     return report

@@ -1,22 +1,6 @@
 """One descriptor -> place: the map's numpy lane against the jitted decode and faiss.
 
-A map of N = 10,000 places, r = 2 periods (the pair ``choose_periods`` takes
-among the level-1 candidates when all errors tie), d = 2048, random unit
-references and templates (decoding costs the same whatever their values);
-queries are references with noise. Latency of one query (median and p95):
-the templates' product with the query alone (unpadded: OpenBLAS's one-thread
-``sgemv``; padded as the map stores them: its thread pool),
-:meth:`rhythmic_jax.RhythmicMap.locate` (one (d,) descriptor -> place),
-``RhythmicMap.predict`` on one row, :class:`rhythmic_jax.decoding.small.SmallDecoder`
-(``index``; ``decode``: the full result), the jitted batch decode called with one
-row, and faiss ``IndexFlatIP`` with one row. The numpy paths are timed in turns
-(a block of 100 calls each, round after round) so the machine's load falls on
-all of them alike; the jitted decode and faiss after them (their thread pools
-spin on after each call and would slow the others). Throughput of batches of
-1000: the jitted decode against faiss
-(the batch path is unchanged).
-
-    python scripts/bench_single_query.py [--singles 2000] [--exact 200]
+python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 """
 
 from __future__ import annotations
@@ -41,9 +25,8 @@ log = logging.getLogger("bench_single_query")
 
 
 def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
-    """Median and p95 seconds of every ``fn(q)`` of ``cases`` over rows ``q`` of
-    ``queries``: ``calls[name]`` calls each (after 50 of warm-up), timed in
-    turns, a block of ``block`` calls per case and round."""
+    """Median and p95 seconds of ``calls[name]`` calls ``fn(q)`` of each case on
+    rows of ``queries`` (after 50 of warm-up), in turns of ``block`` calls."""
     for fn in cases.values():
         for q in queries[:50]:
             fn(q)
@@ -56,14 +39,8 @@ def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
                 fn(q)
                 ts[name].append(time.perf_counter() - t)
         done = (done + block) % len(queries)
-    return {
-        name: dict(
-            median_s=float(np.median(v)),
-            p95_s=float(np.percentile(v, 95)),
-            calls=len(v),
-        )
-        for name, v in ts.items()
-    }
+    return {name: dict(median_s=float(np.median(v)), p95_s=float(np.percentile(v, 95)),
+                       calls=len(v)) for name, v in ts.items()}  # fmt: skip
 
 
 def options(ap) -> None:
@@ -107,11 +84,10 @@ def run(args) -> dict:
 
     wt, rows_p = small.wt, small.wt.shape[0]
     unpadded = np.ascontiguousarray(wt[:p])
+    alone = "templates x query alone, "
     cases = {
-        f"templates x query alone, {p} rows (one-thread sgemv)": lambda q: unpadded @ q,
-        f"templates x query alone, padded to {rows_p} rows (the map's)": lambda q: (
-            wt @ q
-        ),
+        alone + f"{p} rows (one-thread sgemv)": lambda q: unpadded @ q,
+        alone + f"padded to {rows_p} rows (the map's)": lambda q: wt @ q,
         "RhythmicMap.locate (1 descriptor)": model.locate,
         "RhythmicMap.predict (1 row)": lambda q: model.predict(q[None]),
         "numpy index (SmallDecoder.index)": small.index,
@@ -120,24 +96,20 @@ def run(args) -> dict:
         ),
     }
     rows = latencies(cases, queries, dict.fromkeys(cases, args.singles))
-    # after the numpy paths: XLA's and faiss's threads spin on after a call
-    jitted = {
-        "jitted decode (1 row)": lambda q: decode(
-            params, q[None], periods, n
-        ).index.block_until_ready()
-    }
-    rows.update(latencies(jitted, queries, dict.fromkeys(jitted, args.singles)))
+
+    def jit(q):  # timed after the numpy paths: XLA's threads spin on after a call
+        return decode(params, q, periods, n).index.block_until_ready()
+
+    one = {"jitted decode (1 row)": lambda q: jit(q[None])}
+    rows.update(latencies(one, queries, dict.fromkeys(one, args.singles)))
     exact(queries[:1])
     one = {"faiss IndexFlatIP (1 row)": lambda q: exact(q[None])}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.exact)))
     for name, row in rows.items():
         log.info("%s: %.1f us", name, 1e6 * row["median_s"])
-    throughput = {
-        "jitted decode": time_batch(
-            lambda q: decode(params, q, periods, n), queries[:1000], repeats=5
-        ),
-        "faiss IndexFlatIP": time_batch(exact, queries[:1000], repeats=3),
-    }
+    batch = queries[:1000]
+    throughput = {"jitted decode": time_batch(jit, batch, repeats=5),
+                  "faiss IndexFlatIP": time_batch(exact, batch, repeats=3)}  # fmt: skip
     return dict(
         n=n, d=d, periods=list(periods), singles=args.singles,
         single=rows, batch=throughput, same_as_batch_decode=bool(same),
@@ -151,52 +123,34 @@ def markdown(r: dict) -> str:
         for k, v in r["single"].items()
     ]
     thr = r["batch"]
-    ratio = (
-        thr["jitted decode"]["queries_per_s"]
-        / thr["faiss IndexFlatIP"]["queries_per_s"]
+    ratio = thr["jitted decode"]["queries_per_s"]
+    ratio /= thr["faiss IndexFlatIP"]["queries_per_s"]
+    locate, predict, faiss_one = (
+        next(1e6 * v["median_s"] for k, v in r["single"].items() if k.startswith(s))
+        for s in ("RhythmicMap.locate", "RhythmicMap.predict", "faiss")
     )
-    single = {k: 1e6 * v["median_s"] for k, v in r["single"].items()}
-
-    def pick(start: str) -> float:
-        return next(v for k, v in single.items() if k.startswith(start))
-
-    locate = pick("RhythmicMap.locate")
-    predict = pick("RhythmicMap.predict")
-    faiss_one = pick("faiss")
     p = sum(r["periods"])
     tbytes = 4 * r["d"] * p
     met = "met" if locate <= 20 else "not met"
-    return "\n".join([
-        *header("One query to one place", r),
+    return "\n".join(header("One query to one place", r)) + "\n" + "\n\n".join([
         f"Map: N = {r['n']}, d = {r['d']}, periods {r['periods']}"
         f" ({p} templates, {tbytes / 1e6:.2f} MB of float32, stored as"
         f" {r.get('padded_rows', p)} rows).",
-        "",
         table(["path", "median us", "p95 us", "calls"], lat),
-        "",
         "Batches of 1000: jitted decode"
         f" {thr['jitted decode']['queries_per_s']:,.0f} queries/s, faiss flat"
         f" {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}: **{ratio:.1f}x**."
         " The numpy path gives the batch decode's place for every query:"
         f" {r['same_as_batch_decode']} (SmallDecoder.index),"
         f" {r.get('locate_same_as_batch_decode', 'not run')} (RhythmicMap.locate).",
-        "",
         f"Targets: one descriptor -> place <= 20 us median: {met} by"
         f" RhythmicMap.locate ({locate:.1f} us; predict on one row {predict:.1f} us;"
         f" faiss flat on one row {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x"
         f" longer); batch decoding >= 40x faiss flat:"
         f" {'met' if ratio >= 40 else 'not met'} ({ratio:.1f}x). A query's cost is"
-        " the templates' product with it: the rest (bias, one argmax over"
-        " both periods' blocks of rows, one look-up in the table of every"
-        " phase pair's place, the shape check) is a few microseconds. OpenBLAS"
-        " runs that sgemv on one thread below rows x cols = 460,800 and on its"
-        " thread pool from there; the map stores each period's templates in a"
-        " block of equal rows (spare rows zero, bias -inf) grown to that size,"
-        " which shares the product between the 2 cores (compare the first two"
-        " rows). The batch decode multiplies numpy queries by numpy's BLAS"
-        " where they lie and runs the rest jitted. The"
-        " numpy paths are timed in turns, so the load falls on each alike; the"
-        " thread pool's p95 grows with the load (the other core is busy).",
+        " the templates' product with it; the map pads each period's block of"
+        " rows so that OpenBLAS shares that product between the cores (compare"
+        " the first two rows).",
     ])  # fmt: skip
 
 

@@ -1,68 +1,18 @@
-"""Time the joint solve of every candidate's templates against liblinear.
-
-The map's period search trains every template of 7 candidate periods
-(``candidate_periods(n, 2, level=1, count=7)``, p templates in all) jointly. This
-script times that solve three ways on the same features, in the same run:
-
-- Newton-CG (:func:`rhythmic_jax.solvers.newton.newton_fit`), all p templates at once,
-  twice: "0.1 % gap" (``rhythmic_jax.solvers.newton.FAST``: every template stops once
-  its estimated gap, the Newton decrement, is below 1e-3 of its objective) and "tight"
-  (the default ``NewtonConfig()``, estimated gap <= 1e-7, the exact optimum used
-  by the map);
-- optax L-BFGS (:func:`rhythmic_jax.solvers.optax_loops.fit_full_batch`, default
-settings)
-  from the ridge start, all p templates at once;
-- scikit-learn ``LinearSVC(loss="squared_hinge", dual=True, C=log N)`` (liblinear,
-  default ``tol=1e-4``, ``max_iter=1000``), one template after another as the
-  paper did. A liblinear fit takes seconds, so it runs on a fixed sample of
-  templates spread evenly over all candidates (columns
-  ``linspace(0, p - 1, samples)``) and its time is extrapolated linearly to all p
-  templates: ``mean seconds per sampled template * p``.
-
-Objective gaps are relative, ``(f_solver - f_ref) / f_ref`` of liblinear's primal
-``0.5 (||w||^2 + b^2) + C sum_i max(0, 1 - y_i (w.x_i + b))^2`` in float64 numpy
-(negative: the solver went lower than the reference); the 0.1 % setting is also
-compared with the tight solve on all p templates. Each JAX solver is first called
-once on the same inputs (Newton: the same full solve, which compiles every shape
-the timed call uses; L-BFGS: two steps, same optimiser object) so that the timed
-call does not compile; that first call's time is reported too.
-
-Features: (a) Nordland summer, patch-normalised 64x32 (2048-d), all 3576 frames;
-(b) "video-like" 3705 x 4096 rows: a stationary Gaussian random walk
-``z_t = rho z_(t-1) + sqrt(1 - rho^2) e_t`` (rho = 0.99, so neighbours are similar
-and frames a few hundred apart are not) plus per-frame noise of standard
-deviation 0.3, rows L2-normalised, seeded.
+"""Time the joint solve of every candidate's templates (Newton-CG, optax L-BFGS)
+against liblinear's LinearSVC, timed on sampled templates (docs/design.md).
 
     python scripts/bench_solver.py           # writes reports/solver.{json,md}
     python scripts/bench_solver.py --quick   # 800 frames, 4 sampled templates
-    python scripts/bench_solver.py --render reports/solver.json  # Markdown again
-    python scripts/bench_solver.py --compare-ref 28e5003  # and Newton at a commit
-
-``--compare-ref REV`` also times the 0.1 % Newton solve on the Nordland frames
-at commit REV against this checkout, alternating processes (``_newton_ref.py``);
-``--compare-only`` runs that comparison alone (``reports/solver_compare``).
 """
 
 from __future__ import annotations
 
 import logging
-import sys
 import warnings
 
-import _newton_ref
+import _harness as h
 import numpy as np
 import optax
-from _harness import (
-    cores,
-    header,
-    load_average,
-    main,
-    nordland_features,
-    plain,
-    stats,
-    table,
-    timed,
-)
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 
@@ -76,11 +26,7 @@ log = logging.getLogger("bench_solver")
 
 AIM_SPEEDUP = 100.0
 AIM_GAP = 1e-3
-AIM_RATIO = 1.10  # Newton at this checkout against --compare-ref, median wall
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
-
-
-# ------------------------------------------------------------------- features
 
 
 def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarray:
@@ -98,14 +44,8 @@ def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarra
 
 def neighbour_cosines(x: np.ndarray, lags=(1, 10, 100, 1000)) -> dict[str, float]:
     """Mean cosine of frames ``lag`` apart (rows are unit vectors)."""
-    return {
-        str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
-        for lag in lags
-        if lag < len(x)
-    }
-
-
-# ------------------------------------------------------------------- solvers
+    return {str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
+            for lag in lags if lag < len(x)}  # fmt: skip
 
 
 def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
@@ -117,8 +57,7 @@ def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
 
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
-    """``samples`` template columns spread evenly over all p, with their
-    (period, phase)."""
+    """``samples`` columns spread evenly over all p, with (period, phase)."""
     p = sum(periods)
     cols = np.unique(np.linspace(0, p - 1, samples).round().astype(int))
     offs = period_offsets(periods)
@@ -136,7 +75,7 @@ def run_linearsvc(x64: np.ndarray, y: np.ndarray, c: float, picks: list[dict]):
         svc = LinearSVC(C=c, loss="squared_hinge", dual=True, random_state=0)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
-            _, seconds, cpu = timed(svc.fit, x64, y[:, pick["column"]])
+            _, seconds, cpu = h.timed(svc.fit, x64, y[:, pick["column"]])
         converged = not any(issubclass(w.category, ConvergenceWarning) for w in caught)
         rows.append(
             dict(**pick, seconds=seconds, cpu_s=cpu, n_iter=int(svc.n_iter_))
@@ -148,9 +87,10 @@ def run_linearsvc(x64: np.ndarray, y: np.ndarray, c: float, picks: list[dict]):
 
 def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     """First call (compiles every shape), then the timed call of the same solve."""
-    _, warmup, _ = timed(newton_fit, x, y, c, config, progress=False)
-    load = load_average()
-    (params, info), seconds, cpu = timed(newton_fit, x, y, c, config, progress=progress)
+    _, warmup, _ = h.timed(newton_fit, x, y, c, config, progress=False)
+    load = h.load_average()
+    (params, info), seconds, cpu = h.timed(newton_fit, x, y, c, config,
+                                           progress=progress)  # fmt: skip
     log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
              info.steps, info.cg_iterations, info.columns)  # fmt: skip
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
@@ -168,20 +108,13 @@ def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
     """Warm-up (two steps, compiles), then the timed full solve (default
     settings; the same ``optax.lbfgs()`` object so the jitted step is reused)."""
     opt = optax.lbfgs()
-    _, warmup, _ = timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
-    load = load_average()
-    (params, history), seconds, cpu = timed(
-        fit_full_batch, x, y, c, optimizer=opt, progress=progress
-    )
+    _, warmup, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
+    load = h.load_average()
+    (params, history), seconds, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
+                                              progress=progress)  # fmt: skip
     log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
-    return (
-        params,
-        history,
-        dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load),
-    )
-
-
-# ---------------------------------------------------------------------- cases
+    record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load)
+    return params, history, record
 
 
 def _gap(ours, ref):
@@ -197,68 +130,54 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     x64, y64 = x.astype(np.float64), y.astype(np.float64)
     log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
 
-    load_svc = load_average()
+    load_svc = h.load_average()
     svc = run_linearsvc(x64, y64, c, sampled_columns(cands, samples))
     w_f, fast = run_newton(x, y, c, FAST, progress)
     w_t, tight = run_newton(x, y, c, NewtonConfig(), progress)
     w_l, hist, lbfgs = run_lbfgs(x, y, c, progress)
 
-    f_f = liblinear_objectives(w_f.w, w_f.b, x64, y64, c)
-    f_t = liblinear_objectives(w_t.w, w_t.b, x64, y64, c)
-    f_l = liblinear_objectives(w_l.w, w_l.b, x64, y64, c)
+    f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
+                     for w in (w_f, w_t, w_l))  # fmt: skip
     cols = [t["column"] for t in svc]
-    f_svc = np.array(
-        [
-            liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
-            for t, j in zip(svc, cols, strict=True)
-        ]
-    )
-    for t, f, j in zip(svc, f_svc, cols, strict=True):
-        t.update(
-            objective=f,
-            fast_gap=_gap(f_f[j], f),
-            tight_gap=_gap(f_t[j], f),
-            lbfgs_gap=_gap(f_l[j], f),
-        )
+    f_svc = []
+    for t, j in zip(svc, cols, strict=True):
+        f = liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
+        f_svc.append(f)
+        t.update(objective=f, fast_gap=_gap(f_f[j], f), tight_gap=_gap(f_t[j], f),
+                 lbfgs_gap=_gap(f_l[j], f))  # fmt: skip
+    f_svc = np.array(f_svc)
     wall = np.array([t["seconds"] for t in svc])
     cpu = np.array([t["cpu_s"] for t in svc])
     linearsvc = dict(
         settings=dict(loss="squared_hinge", dual=True, tol=1e-4, max_iter=1000, C=c),
-        sampled=len(svc),
-        per_template_s=dict(**stats(wall), std=float(wall.std())),
-        per_template_cpu_s=dict(**stats(cpu), std=float(cpu.std())),
-        extrapolated_s=float(wall.mean() * p),
-        extrapolated_cpu_s=float(cpu.mean() * p),
+        sampled=len(svc), per_template_s=dict(**h.stats(wall), std=float(wall.std())),
+        per_template_cpu_s=dict(**h.stats(cpu), std=float(cpu.std())),
+        extrapolated_s=float(wall.mean() * p), extrapolated_cpu_s=float(cpu.mean() * p),
         extrapolated_range_s=[float(wall.min() * p), float(wall.max() * p)],
-        load_average_start=load_svc,
-        templates=svc,
-    )
+        load_average_start=load_svc, templates=svc,
+    )  # fmt: skip
     for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t)):
         margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
         rec.update(
             active_fraction=float(np.mean(margins < 1.0)),
-            gap_vs_linearsvc=stats(_gap(f[cols], f_svc)),
-            gap_vs_tight=stats(_gap(f, f_t)),
+            gap_vs_linearsvc=h.stats(_gap(f[cols], f_svc)),
+            gap_vs_tight=h.stats(_gap(f, f_t)),
             training_error=np.asarray(period_errors(scores(w, x), labels, cands)),
             gflop=cg_gflop(n, d, rec),
         )
         rec["chosen_periods"] = choose_periods(cands, rec["training_error"], n, 2)
     lbfgs.update(
-        steps=len(hist),
-        gap_vs_linearsvc=stats(_gap(f_l[cols], f_svc)),
-        gap_vs_tight=stats(_gap(f_l, f_t)),
+        steps=len(hist), gap_vs_linearsvc=h.stats(_gap(f_l[cols], f_svc)),
+        gap_vs_tight=h.stats(_gap(f_l, f_t)),
         training_error=np.asarray(period_errors(scores(w_l, x), labels, cands)),
-    )
+    )  # fmt: skip
     for t in (fast, tight, lbfgs):
         t["speedup_vs_linearsvc"] = linearsvc["extrapolated_s"] / t["seconds"]
         t["cpu_speedup_vs_linearsvc"] = linearsvc["extrapolated_cpu_s"] / t["cpu_s"]
-    return plain(dict(
-        name=name, n=n, d=d, xla_threads=cores(), candidates=cands, p=p, c=c,
+    return h.plain(dict(
+        name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
         linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
     ))  # fmt: skip
-
-
-# -------------------------------------------------------------------- report
 
 
 def cg_gflop(n: int, d: int, rec: dict) -> float:
@@ -301,11 +220,8 @@ def _newton_line(label: str, nw: dict) -> str:
 def case_markdown(r: dict) -> str:
     s, fast, tight, lb = (r[k] for k in ("linearsvc", "newton_fast", "newton_tight",
                                          "lbfgs"))  # fmt: skip
-    per = s["per_template_s"]
-    aim = (
-        fast["speedup_vs_linearsvc"] >= AIM_SPEEDUP
-        and fast["gap_vs_linearsvc"]["max"] <= AIM_GAP
-    )
+    per, top = s["per_template_s"], fast["gap_vs_linearsvc"]["max"]
+    aim = fast["speedup_vs_linearsvc"] >= AIM_SPEEDUP and top <= AIM_GAP
     solvers = [
         (f"LinearSVC, {r['p']} templates (extrapolated from {s['sampled']})", s),
         ("Newton-CG, joint, 0.1 % gap", fast),
@@ -320,92 +236,62 @@ def case_markdown(r: dict) -> str:
         gap = "0" if gap is None else _rel(gap)
         load = f"{t['load_average_start'][0]:.1f}"
         rows.append([label, wall, wall0 / wall, cpu, cpu0 / cpu, gap, load])
-    timing = table([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
-    sampled_label, keys = f"{s['sampled']} sampled", ("max", "median", "min")
-    gaps = table(
-        GAPS,
-        [
-            [label, which, *(_rel(g[k]) for k in keys)]
-            for label, which, g in (
-                ("Newton 0.1 % vs LinearSVC", sampled_label, fast["gap_vs_linearsvc"]),
-                ("Newton tight vs LinearSVC", sampled_label, tight["gap_vs_linearsvc"]),
-                ("L-BFGS vs LinearSVC", sampled_label, lb["gap_vs_linearsvc"]),
-                ("Newton 0.1 % vs Newton tight", f"all {r['p']}", fast["gap_vs_tight"]),
-                ("L-BFGS vs Newton tight", f"all {r['p']}", lb["gap_vs_tight"]),
-            )
-        ],
+    timing = h.table([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
+    few, every = f"{s['sampled']} sampled", f"all {r['p']}"
+    comparisons = (
+        ("Newton 0.1 % vs LinearSVC", few, fast["gap_vs_linearsvc"]),
+        ("Newton tight vs LinearSVC", few, tight["gap_vs_linearsvc"]),
+        ("L-BFGS vs LinearSVC", few, lb["gap_vs_linearsvc"]),
+        ("Newton 0.1 % vs Newton tight", every, fast["gap_vs_tight"]),
+        ("L-BFGS vs Newton tight", every, lb["gap_vs_tight"]),
     )
+    gaps = [[label, which, *(_rel(g[k]) for k in ("max", "median", "min"))]
+            for label, which, g in comparisons]  # fmt: skip
+    gaps = h.table(GAPS, gaps)
     errs = (r["candidates"], fast["training_error"], tight["training_error"],
             lb["training_error"])  # fmt: skip
-    errors = table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
-                   [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
-    sampled = table(
-        [*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
-        [
-            [t["period"], t["phase"], t["seconds"], t["n_iter"]]
-            + ["yes" if t["converged"] else "no", t["objective"]]
-            + [_rel(t["fast_gap"]), _rel(t["tight_gap"]), _rel(t["lbfgs_gap"])]
-            for t in s["templates"]
-        ],
-    )
+    errors = h.table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
+                     [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
+    sampled = [[t["period"], t["phase"], t["seconds"], t["n_iter"],
+                "yes" if t["converged"] else "no", t["objective"],
+                *(_rel(t[k]) for k in ("fast_gap", "tight_gap", "lbfgs_gap"))]
+               for t in s["templates"]]  # fmt: skip
+    sampled = h.table([*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
+                      sampled)  # fmt: skip
     lo, hi = s["extrapolated_range_s"]
-    return "\n".join(
-        [
-            f"## {r['name']}: n = {r['n']}, d = {r['d']}",
-            "",
-            f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
-            f" {r['c']:.4f}. The load changed between solvers: see each row.",
-            "",
-            timing,
-            "",
-            "LinearSVC(loss='squared_hinge', dual=True, C=log N, tol=1e-4,"
-            " max_iter=1000; intercept_scaling=1 makes the bias a regularised"
-            " constant-1 feature, the same objective) was run on"
-            f" {s['sampled']} of the {r['p']} templates only;"
-            f" its time is EXTRAPOLATED: per template {per['mean']:.2f} s mean"
-            f" (std {per['std']:.2f}, min {per['min']:.2f}, max {per['max']:.2f}),"
-            f" times p = {r['p']}: {s['extrapolated_s']:.0f} s (range"
-            f" {lo:.0f}-{hi:.0f} s from the fastest and slowest sampled template)."
-            f" liblinear runs on one thread, the JAX solvers on {r['xla_threads']}"
-            " (XLA's pool): CPU seconds (all threads of the process) count the"
-            " work, wall seconds what a user waits. Newton's times include its"
-            " setup (Xa^T Xa, the leading eigenvectors); its first call, which"
-            " also compiles, is reported below.",
-            "",
-            _newton_line("0.1 % gap", fast),
-            "",
-            _newton_line("tight", tight),
-            "",
-            f"L-BFGS: {lb['steps']} steps (warm-up of two steps"
-            f" {lb['warmup_s']:.1f} s).",
-            "",
-            f"Aim (>= {AIM_SPEEDUP:.0f}x over LinearSVC at <= {100 * AIM_GAP:.1f} %"
-            f" objective gap, the 0.1 % setting): {'met' if aim else 'NOT met'}"
-            f" ({fast['speedup_vs_linearsvc']:.1f}x wall,"
-            f" {fast['cpu_speedup_vs_linearsvc']:.1f}x CPU, max gap"
-            f" {_rel(fast['gap_vs_linearsvc']['max'])}).",
-            "",
-            "Relative objective gaps (f_solver - f_ref) / f_ref, liblinear's primal"
-            " in float64 (negative: lower than the reference):",
-            "",
-            gaps,
-            "",
-            "Training error of every candidate (fraction of frames whose argmax"
-            " phase is wrong):",
-            "",
-            errors,
-            "",
-            "Sampled templates:",
-            "",
-            sampled,
-            "",
-        ]
-    )
+    return "\n\n".join([
+        f"## {r['name']}: n = {r['n']}, d = {r['d']}",
+        f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
+        f" {r['c']:.4f}. The load changed between solvers: see each row.",
+        timing,
+        f"LinearSVC ran on {s['sampled']} of the {r['p']} templates; its time is"
+        f" EXTRAPOLATED: {per['mean']:.2f} s a template (std {per['std']:.2f},"
+        f" min {per['min']:.2f}, max {per['max']:.2f}) times p = {r['p']}:"
+        f" {s['extrapolated_s']:.0f} s (range {lo:.0f}-{hi:.0f} s). liblinear"
+        f" runs on one thread, the JAX solvers on {r['xla_threads']}.",
+        _newton_line("0.1 % gap", fast),
+        _newton_line("tight", tight),
+        f"L-BFGS: {lb['steps']} steps (warm-up of two steps"
+        f" {lb['warmup_s']:.1f} s).",
+        f"Aim (>= {AIM_SPEEDUP:.0f}x over LinearSVC at <= {100 * AIM_GAP:.1f} %"
+        f" objective gap, the 0.1 % setting): {'met' if aim else 'NOT met'}"
+        f" ({fast['speedup_vs_linearsvc']:.1f}x wall,"
+        f" {fast['cpu_speedup_vs_linearsvc']:.1f}x CPU, max gap"
+        f" {_rel(fast['gap_vs_linearsvc']['max'])}).",
+        "Relative objective gaps (f_solver - f_ref) / f_ref, liblinear's primal"
+        " in float64 (negative: lower than the reference):",
+        gaps,
+        "Training error of every candidate (fraction of frames whose argmax"
+        " phase is wrong):",
+        errors,
+        "Sampled templates:",
+        sampled,
+    ]) + "\n"  # fmt: skip
 
 
 def markdown(report: dict) -> str:
     title = "Joint solve of all candidate templates: Newton-CG, L-BFGS, liblinear"
-    parts = header(title, report)
+    parts = h.header(title, report)
     for r in report["cases"]:
         parts.append(case_markdown(r))
     if report.get("video_like"):
@@ -416,12 +302,7 @@ def markdown(report: dict) -> str:
             f" seed {v['seed']}; mean cosine of frames lag apart: {cos}.",
             "",
         ]
-    if report.get("compare_ref"):
-        parts.append(_newton_ref.markdown(report["compare_ref"], AIM_RATIO))
     return "\n".join(parts)
-
-
-# ---------------------------------------------------------------------- main
 
 
 def options(ap) -> None:
@@ -429,46 +310,29 @@ def options(ap) -> None:
     ap.add_argument("--video-frames", type=int, default=None)
     ap.add_argument("--video-dim", type=int, default=4096)
     ap.add_argument("--samples", type=int, default=None, help="LinearSVC templates")
-    ap.add_argument("--compare-ref", metavar="REV", default=None,
-                    help="also time Newton (0.1 %% gap) at git commit REV against"
-                    " this checkout")  # fmt: skip
-    ap.add_argument("--compare-runs", type=int, default=5, help="processes each")
-    ap.add_argument("--compare-only", action="store_true",
-                    help="only the --compare-ref timing")  # fmt: skip
 
 
 def run(args) -> dict:
-    if args.compare_only and not args.compare_ref:
-        sys.exit("--compare-only needs --compare-ref")
     frames = args.frames or (800 if args.quick else 3576)
     video_frames = args.video_frames or (800 if args.quick else 3705)
     samples = args.samples or (4 if args.quick else 12)
     args.stem = "solver_quick" if args.quick else "solver"
-    args.stem += "_compare" if args.compare_only else ""
-    cases, extra, x = [], {}, None
+    cases = []
     if (args.root / "nordland_64x32").is_dir():
-        (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
-        x = x[:frames]
-        if not args.compare_only:
-            name = "Nordland summer, patchnorm 64x32"
-            cases.append(bench_case(name, x, samples, args.progress))
+        (x,) = h.nordland_features(
+            args.root, seasons=("summer",), progress=args.progress
+        )
+        name = "Nordland summer, patchnorm 64x32"
+        cases.append(bench_case(name, x[:frames], samples, args.progress))
     else:
         log.warning("no Nordland data under %s: the real-frame case is left out",
                     args.root)  # fmt: skip
-    if not args.compare_only:
-        xv = video_like(video_frames, args.video_dim, **VIDEO)
-        cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
-        extra["video_like"] = dict(**VIDEO, cosines=neighbour_cosines(xv))
-    if args.compare_ref:
-        if x is None:
-            sys.exit(f"--compare-ref needs the Nordland frames under {args.root}")
-        n = len(x)
-        y = np.asarray(targets(np.arange(n), candidate_periods(n, 2, 1, 7)))
-        extra["compare_ref"] = _newton_ref.compare(
-            args.compare_ref, x, y, default_c(n), args.compare_runs)  # fmt: skip
-    aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP, newton_ratio=AIM_RATIO)
-    return dict(aim=aim, **extra, cases=cases)
+    xv = video_like(video_frames, args.video_dim, **VIDEO)
+    cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
+    video = dict(**VIDEO, cosines=neighbour_cosines(xv))
+    aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP)
+    return dict(aim=aim, video_like=video, cases=cases)
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="solver")
+    h.main(__doc__, run, markdown, options, stem="solver")

@@ -1,22 +1,6 @@
 """Where the 0.1 % gap solve's work could be cut: losing candidates, idle frames.
 
-On the Nordland frames of ``bench_solver.py`` (summer, patchnorm 64x32, 2048-d,
-7 candidate periods, p = 441 templates) this times the 0.1 % gap Newton solve
-(``FAST``) twice, in the same run and after a compiling call each:
-
-- as the benchmark runs it, recording every candidate's training error after
-  every Newton step (a ``stop`` hook that stops nothing);
-- with :class:`rhythmic_jax.solvers.candidates.DropLosers` (``--slack``,
-  ``--after``): candidates that can no longer be chosen stop iterating.
-
-It reports the work of each (columns x CG iterations, each iteration two
-(n, q) x (q, columns) products), the wall times, whether the chosen periods
-and their templates' objectives are the same, how far each candidate's error
-moves after every step (what a safe slack must cover), and, for shrinking the
-frames as liblinear does, how many frames are beyond the margin (inactive) for
-every template at the end: a frame can leave the dense products only then.
-
-    python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
+python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 """
 
 from __future__ import annotations
@@ -84,17 +68,13 @@ def run(args) -> dict:
         errors = np.asarray(period_errors(s, labels, cands))
         chosen = choose_periods(cands, errors, n, 2)
         runs[name] = dict(
-            seconds=seconds,
-            steps=info.steps,
-            cg_iterations=list(info.cg_iterations),
+            seconds=seconds, steps=info.steps, cg_iterations=list(info.cg_iterations),
             columns=list(info.columns),
-            work=int(np.dot(info.cg_iterations, info.columns)),
-            errors=errors.tolist(),
-            chosen=list(chosen),
-            objective=info.objective.tolist(),
+            work=int(np.dot(info.cg_iterations, info.columns)), errors=errors.tolist(),
+            chosen=list(chosen), objective=info.objective.tolist(),
             step_errors=stop.errors if isinstance(stop, Record) else None,
             dropped=[[k, list(t)] for k, t in getattr(stop, "dropped", [])],
-        )
+        )  # fmt: skip
         if name == "full":
             ym = y * np.asarray(s, np.float64)
             active = (ym < 1).sum(axis=1)
@@ -127,11 +107,10 @@ def markdown(r: dict) -> str:
     ] + [["end", *(int(v) for v in final), 0]]
     act = full["active_per_frame"]
     same = full["chosen"] == drop["chosen"]
-    return "\n".join([
-        *header("The 0.1 % solve's work: losing candidates and idle frames", r),
+    head = header("The 0.1 % solve's work: losing candidates and idle frames", r)
+    return "\n".join([*head, "\n\n".join([
         f"Nordland summer, patchnorm: n = {n}, d = {r['d']}, candidates {cands}"
         f" ({sum(cands)} templates), C = {r['c']:.4f}, Newton ``FAST`` (0.1 % gap).",
-        "",
         table(
             ["solve", "wall s", "steps", "CG iterations", "columns",
              "work (columns x CG)", "periods chosen"],
@@ -144,27 +123,22 @@ def markdown(r: dict) -> str:
                  str(drop["columns"]), drop["work"], str(drop["chosen"])],
             ],
         ),  # fmt: skip
-        "",
         "The wall times differ by the machine's load only where the work is"
         " the same.",
-        "",
         f"Candidates stopped (step, periods): {drop['dropped'] or 'none'}. Same"
         f" periods chosen: {same}; largest relative objective difference of the"
         f" chosen periods' templates between the two solves: {r['chosen_gap']:.1e}.",
-        "",
         "Training errors (frames) of every candidate after every Newton step of"
         " the full solve, and the most any candidate still moves from there to"
         " the end (what a safe slack must cover, for each of the 2r errors"
         " compared):",
-        "",
         table(["step", *(str(t) for t in cands), "largest move to the end"], rows),
-        "",
         f"Frames beyond the margin for every one of the {sum(cands)} templates at"
         f" the end (which liblinear-style shrinking could drop from the dense"
         f" products): {act['idle_frames']} of {n}; every frame is active"
         f" (margin < 1) for {act['min']} templates at least, {act['mean']:.0f} on"
         " average.",
-    ])  # fmt: skip
+    ])])  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -1,18 +1,6 @@
 """Wide frames: the joint solve over the frames' span against the direct solve.
 
-Deep descriptors are wider than a route is long (EfficientNet-Lite0 block 10 at
-224x112: 10976-d for 3576 Nordland frames). ``rhythmic_jax.solvers.newton`` then solves
-over the n-dimensional span of the frames (``rhythmic_jax.solvers.span``); the peer
-in the same run is the same solver on the d-dimensional frames
-(``NewtonConfig(span=False)``). Both solve to the optimum (the default
-``NewtonConfig``), compilation included; the report gives wall and CPU seconds,
-their ratio, and the relative objective gap of the two answers, template by
-template.
-
-    python scripts/bench_span.py [--frames 3576] [--level 1]
-
-Writes reports/span.json and reports/span.md and prints the table. Descriptors
-are computed once and cached (``rhythmic_jax.frames.features.cached_describe``).
+python scripts/bench_span.py [--frames 3576] [--level 1]
 """
 
 from __future__ import annotations
@@ -42,19 +30,17 @@ def markdown(report: dict) -> str:
             for r in report["rows"]]  # fmt: skip
     gap = report["gap_span_vs_direct"]
     title = "Wide frames: solve in the frames' span vs directly"
-    return "\n".join(header(title, report) + [
+    return "\n".join([*header(title, report), "\n\n".join([
         f"Nordland summer, {report['descriptor']} ({report['settings']}): "
         f"n = {report['n']}, d = {report['d']}, level {report['level']}, "
         f"p = {report['p']} templates, C = log N. Both to the optimum (default "
         "NewtonConfig); each time includes its compilation (a few seconds).",
-        "",
         table(["solver", "wall s", "CPU s", "Newton steps", "CG iterations"], rows),
-        "",
         f"Span / direct: {report['speedup_wall']:.2f}x faster (wall), "
         f"{report['speedup_cpu']:.2f}x (CPU). Relative objective gap, span "
         f"minus direct, over all templates: max {gap['max']:+.2e}, median "
         f"{gap['median']:+.2e}, min {gap['min']:+.2e}.",
-    ])  # fmt: skip
+    ])])  # fmt: skip
 
 
 def options(ap) -> None:

@@ -1,36 +1,19 @@
 """Start-up time: ``import rhythmic_jax``, ``rhythmic-jax --help`` and ``info``.
 
-What a user waits for before anything is computed, measured in fresh processes
-(wall clock, the median of ``--repeats`` runs, taken in turns so that load changes
-hit every command alike):
-
-- ``python -c "import rhythmic_jax"`` (the public face; nothing heavy loads until
-  a name is used);
-- ``rhythmic-jax --help`` (target: under 1 s on an idle machine);
-- ``rhythmic-jax info MAP`` on a small map fitted here (target: under 2 s).
-
-With ``--before DIR`` (a checkout of another version, e.g. ``git worktree add
-/tmp/before <commit>``) the same commands run against that checkout too, in the
-same turns, and the report gives the ratios. Also recorded: which heavy packages
-(jax, faiss, scikit-learn, torch) each command loads.
-
-    python scripts/bench_startup.py --before /tmp/before --repeats 7
+python scripts/bench_startup.py --before /tmp/before --repeats 7
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, header, main, table
+from _harness import REPO, child, header, main, table
 
 log = logging.getLogger("bench_startup")
 
@@ -42,15 +25,6 @@ PROBE = (
     "except SystemExit as e:\n    code = e.code or 0\n"
     "print('LOADED', ','.join(m for m in {heavy!r} if m in sys.modules))"
 )
-
-
-RUN_IN = Path(tempfile.gettempdir())  # not a checkout: python -c puts cwd first
-
-
-def _env(checkout: Path) -> dict[str, str]:
-    env = dict(os.environ, PYTHONPATH=str(checkout), TF_CPP_MIN_LOG_LEVEL="3")
-    env.setdefault("JAX_PLATFORMS", "cpu")
-    return env
 
 
 def commands(map_path: Path) -> dict[str, list[str]]:
@@ -69,38 +43,20 @@ def loaded(checkout: Path, argv: list[str]) -> list[str]:
         code = f"import sys, rhythmic_jax; print('LOADED', {names})"
     else:
         code = PROBE.format(argv=["rhythmic-jax", *argv[1:]], heavy=HEAVY)
-    out = subprocess.run(
-        [sys.executable, "-c", code], env=_env(checkout), capture_output=True,
-        text=True, check=False, cwd=RUN_IN,
-    )  # fmt: skip
-    line = [s for s in out.stdout.splitlines() if s.startswith("LOADED")]
+    out = child([sys.executable, "-c", code], checkout, check=False)["stdout"]
+    line = [s for s in out.splitlines() if s.startswith("LOADED")]
     return line[-1].split(" ", 1)[1].split(",") if line and " " in line[-1] else []
-
-
-def wall(checkout: Path, argv: list[str]) -> float:
-    t0 = time.perf_counter()
-    out = subprocess.run(
-        argv, env=_env(checkout), capture_output=True, check=False, cwd=RUN_IN
-    )
-    seconds = time.perf_counter() - t0
-    if out.returncode != 0:
-        raise RuntimeError(f"{argv} failed in {checkout}: {out.stderr[-400:]!r}")
-    return seconds
 
 
 def fit_map(folder: Path) -> Path:
     """A 600-frame, 64-d map fitted with this checkout's command line."""
     rng = np.random.default_rng(0)
     x = rng.standard_normal((600, 64)).astype(np.float32)
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    np.save(folder / "ref.npy", x)
-    out = folder / "route.map"
+    np.save(folder / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
     script = shutil.which("rhythmic-jax") or "rhythmic-jax"
-    subprocess.run(
-        [script, "fit", str(folder / "ref.npy"), "--out", str(out), "--no-progress"],
-        env=_env(REPO), check=True, capture_output=True,
-    )  # fmt: skip
-    return out
+    cmd = [script, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
+    child([*cmd, "--no-progress"], REPO)
+    return folder / "route.map"
 
 
 def markdown(report: dict) -> str:
@@ -114,14 +70,10 @@ def markdown(report: dict) -> str:
     ]
     rows = []
     for name, by_version in report["seconds"].items():
-        row = [name]
-        for v in versions:
-            row.append(statistics.median(by_version[v]))
-        if len(versions) == 2:
-            a, b = (statistics.median(by_version[v]) for v in versions)
-            row.append(f"{a / b:.2f}x")
-        row += [", ".join(report["loaded"][name][v]) or "-" for v in versions]
-        rows.append(row)
+        med = [statistics.median(by_version[v]) for v in versions]
+        ratio = [f"{med[0] / med[1]:.2f}x"] if len(versions) == 2 else []
+        heavy = [", ".join(report["loaded"][name][v]) or "-" for v in versions]
+        rows.append([name, *med, *ratio, *heavy])
     heads = ["command", *(f"{v} (s)" for v in versions)]
     if len(versions) == 2:
         heads.append(f"{versions[0]} / {versions[1]}")
@@ -149,15 +101,12 @@ def run(args) -> dict:
         for i in range(args.repeats):
             for name, cmd in cmds.items():
                 for v, path in checkouts.items():
-                    seconds[name][v].append(wall(path, cmd))
+                    seconds[name][v].append(child(cmd, path)["wall"])
             log.info("turn %d of %d done", i + 1, args.repeats)
     return dict(
-        versions=list(checkouts),
-        repeats=args.repeats,
-        seconds=seconds,
-        checkouts={v: str(p) for v, p in checkouts.items()},
-        loaded=loads,
-    )
+        versions=list(checkouts), repeats=args.repeats, seconds=seconds,
+        checkouts={v: str(p) for v, p in checkouts.items()}, loaded=loads,
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

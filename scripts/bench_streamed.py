@@ -1,41 +1,17 @@
 """Streamed Newton-CG: its preconditioner and its compacted passes, in one run.
 
-A streamed fit (:func:`rhythmic_jax.solvers.streamed.streamed_newton_fit`) reads
-its frames from a ``.npy`` in blocks on every pass. Three settings run on the
-same file in turns (``--repeats`` each), with ``FAST_STREAM`` (0.1 % estimated
-gap, CG capped at 3 rising to 8):
-
-- ``Jacobi, every template``: CG preconditioned by the Hessian's diagonal,
-  every pass over all templates (the solver before);
-- ``spectral, every template``: CG preconditioned in the leading 256
-  eigenvectors of ``Xa^T Xa`` (``StreamConfig.spectral_rank``);
-- ``spectral, compacted``: and passes after a template stops carry only the
-  templates still going (``StreamConfig.compact``).
-
-Cases:
-
-- ``nordland``: Nordland summer, patch-normalised 64x32 (3576 x 2048), the
-  periods an in-memory fit of the same frames chooses (61, 65);
-- ``walk``: route-like 256-d frames (``bench_scale.walk``: a smooth random
-  walk, unit rows), N = ``--walk-frames``, r = 3 with fixed periods near N^(1/3).
-
-The report gives each setting's wall time, steps, passes, the templates each
-step carried, how many templates reached the gap, and the true relative gap of
-the final objectives to the in-memory Newton optimum (tight) of the same frames.
-
-    python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
+python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 """
 
 from __future__ import annotations
 
 import logging
 import tempfile
-import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _harness import header, main, nordland_features, table
+from _harness import header, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax.io.frame_files import open_frames
@@ -57,20 +33,14 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
     frames = open_frames(path)
     labels = np.arange(frames.n)
     c = default_c(frames.n)
-    t0 = time.perf_counter()
-    x = frames.read(0, frames.n)
-    _, ref = newton_fit(x, targets(labels, periods), c)
-    ref_s = time.perf_counter() - t0
-    del x
+    y = targets(labels, periods)
+    (_, ref), ref_s, _ = timed(lambda: newton_fit(frames.read(0, frames.n), y, c))
     runs: dict[str, list[dict]] = {label: [] for label, _ in SETTINGS}
     for rep in range(repeats):
         for label, settings in SETTINGS:
             config = replace(FAST_STREAM, block_rows=BLOCK_ROWS, **settings)
-            t0 = time.perf_counter()
-            _, info = streamed_newton_fit(
-                frames, labels, periods, c, config, progress=False
-            )
-            wall = time.perf_counter() - t0
+            fit = frames, labels, periods, c, config
+            (_, info), wall, _ = timed(streamed_newton_fit, *fit, progress=False)
             log.info("%s %s run %d: %.1f s, %d steps, columns %s", name, label,
                      rep, wall, info.steps, info.columns)  # fmt: skip
             gap = (info.objective - ref.objective) / np.abs(ref.objective)
@@ -90,9 +60,8 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
 def _column_passes(info) -> int:
     """Template-columns carried over all passes: each step's gradient pass,
     CG passes and two line-search passes times its width."""
-    return int(
-        sum(w * (3 + k) for w, k in zip(info.columns, info.cg_iterations, strict=True))
-    )
+    pairs = zip(info.columns, info.cg_iterations, strict=True)
+    return int(sum(w * (3 + k) for w, k in pairs))
 
 
 def markdown(report: dict) -> str:

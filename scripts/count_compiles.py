@@ -1,54 +1,33 @@
 """XLA programs and optax calls of a default ``RhythmicMap.fit`` in a fresh process.
 
-A child process (``PYTHONPATH`` = the checkout measured, JAX on the CPU, no
-persistent compilation cache unless ``--cache DIR``) imports the package, builds
-route-like frames (a random walk of unit descriptors: neighbours alike, as
-frames along a route are), fits ``RhythmicMap()`` on them and reports:
-
-- ``programs``: XLA programs compiled during the fit (JAX's
-  ``/jax/core/compile/backend_compile_duration`` events, one per program, the
-  same count as ``jax_log_compiles``' "Finished XLA compilation" lines);
-- ``compile_s``: seconds of those compilations, tracing and lowering included;
-- ``wall_s``: seconds of the fit call (``cpu_s``: the process's CPU seconds,
-  every thread, less sensitive to other processes' load); ``import_s``: of
-  ``import rhythmic_jax``;
-- ``again_s``, ``again_cpu_s``: a second fit of the same frames in the same
-  process; ``load``: the 1-minute load average at the end;
-- ``periods``, ``names`` (``--names``: programs compiled, by name, most first);
-- ``--optax``: every public callable of ``optax`` (and ``optax.tree_utils``) is
-  wrapped with a counter before the package is imported: ``optax_calls`` and
-  ``optax_by_name`` of the first fit.
-
-With ``--npy FILE`` the frames are read from a .npy file instead. The record is
-printed as one JSON line (the last line of the output); ``--out DIR`` also writes
-it as ``compiles.json`` / ``.md``.
-
-    python scripts/count_compiles.py                      # this checkout
-    python scripts/count_compiles.py --checkout /work/main --names
-    python scripts/count_compiles.py --n 600 --d 64 --optax
+python scripts/count_compiles.py                      # this checkout
+python scripts/count_compiles.py --checkout /work/main --names
+python scripts/count_compiles.py --n 600 --d 64 --optax
 """
 
 from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
-from _harness import REPO, main
+from _harness import REPO, child, main
 
+# One fit (and a second, warm) in a fresh process, its XLA programs counted by the
+# harness's compile counter; prints "RESULT {json}".
 CHILD = r"""
-import collections, functools, json, logging, sys, time
+import collections, functools, json, os, sys, time
 args = json.loads(sys.argv[1])
 t0 = time.perf_counter()
+sys.path.insert(0, args["scripts"])
 import jax
 import numpy as np
+count = __import__("_harness").compile_counter()
 if args["cache"]:
     jax.config.update("jax_compilation_cache_dir", args["cache"])
 else:  # cold: whatever the environment says
     jax.config.update("jax_enable_compilation_cache", False)
-programs, seconds, names = [0], [0.0], collections.Counter()
 calls = collections.Counter()
 if args["optax"]:
     import optax
@@ -63,44 +42,24 @@ if args["optax"]:
             setattr(module, name, functools.wraps(f)(counted))
     wrap(optax, "optax")
     wrap(optax.tree_utils, "optax.tree_utils")
-EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
-          "/jax/core/compile/jaxpr_to_mlir_module_duration",
-          "/jax/core/compile/backend_compile_duration")
-def listen(event, duration, **kw):
-    if event in EVENTS:
-        seconds[0] += duration
-    if event == EVENTS[2]:
-        programs[0] += 1
-jax.monitoring.register_event_duration_secs_listener(listen)
-class Names(logging.Handler):
-    def emit(self, record):
-        msg = record.getMessage()
-        if msg.startswith("Finished XLA compilation of "):
-            names[msg.split(" ")[4]] += 1
-if args["names"]:
-    jax.config.update("jax_log_compiles", True)
-    handler = Names()
-    for name in ("jax._src.dispatch", "jax._src.interpreters.pxla"):
-        logging.getLogger(name).addHandler(handler)
-        logging.getLogger(name).propagate = False
 import rhythmic_jax as rj
 import_s = time.perf_counter() - t0
 if args["npy"]:
     x = np.load(args["npy"]).astype(np.float32)
 else:
     rng = np.random.default_rng(args["seed"])
-    step = rng.standard_normal((args["n"], args["d"])).astype(np.float32)
-    walk = np.empty_like(step)
-    walk[0] = step[0]
-    for i in range(1, len(step)):
-        walk[i] = 0.9 * walk[i - 1] + step[i]
+    walk = rng.standard_normal((args["n"], args["d"])).astype(np.float32)
+    for i in range(1, len(walk)):
+        walk[i] += 0.9 * walk[i - 1]
     x = walk / np.linalg.norm(walk, axis=1, keepdims=True)
-base = programs[0], seconds[0]
+seconds = lambda: count["compile_s"] + count["trace_s"]
+base = count["programs"], seconds()
 t, cpu = time.perf_counter(), time.process_time()
 m = rj.RhythmicMap().fit(x)
 wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-out = dict(programs=programs[0] - base[0], compile_s=round(seconds[0] - base[1], 3),
-           wall_s=round(wall, 3), cpu_s=round(cpu, 3), import_s=round(import_s, 3))
+out = dict(programs=count["programs"] - base[0],
+           compile_s=round(seconds() - base[1], 3), wall_s=round(wall, 3),
+           cpu_s=round(cpu, 3), import_s=round(import_s, 3))
 if args["optax"]:
     out["optax_calls"] = sum(calls.values())
     out["optax_by_name"] = dict(calls.most_common())
@@ -109,13 +68,12 @@ t, cpu = time.perf_counter(), time.process_time()
 rj.RhythmicMap().fit(x)
 out["again_s"] = round(time.perf_counter() - t, 3)
 out["again_cpu_s"] = round(time.process_time() - cpu, 3)
-import os
 out["load"] = round(os.getloadavg()[0], 2)
 out["periods"] = list(m.periods)
 out["n"], out["d"] = [int(v) for v in x.shape]
 out["package"] = rj.__file__
 if args["names"]:
-    out["names"] = dict(names.most_common())
+    out["names"] = dict(count["names"].most_common())
 print("RESULT " + json.dumps(out))
 """
 
@@ -123,22 +81,14 @@ print("RESULT " + json.dumps(out))
 def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
             cache=None, optax=False) -> dict:  # fmt: skip
     """Run one fit in a fresh process against ``checkout``; its JSON record."""
-    env = dict(os.environ, PYTHONPATH=str(checkout), TF_CPP_MIN_LOG_LEVEL="3")
-    env.setdefault("JAX_PLATFORMS", "cpu")
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
-    proc = subprocess.run(
-        [sys.executable, "-c", CHILD, json.dumps(args)],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-        cwd="/",
-    )
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
-    if proc.returncode or not lines:
-        tail = proc.stderr[-3000:]
-        raise RuntimeError(f"the fit failed ({proc.returncode}):\n{tail}")
+    args["scripts"] = str(Path(__file__).parent)
+    cmd = [sys.executable, "-c", CHILD, json.dumps(args)]
+    proc = child(cmd, checkout, "/", check=False, env=env)
+    lines = [ln for ln in proc["stdout"].splitlines() if ln.startswith("RESULT ")]
+    if proc["rc"] or not lines:
+        raise RuntimeError(f"the fit failed ({proc['rc']}):\n{proc['stderr'][-3000:]}")
     return json.loads(lines[-1][len("RESULT ") :]) | dict(checkout=str(checkout))
 
 

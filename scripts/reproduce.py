@@ -1,25 +1,7 @@
 """Reproduce the paper's tables and figures on real data, beside the usual baselines.
 
-    python scripts/reproduce.py                            # reports/REPRODUCTION.md
-    python scripts/reproduce.py --quick --out /tmp/repro   # CI: a few minutes
-
-Writes ``REPRODUCTION.md``, ``reproduction.json`` (every number) and the PNG
-figures into ``--out`` (default ``reports/``), and the predictions behind every
-accuracy into ``--predictions`` (``.npz``: arrays ``<key>`` and ``<key>_gt``, the key
-named in the JSON). Sections: Table 1 (storage), Table 2 (queries from the map),
-Table 3 (search time, storage, accuracy beside brute force, KD-tree, ITQ, OPQ),
-Fig. 3 (training error against period), Fig. 4 (r = 2, 3, 5), appearance change
-(Nordland summer -> winter with the seven augmentations, Figs. 6 and 8; aerial
-LEVIR pairs), and the tables of ``scripts/bench_decoding.py`` when
-``reports/decoding.json`` exists.
-
-Descriptors are cached by :func:`rhythmic_jax.frames.features.cached_describe`
-(under the keys ``scripts/bench_decoding.py`` uses), fitted maps and trained ITQ /
-OPQ indexes in ``--cache-dir`` (default ``$TMPDIR/rhythmic_jax_reproduce``), keyed
-by their settings and a hash of the features, so a rerun only evaluates.
-``--quick`` takes the first 600 frames of each season, levels 1-2, two
-augmentations and leaves OPQ out (its training alone takes minutes here); the full
-run trains OPQ with 4 iterations (each an SVD of a 2048 x 2048 matrix).
+python scripts/reproduce.py                            # reports/REPRODUCTION.md
+python scripts/reproduce.py --quick --out /tmp/repro   # CI: a few minutes
 """
 
 from __future__ import annotations
@@ -28,7 +10,6 @@ import dataclasses
 import datetime
 import json
 import re
-import string
 import tempfile
 import time
 from pathlib import Path
@@ -40,20 +21,10 @@ from tqdm.auto import tqdm
 
 import rhythmic_jax
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval import figures
-from rhythmic_jax.eval.metrics import (
-    accuracy,
-    recall_at_k,
-    time_batch,
-    time_single_queries,
-)
+from rhythmic_jax.eval import figures, metrics
 from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.io.atomic import atomic_path, write_file
-from rhythmic_jax.periods import (
-    database_bytes,
-    nominal_periods,
-    storage_bytes,
-)
+from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_reproduce"
@@ -114,41 +85,12 @@ class Settings:
 
 FULL = Settings()
 QUICK = Settings(
-    frames=600,
-    levels=(1, 2),
-    aug_names=("hflip", "contrast"),
-    aug_frames=600,
-    opq=False,
-    timing_queries=50,
-    batch_queries=300,
-)
+    frames=600, levels=(1, 2), aug_names=("hflip", "contrast"), aug_frames=600,
+    opq=False, timing_queries=50, batch_queries=300,
+)  # fmt: skip
 
 
 # --------------------------------------------------------------- Markdown
-
-
-class _Format(string.Formatter):
-    """``{x!l}``: a list joined by commas; ``{x!m}``: fractions as x 10^-3;
-    ``{x!c}``: fractions as percent."""
-
-    def convert_field(self, value, conversion):
-        if conversion == "l":
-            return ", ".join(str(v) for v in value)
-        if conversion in ("m", "c"):
-            scale = 1000 if conversion == "m" else 100
-            return ", ".join(f"{scale * v:.2f}" for v in value)
-        return super().convert_field(value, conversion)
-
-
-def render(rows: list[dict], cols: str) -> str:
-    """A Markdown table: ``cols`` holds one ``header = format`` per line, the
-    format filled from each row (e.g. ``accuracy = {accuracy:.4f}``)."""
-    spec = [line.split(" = ", 1) for line in cols.strip().splitlines()]
-    fmt = _Format()
-    lines = ["| " + " | ".join(h for h, _ in spec) + " |", "|" + "---|" * len(spec)]
-    for row in rows:
-        lines.append("| " + " | ".join(fmt.format(f, **row) for _, f in spec) + " |")
-    return "\n".join(lines)
 
 
 T1 = """dataset = {name}
@@ -223,15 +165,9 @@ def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     periods = [int(t) for t in periods]
     orig, comp = database_bytes(n, d, 4), storage_bytes(periods, d, 4)
     return dict(
-        name=name,
-        n=int(n),
-        d=int(d),
-        periods=periods,
-        sum_tau=sum(periods),
-        original_bytes=orig,
-        compressed_bytes=comp,
-        ratio=comp / orig,
-    )
+        name=name, n=int(n), d=int(d), periods=periods, sum_tau=sum(periods),
+        original_bytes=orig, compressed_bytes=comp, ratio=comp / orig,
+    )  # fmt: skip
 
 
 def table1_paper() -> list[dict[str, Any]]:
@@ -246,32 +182,23 @@ def table1_paper() -> list[dict[str, Any]]:
             flag = f"{kind}: the printed bytes give {ratio:.4f} ({ratio:.6f})"
         same = row["original_bytes"] == orig and row["compressed_bytes"] == comp
         row.update(
-            printed_original_bytes=orig,
-            printed_compressed_bytes=comp,
-            printed_ratio=printed,
-            bytes_match=same,
-            flag=flag,
-        )
+            printed_original_bytes=orig, printed_compressed_bytes=comp,
+            printed_ratio=printed, bytes_match=same, flag=flag,
+        )  # fmt: skip
         rows.append(row)
     return rows
 
 
 def table1_markdown(paper: list[dict], here: list[dict]) -> str:
     """Markdown of :func:`table1_paper` rows and of the rows run here."""
-    rows = [
-        dict(
-            r,
-            printed=f"{r['printed_ratio']:.4f}",
-            note=(r["flag"] or "agrees")
-            + ("" if r["bytes_match"] else "; BYTES DIFFER"),
-        )
-        for r in paper
-    ]
-    rows += [
-        dict(r, printed="-", note=f"run here; {r['ratio_d4096']:.4f} at d = 4096")
-        for r in here
-    ]
-    return render(rows, T1)
+    rows = []
+    for r in paper:
+        note = (r["flag"] or "agrees") + ("" if r["bytes_match"] else "; BYTES DIFFER")
+        rows.append(dict(r, printed=f"{r['printed_ratio']:.4f}", note=note))
+    for r in here:
+        note = f"run here; {r['ratio_d4096']:.4f} at d = 4096"
+        rows.append(dict(r, printed="-", note=note))
+    return h.columns(rows, T1)
 
 
 # ------------------------------------------------------------------ helpers
@@ -302,21 +229,16 @@ class Run:
         """(map, record): from ``cache_dir`` when fitted before with the same
         settings and features (the key scheme of ``scripts/bench_decoding.py``)."""
         model = RhythmicMap(
-            r=r,
-            level=level,
-            count=count,
-            descriptor=DESCRIPTOR,
+            r=r, level=level, count=count, descriptor=DESCRIPTOR,
             descriptor_settings=self.desc.settings(),
-        )
+        )  # fmt: skip
         if aug is None:
-            return h.cached_fit(model, x, self.cache_dir,
-                                lambda m: m.fit(x, progress=self.progress))  # fmt: skip
-        from rhythmic_jax.augment.stream import fit_map_augmented
+            fit = lambda m: m.fit(x, progress=self.progress)  # noqa: E731
+            return h.cached_fit(model, x, self.cache_dir, fit)
+        from rhythmic_jax.augment.stream import fit_map_augmented as augmented
 
         def fit(m):
-            return fit_map_augmented(
-                m, images, x, self.desc, aug, progress=self.progress
-            )
+            return augmented(m, images, x, self.desc, aug, progress=self.progress)
 
         extra = dict(augmented=dataclasses.asdict(aug))
         return h.cached_fit(model, x, self.cache_dir, fit, extra, (images,), "aug-")
@@ -336,17 +258,11 @@ class Run:
             for k, v in state["attributes"].items():
                 setattr(b, k, v)
             return state["fit_s"]
-        start = time.perf_counter()
-        b.fit(x)
-        fit_s = time.perf_counter() - start
+        _, fit_s, _ = h.timed(b.fit, x)
         self.cache_dir.mkdir(parents=True, exist_ok=True)
         write_file(path, faiss.serialize_index(b.index).tobytes())
-        scalars = (int, float, str, bool)
-        attrs = {
-            k: v
-            for k, v in vars(b).items()
-            if isinstance(v, scalars) and k != "n_threads"
-        }
+        attrs = {k: v for k, v in vars(b).items() if isinstance(v, int | float | str)}
+        attrs.pop("n_threads", None)
         write_file(side, json.dumps(dict(attributes=attrs, fit_s=fit_s)))
         return fit_s
 
@@ -355,15 +271,12 @@ class Run:
         ground truth ``arange`` (query i is place i); keeps the predictions."""
         pred, gt = np.asarray(pred, np.int64), np.arange(len(pred))
         self.preds[key], self.preds[key + "_gt"] = pred.astype(np.int32), gt
-        rec = recall_at_k(ranked, gt, KS, tolerance=tol)
+        rec = metrics.recall_at_k(ranked, gt, KS, tolerance=tol)
         return dict(
-            accuracy=accuracy(pred, gt, tol),
-            tolerance=tol,
+            accuracy=metrics.accuracy(pred, gt, tol), tolerance=tol,
             **{f"recall_at_{k}": rec[k] for k in KS},
-            no_match=float(np.mean(pred == -1)),
-            n_queries=len(gt),
-            predictions=key,
-        )
+            no_match=float(np.mean(pred == -1)), n_queries=len(gt), predictions=key,
+        )  # fmt: skip
 
     def score_map(self, key: str, model: RhythmicMap, q, tol: int) -> dict[str, Any]:
         ranked = ranked_places(model.scores(q), model.periods, model.n, max(KS))
@@ -377,18 +290,13 @@ class Run:
 def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
     err = dict(zip(model.candidates, model.candidate_errors, strict=True))
     return dict(
-        level=model.config.level,
-        r=model.config.r,
-        n=model.n,
-        d=model.d,
-        periods=list(model.periods),
-        candidates=list(model.candidates),
+        level=model.config.level, r=model.config.r, n=model.n, d=model.d,
+        periods=list(model.periods), candidates=list(model.candidates),
         candidate_errors=list(model.candidate_errors),
         period_errors=[err[t] for t in model.periods],
-        storage_bytes=model.storage_bytes,
-        compression_ratio=model.compression_ratio,
+        storage_bytes=model.storage_bytes, compression_ratio=model.compression_ratio,
         **fit,
-    )
+    )  # fmt: skip
 
 
 # -------------------------------------------------------------- experiments
@@ -429,29 +337,22 @@ def table2(run: Run, data, fits) -> list[dict]:
         for level in run.settings.levels[:2]:
             model, fit = fits[key, level]
             p = PAPER_TABLE2[paper].get(level)
-            rec = dict(
-                map_record(model, fit),
-                dataset=label,
-                paper_dataset=paper,
-                paper_periods=f"{p[0]}, {p[1]}" if p else "-",
-                paper_e=f"{p[2]:.2f}, {p[3]:.2f}" if p else "-",
-                paper_accuracy=f"{p[4]:.4f}" if p else "-",
-            )
-            out.append(
-                rec | run.score_map(f"t2_{key}_L{level}", model, data[key][1], 0)
-            )
+            rec = dict(map_record(model, fit), dataset=label, paper_dataset=paper)
+            rec.update(paper_periods="-", paper_e="-", paper_accuracy="-")
+            if p:
+                rec.update(paper_periods=f"{p[0]}, {p[1]}", paper_e=f"{p[2]:.2f}, "
+                           f"{p[3]:.2f}", paper_accuracy=f"{p[4]:.4f}")  # fmt: skip
+            score = run.score_map(f"t2_{key}_L{level}", model, data[key][1], 0)
+            out.append(rec | score)
     return out
 
 
 def timing(fn, q: np.ndarray, s: Settings) -> dict[str, float]:
-    single = time_single_queries(fn, q[: s.timing_queries], warmup=10)
-    batch = time_batch(fn, q[: s.batch_queries], repeats=2)
-    return dict(
-        single_median_s=single["median_s"],
-        single_p95_s=single["p95_s"],
-        batch_queries_per_s=batch["queries_per_s"],
-        batch_size=batch["batch_size"],
-    )
+    single = metrics.time_single_queries(fn, q[: s.timing_queries], warmup=10)
+    batch = metrics.time_batch(fn, q[: s.batch_queries], repeats=2)
+    return dict(single_median_s=single["median_s"], single_p95_s=single["p95_s"],
+                batch_queries_per_s=batch["queries_per_s"],
+                batch_size=batch["batch_size"])  # fmt: skip
 
 
 def table3(run: Run, data, fits) -> dict[str, Any]:
@@ -470,11 +371,8 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
     if s.opq:
         baselines.append(OPQ(256, 8, niter=s.opq_niter, n_threads=s.threads))
     for b in tqdm(baselines, desc="baselines", disable=not run.progress):
-        fit_s = run.fit_baseline(b, x) if isinstance(b, ITQ | OPQ) else None
-        if fit_s is None:
-            start = time.perf_counter()
-            b.fit(x)
-            fit_s = time.perf_counter() - start
+        cached = isinstance(b, ITQ | OPQ)
+        fit_s = run.fit_baseline(b, x) if cached else h.timed(b.fit, x)[1]
         note = b.note
         if isinstance(b, OPQ):
             note = "; ".join(filter(None, [note, f"{s.opq_niter} iterations"]))
@@ -485,44 +383,33 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
         for label, (tag, qq, tol) in sets.items():
             key = f"t3_{tag}_" + re.sub(r"\W+", "_", name.lower())
             if isinstance(obj, RhythmicMap):
-                row[label] = run.score_map(key, obj, qq, tol)
-                fn = obj.predict
+                row[label], fn = run.score_map(key, obj, qq, tol), obj.predict
             else:
                 row[label] = run.score_search(key, obj, qq, tol)
                 fn = lambda b, o=obj: o.search(b, 1)  # noqa: E731
             row[label] |= timing(fn, qq, s)
         rows.append(row)
     threads = dict(faiss=s.threads, kdtree=1, jax="XLA CPU default thread pool")
-    skipped = [] if s.opq else [OPQ_SKIPPED]
     return dict(
-        database_bytes=database_bytes(len(x), x.shape[1], 4),
-        rows=rows,
-        query_sets=list(sets),
-        threads=threads,
-        skipped=skipped,
-    )
+        database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
+        query_sets=list(sets), threads=threads, skipped=[] if s.opq else [OPQ_SKIPPED],
+    )  # fmt: skip
 
 
 def fig4(run: Run, data, fits) -> list[dict]:
     """Paper Fig. 4: r = 2, 3, 5 at level 1, queries from the map (exact)."""
     x, out = data["nordland"][1], []
     for r in run.settings.rs:
-        fit = (
-            fits["nordland", 1]
-            if r == 2
-            else run.fit(x, r=r, count=min_count(len(x), r, 1))
-        )
+        count = min_count(len(x), r, 1)
+        fit = fits["nordland", 1] if r == 2 else run.fit(x, r=r, count=count)
         out.append(map_record(*fit) | run.score_map(f"f4_r{r}", fit[0], x, 0))
     return out
 
 
 def by_level(run: Run, fits, key: str, q, tol: int) -> list[dict]:
     """The map at each level, queried with q."""
-    return [
-        map_record(*fits[key, lv])
-        | run.score_map(f"{key}_q_L{lv}", fits[key, lv][0], q, tol)
-        for lv in run.settings.levels
-    ]
+    return [map_record(m, fit) | run.score_map(f"{key}_q_L{lv}", m, q, tol)
+            for lv in run.settings.levels for m, fit in [fits[key, lv]]]  # fmt: skip
 
 
 def appearance(run: Run, data, fits) -> dict[str, Any]:
@@ -534,29 +421,20 @@ def appearance(run: Run, data, fits) -> dict[str, Any]:
 
     s = run.settings
     images, x, q = data["nordland"]
-    full = dict(
-        brute_force=run.score_search("ap_bf", BruteForce(s.threads).fit(x), q, 1),
-        levels=by_level(run, fits, "nordland", q, 1),
-    )
+    bf = run.score_search("ap_bf", BruteForce(s.threads).fit(x), q, 1)
+    full = dict(brute_force=bf, levels=by_level(run, fits, "nordland", q, 1))
     m = min(s.aug_frames, len(x))
     bf = run.score_search("aug_bf", BruteForce(s.threads).fit(x[:m]), q[:m], 1)
     sub = dict(
         frames=m, level=s.aug_level, epochs=s.aug_epochs, brute_force=bf, rows=[]
     )
     variants = [("none", None)] + [(n, (n,)) for n in s.aug_names or NAMES]
-    for label, names in tqdm(
-        variants + [("all merged", ("all",))],
-        desc="augmentations",
-        disable=not run.progress,
-    ):
+    variants.append(("all merged", ("all",)))
+    for label, names in tqdm(variants, desc="augmentations", disable=not run.progress):
         aug = None if names is None else AugmentedFit(names=names, epochs=s.aug_epochs)
         model, fit = run.fit(x[:m], level=s.aug_level, images=images[:m], aug=aug)
-        key = "aug_" + label.replace(" ", "_")
-        sub["rows"].append(
-            map_record(model, fit)
-            | dict(name=label)
-            | run.score_map(key, model, q[:m], 1)
-        )
+        score = run.score_map("aug_" + label.replace(" ", "_"), model, q[:m], 1)
+        sub["rows"].append(map_record(model, fit) | dict(name=label) | score)
     return dict(tolerance=1, full=full, augmentation=sub)
 
 
@@ -566,12 +444,8 @@ def aerial(run: Run, data, fits) -> dict[str, Any]:
 
     _, xa, xb = data["aerial"]
     bf = run.score_search("aerial_bf", BruteForce(run.settings.threads).fit(xa), xb, 0)
-    return dict(
-        tolerance=0,
-        n=len(xa),
-        brute_force=bf,
-        levels=by_level(run, fits, "aerial", xb, 0),
-    )
+    levels = by_level(run, fits, "aerial", xb, 0)
+    return dict(tolerance=0, n=len(xa), brute_force=bf, levels=levels)
 
 
 # ------------------------------------------------------------------- report
@@ -583,174 +457,95 @@ def table3_markdown(t3: dict) -> str:
         rows = []
         for row in t3["rows"]:
             r = row | row[label]
-            rows.append(
-                r
-                | dict(
-                    single_ms=1e3 * r["single_median_s"],
-                    p95_ms=1e3 * r["single_p95_s"],
-                    percent=100 * r["storage_bytes"] / t3["database_bytes"],
-                    fit="cached" if r["fit_s"] is None else f"{r['fit_s']:.1f}",
-                )
+            fit = "cached" if r["fit_s"] is None else f"{r['fit_s']:.1f}"
+            pct = 100 * r["storage_bytes"] / t3["database_bytes"]
+            ms = dict(
+                single_ms=1e3 * r["single_median_s"], p95_ms=1e3 * r["single_p95_s"]
             )
+            rows.append(r | ms | dict(fit=fit, percent=pct))
         r = rows[0]
-        out += [
-            f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']} "
-            "queries:",
-            "",
-            render(rows, T3),
-            "",
-        ]
+        out += [f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']}"
+                " queries:", "", h.columns(rows, T3), ""]  # fmt: skip
     return "\n".join(out + [f"Not run: {x}\n" for x in t3["skipped"]])
 
 
 def levels_markdown(block: dict) -> str:
-    rows = [
-        dict(
-            block["brute_force"],
-            method="brute force",
-            level="-",
-            periods=["-"],
-            compression_ratio=1.0,
-        )
-    ]
-    rows += [dict(r, method="map") for r in block["levels"]]
-    return render(rows, LEVELS)
+    bf = dict(block["brute_force"], method="brute force", level="-", periods=["-"])
+    rows = [bf | dict(compression_ratio=1.0)]
+    return h.columns(rows + [dict(r, method="map") for r in block["levels"]], LEVELS)
 
 
 def augmentation_markdown(sub: dict) -> str:
     rows = [dict(sub["brute_force"], name="brute force (no training)", periods=["-"])]
     rows += [dict(r, name=f"map, {r['name']}") for r in sub["rows"]]
-    return render(
-        [
-            dict(r, fit=f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-")
-            for r in rows
-        ],
-        AUG,
-    )
+    for r in rows:
+        r["fit"] = f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-"
+    return h.columns(rows, AUG)
 
 
 def decoding_markdown(path: Path) -> tuple[str, dict | None]:
     """Tables of ``scripts/bench_decoding.py``'s ``decoding.json``, if present."""
     if not path.is_file():
-        return (
-            "This section is produced by `python scripts/bench_decoding.py` (it "
-            "writes `reports/decoding.json`, absent when this report was made).",
-            None,
-        )
+        return ("This section is produced by `python scripts/bench_decoding.py` (it"
+                " writes `reports/decoding.json`, absent when this report was made).",
+                None)  # fmt: skip
     data = json.loads(path.read_text())
-    parts = [
-        f"From `{path.name}`, written by `{data.get('command', '?')}`; "
-        f"recall@1 within ±{data.get('tolerance', 1)} index."
-    ]
-    try:
-        for b in data.get("decoding", []):
-            parts += [
-                "",
-                f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
-                f"{b['level']}**, periods {b['periods']}:",
-                "",
-                render(b["rows"] + b.get("references", []), DECODING),
-            ]
-        for b in data.get("outliers", []):
-            parts += [
-                "",
-                f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
-                "",
-                render(b["rows"], OUTLIERS),
-            ]
-    except (KeyError, TypeError, ValueError, IndexError) as err:
-        md = path.with_suffix(".md")
-        text = md.read_text().replace("\n#", "\n###") if md.is_file() else ""
-        parts = [
-            f"`{path.name}` has a layout this script does not read ({err!r}); "
-            "its own Markdown follows.",
-            "",
-            text,
-        ]
+    parts = [f"From `{path.name}`, written by `{data.get('command', '?')}`; "
+             f"recall@1 within ±{data.get('tolerance', 1)} index."]  # fmt: skip
+    for b in data.get("decoding", []):
+        parts += ["", f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
+                  f"{b['level']}**, periods {b['periods']}:", "",
+                  h.columns(b["rows"] + b.get("references", []), DECODING)]  # fmt: skip
+    for b in data.get("outliers", []):
+        parts += ["", f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
+                  "", h.columns(b["rows"], OUTLIERS)]  # fmt: skip
     return "\n".join(parts), data
 
 
-CROSS_COLUMNS = (("r1", "R@1 ±1"), ("r1_exact", "exact"), ("r5", "R@5"),
-                 ("L10", "L = 10"), ("self_r1", "self"))  # fmt: skip
+CROSS = "r1 R@1 ±1|r1_exact exact|r5 R@5|L10 L = 10|self_r1 self"
 
 
 def cross_condition_markdown(path: Path) -> str:
     """Targets and the first direction of every data set of
     ``scripts/bench_cross_condition.py``'s ``cross_condition.json``, if present."""
     if not path.is_file():
-        return (
-            "This section is produced by `python scripts/bench_cross_condition.py` "
-            f"(it writes `reports/{path.name}`, absent when this report was made)."
-        )
+        return ("This section is produced by `python scripts/bench_cross_condition.py`"
+                f" (it writes `reports/{path.name}`, absent when this report was"
+                " made).")  # fmt: skip
     data = json.loads(path.read_text())
-    parts = [
-        f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
-        f"directions in `cross_condition.md`), written by `{data.get('command')}`; "
-        "load average at the start and end "
-        f"{data['load_average']['start']} / {data['load_average']['end']}.",
-        "",
-        "Targets:",
-        "",
-    ]
-    try:
-        parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
-        for name, ds in data["datasets"].items():
-            key, rows = next(iter(ds["directions"].items()))
-            head = ["method", *(h for _, h in CROSS_COLUMNS), "share of raw bytes"]
-            body = [
-                "| " + " | ".join(head) + " |",
-                "|---" + "|---:" * (len(head) - 1) + "|",
-            ]
-            for r in rows:
-                cells = ["" if c not in r else f"{r[c]:.3f}" for c, _ in CROSS_COLUMNS]
-                body.append(
-                    f"| {r['method']} | " + " | ".join(cells)
-                    + f" | {100 * r['ratio']:.1f} % |"
-                )  # fmt: skip
-            parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
-            parts += body
-    except (KeyError, TypeError, ValueError, IndexError, StopIteration) as err:
-        return f"`{path.name}` has a layout this script does not read ({err!r})."
+    load = data["load_average"]
+    parts = [f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
+             f"directions in `cross_condition.md`), written by `{data.get('command')}`;"
+             f" load average at the start and end {load['start']} / {load['end']}.",
+             "", "Targets:", ""]  # fmt: skip
+    parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
+    cols = [c.split(" ", 1) for c in CROSS.split("|")]
+    spec = "\n".join(["method = {method}", *(f"{t} = {{{k}}}" for k, t in cols),
+                      "share of raw bytes = {share}"])  # fmt: skip
+    for name, ds in data["datasets"].items():
+        key, rows = next(iter(ds["directions"].items()))
+        rows = [{k: "" if k not in r else f"{r[k]:.3f}" for k, _ in cols}
+                | dict(method=r["method"], share=f"{100 * r['ratio']:.1f} %")
+                for r in rows]  # fmt: skip
+        parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
+        parts.append(h.columns(rows, spec, "l" + "r" * len(cols) + "r"))
     return "\n".join(parts)
 
 
 DEVIATIONS = """\
-- **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d). Here every
-  method, the baselines included, uses SeqSLAM's patch-normalised 64x32 grey
-  thumbnail (`get_descriptor("patchnorm")`: 8x8 patches, 2048-d, L2-normalised):
-  the frames at hand are 64x32 pixels, too small for an ImageNet network, and no
-  VGG16 weights ship with the data. Table 1 is still computed at d = 4096 from the
-  paper's own periods; the rows run here are at d = 2048 (with the ratio their
-  periods would give at d = 4096).
-- **Resolution and datasets.** Nordland is the 64x32 version, every 10th frame of
-  the 1 fps videos: 3576 frames in summer and in winter (the paper: 7403 / 7276
-  keyframes chosen by optical flow, plus spring and fall, not available here).
-  Aerial Brisbane and Oxford RobotCar are not available: the aerial protocol (tile
-  one date as the map, query with the tiles of another) runs on the 12 LEVIR-CD
-  sample pairs cut into 64-pixel tiles every 32 pixels (`load_aerial_route`), 769
-  places, instead of 224 / 112 on a 7526x6562 mosaic (3705 places).
-  Multi-reference training (paper Fig. 7) needs more traversals of the map than the
-  two seasons and is not reproduced.
-- **Solver.** The same objective (a squared-hinge L2-SVM per template, the bias
-  regularised as a feature, C = log N) is solved to its optimum by active-set
-  Newton-CG in JAX (`rhythmic_jax.solvers.newton`), every template of every candidate at
-  once, instead of liblinear's coordinate descent per template. The period choice
-  keeps the r pairwise co-prime candidates with product >= N and the least summed
-  training error (ties: least storage).
-- **Decoding** uses Chinese-remainder lookup tables (O(r) per query) instead of
-  intersecting sorted candidate sets: the same answer, "no match" included when
-  the phases point past N.
-- **r = 5** needs 8 candidates at level 1 here: no five of the seven consecutive
-  candidates 6..12 are pairwise co-prime.
-- **Augmentation** uses kornia versions of the seven operations, drawn afresh each
-  epoch (p = 0.5 each), trained by Adam minibatch steps from the exact optimum on
-  the clean frames, which stay in every epoch as a second exemplar of each place
-  (`rhythmic_jax.augment.stream`). Each fit takes minutes on this machine, so the study
-  runs on a contiguous part of the route, stated with its table.
-- **Timing**: Python 3.11 with faiss, scikit-learn and JAX on a shared 2-core
-  machine (the paper: an i7-7700K, Python 3.6), whole calls from a (b, d) float32
-  array to indices, input checks included. The paper timed Aerial Brisbane; here
-  Nordland.
+The library's own are in `docs/design.md`; this run adds:
+
+- **Descriptor.** Every method, the baselines included, uses `patchnorm` (2048-d):
+  the frames are 64x32 pixels and no VGG16 weights ship with the data. Table 1 is
+  still at d = 4096 from the paper's periods.
+- **Data.** Nordland 64x32, every 10th frame (3576 a season; no spring or fall); the
+  aerial protocol on the 12 LEVIR-CD sample pairs in 64-pixel tiles every 32 pixels
+  (769 places). Multi-reference training (paper Fig. 7) is not reproduced.
+- **r = 5** needs 8 candidates at level 1: no five of 6..12 are pairwise co-prime.
+- **Augmentation**: kornia versions of the seven operations (p = 0.5, drawn each
+  epoch), Adam steps from the exact optimum on the clean frames, on part of the route.
+- **Timing** on a shared 2-core machine (the paper: an i7-7700K), on Nordland (the
+  paper: Aerial Brisbane); whole calls from a (b, d) float32 array to indices.
 """
 
 
@@ -759,39 +554,27 @@ REPORT = """\
 
 Command: `{m[command]}`; {m[date]}; rhythmic_jax {m[version]} (jax {m[jax]}, faiss
 {m[faiss]}, numpy {m[numpy]}, Python {m[python]}); {m[machine]}, {m[cpu_count]} cores,
-load average {m[load_start][0]:.1f} at the start and {m[load_end][0]:.1f} at the end
-(a shared machine: timings are pessimistic); {m[elapsed_min]:.1f} minutes, with
-{cached} of the {n_maps} maps loaded from the cache of an earlier run (a map's first
-fit time is in the JSON as fit_wall_s). Descriptor {m[descriptor]}
-{m[descriptor_settings]}, d = {m[d]}; Nordland: {m[frames]} frames per season. Every
-number is in `reproduction.json`; the predictions behind each accuracy are in
-`{m[predictions]}` under the key the JSON names.
+load {m[load_start][0]:.1f} to {m[load_end][0]:.1f}; {m[elapsed_min]:.1f} minutes,
+{cached} of {n_maps} maps cached. {m[descriptor]} {m[descriptor_settings]}, d = {m[d]};
+{m[frames]} Nordland frames a season. Predictions: `{m[predictions]}`.
 
 ## Table 1: storage (r = 2, T = sqrt N, float32)
 
-Bytes from `rhythmic_jax.storage_bytes` and `database_bytes`: sum tau x (d + 1) x 4
-against N x d x 4. Paper rows: d = 4096 with the paper's periods (its Table 2), the
-printed ratio beside the one its printed bytes give.
+sum tau x (d + 1) x 4 bytes against N x d x 4; paper rows at d = 4096.
 
 {table1}
 
 ## Table 2: queries from the map (exact accuracy)
 
-r = 2, seven candidates from c x ceil(sqrt N) at level c; e: training error of each
-chosen period (x 10^-3, as the paper); every candidate's error is in the JSON.
+r = 2, seven candidates from c x ceil(sqrt N) at level c; e: training error (x 10^-3).
 {solver_note}
 
 {table2}
 
 ## Table 3: search time, storage and accuracy against the baselines
 
-Nordland summer map ({m[frames]} frames, d = {m[d]}), the same descriptors and queries
-for every method. Threads: faiss {threads[faiss]} (OpenMP, set per call), KD-tree 1
-(scikit-learn), JAX: {threads[jax]}. Single query: median and 95th percentile of
-{s[timing_queries]} one-query calls after 10 warm-up calls; batch: {s[batch_queries]}
-queries a call, median of 2 after an untimed call. Storage counts all that search
-needs (codes, rotation, codebooks, tree; the map: its templates). Accuracy is the
-single answer (the map's hard decode may answer "no match"); R@K ranks places.
+Nordland summer map. Threads: faiss {threads[faiss]}, KD-tree 1, JAX: {threads[jax]}.
+Single query: median and p95 of {s[timing_queries]} calls; batch: {s[batch_queries]}.
 
 {table3}
 Paper Table 3 (Aerial Brisbane, seconds per query): {paper3}.
@@ -808,29 +591,23 @@ Paper Table 3 (Aerial Brisbane, seconds per query): {paper3}.
 
 {fig4}
 
-The paper: a larger r compresses more, but accuracy falls sharply.
-
 ## Appearance change: summer map, winter queries (±1 frame)
 
-The whole route ({m[frames]} frames), the map at each level (paper Fig. 8):
+The whole route, the map at each level (paper Fig. 8):
 
 {levels}
 
-Augmentation (paper Fig. 6) on the first {sub[frames]} frames of the route (to fit the
-time budget), level {sub[level]}, {sub[epochs]} augmented epochs a fit; each operation
-alone, then the seven merged:
+Augmentation (paper Fig. 6), first {sub[frames]} frames, level {sub[level]},
+{sub[epochs]} augmented epochs a fit; each operation alone, then all seven:
 
 {augmentation}
 
 ![augmentation](fig6_augmentation.png) ![levels](fig8_levels.png)
 
 The paper (Aerial Brisbane / RobotCar): brute force 0.9582 / 0.236, the map alone
-0.6835 / 0.183, all augmentations merged about +2 / +1 points; longer periods raise
-accuracy (ratio 0.131 at T = 4 sqrt N on Aerial Brisbane).
+0.6835 / 0.183, all augmentations merged about +2 / +1 points.
 
-## Aerial pairs (LEVIR-CD samples): A tiles the map, B tiles the queries
-
-{ae[n]} places, exact index (tolerance 0):
+## Aerial pairs (LEVIR-CD): A tiles the map, B the queries, {ae[n]} places, exact
 
 {aerial}
 
@@ -859,92 +636,62 @@ def _tree(node):
 
 def markdown(res: dict) -> str:
     """The report: :data:`REPORT` filled from the results."""
-    t2 = res["table2"]
+    t2, meta = res["table2"], res["meta"]
     summer = next(r for r in t2 if r["dataset"] == "Nordland summer")
-    fig3 = [
-        dict(level=lv, candidates=c, candidate_errors=e, periods=p)
-        for lv, (c, e, p) in res["fig3"].items()
-    ]
-    maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
-    return _Format().format(
-        REPORT,
-        cached=sum(maps.values()),
-        n_maps=len(maps),
-        m=res["meta"]
-        | dict(
-            predictions=Path(res["meta"]["predictions"]).name,
-            command=res.get("command", res["meta"].get("command")),
-        ),
-        s=res["settings"],
-        summer=summer,
-        solver_note=SOLVER_NOTE.format(
-            summer["accuracy"],
-            100 * min(summer["candidate_errors"]),
-            100 * max(summer["candidate_errors"]),
-        )
-        if summer["n"] == 3576
-        else "",
-        threads=res["table3"]["threads"],
-        sub=res["appearance"]["augmentation"],
-        ae=res["aerial"],
-        table1=table1_markdown(res["table1"]["paper"], res["table1"]["here"]),
-        table2=render(t2, T2),
-        table3=table3_markdown(res["table3"]),
-        paper3=PAPER_TABLE3,
-        fig3=render(fig3, FIG3),
-        fig4=render(res["fig4"], FIG4),
-        levels=levels_markdown(res["appearance"]["full"]),
-        augmentation=augmentation_markdown(res["appearance"]["augmentation"]),
-        aerial=levels_markdown(res["aerial"]),
-        decoding=res["decoding_md"],
-        cross_condition=res.get("cross_condition_md", ""),
-        deviations=DEVIATIONS,
+    errors = [100 * f(summer["candidate_errors"]) for f in (min, max)]
+    note = (
+        SOLVER_NOTE.format(summer["accuracy"], *errors) if summer["n"] == 3576 else ""
     )
+    fig3 = [dict(level=lv, candidates=c, candidate_errors=e, periods=p)
+            for lv, (c, e, p) in res["fig3"].items()]  # fmt: skip
+    maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
+    app, t1 = res["appearance"], res["table1"]
+    m = meta | dict(predictions=Path(meta["predictions"]).name,
+                    command=res.get("command", meta.get("command")))  # fmt: skip
+    return h.fill(
+        REPORT, cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
+        solver_note=note, threads=res["table3"]["threads"],
+        sub=app["augmentation"], ae=res["aerial"],
+        table1=table1_markdown(t1["paper"], t1["here"]), table2=h.columns(t2, T2),
+        table3=table3_markdown(res["table3"]), paper3=PAPER_TABLE3,
+        fig3=h.columns(fig3, FIG3), fig4=h.columns(res["fig4"], FIG4),
+        levels=levels_markdown(app["full"]),
+        augmentation=augmentation_markdown(app["augmentation"]),
+        aerial=levels_markdown(res["aerial"]), decoding=res["decoding_md"],
+        cross_condition=res.get("cross_condition_md", ""), deviations=DEVIATIONS,
+    )  # fmt: skip
 
 
 def draw(res: dict, out: Path) -> list[str]:
     """Write the PNG figures into ``out``; returns their file names."""
-    names = [
-        "fig3_training_error.png",
-        "fig4_r.png",
-        "fig6_augmentation.png",
-        "fig8_levels.png",
-    ]
+    names = ["fig3_training_error.png", "fig4_r.png", "fig6_augmentation.png",
+             "fig8_levels.png"]  # fmt: skip
     series = {f"level {lv}": v for lv, v in res["fig3"].items()}
     figures.plot_training_error(series, "Nordland summer", out / names[0])
     f4 = res["fig4"]
     figures.plot_r(
-        [r["r"] for r in f4],
-        [r["compression_ratio"] for r in f4],
-        [r["accuracy"] for r in f4],
-        "Nordland summer, level 1",
-        out / names[1],
-    )
+        [r["r"] for r in f4], [r["compression_ratio"] for r in f4],
+        [r["accuracy"] for r in f4], "Nordland summer, level 1", out / names[1],
+    )  # fmt: skip
     sub = res["appearance"]["augmentation"]
+    title = f"summer map, winter queries, first {sub['frames']} frames, level "
+    title += str(sub["level"])
     figures.plot_augmentation(
-        [r["name"] for r in sub["rows"]],
-        [r["accuracy"] for r in sub["rows"]],
-        {"brute force": sub["brute_force"]["accuracy"]},
-        f"summer map, winter queries, first {sub['frames']} frames, "
-        f"level {sub['level']}",
-        "accuracy (±1 frame)",
-        out / names[2],
-    )
+        [r["name"] for r in sub["rows"]], [r["accuracy"] for r in sub["rows"]],
+        {"brute force": sub["brute_force"]["accuracy"]}, title,
+        "accuracy (±1 frame)", out / names[2],
+    )  # fmt: skip
     series = {}
-    for label, block in (
-        ("Nordland summer -> winter (±1)", res["appearance"]["full"]),
-        ("LEVIR A -> B (exact)", res["aerial"]),
-    ):
+    for label, block in (("Nordland summer -> winter (±1)", res["appearance"]["full"]),
+                         ("LEVIR A -> B (exact)", res["aerial"])):  # fmt: skip
         lv = block["levels"]
         series[label] = dict(
-            levels=[r["level"] for r in lv],
-            accuracy=[r["accuracy"] for r in lv],
+            levels=[r["level"] for r in lv], accuracy=[r["accuracy"] for r in lv],
             ratio=[r["compression_ratio"] for r in lv],
             brute_force=block["brute_force"]["accuracy"],
-        )
-    figures.plot_levels(
-        series, "accuracy and compression against the level", out / names[3]
-    )
+        )  # fmt: skip
+    title = "accuracy and compression against the level"
+    figures.plot_levels(series, title, out / names[3])
     return names
 
 
@@ -997,11 +744,9 @@ def run(args) -> dict[str, Any]:
         "reproduction_quick.npz" if args.quick else "reproduction.npz"
     )
     load_start, t0 = h.load_average(), time.perf_counter()
-    run, say = Run(settings, args.cache_dir, args.progress), tqdm.write
-    steps = tqdm(total=7, desc="reproduce", disable=not args.progress)
+    run = Run(settings, args.cache_dir, args.progress)
     data = load_features(run)
     fits = fit_all(run, data)
-    steps.update()
     here = [
         storage_row(label, *(lambda m: (m.n, m.d, m.periods))(fits[key, 1][0]))
         for key, label in (
@@ -1014,36 +759,22 @@ def run(args) -> dict[str, Any]:
         row["ratio_d4096"] = storage_row("", row["n"], PAPER_D, row["periods"])["ratio"]
     res: dict[str, Any] = dict(settings=dataclasses.asdict(settings))
     res["table1"] = dict(paper=table1_paper(), here=here)
-    say(table1_markdown(res["table1"]["paper"], here))
     res["table2"] = table2(run, data, fits)
-    say(render(res["table2"], T2))
-    steps.update()
     res["table3"] = table3(run, data, fits)
-    say(table3_markdown(res["table3"]))
-    steps.update()
     res["fig3"] = {
         lv: (list(m.candidates), list(m.candidate_errors), list(m.periods))
         for lv in settings.levels
         for m in [fits["nordland", lv][0]]
     }
     res["fig4"] = fig4(run, data, fits)
-    say(render(res["fig4"], FIG4))
-    steps.update()
     res["appearance"] = appearance(run, data, fits)
-    say(levels_markdown(res["appearance"]["full"]))
-    say(augmentation_markdown(res["appearance"]["augmentation"]))
-    steps.update()
     res["aerial"] = aerial(run, data, fits)
-    say(levels_markdown(res["aerial"]))
     refresh(res, args)
-    steps.update()
     res["meta"] = meta(run, data, load_start, t0, preds)
     args.out.mkdir(parents=True, exist_ok=True)
     res["figures"] = draw(res, args.out)
     with atomic_path(preds) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **run.preds)
-    steps.update()
-    steps.close()
     return res
 
 

@@ -1,20 +1,10 @@
 #!/usr/bin/env bash
-# The non-slow tests of the solvers, decoders, map, codes and embedding on JAX's
-# GPU backend. Never part of CI (CI has no GPU; the project needs none). Run on
-# a machine with a CUDA GPU after `pip install -e ".[test]"` and JAX's CUDA
-# plugin:
-#
-#   bash scripts/test_gpu.sh                  # one process
-#   WORKERS=4 bash scripts/test_gpu.sh        # 4 workers sharing the GPU
-#   JAX_PLATFORMS=cpu bash scripts/test_gpu.sh  # rehearsal without a GPU
-#
-# By default every JAX process preallocates 75 % of the GPU's memory, so a
-# second worker finds no memory ("no supported devices found"): preallocation
-# is turned off and each worker may take MEM_FRACTION of the memory (default
-# 0.9 / WORKERS). Products state their precision (tests/test_precision_stated.py),
-# so the CPU's float32 tolerances hold on the GPU; a GPU sums in another order,
-# which the tolerances of the solver tests (relative 1e-6 objectives, 3e-3
-# templates) already allow for.
+# The non-slow solver, decoder, map, codes and embedding tests on JAX's GPU backend
+# (never in CI), after `pip install -e ".[test]"` and JAX's CUDA plugin:
+#   bash scripts/test_gpu.sh    # WORKERS=4: four workers; JAX_PLATFORMS=cpu: rehearsal
+# Preallocation is off and each worker may take MEM_FRACTION of the GPU's memory
+# (default 0.9 / WORKERS); products state their precision, so the float32
+# tolerances hold on the GPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 WORKERS="${WORKERS:-1}"
@@ -25,19 +15,10 @@ python - <<'PY'
 import jax
 print("JAX", jax.__version__, "backend", jax.default_backend(), jax.devices())
 PY
-TESTS=(
-  tests/solvers
-  tests/decoding
-  tests/test_rhythmic_map.py
-  tests/test_codes.py
-  tests/test_scalar_codes.py
-  tests/test_embedding.py
-  tests/test_learn.py
-  tests/test_objective.py
-  tests/test_closed_form.py
-  tests/test_projection.py
-  tests/test_precision_stated.py
-)
+TESTS=(tests/solvers tests/decoding tests/test_rhythmic_map.py tests/test_codes.py
+  tests/test_scalar_codes.py tests/test_embedding.py tests/test_learn.py
+  tests/test_objective.py tests/test_closed_form.py tests/test_projection.py
+  tests/test_precision_stated.py)
 PARALLEL=()
 if [ "$WORKERS" -gt 1 ]; then PARALLEL=(-n "$WORKERS" --dist loadscope); fi
 timeout "${GPU_TIMEOUT:-3600}" python -m pytest -q -p no:cacheprovider -m "not slow" \

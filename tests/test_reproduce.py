@@ -79,7 +79,7 @@ def test_table1_markdown_holds_every_number(repro):
 
 
 def test_render_formats_lists_and_fractions(repro):
-    md = repro.render(
+    md = repro.h.columns(
         [dict(p=[3, 5], e=[0.0123, 0.5], c=[0.25], a=0.123456)],
         "periods = {p!l}\ne = {e!m}\npct = {c!c}\nacc = {a:.4f}",
     )
