@@ -63,6 +63,45 @@ def nordland_patchnorm(nordland_root):
     )
 
 
+def nordland_frames(root: Path, season: str) -> np.ndarray:
+    """uint8 (3576, 32, 64, 3): the frames of ``root/<season>`` in name order."""
+    files = sorted((root / season).glob("*.png"))
+    return np.stack([skimage.io.imread(f)[..., :3] for f in files])
+
+
+@pytest.fixture(scope="session")
+def nordland_lite0(nordland_root, tmp_path_factory, worker_id):
+    """EfficientNet-Lite0 descriptors (default settings, the eager network) of every
+    Nordland frame: (summer, winter), (3576, 10976) each.
+
+    Computed once for the whole run: the pytest-xdist workers share one cache
+    folder and take turns under a file lock, so a worker that needs them while
+    another computes them waits and then reads the other's files. Rows are those
+    ``rhythmic-jax`` computes for the same frames in a cache folder of its own (the
+    eager network runs in slices of 4 frames; any 4-aligned run of frames gives
+    the same bits).
+    """
+    import fcntl
+
+    from rhythmic_jax.frames.compiled import CompilePolicy
+    from rhythmic_jax.frames.features import cached_describe, get_descriptor
+
+    run = tmp_path_factory.getbasetemp()
+    shared = run.parent if worker_id != "master" else run  # the run's, not older
+    folder = shared / "nordland_lite0"
+    folder.mkdir(exist_ok=True)
+    desc = get_descriptor("efficientnet_lite0")
+
+    def lite0(season: str) -> np.ndarray:
+        frames = nordland_frames(nordland_root, season)
+        key, never = f"nordland-{season}", CompilePolicy("never")
+        return cached_describe(frames, desc, key, cache_dir=folder, compile=never)
+
+    with open(shared / "nordland_lite0.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        return lite0("summer"), lite0("winter")
+
+
 @pytest.fixture
 def rgb():
     """``rgb(h, w)``: a random uint8 (h, w, 3) image (seeded per test)."""

@@ -143,25 +143,47 @@ def test_cli_fit_info_evaluate_npy(tmp_path):
 
 
 @pytest.mark.slow
-def test_installed_command_on_test_place_folders(nordland_root, tmp_path):
-    """fit TEST_SUMMER/ --codes 64, then evaluate TEST_WINTER/: the hybrid's line."""
+def test_installed_command_on_test_place_folders(
+    nordland_root, nordland_lite0, tmp_path
+):
+    """fit TEST_SUMMER/ --codes 64, then evaluate TEST_WINTER/: the hybrid's line.
+
+    The command's cache folder starts with the EfficientNet-Lite0 rows of the two
+    folders, taken from the descriptors of all of Nordland that other tests share
+    (the rows the command computes, bit for bit), and it must find them: no other
+    descriptor file appears. The solver stops at a 1e-3 gap (recall is asserted,
+    not the optimum)."""
+    import os
     import shutil
+
+    from rhythmic_jax.frames.cache_files import save_cached
+    from rhythmic_jax.frames.features import get_descriptor
+    from rhythmic_jax.frames.pipeline import files_cache_path
+    from rhythmic_jax.frames.sources import _key
+    from rhythmic_jax.io.images import list_images
+    from rhythmic_jax.split import NORDLAND_SPLIT
 
     exe = shutil.which("rhythmic-jax")
     assert exe, "the rhythmic-jax command is not installed"
-    from rhythmic_jax.split import NORDLAND_SPLIT
-
-    for season in ("summer", "winter"):
+    cache, desc = tmp_path / "cache", get_descriptor("efficientnet_lite0")
+    cache.mkdir()
+    seeded = []
+    for season, rows in zip(("summer", "winter"), nordland_lite0, strict=True):
         files = sorted((nordland_root / season).glob("*.png"))
         folder = tmp_path / f"TEST_{season.upper()}"
         folder.mkdir()
         for i in NORDLAND_SPLIT.test:
             (folder / files[i].name).symlink_to(files[i])
+        key = _key(folder, None, None)  # the command's key for this folder
+        listed = list_images(folder, "traversal")
+        seeded.append(files_cache_path(listed, desc, key, cache))
+        save_cached(seeded[-1], rows[NORDLAND_SPLIT.test])
     work = tmp_path / "work"
     work.mkdir()
-    env = {**__import__("os").environ, "RHYTHMIC_JAX_CACHE": str(tmp_path / "cache")}
+    env = {**os.environ, "RHYTHMIC_JAX_CACHE": str(cache)}
     fit = [exe, "fit", "../TEST_SUMMER/", "--descriptor", "efficientnet_lite0"]
-    fit += ["--level", "4", "--codes", "64", "--out", "M", "--no-progress"]
+    fit += ["--level", "4", "--codes", "64", "--gap", "1e-3", "--out", "M"]
+    fit += ["--no-progress"]
     subprocess.run(fit, cwd=work, env=env, check=True, capture_output=True)
     ev = [exe, "evaluate", "M", "../TEST_WINTER/", "--tolerance", "1", "--json"]
     ev += ["--no-progress", "--plot", "frontier.png"]  # PR curves
@@ -171,6 +193,7 @@ def test_installed_command_on_test_place_folders(nordland_root, tmp_path):
     assert res["n"] == len(NORDLAND_SPLIT.test) and hybrid["codes_bits"] == 64
     assert 0.15 < hybrid["storage_share"] < 0.25  # level-4 templates + 64-bit codes
     assert hybrid["recall@1"] > 0.2 and (work / "frontier.png").is_file()
+    assert sorted(cache.rglob("*.npy")) == sorted(seeded)
 
 
 def test_codes_with_given_periods_and_refused_with_digits():

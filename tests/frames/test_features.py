@@ -4,7 +4,6 @@ the torch/JAX seam."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import jax
 import kornia
@@ -12,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 from skimage.feature import hog
-from skimage.io import imread
 from skimage.transform import resize as sk_resize
 
 from rhythmic_jax.errors import InputError
@@ -198,18 +196,12 @@ def test_cached_describe(tmp_path, monkeypatch):
     assert cache_path(images, d, "toy").parent == tmp_path / "env"
 
 
-def _nordland(root: Path, season: str) -> np.ndarray:
-    files = sorted((root / season).glob("*.png"))
-    return np.stack([imread(f)[..., :3] for f in files])
-
-
 @pytest.mark.slow
-def test_efficientnet_recall_on_nordland(nordland_root, tmp_path):
+def test_efficientnet_recall_on_nordland(nordland_lite0):
     """Winter queries against the summer map, brute-force cosine NN: recall@1
-    (exact index) about 0.48 with the block-10 map at 224x112."""
-    d = get_descriptor("efficientnet_lite0")
-    summer = describe(_nordland(nordland_root, "summer"), d, progress=False)
-    winter = describe(_nordland(nordland_root, "winter"), d, progress=False)
+    (exact index) about 0.48 with the block-10 map at 224x112 (the eager network,
+    shared with the other tests that describe all of Nordland with it)."""
+    summer, winter = nordland_lite0
     nearest = np.argmax(winter @ summer.T, axis=1)
     recall = np.mean(nearest == np.arange(len(winter)))
     assert recall >= 0.45, recall

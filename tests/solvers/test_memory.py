@@ -52,8 +52,9 @@ def test_memory_estimate_grows_with_every_size():
 # memory handed back (malloc_trim) before each baseline: without it the allocator
 # serves a fit from what the previous one freed and the growth undercounts. A fit
 # of another shape first loads the runtime; then each (n, d) is fitted once
-# "cold" (compiling its functions; with "warm" instead of "cold", unmeasured and
-# without the other shape's fit), then once more unmeasured and `repeats` times
+# "cold" (compiling its functions; with "warm" instead of "cold", unmeasured,
+# without the other shape's fit, and loaded from the suite's compile cache when
+# it is on), then once more unmeasured and `repeats` times
 # "warm" on the same frames (the same column counts: nothing compiles). Prints
 # one JSON line per shape.
 MEASURE = """
@@ -67,6 +68,10 @@ def peak_growth(x):
 
 rng = np.random.default_rng(0)
 repeats, cold_too = int(sys.argv[1]), sys.argv[2] == "cold"
+if not cold_too:  # no fit compiles while measured: the suite's cache serves them
+    from rhythmic_jax.jit_cache import enable_compile_cache
+
+    enable_compile_cache()
 if cold_too:
     RhythmicMap().fit(rng.normal(size=(48, 8)).astype(np.float32), progress=False)
 for shape in sys.argv[3:]:
