@@ -195,8 +195,8 @@ TARGETS = [
      lambda r, b: r["wall"] / b["wall"], 0.4, "{:.2f}x"),
     ("fit: wall, warm, imports included", "fit", "new warm",
      lambda r, b: r["wall"], 2.0, "{:.2f} s"),
-    ("imports and exit alone (no work), warm", "imports", "new warm",
-     lambda r, b: r["wall"], 2.0, "{:.2f} s"),
+    ("(no target) imports and exit alone, warm", "imports", "new warm",
+     lambda r, b: r["wall"], None, "{:.2f} s"),
     ("Nordland: compiling / cold fit's wall", "nordland", "new cold",
      lambda r, b: r["compile_s"] / r["wall"], 0.15, "{:.1%}"),
     ("demo: wall, cold", "demo", "new cold", lambda r, b: r["wall"], 15.0, "{:.1f} s"),
@@ -211,6 +211,9 @@ def targets(report: dict) -> list[list]:
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
             value = measure(rows[job, variant], rows[job, "base"])
+            if limit is None:  # a floor under the others, not a target
+                out.append([what, "", fmt.format(value), ""])
+                continue
             ok = "met" if value <= limit else "not met"
             out.append([what, fmt.format(limit), fmt.format(value), ok])
     return out
@@ -232,7 +235,8 @@ def markdown(report: dict) -> str:
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
         f" {s['jpegs']} JPEGs (Lite0).",
         table(HEAD, rows),
-        "Targets (the imports row is the floor under any fit's wall):",
+        "Targets (the imports row is the floor under any fit's wall: a process that"
+        " imports what a fit needs and exits, doing no work):",
         table(["target", "at most", "measured", ""], targets(report)),
         "Maps against the baseline's (same periods; share of equal predictions):",
         table(["fit", "periods equal", "predictions equal"], agree),
