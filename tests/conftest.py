@@ -63,12 +63,6 @@ def nordland_patchnorm(nordland_root):
     )
 
 
-def nordland_frames(root: Path, season: str) -> np.ndarray:
-    """uint8 (3576, 32, 64, 3): the frames of ``root/<season>`` in name order."""
-    files = sorted((root / season).glob("*.png"))
-    return np.stack([skimage.io.imread(f)[..., :3] for f in files])
-
-
 @pytest.fixture(scope="session")
 def nordland_lite0(nordland_root, tmp_path_factory, worker_id):
     """EfficientNet-Lite0 descriptors (default settings, the eager network) of every
@@ -85,6 +79,7 @@ def nordland_lite0(nordland_root, tmp_path_factory, worker_id):
 
     from rhythmic_jax.frames.compiled import CompilePolicy
     from rhythmic_jax.frames.features import cached_describe, get_descriptor
+    from rhythmic_jax.io.images import nordland
 
     run = tmp_path_factory.getbasetemp()
     shared = run.parent if worker_id != "master" else run  # the run's, not older
@@ -92,14 +87,17 @@ def nordland_lite0(nordland_root, tmp_path_factory, worker_id):
     folder.mkdir(exist_ok=True)
     desc = get_descriptor("efficientnet_lite0")
 
-    def lite0(season: str) -> np.ndarray:
-        frames = nordland_frames(nordland_root, season)
+    summer, winter = nordland(nordland_root)
+
+    def lite0(traversal, season: str) -> np.ndarray:
         key, never = f"nordland-{season}", CompilePolicy("never")
-        return cached_describe(frames, desc, key, cache_dir=folder, compile=never)
+        return cached_describe(
+            traversal.images, desc, key, cache_dir=folder, compile=never
+        )
 
     with open(shared / "nordland_lite0.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-        return lite0("summer"), lite0("winter")
+        return lite0(summer, "summer"), lite0(winter, "winter")
 
 
 @pytest.fixture
