@@ -3,6 +3,10 @@
 Every command parses its arguments, runs one job and prints what it returns; bad
 input ends with one line on stderr (settings spelled as flags) and exit status 2,
 and nothing half-written on disk.
+
+The parser is built from light modules only (the map's configuration, the
+option domains, the compile policy): ``rhythmic-jax --help`` imports no numpy,
+JAX or torch. The jobs, and what they need, are imported when a command runs.
 """
 
 from __future__ import annotations
@@ -18,22 +22,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from rhythmic_jax import InputError, enable_compile_cache, jobs
+from rhythmic_jax import InputError
 from rhythmic_jax.config import DECODERS, DTYPES, SOLVERS, MapConfig
-from rhythmic_jax.jobs import (
+from rhythmic_jax.frames.compile_policy import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
     LOAD_MIN_FRAMES,
-    CompilePolicy,
-    Domain,
-    FitInterrupted,
-    FitJob,
-    LearnJob,
-    Reading,
-    int_option,
-    memory_bytes,
-    number_option,
 )
+from rhythmic_jax.validate import Domain, int_option, number_option
 
 __all__ = ["main"]
 
@@ -92,6 +88,8 @@ EXAMPLES = {
 
 
 def _quiet_logs(verbose: bool) -> None:
+    from rhythmic_jax import jobs
+
     jobs.quiet_io_threads()
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     logging.basicConfig(
@@ -151,6 +149,13 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
 
 
 # ------------------------------------------------------------- option rules
+def _memory_bytes(text: str) -> int:
+    """``--memory``'s text in bytes (:func:`rhythmic_jax.jobs.memory_bytes`)."""
+    from rhythmic_jax.jobs import memory_bytes
+
+    return memory_bytes(text)
+
+
 # Every numeric option's domain, by destination (the same in every command that
 # has it): the parser reads the option with it and --help states it.
 DOMAINS: dict[str, Domain] = {
@@ -166,7 +171,7 @@ DOMAINS: dict[str, Domain] = {
     "processes": int_option(1),
     "num_processes": int_option(1),
     "process_id": int_option(0),
-    "memory": Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"),
+    "memory": Domain(True, 1, parse=_memory_bytes, what="a size (1GiB, 800M)"),
     "places": int_option(1),
     "codes": Domain(True, 1, words=("int8",)),
     "fusion": number_option(0, 1, closed=True),
@@ -658,7 +663,9 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     return parser
 
 
-def _reading(args) -> Reading:
+def _reading(args):
+    from rhythmic_jax.jobs import CompilePolicy, Reading
+
     return Reading(
         descriptor=args.descriptor,
         weights=args.weights,
@@ -669,11 +676,13 @@ def _reading(args) -> Reading:
 
 
 def _cmd_fit(args) -> int:
+    from rhythmic_jax import jobs
+
     config = MapConfig(
         r=args.r, level=args.level, count=args.count, c=args.c, solver=args.solver,
         gap=args.gap, layout=args.layout, dtype=args.dtype, codes=args.codes,
     )  # fmt: skip
-    job = FitJob(
+    job = jobs.FitJob(
         sources=tuple(args.sources), out=args.out, config=config, pca=args.pca,
         augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
         checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
@@ -703,6 +712,8 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_query(args) -> int:
+    from rhythmic_jax import jobs
+
     pred = jobs.query(
         args.map, args.source, decode=args.decode, sequence=args.sequence,
         threshold=args.threshold, out=args.out, reading=_reading(args),
@@ -718,22 +729,30 @@ def _cmd_query(args) -> int:
 
 
 def _cmd_learn(args) -> int:
+    from rhythmic_jax import jobs
+
     config = jobs.learn_config(
         method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
     )
-    job = LearnJob(tuple(args.sources), args.out, config, _reading(args), args.codes)
+    job = jobs.LearnJob(
+        tuple(args.sources), args.out, config, _reading(args), args.codes
+    )
     emb, info = jobs.learn(job, progress=not args.no_progress)
     print(jobs.learn_summary(args.out, emb, info))
     return 0
 
 
 def _cmd_info(args) -> int:
+    from rhythmic_jax import jobs
+
     info = jobs.info(args.map)
     print(json.dumps(info, indent=2) if args.json else jobs.info_lines(info))
     return 0
 
 
 def _cmd_evaluate(args) -> int:
+    from rhythmic_jax import jobs
+
     result = jobs.evaluate(
         args.map, args.source, reference=args.reference, tolerance=args.tolerance,
         decode=args.decode, sequence=args.sequence, reading=_reading(args),
@@ -748,6 +767,8 @@ def _cmd_evaluate(args) -> int:
 
 
 def _cmd_demo(args) -> int:
+    from rhythmic_jax import jobs
+
     jobs.demo(args.out, quick=args.quick, progress=not args.no_progress)
     return 0
 
@@ -772,6 +793,8 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)
     _quiet_logs(args.verbose)
     if args.command != "info":
+        from rhythmic_jax import enable_compile_cache
+
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
         return COMMANDS[args.command](args)
@@ -779,6 +802,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rhythmic-jax {args.command}: error: {err.as_flag()}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
+        from rhythmic_jax.jobs import FitInterrupted
+
         if isinstance(err, FitInterrupted):
             print(f"rhythmic-jax {args.command}: {err.note}", file=sys.stderr)
         print(f"rhythmic-jax {args.command}: interrupted", file=sys.stderr)

@@ -8,19 +8,20 @@ modules that act on them import them from here. What a configuration means for
 ``n`` places of ``d`` features (candidate periods, the penalty, the memory a fit
 needs) is :func:`rhythmic_jax.plan.plan`.
 
-No JAX: ``import rhythmic_jax.config`` is cheap (integer maths and numpy).
+No JAX and no numpy: ``import rhythmic_jax.config`` and a default
+:class:`MapConfig` are cheap (integer maths), so the command line builds its
+parser from them at once; a check imports numpy only for a value that is not
+a Python number.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.groups import parse_layout
 from rhythmic_jax.quantize import DTYPES
-from rhythmic_jax.validate import check_number
+from rhythmic_jax.validate import check_number, is_int
 
 __all__ = [
     "DECODERS",
@@ -43,8 +44,7 @@ def codes_setting(codes) -> int | str:
     also holds the bits to a dimension."""
     if codes == INT8:
         return INT8
-    ok = isinstance(codes, int | np.integer) and not isinstance(codes, bool)
-    if not ok or codes < 1:
+    if not is_int(codes) or codes < 1:
         raise InputError(
             f"codes must be a number of ITQ bits >= 1 or {INT8!r} (a byte per "
             f"dimension), got {codes!r}"
@@ -54,7 +54,11 @@ def codes_setting(codes) -> int | str:
 
 def check_weight(weight) -> float:
     """The map's share ``w`` of a fused score as a float in [0, 1], else one line."""
-    ok = isinstance(weight, int | float | np.floating) and not isinstance(weight, bool)
+    ok = isinstance(weight, int | float) and not isinstance(weight, bool)
+    if not ok:
+        import numpy as np
+
+        ok = isinstance(weight, np.floating)
     if not ok or not 0.0 <= float(weight) <= 1.0:
         raise InputError(f"fusion weight must be a number in [0, 1], got {weight!r}")
     return float(weight)

@@ -25,15 +25,17 @@ by training error, as the paper), ``periods:T1,T2``, ``mixed`` / ``hierarchical`
 (sizes chosen from ``n``, ``r`` and ``level`` by :func:`choose_radices` and
 :func:`choose_segment`), ``mixed:B1,..,Br``, ``hierarchical:S`` or
 ``hierarchical:S:T1,T2``.
+
+Parsing and checking a layout is plain Python (the command line does it without
+numpy); the labels and columns import numpy when they are asked for.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.periods import (
@@ -42,6 +44,10 @@ from rhythmic_jax.periods import (
     choose_periods,
     pairwise_coprime,
 )
+from rhythmic_jax.validate import is_int
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "KINDS",
@@ -120,7 +126,7 @@ class Groups:
     @property
     def offsets(self) -> tuple[int, ...]:
         """Column offset of each group: ``(0, size_1, size_1 + size_2, ...)``."""
-        return tuple(int(v) for v in np.cumsum((0,) + self.sizes[:-1]))
+        return tuple(itertools.accumulate((0,) + self.sizes[:-1]))
 
     @property
     def capacity(self) -> int:
@@ -140,7 +146,7 @@ class Groups:
         ``ceil(n / prod(b_2..r))`` (classes no place has), a hierarchical one more
         segments than ``ceil(n / s)``.
         """
-        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        if not is_int(n) or n < 1:
             raise InputError(f"n must be a positive integer, got n={n!r}")
         n = int(n)
         if n > self.capacity:
@@ -178,11 +184,15 @@ class Groups:
 
     def labels(self, index: np.ndarray | int) -> np.ndarray:
         """Label of frame ``index`` in every group: (...,) -> (..., G) int64."""
+        import numpy as np
+
         idx = np.asarray(index, dtype=np.int64)
         return np.stack(self.label_parts(idx), axis=-1)
 
     def columns(self, n: int) -> np.ndarray:
         """(G, n) int32: column of place i in group g, ``off_g + label_g(i)``."""
+        import numpy as np
+
         lab = self.labels(np.arange(int(n)))
         return (lab + np.asarray(self.offsets)[None, :]).T.astype(np.int32)
 
@@ -234,7 +244,7 @@ def fine_periods(segment: int, r: int = 2) -> tuple[int, ...]:
 def _budget(n: int, r: int, level: int) -> int:
     """Templates of a periods map of that ``r`` and ``level``: r level n^(1/r)."""
     for name, value, low in (("n", n, 2), ("r", r, 1), ("level", level, 1)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        if not is_int(value):
             raise InputError(f"{name} must be an integer, got {name}={value!r}")
         if value < low:
             raise InputError(f"{name} must be >= {low}, got {name}={value}")

@@ -5,6 +5,9 @@ A map of ``n`` frames keeps ``r`` periods ``tau_1 .. tau_r``. Frame ``i`` has ph
 least ``n`` the phases identify the frame uniquely (Chinese remainder theorem,
 paper Sec. III-B, Eq. 5). The map stores ``sum(tau) * (d + 1)`` numbers (weights
 and a bias per template), so storage grows as ``r * n ** (1 / r)``.
+
+Integer maths in plain Python; the functions that return arrays import numpy
+when they run (the command line checks a layout without it).
 """
 
 from __future__ import annotations
@@ -13,11 +16,13 @@ import functools
 import itertools
 import math
 from collections.abc import Sequence
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.validate import check_int
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "candidate_periods",
@@ -137,6 +142,8 @@ def choose_periods(
 
 def phases(index: np.ndarray | int, periods: Sequence[int]) -> np.ndarray:
     """Phase of frame ``index`` in every period: ``index mod tau_k``, shape (..., r)."""
+    import numpy as np
+
     idx = np.asarray(index, dtype=np.int64)
     return np.stack([idx % int(t) for t in periods], axis=-1)
 
@@ -153,6 +160,8 @@ def crt_tables(periods: Sequence[int]) -> tuple[tuple[np.ndarray, ...], int]:
     Returns:
       tables: one int64 array of shape (tau_k,) per period; and M.
     """
+    import numpy as np
+
     periods = tuple(int(t) for t in periods)
     if len(periods) < 1 or min(periods) < 1:
         raise InputError(f"periods must be positive integers, got {periods}")
@@ -181,12 +190,14 @@ def nominal_periods(
 
 def period_offsets(periods: Sequence[int]) -> tuple[int, ...]:
     """Column offset of each period's templates: ``(0, tau_1, tau_1 + tau_2, ...)``."""
-    return tuple(int(v) for v in np.concatenate([[0], np.cumsum(periods)[:-1]]))
+    return tuple(int(v) for v in itertools.accumulate((0, *periods[:-1])))
 
 
 @functools.lru_cache(maxsize=64)
 def place_columns(periods: tuple[int, ...], n: int) -> np.ndarray:
     """(r, n) int32: column of place i in period k, ``off_k + i mod tau_k``."""
+    import numpy as np
+
     i = np.arange(n)
     return np.stack(
         [o + i % t for o, t in zip(period_offsets(periods), periods, strict=True)]

@@ -7,14 +7,18 @@ template. Queries are scored with the stored values turned back into float32
 (:func:`dequantize`), so a map's accuracy is that of what it stores
 (``reports/scale.md`` measures each dtype's self-query accuracy).
 
-Names: d features, p templates.
+Names: d features, p templates. :data:`DTYPES` is read without numpy (the
+command line offers it); the functions import numpy when they run.
 """
 
 from __future__ import annotations
 
-import numpy as np
+from typing import TYPE_CHECKING
 
 from rhythmic_jax.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["DTYPES", "dequantize", "quantize", "requantize", "template_bytes"]
 
@@ -30,6 +34,8 @@ def _check(dtype: str) -> str:
 def quantize(w: np.ndarray, b: np.ndarray, dtype: str) -> dict[str, np.ndarray]:
     """Stored arrays of templates w (d, p), b (p,): ``w``, ``b`` in ``dtype``,
     and for int8 the (p,) float32 ``scale``."""
+    import numpy as np
+
     w, b = np.asarray(w, np.float32), np.asarray(b, np.float32)
     if _check(dtype) != "int8":
         return {"w": w.astype(dtype), "b": b.astype(dtype)}
@@ -41,6 +47,8 @@ def quantize(w: np.ndarray, b: np.ndarray, dtype: str) -> dict[str, np.ndarray]:
 
 def dequantize(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """float32 ``w`` (d, p), ``b`` (p,) from :func:`quantize`'s arrays."""
+    import numpy as np
+
     w, b = np.asarray(arrays["w"]), np.asarray(arrays["b"])
     if w.dtype == np.int8:
         scale = np.asarray(arrays["scale"], np.float32)
@@ -58,5 +66,7 @@ def requantize(arrays: dict[str, np.ndarray], dtype: str):
 def template_bytes(p: int, d: int, dtype: str) -> int:
     """Bytes of p templates of d + 1 numbers in ``dtype`` (int8: plus a float32
     scale per template)."""
+    import numpy as np
+
     size = np.dtype(_check(dtype)).itemsize
     return p * (d + 1) * size + (4 * p if dtype == "int8" else 0)

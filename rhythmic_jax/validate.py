@@ -5,6 +5,10 @@ Arrays (:func:`check_features`, :func:`check_labels`) and single numbers
 option with a :class:`Domain` (:func:`int_option`, :func:`number_option`), an
 argparse type that states its domain in words, so a bad value ends where it is
 parsed and 0 or a negative number is never read as "unset".
+
+Importing this module does not import numpy (the command line builds its parser
+from it): the checks import it when a value is not a Python number or an array
+is checked.
 """
 
 from __future__ import annotations
@@ -13,10 +17,12 @@ import argparse
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from rhythmic_jax.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "Domain",
@@ -27,13 +33,27 @@ __all__ = [
     "check_sequence",
     "int_option",
     "is_int",
+    "is_number",
     "number_option",
 ]
 
 
 def is_int(value) -> bool:
     """True for a Python or numpy integer (``bool`` is not one)."""
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+    if isinstance(value, int):
+        return not isinstance(value, bool)
+    import numpy as np
+
+    return isinstance(value, np.integer)
+
+
+def is_number(value) -> bool:
+    """True for a Python or numpy integer or float (``bool`` is not one)."""
+    if isinstance(value, int | float):
+        return not isinstance(value, bool)
+    import numpy as np
+
+    return isinstance(value, np.integer | np.floating)
 
 
 def check_int(
@@ -75,8 +95,7 @@ def check_number(
     value, name: str, low: float | None = None, high: float | None = None
 ) -> float:
     """``value`` as a finite float, inside the open interval (low, high) if given."""
-    ok = isinstance(value, int | float | np.integer | np.floating)
-    ok = ok and not isinstance(value, bool)
+    ok = is_number(value)
     value = float(value) if ok else value
     if not ok or not math.isfinite(value):
         raise InputError(f"{name} must be a finite number, got {value!r}")
@@ -151,8 +170,7 @@ class Domain:
             if is_int(value) and self._inside(value):
                 return int(value)
             raise InputError(f"must be {self.text()}, got {value}")
-        ok = isinstance(value, int | float | np.integer | np.floating)
-        if not ok or isinstance(value, bool) or not math.isfinite(value):
+        if not is_number(value) or not math.isfinite(value):
             raise InputError(f"must be a finite number, got {value}")
         if not self._inside(value):
             raise InputError(f"must be {self.bounds()}, got {value:g}")
@@ -206,6 +224,8 @@ def check_features(x, name: str = "features", d: int | None = None) -> np.ndarra
       name: what to call it in the message (a file name, "queries", ...).
       d: the dimension it must have (a map's), when known.
     """
+    import numpy as np
+
     try:
         arr = np.asarray(x)
     except Exception as err:  # noqa: BLE001 - ragged or exotic input
@@ -234,6 +254,8 @@ def check_features(x, name: str = "features", d: int | None = None) -> np.ndarra
 
 def check_labels(labels, n: int) -> np.ndarray:
     """Place labels (n,) as non-negative int64, every place 0 .. max present."""
+    import numpy as np
+
     lab = np.asarray(labels)
     if lab.shape != (n,):
         raise InputError(f"labels: expected shape ({n},), got {lab.shape}")

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -182,6 +185,30 @@ def test_help_has_examples(capsys):
     for cmd in ("fit", "query", "info", "evaluate", "demo"):
         assert main([cmd, "--help"]) == 0
         assert "examples:" in capsys.readouterr().out
+
+
+HEAVY = ("numpy", "jax", "torch", "faiss", "sklearn", "optax", "orbax")
+PARSE_ONLY = """
+import contextlib, io, sys
+from rhythmic_jax.cli import _parser, main
+argvs = [[c, "--help"] for c in ("fit", "learn", "query", "info", "evaluate", "demo")]
+with contextlib.redirect_stdout(io.StringIO()):
+    codes = [main(argv) for argv in [["--help"], *argvs]]
+_parser().parse_args(["fit", "a.npy", "--out", "m.map", "--r", "3", "--gap", "0.5"])
+print(codes, [m for m in {heavy!r} if m in sys.modules])
+"""
+
+
+def test_help_and_the_parser_import_no_numpy_jax_or_torch():
+    """``rhythmic-jax --help``, each command's ``--help`` and a parsed command line
+    load none of the heavy packages (numpy included): the parser is built from
+    light modules, and the jobs are imported when a command runs."""
+    out = subprocess.run(
+        [sys.executable, "-c", PARSE_ONLY.format(heavy=HEAVY)],
+        capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1],
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[0, 0, 0, 0, 0, 0, 0] []"
 
 
 @pytest.mark.slow

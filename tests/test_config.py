@@ -20,11 +20,14 @@ from rhythmic_jax.config import (
 )
 
 
-def test_importing_the_config_imports_no_jax():
-    code = "import sys, rhythmic_jax.config; print('jax' in sys.modules)"
+def test_the_config_and_its_defaults_import_no_jax_and_no_numpy():
+    code = (
+        "import sys, rhythmic_jax.config as c; c.MapConfig(); "
+        "print('jax' in sys.modules, 'numpy' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "False"
+    assert out.stdout.strip() == "False False"
 
 
 @pytest.mark.parametrize(

@@ -2,8 +2,10 @@
 
 Every ``rhythmic_jax`` import in the package, including those inside functions,
 is read from the source. Modules sit in layers, lowest first; a module may import
-only from lower layers. The command line imports only the jobs, the map's
-configuration and the public face, and nothing imports the public face.
+only from lower layers. The command line builds its parser from light modules
+(the map's configuration, the option domains, the compile policy and the public
+face) and imports the jobs only when a command runs; nothing imports the public
+face.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ LAYERS = [
     ["periods", "projection", "split", "scalar_codes",
      "io.atomic", "io.images", "io.checkpoint"],
     ["groups", "embedding", "storage", "io.descriptor_files", "io.tiles"],
-    ["config", "objective", "io.frame_files", "frames.cache_files", "frames.nets"],
+    ["config", "objective", "io.frame_files", "frames.cache_files", "frames.nets",
+     "frames.compile_policy"],
     ["codes", "closed_form", "jit_cache", "frames.compiled", "frames.weights",
      "solvers.precondition", "solvers.span", "solvers.precision", "decoding.buckets"],
     ["map_file", "learn", "frames.pipeline", "solvers.newton_cg", "solvers.memory",
@@ -53,11 +56,12 @@ def _name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports(path: Path) -> set[str]:
+def _imports(path: Path, top: bool = False) -> set[str]:
     """The package modules ``path`` imports (a name imported from a package is its
-    submodule when there is one)."""
+    submodule when there is one); ``top``: only those imported at module level."""
     found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    for node in tree.body if top else ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.level:
             raise AssertionError(f"{path}: relative import")
         if isinstance(node, ast.ImportFrom) and node.module:
@@ -95,8 +99,14 @@ def test_imports_point_down(path):
     assert not up, f"{name} imports from {up}, not below it"
 
 
-def test_the_command_line_imports_only_jobs_the_config_and_the_public_face():
-    assert _imports(PACKAGE / "cli.py") <= {"jobs", "config", ""}
+PARSER = {"config", "validate", "frames.compile_policy", ""}  # no numpy, JAX, torch
+
+
+def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():
+    """At load the command line imports only what its parser is built from; the
+    jobs are imported inside the commands (tests/test_cli.py runs --help)."""
+    assert _imports(PACKAGE / "cli.py", top=True) <= PARSER
+    assert _imports(PACKAGE / "cli.py") <= PARSER | {"jobs"}
 
 
 def test_folders_say_what_they_hold_and_import_nothing():
@@ -110,6 +120,7 @@ def test_the_check_catches_an_upward_import(tmp_path):
     fake = tmp_path / "x.py"
     fake.write_text("def f():\n    from rhythmic_jax.jobs import fit\n")
     assert _imports(fake) == {"jobs"}
+    assert _imports(fake, top=True) == set()
     fake.write_text("from rhythmic_jax import RhythmicMap\n")
     assert _imports(fake) == {""}
 

@@ -16,6 +16,8 @@ from rhythmic_jax.validate import (
     check_labels,
     check_number,
     int_option,
+    is_int,
+    is_number,
     number_option,
 )
 
@@ -176,6 +178,24 @@ def test_empty_labels_are_refused_in_one_line():
 def test_check_int_accepts_python_and_numpy_integers(value):
     got = check_int(value, "k", 1, 5)
     assert got == 3 and type(got) is int
+
+
+@pytest.mark.parametrize(
+    "value,integer,number",
+    [
+        (3, True, True),
+        (np.int64(3), True, True),
+        (np.uint8(3), True, True),
+        (2.5, False, True),
+        (np.float32(2.5), False, True),
+        (True, False, False),
+        (np.bool_(True), False, False),
+        ("3", False, False),
+        (None, False, False),
+    ],
+)
+def test_python_and_numpy_numbers_count_and_bools_do_not(value, integer, number):
+    assert is_int(value) is integer and is_number(value) is number
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,8 @@ count and the CPU's vector instructions; later jobs load it in a fifth of a seco
 instead of compiling (torch's package loader itself, without importing inductor,
 which took 2.3 s).
 
-Whether compiling pays is decided per job (:func:`plan`): loading a ready
+Whether compiling pays is decided per job (:func:`plan`, with the policy and
+numbers of :mod:`rhythmic_jax.frames.compile_policy`): loading a ready
 package costs about :data:`LOAD_SECONDS`, and the compiled network saves more
 than a millisecond a frame (``reports/network.md``), so a job of
 :data:`LOAD_MIN_FRAMES` frames or more loads it. When the package is not built
@@ -45,11 +46,16 @@ import tempfile
 import time
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rhythmic_jax.errors import InputError
+from rhythmic_jax.frames.compile_policy import (
+    AUTO,
+    BUILD_MIN_FRAMES,
+    COMPILE_MODES,
+    LOAD_MIN_FRAMES,
+    CompilePolicy,
+)
 
 __all__ = [
     "AUTO",
@@ -87,48 +93,8 @@ if TYPE_CHECKING:
 # eagerly at 298-300 frames/s in batches of 4 against 175-185 at 8 and 90-97 at 64.
 COMPILE_BATCH = 8
 EAGER_BATCH = 4
-COMPILE_MODES = ("auto", "always", "never")
-# Measured on the 2-core reference machine (scripts/bench_frames.py): loading a
-# ready package and its first call cost about LOAD_SECONDS, building one about
-# BUILD_SECONDS; EfficientNet-Lite0 (224x112) saves about 6 ms a frame compiled.
-LOAD_SECONDS = 0.2
-BUILD_SECONDS = 60.0
-LOAD_MIN_FRAMES = 64
-BUILD_MIN_FRAMES = 10_000
 BUILD_ENV = "RHYTHMIC_JAX_NETWORK_BUILD"  # "0": no background builds
 LOCK_STALE_SECONDS = 3600.0  # a builder's lock older than this is abandoned
-
-
-@dataclass(frozen=True)
-class CompilePolicy:
-    """When a job compiles its descriptor network.
-
-    Attributes:
-      mode: ``"auto"`` (compile when the job is large enough, below),
-        ``"always"`` or ``"never"`` (the eager reference).
-      min_frames: in ``auto``, compile from this many frames on; None: from
-        :data:`LOAD_MIN_FRAMES` when the package is ready on disk, from
-        :data:`BUILD_MIN_FRAMES` when it must be built first.
-    """
-
-    mode: str = "auto"
-    min_frames: int | None = None
-
-    def __post_init__(self):
-        if self.mode not in COMPILE_MODES:
-            raise InputError(
-                f"{{opt:compile}} {self.mode!r}: use one of {COMPILE_MODES}"
-            )
-        if self.min_frames is not None and (
-            not isinstance(self.min_frames, int) or self.min_frames < 0
-        ):
-            raise InputError(
-                "{opt:compile_min_frames} must be a count >= 0, "
-                f"got {self.min_frames!r}"
-            )
-
-
-AUTO = CompilePolicy()
 
 
 def _weights_ident(descriptor) -> list:
