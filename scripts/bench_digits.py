@@ -33,6 +33,7 @@ from rhythmic_jax.split import NORDLAND_SPLIT
 log = logging.getLogger("bench_digits")
 TOL = 1
 LENGTHS = (5, 10, 20)
+QUICK = dict(levels="1")  # --quick
 
 
 def layouts(n: int, levels) -> list[tuple[str, int, Groups]]:
@@ -143,8 +144,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.levels, args.stem = "1", "digits_quick"
     test = NORDLAND_SPLIT.test
     files = {
         s: args.cache / f"nordland_{s}_{args.descriptor}.npy"
@@ -188,4 +187,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="digits")
+    main(__doc__, run, markdown, options, stem="digits", quick=QUICK)

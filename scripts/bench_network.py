@@ -24,6 +24,7 @@ HEAD = [
     "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
     "max rel diff",
 ]  # fmt: skip
+QUICK = dict(batches=[8], frames=64, repeats=1)  # --quick
 
 
 def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
@@ -43,9 +44,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.batches, args.frames, args.repeats = [8], 64, 1
-        args.stem = "network_quick"
     desc = get_descriptor("efficientnet_lite0", block=args.block)
     (summer,) = nordland_images(args.root, ("summer",))
     images = summer.images[: args.frames]
@@ -123,4 +121,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="network")
+    main(__doc__, run, markdown, options, stem="network", quick=QUICK)

@@ -26,6 +26,7 @@ SETTINGS = (
     ("spectral, every template", dict(compact=False)),
     ("spectral, compacted", dict(compact=True)),
 )
+QUICK = dict(repeats=1, walk_frames=5000, walk_periods="17,18,19")  # --quick
 
 
 def run_case(name, path: Path, periods, repeats: int) -> dict:
@@ -127,9 +128,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.repeats, args.walk_frames, args.stem = 1, 5000, "streamed_quick"
-        args.walk_periods = "17,18,19"
     cases = []
     with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
         if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
@@ -146,4 +144,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="streamed")
+    main(__doc__, run, markdown, options, stem="streamed", quick=QUICK)

@@ -7,89 +7,79 @@ python scripts/count_compiles.py --n 600 --d 64 --optax
 
 from __future__ import annotations
 
+import collections
+import functools
 import json
 import os
-import sys
+import time
 from pathlib import Path
 
-from _harness import REPO, child, main
-
-# One fit (and a second, warm) in a fresh process, its XLA programs counted by the
-# harness's compile counter; prints "RESULT {json}".
-CHILD = r"""
-import collections, functools, json, os, sys, time
-args = json.loads(sys.argv[1])
-t0 = time.perf_counter()
-sys.path.insert(0, args["scripts"])
-import jax
-import numpy as np
-count = __import__("_harness").compile_counter()
-if args["cache"]:
-    jax.config.update("jax_compilation_cache_dir", args["cache"])
-else:  # cold: whatever the environment says
-    jax.config.update("jax_enable_compilation_cache", False)
-calls = collections.Counter()
-if args["optax"]:
-    import optax
-    def wrap(module, prefix):
-        for name in dir(module):
-            f = getattr(module, name)
-            if name.startswith("_") or not callable(f) or isinstance(f, type):
-                continue
-            def counted(*a, _f=f, _n=f"{prefix}.{name}", **kw):
-                calls[_n] += 1
-                return _f(*a, **kw)
-            setattr(module, name, functools.wraps(f)(counted))
-    wrap(optax, "optax")
-    wrap(optax.tree_utils, "optax.tree_utils")
-import rhythmic_jax as rj
-import_s = time.perf_counter() - t0
-if args["npy"]:
-    x = np.load(args["npy"]).astype(np.float32)
-else:
-    rng = np.random.default_rng(args["seed"])
-    walk = rng.standard_normal((args["n"], args["d"])).astype(np.float32)
-    for i in range(1, len(walk)):
-        walk[i] += 0.9 * walk[i - 1]
-    x = walk / np.linalg.norm(walk, axis=1, keepdims=True)
-seconds = lambda: count["compile_s"] + count["trace_s"]
-base = count["programs"], seconds()
-t, cpu = time.perf_counter(), time.process_time()
-m = rj.RhythmicMap().fit(x)
-wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-out = dict(programs=count["programs"] - base[0],
-           compile_s=round(seconds() - base[1], 3), wall_s=round(wall, 3),
-           cpu_s=round(cpu, 3), import_s=round(import_s, 3))
-if args["optax"]:
-    out["optax_calls"] = sum(calls.values())
-    out["optax_by_name"] = dict(calls.most_common())
-    out["solver"] = m.config.solver
-t, cpu = time.perf_counter(), time.process_time()
-rj.RhythmicMap().fit(x)
-out["again_s"] = round(time.perf_counter() - t, 3)
-out["again_cpu_s"] = round(time.process_time() - cpu, 3)
-out["load"] = round(os.getloadavg()[0], 2)
-out["periods"] = list(m.periods)
-out["n"], out["d"] = [int(v) for v in x.shape]
-out["package"] = rj.__file__
-if args["names"]:
-    out["names"] = dict(count["names"].most_common())
-print("RESULT " + json.dumps(out))
-"""
+from _harness import REPO, call, compile_counter, main
 
 
-def measure(checkout: Path = REPO, n=1000, d=256, seed=0, npy=None, names=False,
-            cache=None, optax=False) -> dict:  # fmt: skip
-    """Run one fit in a fresh process against ``checkout``; its JSON record."""
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    args = dict(n=n, d=d, seed=seed, npy=npy, names=names, cache=cache, optax=optax)
-    args["scripts"] = str(Path(__file__).parent)
-    cmd = [sys.executable, "-c", CHILD, json.dumps(args)]
-    proc = child(cmd, checkout, "/", check=False, env=env)
-    lines = [ln for ln in proc["stdout"].splitlines() if ln.startswith("RESULT ")]
-    if proc["rc"] or not lines:
-        raise RuntimeError(f"the fit failed ({proc['rc']}):\n{proc['stderr'][-3000:]}")
-    return json.loads(lines[-1][len("RESULT ") :]) | dict(checkout=str(checkout))
+def counted_calls(module, prefix: str, calls: collections.Counter) -> None:
+    """Count every call of ``module``'s public functions in ``calls``."""
+    for name in dir(module):
+        f = getattr(module, name)
+        if name.startswith("_") or not callable(f) or isinstance(f, type):
+            continue
+
+        def counted(*a, _f=f, _n=f"{prefix}.{name}", **kw):
+            calls[_n] += 1
+            return _f(*a, **kw)
+
+        setattr(module, name, functools.wraps(f)(counted))
+
+
+def fit(args: dict) -> dict:
+    """The fresh process: one fit (and a second, warm) with its XLA programs counted
+    by the harness's counter; optax's calls counted when asked."""
+    t0 = time.perf_counter()
+    import jax
+    import numpy as np
+
+    count = compile_counter()
+    if args["cache"]:
+        jax.config.update("jax_compilation_cache_dir", args["cache"])
+    else:  # cold: whatever the environment says
+        jax.config.update("jax_enable_compilation_cache", False)
+    calls = collections.Counter()
+    if args["optax"]:  # before the library imports optax's functions
+        import optax
+
+        counted_calls(optax, "optax", calls)
+        counted_calls(optax.tree_utils, "optax.tree_utils", calls)
+    import rhythmic_jax as rj
+
+    import_s = time.perf_counter() - t0
+    if args["npy"]:
+        x = np.load(args["npy"]).astype(np.float32)
+    else:
+        rng = np.random.default_rng(args["seed"])
+        walk = rng.standard_normal((args["n"], args["d"])).astype(np.float32)
+        for i in range(1, len(walk)):
+            walk[i] += 0.9 * walk[i - 1]
+        x = walk / np.linalg.norm(walk, axis=1, keepdims=True)
+    base = count["programs"], count["compile_s"] + count["trace_s"]
+    t, cpu = time.perf_counter(), time.process_time()
+    m = rj.RhythmicMap().fit(x)
+    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
+    seconds = count["compile_s"] + count["trace_s"] - base[1]
+    out = dict(programs=count["programs"] - base[0], compile_s=round(seconds, 3),
+               wall_s=round(wall, 3), cpu_s=round(cpu, 3),
+               import_s=round(import_s, 3))  # fmt: skip
+    if args["optax"]:
+        out.update(optax_calls=sum(calls.values()), solver=m.config.solver,
+                   optax_by_name=dict(calls.most_common()))  # fmt: skip
+    t, cpu = time.perf_counter(), time.process_time()
+    rj.RhythmicMap().fit(x)
+    out["again_s"] = round(time.perf_counter() - t, 3)
+    out["again_cpu_s"] = round(time.process_time() - cpu, 3)
+    out.update(load=round(os.getloadavg()[0], 2), periods=list(m.periods),
+               n=int(x.shape[0]), d=int(x.shape[1]), package=rj.__file__)  # fmt: skip
+    if args["names"]:
+        out["names"] = dict(count["names"].most_common())
+    return out
 
 
 def options(ap) -> None:
@@ -105,8 +95,14 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    return dict(record=measure(args.checkout, args.n, args.d, args.seed, args.npy,
-                               args.names, args.cache, args.optax))  # fmt: skip
+    """One fit in a fresh process against ``--checkout``: its JSON record."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    keys = ("n", "d", "seed", "npy", "names", "cache", "optax")
+    proc = call(fit, {k: getattr(args, k) for k in keys}, checkout=args.checkout,
+                cwd="/", check=False, env=env)  # fmt: skip
+    if proc["result"] is None:
+        raise RuntimeError(f"the fit failed ({proc['rc']}):\n{proc['stderr'][-3000:]}")
+    return dict(record=proc["result"] | dict(checkout=str(args.checkout)))
 
 
 def markdown(report: dict) -> str:
