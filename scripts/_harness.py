@@ -260,11 +260,12 @@ def digest(ident, *arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
+def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag="",
+               progress=False):  # fmt: skip
     """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
-    ``model.fit(x)``), or loaded from ``folder`` where a fit with the same
-    settings (``extra`` too) and features (``arrays`` too) was saved. The record
-    holds the path, ``cached`` and the first fit's wall and CPU seconds."""
+    ``model.fit(x, progress=progress)``), or loaded from ``folder`` where a fit with
+    the same settings (``extra`` too) and features (``arrays`` too) was saved. The
+    record holds the path, ``cached`` and the first fit's wall and CPU seconds."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     x = np.ascontiguousarray(x, np.float32)
@@ -276,7 +277,7 @@ def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
     if (path / "map.json").is_file():
         timing = json.loads(side.read_text()) if side.is_file() else {}
         return RhythmicMap.load(path), dict(map_path=str(path), cached=True, **timing)
-    _, wall, cpu = timed(fit or (lambda m: m.fit(x, progress=False)), model)
+    _, wall, cpu = timed(fit or (lambda m: m.fit(x, progress=progress)), model)
     log.info("fitted %s in %.0f s: periods %s", path.name, wall, model.periods)
     model.save(path)
     timing = dict(fit_wall_s=wall, fit_cpu_s=cpu)

@@ -34,14 +34,15 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
 def job(out: str, *argv: str) -> dict | None:
     """A job's process, its XLA programs counted into ``out`` at exit: ``imports``
     (the floor under any fit: the interpreter, importing JAX and the fit's modules,
-    exiting), ``fit FEATURES PREDICTIONS`` (a library user's fit; the new
-    checkout's one call turns the compile cache on), or a command line's."""
+    exiting), ``library FEATURES PREDICTIONS`` (a library user's fit; the new
+    checkout's one call turns the compile cache on), or a command line's
+    arguments (``--no-progress`` added)."""
     h.compile_counter(out)
     if argv[0] == "imports":
         import jax.numpy  # noqa: F401
 
         import rhythmic_jax.rhythmic_map  # noqa: F401
-    elif argv[0] == "fit":
+    elif argv[0] == "library":
         import rhythmic_jax as rj
 
         if hasattr(rj, "enable_compile_cache"):
@@ -51,7 +52,7 @@ def job(out: str, *argv: str) -> dict | None:
         np.save(argv[2], np.asarray(model.predict(x)))
         return dict(periods=list(model.periods))
     else:
-        sys.argv = ["rhythmic-jax", *argv]
+        sys.argv = ["rhythmic-jax", *argv, "--no-progress"]
         runpy.run_module("rhythmic_jax.cli", run_name="__main__", alter_sys=True)
     return None
 
@@ -134,26 +135,22 @@ def run(args) -> dict:
                     shutil.copytree(network / "compiled", cache / "compiled")
                 env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
                 tag = name.replace(" ", "_")
-                if job in ("fit", "nordland"):
-                    pred = tmp / f"{job}-{tag}.npy"
-                    r, out = run_job(["fit", str(inputs[job]), str(pred)], env_job, tmp)
-                    r["periods"] = json.loads(out.splitlines()[-1])
-                    agree.setdefault(job, {})[name] = (pred, r["periods"]["periods"])
-                    rows.append(dict(job=job, variant=name, **r))
-                if job == "imports":
-                    r = run_job(["imports"], env_job, tmp)[0]
-                    rows.append(dict(job=job, variant=name, **r))
-                jpeg_map = str(tmp / f"jpeg-{tag}.map")
+                pred, jpeg_map = tmp / f"{job}-{tag}.npy", str(tmp / f"jpeg-{tag}.map")
                 ref, q = folders.get("ref"), folders.get("q")
+                library = [(job, ["library", str(inputs.get(job)), str(pred)])]
                 steps = {
+                    "imports": [("imports", ["imports"])],
                     "demo": [("demo", ["demo", "--out", str(tmp / f"demo-{tag}")])],
                     "jpeg": [("jpeg fit", ["fit", str(ref), "--out", jpeg_map,
                                            "--descriptor", "efficientnet_lite0"]),
                              ("jpeg query", ["query", jpeg_map, str(q), "--out",
                                              str(tmp / f"q-{tag}.npy")])],
-                }.get(job, [])  # fmt: skip
-                for label, cmd in steps:
-                    r = run_job([*cmd, "--no-progress"], env_job, tmp)[0]
+                }.get(job, library)  # fmt: skip
+                for label, argv in steps:
+                    r, out = run_job(argv, env_job, tmp)
+                    if argv[0] == "library":  # fit, nordland: the maps compared
+                        r["periods"] = periods = json.loads(out.splitlines()[-1])
+                        agree.setdefault(job, {})[name] = pred, periods["periods"]
                     rows.append(dict(job=label, variant=name, **r))
                     if label == "jpeg fit" and side == "new":
                         wait_for_build(cache)

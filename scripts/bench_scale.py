@@ -29,6 +29,7 @@ log = logging.getLogger("bench_scale")
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
 DTYPES = ("float32", "float16", "int8")
+PASSES = ("gradient", "gradient + bits", "CG", "CG from bits", "line search")
 
 
 def fit_command(path: Path, out: Path, *options: str) -> list[str]:
@@ -127,12 +128,6 @@ def _rule(row: dict) -> str:
     return row.get("rule", "errors")
 
 
-def least_slope(ns: list[int], r: int) -> float:
-    """The storage slope of the least-storage co-prime sets over ``ns``."""
-    sums = [sum(nominal_periods(int(n), r)) for n in ns]
-    return float(np.polyfit(np.log(ns), np.log(sums), 1)[0])
-
-
 def series(
     rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
 ) -> list[dict]:
@@ -152,15 +147,18 @@ def slopes(rows: list[dict]) -> list[dict]:
     keys = sorted({(r["source"], r["d"], r["r"], _rule(r)) for r in one})
     for source, d, r, rule in keys:
         pts = series(rows, source, d, r, rule)
-        if len({p["n"] for p in pts}) < 2:
-            continue
-        lx = np.log([p["n"] for p in pts])
-        ly = np.log([p["storage_bytes"] for p in pts])
-        slope = float(np.polyfit(lx, ly, 1)[0])
-        top = np.asarray([p["n"] for p in pts]) >= 10000
-        upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         ns = [p["n"] for p in pts]
-        low, high = rule_range(ns, r) if rule == "errors" else (least_slope(ns, r),) * 2
+        if len(set(ns)) < 2:
+            continue
+        lx, ly = np.log(ns), np.log([p["storage_bytes"] for p in pts])
+        slope = float(np.polyfit(lx, ly, 1)[0])
+        top = np.asarray(ns) >= 10000
+        upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
+        if rule == "errors":
+            low, high = rule_range(ns, r)
+        else:  # the least-storage co-prime sets
+            sums = [sum(nominal_periods(int(n), r)) for n in ns]
+            low = high = float(np.polyfit(lx, np.log(sums), 1)[0])
         out.append(dict(
             source=source, d=d, r=r, rule=rule, points=len(pts), slope=slope,
             slope_from_10k=upper, target=1 / r, within=abs(slope - 1 / r) <= 0.05,
@@ -246,21 +244,19 @@ def markdown(report: dict) -> str:
         "",
     ]
     slopes = [
-        [s["source"], s["d"], s["r"], s.get("rule", "errors"), s["points"],
+        [s["source"], s["d"], s["r"], _rule(s), s["points"],
          round(s["slope"], 4), round(s["target"], 4), str(s["within"]),
          _num(s.get("slope_from_10k"), 4), _allows(s)]
         for s in report["slopes"]
     ]  # fmt: skip
     lines.append(bc.table(SLOPES, slopes))
     for sl in report["slopes"]:
-        rule = sl.get("rule", "errors")
-        pts = series(report["rows"], sl["source"], sl["d"], sl["r"], rule)
+        pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
         pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
-        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, "
-                  f"{sl.get('rule', 'errors')}: the chosen "
-                  f"periods' product M is {m0 / n0:.2f} N at N = {n0:,} and "
-                  f"{m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
+        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
+                  f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
+                  f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
     lines += ["", "'the rule allows': the least and largest slope any choice of the"
               " candidate rule gives over the series' N; docs/SCALE.md."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
@@ -481,11 +477,8 @@ def passes(path: str, memory: str, periods: str) -> dict:
         st.run(S._hess_pass, theta, v, c)
         st.run(S._hess_kept, v, jnp.asarray(st.top, jnp.float32), bits="read")
         st.run(S._line_pass, theta, v, ts, c)
-        names = ["gradient", "gradient + bits", "CG", "CG from bits", "line search"]
-        seconds = dict(zip(names, st.seconds, strict=False))
-        sets.append(
-            dict(periods=periods, templates=p, block_rows=rows, seconds=seconds)
-        )
+        sec = dict(zip(PASSES, st.seconds, strict=False))
+        sets.append(dict(periods=periods, templates=p, block_rows=rows, seconds=sec))
         del st
     return dict(n=frames.n, d=frames.d, sets=sets)
 
@@ -564,10 +557,8 @@ def run(args) -> dict:
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
     report, stamps = {}, [r["measured"] for r in rows]
-    for what, n, measure in (
-        ("probe", args.probe, probe),
-        ("full fit", args.full, full),
-    ):
+    extras = (("probe", args.probe, probe), ("full fit", args.full, full))
+    for what, n, measure in extras:
         try:
             if n:
                 report[what.split()[0]] = measure(args)
