@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import json
-import logging
 import math
 import time
 from dataclasses import asdict, replace
@@ -34,7 +33,7 @@ from rhythmic_jax.rhythmic_map import RhythmicMap
 from rhythmic_jax.scalar_codes import scalar_code_bytes
 from rhythmic_jax.split import NORDLAND_SPLIT
 
-log = logging.getLogger("bench_cross_condition")
+log = h.log
 TOL = 1
 LENGTHS = (5, 10, 20)
 BUDGETS = (0.15, 0.20)

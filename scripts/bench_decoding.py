@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import logging
 import tempfile
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
-log = logging.getLogger("bench_decoding")
+log = h.log
 MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_bench_decoding"
 
 TOLERANCE = 1

@@ -6,17 +6,15 @@ python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 10000
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import jax
 import numpy as np
-from _harness import header, main, table, timed
+from _harness import header, log, main, table, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
 
-log = logging.getLogger("bench_gpu")
 QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[])  # --quick
 
 

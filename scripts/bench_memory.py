@@ -5,16 +5,13 @@ python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 
 from __future__ import annotations
 
-import logging
 import time
 
 import numpy as np
-from _harness import call, header, main, table
+from _harness import call, header, log, main, table
 
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
-
-log = logging.getLogger("bench_memory")
 
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
 QUICK = dict(shapes=["600x32"], repeats=1)  # --quick

@@ -5,19 +5,16 @@ python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 
 from __future__ import annotations
 
-import logging
 import tempfile
 import time
 
 import numpy as np
 import torch
-from _harness import header, main, nordland_images, table, timed
+from _harness import header, log, main, nordland_images, table, timed
 
 from rhythmic_jax.frames import compiled
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.frames.pipeline import _to_batch
-
-log = logging.getLogger("bench_network")
 
 HEAD = [
     "batch", "eager best f/s", "eager median f/s", "compiled best f/s",

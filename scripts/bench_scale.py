@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import logging
 import math
 import os
 import resource
@@ -25,7 +24,7 @@ from rhythmic_jax.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
 
-log = logging.getLogger("bench_scale")
+log = bc.log
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
 DTYPES = ("float32", "float16", "int8")

@@ -5,12 +5,11 @@ python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 
 from __future__ import annotations
 
-import logging
 import time
 
 import jax.numpy as jnp
 import numpy as np
-from _harness import cores, header, main, table, unit_rows
+from _harness import cores, header, log, main, table, unit_rows
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import decode
@@ -21,7 +20,6 @@ from rhythmic_jax.groups import Groups
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import candidate_periods, choose_periods
 
-log = logging.getLogger("bench_single_query")
 QUICK = dict(n=2000, singles=200, exact=20)  # --quick
 
 

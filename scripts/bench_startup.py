@@ -6,7 +6,6 @@ python scripts/bench_startup.py --before /tmp/before --repeats 7
 from __future__ import annotations
 
 import contextlib
-import logging
 import runpy
 import shutil
 import statistics
@@ -15,9 +14,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, call, child, header, main, table
-
-log = logging.getLogger("bench_startup")
+from _harness import REPO, call, child, header, log, main, table
 
 HEAVY = ("jax", "faiss", "sklearn", "torch", "optax", "orbax")
 QUICK = dict(repeats=1)  # --quick

@@ -5,13 +5,12 @@ python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 
 from __future__ import annotations
 
-import logging
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _harness import header, main, nordland_features, table, timed
+from _harness import header, log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax.io.frame_files import open_frames
@@ -19,7 +18,6 @@ from rhythmic_jax.objective import default_c, targets
 from rhythmic_jax.solvers.newton import newton_fit
 from rhythmic_jax.solvers.streamed import FAST_STREAM, streamed_newton_fit
 
-log = logging.getLogger("bench_streamed")
 BLOCK_ROWS = 4096
 SETTINGS = (
     ("Jacobi, every template", dict(spectral_rank=0, compact=False)),
