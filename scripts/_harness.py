@@ -17,7 +17,6 @@ import json
 import logging
 import os
 import platform
-import resource
 import string
 import subprocess
 import sys
@@ -114,21 +113,43 @@ def fastest(fn: Callable[[], object], repeats: int):
 
 def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
     """``cmd`` in a fresh process (``checkout``'s package first on the path, JAX on
-    the CPU unless said, ``extra`` in its environment): rc, wall and CPU seconds
-    (its process tree), stdout, stderr and the 1-minute load after it."""
+    the CPU unless said, ``extra`` in its environment): rc, wall and CPU seconds and
+    peak resident bytes (its process tree), stdout, stderr and the 1-minute load
+    after it."""
     env = dict(os.environ if env is None else env, TF_CPP_MIN_LOG_LEVEL="3", **extra)
     env.setdefault("JAX_PLATFORMS", "cpu")
     if checkout is not None:
         env["PYTHONPATH"] = str(checkout)
-    before, t = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True,
-                          cwd=cwd or tempfile.gettempdir())  # fmt: skip
-    wall, after = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN)
-    if check and done.returncode != 0:
-        raise RuntimeError(f"{cmd} failed:\n{done.stderr[-3000:]}")
-    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
-    return dict(rc=done.returncode, wall=wall, cpu=cpu, stdout=done.stdout,
-                stderr=done.stderr, load=load_average()[0])  # fmt: skip
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        t = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=err, text=True,
+                                cwd=cwd or tempfile.gettempdir())  # fmt: skip
+        _, status, use = os.wait4(proc.pid, 0)  # the child's usage and its own's
+        wall, rc = time.perf_counter() - t, os.waitstatus_to_exitcode(status)
+        proc.returncode = rc
+        out.seek(0), err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    if check and rc != 0:
+        raise RuntimeError(f"{cmd} failed:\n{stderr[-3000:]}")
+    cpu, peak = use.ru_utime + use.ru_stime, use.ru_maxrss * 1024
+    return dict(rc=rc, wall=wall, cpu=cpu, peak=peak, stdout=stdout, stderr=stderr,
+                load=load_average()[0])  # fmt: skip
+
+
+def command(fn, *args) -> list[str]:
+    """The command line that runs ``fn(*args)``, a function of a script (JSON
+    arguments), in a fresh process and prints its answer as JSON, last."""
+    script = Path(sys.modules[fn.__module__].__file__).stem
+    return [sys.executable, str(Path(__file__).resolve()), script, fn.__name__,
+            json.dumps(args)]  # fmt: skip
+
+
+def call(fn, *args, checkout=None, **kw) -> dict:
+    """:func:`command` run by :func:`child` (``kw``: its options): its record, with
+    ``result`` the function's answer."""
+    r = child(command(fn, *args), checkout, **kw)
+    r["result"] = json.loads(r["stdout"].splitlines()[-1]) if r["rc"] == 0 else None
+    return r
 
 
 def compile_counter(out=None) -> dict:
@@ -239,11 +260,12 @@ def digest(ident, *arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
+def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag="",
+               progress=False):  # fmt: skip
     """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
-    ``model.fit(x)``), or loaded from ``folder`` where a fit with the same
-    settings (``extra`` too) and features (``arrays`` too) was saved. The record
-    holds the path, ``cached`` and the first fit's wall and CPU seconds."""
+    ``model.fit(x, progress=progress)``), or loaded from ``folder`` where a fit with
+    the same settings (``extra`` too) and features (``arrays`` too) was saved. The
+    record holds the path, ``cached`` and the first fit's wall and CPU seconds."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     x = np.ascontiguousarray(x, np.float32)
@@ -255,7 +277,7 @@ def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag=""):
     if (path / "map.json").is_file():
         timing = json.loads(side.read_text()) if side.is_file() else {}
         return RhythmicMap.load(path), dict(map_path=str(path), cached=True, **timing)
-    _, wall, cpu = timed(fit or (lambda m: m.fit(x, progress=False)), model)
+    _, wall, cpu = timed(fit or (lambda m: m.fit(x, progress=progress)), model)
     log.info("fitted %s in %.0f s: periods %s", path.name, wall, model.periods)
     model.save(path)
     timing = dict(fit_wall_s=wall, fit_cpu_s=cpu)
@@ -379,17 +401,23 @@ def parser(doc: str) -> argparse.ArgumentParser:
 
 
 def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report",
-         argv=None, refresh=None, md_stem=None):  # fmt: skip
+         argv=None, refresh=None, md_stem=None, quick=None):  # fmt: skip
     """Parse, record the machine, ``run(args)``, then write and print the
-    report; returns it. ``run`` may set ``args.stem`` (the report's name) and
-    return None (nothing to write). ``refresh(report, args)`` updates a report
-    read back by ``--render`` before it is rendered."""
+    report; returns it. ``--quick`` gives the options ``quick`` names their values
+    there (those left at their defaults) and the report the name ``<stem>_quick``.
+    ``run`` may set ``args.stem`` (the report's name) and return None (nothing to
+    write). ``refresh(report, args)`` updates a report read back by ``--render``
+    before it is rendered."""
     ap = parser(doc)
     ap.set_defaults(md_stem=md_stem)
     if options:
         options(ap)
     args = ap.parse_args(argv)
-    fixed, args.stem = args.stem, args.stem or stem
+    fixed = args.stem
+    args.stem = fixed or (f"{stem}_quick" if args.quick else stem)
+    for key, value in (quick or {}).items() if args.quick else ():
+        if getattr(args, key) == ap.get_default(key):
+            setattr(args, key, value)
     if args.render is not None:
         path = args.render if args.render.name else args.out / f"{args.stem}.json"
         report = json.loads(path.read_text())
@@ -415,3 +443,9 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     else:
         write_report(args.out, args.stem, report, markdown(report), args.md_stem)
     return report
+
+
+if __name__ == "__main__":  # call(): python _harness.py SCRIPT FUNCTION JSON_ARGS
+    script, name, argv = sys.argv[1:]
+    fn = getattr(__import__(script), name)
+    print(json.dumps(plain(fn(*json.loads(argv)))), flush=True)

@@ -14,6 +14,7 @@ from _harness import header, main
 from rhythmic_jax.augment.kornia_ops import NAMES, AugmentConfig, augment
 
 SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
+QUICK = dict(batch=8, repeats=1)  # --quick
 
 
 def cases() -> list[tuple[str, AugmentConfig]]:
@@ -47,8 +48,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.batch, args.repeats, args.stem = 8, 1, "augment_quick"
     generator = torch.Generator().manual_seed(0)
     rows = []
     for threads in args.threads:
@@ -90,4 +89,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="augment")
+    main(__doc__, run, markdown, options, stem="augment", quick=QUICK)

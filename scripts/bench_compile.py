@@ -9,49 +9,17 @@ from __future__ import annotations
 
 import json
 import os
+import runpy
 import shutil
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import _harness as h
 import numpy as np
-from _harness import REPO, child, header, main, nordland_images, table, weights_folder
-
-# Runs a module (-m NAME ARGS) or a script (PATH ARGS) with its XLA programs counted
-# (the harness's compile counter) into $COUNT_OUT at exit.
-WRAPPER = f"""
-import os, runpy, sys
-sys.path.insert(0, {str(Path(__file__).parent)!r})
-__import__("_harness").compile_counter(os.environ["COUNT_OUT"])
-module = sys.argv[1] == "-m"
-sys.argv = sys.argv[1 + module :]
-if module:
-    runpy.run_module(sys.argv[0], run_name="__main__", alter_sys=True)
-else:
-    runpy.run_path(sys.argv[0], run_name="__main__")
-"""
-
-# A library user's fit: features (.npy) -> map, predictions saved; the new
-# checkout's one call turns the compile cache on.
-FIT = r"""
-import json, sys
-import numpy as np
-import rhythmic_jax as rj
-if hasattr(rj, "enable_compile_cache"):
-    rj.enable_compile_cache()
-x = np.load(sys.argv[1])
-model = rj.RhythmicMap().fit(x, progress=False)
-np.save(sys.argv[2], np.asarray(model.predict(x)))
-print(json.dumps(dict(periods=list(model.periods))))
-"""
 
 HEAD = ["job", "variant", "programs", "compiled", "hits", "compile s", "wall s", "load"]
-
-
-# What every fit's process pays before it fits: the interpreter, importing JAX
-# and the fit's modules, and exiting (measured as a job of its own).
-IMPORTS = "import jax, jax.numpy\nimport rhythmic_jax.rhythmic_map\n"
 
 
 def route(n: int, d: int, seed: int = 0) -> np.ndarray:
@@ -63,11 +31,36 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
     return (x / np.linalg.norm(x, axis=1, keepdims=True)).astype(np.float32)
 
 
-def run_job(cmd: list[str], env: dict, tmp: Path) -> dict:
+def job(out: str, *argv: str) -> dict | None:
+    """A job's process, its XLA programs counted into ``out`` at exit: ``imports``
+    (the floor under any fit: the interpreter, importing JAX and the fit's modules,
+    exiting), ``library FEATURES PREDICTIONS`` (a library user's fit; the new
+    checkout's one call turns the compile cache on), or a command line's
+    arguments (``--no-progress`` added)."""
+    h.compile_counter(out)
+    if argv[0] == "imports":
+        import jax.numpy  # noqa: F401
+
+        import rhythmic_jax.rhythmic_map  # noqa: F401
+    elif argv[0] == "library":
+        import rhythmic_jax as rj
+
+        if hasattr(rj, "enable_compile_cache"):
+            rj.enable_compile_cache()
+        x = np.load(argv[1])
+        model = rj.RhythmicMap().fit(x, progress=False)
+        np.save(argv[2], np.asarray(model.predict(x)))
+        return dict(periods=list(model.periods))
+    else:
+        sys.argv = ["rhythmic-jax", *argv, "--no-progress"]
+        runpy.run_module("rhythmic_jax.cli", run_name="__main__", alter_sys=True)
+    return None
+
+
+def run_job(argv: list[str], env: dict, tmp: Path) -> dict:
     """(wall seconds and compile counts, stdout) of one job in a fresh process."""
     out = tmp / f"count-{time.monotonic_ns()}.json"
-    r = child([sys.executable, "-c", WRAPPER, *cmd], None, weights_folder(), env=env,
-              COUNT_OUT=str(out))  # fmt: skip
+    r = h.child(h.command(job, str(out), *argv), None, h.weights_folder(), env=env)
     c = json.loads(out.read_text())
     count = dict(programs=c["programs"], compiled=c["programs"] - c["hits"],
                  hits=c["hits"], compile_s=c["compile_s"])  # fmt: skip
@@ -87,7 +80,7 @@ def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
     """The patch-normalised summer route as a .npy file."""
     from rhythmic_jax.frames.features import describe, get_descriptor
 
-    images = nordland_images(root, ("summer",))[0].images[:n]
+    images = h.nordland_images(root, ("summer",))[0].images[:n]
     path = tmp / "nordland.npy"
     np.save(path, describe(images, get_descriptor("patchnorm"), progress=False))
     return path
@@ -99,7 +92,7 @@ def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPIL")}
     env.update(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
     jit = tmp / "jit"
-    new = {**env, "PYTHONPATH": str(REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
+    new = {**env, "PYTHONPATH": str(h.REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
     old = {**env, "PYTHONPATH": str(base.resolve())}
     old.pop("RHYTHMIC_JAX_COMPILE_CACHE", None)
     return [("base", old), ("new cold", new), ("new warm", new)]
@@ -120,14 +113,10 @@ def run(args) -> dict:
     n_fit, d_fit = (200, 64) if args.small else (1000, 256)
     n_nord = 300 if args.small else None
     n_jpeg = 100 if args.small else 1000
-    exe = ["-m", "rhythmic_jax.cli"]
     rows: list[dict] = []
     agree: dict[str, dict] = {}
     with tempfile.TemporaryDirectory(prefix="bench_compile") as tmpdir:
         tmp = Path(tmpdir)
-        script = tmp / "fit.py"
-        script.write_text(FIT)
-        (tmp / "imports.py").write_text(IMPORTS)
         inputs = {}
         if "fit" in jobs:
             inputs["fit"] = tmp / "route.npy"
@@ -146,27 +135,22 @@ def run(args) -> dict:
                     shutil.copytree(network / "compiled", cache / "compiled")
                 env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
                 tag = name.replace(" ", "_")
-                if job in ("fit", "nordland"):
-                    pred = tmp / f"{job}-{tag}.npy"
-                    cmd = [str(script), str(inputs[job]), str(pred)]
-                    r, out = run_job(cmd, env_job, tmp)
-                    r["periods"] = json.loads(out.splitlines()[-1])
-                    agree.setdefault(job, {})[name] = (pred, r["periods"]["periods"])
-                    rows.append(dict(job=job, variant=name, **r))
-                if job == "imports":
-                    r = run_job([str(tmp / "imports.py")], env_job, tmp)[0]
-                    rows.append(dict(job=job, variant=name, **r))
-                jpeg_map = str(tmp / f"jpeg-{tag}.map")
+                pred, jpeg_map = tmp / f"{job}-{tag}.npy", str(tmp / f"jpeg-{tag}.map")
                 ref, q = folders.get("ref"), folders.get("q")
+                library = [(job, ["library", str(inputs.get(job)), str(pred)])]
                 steps = {
+                    "imports": [("imports", ["imports"])],
                     "demo": [("demo", ["demo", "--out", str(tmp / f"demo-{tag}")])],
                     "jpeg": [("jpeg fit", ["fit", str(ref), "--out", jpeg_map,
                                            "--descriptor", "efficientnet_lite0"]),
                              ("jpeg query", ["query", jpeg_map, str(q), "--out",
                                              str(tmp / f"q-{tag}.npy")])],
-                }.get(job, [])  # fmt: skip
-                for label, cmd in steps:
-                    r = run_job([*exe, *cmd, "--no-progress"], env_job, tmp)[0]
+                }.get(job, library)  # fmt: skip
+                for label, argv in steps:
+                    r, out = run_job(argv, env_job, tmp)
+                    if argv[0] == "library":  # fit, nordland: the maps compared
+                        r["periods"] = periods = json.loads(out.splitlines()[-1])
+                        agree.setdefault(job, {})[name] = pred, periods["periods"]
                     rows.append(dict(job=label, variant=name, **r))
                     if label == "jpeg fit" and side == "new":
                         wait_for_build(cache)
@@ -226,7 +210,7 @@ def markdown(report: dict) -> str:
              for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
     title = "Compiling: XLA programs, compile seconds and wall per job"
-    return "\n".join(header(title, report)) + "\n" + "\n\n".join([
+    return "\n".join(h.header(title, report)) + "\n" + "\n\n".join([
         f"Baseline checkout {report['base']} (no compile cache) against this one, "
         "cold (empty compile cache) and warm (the cache the cold run left). Each "
         "job is a fresh process. Programs: XLA programs the job obtained; hits: "
@@ -234,14 +218,14 @@ def markdown(report: dict) -> str:
         f"(loads included); load: 1-minute load average after the job. Sizes: fit "
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
         f" {s['jpegs']} JPEGs (Lite0).",
-        table(HEAD, rows),
+        h.table(HEAD, rows),
         "Targets (the imports row is the floor under any fit's wall: a process that"
         " imports what a fit needs and exits, doing no work):",
-        table(["target", "at most", "measured", ""], targets(report)),
+        h.table(["target", "at most", "measured", ""], targets(report)),
         "Maps against the baseline's (same periods; share of equal predictions):",
-        table(["fit", "periods equal", "predictions equal"], agree),
+        h.table(["fit", "periods equal", "predictions equal"], agree),
     ])  # fmt: skip
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="compile")
+    h.main(__doc__, run, markdown, options, stem="compile")

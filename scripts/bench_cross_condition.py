@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import copy
 import json
-import logging
 import math
 import time
 from dataclasses import asdict, replace
+from functools import partial
 from pathlib import Path
 
 import _harness as h
@@ -33,13 +33,16 @@ from rhythmic_jax.rhythmic_map import RhythmicMap
 from rhythmic_jax.scalar_codes import scalar_code_bytes
 from rhythmic_jax.split import NORDLAND_SPLIT
 
-log = logging.getLogger("bench_cross_condition")
+log = h.log
 TOL = 1
 LENGTHS = (5, 10, 20)
 BUDGETS = (0.15, 0.20)
 GAP = 1e-3  # the solver's relative gap: the templates' ranking is settled well before
 COUNT = 3  # candidate periods per group (the paper: 7); a third of the solve
 MAX_LEVEL = 4  # budget maps: periods at most 4 ceil(sqrt N) (longer: minutes a map)
+LITE = "Nordland EfficientNet-Lite0"
+PATCH = "Nordland patchnorm"
+AERIAL = "Aerial pairs patchnorm"
 
 
 def _acc(pred, tol=TOL) -> float:
@@ -54,7 +57,7 @@ def _recall(scores, k: int) -> float:
     return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
 
 
-def nordland_data(root: Path, name: str, progress: bool, images: bool):
+def nordland_data(root: Path, progress: bool, name="patchnorm", images=True):
     desc = get_descriptor(name)
     s, w = h.nordland_features(root, desc, key="nordland_", progress=progress)
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
@@ -257,12 +260,9 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
         ref, qry = np.asarray(test[a]), np.asarray(test[b])
         rows = [brute_row(ref, qry, "brute force raw"), seqslam_row(ref, qry)]
         rows.append(map_row(ref, qry, "map raw", level=cfg["level"]))
-        if "images" in data and cfg.get("augment", True) and a == 0:
-            rows.append(
-                augmented_row(
-                    ref, data["images"][a], data["descriptor"], qry, cfg["level"]
-                )  # fmt: skip
-            )
+        if "images" in data and a == 0:
+            args = ref, data["images"][a], data["descriptor"], qry, cfg["level"]
+            rows.append(augmented_row(*args))
         for i, (label, emb) in enumerate(embeddings.items()):
             eb = embedding_bytes(emb)
             er, eq = apply(emb, ref), apply(emb, qry)
@@ -288,16 +288,11 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
 
 def plan(quick: bool) -> list[tuple[str, object, dict]]:
     """(title, data loader, settings) of every data set."""
-    lite = dict(
-        levers={
-            "invariant": LearnConfig(method="invariant", k=256, p=512),
-            "through the map": LearnConfig(method="map", k=256, p=512, steps=60,
-                                           eval_every=20),
-            "InfoNCE": LearnConfig(method="infonce", k=256, p=512, steps=60,
-                                   eval_every=20),
-        },
-        level=1,
-    )  # fmt: skip
+    steps = dict(k=256, p=512, steps=60, eval_every=20)
+    lite = dict(levers={"invariant": LearnConfig(method="invariant", k=256, p=512),
+                        "through the map": LearnConfig(method="map", **steps),
+                        "InfoNCE": LearnConfig(method="infonce", **steps)},
+                level=1)  # fmt: skip
     patch = dict(levers={"invariant": LearnConfig(method="invariant", k=128, p=256)},
                  level=1)  # fmt: skip
     # 769 places: k = 128 alone would be 17 % of the raw database
@@ -305,16 +300,9 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
                           "PCA": LearnConfig(method="pca", k=64)},
                   map_levers=("invariant", "PCA"), level=1)  # fmt: skip
     if quick:
-        return [("Nordland patchnorm", lambda r, p: nordland_data(r, "patchnorm", p,
-                                                                   False),
-                 dict(patch, augment=False))]  # fmt: skip
-    return [
-        ("Nordland EfficientNet-Lite0",
-         lambda r, p: nordland_data(r, "efficientnet_lite0", p, True), lite),
-        ("Aerial pairs patchnorm", aerial_data, aerial),
-        ("Nordland patchnorm", lambda r, p: nordland_data(r, "patchnorm", p, True),
-         patch),
-    ]  # fmt: skip
+        return [(PATCH, partial(nordland_data, images=False), patch)]
+    return [(LITE, partial(nordland_data, name="efficientnet_lite0"), lite),
+            (AERIAL, aerial_data, aerial), (PATCH, nordland_data, patch)]  # fmt: skip
 
 
 def options(ap) -> None:
@@ -323,9 +311,8 @@ def options(ap) -> None:
 
 def run(args) -> dict:
     t0 = time.perf_counter()
-    args.stem = "cross_condition_quick" if args.quick else "cross_condition"
     datasets, words = {}, args.only.split(",") if args.only else None
-    partial = args.out / f"{args.stem}.partial.json"
+    saved = args.out / f"{args.stem}.partial.json"
     for title, load, settings in plan(args.quick):
         if words and not any(w in title for w in words):
             continue
@@ -335,11 +322,11 @@ def run(args) -> dict:
         log.info("%s done at %.0f s", title, time.perf_counter() - t0)
         # after every data set: a run cut short still leaves the ones it finished
         args.out.mkdir(parents=True, exist_ok=True)
-        partial.write_text(json.dumps(dict(datasets=datasets), default=float))
+        saved.write_text(json.dumps(dict(datasets=datasets), default=float))
     report = dict(datasets=datasets, wall_seconds=time.perf_counter() - t0)
     report["targets"] = targets(report)
     draw(report, args.out / f"{args.stem}.png")
-    partial.unlink(missing_ok=True)
+    saved.unlink(missing_ok=True)
     return report
 
 
@@ -350,9 +337,6 @@ def refresh(report: dict, args) -> None:
     draw(report, path.with_suffix(".png"))
 
 
-LITE = "Nordland EfficientNet-Lite0"
-PATCH = "Nordland patchnorm"
-AERIAL = "Aerial pairs patchnorm"
 COLS = ("r1", "r1_exact", "r5", "L5", "L10", "L20", "self_r1")
 HEADS = ["method", "R@1", "exact", "R@5", "L=5", "L=10", "L=20", "self",
          "storage B", "embedding B", "ratio", "sizes", "fit s"]  # fmt: skip
@@ -363,21 +347,18 @@ def is_map(row: dict) -> bool:
     return "layout" in row
 
 
-def best(rows, key, budget=None, where=is_map) -> dict | None:
-    """The row of largest ``key`` among ``where`` rows within ``budget``."""
-    rows = [r for r in rows if where(r) and key in r]
-    if budget is not None:
-        rows = [r for r in rows if r["ratio"] <= budget + 1e-12]
-    return max(rows, key=lambda r: r[key]) if rows else None
+def within(rows, key, budget=None, where=is_map) -> list[dict]:
+    """The ``where`` rows that have ``key``, within ``budget``."""
+    return [r for r in rows if where(r) and key in r
+            and (budget is None or r["ratio"] <= budget + 1e-12)]  # fmt: skip
 
 
 def chosen(rows, key, budget=None) -> dict | None:
     """The configuration fixed before scoring (the 8-bit hybrid on the first lever)
     within ``budget``; else the best map row (older reports)."""
-    picks = [r for r in rows if r.get("chosen") and key in r]
-    if budget is not None:
-        picks = [r for r in picks if r["ratio"] <= budget + 1e-12]
-    return picks[0] if picks else best(rows, key, budget)
+    picks = within(rows, key, budget, lambda r: r.get("chosen"))
+    best = max(within(rows, key, budget), key=lambda r: r[key], default=None)
+    return picks[0] if picks else best
 
 
 def _row(rows, name) -> dict | None:

@@ -7,8 +7,6 @@ python scripts/bench_decode.py --render reports/decode.json  # Markdown again
 
 from __future__ import annotations
 
-import logging
-
 import _harness as h
 import jax
 import jax.numpy as jnp
@@ -20,7 +18,7 @@ from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 
-log = logging.getLogger("bench_decode")
+log = h.log
 BATCH = 1000
 NOISE = 0.5  # query noise relative to a unit reference
 

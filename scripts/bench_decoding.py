@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import logging
 import tempfile
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
-log = logging.getLogger("bench_decoding")
+log = h.log
 MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_bench_decoding"
 
 TOLERANCE = 1
@@ -40,6 +39,8 @@ HOLDOUT = dict(fraction=0.2, block=50, seed=0)
 CONTRAST_WINDOW = 10
 CENTRE_WINDOW = 100  # query frames in a template's running mean
 DESCRIPTORS = ("patchnorm", "efficientnet_lite0")
+QUICK = dict(frames=500, levels=[1], descriptors=["patchnorm"])  # --quick
+GRIDS = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
 
 
 def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
@@ -48,8 +49,7 @@ def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
     settings = get_descriptor(descriptor).settings()
     model = RhythmicMap(r=2, level=level, descriptor=descriptor,
                         descriptor_settings=settings)  # fmt: skip
-    fit = lambda m: m.fit(x, progress=progress)  # noqa: E731
-    return h.cached_fit(model, x, MAP_CACHE, fit)[0]
+    return h.cached_fit(model, x, MAP_CACHE, progress=progress)[0]
 
 
 def timed(fn, repeats: int):
@@ -67,33 +67,32 @@ def _row(method, pred, gt, seconds, storage, **extra) -> dict:
     )  # fmt: skip
 
 
-def _blocks(scores: jax.Array, periods: tuple[int, ...]) -> list[jax.Array]:
-    return jnp.split(scores, np.cumsum(periods)[:-1].tolist(), axis=-1)
+def per_period(fn):
+    """(T, p) -> (T, p): ``fn`` on each period's block of every frame's scores,
+    jitted (the periods static)."""
+
+    @functools.partial(jax.jit, static_argnames=("periods",))
+    def apply(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
+        blocks = jnp.split(scores, np.cumsum(periods)[:-1].tolist(), axis=-1)
+        return jnp.concatenate([fn(b) for b in blocks], axis=-1)
+
+    return apply
 
 
-@functools.partial(jax.jit, static_argnames=("periods",))
-def standardise(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
-    """(T, p) -> (T, p): each frame's scores of each period to zero mean, unit std."""
-    out = []
-    for b in _blocks(scores, periods):
-        mu = jnp.mean(b, axis=-1, keepdims=True)
-        sd = jnp.std(b, axis=-1, keepdims=True)
-        out.append((b - mu) / jnp.maximum(sd, 1e-6))
-    return jnp.concatenate(out, axis=-1)
+def _standardise(b: jax.Array) -> jax.Array:
+    """A period's scores to zero mean, unit std."""
+    mu, sd = jnp.mean(b, axis=-1, keepdims=True), jnp.std(b, axis=-1, keepdims=True)
+    return (b - mu) / jnp.maximum(sd, 1e-6)
 
 
-@functools.partial(jax.jit, static_argnames=("periods",))
-def spread(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
-    """(T, p) -> (T, p): circular max over phases j-1, j, j+1 of every period."""
-    out = []
-    for b in _blocks(scores, periods):
-        rolled = jnp.maximum(jnp.roll(b, 1, axis=-1), jnp.roll(b, -1, axis=-1))
-        out.append(jnp.maximum(b, rolled))
-    return jnp.concatenate(out, axis=-1)
+def _spread(b: jax.Array) -> jax.Array:
+    """Circular max over phases j-1, j, j+1 of a period."""
+    rolled = jnp.maximum(jnp.roll(b, 1, axis=-1), jnp.roll(b, -1, axis=-1))
+    return jnp.maximum(b, rolled)
 
 
-@functools.partial(jax.jit, static_argnames=("window",))
-def centre_templates(scores: jax.Array, window: int) -> jax.Array:
+@functools.partial(jax.jit, static_argnames=("periods", "window"))
+def centre_templates(scores: jax.Array, periods=(), window=CENTRE_WINDOW) -> jax.Array:
     """(T, p) -> (T, p): each template's score minus its mean over the last ``window``
     query frames (causal; frame t uses frames max(0, t-window+1)..t)."""
     zero = jnp.zeros((1, scores.shape[1]), scores.dtype)
@@ -106,32 +105,21 @@ def centre_templates(scores: jax.Array, window: int) -> jax.Array:
 TRANSFORMS = {
     # log-softmax subtracts one constant per frame and period: the same for every
     # place, so the argmax (and the speed chosen) cannot change; shown as a check
-    "calibrated": lambda s, per: calibrate(s, per),
-    "standardised": standardise,
-    "spread ±1": spread,
-    f"centred (last {CENTRE_WINDOW} frames)": lambda s, per: centre_templates(
-        s, CENTRE_WINDOW
-    ),
+    "calibrated": calibrate,
+    "standardised": per_period(_standardise),
+    "spread ±1": per_period(_spread),
+    f"centred (last {CENTRE_WINDOW} frames)": centre_templates,
 }
 
 
-@functools.partial(jax.jit, static_argnums=(1, 2, 3, 4, 5))
-def place_sequence_decode(scores, periods, n, length, speeds, window) -> jax.Array:
-    """SeqSLAM's recipe on the map's place scores: (T, p) -> index (T,); periods,
-    places, length, speeds (a tuple) and contrast window are static."""
+@functools.partial(jax.jit, static_argnums=(1, 2, 3, 4))
+def place_sequence_decode(scores, periods, n, length, window) -> jax.Array:
+    """SeqSLAM's recipe on the map's place scores at speed 1: (T, p) -> index (T,);
+    periods, places, length and contrast window are static."""
     i, offsets = np.arange(n), period_offsets(periods)
     cols = np.stack([o + i % t for o, t in zip(offsets, periods, strict=True)])
     sim = sq.enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
-    best = index = None
-    for v in speeds:
-        d = sq.sequence_similarity(sim, length, v)
-        score, arg = jnp.max(d, axis=1), jnp.argmax(d, axis=1)
-        if best is None:
-            best, index = score, arg
-        else:
-            index = jnp.where(score > best, arg, index)
-            best = jnp.maximum(score, best)
-    return index
+    return jnp.argmax(sq.sequence_similarity(sim, length, 1.0), axis=1)
 
 
 def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
@@ -152,21 +140,20 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
     for method in ("hard", "soft", "topm"):
         label = f"{method} (m={M})" if method == "topm" else method
         add(label, lambda method=method: decode_scores(s, per, n, method, M).index)
-    grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
-    for length, v in grids:
+    for length, v in GRIDS:
         fn = lambda L=length, v=v: sequence_decode(s, per, n, L, v)  # noqa: E731
         add(f"sequence soft L={length} {_speeds(v)}", fn, length, v)
     for name, transform in TRANSFORMS.items():
-        for length, v in grids[1:]:
+        for length, v in GRIDS[1:]:
             if name == "calibrated" and len(v) > 1:
                 continue
             fn = lambda length=length, v=v, t=transform: sequence_decode(  # noqa: E731
                 t(s, per), per, n, length, v
             )
             add(f"sequence soft L={length} {_speeds(v)}, {name}", fn, length, v)
-    w, one = CONTRAST_WINDOW, (1.0,)
+    w = CONTRAST_WINDOW
     for length in LENGTHS[1:]:
-        fn = lambda L=length: place_sequence_decode(s, per, n, L, one, w)  # noqa: E731
+        fn = lambda L=length: place_sequence_decode(s, per, n, L, w)  # noqa: E731
         add(f"place-domain L={length} v=1, contrast w={w}", fn, length, [1.0])
     return rows
 
@@ -181,9 +168,8 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
     flat = BruteForce(n_threads=h.cores()).fit(ref)
     pred, sec = timed(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
-    grids = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
     for window in (None, CONTRAST_WINDOW):
-        for length, speeds in grids:
+        for length, speeds in GRIDS:
             label = f"SeqSLAM L={length} {_speeds(speeds)}"
             if window:
                 label += f", contrast w={window}"
@@ -221,12 +207,9 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     model = fitted_map(ref[hold.fit], level, descriptor, progress)
     per, n = model.periods, model.n
     scores = model.scores(qry)
-    seq = {
-        f"sequence soft L={GRID_LENGTH}": sequence_scores(scores, per, GRID_LENGTH),
-        f"sequence soft L={GRID_LENGTH}, centred": sequence_scores(
-            centre_templates(scores, CENTRE_WINDOW), per, GRID_LENGTH
-        ),
-    }
+    label, centred = f"sequence soft L={GRID_LENGTH}", centre_templates(scores)
+    seq = {label: sequence_scores(scores, per, GRID_LENGTH),
+           f"{label}, centred": sequence_scores(centred, per, GRID_LENGTH)}  # fmt: skip
     cases = {}
     for kind in ("margin", "likelihood"):
         ex = EXCLUDE if kind == "margin" else 0
@@ -370,13 +353,6 @@ def available(names) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> dict:
-    if args.quick:
-        args.frames = args.frames or 500
-        args.levels = args.levels or [1]
-        args.descriptors = args.descriptors or ["patchnorm"]
-        args.stem = "decoding_quick"
-    args.levels = args.levels or [1, 4]
-    args.descriptors = args.descriptors or list(DESCRIPTORS)
     blocks, outliers = [], []
     repeats = 3 if args.quick else 5
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
@@ -416,10 +392,10 @@ def run(args: argparse.Namespace) -> dict:
 
 def options(ap) -> None:
     ap.add_argument("--cache-dir", type=Path, default=None, help="descriptor cache")
-    ap.add_argument("--descriptors", nargs="+", default=None)
-    ap.add_argument("--levels", type=int, nargs="+", default=None)
+    ap.add_argument("--descriptors", nargs="+", default=list(DESCRIPTORS))
+    ap.add_argument("--levels", type=int, nargs="+", default=[1, 4])
     ap.add_argument("--frames", type=int, default=None, help="first frames only")
 
 
 if __name__ == "__main__":
-    h.main(__doc__, run, markdown, options, stem="decoding")
+    h.main(__doc__, run, markdown, options, stem="decoding", quick=QUICK)

@@ -5,7 +5,6 @@ python scripts/bench_descriptors.py            # writes reports/descriptors.*
 
 from __future__ import annotations
 
-import logging
 import os
 import time
 from pathlib import Path
@@ -13,12 +12,10 @@ from pathlib import Path
 import jax
 import numpy as np
 import torch
-from _harness import header, main, nordland_images, table
+from _harness import header, log, main, nordland_images, table
 
 from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
 from rhythmic_jax.projection import fit_pca, project
-
-log = logging.getLogger("bench_descriptors")
 
 # (row label, registry name, settings)
 DESCRIPTORS = (

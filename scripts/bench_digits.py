@@ -5,14 +5,14 @@ python scripts/bench_digits.py          # writes reports/digits.{json,md}
 
 from __future__ import annotations
 
-import logging
 import time
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-from _harness import header, main, table
+from _harness import header, log, main, table
 
+from rhythmic_jax import database_bytes, storage_bytes
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import calibrate
@@ -21,18 +21,13 @@ from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.eval.seqslam import seqslam_decode
 from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
 from rhythmic_jax.objective import default_c, period_errors, scores, targets
-from rhythmic_jax.periods import (
-    candidate_periods,
-    choose_periods,
-    database_bytes,
-    storage_bytes,
-)
+from rhythmic_jax.periods import candidate_periods, choose_periods
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
 from rhythmic_jax.split import NORDLAND_SPLIT
 
-log = logging.getLogger("bench_digits")
 TOL = 1
 LENGTHS = (5, 10, 20)
+QUICK = dict(levels="1")  # --quick
 
 
 def layouts(n: int, levels) -> list[tuple[str, int, Groups]]:
@@ -143,15 +138,10 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.levels, args.stem = "1", "digits_quick"
     test = NORDLAND_SPLIT.test
-    files = {
-        s: args.cache / f"nordland_{s}_{args.descriptor}.npy"
-        for s in ("summer", "winter")
-    }
-    summer = np.ascontiguousarray(np.load(files["summer"], mmap_mode="r")[test])
-    winter = np.ascontiguousarray(np.load(files["winter"], mmap_mode="r")[test])
+    path = str(args.cache / f"nordland_%s_{args.descriptor}.npy")  # per season
+    summer, winter = (np.ascontiguousarray(np.load(path % s, mmap_mode="r")[test])
+                      for s in ("summer", "winter"))  # fmt: skip
     n, d = summer.shape
     gt = np.arange(n)
     maps = layouts(n, [int(v) for v in args.levels.split(",")])
@@ -188,4 +178,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="digits")
+    main(__doc__, run, markdown, options, stem="digits", quick=QUICK)

@@ -12,57 +12,34 @@ import sys
 import tempfile
 from pathlib import Path
 
+import _harness as h
 import numpy as np
-from _harness import REPO, child, header, main, nordland_images, table, weights_folder
-
-AUGMENTED = """
-import json, sys, time
-import numpy as np, torch
-try:
-    from rhythmic_jax.augment.stream import AugmentedFit, fit_augmented
-    from rhythmic_jax.io.images import nordland
-    from rhythmic_jax.solvers.newton import newton_fit
-    from rhythmic_jax.frames.features import cached_describe, get_descriptor
-except ImportError:  # the flat layout of the baseline checkout
-    from rhythmic_jax.augmented import AugmentedFit, fit_augmented
-    from rhythmic_jax.data import nordland
-    from rhythmic_jax.newton import newton_fit
-    from rhythmic_jax.features import cached_describe, get_descriptor
-from rhythmic_jax.objective import default_c, targets
-from rhythmic_jax.periods import candidate_periods
-root, frames, names = sys.argv[1], int(sys.argv[2]), sys.argv[3]
-images = nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
-desc = get_descriptor("efficientnet_lite0")
-if get_descriptor.__module__ == "rhythmic_jax.frames.features":  # not the baseline
-    from rhythmic_jax.frames.compiled import CompilePolicy, FastDescriptor
-    desc = FastDescriptor(desc, frames, CompilePolicy(min_frames=0))
-clean = cached_describe(images, desc, key="bench", progress=False)
-n = len(images)
-periods = candidate_periods(n, 2, 1, 7)
-init, _ = newton_fit(clean, targets(np.arange(n), periods), default_c(n),
-                     progress=False)
-cfg = (AugmentedFit(names=("hflip",), p=0.0, epochs=1) if names == "none"
-       else AugmentedFit(names=(names,), epochs=1,
-                         augment_settings={"elastic_impl": "coarse"}))
-warm = AugmentedFit(names=("hflip",), p=0.0, epochs=1)
-fit_augmented(images[:128], clean[:128], np.arange(128), periods, init,
-              default_c(n), desc, warm, progress=False)
-t = time.perf_counter()
-_, tm = fit_augmented(images, clean, np.arange(n), periods, init, default_c(n),
-                      desc, cfg, progress=False)
-wall = time.perf_counter() - t
-print(json.dumps(dict(tm, wall=wall, frames_per_s=n / wall)))
-"""
-
 
 PARTIAL = Path(tempfile.gettempdir()) / "bench_frames_partial.json"
+QUICK = dict(frames=100, repeats=1, aug_frames=130)  # --quick
+
+
+def augmented(root: str, frames: int, names: str) -> dict:
+    """An augmented job's process, in either checkout: one epoch over ``frames``
+    Nordland frames with Lite0 (``none``: no augmentation) and its frames/s."""
+    from bench_pipeline import epochs, library
+
+    _, features, images, _ = library()
+    x = images.nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
+    desc = features.get_descriptor("efficientnet_lite0")
+    if features.__name__ == "rhythmic_jax.frames.features":  # not the baseline
+        from rhythmic_jax.frames.compiled import CompilePolicy, FastDescriptor
+
+        desc = FastDescriptor(desc, frames, CompilePolicy(min_frames=0))
+    tm = epochs(x, desc, "bench", [(names,)])[0]
+    return dict(tm, frames_per_s=len(x) / tm["wall"])
 
 
 def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, Path]:
     """640x320 JPEG folders: ref (n summer frames), q (n winter), small (100)."""
     from PIL import Image
 
-    summer, winter = nordland_images(root)
+    summer, winter = h.nordland_images(root)
     out = {}
     for name, frames in (("ref", summer.images[:n]), ("q", winter.images[:n]),
                          ("small", summer.images[n : n + small])):  # fmt: skip
@@ -80,7 +57,8 @@ def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, P
 def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
     """Wall and CPU seconds of one command of ``checkout`` with its cache folder."""
     env = {k: v for k, v in os.environ.items() if k != "RHYTHMIC_JAX_COMPILE_CACHE"}
-    r = child(cmd, checkout, weights_folder(), env=env, RHYTHMIC_JAX_CACHE=str(cache))
+    env["RHYTHMIC_JAX_CACHE"] = str(cache)
+    r = h.child(cmd, checkout, h.weights_folder(), env=env)
     return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
@@ -107,7 +85,7 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
     (the installed script imports this checkout's)."""
     if job.startswith("augmented"):
         root = str(args.root / "nordland_64x32")
-        return [sys.executable, "-c", AUGMENTED, root, str(args.aug_frames), job[10:]]
+        return h.command(augmented, root, args.aug_frames, job[10:])
     exe, out_map = [sys.executable, "-m", "rhythmic_jax.cli"], tmp / f"{variant}.map"
     if job == "query":
         out = str(tmp / f"{variant}.npy")
@@ -122,10 +100,7 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.frames, args.repeats, args.aug_frames = 100, 1, 130
-        args.stem = "frames_quick"
-    paths = {"base": str(args.base.resolve()), "new": str(REPO)}
+    paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
     jobs = ["fit", "query", "fit100"]
     jobs += [] if args.skip_augmented else ["augmented_none", "augmented_all"]
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
@@ -221,7 +196,7 @@ def markdown(report: dict) -> str:
     loads = [r["load"] for by in report["runs"].values() for rs in by.values()
              for r in rs]  # fmt: skip
     return "\n".join([
-        *header("Frames per second from images, end to end", report),
+        *h.header("Frames per second from images, end to end", report),
         f"Baseline checkout {report['base']} run interleaved with this one in"
         " the same process tree (CPU seconds count the work). Medians of"
         f" {report['repeats']} runs; every job starts with an empty descriptor"
@@ -230,7 +205,7 @@ def markdown(report: dict) -> str:
         " this run, in a 100-frame `--compile always` fit) and a first 1000-frame"
         " fit and query filled the compile cache; each job starts from a copy.",
         "",
-        table(["job", "base wall s", "new wall s", "base frames/s",
+        h.table(["job", "base wall s", "new wall s", "base frames/s",
                "new frames/s", "base CPU s", "new CPU s", "new / base frames/s",
                "base / new CPU s", "target (on frames/s)"],
               rows),  # fmt: skip
@@ -249,4 +224,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="frames")
+    h.main(__doc__, run, markdown, options, stem="frames", quick=QUICK)

@@ -6,17 +6,16 @@ python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 10000
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import jax
 import numpy as np
-from _harness import header, main, table, timed
+from _harness import header, log, main, table, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
 
-log = logging.getLogger("bench_gpu")
+QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[])  # --quick
 
 
 def write_features(root: Path, path: Path) -> None:
@@ -118,9 +117,6 @@ def run(args) -> dict | None:
         return None
     if args.features is None:
         raise SystemExit("--features (or --write-features) is required")
-    if args.quick:
-        args.rows, args.batches, args.decode = args.rows or 600, [100], 2000
-        args.fit_sizes, args.stem = [], "gpu_quick"
     both = np.load(args.features)
     summer, winter = (np.asarray(x[: args.rows], np.float32) for x in both[:2])
     gpus = [d for d in jax.devices() if d.platform == "gpu"]
@@ -142,4 +138,4 @@ def run(args) -> dict | None:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="gpu")
+    main(__doc__, run, markdown, options, stem="gpu", quick=QUICK)

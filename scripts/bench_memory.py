@@ -5,22 +5,16 @@ python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 
 from __future__ import annotations
 
-import argparse
-import json
-import logging
-import subprocess
-import sys
 import time
 
 import numpy as np
-from _harness import header, main, table
+from _harness import call, header, log, main, table
 
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
 
-log = logging.getLogger("bench_memory")
-
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
+QUICK = dict(shapes=["600x32"], repeats=1)  # --quick
 MB = 1e6
 
 HEAD = ["n x d", "shape", "p", "estimate MB", "cold MB", "est / cold", "arrays MB",
@@ -34,11 +28,11 @@ def fit_peak(x: np.ndarray) -> int:
     return peak_growth(lambda: RhythmicMap().fit(x, progress=False)) + x.nbytes
 
 
-def measure(repeats: int, shapes: list[str]) -> None:
-    """The child: one JSON line per shape."""
+def measure(repeats: int, shapes: list[str]) -> list[dict]:
+    """The fresh process: a record per shape."""
     from rhythmic_jax import RhythmicMap
 
-    rng = np.random.default_rng(0)
+    rng, rows = np.random.default_rng(0), []
     RhythmicMap().fit(rng.normal(size=(48, 8)).astype(np.float32), progress=False)
     for shape in shapes:
         n, d = map(int, shape.split("x"))
@@ -52,9 +46,9 @@ def measure(repeats: int, shapes: list[str]) -> None:
         RhythmicMap().fit(x, progress=False)  # the first run of compiled code
         warm = [fit_peak(x) for _ in range(repeats)]
         warm_s = (time.perf_counter() - t1) / max(repeats, 1)
-        row = dict(n=n, d=d, p=p, admitted=admitted, cold=cold, warm=warm,
-                   cold_s=t1 - t0, warm_s=warm_s)  # fmt: skip
-        print(json.dumps(row), flush=True)
+        rows.append(dict(n=n, d=d, p=p, admitted=admitted, cold=cold, warm=warm,
+                         cold_s=t1 - t0, warm_s=warm_s))  # fmt: skip
+    return rows
 
 
 def kind(n: int, d: int) -> str:
@@ -89,31 +83,19 @@ def markdown(report: dict) -> str:
 def options(ap) -> None:
     ap.add_argument("--shapes", nargs="+", default=SHAPES, help="NxD ...")
     ap.add_argument("--repeats", type=int, default=2, help="warm refits a shape")
-    ap.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
 
 
-def run(args) -> dict | None:
-    if args.measure:  # the child
-        measure(args.repeats, args.shapes)
-        return None
-    if args.quick:
-        args.shapes, args.repeats, args.stem = ["600x32"], 1, "memory_quick"
-    child = subprocess.run(
-        [sys.executable, __file__, "--measure", "--repeats", str(args.repeats),
-         "--shapes", *args.shapes],
-        capture_output=True, text=True, check=True,
-    )  # fmt: skip
-    rows = []
-    for r in (json.loads(ln) for ln in child.stdout.splitlines() if ln[:1] == "{"):
+def run(args) -> dict:
+    rows = call(measure, args.repeats, args.shapes)["result"]
+    for r in rows:
         parts = fit_bytes(r["n"], r["d"], r["p"])
         est = sum(parts.values())
         r.update(kind=kind(r["n"], r["d"]), parts=parts, estimate=est,
                  arrays=est - parts["compile"])  # fmt: skip
-        rows.append(r)
         log.info("%s", r)
     compile_bytes = rows[0]["parts"]["compile"] if rows else 0
     return dict(repeats=args.repeats, compile_bytes=compile_bytes, rows=rows)
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="memory")
+    main(__doc__, run, markdown, options, stem="memory", quick=QUICK)

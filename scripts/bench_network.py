@@ -5,25 +5,23 @@ python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 
 from __future__ import annotations
 
-import logging
 import tempfile
 import time
 
 import numpy as np
 import torch
-from _harness import header, main, nordland_images, table, timed
+from _harness import header, log, main, nordland_images, table, timed
 
 from rhythmic_jax.frames import compiled
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.frames.pipeline import _to_batch
-
-log = logging.getLogger("bench_network")
 
 HEAD = [
     "batch", "eager best f/s", "eager median f/s", "compiled best f/s",
     "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
     "max rel diff",
 ]  # fmt: skip
+QUICK = dict(batches=[8], frames=64, repeats=1)  # --quick
 
 
 def frames_per_s(run, x: torch.Tensor, repeats: int) -> dict:
@@ -43,9 +41,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.batches, args.frames, args.repeats = [8], 64, 1
-        args.stem = "network_quick"
     desc = get_descriptor("efficientnet_lite0", block=args.block)
     (summer,) = nordland_images(args.root, ("summer",))
     images = summer.images[: args.frames]
@@ -123,4 +118,4 @@ def markdown(report: dict) -> str:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="network")
+    main(__doc__, run, markdown, options, stem="network", quick=QUICK)

@@ -11,6 +11,52 @@ import numpy as np
 from _harness import header, load_average, main, nordland_images, table
 
 
+def library() -> tuple:
+    """The augmented fit's modules (stream, features, images, newton) in this
+    checkout, or in the flat layout of a baseline one (``bench_frames.py`` runs
+    them in either)."""
+    try:
+        from rhythmic_jax.augment import stream
+        from rhythmic_jax.frames import features
+        from rhythmic_jax.io import images
+        from rhythmic_jax.solvers import newton
+    except ImportError:
+        from rhythmic_jax import augmented as stream
+        from rhythmic_jax import data as images
+        from rhythmic_jax import features, newton
+    return stream, features, images, newton
+
+
+def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
+    """One augmented epoch over ``images`` per variant (augmentation names;
+    ``("none",)``: describe and step, no augmentation) from the clean fit, after a
+    warm-up epoch (it compiles the optax step): each epoch's seconds by part, and
+    its wall."""
+    from rhythmic_jax.objective import default_c, targets
+    from rhythmic_jax.periods import candidate_periods
+
+    (stream, features, _, newton), n = library(), len(images)
+    clean = features.cached_describe(images, desc, key=key, progress=False)
+    periods, c, labels = candidate_periods(n, 2, 1, 7), default_c(n), np.arange(n)
+    init, _ = newton.newton_fit(clean, targets(labels, periods), c, progress=False)
+    plain = stream.AugmentedFit(names=("hflip",), p=0.0, epochs=1)
+
+    def fit(x, cfg):
+        m = len(x)
+        args = x, clean[:m], labels[:m], periods, init, c, desc, cfg
+        return stream.fit_augmented(*args, progress=False)[1]
+
+    fit(images[:128], plain)
+    out = []
+    for names in variants:
+        settings = {"elastic_impl": elastic}
+        cfg = stream.AugmentedFit(names=names, epochs=1, augment_settings=settings)
+        t = time.perf_counter()
+        tm = fit(images, plain if names == ("none",) else cfg)
+        out.append(dict(tm, wall=time.perf_counter() - t))
+    return out
+
+
 def options(ap) -> None:
     ap.add_argument("--frames", type=int, default=1024)
     ap.add_argument("--descriptor", default="patchnorm")
@@ -22,52 +68,33 @@ def run(args) -> dict:
     import torch
 
     from rhythmic_jax.augment.kornia_ops import NAMES
-    from rhythmic_jax.augment.stream import AugmentedFit, fit_augmented
-    from rhythmic_jax.frames.features import cached_describe, get_descriptor
-    from rhythmic_jax.objective import default_c, targets
+    from rhythmic_jax.frames.features import get_descriptor
     from rhythmic_jax.periods import candidate_periods
-    from rhythmic_jax.solvers.newton import newton_fit
 
     torch.set_num_threads(args.threads)
-    names_all = [("none",), *((k,) for k in NAMES), ("all",)]
+    variants = [("none",), *((k,) for k in NAMES), ("all",)]
     if args.quick:
-        args.frames, names_all = min(args.frames, 160), [("none",), ("hflip",)]
+        args.frames, variants = min(args.frames, 160), [("none",), ("hflip",)]
     own = "" if args.descriptor == "patchnorm" else "_" + args.descriptor
     args.stem = "pipeline" + own + ("_quick" if args.quick else "")
     (summer,) = nordland_images(args.root, ("summer",))
-    images = summer.images[: args.frames]
-    desc = get_descriptor(args.descriptor)
-    clean = cached_describe(images, desc, key=f"nordland-summer-{len(images)}")
-    n = len(images)
-    periods = candidate_periods(n, 2, 1, 7)
-    c = default_c(n)
-    init, _ = newton_fit(clean, targets(np.arange(n), periods), c, progress=False)
-    # warm-up: compile the optax step and the descriptor's first batches once
-    warm = AugmentedFit(names=("hflip",), p=0.0, epochs=1)
-    fit_augmented(images[:128], clean[:128], np.arange(128), periods, init, c, desc,
-                  warm, progress=False)  # fmt: skip
-    load0, rows = load_average(), []
-    for names in names_all:
-        settings = {"elastic_impl": args.elastic}
-        cfg = AugmentedFit(names=names, epochs=1, augment_settings=settings)
-        if names == ("none",):  # the peer: describe and step, no augmentation
-            cfg = AugmentedFit(names=("hflip",), p=0.0, epochs=1)
-        t = time.perf_counter()
-        _, tm = fit_augmented(images, clean, np.arange(n), periods, init, c, desc,
-                              cfg, progress=False)  # fmt: skip
+    images, desc = summer.images[: args.frames], get_descriptor(args.descriptor)
+    n, load0, rows = len(images), load_average(), []
+    key = f"nordland-summer-{n}"
+    for names, tm in zip(variants, epochs(images, desc, key, variants, args.elastic),
+                         strict=True):  # fmt: skip
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
         rows.append(dict(
             augmentation=names[0], frames_per_s=fps, augment_s=tm["augment"],
-            describe_s=tm["describe"], step_s=tm["step"],
-            wall_s=time.perf_counter() - t,
+            describe_s=tm["describe"], step_s=tm["step"], wall_s=tm["wall"],
         ))  # fmt: skip
-        print(rows[-1], flush=True)
     for r in rows:
         r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]
     return dict(descriptor=desc.settings() | {"name": args.descriptor}, frames=n,
-                templates=sum(periods), torch_threads=torch.get_num_threads(),
-                loadavg_start=load0, loadavg_end=load_average(), rows=rows)  # fmt: skip
+                templates=sum(candidate_periods(n, 2, 1, 7)),
+                torch_threads=torch.get_num_threads(), loadavg_start=load0,
+                loadavg_end=load_average(), rows=rows)  # fmt: skip
 
 
 def markdown(r: dict) -> str:

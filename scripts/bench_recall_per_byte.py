@@ -13,7 +13,6 @@ from pathlib import Path
 
 import faiss
 import jax
-import numpy as np
 from _harness import fastest, header, main, nordland_features, table
 
 from rhythmic_jax.codes import code_bytes, pack_bits
@@ -26,6 +25,7 @@ BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
 DS = (256, 2048, 4096, 10976)
 BITS = (64, 128, 256, 512)
+QUICK = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
 def projections() -> list[dict]:
@@ -150,11 +150,6 @@ def markdown(rep: dict) -> str:
         lines.append(
             table(["budget", "best", "map or hybrid", "ITQ", "own - ITQ"], body)
         )
-    if rep.get("cross_rows"):
-        lines += ["", "### ITQ fitted across conditions on the training places", ""]
-        body = [[r["name"], 100 * r["share"], *(r[f"recall@1 L={k}"] for k in ls)]
-                for r in rep["cross_rows"]]  # fmt: skip
-        lines.append(table(["codes", "share %"] + [f"R@1 L={k}" for k in ls], body))
     t = rep["timing"] or {"setting": "not measured in this run"}
     lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
     body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
@@ -178,16 +173,17 @@ def markdown(rep: dict) -> str:
     return "\n".join(lines)
 
 
+def _ints(text: str) -> tuple:
+    """``64,128`` -> (64, 128); ``2:4,3:4`` -> ((2, 4), (3, 4))."""
+    parts = [tuple(int(v) for v in part.split(":")) for part in text.split(",")]
+    return tuple(p if len(p) > 1 else p[0] for p in parts)
+
+
 def options(ap) -> None:
-    ap.add_argument("--cross", action="store_true",
-                    help="also ITQ fitted across conditions")  # fmt: skip
-    ap.add_argument(
-        "--cache",
-        help="folder keeping fitted templates and codes ('' for none)",
-        default=str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
-    )
-    ap.add_argument("--maps", default=None, help="maps as r:level,... (e.g. 2:4,3:4)")
-    ap.add_argument("--bits", default=None, help="code sizes, e.g. 64,128")
+    cache = Path.home() / ".cache" / "rhythmic_jax" / "frontier"
+    ap.add_argument("--cache", default=str(cache), help="fitted maps, codes ('': none)")
+    ap.add_argument("--maps", type=_ints, help="maps as r:level,... (e.g. 2:4,3:4)")
+    ap.add_argument("--bits", type=_ints, help="code sizes, e.g. 64,128")
     ap.add_argument("--no-timing", action="store_true", help="skip the speed table")
 
 
@@ -196,31 +192,11 @@ def run(args) -> dict:
     s, w = nordland_features(args.root, "efficientnet_lite0", key="nordland_",
                              progress=args.progress)  # fmt: skip
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
-    cfg = fr.FrontierConfig()
-    if args.quick:
-        cfg = dataclasses.replace(cfg, maps=((2, 1), (3, 2)), bits=(64, 128))
-    if args.maps:
-        maps = tuple(tuple(int(v) for v in m.split(":")) for m in args.maps.split(","))
-        cfg = dataclasses.replace(cfg, maps=maps)
-    if args.bits:
-        cfg = dataclasses.replace(cfg, bits=tuple(int(b) for b in args.bits.split(",")))
+    given = {k: v for k in ("maps", "bits") if (v := getattr(args, k))}
+    cfg = dataclasses.replace(fr.FrontierConfig(), **given)
     t0 = time.perf_counter()
     cache = args.cache or None
     rows = fr.frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
-    both = np.concatenate([s[tr], w[tr]])
-    cross_rows = []
-    for bits in cfg.bits if args.cross else ():
-        book = fr.fitted_codes(s[te], bits, cache, fit_on=both)
-        sims = np.asarray(book.similarity(w[te]))
-        rec = fr.similarity_recalls(sims, cfg.lengths, cfg.tolerance)
-        size = code_bytes(len(te), s.shape[1], bits)["total"]
-        cross_rows.append(
-            {
-                "name": f"ITQ {bits} bits, across conditions",
-                "share": size / (len(te) * s.shape[1] * 4),
-                **{f"recall@1 L={k}": v for k, v in rec.items()},
-            }
-        )
     rep = {
         "protocol": (
             f"Nordland split: test places {int(te[0])}-{int(te[-1])} (N = {len(te)}),"
@@ -237,7 +213,6 @@ def run(args) -> dict:
         "config": dataclasses.asdict(cfg),
         "lengths": list(cfg.lengths),
         "rows": rows,
-        "cross_rows": cross_rows,
         "budgets": {str(k): fr.budget_table(rows, BUDGETS, k) for k in cfg.lengths},
         "timing": {}
         if args.no_timing
@@ -253,4 +228,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="recall_per_byte")
+    main(__doc__, run, markdown, options, stem="recall_per_byte", quick=QUICK)

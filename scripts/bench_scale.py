@@ -9,12 +9,9 @@ from __future__ import annotations
 
 import itertools
 import json
-import logging
 import math
 import os
 import resource
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -27,26 +24,22 @@ from rhythmic_jax.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
 
-log = logging.getLogger("bench_scale")
+log = bc.log
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
-_PEAK = """import json, resource, subprocess, sys, time
-t = time.perf_counter()
-done = subprocess.run(sys.argv[1:], capture_output=True, text=True)
-sys.stderr.write(done.stderr[-3000:])
-print(json.dumps(dict(rc=done.returncode, seconds=time.perf_counter() - t,
-    peak=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024,
-    out=done.stdout)))"""
+DTYPES = ("float32", "float16", "int8")
+PASSES = ("gradient", "gradient + bits", "CG", "CG from bits", "line search")
 
 
-def peaked(cmd: list[str], check: bool = True) -> dict:
-    """``cmd`` under the peak-memory wrapper: rc, seconds, peak bytes, stdout."""
-    done = subprocess.run([sys.executable, "-c", _PEAK, *cmd], capture_output=True,
-                          text=True)  # fmt: skip
-    res = json.loads(done.stdout)
-    if check and res["rc"] != 0:
-        raise RuntimeError(done.stderr[-2000:])
-    return res | dict(stderr=done.stderr[-2000:])
+def fit_command(path: Path, out: Path, *options: str) -> list[str]:
+    """``rhythmic-jax fit`` of the frames in ``path`` to ``out``, gap 1e-3."""
+    return ["rhythmic-jax", "fit", str(path), "--out", str(out), *options,
+            "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
+
+
+def fitted(stdout: str) -> dict:
+    """The JSON record ``rhythmic-jax fit --json`` printed."""
+    return json.loads(stdout[stdout.index("{") :])
 
 
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
@@ -74,48 +67,36 @@ def accuracy(model: RhythmicMap, frames, n: int) -> float:
     return hits / n
 
 
-def run_fit(
-    path: Path, out: Path, r: int, procs: int, mode: str, memory: str,
-    periods: tuple[int, ...] | None = None,
-):  # fmt: skip
-    """``rhythmic-jax fit`` (``periods``: fixed) under the peak-memory wrapper."""
-    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
-           "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
-    if periods is None:  # fixed periods imply r
-        cmd += ["--r", str(r)]
-    else:
-        cmd += ["--layout", "periods:" + ",".join(map(str, periods))]
-    if procs > 1:
-        cmd += ["--processes", str(procs)]
-    if mode == "stream":
-        cmd += ["--stream", "--memory", memory]
-    res = peaked(cmd)
-    text = res["out"]
-    info = json.loads(text[text.index("{") :])
-    return dict(seconds=res["seconds"], peak=res["peak"], info=info)
+def dtypes(model: RhythmicMap) -> dict[str, RhythmicMap]:
+    """The map in each of ``DTYPES``."""
+    return {t: model if t == "float32" else model.with_dtype(t) for t in DTYPES}
 
 
 def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
-    """Fit one cell (source, n, d, r, processes, mode, rule) and measure it."""
+    """Fit one cell (source, n, d, r, processes, mode, rule) in a fresh process
+    and measure it."""
     source, n, d, r, procs, mode, rule = cell
     out = tmp / f"{_key(cell)}.map"
-    fixed = nominal_periods(n, r) if rule == "least" else None
-    fit = run_fit(x_path, out, r, procs, mode, memory, fixed)
-    model = RhythmicMap.load(out)
-    frames = open_frames(x_path)
-    acc = {"float32": accuracy(model, frames, n)}
-    for dtype in ("float16", "int8"):
-        acc[dtype] = accuracy(model.with_dtype(dtype), frames, n)
-    info, run = fit["info"], fit["info"].get("fit") or {}
+    if rule == "least":  # fixed periods imply r
+        options = ["--layout", "periods:" + ",".join(map(str, nominal_periods(n, r)))]
+    else:
+        options = ["--r", str(r)]
+    options += ["--processes", str(procs)] if procs > 1 else []
+    options += ["--stream", "--memory", memory] if mode == "stream" else []
+    fit = bc.child(fit_command(x_path, out, *options), cwd=Path.cwd())
+    models, frames = dtypes(RhythmicMap.load(out)), open_frames(x_path)
+    info = fitted(fit["stdout"])
+    run = info.get("fit") or {}
     row = dict(
         source=source, n=n, d=d, r=r, processes=procs, mode=mode, rule=rule,
         periods=info["periods"], storage_bytes=info["storage_bytes"],
         bytes_per_place=info["storage_bytes"] / n,
-        float16_bytes=model.with_dtype("float16").storage_bytes,
-        int8_bytes=model.with_dtype("int8").storage_bytes, fit_seconds=fit["seconds"],
+        float16_bytes=models["float16"].storage_bytes,
+        int8_bytes=models["int8"].storage_bytes, fit_seconds=fit["wall"],
         peak_bytes=fit["peak"], memory=memory if mode == "stream" else None,
         passes=run.get("passes"), pass_median_s=run.get("pass_median_s"),
-        block_rows=run.get("block_rows"), accuracy=acc, nice=os.nice(0),
+        block_rows=run.get("block_rows"), nice=os.nice(0),
+        accuracy={t: accuracy(m, frames, n) for t, m in models.items()},
     )  # fmt: skip
     log.info("%s", row)
     return row
@@ -146,12 +127,6 @@ def _rule(row: dict) -> str:
     return row.get("rule", "errors")
 
 
-def least_slope(ns: list[int], r: int) -> float:
-    """The storage slope of the least-storage co-prime sets over ``ns``."""
-    sums = [sum(nominal_periods(int(n), r)) for n in ns]
-    return float(np.polyfit(np.log(ns), np.log(sums), 1)[0])
-
-
 def series(
     rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
 ) -> list[dict]:
@@ -171,15 +146,18 @@ def slopes(rows: list[dict]) -> list[dict]:
     keys = sorted({(r["source"], r["d"], r["r"], _rule(r)) for r in one})
     for source, d, r, rule in keys:
         pts = series(rows, source, d, r, rule)
-        if len({p["n"] for p in pts}) < 2:
-            continue
-        lx = np.log([p["n"] for p in pts])
-        ly = np.log([p["storage_bytes"] for p in pts])
-        slope = float(np.polyfit(lx, ly, 1)[0])
-        top = np.asarray([p["n"] for p in pts]) >= 10000
-        upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         ns = [p["n"] for p in pts]
-        low, high = rule_range(ns, r) if rule == "errors" else (least_slope(ns, r),) * 2
+        if len(set(ns)) < 2:
+            continue
+        lx, ly = np.log(ns), np.log([p["storage_bytes"] for p in pts])
+        slope = float(np.polyfit(lx, ly, 1)[0])
+        top = np.asarray(ns) >= 10000
+        upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
+        if rule == "errors":
+            low, high = rule_range(ns, r)
+        else:  # the least-storage co-prime sets
+            sums = [sum(nominal_periods(int(n), r)) for n in ns]
+            low = high = float(np.polyfit(lx, np.log(sums), 1)[0])
         out.append(dict(
             source=source, d=d, r=r, rule=rule, points=len(pts), slope=slope,
             slope_from_10k=upper, target=1 / r, within=abs(slope - 1 / r) <= 0.05,
@@ -265,21 +243,19 @@ def markdown(report: dict) -> str:
         "",
     ]
     slopes = [
-        [s["source"], s["d"], s["r"], s.get("rule", "errors"), s["points"],
+        [s["source"], s["d"], s["r"], _rule(s), s["points"],
          round(s["slope"], 4), round(s["target"], 4), str(s["within"]),
          _num(s.get("slope_from_10k"), 4), _allows(s)]
         for s in report["slopes"]
     ]  # fmt: skip
     lines.append(bc.table(SLOPES, slopes))
     for sl in report["slopes"]:
-        rule = sl.get("rule", "errors")
-        pts = series(report["rows"], sl["source"], sl["d"], sl["r"], rule)
+        pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
         pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
-        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, "
-                  f"{sl.get('rule', 'errors')}: the chosen "
-                  f"periods' product M is {m0 / n0:.2f} N at N = {n0:,} and "
-                  f"{m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
+        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
+                  f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
+                  f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
     lines += ["", "'the rule allows': the least and largest slope any choice of the"
               " candidate rule gives over the series' N; docs/SCALE.md."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
@@ -298,13 +274,6 @@ def markdown(report: dict) -> str:
                   + ", ".join(report["missing"])]  # fmt: skip
     lines += ["", "Figures: " + ", ".join(report["figures"])]
     return "\n".join(lines)
-
-
-def nordland_summer(root: Path) -> np.ndarray | None:
-    """(3576, 2048) Nordland summer patchnorm descriptors, or None without data."""
-    if not (root / bc.NORDLAND / "summer").is_dir():
-        return None
-    return bc.nordland_features(root, seasons=("summer",))[0]
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -340,24 +309,19 @@ def _key(cell: tuple) -> str:
     return "-".join(map(str, cell[:6] if cell[6:] in ((), ("errors",)) else cell))
 
 
-def features(source: str, n: int, d: int, cells: Path, root: Path) -> Path:
-    path = cells / f"{source}-{n}-{d}.npy"
-    if not path.exists():
-        x = walk(n, d) if source == "walk" else nordland_summer(root)[:n]
-        np.save(cells / "partial.npy", x)
-        os.replace(cells / "partial.npy", path)
-    return path
-
-
-def route_file(path: Path, n: int) -> Path:
-    """n route-like 256-d frames in a memory-mapped ``.npy`` at ``path`` (kept)."""
+def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> Path:
+    """n frames in a ``.npy`` at ``path`` (kept): route-like d-dim ones written
+    through a memory map, or (``root``) the first of Nordland summer's."""
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name("partial.npy")
-        part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, 256))
-        walk(n, 256, out=part)
-        part.flush()
-        del part
+        if root is None:
+            part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, d))
+            walk(n, d, out=part)
+            part.flush()
+            del part
+        else:
+            np.save(partial, bc.nordland_features(root, seasons=("summer",))[0][:n])
         os.replace(partial, path)
     return path
 
@@ -377,39 +341,35 @@ def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
     return kinds
 
 
-def full(n: int, periods: str, memory: str, work: Path, cells: Path) -> dict:
-    """The whole streamed r = 3 fit of n route-like 256-d frames (in ``work``) with
-    fixed periods under ``memory``: wall, passes, peak memory, accuracy."""
-    saved = cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
+def full(args) -> dict:
+    """The whole streamed r = 3 fit of ``--full`` route-like 256-d frames (in
+    ``--full-work``) with fixed periods under ``--full-memory``: wall, passes,
+    peak memory, accuracy."""
+    n, periods, memory = args.full, args.full_periods, args.full_memory
+    saved = args.cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
         return json.loads(saved.read_text())
-    work.mkdir(parents=True, exist_ok=True)
-    path = route_file(work / f"walk-{n}-256.npy", n)
-    out = work / f"walk-{n}.map"
-    attempts = work / "attempts.jsonl"
-    cmd = ["rhythmic-jax", "fit", str(path), "--out", str(out),
-           "--layout", f"periods:{periods}", "--stream", "--memory", memory,
-           "--gap", "1e-3", "--json", "--no-progress"]  # fmt: skip
+    work = args.full_work
+    path = frames_file(work / f"walk-{n}-256.npy", n)
+    out, attempts = work / f"walk-{n}.map", work / "attempts.jsonl"
+    options = "--layout", f"periods:{periods}", "--stream", "--memory", memory
+    cmd = fit_command(path, out, *options)
     if not out.exists():
         start = time.strftime("%H:%M UTC", time.gmtime())
-        res = peaked(cmd, check=False)
-        err = res.pop("stderr")
-        res.update(start=start, load=bc.load_average())
+        r = bc.child(cmd, cwd=Path.cwd(), check=False)
+        res = dict(rc=r["rc"], seconds=r["wall"], peak=r["peak"], out=r["stdout"],
+                   start=start, load=bc.load_average())  # fmt: skip
         with open(attempts, "a") as fh:
             fh.write(json.dumps(res) + "\n")
         if res["rc"] != 0:
-            raise RuntimeError(err)
+            raise RuntimeError(r["stderr"][-2000:])
     tries = [json.loads(line) for line in attempts.read_text().splitlines()]
-    text = tries[-1]["out"]
-    info = json.loads(text[text.index("{") :])
+    info = fitted(tries[-1]["out"])
     run = info["fit"]
     model = RhythmicMap.load(out)
-    x = np.load(path, mmap_mode="r")
     picks = np.linspace(0, n - 1, min(n, 20000)).astype(int)
-    acc = {}
-    for dtype in ("float32", "float16", "int8"):
-        m = model if dtype == "float32" else model.with_dtype(dtype)
-        acc[dtype] = float(np.mean(m.predict(np.asarray(x[picks])) == picks))
+    x = np.asarray(np.load(path, mmap_mode="r")[picks])
+    acc = {t: float(np.mean(m.predict(x) == picks)) for t, m in dtypes(model).items()}
     kinds = pass_kinds(run["cg"], run["pass_seconds"])
     row = dict(
         n=n, d=256, r=3, periods=info["periods"], memory=memory,
@@ -472,20 +432,54 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
     ]
 
 
-def probe(n: int, memory: str, cells: Path, work: Path, periods: str) -> dict:
-    """Seconds of one streamed pass of each kind over n route-like 256-d frames,
-    fixed periods and the r = 3 candidate set, and the peak memory."""
-    saved = cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
+def probe(args) -> dict:
+    """Seconds of one streamed pass of each kind over ``--probe`` route-like 256-d
+    frames under ``--probe-memory``, fixed periods and the r = 3 candidate set,
+    and the peak memory (a fresh process)."""
+    n, memory, periods = args.probe, args.probe_memory, args.full_periods
+    saved = args.cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
     if saved.exists():
         return json.loads(saved.read_text())
-    path = route_file(work / f"walk-{n}-256.npy", n)
-    res = peaked([sys.executable, "-c", _CHILD, str(path), memory, periods])
-    out = json.loads(res["out"].strip().splitlines()[-1])
-    out.update(peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
-               load=bc.load_average(), nice=NICE,
-               measured=time.strftime("%H:%M UTC", time.gmtime()))  # fmt: skip
+    path = frames_file(args.full_work / f"walk-{n}-256.npy", n)
+    res = bc.call(passes, str(path), memory, periods)
+    out = res["result"] | dict(
+        peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
+        load=bc.load_average(), nice=NICE,
+        measured=time.strftime("%H:%M UTC", time.gmtime()),
+    )  # fmt: skip
     saved.write_text(json.dumps(out))
     return out
+
+
+def passes(path: str, memory: str, periods: str) -> dict:
+    """The probe's process: one pass of each kind (seconds, compiling included)."""
+    import jax.numpy as jnp
+
+    from rhythmic_jax.objective import default_c
+    from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
+    from rhythmic_jax.solvers import streamed as S
+
+    frames = open_frames(path)
+    fixed = tuple(int(t) for t in periods.split(","))
+    c, sets = default_c(frames.n), []
+    for periods in (fixed, plan(MapConfig(r=3), frames.n, 1).candidates):
+        p = sum(periods)
+        bits = frames.n * -(-p // 8)
+        rows = min(frames.n, block_rows_for(parse_bytes(memory) - bits, frames.d, p))
+        labels = np.arange(frames.n, dtype=np.int32)
+        st = S._Stream(frames, 0, frames.n, labels, periods, rows, lambda t: t, True)
+        theta = jnp.zeros((frames.d + 1, p), jnp.float32)
+        v = theta + 1e-3
+        ts = jnp.asarray(np.repeat(np.asarray(S._GRID)[:, None], p, 1), jnp.float32)
+        st.run(S._grad_pass, theta, c)
+        st.run(S._grad_keep, theta, c, bits="write")
+        st.run(S._hess_pass, theta, v, c)
+        st.run(S._hess_kept, v, jnp.asarray(st.top, jnp.float32), bits="read")
+        st.run(S._line_pass, theta, v, ts, c)
+        sec = dict(zip(PASSES, st.seconds, strict=False))
+        sets.append(dict(periods=periods, templates=p, block_rows=rows, seconds=sec))
+        del st
+    return dict(n=frames.n, d=frames.d, sets=sets)
 
 
 def _periods(ts) -> str:
@@ -513,40 +507,6 @@ def probe_lines(p: dict) -> list[str]:
         "",
         bc.table(head, rows),
     ]
-
-
-_CHILD = """import json, sys, time
-import jax.numpy as jnp
-import numpy as np
-from rhythmic_jax.config import MapConfig
-from rhythmic_jax.fit_plan import plan
-from rhythmic_jax.io.frame_files import open_frames
-from rhythmic_jax.objective import default_c
-from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
-from rhythmic_jax.solvers import streamed as S
-frames = open_frames(sys.argv[1])
-fixed = tuple(int(t) for t in sys.argv[3].split(","))
-c = default_c(frames.n)
-sets = []
-for periods in (fixed, plan(MapConfig(r=3), frames.n, 1).candidates):
-    p = sum(periods)
-    bits = frames.n * -(-p // 8)
-    rows = min(frames.n, block_rows_for(parse_bytes(sys.argv[2]) - bits, frames.d, p))
-    labels = np.arange(frames.n, dtype=np.int32)
-    st = S._Stream(frames, 0, frames.n, labels, periods, rows, lambda t: t, True)
-    theta = jnp.zeros((frames.d + 1, p), jnp.float32)
-    v = theta + 1e-3
-    ts = jnp.asarray(np.repeat(np.asarray(S._GRID)[:, None], p, 1), jnp.float32)
-    st.run(S._grad_pass, theta, c)
-    st.run(S._grad_keep, theta, c, bits="write")
-    st.run(S._hess_pass, theta, v, c)
-    st.run(S._hess_kept, v, jnp.asarray(st.top, jnp.float32), bits="read")
-    st.run(S._line_pass, theta, v, ts, c)
-    names = ["gradient", "gradient + bits", "CG", "CG from bits", "line search"]
-    sets.append(dict(periods=periods, templates=p, block_rows=rows,
-                     seconds=dict(zip(names, st.seconds))))
-    del st
-print(json.dumps(dict(n=frames.n, d=frames.d, sets=sets)))"""
 
 
 def options(ap) -> None:
@@ -580,7 +540,9 @@ def run(args) -> dict:
         if time.perf_counter() - t0 > args.budget:
             missing.append(name)
             continue
-        x_path = features(cell[0], cell[1], cell[2], args.cells, args.root)
+        source, n, d = cell[:3]
+        root = args.root if source == "nordland" else None
+        x_path = frames_file(args.cells / f"{source}-{n}-{d}.npy", n, d, root)
         try:
             row = one(cell, x_path, args.cells, args.memory)
         except RuntimeError as err:
@@ -594,16 +556,11 @@ def run(args) -> dict:
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
     report, stamps = {}, [r["measured"] for r in rows]
-    extra = {
-        "probe": lambda: probe(args.probe, args.probe_memory, args.cells,
-                               args.full_work, args.full_periods),
-        "full fit": lambda: full(args.full, args.full_periods, args.full_memory,
-                                 args.full_work, args.cells),
-    }  # fmt: skip
-    for what, n in (("probe", args.probe), ("full fit", args.full)):
+    extras = (("probe", args.probe, probe), ("full fit", args.full, full))
+    for what, n, measure in extras:
         try:
             if n:
-                report[what.split()[0]] = extra[what]()
+                report[what.split()[0]] = measure(args)
         except RuntimeError as err:
             log.warning("%s failed: %s", what, err)
             missing.append(f"{what} N={n} (failed)")

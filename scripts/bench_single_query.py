@@ -5,12 +5,11 @@ python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 
 from __future__ import annotations
 
-import logging
 import time
 
 import jax.numpy as jnp
 import numpy as np
-from _harness import cores, header, main, table, unit_rows
+from _harness import cores, header, log, main, table, unit_rows
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import decode
@@ -21,7 +20,7 @@ from rhythmic_jax.groups import Groups
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import candidate_periods, choose_periods
 
-log = logging.getLogger("bench_single_query")
+QUICK = dict(n=2000, singles=200, exact=20)  # --quick
 
 
 def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
@@ -51,9 +50,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.n, args.singles, args.exact = 2000, 200, 20
-        args.stem = "single_query_quick"
     n, d = args.n, args.d
     cands = candidate_periods(n, 2, 1, 7)
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
@@ -155,4 +151,4 @@ def markdown(r: dict) -> str:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="single_query")
+    main(__doc__, run, markdown, options, stem="single_query", quick=QUICK)

@@ -7,7 +7,6 @@ against liblinear's LinearSVC, timed on sampled templates (docs/design.md).
 
 from __future__ import annotations
 
-import logging
 import warnings
 
 import _harness as h
@@ -22,11 +21,12 @@ from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
 from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
-log = logging.getLogger("bench_solver")
+log = h.log
 
 AIM_SPEEDUP = 100.0
 AIM_GAP = 1e-3
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
+QUICK = dict(frames=800, video_frames=800, samples=4)  # --quick
 
 
 def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarray:
@@ -156,24 +156,20 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         extrapolated_range_s=[float(wall.min() * p), float(wall.max() * p)],
         load_average_start=load_svc, templates=svc,
     )  # fmt: skip
-    for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t)):
-        margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
+    lbfgs["steps"] = len(hist)
+    for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t), (lbfgs, w_l, f_l)):
+        errors = np.asarray(period_errors(scores(w, x), labels, cands))
         rec.update(
-            active_fraction=float(np.mean(margins < 1.0)),
             gap_vs_linearsvc=h.stats(_gap(f[cols], f_svc)),
-            gap_vs_tight=h.stats(_gap(f, f_t)),
-            training_error=np.asarray(period_errors(scores(w, x), labels, cands)),
-            gflop=cg_gflop(n, d, rec),
-        )
-        rec["chosen_periods"] = choose_periods(cands, rec["training_error"], n, 2)
-    lbfgs.update(
-        steps=len(hist), gap_vs_linearsvc=h.stats(_gap(f_l[cols], f_svc)),
-        gap_vs_tight=h.stats(_gap(f_l, f_t)),
-        training_error=np.asarray(period_errors(scores(w_l, x), labels, cands)),
-    )  # fmt: skip
-    for t in (fast, tight, lbfgs):
-        t["speedup_vs_linearsvc"] = linearsvc["extrapolated_s"] / t["seconds"]
-        t["cpu_speedup_vs_linearsvc"] = linearsvc["extrapolated_cpu_s"] / t["cpu_s"]
+            gap_vs_tight=h.stats(_gap(f, f_t)), training_error=errors,
+            speedup_vs_linearsvc=linearsvc["extrapolated_s"] / rec["seconds"],
+            cpu_speedup_vs_linearsvc=linearsvc["extrapolated_cpu_s"] / rec["cpu_s"],
+        )  # fmt: skip
+        if rec is not lbfgs:  # Newton's
+            margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
+            rec.update(active_fraction=float(np.mean(margins < 1.0)),
+                       gflop=cg_gflop(n, d, rec),
+                       chosen_periods=choose_periods(cands, errors, n, 2))  # fmt: skip
     return h.plain(dict(
         name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
         linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
@@ -183,10 +179,8 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
 def cg_gflop(n: int, d: int, rec: dict) -> float:
     """GFLOP of Newton's CG products: per iteration ``Xa v`` and ``Xa^T (D Xa v)``
     over the step's gathered columns, ``4 n (d+1) columns``."""
-    its, widths = rec["cg_iterations"], rec["columns"]
-    return float(
-        sum(4 * n * (d + 1) * w * i for i, w in zip(its, widths, strict=True)) / 1e9
-    )
+    pairs = zip(rec["cg_iterations"], rec["columns"], strict=True)
+    return float(sum(4 * n * (d + 1) * w * i for i, w in pairs) / 1e9)
 
 
 def _rel(v: float) -> str:
@@ -292,8 +286,7 @@ def case_markdown(r: dict) -> str:
 def markdown(report: dict) -> str:
     title = "Joint solve of all candidate templates: Newton-CG, L-BFGS, liblinear"
     parts = h.header(title, report)
-    for r in report["cases"]:
-        parts.append(case_markdown(r))
+    parts += [case_markdown(r) for r in report["cases"]]
     if report.get("video_like"):
         v = report["video_like"]
         cos = ", ".join(f"{lag}: {c:.3f}" for lag, c in v["cosines"].items())
@@ -306,28 +299,24 @@ def markdown(report: dict) -> str:
 
 
 def options(ap) -> None:
-    ap.add_argument("--frames", type=int, default=None, help="Nordland frames")
-    ap.add_argument("--video-frames", type=int, default=None)
+    ap.add_argument("--frames", type=int, default=3576, help="Nordland frames")
+    ap.add_argument("--video-frames", type=int, default=3705)
     ap.add_argument("--video-dim", type=int, default=4096)
-    ap.add_argument("--samples", type=int, default=None, help="LinearSVC templates")
+    ap.add_argument("--samples", type=int, default=12, help="LinearSVC templates")
 
 
 def run(args) -> dict:
-    frames = args.frames or (800 if args.quick else 3576)
-    video_frames = args.video_frames or (800 if args.quick else 3705)
-    samples = args.samples or (4 if args.quick else 12)
-    args.stem = "solver_quick" if args.quick else "solver"
-    cases = []
+    cases, samples = [], args.samples
     if (args.root / "nordland_64x32").is_dir():
         (x,) = h.nordland_features(
             args.root, seasons=("summer",), progress=args.progress
         )
         name = "Nordland summer, patchnorm 64x32"
-        cases.append(bench_case(name, x[:frames], samples, args.progress))
+        cases.append(bench_case(name, x[: args.frames], samples, args.progress))
     else:
         log.warning("no Nordland data under %s: the real-frame case is left out",
                     args.root)  # fmt: skip
-    xv = video_like(video_frames, args.video_dim, **VIDEO)
+    xv = video_like(args.video_frames, args.video_dim, **VIDEO)
     cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
     video = dict(**VIDEO, cosines=neighbour_cosines(xv))
     aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP)
@@ -335,4 +324,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    h.main(__doc__, run, markdown, options, stem="solver")
+    h.main(__doc__, run, markdown, options, stem="solver", quick=QUICK)

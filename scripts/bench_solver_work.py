@@ -5,19 +5,16 @@ python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 
 from __future__ import annotations
 
-import logging
 import time
 from pathlib import Path
 
 import numpy as np
-from _harness import header, main, nordland_features, table
+from _harness import header, log, main, nordland_features, table
 
 from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.candidates import DropLosers
 from rhythmic_jax.solvers.newton import FAST, newton_fit
-
-log = logging.getLogger("bench_solver_work")
 
 
 class Record:

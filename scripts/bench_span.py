@@ -16,6 +16,8 @@ from rhythmic_jax.objective import Templates, default_c, objective, targets
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
 
+QUICK = dict(frames=400)  # --quick
+
 
 def objectives(params: Templates, x, y, c) -> np.ndarray:
     """(p,) objective of every template in float64."""
@@ -50,8 +52,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.frames, args.stem = min(args.frames, 400), "span_quick"
     desc = get_descriptor(args.descriptor)
     (x,) = nordland_features(args.root, desc, ("summer",), progress=args.progress)
     x = x[: args.frames]
@@ -79,4 +79,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="span")
+    main(__doc__, run, markdown, options, stem="span", quick=QUICK)

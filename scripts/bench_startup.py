@@ -5,7 +5,8 @@ python scripts/bench_startup.py --before /tmp/before --repeats 7
 
 from __future__ import annotations
 
-import logging
+import contextlib
+import runpy
 import shutil
 import statistics
 import sys
@@ -13,18 +14,10 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, child, header, main, table
-
-log = logging.getLogger("bench_startup")
+from _harness import REPO, call, child, header, log, main, table
 
 HEAVY = ("jax", "faiss", "sklearn", "torch", "optax", "orbax")
-PROBE = (
-    "import sys, runpy; sys.argv = {argv!r}; "
-    "code = 0\n"
-    "try:\n    runpy.run_module('rhythmic_jax.cli', run_name='__main__')\n"
-    "except SystemExit as e:\n    code = e.code or 0\n"
-    "print('LOADED', ','.join(m for m in {heavy!r} if m in sys.modules))"
-)
+QUICK = dict(repeats=1)  # --quick
 
 
 def commands(map_path: Path) -> dict[str, list[str]]:
@@ -36,16 +29,22 @@ def commands(map_path: Path) -> dict[str, list[str]]:
     }
 
 
-def loaded(checkout: Path, argv: list[str]) -> list[str]:
-    """The heavy packages a command loads (run once in-process with a probe)."""
-    if argv[0] == sys.executable:
-        names = f"','.join(m for m in {HEAVY!r} if m in sys.modules)"
-        code = f"import sys, rhythmic_jax; print('LOADED', {names})"
+def heavy(argv: list[str]) -> list[str]:
+    """The probe's process: the heavy packages that ``import rhythmic_jax``
+    (``argv`` ``["import"]``) or the command line with ``argv`` loads."""
+    if argv == ["import"]:
+        import rhythmic_jax  # noqa: F401
     else:
-        code = PROBE.format(argv=["rhythmic-jax", *argv[1:]], heavy=HEAVY)
-    out = child([sys.executable, "-c", code], checkout, check=False)["stdout"]
-    line = [s for s in out.splitlines() if s.startswith("LOADED")]
-    return line[-1].split(" ", 1)[1].split(",") if line and " " in line[-1] else []
+        sys.argv = ["rhythmic-jax", *argv]
+        with contextlib.suppress(SystemExit):
+            runpy.run_module("rhythmic_jax.cli", run_name="__main__")
+    return [m for m in HEAVY if m in sys.modules]
+
+
+def loaded(checkout: Path, cmd: list[str]) -> list[str]:
+    """The heavy packages a command loads (run once with a probe)."""
+    argv = ["import"] if cmd[0] == sys.executable else cmd[1:]
+    return call(heavy, argv, checkout=checkout, check=False)["result"] or []
 
 
 def fit_map(folder: Path) -> Path:
@@ -88,8 +87,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.repeats, args.stem = 1, "startup_quick"
     checkouts = {"this": REPO}
     if args.before is not None:
         checkouts = {"before": args.before.resolve(), "after": REPO}
@@ -110,4 +107,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="startup")
+    main(__doc__, run, markdown, options, stem="startup", quick=QUICK)

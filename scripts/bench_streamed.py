@@ -5,13 +5,12 @@ python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 
 from __future__ import annotations
 
-import logging
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _harness import header, main, nordland_features, table, timed
+from _harness import header, log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax.io.frame_files import open_frames
@@ -19,13 +18,13 @@ from rhythmic_jax.objective import default_c, targets
 from rhythmic_jax.solvers.newton import newton_fit
 from rhythmic_jax.solvers.streamed import FAST_STREAM, streamed_newton_fit
 
-log = logging.getLogger("bench_streamed")
 BLOCK_ROWS = 4096
 SETTINGS = (
     ("Jacobi, every template", dict(spectral_rank=0, compact=False)),
     ("spectral, every template", dict(compact=False)),
     ("spectral, compacted", dict(compact=True)),
 )
+QUICK = dict(repeats=1, walk_frames=5000, walk_periods="17,18,19")  # --quick
 
 
 def run_case(name, path: Path, periods, repeats: int) -> dict:
@@ -127,9 +126,6 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    if args.quick:
-        args.repeats, args.walk_frames, args.stem = 1, 5000, "streamed_quick"
-        args.walk_periods = "17,18,19"
     cases = []
     with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
         if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
@@ -146,4 +142,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="streamed")
+    main(__doc__, run, markdown, options, stem="streamed", quick=QUICK)

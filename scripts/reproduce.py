@@ -90,9 +90,6 @@ QUICK = Settings(
 )  # fmt: skip
 
 
-# --------------------------------------------------------------- Markdown
-
-
 T1 = """dataset = {name}
 N = {n}
 d = {d}
@@ -157,9 +154,6 @@ R@100P = {recall_at_100_precision:.4f}
 outliers rejected = {outliers_rejected:.3f}"""
 
 
-# ------------------------------------------------------------------ Table 1
-
-
 def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     """Bytes of the n x d float32 database and of a map with ``periods``."""
     periods = [int(t) for t in periods]
@@ -201,9 +195,6 @@ def table1_markdown(paper: list[dict], here: list[dict]) -> str:
     return h.columns(rows, T1)
 
 
-# ------------------------------------------------------------------ helpers
-
-
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
     """Fewest candidates (at least ``count``) among which r periods are pairwise
     co-prime with product >= n (r = 5 at level 1 on 3576 frames needs 8)."""
@@ -233,8 +224,7 @@ class Run:
             descriptor_settings=self.desc.settings(),
         )  # fmt: skip
         if aug is None:
-            fit = lambda m: m.fit(x, progress=self.progress)  # noqa: E731
-            return h.cached_fit(model, x, self.cache_dir, fit)
+            return h.cached_fit(model, x, self.cache_dir, progress=self.progress)
         from rhythmic_jax.augment.stream import fit_map_augmented as augmented
 
         def fit(m):
@@ -297,9 +287,6 @@ def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
         storage_bytes=model.storage_bytes, compression_ratio=model.compression_ratio,
         **fit,
     )  # fmt: skip
-
-
-# -------------------------------------------------------------- experiments
 
 
 def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -446,9 +433,6 @@ def aerial(run: Run, data, fits) -> dict[str, Any]:
     bf = run.score_search("aerial_bf", BruteForce(run.settings.threads).fit(xa), xb, 0)
     levels = by_level(run, fits, "aerial", xb, 0)
     return dict(tolerance=0, n=len(xa), brute_force=bf, levels=levels)
-
-
-# ------------------------------------------------------------------- report
 
 
 def table3_markdown(t3: dict) -> str:
@@ -713,14 +697,9 @@ def options(ap) -> None:
     ap.add_argument("--cache-dir", type=Path, default=MAP_CACHE, help="fitted maps")
     ap.add_argument("--predictions", type=Path, default=None,
                     help="npz of predictions (default: in --cache-dir)")  # fmt: skip
-    ap.add_argument("--decoding", type=Path,
-                    default=h.REPO / "reports" / "decoding.json")  # fmt: skip
-    ap.add_argument(
-        "--cross-condition",
-        type=Path,
-        default=h.REPO / "reports" / "cross_condition.json",
-        help="report of scripts/bench_cross_condition.py to include",
-    )
+    for name in ("decoding", "cross_condition"):  # the reports it quotes
+        ap.add_argument("--" + name.replace("_", "-"), type=Path,
+                        default=h.REPO / "reports" / f"{name}.json")  # fmt: skip
     ap.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
 
 
@@ -747,16 +726,13 @@ def run(args) -> dict[str, Any]:
     run = Run(settings, args.cache_dir, args.progress)
     data = load_features(run)
     fits = fit_all(run, data)
-    here = [
-        storage_row(label, *(lambda m: (m.n, m.d, m.periods))(fits[key, 1][0]))
-        for key, label in (
-            ("nordland", "Nordland summer (here)"),
-            ("winter", "Nordland winter (here)"),
-            ("aerial", "aerial LEVIR (here)"),
-        )
-    ]
-    for row in here:
-        row["ratio_d4096"] = storage_row("", row["n"], PAPER_D, row["periods"])["ratio"]
+    here = []
+    for key, label in (("nordland", "Nordland summer"), ("winter", "Nordland winter"),
+                       ("aerial", "aerial LEVIR")):  # fmt: skip
+        m = fits[key, 1][0]
+        row = storage_row(f"{label} (here)", m.n, m.d, m.periods)
+        row["ratio_d4096"] = rhythmic_jax.compression_ratio(m.periods, m.n, PAPER_D)
+        here.append(row)
     res: dict[str, Any] = dict(settings=dataclasses.asdict(settings))
     res["table1"] = dict(paper=table1_paper(), here=here)
     res["table2"] = table2(run, data, fits)
