@@ -5,8 +5,6 @@ python scripts/bench_startup.py --before /tmp/before --repeats 7
 
 from __future__ import annotations
 
-import contextlib
-import runpy
 import shutil
 import statistics
 import sys
@@ -14,9 +12,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, call, child, header, log, main, table
+from _harness import REPO, child, header, log, main, table
 
-HEAVY = ("jax", "faiss", "sklearn", "torch", "optax", "orbax")
+HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
 QUICK = dict(repeats=1)  # --quick
 
 
@@ -29,22 +27,26 @@ def commands(map_path: Path) -> dict[str, list[str]]:
     }
 
 
-def heavy(argv: list[str]) -> list[str]:
-    """The probe's process: the heavy packages that ``import rhythmic_jax``
-    (``argv`` ``["import"]``) or the command line with ``argv`` loads."""
-    if argv == ["import"]:
-        import rhythmic_jax  # noqa: F401
-    else:
-        sys.argv = ["rhythmic-jax", *argv]
-        with contextlib.suppress(SystemExit):
-            runpy.run_module("rhythmic_jax.cli", run_name="__main__")
-    return [m for m in HEAVY if m in sys.modules]
+# Run in a bare interpreter (no harness, so no numpy of its own): the heavy
+# packages that ``import rhythmic_jax`` or the command line with argv loads.
+PROBE = """import contextlib, runpy, sys
+argv = {argv!r}
+if argv == ["import"]:
+    import rhythmic_jax
+else:
+    sys.argv = ["rhythmic-jax", *argv]
+    with contextlib.suppress(SystemExit):
+        runpy.run_module("rhythmic_jax.cli", run_name="__main__")
+print("LOADED", *(m for m in {heavy!r} if m in sys.modules))"""
 
 
 def loaded(checkout: Path, cmd: list[str]) -> list[str]:
-    """The heavy packages a command loads (run once with a probe)."""
+    """The heavy packages a command loads (run once with the probe)."""
     argv = ["import"] if cmd[0] == sys.executable else cmd[1:]
-    return call(heavy, argv, checkout=checkout, check=False)["result"] or []
+    code = PROBE.format(argv=argv, heavy=HEAVY)
+    out = child([sys.executable, "-c", code], checkout, check=False)["stdout"]
+    last = [line for line in out.splitlines() if line.startswith("LOADED")]
+    return last[-1].split()[1:] if last else ["(probe failed)"]
 
 
 def fit_map(folder: Path) -> Path:
