@@ -415,6 +415,8 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     args = ap.parse_args(argv)
     fixed = args.stem
     args.stem = fixed or (f"{stem}_quick" if args.quick else stem)
+    if args.quick and not fixed and args.md_stem:
+        args.md_stem += "_quick"
     for key, value in (quick or {}).items() if args.quick else ():
         if getattr(args, key) == ap.get_default(key):
             setattr(args, key, value)

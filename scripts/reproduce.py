@@ -712,7 +712,7 @@ def refresh(res: dict, args) -> None:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run (or ``--render``) the reproduction; writes ``reproduction.json`` and
-    ``REPRODUCTION.md`` into ``--out``."""
+    ``REPRODUCTION.md`` into ``--out`` (``_quick`` after each name under --quick)."""
     return h.main(__doc__, run, markdown, options, "reproduction", argv, refresh,
                   md_stem="REPRODUCTION")  # fmt: skip
 

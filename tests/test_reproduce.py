@@ -126,8 +126,8 @@ def test_quick_reproduction_agrees_with_the_library(
         ["--quick", "--out", str(tmp_path), "--predictions", str(preds_path)]
         + ["--no-progress", "--decoding", str(tmp_path / "absent.json")]
     )
-    res = json.loads((tmp_path / "reproduction.json").read_text())
-    md = (tmp_path / "REPRODUCTION.md").read_text()
+    res = json.loads((tmp_path / "reproduction_quick.json").read_text())
+    md = (tmp_path / "REPRODUCTION_quick.md").read_text()
     for name in res["figures"]:
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
