@@ -32,7 +32,6 @@ numpy); the labels and columns import numpy when they are asked for.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -43,6 +42,7 @@ from rhythmic_jax.periods import (
     candidate_periods,
     choose_periods,
     pairwise_coprime,
+    period_offsets,
 )
 from rhythmic_jax.validate import is_int
 
@@ -126,7 +126,7 @@ class Groups:
     @property
     def offsets(self) -> tuple[int, ...]:
         """Column offset of each group: ``(0, size_1, size_1 + size_2, ...)``."""
-        return tuple(itertools.accumulate((0,) + self.sizes[:-1]))
+        return period_offsets(self.sizes)
 
     @property
     def capacity(self) -> int:
