@@ -21,6 +21,7 @@ import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rhythmic_jax import InputError
 from rhythmic_jax.config import DECODERS, DTYPES, SOLVERS, MapConfig
@@ -30,6 +31,9 @@ from rhythmic_jax.frames.compile_policy import (
     LOAD_MIN_FRAMES,
 )
 from rhythmic_jax.validate import Domain, int_option, number_option
+
+if TYPE_CHECKING:  # the jobs are imported when a command runs
+    from rhythmic_jax.jobs import Reading
 
 __all__ = ["main"]
 
@@ -663,7 +667,7 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     return parser
 
 
-def _reading(args):
+def _reading(args) -> Reading:
     from rhythmic_jax.jobs import CompilePolicy, Reading
 
     return Reading(
