@@ -136,6 +136,18 @@ def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
                 load=load_average()[0])  # fmt: skip
 
 
+def job_env(compile_cache: str | None = None) -> dict[str, str]:
+    """This process's environment without a compile-cache setting of its own (JAX's
+    ``JAX_COMPILATION_CACHE_*``, the project's ``RHYTHMIC_JAX_COMPILE_CACHE``), so a
+    job keeps its programs where the benchmark says: ``compile_cache`` (a folder,
+    or "0" for none), or by default under the job's ``RHYTHMIC_JAX_CACHE``."""
+    own = ("JAX_COMPIL", "RHYTHMIC_JAX_COMPILE_CACHE")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(own)}
+    if compile_cache is not None:
+        env["RHYTHMIC_JAX_COMPILE_CACHE"] = compile_cache
+    return env
+
+
 def command(fn, *args) -> list[str]:
     """The command line that runs ``fn(*args)``, a function of a script (JSON
     arguments), in a fresh process and prints its answer as JSON, last."""

@@ -8,7 +8,6 @@ warm compile cache, this checkout against a baseline one.
 from __future__ import annotations
 
 import json
-import os
 import runpy
 import shutil
 import sys
@@ -89,12 +88,10 @@ def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
 def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
     """(name, environment) of base, new cold, new warm: the warm run reuses the
     cold run's compile cache (and network)."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_COMPIL")}
-    env.update(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
+    env = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
     jit = tmp / "jit"
     new = {**env, "PYTHONPATH": str(h.REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
     old = {**env, "PYTHONPATH": str(base.resolve())}
-    old.pop("RHYTHMIC_JAX_COMPILE_CACHE", None)
     return [("base", old), ("new cold", new), ("new warm", new)]
 
 

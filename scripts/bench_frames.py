@@ -6,7 +6,6 @@ python scripts/bench_frames.py --base /tmp/base [--repeats 2]
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 import tempfile
@@ -56,8 +55,7 @@ def make_folders(root: Path, tmp: Path, n: int, small: int = 100) -> dict[str, P
 
 def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
     """Wall and CPU seconds of one command of ``checkout`` with its cache folder."""
-    env = {k: v for k, v in os.environ.items() if k != "RHYTHMIC_JAX_COMPILE_CACHE"}
-    env["RHYTHMIC_JAX_CACHE"] = str(cache)
+    env = h.job_env() | {"RHYTHMIC_JAX_CACHE": str(cache)}
     r = h.child(cmd, checkout, h.weights_folder(), env=env)
     return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 

@@ -9,12 +9,11 @@ python scripts/count_compiles.py --n 600 --d 64 --cache /tmp/jax
 from __future__ import annotations
 
 import json
-import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, child, command, main
+from _harness import REPO, child, command, job_env, main
 from bench_compile import job
 
 
@@ -40,8 +39,7 @@ def options(ap) -> None:
 
 def run(args) -> dict:
     """One fit in a fresh process against ``--checkout``: its JSON record."""
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env["RHYTHMIC_JAX_COMPILE_CACHE"] = args.cache or "0"
+    env = job_env(args.cache or "0")
     with tempfile.TemporaryDirectory() as tmp:
         x, out = args.npy or Path(tmp) / "x.npy", Path(tmp) / "count.json"
         if not args.npy:
