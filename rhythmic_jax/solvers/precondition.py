@@ -34,9 +34,13 @@ def top_eigen(gram: jax.Array, k: int, iters: int, key: jax.Array):
     Returns orthonormal vectors (q, k) and Rayleigh-Ritz values (k,), largest
     first; a few iterations are enough for a preconditioner (any orthonormal
     basis keeps it exact, only its quality depends on the subspace). ``key``
-    draws the random start basis.
+    draws the random start basis. With ``k >= q`` the basis is every direction:
+    the eigendecomposition itself, with no iteration and no start basis.
     """
     q = gram.shape[0]
+    if k >= q:  # every direction: the eigendecomposition itself, no iteration
+        vals, vecs = jnp.linalg.eigh(gram)
+        return vecs[:, ::-1], jnp.maximum(vals[::-1], 0.0)
     basis = jax.random.normal(key, (q, k), gram.dtype)
     for _ in range(iters):
         basis, _ = jnp.linalg.qr(jnp.matmul(gram, basis, precision="highest"))

@@ -39,13 +39,14 @@ def as_matrices(apply, q, p):
     return np.stack(cols, axis=2).transpose(1, 0, 2)
 
 
-def test_top_eigen_matches_eigh(system):
+@pytest.mark.parametrize("k", [5, Q])  # Q: every direction, no iteration
+def test_top_eigen_matches_eigh(system, k):
     xa, _ = system
     gram = xa.T.astype(np.float64) @ xa
-    want = np.linalg.eigvalsh(gram)[::-1][:5]
-    vecs, vals = top_eigen(jnp.asarray(gram, jnp.float32), 5, 30, KEY)
+    want = np.linalg.eigvalsh(gram)[::-1][:k]
+    vecs, vals = top_eigen(jnp.asarray(gram, jnp.float32), k, 30, KEY)
     np.testing.assert_allclose(np.asarray(vals), want, rtol=1e-4)
-    np.testing.assert_allclose(np.asarray(vecs.T @ vecs), np.eye(5), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(vecs.T @ vecs), np.eye(k), atol=1e-5)
     ritz = np.asarray(vecs).T @ gram @ np.asarray(vecs)
     np.testing.assert_allclose(np.diag(ritz), want, rtol=1e-4)
 
