@@ -159,7 +159,7 @@ def test_installed_command_on_test_place_folders(
     from rhythmic_jax.frames.cache_files import save_cached
     from rhythmic_jax.frames.features import get_descriptor
     from rhythmic_jax.frames.pipeline import files_cache_path
-    from rhythmic_jax.frames.sources import _key
+    from rhythmic_jax.frames.sources import source_key
     from rhythmic_jax.io.images import list_images
     from rhythmic_jax.split import NORDLAND_SPLIT
 
@@ -174,7 +174,7 @@ def test_installed_command_on_test_place_folders(
         folder.mkdir()
         for i in NORDLAND_SPLIT.test:
             (folder / files[i].name).symlink_to(files[i])
-        key = _key(folder, None, None)  # the command's key for this folder
+        key = source_key(folder)  # the command's key for this folder
         listed = list_images(folder, "traversal")
         seeded.append(files_cache_path(listed, desc, key, cache))
         save_cached(seeded[-1], rows[NORDLAND_SPLIT.test])

@@ -34,6 +34,7 @@ __all__ = [
     "load_query_source",
     "load_sources",
     "reference_features",
+    "source_key",
 ]
 
 DEFAULT_DESCRIPTOR = "patchnorm"
@@ -157,7 +158,10 @@ def _map_tiling(path: Path, model, tile, stride) -> tuple[int | None, int | None
     return tile, stride
 
 
-def _key(path: Path, tile, stride) -> str:
+def source_key(path: Path, tile=None, stride=None) -> str:
+    """The descriptor cache's key of a source (a folder, video or image) cut with
+    ``tile`` and ``stride``: its name and a digest of its resolved path, its
+    modification time and the cut, so a changed source is described afresh."""
     stat = path.stat()
     raw = f"{path.resolve()}|{stat.st_mtime_ns}|{tile}|{stride}"
     return f"{path.name}-{hashlib.sha1(raw.encode()).hexdigest()[:12]}"
@@ -187,7 +191,7 @@ def _one(
 
     if kind == "npy":
         return load_descriptors(path), None
-    key = _key(path, tile, stride)
+    key = source_key(path, tile, stride)
     if kind == "folder":
         return _describe_folder(path, desc, key, progress, compile, keep)
     images = _images(path, kind, tile, stride, progress)

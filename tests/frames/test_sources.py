@@ -13,6 +13,7 @@ from rhythmic_jax.frames.sources import (
     load_query_source,
     load_sources,
     reference_features,
+    source_key,
 )
 
 RNG = np.random.default_rng(0)
@@ -24,6 +25,19 @@ def _folder(path, n=12, shift=0):
         pixels = np.roll(RNG.integers(0, 256, (16, 32, 3), dtype=np.uint8), shift)
         imsave(path / f"f{i}.png", pixels, check_contrast=False)
     return str(path)
+
+
+def test_a_source_key_changes_with_the_source_and_its_cut(tmp_path):
+    import os
+    from pathlib import Path
+
+    folder = Path(_folder(tmp_path / "route", n=2))
+    key = source_key(folder)
+    assert key.startswith("route-") and key == source_key(folder, None, None)
+    assert source_key(folder, 16, 8) not in (key, source_key(folder, 16, 4))
+    stat = folder.stat()
+    os.utime(folder, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1))
+    assert source_key(folder) != key
 
 
 def test_descriptor_files_and_folders_share_place_labels(tmp_path):
