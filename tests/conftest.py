@@ -49,18 +49,37 @@ def aerial_root() -> Path:
     return AERIAL
 
 
+def _run_folder(tmp_path_factory, worker_id) -> Path:
+    """The temporary folder of the whole run, shared by its pytest-xdist workers
+    (a worker's own is one level down); not an older run's."""
+    run = tmp_path_factory.getbasetemp()
+    return run.parent if worker_id != "master" else run
+
+
 @pytest.fixture(scope="session")
-def nordland_patchnorm(nordland_root):
-    """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048)."""
+def nordland_patchnorm(nordland_root, tmp_path_factory, worker_id):
+    """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048).
+
+    Computed once for the whole run: the first worker that needs them describes
+    the frames and saves the rows in the run's folder under a file lock; another
+    worker waits for it and loads the same arrays.
+    """
+    import fcntl
+
     from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.images import nordland
 
-    desc = get_descriptor("patchnorm")
-    summer, winter = nordland(nordland_root, progress=False)
-    return (
-        describe(summer.images, desc, progress=False),
-        describe(winter.images, desc, progress=False),
-    )
+    shared = _run_folder(tmp_path_factory, worker_id)
+    files = [shared / f"nordland_patchnorm_{s}.npy" for s in ("summer", "winter")]
+    with open(shared / "nordland_patchnorm.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not all(f.exists() for f in files):
+            desc = get_descriptor("patchnorm")
+            for traversal, f in zip(nordland(nordland_root), files, strict=True):
+                rows = describe(traversal.images, desc, progress=False)
+                np.save(f.with_suffix(".tmp.npy"), rows)
+                f.with_suffix(".tmp.npy").replace(f)
+        return tuple(np.load(f) for f in files)
 
 
 @pytest.fixture(scope="session")
@@ -81,8 +100,7 @@ def nordland_lite0(nordland_root, tmp_path_factory, worker_id):
     from rhythmic_jax.frames.features import cached_describe, get_descriptor
     from rhythmic_jax.io.images import nordland
 
-    run = tmp_path_factory.getbasetemp()
-    shared = run.parent if worker_id != "master" else run  # the run's, not older
+    shared = _run_folder(tmp_path_factory, worker_id)
     folder = shared / "nordland_lite0"
     folder.mkdir(exist_ok=True)
     desc = get_descriptor("efficientnet_lite0")

@@ -162,18 +162,14 @@ def test_bad_input_raises_input_error():
 
 
 @pytest.mark.slow
-def test_real_nordland_self_retrieval(nordland_root):
+def test_real_nordland_self_retrieval(nordland_patchnorm):
     """The paper's Table 2 protocol on real frames (queries from the map itself),
     SeqSLAM patch-normalised descriptors (2048-d): every baseline finds the
-    frame within one index, and the storage formulas hold at full size."""
-    import torch
+    frame within one index, and the storage formulas hold at full size.
 
-    from rhythmic_jax.frames.features import PatchNorm
-    from rhythmic_jax.io.images import load_traversal
-
-    summer = load_traversal(nordland_root / "summer", progress=False)
-    batch = torch.from_numpy(summer.images).permute(0, 3, 1, 2).float() / 255
-    X = PatchNorm()(batch).numpy()
+    The summer rows are those the other tests share (PatchNorm of the frames, the
+    same bits as describing them here)."""
+    X, _ = nordland_patchnorm
     n, d = X.shape
     sel = np.arange(0, n, 7)
     bf_sim = BruteForce().fit(X).search(X[sel])[0]
