@@ -105,7 +105,8 @@ class LearnConfig:
 
 
 def _init_head(key, k: int, head: str, hidden: int) -> dict:
-    params = {"m": jnp.eye(k), "scale": jnp.asarray(10.0)}
+    params = {"m": jnp.eye(k), "scale": jnp.asarray(10.0, jnp.float32)}  # strong:
+    # a weakly typed scale would turn strong after the first step and retrace it
     if head == "mlp":
         params["w1"] = jax.random.normal(key, (k, hidden)) / jnp.sqrt(k)
         params["b1"] = jnp.zeros(hidden)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from test_embedding import two_conditions
@@ -30,6 +32,23 @@ def test_learned_embedding_raises_the_maps_cross_condition_accuracy(method):
     assert after > before + 0.1, (before, after)
     assert info["steps"] == 40 and 0 <= info["kept_step"] <= 40
     assert len(info["val_loss"]) == 5
+
+
+@pytest.mark.parametrize("head", ["linear", "mlp"])
+def test_training_compiles_its_step_once(caplog, head):
+    """The head's parameters keep their types from the first step on: one
+    program for the step and one for the validation loss, whatever the steps."""
+    import logging
+
+    import jax
+
+    a, b = two_conditions(n=200, seed=5)
+    cfg = LearnConfig(method="infonce", head=head, k=8, p=10, window=30, steps=6)
+    with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
+        learn_embedding([a, b], dataclasses.replace(cfg, eval_every=3))
+    names = [r.getMessage().split(" with ")[0] for r in caplog.records]
+    assert names.count("Compiling jit(step)") == 1, names
+    assert names.count("Compiling jit(val_loss)") == 1, names
 
 
 def test_bad_settings_and_inputs():
