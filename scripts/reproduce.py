@@ -143,15 +143,6 @@ periods = {periods!l}
 storage bytes = {storage_bytes:,}
 compression ratio = {compression_ratio:.4f}
 accuracy = {accuracy:.4f}"""
-DECODING = """method = {method}
-R@1 = {recall_at_1:.4f}
-R@1 exact = {recall_at_1_exact:.4f}
-queries/s = {queries_per_s:,.0f}
-storage bytes = {storage_bytes:,}"""
-OUTLIERS = """method = {method}
-PR AUC = {pr_auc:.4f}
-R@100P = {recall_at_100_precision:.4f}
-outliers rejected = {outliers_rejected:.3f}"""
 
 
 def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
@@ -467,55 +458,6 @@ def augmentation_markdown(sub: dict) -> str:
     return h.columns(rows, AUG)
 
 
-def decoding_markdown(path: Path) -> tuple[str, dict | None]:
-    """Tables of ``scripts/bench_decoding.py``'s ``decoding.json``, if present."""
-    if not path.is_file():
-        return ("This section is produced by `python scripts/bench_decoding.py` (it"
-                " writes `reports/decoding.json`, absent when this report was made).",
-                None)  # fmt: skip
-    data = json.loads(path.read_text())
-    parts = [f"From `{path.name}`, written by `{data.get('command', '?')}`; "
-             f"recall@1 within ±{data.get('tolerance', 1)} index."]  # fmt: skip
-    for b in data.get("decoding", []):
-        parts += ["", f"**{b['dataset']}, {b['descriptor']} (d={b['d']}), level "
-                  f"{b['level']}**, periods {b['periods']}:", "",
-                  h.columns(b["rows"] + b.get("references", []), DECODING)]  # fmt: skip
-    for b in data.get("outliers", []):
-        parts += ["", f"**Outliers, Nordland, {b['descriptor']}, level {b['level']}**:",
-                  "", h.columns(b["rows"], OUTLIERS)]  # fmt: skip
-    return "\n".join(parts), data
-
-
-CROSS = "r1 R@1 ±1|r1_exact exact|r5 R@5|L10 L = 10|self_r1 self"
-
-
-def cross_condition_markdown(path: Path) -> str:
-    """Targets and the first direction of every data set of
-    ``scripts/bench_cross_condition.py``'s ``cross_condition.json``, if present."""
-    if not path.is_file():
-        return ("This section is produced by `python scripts/bench_cross_condition.py`"
-                f" (it writes `reports/{path.name}`, absent when this report was"
-                " made).")  # fmt: skip
-    data = json.loads(path.read_text())
-    load = data["load_average"]
-    parts = [f"From `{path.name}` (figure `cross_condition.png`, all rows and both "
-             f"directions in `cross_condition.md`), written by `{data.get('command')}`;"
-             f" load average at the start and end {load['start']} / {load['end']}.",
-             "", "Targets:", ""]  # fmt: skip
-    parts += [f"- {t}: **{v}**" for t, v in data.get("targets", [])]
-    cols = [c.split(" ", 1) for c in CROSS.split("|")]
-    spec = "\n".join(["method = {method}", *(f"{t} = {{{k}}}" for k, t in cols),
-                      "share of raw bytes = {share}"])  # fmt: skip
-    for name, ds in data["datasets"].items():
-        key, rows = next(iter(ds["directions"].items()))
-        rows = [{k: "" if k not in r else f"{r[k]:.3f}" for k, _ in cols}
-                | dict(method=r["method"], share=f"{100 * r['ratio']:.1f} %")
-                for r in rows]  # fmt: skip
-        parts += ["", f"**{name}, {key}** (N = {ds['n']}, d = {ds['d']}):", ""]
-        parts.append(h.columns(rows, spec, "l" + "r" * len(cols) + "r"))
-    return "\n".join(parts)
-
-
 DEVIATIONS = """\
 The library's own are in `docs/design.md`; this run adds:
 
@@ -597,11 +539,17 @@ The paper (Aerial Brisbane / RobotCar): brute force 0.9582 / 0.236, the map alon
 
 ## Beyond the paper: soft and sequence decoding
 
-{decoding}
+Soft, top-m and phase-domain sequence decoding and outlier rejection on Nordland
+and the LEVIR pairs, against brute force and SeqSLAM, with patchnorm and
+EfficientNet-Lite0 descriptors at levels 1 and 4: [decoding.md](decoding.md),
+written by `python scripts/bench_decoding.py`.
 
 ## Beyond the paper: recognition under appearance change, split by place
 
-{cross_condition}
+Maps fitted on one condition of held-out places and queried with the other,
+embeddings learned on the training places only, against brute force and SeqSLAM,
+with the targets they are judged by: [cross_condition.md](cross_condition.md),
+written by `python scripts/bench_cross_condition.py`.
 
 ## Deviations from the paper, and why
 
@@ -641,8 +589,7 @@ def markdown(res: dict) -> str:
         fig3=h.columns(fig3, FIG3), fig4=h.columns(res["fig4"], FIG4),
         levels=levels_markdown(app["full"]),
         augmentation=augmentation_markdown(app["augmentation"]),
-        aerial=levels_markdown(res["aerial"]), decoding=res["decoding_md"],
-        cross_condition=res.get("cross_condition_md", ""), deviations=DEVIATIONS,
+        aerial=levels_markdown(res["aerial"]), deviations=DEVIATIONS,
     )  # fmt: skip
 
 
@@ -697,23 +644,13 @@ def options(ap) -> None:
     ap.add_argument("--cache-dir", type=Path, default=MAP_CACHE, help="fitted maps")
     ap.add_argument("--predictions", type=Path, default=None,
                     help="npz of predictions (default: in --cache-dir)")  # fmt: skip
-    for name in ("decoding", "cross_condition"):  # the reports it quotes
-        ap.add_argument("--" + name.replace("_", "-"), type=Path,
-                        default=h.REPO / "reports" / f"{name}.json")  # fmt: skip
     ap.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
-
-
-def refresh(res: dict, args) -> None:
-    """For ``--render``: the benchmark reports the report quotes, read afresh
-    (the paper's figures are not recomputed)."""
-    res["decoding_md"], res["decoding"] = decoding_markdown(args.decoding)
-    res["cross_condition_md"] = cross_condition_markdown(args.cross_condition)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Run (or ``--render``) the reproduction; writes ``reproduction.json`` and
     ``REPRODUCTION.md`` into ``--out`` (``_quick`` after each name under --quick)."""
-    return h.main(__doc__, run, markdown, options, "reproduction", argv, refresh,
+    return h.main(__doc__, run, markdown, options, "reproduction", argv,
                   md_stem="REPRODUCTION")  # fmt: skip
 
 
@@ -745,7 +682,6 @@ def run(args) -> dict[str, Any]:
     res["fig4"] = fig4(run, data, fits)
     res["appearance"] = appearance(run, data, fits)
     res["aerial"] = aerial(run, data, fits)
-    refresh(res, args)
     res["meta"] = meta(run, data, load_start, t0, preds)
     args.out.mkdir(parents=True, exist_ok=True)
     res["figures"] = draw(res, args.out)

@@ -124,7 +124,7 @@ def test_quick_reproduction_agrees_with_the_library(
     preds_path = tmp_path / "predictions.npz"
     repro.main(
         ["--quick", "--out", str(tmp_path), "--predictions", str(preds_path)]
-        + ["--no-progress", "--decoding", str(tmp_path / "absent.json")]
+        + ["--no-progress"]
     )
     res = json.loads((tmp_path / "reproduction_quick.json").read_text())
     md = (tmp_path / "REPRODUCTION_quick.md").read_text()
