@@ -30,6 +30,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
 NORDLAND = "nordland_64x32"
+MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_maps"  # cached_fit's folder
 log = logging.getLogger("harness")
 _LIMITS: list = []  # keeps the global BLAS limit referenced
 
@@ -272,8 +273,8 @@ def digest(ident, *arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag="",
-               progress=False):  # fmt: skip
+def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=(),
+               tag="", progress=False):  # fmt: skip
     """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
     ``model.fit(x, progress=progress)``), or loaded from ``folder`` where a fit with
     the same settings (``extra`` too) and features (``arrays`` too) was saved. The

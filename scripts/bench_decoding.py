@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import tempfile
 from pathlib import Path
 
 import _harness as h
@@ -28,7 +27,6 @@ from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 log = h.log
-MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_bench_decoding"
 
 TOLERANCE = 1
 LENGTHS = (5, 10, 20)
@@ -49,17 +47,12 @@ def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
     settings = get_descriptor(descriptor).settings()
     model = RhythmicMap(r=2, level=level, descriptor=descriptor,
                         descriptor_settings=settings)  # fmt: skip
-    return h.cached_fit(model, x, MAP_CACHE, progress=progress)[0]
+    return h.cached_fit(model, x, progress=progress)[0]
 
 
-def timed(fn, repeats: int):
-    """(the first call's output as numpy, the fastest of ``repeats`` timed calls)."""
-    out, sec = h.fastest(fn, repeats)
-    return np.asarray(out[0] if isinstance(out, tuple) else out), sec
-
-
-def _row(method, pred, gt, seconds, storage, **extra) -> dict:
-    inmap = gt >= 0
+def _row(method, out, gt, seconds, storage, **extra) -> dict:
+    """``out``: a decode's indices, or a tuple that starts with them."""
+    pred, inmap = np.asarray(out[0] if isinstance(out, tuple) else out), gt >= 0
     return dict(
         method=method, **extra, recall_at_1=accuracy(pred[inmap], gt[inmap], TOLERANCE),
         recall_at_1_exact=accuracy(pred[inmap], gt[inmap], 0),
@@ -126,15 +119,14 @@ def map_rows(model: RhythmicMap, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Every decode of one map over the whole query sequence."""
     storage, per, n = model.storage_bytes, model.periods, model.n
     q = jnp.asarray(qry)
-    s, score_s = timed(lambda: model.scores(q), repeats)
-    s = jnp.asarray(s)
+    s, score_s = h.fastest(lambda: model.scores(q), repeats)
     rows = []
 
     def add(label, fn, length=None, speeds=None):
-        pred, sec = timed(fn, repeats)
-        dq = len(pred) / max(sec, 1e-12)
+        out, sec = h.fastest(fn, repeats)
+        dq = len(gt) / max(sec, 1e-12)
         speeds = None if speeds is None else list(speeds)
-        rows.append(_row(label, pred, gt, score_s + sec, storage, L=length,
+        rows.append(_row(label, out, gt, score_s + sec, storage, L=length,
                          speeds=speeds, decode_queries_per_s=dq))  # fmt: skip
 
     for method in ("hard", "soft", "topm"):
@@ -166,7 +158,7 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
     """Single-frame brute force and SeqSLAM-style sequences on full descriptors."""
     storage = ref.size * 4
     flat = BruteForce(n_threads=h.cores()).fit(ref)
-    pred, sec = timed(lambda: flat.search(qry, 1)[1][:, 0], repeats)
+    pred, sec = h.fastest(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
     for window in (None, CONTRAST_WINDOW):
         for length, speeds in GRIDS:
@@ -176,8 +168,8 @@ def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: in
             fn = lambda L=length, v=speeds, w=window: sq.seqslam_decode(  # noqa: E731
                 qry, ref, L, v, contrast_window=w, progress=False
             )
-            pred, sec = timed(fn, max(1, repeats // 3))
-            rows.append(_row(label, pred, gt, sec, storage, L=length, speeds=[*speeds]))
+            out, sec = h.fastest(fn, max(1, repeats // 3))
+            rows.append(_row(label, out, gt, sec, storage, L=length, speeds=[*speeds]))
     return rows
 
 

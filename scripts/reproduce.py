@@ -10,7 +10,6 @@ import dataclasses
 import datetime
 import json
 import re
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,6 @@ from rhythmic_jax.io.atomic import atomic_path, write_file
 from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
-MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_reproduce"
 DESCRIPTOR = "patchnorm"
 PAPER_D = 4096
 KS = (1, 5)
@@ -209,7 +207,7 @@ class Run:
 
     def fit(self, x, *, level=1, r=2, count=7, images=None, aug=None):
         """(map, record): from ``cache_dir`` when fitted before with the same
-        settings and features (the key scheme of ``scripts/bench_decoding.py``)."""
+        settings and features (by default the folder ``bench_decoding`` fits into)."""
         model = RhythmicMap(
             r=r, level=level, count=count, descriptor=DESCRIPTOR,
             descriptor_settings=self.desc.settings(),
@@ -641,7 +639,7 @@ def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
 
 
 def options(ap) -> None:
-    ap.add_argument("--cache-dir", type=Path, default=MAP_CACHE, help="fitted maps")
+    ap.add_argument("--cache-dir", type=Path, default=h.MAP_CACHE, help="fitted maps")
     ap.add_argument("--predictions", type=Path, default=None,
                     help="npz of predictions (default: in --cache-dir)")  # fmt: skip
     ap.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
