@@ -17,7 +17,6 @@ import json
 import logging
 import os
 import platform
-import string
 import subprocess
 import sys
 import tempfile
@@ -326,48 +325,16 @@ def header(title: str, report: dict) -> list[str]:
     ]
 
 
-def table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
-    """A Markdown table; numbers right-aligned, text left-aligned."""
-    numeric = [all(isinstance(r[i], int | float | np.number) for r in rows)
-               for i in range(len(headers))]  # fmt: skip
-    lines = [
-        "| " + " | ".join(headers) + " |",
-        "|" + "|".join("---:" if num else "---" for num in numeric) + "|",
-    ]
+def table(headers: Sequence[str], rows: Sequence[Sequence[object]], align=None) -> str:
+    """A Markdown table; numbers right-aligned, text left-aligned, unless ``align``
+    says: ``l`` or ``r`` per column, ``l`` where it stops."""
+    if align is None:
+        align = "".join("r" if all(isinstance(r[i], int | float | np.number)
+                                   for r in rows) else "l"
+                        for i in range(len(headers)))  # fmt: skip
+    seps = ("---:" if a == "r" else "---" for a in align.ljust(len(headers), "l"))
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(seps) + "|"]
     lines += ["| " + " | ".join(_cell(v) for v in r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-class _Format(string.Formatter):
-    """``{x!l}``: a list joined by commas; ``{x!m}``, ``{x!c}``: fractions as
-    x 10^-3, as percent."""
-
-    def convert_field(self, value, conversion):
-        if conversion == "l":
-            return ", ".join(str(v) for v in value)
-        if conversion in ("m", "c"):
-            scale = 1000 if conversion == "m" else 100
-            return ", ".join(f"{scale * v:.2f}" for v in value)
-        return super().convert_field(value, conversion)
-
-
-def fill(template: str, **fields) -> str:
-    """``template`` formatted with ``fields`` and the conversions of :func:`columns`."""
-    return _Format().format(template, **fields)
-
-
-def columns(rows: Sequence[dict], cols: str, align: str = "") -> str:
-    """A Markdown table: ``cols`` holds one ``header = format`` per line, filled
-    from each row (``accuracy = {accuracy:.4f}``); ``align``: ``l`` or ``r`` per
-    column, ``l`` where it stops."""
-    spec = [line.rsplit(" = ", 1) for line in cols.strip().splitlines()]
-    fmt, seps = _Format(), align.ljust(len(spec), "l")
-    lines = [
-        "| " + " | ".join(h for h, _ in spec) + " |",
-        "|" + "|".join("---:" if a == "r" else "---" for a in seps) + "|",
-    ]
-    lines += ["| " + " | ".join(fmt.format(f, **r) for _, f in spec) + " |"
-              for r in rows]  # fmt: skip
     return "\n".join(lines)
 
 

@@ -88,59 +88,28 @@ QUICK = Settings(
 )  # fmt: skip
 
 
-T1 = """dataset = {name}
-N = {n}
-d = {d}
-periods = {periods!l}
-sum tau = {sum_tau}
-original bytes = {original_bytes:,}
-compressed bytes = {compressed_bytes:,}
-ratio (bytes) = {ratio:.4f}
-ratio printed = {printed}
-note = {note}"""
-T2 = """dataset = {dataset}
-N = {n}
-level = {level}
-candidates = {candidates[0]}..{candidates[6]}
-periods = {periods!l}
-e (x10^-3) = {period_errors!m}
-accuracy = {accuracy:.4f}
-paper dataset = {paper_dataset}
-paper periods = {paper_periods}
-paper e (x10^-3) = {paper_e}
-paper accuracy = {paper_accuracy}"""
-ACC = """accuracy = {accuracy:.4f}
-R@1 = {recall_at_1:.4f}
-R@5 = {recall_at_5:.4f}"""
-T3 = f"""method = {{method}}
-{ACC}
-single query median ms = {{single_ms:.3f}}
-p95 ms = {{p95_ms:.3f}}
-batch queries/s = {{batch_queries_per_s:,.0f}}
-storage bytes = {{storage_bytes:,}}
-% of database = {{percent:.2f}}
-fit s = {{fit}}
-note = {{note}}"""
-LEVELS = f"""method = {{method}}
-level = {{level}}
-periods = {{periods!l}}
-compression ratio = {{compression_ratio:.4f}}
-{ACC}
-no match = {{no_match:.4f}}"""
-AUG = f"""training frames = {{name}}
-periods = {{periods!l}}
-{ACC}
-fit s = {{fit}}"""
-FIG3 = """level = {level}
-candidates = {candidates!l}
-training error (%) = {candidate_errors!c}
-chosen = {periods!l}"""
-FIG4 = """r = {r}
-candidates = {candidates!l}
-periods = {periods!l}
-storage bytes = {storage_bytes:,}
-compression ratio = {compression_ratio:.4f}
-accuracy = {accuracy:.4f}"""
+ACC = ["accuracy", "R@1", "R@5"]
+T1 = ["dataset", "N", "d", "periods", "sum tau", "original bytes", "compressed bytes",
+      "ratio (bytes)", "ratio printed", "note"]  # fmt: skip
+T2 = ["dataset", "N", "level", "candidates", "periods", "e (x10^-3)", "accuracy",
+      "paper dataset", "paper periods", "paper e (x10^-3)",
+      "paper accuracy"]  # fmt: skip
+T3 = ["method", *ACC, "single query median ms", "p95 ms", "batch queries/s",
+      "storage bytes", "% of database", "fit s", "note"]  # fmt: skip
+LEVELS = ["method", "level", "periods", "compression ratio", *ACC, "no match"]
+FIG3 = ["level", "candidates", "training error (%)", "chosen"]
+FIG4 = ["r", "candidates", "periods", "storage bytes", "compression ratio", "accuracy"]
+
+
+def joined(values, scale=None) -> str:
+    """A list as a table cell: its items joined by commas (``scale``: times it,
+    two decimals)."""
+    return ", ".join(str(v) if scale is None else f"{scale * v:.2f}" for v in values)
+
+
+def acc(r: dict) -> list[str]:
+    """The accuracy, R@1 and R@5 cells of a scored row."""
+    return [f"{r[k]:.4f}" for k in ("accuracy", "recall_at_1", "recall_at_5")]
 
 
 def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
@@ -177,11 +146,21 @@ def table1_markdown(paper: list[dict], here: list[dict]) -> str:
     rows = []
     for r in paper:
         note = (r["flag"] or "agrees") + ("" if r["bytes_match"] else "; BYTES DIFFER")
-        rows.append(dict(r, printed=f"{r['printed_ratio']:.4f}", note=note))
-    for r in here:
-        note = f"run here; {r['ratio_d4096']:.4f} at d = 4096"
-        rows.append(dict(r, printed="-", note=note))
-    return h.columns(rows, T1)
+        rows.append((r, f"{r['printed_ratio']:.4f}", note))
+    rows += [(r, "-", f"run here; {r['ratio_d4096']:.4f} at d = 4096") for r in here]
+    return h.table(T1, [
+        [r["name"], r["n"], r["d"], joined(r["periods"]), r["sum_tau"],
+         f"{r['original_bytes']:,}", f"{r['compressed_bytes']:,}", f"{r['ratio']:.4f}",
+         printed, note] for r, printed, note in rows], "")  # fmt: skip
+
+
+def table2_markdown(t2: list[dict]) -> str:
+    rows = [[r["dataset"], r["n"], r["level"],
+             f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
+             joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
+             r["paper_dataset"], r["paper_periods"], r["paper_e"], r["paper_accuracy"]]
+            for r in t2]  # fmt: skip
+    return h.table(T2, rows, "")
 
 
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
@@ -432,28 +411,32 @@ def table3_markdown(t3: dict) -> str:
             r = row | row[label]
             fit = "cached" if r["fit_s"] is None else f"{r['fit_s']:.1f}"
             pct = 100 * r["storage_bytes"] / t3["database_bytes"]
-            ms = dict(
-                single_ms=1e3 * r["single_median_s"], p95_ms=1e3 * r["single_p95_s"]
-            )
-            rows.append(r | ms | dict(fit=fit, percent=pct))
-        r = rows[0]
+            rows.append([r["method"], *acc(r), f"{1e3 * r['single_median_s']:.3f}",
+                         f"{1e3 * r['single_p95_s']:.3f}",
+                         f"{r['batch_queries_per_s']:,.0f}", f"{r['storage_bytes']:,}",
+                         f"{pct:.2f}", fit, r["note"]])  # fmt: skip
+        r = t3["rows"][0][label]
         out += [f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']}"
-                " queries:", "", h.columns(rows, T3), ""]  # fmt: skip
+                " queries:", "", h.table(T3, rows, ""), ""]  # fmt: skip
     return "\n".join(out + [f"Not run: {x}\n" for x in t3["skipped"]])
 
 
 def levels_markdown(block: dict) -> str:
-    bf = dict(block["brute_force"], method="brute force", level="-", periods=["-"])
-    rows = [bf | dict(compression_ratio=1.0)]
-    return h.columns(rows + [dict(r, method="map") for r in block["levels"]], LEVELS)
+    bf = block["brute_force"]
+    rows = [["brute force", "-", "-", "1.0000", *acc(bf), f"{bf['no_match']:.4f}"]]
+    rows += [["map", r["level"], joined(r["periods"]), f"{r['compression_ratio']:.4f}",
+              *acc(r), f"{r['no_match']:.4f}"] for r in block["levels"]]  # fmt: skip
+    return h.table(LEVELS, rows, "")
 
 
 def augmentation_markdown(sub: dict) -> str:
     rows = [dict(sub["brute_force"], name="brute force (no training)", periods=["-"])]
     rows += [dict(r, name=f"map, {r['name']}") for r in sub["rows"]]
+    cells = []
     for r in rows:
-        r["fit"] = f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-"
-    return h.columns(rows, AUG)
+        fit = f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-"
+        cells.append([r["name"], joined(r["periods"]), *acc(r), fit])
+    return h.table(["training frames", "periods", *ACC, "fit s"], cells, "")
 
 
 DEVIATIONS = """\
@@ -572,19 +555,22 @@ def markdown(res: dict) -> str:
     note = (
         SOLVER_NOTE.format(summer["accuracy"], *errors) if summer["n"] == 3576 else ""
     )
-    fig3 = [dict(level=lv, candidates=c, candidate_errors=e, periods=p)
+    fig3 = [[lv, joined(c), joined(e, 100), joined(p)]
             for lv, (c, e, p) in res["fig3"].items()]  # fmt: skip
+    fig4 = [[r["r"], joined(r["candidates"]), joined(r["periods"]),
+             f"{r['storage_bytes']:,}", f"{r['compression_ratio']:.4f}",
+             f"{r['accuracy']:.4f}"] for r in res["fig4"]]  # fmt: skip
     maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
     app, t1 = res["appearance"], res["table1"]
     m = meta | dict(predictions=Path(meta["predictions"]).name,
                     command=res.get("command", meta.get("command")))  # fmt: skip
-    return h.fill(
-        REPORT, cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
+    return REPORT.format(
+        cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
         solver_note=note, threads=res["table3"]["threads"],
         sub=app["augmentation"], ae=res["aerial"],
-        table1=table1_markdown(t1["paper"], t1["here"]), table2=h.columns(t2, T2),
+        table1=table1_markdown(t1["paper"], t1["here"]), table2=table2_markdown(t2),
         table3=table3_markdown(res["table3"]), paper3=PAPER_TABLE3,
-        fig3=h.columns(fig3, FIG3), fig4=h.columns(res["fig4"], FIG4),
+        fig3=h.table(FIG3, fig3, ""), fig4=h.table(FIG4, fig4, ""),
         levels=levels_markdown(app["full"]),
         augmentation=augmentation_markdown(app["augmentation"]),
         aerial=levels_markdown(res["aerial"]), deviations=DEVIATIONS,
