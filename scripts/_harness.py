@@ -8,8 +8,6 @@ Markdown again from a report). Also: the timer, a command in a fresh process, th
 Nordland and aerial features and the cache of fitted maps.
 """
 
-from __future__ import annotations
-
 import argparse
 import dataclasses
 import hashlib

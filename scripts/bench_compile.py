@@ -6,8 +6,6 @@ warm compile cache, this checkout against a baseline one.
     python scripts/_harness.py bench_compile count_fit '[1000, 256]'   (one fit)
 """
 
-from __future__ import annotations
-
 import json
 import runpy
 import shutil

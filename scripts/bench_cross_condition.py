@@ -6,8 +6,6 @@ baselines fitted on one condition of the test places, queried with the other
     python scripts/bench_cross_condition.py --quick         # patchnorm, closed form
 """
 
-from __future__ import annotations
-
 import copy
 import json
 import math

@@ -5,8 +5,6 @@ python scripts/bench_decode.py --quick   # 1 timed batch, 30 single queries
 python scripts/bench_decode.py --render reports/decode.json  # Markdown again
 """
 
-from __future__ import annotations
-
 import _harness as h
 import jax
 import jax.numpy as jnp

@@ -4,8 +4,6 @@ python scripts/bench_decoding.py            # writes reports/decoding.{json,md}
 python scripts/bench_decoding.py --quick    # 500 frames, patchnorm, level 1
 """
 
-from __future__ import annotations
-
 import argparse
 import functools
 from pathlib import Path

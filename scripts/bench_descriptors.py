@@ -3,8 +3,6 @@
 python scripts/bench_descriptors.py            # writes reports/descriptors.*
 """
 
-from __future__ import annotations
-
 import os
 import time
 from pathlib import Path

@@ -3,8 +3,6 @@
 python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 """
 
-from __future__ import annotations
-
 import time
 
 import numpy as np

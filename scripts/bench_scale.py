@@ -5,8 +5,6 @@ python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
 python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
 """
 
-from __future__ import annotations
-
 import itertools
 import json
 import math

@@ -3,8 +3,6 @@
 python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 """
 
-from __future__ import annotations
-
 import time
 
 import jax.numpy as jnp

@@ -5,8 +5,6 @@ against liblinear's LinearSVC, timed on sampled templates (docs/design.md).
     python scripts/bench_solver.py --quick   # 800 frames, 4 sampled templates
 """
 
-from __future__ import annotations
-
 import warnings
 
 import _harness as h

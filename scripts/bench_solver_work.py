@@ -3,8 +3,6 @@
 python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 """
 
-from __future__ import annotations
-
 import time
 from pathlib import Path
 

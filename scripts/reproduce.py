@@ -4,8 +4,6 @@ python scripts/reproduce.py                            # reports/REPRODUCTION.md
 python scripts/reproduce.py --quick --out /tmp/repro   # CI: a few minutes
 """
 
-from __future__ import annotations
-
 import dataclasses
 import datetime
 import json
@@ -612,7 +610,7 @@ def draw(res: dict, out: Path) -> list[str]:
 
 def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
     env = h.machine()
-    now = datetime.datetime.now(datetime.UTC)
+    now = datetime.datetime.now(datetime.timezone.utc)
     return dict(
         date=now.strftime("%Y-%m-%d %H:%M UTC"), version=rhythmic_jax.__version__,
         jax=env["jax"], faiss=env["faiss"], numpy=env["numpy"], python=env["python"],
