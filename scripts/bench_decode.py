@@ -113,7 +113,6 @@ def options(ap) -> None:
 def run(args) -> dict:
     kw = dict(repeats=args.repeats or (1 if args.quick else 5),
               singles=args.singles or (30 if args.quick else 300))  # fmt: skip
-    args.stem = "decode_quick" if args.quick else "decode"
     refs, qry, src = random_features(10713, 4096, BATCH, seed=0)
     name = "random, Nordland spring size"
     cases = [bench_case(name, refs, qry, src, (105, 106), **kw)]

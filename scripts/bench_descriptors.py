@@ -44,7 +44,7 @@ def run(args) -> dict:
     trav = nordland_images(args.root, progress=args.progress)
     summer, winter = (t.images for t in trav)
     if args.quick:
-        summer, winter, args.stem = summer[:300], winter[:300], "descriptors_quick"
+        summer, winter = summer[:300], winter[:300]
         args.timing_frames = min(args.timing_frames, 32)
     timing = np.concatenate([summer[::20], winter[::20]])[: args.timing_frames]
     log.info("summer %s, winter %s, timing on %d frames", summer.shape, winter.shape,
