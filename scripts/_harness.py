@@ -309,18 +309,32 @@ def plain(obj):
 
 
 def header(title: str, report: dict) -> list[str]:
-    """A report's title and its paragraph on the command, machine and load."""
-    env, load = report["environment"], report["load_average"]
-    commit = f" Commit {env['commit']}." if env.get("commit") else ""
-    return [
-        f"# {title}",
-        "",
-        f"Command: `{report['command']}`. Devices {env['devices']}, {env['cores']}"
-        f" cores; threads {env['threads']} (XLA: one per core). Load average"
-        f" (1, 5, 15 min) at start {load['start']}, at end {load['end']}: the"
-        f" machine is shared, so the times are pessimistic.{commit}",
-        "",
-    ]
+    """A report's title and its paragraph on the command, machine and load; a
+    report older than the harness's record of these says which it lacks."""
+    env, load = report.get("environment") or {}, report.get("load_average")
+    text, lacks = [], []
+    if report.get("command"):
+        text.append(f"Command: `{report['command']}`.")
+    else:
+        lacks.append("the command")
+    if "devices" in env:
+        text.append(f"Devices {env['devices']}, {env['cores']} cores; threads"
+                    f" {env['threads']} (XLA: one per core).")  # fmt: skip
+    else:
+        lacks.append("the devices, cores and threads")
+    if isinstance(load, dict):
+        text.append(f"Load average (1, 5, 15 min) at start {load['start']}, at end"
+                    f" {load['end']}: the machine is shared, so the times are"
+                    " pessimistic.")  # fmt: skip
+    else:
+        lacks.append("the load average at start and end")
+    if env.get("commit"):
+        text.append(f"Commit {env['commit']}.")
+    if lacks:
+        text.append("Not recorded (the report predates the harness's record of"
+                    f" them): {'; '.join(lacks)}; its JSON holds what it"
+                    " kept.")  # fmt: skip
+    return [f"# {title}", "", " ".join(text), ""]
 
 
 def table(headers: Sequence[str], rows: Sequence[Sequence[object]], align=None) -> str:

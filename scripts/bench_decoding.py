@@ -315,9 +315,14 @@ def markdown(report: dict) -> str:
             f"## Outliers: Nordland, {b['descriptor']}, level {b['level']}",
             f"{b['n_held']} of {b['n_queries']} route frames held out of the summer"
             f" map in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
-            f" {b['n_map']} frames, periods {b['periods']}. Metrics on the second"
-            " half of the route, the threshold chosen on the first; margins"
-            f" exclude rivals within {EXCLUDE} places; recall within ±{TOLERANCE}.",
+            f" {b['n_map']} frames, periods {b['periods']}. PR AUC and recall at 100 %"
+            " precision on the second half of the route. Threshold: chosen on the"
+            " first half (largest recall at 100 % precision; inf when none reaches"
+            " it, so everything is rejected); kept, thr P, thr R: second-half"
+            " queries kept at that threshold, their precision and recall;"
+            " outliers rejected: share of held-out places' queries rejected."
+            f" Margins exclude rivals within {EXCLUDE} places; recall within"
+            f" ±{TOLERANCE}.",
             outlier_table(b),
         ]
     return "\n\n".join(parts) + "\n"

@@ -91,10 +91,13 @@ def markdown(report: dict) -> str:
              f"{r['recall_at_1_tol1']:.4f}", f"{r['frames_per_s']:.1f}"]
             for r in report["results"]]  # fmt: skip
     title = "Descriptors on Nordland 64x32 (winter queries vs summer map)"
+    # a report older than the harness kept its torch threads in "environment"
+    threads = report.get("torch_threads") or report["environment"]["threads"]
+    frames = report.get("timing_frames")
+    timed = f" on {frames} frames" if frames else " (frames timed: not recorded)"
     return "\n".join(header(title, report) + [
         "Brute-force cosine nearest neighbour; recall@1 counts the exact index,"
-        " (±1) a neighbour within one index. Frames/s on"
-        f" {report['timing_frames']} frames, {report['torch_threads']} torch"
+        f" (±1) a neighbour within one index. Frames/s{timed}, {threads} torch"
         " threads (other work on the machine slows these).",
         "",
         table(["descriptor", "dim", "recall@1", "recall@1 (±1)", "frames/s"], rows),
