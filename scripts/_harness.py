@@ -8,8 +8,6 @@ Markdown again from a report). Also: the timer, a command in a fresh process, th
 Nordland and aerial features and the cache of fitted maps.
 """
 
-from __future__ import annotations
-
 import argparse
 import dataclasses
 import hashlib
@@ -17,7 +15,6 @@ import json
 import logging
 import os
 import platform
-import string
 import subprocess
 import sys
 import tempfile
@@ -30,6 +27,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("RHYTHMIC_DATA", REPO.parent / "shared" / "data"))
 NORDLAND = "nordland_64x32"
+MAP_CACHE = Path(tempfile.gettempdir()) / "rhythmic_jax_maps"  # cached_fit's folder
 log = logging.getLogger("harness")
 _LIMITS: list = []  # keeps the global BLAS limit referenced
 
@@ -272,8 +270,8 @@ def digest(ident, *arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def cached_fit(model, x, folder: Path, fit=None, extra=None, arrays=(), tag="",
-               progress=False):  # fmt: skip
+def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=(),
+               tag="", progress=False):  # fmt: skip
     """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
     ``model.fit(x, progress=progress)``), or loaded from ``folder`` where a fit with
     the same settings (``extra`` too) and features (``arrays`` too) was saved. The
@@ -311,62 +309,44 @@ def plain(obj):
 
 
 def header(title: str, report: dict) -> list[str]:
-    """A report's title and its paragraph on the command, machine and load."""
-    env, load = report["environment"], report["load_average"]
-    commit = f" Commit {env['commit']}." if env.get("commit") else ""
-    return [
-        f"# {title}",
-        "",
-        f"Command: `{report['command']}`. Devices {env['devices']}, {env['cores']}"
-        f" cores; threads {env['threads']} (XLA: one per core). Load average"
-        f" (1, 5, 15 min) at start {load['start']}, at end {load['end']}: the"
-        f" machine is shared, so the times are pessimistic.{commit}",
-        "",
-    ]
+    """A report's title and its paragraph on the command, machine and load; a
+    report older than the harness's record of these says which it lacks."""
+    env, load = report.get("environment") or {}, report.get("load_average")
+    text, lacks = [], []
+    if report.get("command"):
+        text.append(f"Command: `{report['command']}`.")
+    else:
+        lacks.append("the command")
+    if "devices" in env:
+        text.append(f"Devices {env['devices']}, {env['cores']} cores; threads"
+                    f" {env['threads']} (XLA: one per core).")  # fmt: skip
+    else:
+        lacks.append("the devices, cores and threads")
+    if isinstance(load, dict):
+        text.append(f"Load average (1, 5, 15 min) at start {load['start']}, at end"
+                    f" {load['end']}: the machine is shared, so the times are"
+                    " pessimistic.")  # fmt: skip
+    else:
+        lacks.append("the load average at start and end")
+    if env.get("commit"):
+        text.append(f"Commit {env['commit']}.")
+    if lacks:
+        text.append("Not recorded (the report predates the harness's record of"
+                    f" them): {'; '.join(lacks)}; its JSON holds what it"
+                    " kept.")  # fmt: skip
+    return [f"# {title}", "", " ".join(text), ""]
 
 
-def table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
-    """A Markdown table; numbers right-aligned, text left-aligned."""
-    numeric = [all(isinstance(r[i], int | float | np.number) for r in rows)
-               for i in range(len(headers))]  # fmt: skip
-    lines = [
-        "| " + " | ".join(headers) + " |",
-        "|" + "|".join("---:" if num else "---" for num in numeric) + "|",
-    ]
+def table(headers: Sequence[str], rows: Sequence[Sequence[object]], align=None) -> str:
+    """A Markdown table; numbers right-aligned, text left-aligned, unless ``align``
+    says: ``l`` or ``r`` per column, ``l`` where it stops."""
+    if align is None:
+        align = "".join("r" if all(isinstance(r[i], int | float | np.number)
+                                   for r in rows) else "l"
+                        for i in range(len(headers)))  # fmt: skip
+    seps = ("---:" if a == "r" else "---" for a in align.ljust(len(headers), "l"))
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(seps) + "|"]
     lines += ["| " + " | ".join(_cell(v) for v in r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-class _Format(string.Formatter):
-    """``{x!l}``: a list joined by commas; ``{x!m}``, ``{x!c}``: fractions as
-    x 10^-3, as percent."""
-
-    def convert_field(self, value, conversion):
-        if conversion == "l":
-            return ", ".join(str(v) for v in value)
-        if conversion in ("m", "c"):
-            scale = 1000 if conversion == "m" else 100
-            return ", ".join(f"{scale * v:.2f}" for v in value)
-        return super().convert_field(value, conversion)
-
-
-def fill(template: str, **fields) -> str:
-    """``template`` formatted with ``fields`` and the conversions of :func:`columns`."""
-    return _Format().format(template, **fields)
-
-
-def columns(rows: Sequence[dict], cols: str, align: str = "") -> str:
-    """A Markdown table: ``cols`` holds one ``header = format`` per line, filled
-    from each row (``accuracy = {accuracy:.4f}``); ``align``: ``l`` or ``r`` per
-    column, ``l`` where it stops."""
-    spec = [line.rsplit(" = ", 1) for line in cols.strip().splitlines()]
-    fmt, seps = _Format(), align.ljust(len(spec), "l")
-    lines = [
-        "| " + " | ".join(h for h, _ in spec) + " |",
-        "|" + "|".join("---:" if a == "r" else "---" for a in seps) + "|",
-    ]
-    lines += ["| " + " | ".join(fmt.format(f, **r) for _, f in spec) + " |"
-              for r in rows]  # fmt: skip
     return "\n".join(lines)
 
 

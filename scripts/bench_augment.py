@@ -3,8 +3,6 @@
 python scripts/bench_augment.py
 """
 
-from __future__ import annotations
-
 import statistics
 import time
 

@@ -3,9 +3,8 @@ warm compile cache, this checkout against a baseline one.
 
     python scripts/bench_compile.py --base DIR [--jobs fit,nordland,demo,jpeg]
     python scripts/bench_compile.py --base DIR --small   (a quick check)
+    python scripts/_harness.py bench_compile count_fit '[1000, 256]'   (one fit)
 """
-
-from __future__ import annotations
 
 import json
 import runpy
@@ -64,6 +63,18 @@ def run_job(argv: list[str], env: dict, tmp: Path) -> dict:
     count = dict(programs=c["programs"], compiled=c["programs"] - c["hits"],
                  hits=c["hits"], compile_s=c["compile_s"])  # fmt: skip
     return dict(count, wall=r["wall"], load=r["load"]), r["stdout"]
+
+
+def count_fit(n: int = 1000, d: int = 256) -> dict:
+    """The library job alone on :func:`route` frames, in a fresh process against this
+    checkout with no compile cache: its XLA programs (``names``: by name), cache
+    hits, compile and trace seconds and the periods."""
+    with tempfile.TemporaryDirectory() as tmp:
+        x, out = Path(tmp) / "x.npy", Path(tmp) / "count.json"
+        np.save(x, route(n, d))
+        argv = ["library", str(x), str(Path(tmp) / "pred.npy")]
+        r = h.call(job, str(out), *argv, checkout=h.REPO, env=h.job_env("0"))
+        return json.loads(out.read_text()) | r["result"]
 
 
 def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:

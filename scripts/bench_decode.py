@@ -5,8 +5,6 @@ python scripts/bench_decode.py --quick   # 1 timed batch, 30 single queries
 python scripts/bench_decode.py --render reports/decode.json  # Markdown again
 """
 
-from __future__ import annotations
-
 import _harness as h
 import jax
 import jax.numpy as jnp
@@ -21,6 +19,7 @@ from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 log = h.log
 BATCH = 1000
 NOISE = 0.5  # query noise relative to a unit reference
+QUICK = dict(repeats=1, singles=30)  # --quick
 
 
 def random_features(n: int, d: int, b: int, seed: int):
@@ -108,14 +107,12 @@ def markdown(report: dict) -> str:
 
 
 def options(ap) -> None:
-    ap.add_argument("--repeats", type=int, default=None, help="timed batch calls")
-    ap.add_argument("--singles", type=int, default=None, help="timed single queries")
+    ap.add_argument("--repeats", type=int, default=5, help="timed batch calls")
+    ap.add_argument("--singles", type=int, default=300, help="timed single queries")
 
 
 def run(args) -> dict:
-    kw = dict(repeats=args.repeats or (1 if args.quick else 5),
-              singles=args.singles or (30 if args.quick else 300))  # fmt: skip
-    args.stem = "decode_quick" if args.quick else "decode"
+    kw = dict(repeats=args.repeats, singles=args.singles)
     refs, qry, src = random_features(10713, 4096, BATCH, seed=0)
     name = "random, Nordland spring size"
     cases = [bench_case(name, refs, qry, src, (105, 106), **kw)]
@@ -134,4 +131,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    h.main(__doc__, run, markdown, options, stem="decode")
+    h.main(__doc__, run, markdown, options, stem="decode", quick=QUICK)

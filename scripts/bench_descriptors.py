@@ -3,8 +3,6 @@
 python scripts/bench_descriptors.py            # writes reports/descriptors.*
 """
 
-from __future__ import annotations
-
 import os
 import time
 from pathlib import Path
@@ -46,7 +44,7 @@ def run(args) -> dict:
     trav = nordland_images(args.root, progress=args.progress)
     summer, winter = (t.images for t in trav)
     if args.quick:
-        summer, winter, args.stem = summer[:300], winter[:300], "descriptors_quick"
+        summer, winter = summer[:300], winter[:300]
         args.timing_frames = min(args.timing_frames, 32)
     timing = np.concatenate([summer[::20], winter[::20]])[: args.timing_frames]
     log.info("summer %s, winter %s, timing on %d frames", summer.shape, winter.shape,
@@ -93,10 +91,13 @@ def markdown(report: dict) -> str:
              f"{r['recall_at_1_tol1']:.4f}", f"{r['frames_per_s']:.1f}"]
             for r in report["results"]]  # fmt: skip
     title = "Descriptors on Nordland 64x32 (winter queries vs summer map)"
+    # a report older than the harness kept its torch threads in "environment"
+    threads = report.get("torch_threads") or report["environment"]["threads"]
+    frames = report.get("timing_frames")
+    timed = f" on {frames} frames" if frames else " (frames timed: not recorded)"
     return "\n".join(header(title, report) + [
         "Brute-force cosine nearest neighbour; recall@1 counts the exact index,"
-        " (±1) a neighbour within one index. Frames/s on"
-        f" {report['timing_frames']} frames, {report['torch_threads']} torch"
+        f" (±1) a neighbour within one index. Frames/s{timed}, {threads} torch"
         " threads (other work on the machine slows these).",
         "",
         table(["descriptor", "dim", "recall@1", "recall@1 (±1)", "frames/s"], rows),

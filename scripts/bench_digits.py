@@ -3,8 +3,6 @@
 python scripts/bench_digits.py          # writes reports/digits.{json,md}
 """
 
-from __future__ import annotations
-
 import time
 from pathlib import Path
 

@@ -3,8 +3,6 @@
 python scripts/bench_frames.py --base /tmp/base [--repeats 2]
 """
 
-from __future__ import annotations
-
 import json
 import shutil
 import sys

@@ -4,8 +4,6 @@ python scripts/bench_gpu.py --write-features nordland_f16.npy
 python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
 """
 
-from __future__ import annotations
-
 from pathlib import Path
 
 import jax

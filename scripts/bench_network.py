@@ -3,8 +3,6 @@
 python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 """
 
-from __future__ import annotations
-
 import tempfile
 import time
 

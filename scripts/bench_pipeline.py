@@ -3,8 +3,6 @@
 python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
 """
 
-from __future__ import annotations
-
 import time
 
 import numpy as np

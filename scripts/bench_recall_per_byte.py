@@ -4,8 +4,6 @@ python scripts/bench_recall_per_byte.py          # reports/recall_per_byte.*
 python scripts/bench_recall_per_byte.py --quick  # 2 maps, 2 code sizes
 """
 
-from __future__ import annotations
-
 import dataclasses
 import logging
 import time

@@ -5,8 +5,6 @@ python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
 python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
 """
 
-from __future__ import annotations
-
 import itertools
 import json
 import math
@@ -217,9 +215,13 @@ def _allows(s: dict) -> str:
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
-        f"Every fit ran niced beside other jobs: niceness {report['nices']}. Cells"
-        f" measured between {report['cells_from']} and {report['cells_to']} at a"
-        f" 1-minute load of {report['load_cells']}; a rerun reuses measured cells.",
+        "Every fit ran niced beside other jobs (load above): the times are"
+        f" pessimistic. Niceness {report['nices']} (each cell's in the JSON; at 19 a"
+        " fit takes only CPU no one else wants). Cells were measured between"
+        f" {report['cells_from']} and {report['cells_to']} at a 1-minute load"
+        f" average of {report['load_cells']} (each cell's in the JSON); a rerun"
+        " reuses cells already measured, so the command above may only have"
+        " collected them.",
         "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
@@ -256,8 +258,22 @@ def markdown(report: dict) -> str:
         lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "'the rule allows': the least and largest slope any choice of the"
-              " candidate rule gives over the series' N; docs/SCALE.md."]  # fmt: skip
+    lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
+              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the "
+              "summed periods, and the bytes, lie between the least and the "
+              "largest valid set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). "
+              "Over a short range of N, or from N where 6 is a large share of "
+              "N^(1/r) (10 at N = 1,000, r = 3), the errors' choice moves the "
+              "fitted slope further than 0.05 either way; the column 'the rule "
+              "allows' gives the least and the largest fitted slope that "
+              "the rule permits over the series' N (any choice of periods at "
+              "each N). "
+              "The slope tends to 1/r as N grows, where 6 becomes a small share "
+              "of N^(1/r). Rule 'least' fixes the least-storage co-prime set of "
+              "the same candidates before training (no search): its bytes follow "
+              "r N^(1/r) to within the rounding up to co-prime integers, and the "
+              "column gives that set's slope; the accuracy columns say what the "
+              "errors' choice buys over it."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
@@ -408,27 +424,31 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         total = (steps + 1) * sec["gradient + bits"] + cg * sec["CG from bits"]
         search = (total + 2 * steps * sec["line search"]) / 3600
         how = "the candidate set's measured pass of each kind (below)"
-    basis = f", basis {k['basis']:.1f}" if "basis" in k else ""
+    basis = f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else ""
     errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
     took = f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes"
     return [
         f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
-        f" ({f['file_bytes'] / 2**30:.2f} GiB .npy), r = 3, fixed periods"
-        f" {'x'.join(map(str, f['periods']))} ({p} templates), `--memory"
-        f" {f['memory']}`: **{f['wall_seconds']:.0f} s wall** ({_attempts(f)}, load"
+        f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
+        f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
+        f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
+        f" wall** ({_attempts(f)}, at a 1-minute load average of"
         f" {f['loads'][-1][0]:.1f} at its end, nice {f.get('nice', NICE)}),"
         f" {f['steps']} Newton steps, {f['passes']} passes, {f['pass_median_s']:.1f}"
         f" s per pass (median; gradient {k['gradient']:.1f}, CG {k['cg']:.1f}, line"
         f" search {k['line']:.1f}{basis}), {f['block_rows']:,} rows per block, **peak"
-        f" resident {f['peak_bytes'] / 2**20:.0f} MiB**; per-period training errors"
-        f" {errors};"
-        f" self-query accuracy on {f['sample']:,} frames {acc['float32']:.4f} (float16"
-        f" {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command: `{f['command']}`,"
-        f" commit {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
+        f" resident {f['peak_bytes'] / 2**20:.0f} MiB** under the 1 GiB bound;"
+        f" per-period training errors {errors}; self-query accuracy on"
+        f" {f['sample']:,} frames spread along the route {acc['float32']:.4f}"
+        f" (float16 {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command:"
+        f" `{f['command']}`, with the streamed solver of commit"
+        f" {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
         "",
         f"The candidate search ({len(f['candidates'])} candidates {f['candidates'][0]}"
-        f" - {f['candidates'][-1]}, {cands} templates) trains {cands / p:.1f}x the"
-        f" templates per pass: at {how}, projected at {took} (not a measurement).",
+        f" - {f['candidates'][-1]}, {cands} templates) would train {cands / p:.1f}x"
+        f" the templates per pass: with this fit's steps and passes, at {how}, it is"
+        f" projected at {took} (projection, not a measurement; the search may take"
+        " other steps).",
     ]
 
 

@@ -5,8 +5,6 @@ against liblinear's LinearSVC, timed on sampled templates (docs/design.md).
     python scripts/bench_solver.py --quick   # 800 frames, 4 sampled templates
 """
 
-from __future__ import annotations
-
 import warnings
 
 import _harness as h
@@ -258,11 +256,19 @@ def case_markdown(r: dict) -> str:
         f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
         f" {r['c']:.4f}. The load changed between solvers: see each row.",
         timing,
-        f"LinearSVC ran on {s['sampled']} of the {r['p']} templates; its time is"
-        f" EXTRAPOLATED: {per['mean']:.2f} s a template (std {per['std']:.2f},"
-        f" min {per['min']:.2f}, max {per['max']:.2f}) times p = {r['p']}:"
-        f" {s['extrapolated_s']:.0f} s (range {lo:.0f}-{hi:.0f} s). liblinear"
-        f" runs on one thread, the JAX solvers on {r['xla_threads']}.",
+        "LinearSVC(loss='squared_hinge', dual=True, C=log N, tol=1e-4,"
+        " max_iter=1000; intercept_scaling=1 makes the bias a regularised"
+        " constant-1 feature, the same objective) was run on"
+        f" {s['sampled']} of the {r['p']} templates only;"
+        f" its time is EXTRAPOLATED: per template {per['mean']:.2f} s mean"
+        f" (std {per['std']:.2f}, min {per['min']:.2f}, max {per['max']:.2f}),"
+        f" times p = {r['p']}: {s['extrapolated_s']:.0f} s (range"
+        f" {lo:.0f}-{hi:.0f} s from the fastest and slowest sampled template)."
+        f" liblinear runs on one thread, the JAX solvers on {r['xla_threads']}"
+        " (XLA's pool): CPU seconds (all threads of the process) count the"
+        " work, wall seconds what a user waits. Newton's times include its"
+        " setup (Xa^T Xa, the leading eigenvectors); its first call, which"
+        " also compiles, is reported below.",
         _newton_line("0.1 % gap", fast),
         _newton_line("tight", tight),
         f"L-BFGS: {lb['steps']} steps (warm-up of two steps"

@@ -3,8 +3,6 @@
 python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 """
 
-from __future__ import annotations
-
 import time
 from pathlib import Path
 
@@ -50,7 +48,7 @@ def run(args) -> dict:
     else:
         (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
     if args.quick:
-        x, args.stem = x[:600], "solver_work_quick"
+        x = x[:600]
     n = len(x)
     labels = np.arange(n)
     cands = candidate_periods(n, 2, 1, 7)

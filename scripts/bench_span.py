@@ -3,8 +3,6 @@
 python scripts/bench_span.py [--frames 3576] [--level 1]
 """
 
-from __future__ import annotations
-
 import dataclasses
 
 import jax

@@ -3,8 +3,6 @@
 python scripts/bench_startup.py --before /tmp/before --repeats 7
 """
 
-from __future__ import annotations
-
 import shutil
 import statistics
 import sys

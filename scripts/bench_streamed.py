@@ -3,8 +3,6 @@
 python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 """
 
-from __future__ import annotations
-
 import tempfile
 from dataclasses import replace
 from pathlib import Path

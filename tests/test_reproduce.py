@@ -78,16 +78,15 @@ def test_table1_markdown_holds_every_number(repro):
     assert f"{126 * 2049 * 4:,}" in lines[-1] and f"{3576 * 2048 * 4:,}" in lines[-1]
 
 
-def test_render_formats_lists_and_fractions(repro):
-    md = repro.h.columns(
-        [dict(p=[3, 5], e=[0.0123, 0.5], c=[0.25], a=0.123456)],
-        "periods = {p!l}\ne = {e!m}\npct = {c!c}\nacc = {a:.4f}",
-    )
-    assert md.splitlines() == [
-        "| periods | e | pct | acc |",
-        "|---|---|---|---|",
-        "| 3, 5 | 12.30, 500.00 | 25.00 | 0.1235 |",
+def test_tables_format_lists_fractions_and_alignment(repro):
+    rows = [[2, repro.joined([3, 5]), repro.joined([0.0123, 0.5], 1000), 0.123456]]
+    heads = ["r", "periods", "e", "acc"]
+    assert repro.h.table(heads, rows).splitlines() == [
+        "| r | periods | e | acc |",
+        "|---:|---|---|---:|",
+        "| 2 | 3, 5 | 12.30, 500.00 | 0.1235 |",
     ]
+    assert repro.h.table(heads, rows, "lr").splitlines()[1] == "|---|---:|---|---|"
 
 
 def test_min_count_matches_a_brute_force_search(repro):
@@ -124,7 +123,7 @@ def test_quick_reproduction_agrees_with_the_library(
     preds_path = tmp_path / "predictions.npz"
     repro.main(
         ["--quick", "--out", str(tmp_path), "--predictions", str(preds_path)]
-        + ["--no-progress", "--decoding", str(tmp_path / "absent.json")]
+        + ["--no-progress"]
     )
     res = json.loads((tmp_path / "reproduction_quick.json").read_text())
     md = (tmp_path / "REPRODUCTION_quick.md").read_text()

@@ -23,8 +23,9 @@ def test_a_default_fit_compiles_at_most_20_programs_in_a_fresh_process():
     """1000 x 256 route-like frames, a fresh process, no persistent cache: the
     count of JAX's backend-compile events (before: 92, four of them the step)."""
     env = dict(os.environ, PYTHONPATH=str(REPO), JAX_PLATFORMS="cpu")
+    harness = [sys.executable, str(REPO / "scripts" / "_harness.py"), "bench_compile"]
     out = subprocess.run(
-        [sys.executable, str(REPO / "scripts" / "count_compiles.py"), "--names"],
+        [*harness, "count_fit", "[1000, 256]"],
         env=env,
         capture_output=True,
         text=True,
