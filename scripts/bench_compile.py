@@ -6,6 +6,7 @@ warm compile cache, this checkout against a baseline one.
     python scripts/_harness.py bench_compile count_fit '[1000, 256]'   (one fit)
 """
 
+import compileall
 import json
 import runpy
 import shutil
@@ -133,6 +134,8 @@ def run(args) -> dict:
             inputs["nordland"] = nordland_features(args.root, tmp, n_nord)
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
+        for tree in (args.base, h.REPO):  # bytecode first: no job compiles Python
+            compileall.compile_dir(tree / "rhythmic_jax", quiet=1)
         for name, env in variants(args.base, tmp):
             side = name.split()[0]
             if name == "new cold":
@@ -221,7 +224,8 @@ def markdown(report: dict) -> str:
     return "\n".join(h.header(title, report)) + "\n" + "\n\n".join([
         f"Baseline checkout {report['base']} (no compile cache) against this one, "
         "cold (empty compile cache) and warm (the cache the cold run left). Each "
-        "job is a fresh process. Programs: XLA programs the job obtained; hits: "
+        "job is a fresh process, both checkouts' Python bytecode compiled before"
+        " the first. Programs: XLA programs the job obtained; hits: "
         "of them, loaded from the persistent cache; compile s: their seconds "
         f"(loads included); load: 1-minute load average after the job. Sizes: fit "
         f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
