@@ -134,6 +134,16 @@ def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
                 load=load_average()[0])  # fmt: skip
 
 
+def bytecode(*checkouts: Path) -> None:
+    """Compile each checkout's package to bytecode before it is timed, so no job
+    compiles Python (a checkout without .pyc files, or a shell that sets
+    PYTHONDONTWRITEBYTECODE, would otherwise in every process)."""
+    import compileall
+
+    for tree in checkouts:
+        compileall.compile_dir(Path(tree) / "rhythmic_jax", quiet=1)
+
+
 def job_env(compile_cache: str | None = None) -> dict[str, str]:
     """This process's environment without a compile-cache setting of its own (JAX's
     ``JAX_COMPILATION_CACHE_*``, the project's ``RHYTHMIC_JAX_COMPILE_CACHE``), so a

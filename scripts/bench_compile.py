@@ -6,7 +6,6 @@ warm compile cache, this checkout against a baseline one.
     python scripts/_harness.py bench_compile count_fit '[1000, 256]'   (one fit)
 """
 
-import compileall
 import json
 import runpy
 import shutil
@@ -134,8 +133,7 @@ def run(args) -> dict:
             inputs["nordland"] = nordland_features(args.root, tmp, n_nord)
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
-        for tree in (args.base, h.REPO):  # bytecode first: no job compiles Python
-            compileall.compile_dir(tree / "rhythmic_jax", quiet=1)
+        h.bytecode(args.base, h.REPO)
         for name, env in variants(args.base, tmp):
             side = name.split()[0]
             if name == "new cold":

@@ -97,6 +97,7 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
 
 def run(args) -> dict:
     paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
+    h.bytecode(*paths.values())
     jobs = ["fit", "query", "fit100"]
     jobs += [] if args.skip_augmented else ["augmented_none", "augmented_all"]
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, child, header, log, main, table
+from _harness import REPO, bytecode, child, header, log, main, table
 
 HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
 QUICK = dict(repeats=1)  # --quick
@@ -62,7 +62,8 @@ def markdown(report: dict) -> str:
     lines = header("Start-up time: import, --help, info", report)
     versions = report["versions"]
     lines += [
-        f"Each command in a fresh process, wall seconds, median of "
+        f"Each command in a fresh process (each checkout compiled to bytecode first),"
+        f" wall seconds, median of "
         f"{report['repeats']} runs taken in turns ({', '.join(versions)}). Targets "
         "on an idle machine: `--help` under 1 s, `info` under 2 s.",
         "",
@@ -90,6 +91,7 @@ def run(args) -> dict:
     checkouts = {"this": REPO}
     if args.before is not None:
         checkouts = {"before": args.before.resolve(), "after": REPO}
+    bytecode(*checkouts.values())
     with tempfile.TemporaryDirectory() as tmp:
         cmds = commands(fit_map(Path(tmp)))
         seconds = {name: {v: [] for v in checkouts} for name in cmds}
