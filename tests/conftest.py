@@ -56,66 +56,55 @@ def _run_folder(tmp_path_factory, worker_id) -> Path:
     return run.parent if worker_id != "master" else run
 
 
-@pytest.fixture(scope="session")
-def nordland_patchnorm(nordland_root, tmp_path_factory, worker_id):
-    """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048).
-
-    Computed once for the whole run: the first worker that needs them describes
-    the frames and saves the rows in the run's folder under a file lock; another
-    worker waits for it and loads the same arrays.
-    """
+def _described_once(nordland_root, tmp_path_factory, worker_id, name, desc, **kw):
+    """(summer, winter) rows of every Nordland frame described by ``desc``, once
+    for the whole run: the pytest-xdist workers share one cache folder and take
+    turns under a file lock, so a worker that needs them while another computes
+    them waits and then reads the other's files (``kw``: ``cached_describe``'s)."""
     import fcntl
 
-    from rhythmic_jax.frames.features import describe, get_descriptor
+    from rhythmic_jax.frames.features import cached_describe
     from rhythmic_jax.io.images import nordland
 
     shared = _run_folder(tmp_path_factory, worker_id)
-    files = [shared / f"nordland_patchnorm_{s}.npy" for s in ("summer", "winter")]
-    with open(shared / "nordland_patchnorm.lock", "w") as lock:
+    folder = shared / name
+    folder.mkdir(exist_ok=True)
+    with open(shared / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-        if not all(f.exists() for f in files):
-            desc = get_descriptor("patchnorm")
-            for traversal, f in zip(nordland(nordland_root), files, strict=True):
-                rows = describe(traversal.images, desc, progress=False)
-                np.save(f.with_suffix(".tmp.npy"), rows)
-                f.with_suffix(".tmp.npy").replace(f)
-        return tuple(np.load(f) for f in files)
+        return tuple(
+            cached_describe(t.images, desc, f"nordland-{s}", cache_dir=folder, **kw)
+            for t, s in zip(nordland(nordland_root), ("summer", "winter"), strict=True)
+        )
+
+
+@pytest.fixture(scope="session")
+def nordland_patchnorm(nordland_root, tmp_path_factory, worker_id):
+    """Patch-normalised 64x32 Nordland descriptors: (summer, winter), (3576, 2048),
+    computed once for the whole run (:func:`_described_once`)."""
+    from rhythmic_jax.frames.features import get_descriptor
+
+    desc = get_descriptor("patchnorm")
+    return _described_once(
+        nordland_root, tmp_path_factory, worker_id, "nordland_patchnorm", desc
+    )
 
 
 @pytest.fixture(scope="session")
 def nordland_lite0(nordland_root, tmp_path_factory, worker_id):
     """EfficientNet-Lite0 descriptors (default settings, the eager network) of every
-    Nordland frame: (summer, winter), (3576, 10976) each.
-
-    Computed once for the whole run: the pytest-xdist workers share one cache
-    folder and take turns under a file lock, so a worker that needs them while
-    another computes them waits and then reads the other's files. Rows are those
-    ``rhythmic-jax`` computes for the same frames in a cache folder of its own (the
-    eager network runs in slices of 4 frames; any 4-aligned run of frames gives
-    the same bits).
+    Nordland frame: (summer, winter), (3576, 10976) each, computed once for the
+    whole run (:func:`_described_once`). Rows are those ``rhythmic-jax`` computes
+    for the same frames in a cache folder of its own (the eager network runs in
+    slices of 4 frames; any 4-aligned run of frames gives the same bits).
     """
-    import fcntl
-
     from rhythmic_jax.frames.compiled import CompilePolicy
-    from rhythmic_jax.frames.features import cached_describe, get_descriptor
-    from rhythmic_jax.io.images import nordland
+    from rhythmic_jax.frames.features import get_descriptor
 
-    shared = _run_folder(tmp_path_factory, worker_id)
-    folder = shared / "nordland_lite0"
-    folder.mkdir(exist_ok=True)
     desc = get_descriptor("efficientnet_lite0")
-
-    summer, winter = nordland(nordland_root)
-
-    def lite0(traversal, season: str) -> np.ndarray:
-        key, never = f"nordland-{season}", CompilePolicy("never")
-        return cached_describe(
-            traversal.images, desc, key, cache_dir=folder, compile=never
-        )
-
-    with open(shared / "nordland_lite0.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-        return lite0(summer, "summer"), lite0(winter, "winter")
+    return _described_once(
+        nordland_root, tmp_path_factory, worker_id, "nordland_lite0", desc,
+        compile=CompilePolicy("never"),
+    )  # fmt: skip
 
 
 @pytest.fixture
