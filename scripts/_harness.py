@@ -61,9 +61,8 @@ def git_commit(repo: Path = REPO) -> str:
     """The checkout's short commit, ``+`` when its package has changes."""
 
     def git(*a):
-        done = subprocess.run(["git", "-C", str(repo), *a], capture_output=True,
-                              text=True, check=False)  # fmt: skip
-        return done.stdout.strip()
+        cmd = ["git", "-C", str(repo), *a]
+        return subprocess.run(cmd, capture_output=True, text=True).stdout.strip()
 
     dirty = git("status", "--porcelain", "--untracked-files=no", "rhythmic_jax")
     return git("rev-parse", "--short", "HEAD") + ("+" if dirty else "")
@@ -381,12 +380,6 @@ def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> N
     print(md)
 
 
-def command_line(script: str, argv: Sequence[str] | None) -> str:
-    """The command that ran ``script`` with ``argv`` (default: this process's)."""
-    args = sys.argv[1:] if argv is None else list(argv)
-    return " ".join(["python", f"scripts/{Path(script).name}", *args])
-
-
 def parser(doc: str) -> argparse.ArgumentParser:
     """The options every script takes: --root, --out, --quick, --no-progress,
     --render."""
@@ -414,6 +407,7 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     ap.set_defaults(md_stem=md_stem)
     if options:
         options(ap)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
     fixed = args.stem
     args.stem = fixed or (f"{stem}_quick" if args.quick else stem)
@@ -433,19 +427,16 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
     env, load0, t0 = machine(set_threads(cores())), load_average(), time.time()
     log.info("environment %s", env)
-    script = sys.modules[run.__module__].__file__ or "script"
+    script = Path(sys.modules[run.__module__].__file__ or "script").name
     out = run(args)
     args.stem = fixed or args.stem
     if out is None:
         return None
-    report = dict(command=command_line(script, argv), environment=env,
-                  load_average=dict(start=load0, end=load_average()),
+    report = dict(command=" ".join(["python", f"scripts/{script}", *argv]),
+                  environment=env, load_average=dict(start=load0, end=load_average()),
                   wall_seconds=time.time() - t0)  # fmt: skip
     report = plain(report | out)
-    if args.out is None:  # a measurement printed only
-        print(markdown(report))
-    else:
-        write_report(args.out, args.stem, report, markdown(report), args.md_stem)
+    write_report(args.out, args.stem, report, markdown(report), args.md_stem)
     return report
 
 
