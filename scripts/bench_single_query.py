@@ -5,9 +5,9 @@ python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 
 import time
 
-import jax.numpy as jnp
 import numpy as np
-from _harness import cores, header, log, main, table, unit_rows
+from _harness import cores, header, log, main, table
+from bench_decode import random_features, random_map
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import decode
@@ -15,7 +15,6 @@ from rhythmic_jax.decoding.small import SmallDecoder
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch
 from rhythmic_jax.groups import Groups
-from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import candidate_periods, choose_periods
 
 QUICK = dict(n=2000, singles=200, exact=20)  # --quick
@@ -51,16 +50,8 @@ def run(args) -> dict:
     n, d = args.n, args.d
     cands = candidate_periods(n, 2, 1, 7)
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
-    rng = np.random.default_rng(0)
-    refs = unit_rows(rng.standard_normal((n, d), dtype=np.float32))
-    src = rng.integers(0, n, args.singles)
-    noise = rng.standard_normal((args.singles, d), dtype=np.float32)
-    queries = unit_rows(refs[src] + 0.5 / np.sqrt(d) * noise)
-    p = sum(periods)
-    params = Templates(
-        jnp.asarray(rng.standard_normal((d, p), dtype=np.float32) / np.sqrt(d)),
-        jnp.asarray(0.01 * rng.standard_normal(p, dtype=np.float32)),
-    )
+    refs, queries, _ = random_features(n, d, args.singles, seed=0)
+    params, p = random_map(d, periods, seed=1), sum(periods)
     model = RhythmicMap(r=2)
     model.params, model.periods, model.n, model.d = params, periods, n, d
     model.groups = Groups("periods", periods)
@@ -69,13 +60,6 @@ def run(args) -> dict:
     same = [small.index(q) for q in queries] == batch_idx.tolist()
     model.predict(queries[:1])  # builds the map's numpy lane
     same_locate = [model.locate(q) for q in queries] == batch_idx.tolist()
-    flat = None  # built after the map's paths are timed: its OpenMP threads spin
-
-    def exact(q):
-        nonlocal flat
-        flat = flat or BruteForce(n_threads=cores()).fit(refs)
-        return flat.search(q, 1)
-
     wt, rows_p = small.wt, small.wt.shape[0]
     unpadded = np.ascontiguousarray(wt[:p])
     alone = "templates x query alone, "
@@ -96,14 +80,15 @@ def run(args) -> dict:
 
     one = {"jitted decode (1 row)": lambda q: jit(q[None])}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.singles)))
-    exact(queries[:1])
-    one = {"faiss IndexFlatIP (1 row)": lambda q: exact(q[None])}
+    flat = BruteForce(n_threads=cores()).fit(refs)  # last: its OpenMP threads spin on
+    one = {"faiss IndexFlatIP (1 row)": lambda q: flat.search(q[None], 1)}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.exact)))
     for name, row in rows.items():
         log.info("%s: %.1f us", name, 1e6 * row["median_s"])
     batch = queries[:1000]
     throughput = {"jitted decode": time_batch(jit, batch, repeats=5),
-                  "faiss IndexFlatIP": time_batch(exact, batch, repeats=3)}  # fmt: skip
+                  "faiss IndexFlatIP": time_batch(lambda q: flat.search(q, 1), batch,
+                                                 repeats=3)}  # fmt: skip
     return dict(
         n=n, d=d, periods=list(periods), singles=args.singles,
         single=rows, batch=throughput, same_as_batch_decode=bool(same),
