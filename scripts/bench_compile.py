@@ -86,16 +86,6 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     return time.perf_counter() - t
 
 
-def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
-    """The patch-normalised summer route as a .npy file."""
-    from rhythmic_jax.frames.features import describe, get_descriptor
-
-    images = h.nordland_images(root, ("summer",))[0].images[:n]
-    path = tmp / "nordland.npy"
-    np.save(path, describe(images, get_descriptor("patchnorm"), progress=False))
-    return path
-
-
 def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
     """(name, environment) of base, new cold, new warm: the warm run reuses the
     cold run's compile cache (and network)."""
@@ -118,11 +108,9 @@ def run(args) -> dict:
     args.small = args.small or args.quick
     args.stem = "compile" + ("_small" if args.small else "")
     jobs = args.jobs.split(",")
-    n_fit, d_fit = (200, 64) if args.small else (1000, 256)
-    n_nord = 300 if args.small else None
-    n_jpeg = 100 if args.small else 1000
-    rows: list[dict] = []
-    agree: dict[str, dict] = {}
+    small = ((200, 64), 300, 100) if args.small else ((1000, 256), None, 1000)
+    (n_fit, d_fit), n_nord, n_jpeg = small
+    rows, agree = [], {}
     with tempfile.TemporaryDirectory(prefix="bench_compile") as tmpdir:
         tmp = Path(tmpdir)
         inputs = {}
@@ -130,7 +118,9 @@ def run(args) -> dict:
             inputs["fit"] = tmp / "route.npy"
             np.save(inputs["fit"], route(n_fit, d_fit))
         if "nordland" in jobs:
-            inputs["nordland"] = nordland_features(args.root, tmp, n_nord)
+            inputs["nordland"] = tmp / "nordland.npy"
+            (x,) = h.nordland_features(args.root, seasons=("summer",))
+            np.save(inputs["nordland"], x[:n_nord])
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
         h.bytecode(args.base, h.REPO)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from _harness import header, log, main, table, timed
+from _harness import header, log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
@@ -18,15 +18,11 @@ QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[])  # --quick
 
 def write_features(root: Path, path: Path) -> None:
     """Nordland summer and winter patchnorm descriptors: one float16 (2, n, d) .npy."""
-    from rhythmic_jax.frames.features import describe, get_descriptor
     from rhythmic_jax.io.atomic import save_npy
-    from rhythmic_jax.io.images import nordland
 
-    desc = get_descriptor("patchnorm")
-    summer, winter = nordland(root / "nordland_64x32", progress=False)
-    both = [describe(t.images, desc, progress=False) for t in (summer, winter)]
-    save_npy(path, np.stack(both).astype(np.float16))
-    log.info("wrote %s %s", path, (2, *both[0].shape))
+    both = np.stack(nordland_features(root)).astype(np.float16)
+    save_npy(path, both)
+    log.info("wrote %s %s", path, both.shape)
 
 
 def run_on(device, summer, winter, args) -> dict:
