@@ -70,9 +70,8 @@ def aerial_data(root: Path, progress: bool):
     desc = get_descriptor("patchnorm")
     out = dict(names=("A", "B"), descriptor=desc)
     for part, folder in (("train", "samples_DSIFN"), ("test", "samples_LEVIR")):
-        a, b, route = h.aerial_features(
-            root, desc, folder, f"{folder}-64-32-", progress
-        )
+        key = f"{folder}-64-32-"
+        a, b, route = h.aerial_features(root, desc, folder, key, progress)
         out[part] = [a, b]
         if part == "test":
             out["images"] = [route.map_tiles, route.query_tiles]
@@ -340,13 +339,9 @@ HEADS = ["method", "R@1", "exact", "R@5", "L=5", "L=10", "L=20", "self",
          "storage B", "embedding B", "ratio", "sizes", "fit s"]  # fmt: skip
 
 
-def is_map(row: dict) -> bool:
-    """Rows whose answer comes from a rhythmic map (alone, hybrid, digits)."""
-    return "layout" in row
-
-
-def within(rows, key, budget=None, where=is_map) -> list[dict]:
-    """The ``where`` rows that have ``key``, within ``budget``."""
+def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
+    """The ``where`` rows (by default the map's: alone, hybrid, digits) that have
+    ``key``, within ``budget``."""
     return [r for r in rows if where(r) and key in r
             and (budget is None or r["ratio"] <= budget + 1e-12)]  # fmt: skip
 
@@ -363,17 +358,13 @@ def _row(rows, name) -> dict | None:
     return next((r for r in rows if r["method"] == name), None)
 
 
-def _verdict(value, goal) -> str:
-    word = "met" if value >= goal else "NOT met"
-    return f"{word} ({value:.3f} vs {goal:.3f}, {value - goal:+.3f})"
-
-
 def _check(row, key, goal, share=True) -> str:
     """The verdict of ``row[key]`` against ``goal``, naming the row (and its share)."""
     if row is None:
         return "no map row fits 15 %"
-    tail = f", {100 * row['ratio']:.1f} %" if share else ""
-    return _verdict(row[key], goal) + f": {row['method']}{tail}"
+    v, tail = row[key], f", {100 * row['ratio']:.1f} %" if share else ""
+    word = "met" if v >= goal else "NOT met"
+    return f"{word} ({v:.3f} vs {goal:.3f}, {v - goal:+.3f}): {row['method']}{tail}"
 
 
 def targets(report: dict) -> list[tuple[str, str]]:

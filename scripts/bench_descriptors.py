@@ -4,13 +4,11 @@ python scripts/bench_descriptors.py            # writes reports/descriptors.*
 """
 
 import os
-import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import torch
-from _harness import header, log, main, nordland_images, table
+from _harness import header, log, main, nordland_images, table, timed
 
 from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
 from rhythmic_jax.projection import fit_pca, project
@@ -32,13 +30,6 @@ def recall_at_1(queries: np.ndarray, reference: np.ndarray) -> tuple[float, floa
     return float(np.mean(err == 0)), float(np.mean(err <= 1))
 
 
-def frames_per_second(images: np.ndarray, descriptor, batch_size: int) -> float:
-    describe(images[:batch_size], descriptor, batch_size, progress=False)  # warm up
-    start = time.perf_counter()
-    describe(images, descriptor, batch_size, progress=False)
-    return len(images) / (time.perf_counter() - start)
-
-
 def run(args) -> dict:
     torch.set_num_threads(args.threads)
     trav = nordland_images(args.root, progress=args.progress)
@@ -57,7 +48,8 @@ def run(args) -> dict:
         ref = cached_describe(summer, d, key + "summer", progress=args.progress, **kw)
         qry = cached_describe(winter, d, key + "winter", progress=args.progress, **kw)
         exact, tol1 = recall_at_1(qry, ref)
-        fps = frames_per_second(timing, d, args.batch_size)
+        describe(timing[: args.batch_size], d, args.batch_size)  # warm-up
+        fps = len(timing) / timed(describe, timing, d, args.batch_size)[1]
         rows.append(dict(
             descriptor=label, name=name, settings=d.settings(), dim=d.dim,
             recall_at_1=exact, recall_at_1_tol1=tol1, frames_per_s=fps,
@@ -67,12 +59,9 @@ def run(args) -> dict:
         kept[label] = (ref, qry, fps)
     ref, qry, fps = kept.get(PCA_OF) or next(iter(kept.values()))
     args.pca_dim = min(args.pca_dim, ref.shape[1] // 2, len(ref) - 1)
-    start = time.perf_counter()
-    pca = jax.block_until_ready(fit_pca(ref, args.pca_dim))
-    fit_s = time.perf_counter() - start
-    ref_p = np.asarray(project(pca, ref, normalize=True))
-    qry_p = np.asarray(project(pca, qry, normalize=True))
-    exact, tol1 = recall_at_1(qry_p, ref_p)
+    pca, fit_s, _ = timed(fit_pca, ref, args.pca_dim)
+    qp, rp = (np.asarray(project(pca, x, normalize=True)) for x in (qry, ref))
+    exact, tol1 = recall_at_1(qp, rp)
     of = PCA_OF if PCA_OF in kept else next(iter(kept))
     settings = dict(of=of, k=args.pca_dim, fit_on="summer", fit_s=round(fit_s, 2))
     rows.append(dict(descriptor=f"PCA-{args.pca_dim} of {of}", name="pca",

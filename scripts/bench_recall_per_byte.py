@@ -80,10 +80,6 @@ def _span(until, since) -> str:
     return " and ".join(parts) or "never <= 1e12"
 
 
-def _num(v):
-    return "-" if v is None else v
-
-
 def _targets(rep: dict) -> list[str]:
     """The hybrid at <= 20 % against the targets, and own - ITQ per length."""
     hyb = [r for r in rep["rows"] if r["kind"] == "hybrid" and r["share"] <= 0.20]
@@ -131,8 +127,9 @@ def markdown(rep: dict) -> str:
     ls = rep["lengths"]
     heads = ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["weight"]
+    keys = [f"recall@1 L={k}" for k in ls]
     rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
-             *(_num(r[f"recall@1 L={k}"]) for k in ls), r.get("weight", "-")]
+             *("-" if r[k] is None else r[k] for k in keys), r.get("weight", "-")]
             for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
     lines.append(table(heads, rows))
     for length in ls:

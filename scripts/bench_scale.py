@@ -125,9 +125,7 @@ def _rule(row: dict) -> str:
     return row.get("rule", "errors")
 
 
-def series(
-    rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
-) -> list[dict]:
+def series(rows: list[dict], source: str, d: int, r: int, rule="errors") -> list:
     """One process's fits of (source, d, r, rule) by N: in memory, else streamed."""
     one = [x for x in rows if (x["source"], x["d"], x["r"], x["processes"], _rule(x))
            == (source, d, r, 1, rule)]  # fmt: skip
@@ -406,13 +404,6 @@ def full(args) -> dict:
     return row
 
 
-def _attempts(f: dict) -> str:
-    if f["attempts"] == 1:
-        return f"started {f['starts'][0]}"
-    return (f"{f['attempts']} attempts started {', '.join(f['starts'])}, each"
-            " resumed from the last one's checkpoint")  # fmt: skip
-
-
 def full_lines(f: dict, probe: dict | None = None) -> list[str]:
     p, cands = sum(f["periods"]), sum(f["candidates"])
     k, acc = f["kinds"], f["accuracy"]
@@ -427,12 +418,16 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
     basis = f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else ""
     errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
     took = f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes"
+    tries = f"started {f['starts'][0]}"
+    if f["attempts"] > 1:
+        tries = (f"{f['attempts']} attempts started {', '.join(f['starts'])}, each"
+                 " resumed from the last one's checkpoint")  # fmt: skip
     return [
         f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
         f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
         f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
         f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
-        f" wall** ({_attempts(f)}, at a 1-minute load average of"
+        f" wall** ({tries}, at a 1-minute load average of"
         f" {f['loads'][-1][0]:.1f} at its end, nice {f.get('nice', NICE)}),"
         f" {f['steps']} Newton steps, {f['passes']} passes, {f['pass_median_s']:.1f}"
         f" s per pass (median; gradient {k['gradient']:.1f}, CG {k['cg']:.1f}, line"

@@ -40,12 +40,6 @@ def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarra
     return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
-def neighbour_cosines(x: np.ndarray, lags=(1, 10, 100, 1000)) -> dict[str, float]:
-    """Mean cosine of frames ``lag`` apart (rows are unit vectors)."""
-    return {str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
-            for lag in lags if lag < len(x)}  # fmt: skip
-
-
 def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
     """(p,) liblinear primal of every template, float64: w (d, p), b (p,)."""
     w = np.asarray(w, np.float64).reshape(x64.shape[1], -1)
@@ -165,20 +159,16 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         )  # fmt: skip
         if rec is not lbfgs:  # Newton's
             margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
+            # GFLOP of the CG products: per iteration Xa v and Xa^T (D Xa v) over
+            # the step's gathered columns, 4 n (d + 1) columns
+            work = np.dot(rec["cg_iterations"], rec["columns"])
             rec.update(active_fraction=float(np.mean(margins < 1.0)),
-                       gflop=cg_gflop(n, d, rec),
+                       gflop=float(4 * n * (d + 1) * work / 1e9),
                        chosen_periods=choose_periods(cands, errors, n, 2))  # fmt: skip
     return h.plain(dict(
         name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
         linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
     ))  # fmt: skip
-
-
-def cg_gflop(n: int, d: int, rec: dict) -> float:
-    """GFLOP of Newton's CG products: per iteration ``Xa v`` and ``Xa^T (D Xa v)``
-    over the step's gathered columns, ``4 n (d+1) columns``."""
-    pairs = zip(rec["cg_iterations"], rec["columns"], strict=True)
-    return float(sum(4 * n * (d + 1) * w * i for i, w in pairs) / 1e9)
 
 
 def _rel(v: float) -> str:
@@ -324,7 +314,10 @@ def run(args) -> dict:
                     args.root)  # fmt: skip
     xv = video_like(args.video_frames, args.video_dim, **VIDEO)
     cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
-    video = dict(**VIDEO, cosines=neighbour_cosines(xv))
+    # mean cosine of frames lag apart (the rows are unit vectors)
+    cosines = {str(lag): float(np.mean(np.sum(xv[lag:] * xv[:-lag], axis=1)))
+               for lag in (1, 10, 100, 1000) if lag < len(xv)}  # fmt: skip
+    video = dict(**VIDEO, cosines=cosines)
     aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP)
     return dict(aim=aim, video_like=video, cases=cases)
 

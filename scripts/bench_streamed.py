@@ -44,7 +44,7 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
             runs[label].append(dict(
                 wall_s=wall, steps=info.steps, passes=len(info.pass_seconds),
                 cg_iterations=list(info.cg_iterations), columns=list(info.columns),
-                column_passes=_column_passes(info),
+                column_passes=int(np.dot(info.columns, np.add(info.cg_iterations, 3))),
                 reached=int(np.sum(info.gap_estimate <= config.gap_tol)),
                 true_gap_max=float(np.max(gap)), true_gap_median=float(np.median(gap)),
             ))  # fmt: skip
@@ -52,13 +52,6 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
     return dict(name=name, n=frames.n, d=frames.d, periods=list(periods),
                 templates=int(sum(periods)), reference_s=ref_s, runs=runs,
                 median_wall_s=med)  # fmt: skip
-
-
-def _column_passes(info) -> int:
-    """Template-columns carried over all passes: each step's gradient pass,
-    CG passes and two line-search passes times its width."""
-    pairs = zip(info.columns, info.cg_iterations, strict=True)
-    return int(sum(w * (3 + k) for w, k in pairs))
 
 
 def markdown(report: dict) -> str:

@@ -100,8 +100,7 @@ FIG4 = ["r", "candidates", "periods", "storage bytes", "compression ratio", "acc
 
 
 def joined(values, scale=None) -> str:
-    """A list as a table cell: its items joined by commas (``scale``: times it,
-    two decimals)."""
+    """A table cell: the items joined by commas (``scale``: times it, 2 decimals)."""
     return ", ".join(str(v) if scale is None else f"{scale * v:.2f}" for v in values)
 
 
@@ -183,8 +182,7 @@ class Run:
         self.preds: dict[str, np.ndarray] = {}
 
     def fit(self, x, *, level=1, r=2, count=7, images=None, aug=None):
-        """(map, record): from ``cache_dir`` when fitted before with the same
-        settings and features (by default the folder ``bench_decoding`` fits into)."""
+        """(map, record), from ``cache_dir`` (bench_decoding's) when fitted before."""
         model = RhythmicMap(
             r=r, level=level, count=count, descriptor=DESCRIPTOR,
             descriptor_settings=self.desc.settings(),
@@ -326,10 +324,8 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
     for b in tqdm(baselines, desc="baselines", disable=not run.progress):
         cached = isinstance(b, ITQ | OPQ)
         fit_s = run.fit_baseline(b, x) if cached else h.timed(b.fit, x)[1]
-        note = b.note
-        if isinstance(b, OPQ):
-            note = "; ".join(filter(None, [note, f"{s.opq_niter} iterations"]))
-        methods.append((b.name, b, fit_s, note))
+        iters = f"{s.opq_niter} iterations" if isinstance(b, OPQ) else ""
+        methods.append((b.name, b, fit_s, "; ".join(filter(None, [b.note, iters]))))
     rows = []
     for name, obj, fit_s, note in methods:
         row = dict(method=name, fit_s=fit_s, storage_bytes=obj.storage_bytes, note=note)
