@@ -235,12 +235,11 @@ TARGET = ["descriptor", "L", "map decode", "R@1", "SeqSLAM", "R@1", "points", "s
           "storage", "met"]  # fmt: skip
 
 
-def decoding_table(block: dict) -> str:
-    db = block["database_bytes"]
+def decoding_table(b: dict) -> str:
     rows = [[r["method"], f"{r['recall_at_1']:.4f}", f"{r['recall_at_1_exact']:.4f}",
              f"{r['queries_per_s']:,.0f}", f"{r['storage_bytes'] / 2**20:.2f}",
-             f"{100 * r['storage_bytes'] / db:.1f}"]
-            for r in block["rows"]]  # fmt: skip
+             f"{100 * r['storage_bytes'] / b['database_bytes']:.1f}"]
+            for r in b["rows"]]  # fmt: skip
     return h.table(DECODING, rows, "lrrrrr")
 
 
@@ -298,7 +297,7 @@ def markdown(report: dict) -> str:
             f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
             f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"
             f" ({100 * b['compression_ratio']:.1f} % of the database).",
-            decoding_table({"rows": b["rows"] + b["references"], **b}),
+            decoding_table(b),
         ]
     target = target_table(report["decoding"])
     if target:

@@ -72,11 +72,7 @@ def _span(until, since) -> str:
     """Where the map is smaller: "<= 3e4 and >= 1.2e8", ">= 1e8", "never"."""
     if until and until >= 10**12:
         return "every N"
-    parts = []
-    if until:
-        parts.append(f"<= {until:.2g}")
-    if since:
-        parts.append(f">= {since:.2g}")
+    parts = [f"{op} {v:.2g}" for op, v in (("<=", until), (">=", since)) if v]
     return " and ".join(parts) or "never <= 1e12"
 
 

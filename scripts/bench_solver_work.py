@@ -3,11 +3,10 @@
 python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 """
 
-import time
 from pathlib import Path
 
 import numpy as np
-from _harness import header, log, main, nordland_features, table
+from _harness import header, log, main, nordland_features, table, timed
 
 from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
@@ -27,15 +26,6 @@ class Record:
         return np.zeros(sum(self.cands), bool)
 
 
-def solve(x, y, c, stop_for):
-    """Compiling call, then the timed one; (params, info, seconds, stop)."""
-    newton_fit(x, y, c, FAST, stop=stop_for())
-    stop = stop_for()
-    t = time.perf_counter()
-    params, info = newton_fit(x, y, c, FAST, stop=stop)
-    return params, info, time.perf_counter() - t, stop
-
-
 def options(ap) -> None:
     ap.add_argument("--frames", type=Path, default=None, help="(n, d) .npy")
     ap.add_argument("--slack", type=float, default=0.005)
@@ -49,8 +39,7 @@ def run(args) -> dict:
         (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
     if args.quick:
         x = x[:600]
-    n = len(x)
-    labels = np.arange(n)
+    n, labels = len(x), np.arange(len(x))
     cands = candidate_periods(n, 2, 1, 7)
     y, c = np.asarray(targets(labels, cands)), default_c(n)
     runs = {}
@@ -58,7 +47,9 @@ def run(args) -> dict:
         ("full", lambda: Record(labels, cands)),
         ("drop", lambda: DropLosers(labels, cands, n, 2, args.slack, args.after)),
     ):
-        params, info, seconds, stop = solve(x, y, c, make)
+        newton_fit(x, y, c, FAST, stop=make())  # compiles
+        stop = make()
+        (params, info), seconds, _ = timed(newton_fit, x, y, c, FAST, stop=stop)
         s = scores(params, x)
         errors = np.asarray(period_errors(s, labels, cands))
         chosen = choose_periods(cands, errors, n, 2)
@@ -71,8 +62,7 @@ def run(args) -> dict:
             dropped=[[k, list(t)] for k, t in getattr(stop, "dropped", [])],
         )  # fmt: skip
         if name == "full":
-            ym = y * np.asarray(s, np.float64)
-            active = (ym < 1).sum(axis=1)
+            active = (y * np.asarray(s, np.float64) < 1).sum(axis=1)
             runs[name]["active_per_frame"] = dict(
                 min=int(active.min()), mean=float(active.mean()),
                 idle_frames=int((active == 0).sum()),

@@ -3,6 +3,7 @@
 python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 """
 
+import itertools
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -100,14 +101,8 @@ def markdown(report: dict) -> str:
 
 def _widths(columns: list[int]) -> str:
     """Templates per step, runs of equal widths shortened: '126 x 12, 8 x 2'."""
-    out, k = [], 0
-    while k < len(columns):
-        j = k
-        while j < len(columns) and columns[j] == columns[k]:
-            j += 1
-        out.append(f"{columns[k]} x {j - k}" if j - k > 1 else str(columns[k]))
-        k = j
-    return ", ".join(out)
+    runs = [(w, len(list(same))) for w, same in itertools.groupby(columns)]
+    return ", ".join(f"{w} x {k}" if k > 1 else str(w) for w, k in runs)
 
 
 def options(ap) -> None:

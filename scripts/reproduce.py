@@ -151,15 +151,6 @@ def table1_markdown(paper: list[dict], here: list[dict]) -> str:
          printed, note] for r, printed, note in rows], "")  # fmt: skip
 
 
-def table2_markdown(t2: list[dict]) -> str:
-    rows = [[r["dataset"], r["n"], r["level"],
-             f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
-             joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
-             r["paper_dataset"], r["paper_periods"], r["paper_e"], r["paper_accuracy"]]
-            for r in t2]  # fmt: skip
-    return h.table(T2, rows, "")
-
-
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
     """Fewest candidates (at least ``count``) among which r periods are pairwise
     co-prime with product >= n (r = 5 at level 1 on 3576 frames needs 8)."""
@@ -266,15 +257,6 @@ def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarra
         "winter": (winter.images[:n], xw[:n], xs[:n]),
         "aerial": (route.map_tiles, xa, xb),
     }
-
-
-def fit_all(run: Run, data) -> dict:
-    """Every plain r = 2 map: summer and aerial at each level, winter at two."""
-    s = run.settings
-    plan = [("nordland", lv) for lv in s.levels] + [("aerial", lv) for lv in s.levels]
-    plan += [("winter", lv) for lv in s.levels[:2]]
-    bar = tqdm(plan, desc="maps", disable=not run.progress)
-    return {(k, lv): run.fit(data[k][1], level=lv) for k, lv in bar}
 
 
 def table2(run: Run, data, fits) -> list[dict]:
@@ -590,6 +572,11 @@ def markdown(res: dict) -> str:
     note = (
         SOLVER_NOTE.format(summer["accuracy"], *errors) if summer["n"] == 3576 else ""
     )
+    t2rows = [[r["dataset"], r["n"], r["level"],
+               f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
+               joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
+               r["paper_dataset"], r["paper_periods"], r["paper_e"],
+               r["paper_accuracy"]] for r in t2]  # fmt: skip
     fig3 = [[lv, joined(c), joined(e, 100), joined(p)]
             for lv, (c, e, p) in res["fig3"].items()]  # fmt: skip
     fig4 = [[r["r"], joined(r["candidates"]), joined(r["periods"]),
@@ -603,7 +590,7 @@ def markdown(res: dict) -> str:
         cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
         solver_note=note, threads=res["table3"]["threads"],
         sub=app["augmentation"], ae=res["aerial"],
-        table1=table1_markdown(t1["paper"], t1["here"]), table2=table2_markdown(t2),
+        table1=table1_markdown(t1["paper"], t1["here"]), table2=h.table(T2, t2rows, ""),
         table3=table3_markdown(res["table3"]), paper3=PAPER_TABLE3,
         fig3=h.table(FIG3, fig3, ""), fig4=h.table(FIG4, fig4, ""),
         levels=levels_markdown(app["full"]),
@@ -618,11 +605,8 @@ def draw(res: dict, out: Path) -> list[str]:
              "fig8_levels.png"]  # fmt: skip
     series = {f"level {lv}": v for lv, v in res["fig3"].items()}
     figures.plot_training_error(series, "Nordland summer", out / names[0])
-    f4 = res["fig4"]
-    figures.plot_r(
-        [r["r"] for r in f4], [r["compression_ratio"] for r in f4],
-        [r["accuracy"] for r in f4], "Nordland summer, level 1", out / names[1],
-    )  # fmt: skip
+    cols = ([r[k] for r in res["fig4"]] for k in ("r", "compression_ratio", "accuracy"))
+    figures.plot_r(*cols, "Nordland summer, level 1", out / names[1])
     sub = res["appearance"]["augmentation"]
     title = f"summer map, winter queries, first {sub['frames']} frames, level "
     title += str(sub["level"])
@@ -681,7 +665,11 @@ def run(args) -> dict[str, Any]:
     load_start, t0 = h.load_average(), time.perf_counter()
     run = Run(settings, args.cache_dir, args.progress)
     data = load_features(run)
-    fits = fit_all(run, data)
+    # every plain r = 2 map: summer and aerial at each level, winter at two
+    plan = [(k, lv) for k in ("nordland", "aerial") for lv in settings.levels]
+    plan += [("winter", lv) for lv in settings.levels[:2]]
+    bar = tqdm(plan, desc="maps", disable=not args.progress)
+    fits = {(k, lv): run.fit(data[k][1], level=lv) for k, lv in bar}
     here = []
     for key, label in (("nordland", "Nordland summer"), ("winter", "Nordland winter"),
                        ("aerial", "aerial LEVIR")):  # fmt: skip
