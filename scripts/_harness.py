@@ -38,8 +38,7 @@ def cores() -> int:
 
 
 def set_threads(n: int) -> dict[str, int]:
-    """Pin torch intra-op, BLAS and faiss OpenMP to ``n`` threads; the counts in
-    force afterwards, XLA's included."""
+    """Pin torch, BLAS and faiss to ``n`` threads; the counts in force, XLA's too."""
     import faiss
     import torch
     from threadpoolctl import threadpool_info, threadpool_limits
@@ -99,9 +98,8 @@ def timed(fn, *args, **kwargs):
 
 
 def fastest(fn: Callable[[], object], repeats: int):
-    """One untimed call (it compiles), then ``repeats`` :func:`timed` calls:
-    (the first call's output, the fastest wall seconds; on a shared machine the
-    minimum is the least disturbed estimate)."""
+    """(first output, fastest wall seconds of ``repeats`` calls after an untimed one
+    that compiles): on a shared machine the minimum is the least disturbed."""
     import jax
 
     out = jax.block_until_ready(fn())
@@ -156,8 +154,8 @@ def job_env(compile_cache: str | None = None) -> dict[str, str]:
 
 
 def command(fn, *args) -> list[str]:
-    """The command line that runs ``fn(*args)``, a function of a script (JSON
-    arguments), in a fresh process and prints its answer as JSON, last."""
+    """The command that runs ``fn(*args)`` of a script in a fresh process (JSON
+    arguments) and prints its answer as JSON, last."""
     script = Path(sys.modules[fn.__module__].__file__).stem
     return [sys.executable, str(Path(__file__).resolve()), script, fn.__name__,
             json.dumps(args)]  # fmt: skip
@@ -212,8 +210,7 @@ def compile_counter(out=None) -> dict:
 
 
 def weights_folder() -> Path:
-    """The Lite0 weights' folder: a baseline checkout's ``query`` finds them by the
-    bare file name its map records, from there."""
+    """The Lite0 weights' folder (a baseline checkout's map records a bare name)."""
     from rhythmic_jax.frames.nets import lite0_weights_path
 
     return lite0_weights_path().parent
@@ -235,8 +232,8 @@ def nordland_images(root: Path, seasons=("summer", "winter"), progress=False):
 
 def nordland_features(root: Path, descriptor="patchnorm", seasons=("summer", "winter"),
                       key="nordland64x32-", progress=False, **kw):  # fmt: skip
-    """Descriptors of every season's frames (n, d) from the descriptor cache,
-    under the cache key ``key + season`` (``kw``: ``cached_describe``'s)."""
+    """Each season's descriptors (n, d), cached as ``key + season`` (``kw``:
+    ``cached_describe``'s)."""
     from rhythmic_jax.frames.features import cached_describe, get_descriptor
 
     desc = get_descriptor(descriptor) if isinstance(descriptor, str) else descriptor
@@ -373,16 +370,14 @@ def _write(path: Path, text: str) -> None:
 
 
 def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> None:
-    """Write ``<stem>.json`` and ``<md_stem or stem>.md`` under ``out`` and print
-    the Markdown."""
+    """Write ``<stem>.json`` and ``<md_stem or stem>.md`` under ``out``; print it."""
     _write(Path(out) / f"{stem}.json", json.dumps(report, indent=1) + "\n")
     _write(Path(out) / f"{md_stem or stem}.md", md + "\n")
     print(md)
 
 
 def parser(doc: str) -> argparse.ArgumentParser:
-    """The options every script takes: --root, --out, --quick, --no-progress,
-    --render."""
+    """The options every script takes."""
     ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
     ap.add_argument("--root", type=Path, default=DATA, help="shared data folder")
     ap.add_argument("--out", type=Path, default=REPO / "reports", help="reports")
@@ -391,7 +386,6 @@ def parser(doc: str) -> argparse.ArgumentParser:
     ap.add_argument("--render", type=Path, nargs="?", const=Path(), default=None,
                     help="write the Markdown again from this JSON report (default:"
                     " the one in --out), measuring nothing")  # fmt: skip
-    ap.add_argument("--stem", default=None, help="report name (default by mode)")
     return ap
 
 
@@ -401,27 +395,26 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     report; returns it. ``--quick`` gives the options ``quick`` names their values
     there (those left at their defaults) and the report the name ``<stem>_quick``.
     ``run`` may set ``args.stem`` (the report's name) and return None (nothing to
-    write). ``refresh(report, args)`` updates a report read back by ``--render``
-    before it is rendered."""
+    write). ``refresh(report, args)`` updates the report ``--render`` read back from
+    ``args.render`` before it is rendered."""
     ap = parser(doc)
-    ap.set_defaults(md_stem=md_stem)
     if options:
         options(ap)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    fixed = args.stem
-    args.stem = fixed or (f"{stem}_quick" if args.quick else stem)
-    if args.quick and not fixed and args.md_stem:
-        args.md_stem += "_quick"
+    args.stem = f"{stem}_quick" if args.quick else stem
+    md_stem = md_stem and md_stem + ("_quick" if args.quick else "")
     for key, value in (quick or {}).items() if args.quick else ():
         if getattr(args, key) == ap.get_default(key):
             setattr(args, key, value)
     if args.render is not None:
-        path = args.render if args.render.name else args.out / f"{args.stem}.json"
-        report = json.loads(path.read_text())
+        if not args.render.name:
+            args.render = args.out / f"{args.stem}.json"
+        report = json.loads(args.render.read_text())
         if refresh:
             refresh(report, args)
-        write_report(path.parent, path.stem, report, markdown(report), args.md_stem)
+        md = markdown(report)
+        write_report(args.render.parent, args.render.stem, report, md, md_stem)
         return report
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
@@ -429,14 +422,13 @@ def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report
     log.info("environment %s", env)
     script = Path(sys.modules[run.__module__].__file__ or "script").name
     out = run(args)
-    args.stem = fixed or args.stem
     if out is None:
         return None
     report = dict(command=" ".join(["python", f"scripts/{script}", *argv]),
                   environment=env, load_average=dict(start=load0, end=load_average()),
                   wall_seconds=time.time() - t0)  # fmt: skip
     report = plain(report | out)
-    write_report(args.out, args.stem, report, markdown(report), args.md_stem)
+    write_report(args.out, args.stem, report, markdown(report), md_stem)
     return report
 
 

@@ -116,10 +116,8 @@ def seqslam_row(ref, qry) -> dict:
 
 def fit_map(ref, *, labels=None, emb=None, **kw) -> tuple[RhythmicMap, float]:
     """``RhythmicMap(r=2, **kw)`` fitted on ref (with ``emb``) -> (map, seconds)."""
-    t0 = time.perf_counter()
     m = RhythmicMap(r=2, gap=GAP, count=COUNT, embedding=emb, **kw)
-    m.fit(ref, labels, progress=False)
-    return m, time.perf_counter() - t0
+    return m, h.timed(m.fit, ref, labels, progress=False)[1]
 
 
 def with_codes(m: RhythmicMap, ref, codes, fusion: float = 0.5) -> RhythmicMap:
@@ -330,8 +328,7 @@ def run(args) -> dict:
 def refresh(report: dict, args) -> None:
     """Targets and figure again, for ``--render``."""
     report["targets"] = targets(report)
-    path = args.render if args.render.name else args.out / f"{args.stem}.json"
-    draw(report, path.with_suffix(".png"))
+    draw(report, args.render.with_suffix(".png"))
 
 
 COLS = ("r1", "r1_exact", "r5", "L5", "L10", "L20", "self_r1")

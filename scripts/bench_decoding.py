@@ -194,7 +194,8 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     hold = ol.holdout_split(len(ref), **HOLDOUT)
     gt = hold.gt()
     first = np.arange(len(qry)) < len(qry) // 2
-    model = fitted_map(ref[hold.fit], level, descriptor, progress)
+    kept = ref[hold.fit]
+    model = fitted_map(kept, level, descriptor, progress)
     per, n = model.periods, model.n
     scores = model.scores(qry)
     label, centred = f"sequence soft L={GRID_LENGTH}", centre_templates(scores)
@@ -208,13 +209,11 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
             cases[f"{label}, {kind}"] = ol.decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
-    flat = BruteForce(n_threads=h.cores()).fit(ref[hold.fit])
+    flat = BruteForce(n_threads=h.cores()).fit(kept)
     sim, top = flat.search(qry, 1)
     cases["brute force, cosine"] = (top[:, 0], ol.finite_confidence(sim[:, 0]))
     for w in (None, CONTRAST_WINDOW):
-        idx, score = sq.seqslam_decode(
-            qry, ref[hold.fit], GRID_LENGTH, contrast_window=w, progress=False
-        )
+        idx, score = sq.seqslam_decode(qry, kept, GRID_LENGTH, contrast_window=w)
         label = f"SeqSLAM L={GRID_LENGTH}" + (f", contrast w={w}" if w else "")
         cases[label + ", score"] = (np.asarray(idx), ol.finite_confidence(score))
     rows = []

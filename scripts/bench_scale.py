@@ -167,17 +167,14 @@ def _group(r: dict) -> tuple:
 
 
 def figures(rows: list[dict], out_dir: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from rhythmic_jax.eval.figures import new_figure, save_figure
 
     names = []
     plots = (("storage_bytes", "map bytes", "scale_storage"),
              ("fit_seconds", "fit seconds", "scale_time"),
              ("pass_median_s", "seconds per pass", "scale_pass"))  # fmt: skip
     for key, label, stem in plots:
-        fig, ax = plt.subplots(figsize=(5, 4))
+        fig, (ax,) = new_figure(width=5, height=4)
         for g in sorted({_group(r) for r in rows if r[key] is not None}):
             pts = sorted((r["n"], r[key]) for r in rows
                          if _group(r) == g and r[key] is not None)  # fmt: skip
@@ -185,9 +182,7 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
             ax.loglog(*zip(*pts, strict=True), "o-", label=label_g)
         ax.set(xlabel="N (places)", ylabel=label)
         ax.legend(fontsize=6)
-        fig.tight_layout()
-        fig.savefig(out_dir / f"{stem}.png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, out_dir / f"{stem}.png", dpi=110)
         names.append(f"{stem}.png")
     return names
 
@@ -292,10 +287,8 @@ def markdown(report: dict) -> str:
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
     """Cells (source, n, d, r, processes, mode, rule), cheapest first."""
-    if quick:
-        ns, ds = (1000, 3000), (256,)
-    else:
-        ns, ds = (1000, 3000, 10000, 30000, 100000), (256, 2048)
+    ns = (1000, 3000) if quick else (1000, 3000, 10000, 30000, 100000)
+    ds = (256,) if quick else (256, 2048)
     cells = [("walk", n, d, r, 1, "memory") for d in ds for r in (3, 2) for n in ns]
     cells += [("walk", n, 256, 3, 2, "memory") for n in ns if n <= 30000]
     cells += [("walk", n, 256, 3, k, "stream") for n in ns if n <= 10000
@@ -311,9 +304,8 @@ def grid(quick: bool, real: bool = True) -> list[tuple]:
     cost = {"memory": 1, "stream": 4}
 
     def order(c):  # the storage slope at d = 256, r = 3 first, then by cost
-        return c[0] != "walk" or c[2:6] != (256, 3, 1, "memory"), (
-            c[1] * c[2] * (6 - c[3]) * cost[c[5]]
-        )
+        first = c[0] == "walk" and c[2:6] == (256, 3, 1, "memory")
+        return not first, c[1] * c[2] * (6 - c[3]) * cost[c[5]]
 
     return sorted(cells, key=order)
 
@@ -331,9 +323,7 @@ def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> P
         partial = path.with_name("partial.npy")
         if root is None:
             part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, d))
-            walk(n, d, out=part)
-            part.flush()
-            del part
+            walk(n, d, out=part).flush()
         else:
             np.save(partial, bc.nordland_features(root, seasons=("summer",))[0][:n])
         os.replace(partial, path)
