@@ -31,7 +31,6 @@ from rhythmic_jax.rhythmic_map import RhythmicMap
 from rhythmic_jax.scalar_codes import scalar_code_bytes
 from rhythmic_jax.split import NORDLAND_SPLIT
 
-log = h.log
 TOL = 1
 LENGTHS = (5, 10, 20)
 BUDGETS = (0.15, 0.20)
@@ -200,9 +199,7 @@ def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
         return rows
     if pair8 != pair:
         m, fit_s = fit_map(ref, emb=emb, layout=f"periods:{pair8[0]},{pair8[1]}")
-    t0 = time.perf_counter()
-    w, table = train_weight(train, emb, pair8, "int8", n)
-    learn_s = time.perf_counter() - t0
+    (w, table), learn_s, _ = h.timed(train_weight, train, emb, pair8, "int8", n)
     h8 = with_codes(m, ref, "int8", w)
     row = eval_row(h8, ref, qry, f"hybrid {label} + int8 codes (w = {w:g} "
                    "learned on the training places)", fit_s)  # fmt: skip
@@ -243,12 +240,10 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
     n, d_raw = test[0].shape
     embeddings, learn_info = {}, {}
     for label, lc in cfg["levers"].items():
-        t0 = time.perf_counter()
-        emb, info = cached_embedding(name, train, lc)
-        info["wall_seconds_this_run"] = time.perf_counter() - t0
-        info["bytes"] = embedding_bytes(emb)
+        (emb, info), wall, _ = h.timed(cached_embedding, name, train, lc)
+        info.update(wall_seconds_this_run=wall, bytes=embedding_bytes(emb))
         embeddings[label], learn_info[label] = emb, info
-        log.info("%s: %s ready in %.1f s", name, label, info["wall_seconds_this_run"])
+        h.log.info("%s: %s ready in %.1f s", name, label, info["wall_seconds_this_run"])
     directions, first = {}, next(iter(embeddings))
     for a, b in ((0, 1), (1, 0)):
         key = f"{data['names'][a]}->{data['names'][b]}"
@@ -272,7 +267,7 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
                 for kind in ("mixed", "hierarchical"):
                     rows.append(map_row(ref, qry, f"{kind} digits {label}", emb=emb,
                                         layout=kind, level=cfg["level"]))  # fmt: skip
-            log.info("%s %s %s done", name, key, label)
+            h.log.info("%s %s %s done", name, key, label)
         db = database_bytes(n, d_raw, 4)
         for r in rows:
             r["ratio"] = (r["storage_bytes"] + r.get("embedding_bytes", 0)) / db
@@ -314,7 +309,7 @@ def run(args) -> dict:
         data = load(args.root, args.progress)
         datasets[title] = run_dataset(title, data, settings)
         datasets[title]["seconds"] = time.perf_counter() - t0
-        log.info("%s done at %.0f s", title, time.perf_counter() - t0)
+        h.log.info("%s done at %.0f s", title, time.perf_counter() - t0)
         # after every data set: a run cut short still leaves the ones it finished
         args.out.mkdir(parents=True, exist_ok=True)
         saved.write_text(json.dumps(dict(datasets=datasets), default=float))

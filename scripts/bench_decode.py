@@ -16,7 +16,6 @@ from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 
-log = h.log
 BATCH = 1000
 NOISE = 0.5  # query noise relative to a unit reference
 QUICK = dict(repeats=1, singles=30)  # --quick
@@ -44,7 +43,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     """Throughput and latency of both decoders on the same features."""
     n, d = refs.shape
     p = sum(periods)
-    log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
+    h.log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
     params = random_map(d, periods, seed=1)
     flat = BruteForce(n_threads=h.cores()).fit(refs)
     fns = dict(rhythmic=lambda q: decode(params, q, periods, n),
@@ -54,7 +53,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
         batch = time_batch(fn, queries, repeats=repeats)
         single = time_single_queries(fn, queries[:singles], warmup=10)
         out[label] = dict(batch=batch, single=single)
-        log.info("  %s: %.0f queries/s, single median %.3f ms", label,
+        h.log.info("  %s: %.0f queries/s, single median %.3f ms", label,
                  batch["queries_per_s"], 1e3 * single["median_s"])  # fmt: skip
     top = fns["faiss"](queries)[1]
     r, f = out["rhythmic"], out["faiss"]
@@ -123,7 +122,7 @@ def run(args) -> dict:
         refs, qry = h.nordland_features(args.root, progress=args.progress)
         qry, src = qry[:BATCH], np.arange(BATCH)
     else:
-        log.warning("no Nordland data under %s: random features", args.root)
+        h.log.warning("no Nordland data under %s: random features", args.root)
         name = "random, Nordland 64x32 size"
         refs, qry, src = random_features(3576, 2048, BATCH, seed=0)
     cases.append(bench_case(name, refs, qry, src, periods, **kw))

@@ -24,8 +24,6 @@ from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
-log = h.log
-
 TOLERANCE = 1
 LENGTHS = (5, 10, 20)
 GRID_LENGTH = 10  # the length also run over the 5-speed grid
@@ -333,7 +331,7 @@ def available(names) -> list[str]:
             get_descriptor(name).settings()
             out.append(name)
         except Exception as err:  # noqa: BLE001 - weights missing, import failure
-            log.warning("skipping descriptor %s: %s", name, err)
+            h.log.warning("skipping descriptor %s: %s", name, err)
     return out
 
 
@@ -351,11 +349,11 @@ def run(args: argparse.Namespace) -> dict:
             datasets = {k: (r[:f], q[:f]) for k, (r, q) in datasets.items()}
         for dataset, (ref, qry) in datasets.items():
             gt = np.arange(len(qry))
-            log.info("%s %s: references", dataset, name)
+            h.log.info("%s %s: references", dataset, name)
             refs = reference_rows(ref, qry, gt, repeats)
             for level in args.levels:
                 model = fitted_map(ref, level, name, args.progress)
-                log.info("%s %s level %d, periods %s", dataset, name, level,
+                h.log.info("%s %s level %d, periods %s", dataset, name, level,
                          model.periods)  # fmt: skip
                 blocks.append(dict(
                     dataset=dataset, descriptor=name,
@@ -368,7 +366,7 @@ def run(args: argparse.Namespace) -> dict:
                 ))  # fmt: skip
         ref, qry = datasets["nordland"]
         for level in args.levels:
-            log.info("outlier protocol, %s level %d", name, level)
+            h.log.info("outlier protocol, %s level %d", name, level)
             outliers.append(outlier_rows(ref, qry, level, name, args.progress))
     return dict(tolerance=TOLERANCE, lengths=list(LENGTHS), speeds_grid=list(SPEEDS),
                 m=M, exclude=EXCLUDE, holdout=HOLDOUT, decoding=blocks,

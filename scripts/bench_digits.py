@@ -100,16 +100,14 @@ def markdown(report: dict) -> str:
         "layout", "sizes", "storage %", "self hard", "hard", "soft",
         "soft exact", "R@5", "L=5", "L=10", "L=20", "label acc. (chance)",
     ]  # fmt: skip
-    rows = []
-    for r in report["rows"]:
-        rows.append([
-            r["layout"], r["sizes"], round(100 * r["ratio"], 1),
-            r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
-            r["soft_raw_exact"], r["recall@5_raw"],
-            *(r[f"seq{length}_raw"] for length in LENGTHS),
-            " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
-                     r.get("label_chance", ()), strict=True)) or "-",
-        ])  # fmt: skip
+    rows = [[
+        r["layout"], r["sizes"], round(100 * r["ratio"], 1),
+        r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
+        r["soft_raw_exact"], r["recall@5_raw"],
+        *(r[f"seq{length}_raw"] for length in LENGTHS),
+        " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
+                 r.get("label_chance", ()), strict=True)) or "-",
+    ] for r in report["rows"]]  # fmt: skip
     lines += ["", table(cols, rows), ""]
     same = [r for r in report["rows"] if "calibrated_same_index" in r]
     lines.append(

@@ -4,7 +4,6 @@ python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 """
 
 import tempfile
-import time
 
 import numpy as np
 import torch
@@ -51,9 +50,7 @@ def run(args) -> dict:
             for b in args.batches:
                 eager = frames_per_s(compiled.Sliced(net, b), x, args.repeats)
                 shape = (b, 3, desc.height, desc.width)
-                t = time.perf_counter()
-                fn = compiled._compiled(desc, shape, cache)
-                build = time.perf_counter() - t
+                fn, build, _ = timed(compiled._compiled, desc, shape, cache)
                 if fn is None:
                     raise RuntimeError("the network could not be compiled here")
                 run = compiled._chunked(fn, b)

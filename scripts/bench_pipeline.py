@@ -3,10 +3,8 @@
 python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
 """
 
-import time
-
 import numpy as np
-from _harness import header, load_average, main, nordland_images, table
+from _harness import header, load_average, main, nordland_images, table, timed
 
 
 def library() -> tuple:
@@ -49,9 +47,8 @@ def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
     for names in variants:
         settings = {"elastic_impl": elastic}
         cfg = stream.AugmentedFit(names=names, epochs=1, augment_settings=settings)
-        t = time.perf_counter()
-        tm = fit(images, plain if names == ("none",) else cfg)
-        out.append(dict(tm, wall=time.perf_counter() - t))
+        tm, wall, _ = timed(fit, images, plain if names == ("none",) else cfg)
+        out.append(dict(tm, wall=wall))
     return out
 
 

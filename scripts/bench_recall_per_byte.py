@@ -57,10 +57,8 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
         "codes alone (JAX)": lambda: book.similarity(qj).argmax(1),
         "codes alone (faiss IndexBinaryFlat)": lambda: index.search(codes(), 1)[1],
     }
-    out = {}
-    for name, fn in fns.items():
-        _, sec = fastest(fn, 5)
-        out[name] = {"seconds": sec, "queries_per_s": len(q) / sec}
+    secs = {name: fastest(fn, 5)[1] for name, fn in fns.items()}
+    out = {k: {"seconds": s, "queries_per_s": len(q) / s} for k, s in secs.items()}
     base = out["map alone"]["seconds"]
     for v in out.values():
         v["x map alone"] = v["seconds"] / base

@@ -22,7 +22,6 @@ from rhythmic_jax.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
 
-log = bc.log
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
 DTYPES = ("float32", "float16", "int8")
@@ -96,7 +95,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         block_rows=run.get("block_rows"), nice=os.nice(0),
         accuracy={t: accuracy(m, frames, n) for t, m in models.items()},
     )  # fmt: skip
-    log.info("%s", row)
+    bc.log.info("%s", row)
     return row
 
 
@@ -551,7 +550,7 @@ def run(args) -> dict:
         try:
             row = one(cell, x_path, args.cells, args.memory)
         except RuntimeError as err:
-            log.warning("%s failed: %s", name, err)
+            bc.log.warning("%s failed: %s", name, err)
             reason = str(err).strip().splitlines()[-1][-300:]
             failed.write_text(reason)
             missing.append(f"{name} (failed: {reason})")
@@ -567,7 +566,7 @@ def run(args) -> dict:
             if n:
                 report[what.split()[0]] = measure(args)
         except RuntimeError as err:
-            log.warning("%s failed: %s", what, err)
+            bc.log.warning("%s failed: %s", what, err)
             missing.append(f"{what} N={n} (failed)")
     loads = [r["load"][0] for r in rows] or [0]
     nices = [r.get("nice", 10) for r in rows]

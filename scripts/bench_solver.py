@@ -19,8 +19,6 @@ from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
 from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
-log = h.log
-
 AIM_SPEEDUP = 100.0
 AIM_GAP = 1e-3
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
@@ -73,7 +71,7 @@ def run_linearsvc(x64: np.ndarray, y: np.ndarray, c: float, picks: list[dict]):
             dict(**pick, seconds=seconds, cpu_s=cpu, n_iter=int(svc.n_iter_))
             | dict(converged=converged, w=svc.coef_[0], b=svc.intercept_[0])
         )
-        log.info("LinearSVC %s: %.2f s, %d iterations", pick, seconds, svc.n_iter_)
+        h.log.info("LinearSVC %s: %.2f s, %d iterations", pick, seconds, svc.n_iter_)
     return rows
 
 
@@ -83,7 +81,7 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     load = h.load_average()
     (params, info), seconds, cpu = h.timed(newton_fit, x, y, c, config,
                                            progress=progress)  # fmt: skip
-    log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
+    h.log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
              info.steps, info.cg_iterations, info.columns)  # fmt: skip
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
     cfg = {k: getattr(config, k) for k in keys}
@@ -104,7 +102,7 @@ def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
     load = h.load_average()
     (params, history), seconds, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
                                               progress=progress)  # fmt: skip
-    log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
+    h.log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
     record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load)
     return params, history, record
 
@@ -120,7 +118,7 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     p, c, labels = sum(cands), default_c(n), np.arange(n)
     y = np.asarray(targets(labels, cands))
     x64, y64 = x.astype(np.float64), y.astype(np.float64)
-    log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
+    h.log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
 
     load_svc = h.load_average()
     svc = run_linearsvc(x64, y64, c, sampled_columns(cands, samples))
@@ -310,7 +308,7 @@ def run(args) -> dict:
         name = "Nordland summer, patchnorm 64x32"
         cases.append(bench_case(name, x[: args.frames], samples, args.progress))
     else:
-        log.warning("no Nordland data under %s: the real-frame case is left out",
+        h.log.warning("no Nordland data under %s: the real-frame case is left out",
                     args.root)  # fmt: skip
     xv = video_like(args.video_frames, args.video_dim, **VIDEO)
     cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
