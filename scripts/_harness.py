@@ -75,15 +75,13 @@ def machine(threads: dict[str, int] | None = None) -> dict:
     import sklearn
     import torch
 
-    return dict(
-        devices=[str(d) for d in jax.devices()], jax=jax.__version__,
-        optax=optax.__version__, numpy=np.__version__, sklearn=sklearn.__version__,
-        faiss=faiss.__version__, torch=torch.__version__,
-        python=platform.python_version(),
-        cpu=platform.processor() or platform.machine(), cores=cores(),
-        threads=threads or {}, xla_flags=os.environ.get("XLA_FLAGS", ""),
-        commit=git_commit(),
-    )  # fmt: skip
+    return dict(devices=[str(d) for d in jax.devices()], jax=jax.__version__,
+                optax=optax.__version__, numpy=np.__version__,
+                sklearn=sklearn.__version__, faiss=faiss.__version__,
+                torch=torch.__version__, python=platform.python_version(),
+                cpu=platform.processor() or platform.machine(), cores=cores(),
+                threads=threads or {}, xla_flags=os.environ.get("XLA_FLAGS", ""),
+                commit=git_commit())  # fmt: skip
 
 
 def timed(fn, *args, **kwargs):

@@ -96,11 +96,9 @@ def brute_row(ref, qry, label, emb_bytes=0) -> dict:
     r, q = h.unit_rows(ref), h.unit_rows(qry)
     sim = q @ r.T
     pred = sim.argmax(1)
-    return dict(
-        method=label, r1=_acc(pred), r1_exact=_acc(pred, 0), r5=_recall(sim, 5),
-        storage_bytes=int(r.size * 4), embedding_bytes=int(emb_bytes),
-        seconds=time.perf_counter() - t0,
-    )  # fmt: skip
+    return dict(method=label, r1=_acc(pred), r1_exact=_acc(pred, 0), r5=_recall(sim, 5),
+                storage_bytes=int(r.size * 4), embedding_bytes=int(emb_bytes),
+                seconds=time.perf_counter() - t0)  # fmt: skip
 
 
 def seqslam_row(ref, qry) -> dict:
@@ -148,13 +146,12 @@ def eval_row(m: RhythmicMap, ref, qry, label: str, fit_s: float) -> dict:
     else:
         place = group_place_scores(m.scores(qry), m.groups, m.n)
     pred = m.predict(qry, "soft")
-    row = dict(
-        method=label, layout=m.groups.describe(), sizes=list(m.groups.sizes),
-        codes_bits=m.codebook.bits if m.codebook else None, r1=_acc(pred),
-        r1_exact=_acc(pred, 0), r5=_recall(place, 5),
-        self_r1=_acc(m.predict(ref[: m.n], "soft"), 0), storage_bytes=m.storage_bytes,
-        embedding_bytes=m.embedding_bytes, fit_seconds=fit_s,
-    )  # fmt: skip
+    row = dict(method=label, layout=m.groups.describe(), sizes=list(m.groups.sizes),
+               codes_bits=m.codebook.bits if m.codebook else None, r1=_acc(pred),
+               r1_exact=_acc(pred, 0), r5=_recall(place, 5),
+               self_r1=_acc(m.predict(ref[: m.n], "soft"), 0),
+               storage_bytes=m.storage_bytes, embedding_bytes=m.embedding_bytes,
+               fit_seconds=fit_s)  # fmt: skip
     for L in LENGTHS:
         row[f"L{L}"] = _acc(m.predict(qry, "soft", sequence=L))
     row["seconds"] = fit_s + time.perf_counter() - t0

@@ -218,10 +218,8 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     for label, (pred, conf) in cases.items():
         pred = np.asarray(pred).astype(np.int64)
         rows.append(dict(method=label, **_threshold_metrics(pred, conf, gt, first)))
-    return dict(
-        descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
-        n_held=len(hold.held), n_queries=len(qry), rows=rows,
-    )  # fmt: skip
+    return dict(descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
+                n_held=len(hold.held), n_queries=len(qry), rows=rows)  # fmt: skip
 
 
 DECODING = ["method", "R@1 (±1)", "R@1 exact", "queries/s", "storage MiB",
@@ -355,15 +353,14 @@ def run(args: argparse.Namespace) -> dict:
                 model = fitted_map(ref, level, name, args.progress)
                 h.log.info("%s %s level %d, periods %s", dataset, name, level,
                          model.periods)  # fmt: skip
-                blocks.append(dict(
-                    dataset=dataset, descriptor=name,
-                    settings=get_descriptor(name).settings(), level=level,
-                    n=int(model.n), d=int(model.d), n_queries=len(qry),
-                    periods=list(model.periods),
-                    compression_ratio=model.compression_ratio,
-                    database_bytes=int(ref.size * 4),
-                    rows=map_rows(model, qry, gt, repeats), references=refs,
-                ))  # fmt: skip
+                blocks.append(dict(dataset=dataset, descriptor=name,
+                                   settings=get_descriptor(name).settings(),
+                                   level=level, n=int(model.n), d=int(model.d),
+                                   n_queries=len(qry), periods=list(model.periods),
+                                   compression_ratio=model.compression_ratio,
+                                   database_bytes=int(ref.size * 4),
+                                   rows=map_rows(model, qry, gt, repeats),
+                                   references=refs))  # fmt: skip
         ref, qry = datasets["nordland"]
         for level in args.levels:
             h.log.info("outlier protocol, %s level %d", name, level)

@@ -50,10 +50,9 @@ def run(args) -> dict:
         exact, tol1 = recall_at_1(qry, ref)
         describe(timing[: args.batch_size], d, args.batch_size)  # warm-up
         fps = len(timing) / timed(describe, timing, d, args.batch_size)[1]
-        rows.append(dict(
-            descriptor=label, name=name, settings=d.settings(), dim=d.dim,
-            recall_at_1=exact, recall_at_1_tol1=tol1, frames_per_s=fps,
-        ))  # fmt: skip
+        rows.append(dict(descriptor=label, name=name, settings=d.settings(), dim=d.dim,
+                         recall_at_1=exact, recall_at_1_tol1=tol1,
+                         frames_per_s=fps))  # fmt: skip
         log.info("%s: recall@1 %.4f (+-1: %.4f), %.1f frames/s", label, exact, tol1,
                  fps)  # fmt: skip
         kept[label] = (ref, qry, fps)

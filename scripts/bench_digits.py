@@ -96,10 +96,8 @@ def markdown(report: dict) -> str:
         f"{report['fit_wall_s']:.0f} s wall. Storage: sum of group sizes x (d + 1) "
         f"float32 over the N x d float32 database."
     )
-    cols = [
-        "layout", "sizes", "storage %", "self hard", "hard", "soft",
-        "soft exact", "R@5", "L=5", "L=10", "L=20", "label acc. (chance)",
-    ]  # fmt: skip
+    cols = ["layout", "sizes", "storage %", "self hard", "hard", "soft", "soft exact",
+            "R@5", "L=5", "L=10", "L=20", "label acc. (chance)"]  # fmt: skip
     rows = [[
         r["layout"], r["sizes"], round(100 * r["ratio"], 1),
         r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
@@ -161,11 +159,9 @@ def run(args) -> dict:
     bf.update(layout="brute force", sizes="-", ratio=1.0,
               storage_bytes=database_bytes(n, d))  # fmt: skip
     rows.append(bf)
-    return dict(
-        descriptor=args.descriptor, places=f"{int(test[0])}-{int(test[-1])}", n=n,
-        d=d, templates_total=int(y.shape[1]), fit_wall_s=fit_wall, tolerance=TOL,
-        rows=rows,
-    )  # fmt: skip
+    return dict(descriptor=args.descriptor, places=f"{int(test[0])}-{int(test[-1])}",
+                n=n, d=d, templates_total=int(y.shape[1]), fit_wall_s=fit_wall,
+                tolerance=TOL, rows=rows)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -13,11 +13,9 @@ from rhythmic_jax.frames import compiled
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.frames.pipeline import _to_batch
 
-HEAD = [
-    "batch", "eager best f/s", "eager median f/s", "compiled best f/s",
-    "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
-    "max rel diff",
-]  # fmt: skip
+HEAD = ["batch", "eager best f/s", "eager median f/s", "compiled best f/s",
+        "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
+        "max rel diff"]  # fmt: skip
 QUICK = dict(batches=[8], frames=64, repeats=1)  # --quick
 
 
@@ -60,12 +58,10 @@ def run(args) -> dict:
                            max_rel_diff=float(diff))  # fmt: skip
                 log.info("%s", row)
                 rows.append(row)
-    return dict(
-        descriptor=desc.name,
-        settings=dict(block=args.block, width=desc.width, height=desc.height),
-        frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
-        job_eager_batch=compiled.EAGER_BATCH, rows=rows,
-    )  # fmt: skip
+    return dict(descriptor=desc.name,
+                settings=dict(block=args.block, width=desc.width, height=desc.height),
+                frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
+                job_eager_batch=compiled.EAGER_BATCH, rows=rows)  # fmt: skip
 
 
 def markdown(report: dict) -> str:

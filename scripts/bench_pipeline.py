@@ -80,10 +80,9 @@ def run(args) -> dict:
                          strict=True):  # fmt: skip
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
-        rows.append(dict(
-            augmentation=names[0], frames_per_s=fps, augment_s=tm["augment"],
-            describe_s=tm["describe"], step_s=tm["step"], wall_s=tm["wall"],
-        ))  # fmt: skip
+        rows.append(dict(augmentation=names[0], frames_per_s=fps,
+                         augment_s=tm["augment"], describe_s=tm["describe"],
+                         step_s=tm["step"], wall_s=tm["wall"]))  # fmt: skip
     for r in rows:
         r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]
     return dict(descriptor=desc.settings() | {"name": args.descriptor}, frames=n,

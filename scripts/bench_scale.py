@@ -153,11 +153,10 @@ def slopes(rows: list[dict]) -> list[dict]:
         else:  # the least-storage co-prime sets
             sums = [sum(nominal_periods(int(n), r)) for n in ns]
             low = high = float(np.polyfit(lx, np.log(sums), 1)[0])
-        out.append(dict(
-            source=source, d=d, r=r, rule=rule, points=len(pts), slope=slope,
-            slope_from_10k=upper, target=1 / r, within=abs(slope - 1 / r) <= 0.05,
-            rule_low=low, rule_high=high,
-        ))  # fmt: skip
+        out.append(dict(source=source, d=d, r=r, rule=rule, points=len(pts),
+                        slope=slope, slope_from_10k=upper, target=1 / r,
+                        within=abs(slope - 1 / r) <= 0.05, rule_low=low,
+                        rule_high=high))  # fmt: skip
     return out
 
 
@@ -190,10 +189,8 @@ def _num(v, digits):
     return "-" if v is None else round(v, digits)
 
 
-SLOPES = [
-    "source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
-    "slope N >= 10^4", "the rule allows",
-]  # fmt: skip
+SLOPES = ["source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
+          "slope N >= 10^4", "the rule allows"]  # fmt: skip
 
 
 def _allows(s: dict) -> str:
@@ -374,21 +371,20 @@ def full(args) -> dict:
     x = np.asarray(np.load(path, mmap_mode="r")[picks])
     acc = {t: float(np.mean(m.predict(x) == picks)) for t, m in dtypes(model).items()}
     kinds = pass_kinds(run["cg"], run["pass_seconds"])
-    row = dict(
-        n=n, d=256, r=3, periods=info["periods"], memory=memory,
-        command=" ".join(["nice", "-n", str(NICE), *cmd]),
-        file_bytes=path.stat().st_size, storage_bytes=info["storage_bytes"],
-        wall_seconds=sum(t["seconds"] for t in tries), attempts=len(tries),
-        starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
-        peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
-        passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
-        block_rows=run["block_rows"], kept_active_bytes=run.get("kept_active_bytes"),
-        pass_median_s=float(np.median(run["pass_seconds"])),
-        kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
-        group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
-        candidates=list(plan(MapConfig(r=3), n, 1).candidates),
-        code=bc.git_commit(),
-    )  # fmt: skip
+    row = dict(n=n, d=256, r=3, periods=info["periods"], memory=memory,
+               command=" ".join(["nice", "-n", str(NICE), *cmd]),
+               file_bytes=path.stat().st_size, storage_bytes=info["storage_bytes"],
+               wall_seconds=sum(t["seconds"] for t in tries), attempts=len(tries),
+               starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
+               peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
+               passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
+               block_rows=run["block_rows"],
+               kept_active_bytes=run.get("kept_active_bytes"),
+               pass_median_s=float(np.median(run["pass_seconds"])),
+               kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
+               group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
+               candidates=list(plan(MapConfig(r=3), n, 1).candidates),
+               code=bc.git_commit())  # fmt: skip
     saved.write_text(json.dumps(bc.plain(row)))
     return row
 

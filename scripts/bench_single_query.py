@@ -89,11 +89,10 @@ def run(args) -> dict:
     throughput = {"jitted decode": time_batch(jit, batch, repeats=5),
                   "faiss IndexFlatIP": time_batch(lambda q: flat.search(q, 1), batch,
                                                  repeats=3)}  # fmt: skip
-    return dict(
-        n=n, d=d, periods=list(periods), singles=args.singles,
-        single=rows, batch=throughput, same_as_batch_decode=bool(same),
-        locate_same_as_batch_decode=bool(same_locate), padded_rows=int(rows_p),
-    )  # fmt: skip
+    return dict(n=n, d=d, periods=list(periods), singles=args.singles, single=rows,
+                batch=throughput, same_as_batch_decode=bool(same),
+                locate_same_as_batch_decode=bool(same_locate),
+                padded_rows=int(rows_p))  # fmt: skip
 
 
 def markdown(r: dict) -> str:

@@ -86,11 +86,10 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
     cfg = {k: getattr(config, k) for k in keys}
     cfg["hessian"] = resolve_hessian_dtype(config.hessian_dtype) or "float32"
-    record = dict(
-        seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load,
-        config=cfg, steps=info.steps, cg_iterations=list(info.cg_iterations),
-        columns=list(info.columns), max_gap_estimate=float(np.max(info.gap_estimate)),
-    )  # fmt: skip
+    record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load,
+                  config=cfg, steps=info.steps, cg_iterations=list(info.cg_iterations),
+                  columns=list(info.columns),
+                  max_gap_estimate=float(np.max(info.gap_estimate)))  # fmt: skip
     return params, record
 
 
@@ -163,10 +162,9 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
             rec.update(active_fraction=float(np.mean(margins < 1.0)),
                        gflop=float(4 * n * (d + 1) * work / 1e9),
                        chosen_periods=choose_periods(cands, errors, n, 2))  # fmt: skip
-    return h.plain(dict(
-        name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
-        linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
-    ))  # fmt: skip
+    return h.plain(dict(name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands,
+                        p=p, c=c, linearsvc=linearsvc, newton_fast=fast,
+                        newton_tight=tight, lbfgs=lbfgs))  # fmt: skip
 
 
 def _rel(v: float) -> str:

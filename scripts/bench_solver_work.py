@@ -73,11 +73,9 @@ def run(args) -> dict:
     offs = dict(zip(cands, period_offsets(cands), strict=True))
     cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in full["chosen"]])
     f0, f1 = np.asarray(full["objective"])[cols], np.asarray(drop["objective"])[cols]
-    return dict(
-        n=n, d=int(x.shape[1]), candidates=list(cands), c=c, slack=args.slack,
-        after=args.after, runs=runs,
-        chosen_gap=float(np.max(np.abs(f1 - f0) / f0)),
-    )  # fmt: skip
+    return dict(n=n, d=int(x.shape[1]), candidates=list(cands), c=c, slack=args.slack,
+                after=args.after, runs=runs,
+                chosen_gap=float(np.max(np.abs(f1 - f0) / f0)))  # fmt: skip
 
 
 def markdown(r: dict) -> str:

@@ -67,13 +67,11 @@ def run(args) -> dict:
                          cg_iterations=sum(info.cg_iterations)))  # fmt: skip
         print(rows[-1], flush=True)
     span, direct = answers["span (n-dim)"], answers["direct (d-dim)"]
-    return dict(
-        descriptor=args.descriptor, settings=desc.settings(), n=n, d=d,
-        level=args.level, p=sum(cands), rows=rows,
-        speedup_wall=rows[1]["wall_s"] / rows[0]["wall_s"],
-        speedup_cpu=rows[1]["cpu_s"] / rows[0]["cpu_s"],
-        gap_span_vs_direct=stats((span - direct) / direct),
-    )  # fmt: skip
+    return dict(descriptor=args.descriptor, settings=desc.settings(), n=n, d=d,
+                level=args.level, p=sum(cands), rows=rows,
+                speedup_wall=rows[1]["wall_s"] / rows[0]["wall_s"],
+                speedup_cpu=rows[1]["cpu_s"] / rows[0]["cpu_s"],
+                gap_span_vs_direct=stats((span - direct) / direct))  # fmt: skip
 
 
 if __name__ == "__main__":

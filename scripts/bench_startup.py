@@ -102,10 +102,9 @@ def run(args) -> dict:
                 for v, path in checkouts.items():
                     seconds[name][v].append(child(cmd, path)["wall"])
             log.info("turn %d of %d done", i + 1, args.repeats)
-    return dict(
-        versions=list(checkouts), repeats=args.repeats, seconds=seconds,
-        checkouts={v: str(p) for v, p in checkouts.items()}, loaded=loads,
-    )  # fmt: skip
+    return dict(versions=list(checkouts), repeats=args.repeats, seconds=seconds,
+                checkouts={v: str(p) for v, p in checkouts.items()},
+                loaded=loads)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -73,15 +73,14 @@ def markdown(report: dict) -> str:
     for case in report["cases"]:
         for label, runs in case["runs"].items():
             first = runs[-1]
-            rows.append([
-                case["name"], f"{case['n']} x {case['d']}",
-                ", ".join(map(str, case["periods"])), label,
-                case["median_wall_s"][label],
-                ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
-                first["passes"], f"{first['reached']} / {case['templates']}",
-                f"{first['true_gap_max']:.1e}", f"{first['true_gap_median']:.1e}",
-                _widths(first["columns"]), first["column_passes"],
-            ])  # fmt: skip
+            rows.append([case["name"], f"{case['n']} x {case['d']}",
+                         ", ".join(map(str, case["periods"])), label,
+                         case["median_wall_s"][label],
+                         ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
+                         first["passes"], f"{first['reached']} / {case['templates']}",
+                         f"{first['true_gap_max']:.1e}",
+                         f"{first['true_gap_median']:.1e}", _widths(first["columns"]),
+                         first["column_passes"]])  # fmt: skip
     heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
              "steps", "passes", "reached", "true gap max", "true gap median",
              "templates per step", "column-passes"]  # fmt: skip

@@ -80,10 +80,9 @@ class Settings:
 
 
 FULL = Settings()
-QUICK = Settings(
-    frames=600, levels=(1, 2), aug_names=("hflip", "contrast"), aug_frames=600,
-    opq=False, timing_queries=50, batch_queries=300,
-)  # fmt: skip
+QUICK = Settings(frames=600, levels=(1, 2), aug_names=("hflip", "contrast"),
+                 aug_frames=600, opq=False, timing_queries=50,
+                 batch_queries=300)  # fmt: skip
 
 
 ACC = ["accuracy", "R@1", "R@5"]
@@ -113,10 +112,9 @@ def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     """Bytes of the n x d float32 database and of a map with ``periods``."""
     periods = [int(t) for t in periods]
     orig, comp = database_bytes(n, d, 4), storage_bytes(periods, d, 4)
-    return dict(
-        name=name, n=int(n), d=int(d), periods=periods, sum_tau=sum(periods),
-        original_bytes=orig, compressed_bytes=comp, ratio=comp / orig,
-    )  # fmt: skip
+    return dict(name=name, n=int(n), d=int(d), periods=periods, sum_tau=sum(periods),
+                original_bytes=orig, compressed_bytes=comp,
+                ratio=comp / orig)  # fmt: skip
 
 
 def table1_paper() -> list[dict[str, Any]]:
@@ -130,10 +128,8 @@ def table1_paper() -> list[dict[str, Any]]:
             kind = "misprint" if abs(ratio - printed) >= 5e-4 else "rounding slip"
             flag = f"{kind}: the printed bytes give {ratio:.4f} ({ratio:.6f})"
         same = row["original_bytes"] == orig and row["compressed_bytes"] == comp
-        row.update(
-            printed_original_bytes=orig, printed_compressed_bytes=comp,
-            printed_ratio=printed, bytes_match=same, flag=flag,
-        )  # fmt: skip
+        row.update(printed_original_bytes=orig, printed_compressed_bytes=comp,
+                   printed_ratio=printed, bytes_match=same, flag=flag)  # fmt: skip
         rows.append(row)
     return rows
 
@@ -174,10 +170,8 @@ class Run:
 
     def fit(self, x, *, level=1, r=2, count=7, images=None, aug=None):
         """(map, record), from ``cache_dir`` (bench_decoding's) when fitted before."""
-        model = RhythmicMap(
-            r=r, level=level, count=count, descriptor=DESCRIPTOR,
-            descriptor_settings=self.desc.settings(),
-        )  # fmt: skip
+        model = RhythmicMap(r=r, level=level, count=count, descriptor=DESCRIPTOR,
+                            descriptor_settings=self.desc.settings())  # fmt: skip
         if aug is None:
             return h.cached_fit(model, x, self.cache_dir, progress=self.progress)
         from rhythmic_jax.augment.stream import fit_map_augmented as augmented
@@ -217,11 +211,10 @@ class Run:
         pred, gt = np.asarray(pred, np.int64), np.arange(len(pred))
         self.preds[key], self.preds[key + "_gt"] = pred.astype(np.int32), gt
         rec = metrics.recall_at_k(ranked, gt, KS, tolerance=tol)
-        return dict(
-            accuracy=metrics.accuracy(pred, gt, tol), tolerance=tol,
-            **{f"recall_at_{k}": rec[k] for k in KS},
-            no_match=float(np.mean(pred == -1)), n_queries=len(gt), predictions=key,
-        )  # fmt: skip
+        return dict(accuracy=metrics.accuracy(pred, gt, tol), tolerance=tol,
+                    **{f"recall_at_{k}": rec[k] for k in KS},
+                    no_match=float(np.mean(pred == -1)), n_queries=len(gt),
+                    predictions=key)  # fmt: skip
 
     def score_map(self, key: str, model: RhythmicMap, q, tol: int) -> dict[str, Any]:
         ranked = ranked_places(model.scores(q), model.periods, model.n, max(KS))
@@ -234,14 +227,12 @@ class Run:
 
 def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
     err = dict(zip(model.candidates, model.candidate_errors, strict=True))
-    return dict(
-        level=model.config.level, r=model.config.r, n=model.n, d=model.d,
-        periods=list(model.periods), candidates=list(model.candidates),
-        candidate_errors=list(model.candidate_errors),
-        period_errors=[err[t] for t in model.periods],
-        storage_bytes=model.storage_bytes, compression_ratio=model.compression_ratio,
-        **fit,
-    )  # fmt: skip
+    return dict(level=model.config.level, r=model.config.r, n=model.n, d=model.d,
+                periods=list(model.periods), candidates=list(model.candidates),
+                candidate_errors=list(model.candidate_errors),
+                period_errors=[err[t] for t in model.periods],
+                storage_bytes=model.storage_bytes,
+                compression_ratio=model.compression_ratio, **fit)  # fmt: skip
 
 
 def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -321,10 +312,9 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
             row[label] |= timing(fn, qq, s)
         rows.append(row)
     threads = dict(faiss=s.threads, kdtree=1, jax="XLA CPU default thread pool")
-    return dict(
-        database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
-        query_sets=list(sets), threads=threads, skipped=[] if s.opq else [OPQ_SKIPPED],
-    )  # fmt: skip
+    return dict(database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
+                query_sets=list(sets), threads=threads,
+                skipped=[] if s.opq else [OPQ_SKIPPED])  # fmt: skip
 
 
 def fig4(run: Run, data, fits) -> list[dict]:
@@ -610,20 +600,18 @@ def draw(res: dict, out: Path) -> list[str]:
     sub = res["appearance"]["augmentation"]
     title = f"summer map, winter queries, first {sub['frames']} frames, level "
     title += str(sub["level"])
-    figures.plot_augmentation(
-        [r["name"] for r in sub["rows"]], [r["accuracy"] for r in sub["rows"]],
-        {"brute force": sub["brute_force"]["accuracy"]}, title,
-        "accuracy (±1 frame)", out / names[2],
-    )  # fmt: skip
+    figures.plot_augmentation([r["name"] for r in sub["rows"]],
+                              [r["accuracy"] for r in sub["rows"]],
+                              {"brute force": sub["brute_force"]["accuracy"]}, title,
+                              "accuracy (±1 frame)", out / names[2])  # fmt: skip
     series = {}
     for label, block in (("Nordland summer -> winter (±1)", res["appearance"]["full"]),
                          ("LEVIR A -> B (exact)", res["aerial"])):  # fmt: skip
         lv = block["levels"]
-        series[label] = dict(
-            levels=[r["level"] for r in lv], accuracy=[r["accuracy"] for r in lv],
-            ratio=[r["compression_ratio"] for r in lv],
-            brute_force=block["brute_force"]["accuracy"],
-        )  # fmt: skip
+        series[label] = dict(levels=[r["level"] for r in lv],
+                             accuracy=[r["accuracy"] for r in lv],
+                             ratio=[r["compression_ratio"] for r in lv],
+                             brute_force=block["brute_force"]["accuracy"])  # fmt: skip
     title = "accuracy and compression against the level"
     figures.plot_levels(series, title, out / names[3])
     return names
@@ -632,15 +620,14 @@ def draw(res: dict, out: Path) -> list[str]:
 def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
     env = h.machine()
     now = datetime.datetime.now(datetime.timezone.utc)
-    return dict(
-        date=now.strftime("%Y-%m-%d %H:%M UTC"), version=rhythmic_jax.__version__,
-        jax=env["jax"], faiss=env["faiss"], numpy=env["numpy"], python=env["python"],
-        cpu_count=env["cores"], machine=env["cpu"], load_start=load_start,
-        load_end=h.load_average(), elapsed_min=(time.perf_counter() - t0) / 60,
-        descriptor=DESCRIPTOR, descriptor_settings=run.desc.settings(),
-        d=int(data["nordland"][1].shape[1]), frames=len(data["nordland"][1]),
-        predictions=str(preds),
-    )  # fmt: skip
+    return dict(date=now.strftime("%Y-%m-%d %H:%M UTC"),
+                version=rhythmic_jax.__version__, jax=env["jax"], faiss=env["faiss"],
+                numpy=env["numpy"], python=env["python"], cpu_count=env["cores"],
+                machine=env["cpu"], load_start=load_start, load_end=h.load_average(),
+                elapsed_min=(time.perf_counter() - t0) / 60, descriptor=DESCRIPTOR,
+                descriptor_settings=run.desc.settings(),
+                d=int(data["nordland"][1].shape[1]), frames=len(data["nordland"][1]),
+                predictions=str(preds))  # fmt: skip
 
 
 def options(ap) -> None:
