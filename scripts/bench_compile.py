@@ -210,14 +210,13 @@ def markdown(report: dict) -> str:
     s = report["sizes"]
     title = "Compiling: XLA programs, compile seconds and wall per job"
     return "\n".join(h.header(title, report)) + "\n" + "\n\n".join([
-        f"Baseline checkout {report['base']} (no compile cache) against this one, "
-        "cold (empty compile cache) and warm (the cache the cold run left). Each "
-        "job is a fresh process, both checkouts' Python bytecode compiled before"
-        " the first. Programs: XLA programs the job obtained; hits: "
-        "of them, loaded from the persistent cache; compile s: their seconds "
-        f"(loads included); load: 1-minute load average after the job. Sizes: fit "
-        f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
-        f" {s['jpegs']} JPEGs (Lite0).",
+        f"Baseline checkout {report['base']} (no compile cache) against this one, cold"
+        " (empty compile cache) and warm (the cache the cold run left). Each job is a"
+        " fresh process, both checkouts' Python bytecode compiled before the first."
+        " Programs: XLA programs the job obtained; hits: of them, loaded from the"
+        " persistent cache; compile s: their seconds (loads included); load: 1-minute"
+        f" load average after the job. Sizes: fit {s['fit'][0]} x {s['fit'][1]},"
+        f" Nordland patchnorm {s['nordland']} x 2048, {s['jpegs']} JPEGs (Lite0).",
         h.table(HEAD, rows),
         "Targets (the imports row is the floor under any fit's wall: a process that"
         " imports what a fit needs and exits, doing no work):",

@@ -415,24 +415,23 @@ def markdown(report: dict) -> str:
         wall += "';'); wall time of each: "
         wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
     lines += [wall + ".", "",
-              "Maps are fitted on one condition of the test places and queried with"
-              " the other; every embedding was learned on the training places only"
+              "Maps are fitted on one condition of the test places and queried with the"
+              " other; every embedding was learned on the training places only"
               " (Nordland 0-1199, test 1220-3575; aerial: DSIFN pairs train, LEVIR"
-              " pairs test). R@1 and R@5 within +-1 place; `exact` without"
-              " tolerance; L = phase-domain sequence of the map's place scores, or"
-              " SeqSLAM on the raw descriptor; `self` = reference frames as queries"
-              " (exact). storage B: templates (with codes, the codes and their"
-              " transform; brute force: the database in float32); embedding B: its"
-              " parameters, stored once, not growing with N; ratio = both over the"
-              " raw float32 database. `hybrid`: the map's place scores and the ITQ"
-              " code similarities, each z-scored per query, summed (codes fitted on"
-              " the embedded reference frames); `+ int8 codes`: the same with a byte"
-              " per dimension of the embedded frame, fused with the map's share w"
-              " learned on the training places (the `chosen` configuration the"
-              " targets judge, fixed before any test place was scored); `int8 codes"
-              " alone`: those codes' own search, which shows what the templates add."
-              " Budget rows take the largest pair of periods (t, t + 1) that fits;"
-              " their t/N says how far from sub-linear they are.",
+              " pairs test). R@1 and R@5 within +-1 place; `exact` without tolerance; L"
+              " = phase-domain sequence of the map's place scores, or SeqSLAM on the"
+              " raw descriptor; `self` = reference frames as queries (exact). storage"
+              " B: templates (with codes, the codes and their transform; brute force:"
+              " the database in float32); embedding B: its parameters, stored once, not"
+              " growing with N; ratio = both over the raw float32 database. `hybrid`:"
+              " the map's place scores and the ITQ code similarities, each z-scored per"
+              " query, summed (codes fitted on the embedded reference frames); `+ int8"
+              " codes`: the same with a byte per dimension of the embedded frame, fused"
+              " with the map's share w learned on the training places (the `chosen`"
+              " configuration the targets judge, fixed before any test place was"
+              " scored); `int8 codes alone`: those codes' own search, which shows what"
+              " the templates add. Budget rows take the largest pair of periods (t, t +"
+              " 1) that fits; their t/N says how far from sub-linear they are.",
               "", "## Targets", ""]  # fmt: skip
     lines += [f"- {t}: **{v}**" for t, v in targets(report)] + [""]
     for name, ds in report["datasets"].items():

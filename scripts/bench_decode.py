@@ -82,16 +82,14 @@ def case_markdown(c: dict) -> str:
         h.table([*head, "single ms p95"], rows),
         f"Rhythmic / faiss: **{c['batch_speedup']:.1f}x** batch throughput,"
         f" **{c['single_speedup_median']:.1f}x** single-query median latency"
-        f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p ="
-        f" {c['n']} / {c['p']} = **{c['flop_ratio']:.1f}**. Bytes read per"
-        f" single query: map {c['map_bytes'] / 2**20:.1f} MiB, database"
-        f" {c['database_bytes'] / 2**20:.1f} MiB. Threads: XLA"
-        f" {c['threads']['xla']}, faiss {c['threads']['faiss']}. Load average"
-        f" at the start of the case {c['load_average_start']}. Single queries"
-        f" timed: {c['single_queries']}; batch calls timed:"
-        f" {r['batch']['repeats']} each. faiss top-1 = the query's own"
-        f" reference (same index) for {100 * c['faiss_top1_is_source']:.1f} %"
-        " of queries.",
+        f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p = {c['n']} /"
+        f" {c['p']} = **{c['flop_ratio']:.1f}**. Bytes read per single query: map"
+        f" {c['map_bytes'] / 2**20:.1f} MiB, database {c['database_bytes'] / 2**20:.1f}"
+        f" MiB. Threads: XLA {c['threads']['xla']}, faiss {c['threads']['faiss']}. Load"
+        f" average at the start of the case {c['load_average_start']}. Single queries"
+        f" timed: {c['single_queries']}; batch calls timed: {r['batch']['repeats']}"
+        " each. faiss top-1 = the query's own reference (same index) for"
+        f" {100 * c['faiss_top1_is_source']:.1f} % of queries.",
     ]) + "\n"  # fmt: skip
 
 

@@ -230,22 +230,6 @@ TARGET = ["descriptor", "L", "map decode", "R@1", "SeqSLAM", "R@1", "points", "s
           "storage", "met"]  # fmt: skip
 
 
-def decoding_table(b: dict) -> str:
-    rows = [[r["method"], f"{r['recall_at_1']:.4f}", f"{r['recall_at_1_exact']:.4f}",
-             f"{r['queries_per_s']:,.0f}", f"{r['storage_bytes'] / 2**20:.2f}",
-             f"{100 * r['storage_bytes'] / b['database_bytes']:.1f}"]
-            for r in b["rows"]]  # fmt: skip
-    return h.table(DECODING, rows, "lrrrrr")
-
-
-def outlier_table(block: dict) -> str:
-    rows = [[r["method"], f"{r['pr_auc']:.4f}", f"{r['recall_at_100_precision']:.4f}",
-             f"{r['threshold']:.4g}", r["retrieved"],
-             f"{r['precision_at_threshold']:.3f}", f"{r['recall_at_threshold']:.3f}",
-             f"{r['outliers_rejected']:.3f}"] for r in block["rows"]]  # fmt: skip
-    return h.table(OUTLIERS, rows, "lrrrrrrr")
-
-
 def target_table(blocks: list[dict]) -> str:
     """The lead's target on Nordland at level 4, L = 10 and 20: recall within 5
     points of the SeqSLAM-style reference at >= 10x its speed, <= 14 % storage."""
@@ -280,22 +264,24 @@ def markdown(report: dict) -> str:
     env = report["environment"]
     parts = [
         "# Decoders beyond the paper",
-        f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
-        " from descriptors to indices on "
-        f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
-        " descriptor extraction not included. Maps: r=2, Newton solver, default"
-        " C = log N."
-        f" Command: `{report['command']}`.",
+        f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch from"
+        f" descriptors to indices on {env.get('cores', env.get('cpus'))} CPUs, after"
+        " one compiling call; descriptor extraction not included. Maps: r=2, Newton"
+        f" solver, default C = log N. Command: `{report['command']}`.",
     ]  # fmt: skip
     for b in report["decoding"]:
+        rows = [[r["method"], f"{r['recall_at_1']:.4f}",
+                 f"{r['recall_at_1_exact']:.4f}", f"{r['queries_per_s']:,.0f}",
+                 f"{r['storage_bytes'] / 2**20:.2f}",
+                 f"{100 * r['storage_bytes'] / b['database_bytes']:.1f}"]
+                for r in b["rows"]]  # fmt: skip
         parts += [
             f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
             f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"
             f" ({100 * b['compression_ratio']:.1f} % of the database).",
-            decoding_table(b),
+            h.table(DECODING, rows, "lrrrrr"),
         ]
-    target = target_table(report["decoding"])
-    if target:
+    if target := target_table(report["decoding"]):
         parts += [
             "## Target: level 4, within 5 points of SeqSLAM, >= 10x its speed,"
             " <= 14 % of its storage",
@@ -305,19 +291,23 @@ def markdown(report: dict) -> str:
             target,
         ]
     for b in report["outliers"]:
+        rows = [[r["method"], f"{r['pr_auc']:.4f}",
+                 f"{r['recall_at_100_precision']:.4f}", f"{r['threshold']:.4g}",
+                 r["retrieved"], f"{r['precision_at_threshold']:.3f}",
+                 f"{r['recall_at_threshold']:.3f}", f"{r['outliers_rejected']:.3f}"]
+                for r in b["rows"]]  # fmt: skip
         parts += [
             f"## Outliers: Nordland, {b['descriptor']}, level {b['level']}",
-            f"{b['n_held']} of {b['n_queries']} route frames held out of the summer"
-            f" map in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
+            f"{b['n_held']} of {b['n_queries']} route frames held out of the summer map"
+            f" in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
             f" {b['n_map']} frames, periods {b['periods']}. PR AUC and recall at 100 %"
-            " precision on the second half of the route. Threshold: chosen on the"
-            " first half (largest recall at 100 % precision; inf when none reaches"
-            " it, so everything is rejected); kept, thr P, thr R: second-half"
-            " queries kept at that threshold, their precision and recall;"
-            " outliers rejected: share of held-out places' queries rejected."
-            f" Margins exclude rivals within {EXCLUDE} places; recall within"
-            f" ±{TOLERANCE}.",
-            outlier_table(b),
+            " precision on the second half of the route. Threshold: chosen on the first"
+            " half (largest recall at 100 % precision; inf when none reaches it, so"
+            " everything is rejected); kept, thr P, thr R: second-half queries kept at"
+            " that threshold, their precision and recall; outliers rejected: share of"
+            " held-out places' queries rejected. Margins exclude rivals within"
+            f" {EXCLUDE} places; recall within ±{TOLERANCE}.",
+            h.table(OUTLIERS, rows, "lrrrrrrr"),
         ]
     return "\n\n".join(parts) + "\n"
 

@@ -161,19 +161,6 @@ def summary(report: dict) -> dict:
     return out
 
 
-def _within(report: dict) -> str:
-    """How often each checkout's query lands within 2 frames of the true place."""
-    w = report.get("prediction_within_2")
-    if not w:
-        return ""
-    return (
-        f"; within 2 frames of the true place: base {100 * w['base']:.1f} %, new"
-        f" {100 * w['new']:.1f} % (each checkout fits its own map and may choose"
-        " other periods; winter queries on a summer map are the appearance change"
-        " reports/cross_condition.md is about)"
-    )
-
-
 def markdown(report: dict) -> str:
     s = report["summary"]
     rows = [
@@ -186,6 +173,7 @@ def markdown(report: dict) -> str:
     ]  # fmt: skip
     loads = [r["load"] for by in report["runs"].values() for rs in by.values()
              for r in rs]  # fmt: skip
+    within = report["prediction_within_2"]  # query within 2 frames of the true place
     return "\n".join([
         *h.header("Frames per second from images, end to end", report),
         f"Baseline checkout {report['base']} run interleaved with this one in"
@@ -201,16 +189,17 @@ def markdown(report: dict) -> str:
                "base / new CPU s", "target (on frames/s)"],
               rows),  # fmt: skip
         "",
-        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout;"
-        f" `fit` and `query` on {report['frames']} 640x320 JPEG frames"
-        " (efficientnet_lite0); `fit100` on 100; `augmented_*`: one epoch over"
-        f" {report['aug_frames']} Nordland frames, frames/s over the epoch. Under"
-        " load, CPU-second ratios are the figure to expect on a quiet machine."
-        f" The two query runs agree on {100 * report['prediction_agreement']:.1f} %"
-        " of predictions"
-        f"{_within(report)}."
-        f" 1-minute load average at the end of each job: {min(loads):.1f} to"
-        f" {max(loads):.1f} (2 cores).",
+        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout; `fit` and `query`"
+        f" on {report['frames']} 640x320 JPEG frames (efficientnet_lite0); `fit100` on"
+        f" 100; `augmented_*`: one epoch over {report['aug_frames']} Nordland frames,"
+        " frames/s over the epoch. Under load, CPU-second ratios are the figure to"
+        " expect on a quiet machine. The two query runs agree on"
+        f" {100 * report['prediction_agreement']:.1f} % of predictions; within 2 frames"
+        f" of the true place: base {100 * within['base']:.1f} %, new"
+        f" {100 * within['new']:.1f} % (each checkout fits its own map and may choose"
+        " other periods; winter queries on a summer map are the appearance change"
+        " reports/cross_condition.md is about). 1-minute load average at the end of"
+        f" each job: {min(loads):.1f} to {max(loads):.1f} (2 cores).",
     ])  # fmt: skip
 
 

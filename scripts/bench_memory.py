@@ -63,19 +63,17 @@ def markdown(report: dict) -> str:
     return "\n".join(
         header("Memory of a full-batch fit: estimate against measured peak", report)
         + [
-            "Random float32 frames, the default map (r = 2, 7 candidate periods: p "
-            "templates). Peaks are the growth of the process's resident memory "
-            "during the fit, sampled every ms, over a baseline taken after "
-            "`malloc_trim(0)` (glibc otherwise serves the fit from memory an "
-            "earlier one freed, and the growth undercounts). *Cold*: the shape's "
-            "first fit in a process whose runtime is loaded (its functions "
-            "compile); *warm*: the largest of "
-            f"{report['repeats']} refits of the same frames after one unmeasured "
-            "(nothing compiles). "
-            "*Estimate*: the sum of `fit_bytes`; *arrays*: the same without its "
-            f"`compile` part ({report['compile_bytes'] / MB:.0f} MB). *Limit kept*: "
-            "the guard with its limit set to the estimate (`--memory X`, X = the "
-            "estimate) admits the fit and the cold peak stays under X.",
+            "Random float32 frames, the default map (r = 2, 7 candidate periods: p"
+            " templates). Peaks are the growth of the process's resident memory during"
+            " the fit, sampled every ms, over a baseline taken after `malloc_trim(0)`"
+            " (glibc otherwise serves the fit from memory an earlier one freed, and the"
+            " growth undercounts). *Cold*: the shape's first fit in a process whose"
+            " runtime is loaded (its functions compile); *warm*: the largest of"
+            f" {report['repeats']} refits of the same frames after one unmeasured"
+            " (nothing compiles). *Estimate*: the sum of `fit_bytes`; *arrays*: the"
+            f" same without its `compile` part ({report['compile_bytes'] / MB:.0f} MB)."
+            " *Limit kept*: the guard with its limit set to the estimate (`--memory X`,"
+            " X = the estimate) admits the fit and the cold peak stays under X.",
             "",
             table(HEAD, rows),
             "",

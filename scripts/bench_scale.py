@@ -204,13 +204,12 @@ def _allows(s: dict) -> str:
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
-        "Every fit ran niced beside other jobs (load above): the times are"
-        f" pessimistic. Niceness {report['nices']} (each cell's in the JSON; at 19 a"
-        " fit takes only CPU no one else wants). Cells were measured between"
-        f" {report['cells_from']} and {report['cells_to']} at a 1-minute load"
-        f" average of {report['load_cells']} (each cell's in the JSON); a rerun"
-        " reuses cells already measured, so the command above may only have"
-        " collected them.",
+        "Every fit ran niced beside other jobs (load above): the times are pessimistic."
+        f" Niceness {report['nices']} (each cell's in the JSON; at 19 a fit takes only"
+        f" CPU no one else wants). Cells were measured between {report['cells_from']}"
+        f" and {report['cells_to']} at a 1-minute load average of"
+        f" {report['load_cells']} (each cell's in the JSON); a rerun reuses cells"
+        " already measured, so the command above may only have collected them.",
         "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
@@ -248,21 +247,19 @@ def markdown(report: dict) -> str:
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
     lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
-              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the "
-              "summed periods, and the bytes, lie between the least and the "
-              "largest valid set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). "
-              "Over a short range of N, or from N where 6 is a large share of "
-              "N^(1/r) (10 at N = 1,000, r = 3), the errors' choice moves the "
-              "fitted slope further than 0.05 either way; the column 'the rule "
-              "allows' gives the least and the largest fitted slope that "
-              "the rule permits over the series' N (any choice of periods at "
-              "each N). "
-              "The slope tends to 1/r as N grows, where 6 becomes a small share "
-              "of N^(1/r). Rule 'least' fixes the least-storage co-prime set of "
-              "the same candidates before training (no search): its bytes follow "
-              "r N^(1/r) to within the rounding up to co-prime integers, and the "
-              "column gives that set's slope; the accuracy columns say what the "
-              "errors' choice buys over it."]  # fmt: skip
+              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the summed"
+              " periods, and the bytes, lie between the least and the largest valid"
+              " set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). Over a short"
+              " range of N, or from N where 6 is a large share of N^(1/r) (10 at N ="
+              " 1,000, r = 3), the errors' choice moves the fitted slope further than"
+              " 0.05 either way; the column 'the rule allows' gives the least and the"
+              " largest fitted slope that the rule permits over the series' N (any"
+              " choice of periods at each N). The slope tends to 1/r as N grows, where"
+              " 6 becomes a small share of N^(1/r). Rule 'least' fixes the"
+              " least-storage co-prime set of the same candidates before training (no"
+              " search): its bytes follow r N^(1/r) to within the rounding up to"
+              " co-prime integers, and the column gives that set's slope; the accuracy"
+              " columns say what the errors' choice buys over it."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:

@@ -115,28 +115,25 @@ def markdown(r: dict) -> str:
         f" ({p} templates, {tbytes / 1e6:.2f} MB of float32, stored as"
         f" {r.get('padded_rows', p)} rows).",
         table(["path", "median us", "p95 us", "calls"], lat),
-        "Batches of 1000: jitted decode"
-        f" {thr['jitted decode']['queries_per_s']:,.0f} queries/s, faiss flat"
-        f" {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}: **{ratio:.1f}x**."
-        " The numpy path gives the batch decode's place for every query:"
-        f" {r['same_as_batch_decode']} (SmallDecoder.index),"
+        f"Batches of 1000: jitted decode {thr['jitted decode']['queries_per_s']:,.0f}"
+        f" queries/s, faiss flat {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}:"
+        f" **{ratio:.1f}x**. The numpy path gives the batch decode's place for every"
+        f" query: {r['same_as_batch_decode']} (SmallDecoder.index),"
         f" {r.get('locate_same_as_batch_decode', 'not run')} (RhythmicMap.locate).",
-        f"Targets: one descriptor -> place <= 20 us median: {met} by"
-        f" RhythmicMap.locate ({locate:.1f} us; predict on one row {predict:.1f} us;"
-        f" faiss flat on one row {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x"
-        f" longer); batch decoding >= 40x faiss flat:"
-        f" {'met' if ratio >= 40 else 'not met'} ({ratio:.1f}x). A query's cost is"
-        " the templates' product with it: the rest (bias, one argmax over"
-        " both periods' blocks of rows, one look-up in the table of every"
-        " phase pair's place, the shape check) is a few microseconds. OpenBLAS"
-        " runs that sgemv on one thread below rows x cols = 460,800 and on its"
-        " thread pool from there; the map stores each period's templates in a"
-        " block of equal rows (spare rows zero, bias -inf) grown to that size,"
-        " which shares the product between the 2 cores (compare the first two"
-        " rows). The batch decode multiplies numpy queries by numpy's BLAS"
-        " where they lie and runs the rest jitted. The"
-        " numpy paths are timed in turns, so the load falls on each alike; the"
-        " thread pool's p95 grows with the load (the other core is busy).",
+        f"Targets: one descriptor -> place <= 20 us median: {met} by RhythmicMap.locate"
+        f" ({locate:.1f} us; predict on one row {predict:.1f} us; faiss flat on one row"
+        f" {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x longer); batch decoding >="
+        f" 40x faiss flat: {'met' if ratio >= 40 else 'not met'} ({ratio:.1f}x). A"
+        " query's cost is the templates' product with it: the rest (bias, one argmax"
+        " over both periods' blocks of rows, one look-up in the table of every phase"
+        " pair's place, the shape check) is a few microseconds. OpenBLAS runs that"
+        " sgemv on one thread below rows x cols = 460,800 and on its thread pool from"
+        " there; the map stores each period's templates in a block of equal rows (spare"
+        " rows zero, bias -inf) grown to that size, which shares the product between"
+        " the 2 cores (compare the first two rows). The batch decode multiplies numpy"
+        " queries by numpy's BLAS where they lie and runs the rest jitted. The numpy"
+        " paths are timed in turns, so the load falls on each alike; the thread pool's"
+        " p95 grows with the load (the other core is busy).",
     ])  # fmt: skip
 
 

@@ -179,18 +179,17 @@ SAMPLED = ["period", "phase", "LinearSVC s", "iterations", "converged", "objecti
 def _newton_line(label: str, nw: dict) -> str:
     cfg = nw["config"]
     return (
-        f"Newton {label} (gap_tol {cfg['gap_tol']:g}, eta {cfg['eta']:g},"
-        f" max_cg {cfg['max_cg']}, cg_start {cfg.get('cg_start')}, rank {cfg['rank']},"
-        f" block {cfg['block']}, gradient summed in"
+        f"Newton {label} (gap_tol {cfg['gap_tol']:g}, eta {cfg['eta']:g}, max_cg"
+        f" {cfg['max_cg']}, cg_start {cfg.get('cg_start')}, rank {cfg['rank']}, block"
+        f" {cfg['block']}, gradient summed in"
         f" {'float64' if cfg.get('exact_gradient', True) else 'float32'}):"
         f" {nw['steps']} steps, CG iterations {nw['cg_iterations']} over"
-        f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their"
-        f" products {nw['gflop']:,.4g} GFLOP with {cfg.get('hessian', 'float32')}"
-        " inputs, summed in float32, i.e."
-        f" {nw['gflop'] / nw['seconds']:.3g} GFLOP/s over the solve's wall time);"
-        f" largest estimated gap at the end {nw['max_gap_estimate']:.2e};"
-        f" {100 * nw['active_fraction']:.1f} % of (frame, template) margins active"
-        f" (< 1); first call (compiles) {nw['warmup_s']:.1f} s; periods chosen"
+        f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their products"
+        f" {nw['gflop']:,.4g} GFLOP with {cfg.get('hessian', 'float32')} inputs, summed"
+        f" in float32, i.e. {nw['gflop'] / nw['seconds']:.3g} GFLOP/s over the solve's"
+        f" wall time); largest estimated gap at the end {nw['max_gap_estimate']:.2e};"
+        f" {100 * nw['active_fraction']:.1f} % of (frame, template) margins active (<"
+        f" 1); first call (compiles) {nw['warmup_s']:.1f} s; periods chosen"
         f" {nw['chosen_periods']}."
     )
 
@@ -242,23 +241,20 @@ def case_markdown(r: dict) -> str:
         f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
         f" {r['c']:.4f}. The load changed between solvers: see each row.",
         timing,
-        "LinearSVC(loss='squared_hinge', dual=True, C=log N, tol=1e-4,"
-        " max_iter=1000; intercept_scaling=1 makes the bias a regularised"
-        " constant-1 feature, the same objective) was run on"
-        f" {s['sampled']} of the {r['p']} templates only;"
-        f" its time is EXTRAPOLATED: per template {per['mean']:.2f} s mean"
-        f" (std {per['std']:.2f}, min {per['min']:.2f}, max {per['max']:.2f}),"
-        f" times p = {r['p']}: {s['extrapolated_s']:.0f} s (range"
-        f" {lo:.0f}-{hi:.0f} s from the fastest and slowest sampled template)."
-        f" liblinear runs on one thread, the JAX solvers on {r['xla_threads']}"
-        " (XLA's pool): CPU seconds (all threads of the process) count the"
-        " work, wall seconds what a user waits. Newton's times include its"
-        " setup (Xa^T Xa, the leading eigenvectors); its first call, which"
+        "LinearSVC(loss='squared_hinge', dual=True, C=log N, tol=1e-4, max_iter=1000;"
+        " intercept_scaling=1 makes the bias a regularised constant-1 feature, the same"
+        f" objective) was run on {s['sampled']} of the {r['p']} templates only; its"
+        f" time is EXTRAPOLATED: per template {per['mean']:.2f} s mean (std"
+        f" {per['std']:.2f}, min {per['min']:.2f}, max {per['max']:.2f}), times p ="
+        f" {r['p']}: {s['extrapolated_s']:.0f} s (range {lo:.0f}-{hi:.0f} s from the"
+        " fastest and slowest sampled template). liblinear runs on one thread, the JAX"
+        f" solvers on {r['xla_threads']} (XLA's pool): CPU seconds (all threads of the"
+        " process) count the work, wall seconds what a user waits. Newton's times"
+        " include its setup (Xa^T Xa, the leading eigenvectors); its first call, which"
         " also compiles, is reported below.",
         _newton_line("0.1 % gap", fast),
         _newton_line("tight", tight),
-        f"L-BFGS: {lb['steps']} steps (warm-up of two steps"
-        f" {lb['warmup_s']:.1f} s).",
+        f"L-BFGS: {lb['steps']} steps (warm-up of two steps {lb['warmup_s']:.1f} s).",
         f"Aim (>= {AIM_SPEEDUP:.0f}x over LinearSVC at <= {100 * AIM_GAP:.1f} %"
         f" objective gap, the 0.1 % setting): {'met' if aim else 'NOT met'}"
         f" ({fast['speedup_vs_linearsvc']:.1f}x wall,"

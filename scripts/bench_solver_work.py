@@ -106,21 +106,18 @@ def markdown(r: dict) -> str:
                  str(drop["columns"]), drop["work"], str(drop["chosen"])],
             ],
         ),  # fmt: skip
-        "The wall times differ by the machine's load only where the work is"
-        " the same.",
+        "The wall times differ by the machine's load only where the work is the same.",
         f"Candidates stopped (step, periods): {drop['dropped'] or 'none'}. Same"
         f" periods chosen: {same}; largest relative objective difference of the"
         f" chosen periods' templates between the two solves: {r['chosen_gap']:.1e}.",
-        "Training errors (frames) of every candidate after every Newton step of"
-        " the full solve, and the most any candidate still moves from there to"
-        " the end (what a safe slack must cover, for each of the 2r errors"
-        " compared):",
+        "Training errors (frames) of every candidate after every Newton step of the"
+        " full solve, and the most any candidate still moves from there to the end"
+        " (what a safe slack must cover, for each of the 2r errors compared):",
         table(["step", *(str(t) for t in cands), "largest move to the end"], rows),
-        f"Frames beyond the margin for every one of the {sum(cands)} templates at"
-        f" the end (which liblinear-style shrinking could drop from the dense"
-        f" products): {act['idle_frames']} of {n}; every frame is active"
-        f" (margin < 1) for {act['min']} templates at least, {act['mean']:.0f} on"
-        " average.",
+        f"Frames beyond the margin for every one of the {sum(cands)} templates at the"
+        " end (which liblinear-style shrinking could drop from the dense products):"
+        f" {act['idle_frames']} of {n}; every frame is active (margin < 1) for"
+        f" {act['min']} templates at least, {act['mean']:.0f} on average.",
     ])])  # fmt: skip
 
 

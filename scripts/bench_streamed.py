@@ -59,14 +59,13 @@ def markdown(report: dict) -> str:
     title = "Streamed Newton-CG: preconditioner and compacted passes"
     lines = header(title, report)
     lines += [
-        "Each case runs the streamed fit (`FAST_STREAM`: a template stops once"
-        " its estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40"
-        f" Newton steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped"
-        " `.npy`) in three settings, in turns. Reached: templates whose"
-        " estimated gap met 1e-3. True gap: (f - f*) / f* of the final"
-        " objectives against the in-memory Newton optimum (tight) of the same"
-        " frames. Column-passes: templates carried, summed over every pass"
-        " (gradient, CG, two line-search passes per step).",
+        "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
+        " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
+        f" steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped `.npy`) in"
+        " three settings, in turns. Reached: templates whose estimated gap met 1e-3."
+        " True gap: (f - f*) / f* of the final objectives against the in-memory Newton"
+        " optimum (tight) of the same frames. Column-passes: templates carried, summed"
+        " over every pass (gradient, CG, two line-search passes per step).",
         "",
     ]
     rows = []

@@ -646,9 +646,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def run(args) -> dict[str, Any]:
     settings = dataclasses.replace(QUICK if args.quick else FULL, threads=args.threads)
-    preds = args.predictions or args.cache_dir / (
-        "reproduction_quick.npz" if args.quick else "reproduction.npz"
-    )
+    preds = args.predictions or args.cache_dir / f"{args.stem}.npz"
     load_start, t0 = h.load_average(), time.perf_counter()
     run = Run(settings, args.cache_dir, args.progress)
     data = load_features(run)
