@@ -104,11 +104,8 @@ def brute_row(ref, qry, label, emb_bytes=0) -> dict:
 def seqslam_row(ref, qry) -> dict:
     t0 = time.perf_counter()
     row = dict(method="SeqSLAM raw", storage_bytes=int(np.asarray(ref).size * 4))
-    for L in LENGTHS:
-        idx, _ = seqslam_decode(qry, ref, L, progress=False)
-        row[f"L{L}"] = _acc(idx)
-    row["seconds"] = time.perf_counter() - t0
-    return row
+    row |= {f"L{L}": _acc(seqslam_decode(qry, ref, L)[0]) for L in LENGTHS}
+    return row | dict(seconds=time.perf_counter() - t0)
 
 
 def fit_map(ref, *, labels=None, emb=None, **kw) -> tuple[RhythmicMap, float]:
@@ -152,10 +149,8 @@ def eval_row(m: RhythmicMap, ref, qry, label: str, fit_s: float) -> dict:
                self_r1=_acc(m.predict(ref[: m.n], "soft"), 0),
                storage_bytes=m.storage_bytes, embedding_bytes=m.embedding_bytes,
                fit_seconds=fit_s)  # fmt: skip
-    for L in LENGTHS:
-        row[f"L{L}"] = _acc(m.predict(qry, "soft", sequence=L))
-    row["seconds"] = fit_s + time.perf_counter() - t0
-    return row
+    row |= {f"L{L}": _acc(m.predict(qry, "soft", sequence=L)) for L in LENGTHS}
+    return row | dict(seconds=fit_s + time.perf_counter() - t0)
 
 
 def map_row(ref, qry, label, *, labels=None, emb=None, **kw) -> dict:

@@ -54,7 +54,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
         single = time_single_queries(fn, queries[:singles], warmup=10)
         out[label] = dict(batch=batch, single=single)
         h.log.info("  %s: %.0f queries/s, single median %.3f ms", label,
-                 batch["queries_per_s"], 1e3 * single["median_s"])  # fmt: skip
+                   batch["queries_per_s"], 1e3 * single["median_s"])  # fmt: skip
     top = fns["faiss"](queries)[1]
     r, f = out["rhythmic"], out["faiss"]
     return dict(

@@ -342,7 +342,7 @@ def run(args: argparse.Namespace) -> dict:
             for level in args.levels:
                 model = fitted_map(ref, level, name, args.progress)
                 h.log.info("%s %s level %d, periods %s", dataset, name, level,
-                         model.periods)  # fmt: skip
+                           model.periods)  # fmt: skip
                 blocks.append(dict(dataset=dataset, descriptor=name,
                                    settings=get_descriptor(name).settings(),
                                    level=level, n=int(model.n), d=int(model.d),

@@ -113,8 +113,7 @@ def run(args) -> dict | None:
         raise SystemExit("--features (or --write-features) is required")
     both = np.load(args.features)
     summer, winter = (np.asarray(x[: args.rows], np.float32) for x in both[:2])
-    gpus = [d for d in jax.devices() if d.platform == "gpu"]
-    gpu = gpus[0] if gpus else None
+    gpu = next((d for d in jax.devices() if d.platform == "gpu"), None)
     results = {"gpu": run_on(gpu, summer, winter, args) if gpu else None}
     results["cpu"] = run_on(jax.devices("cpu")[0], summer, winter, args)
     report = dict(

@@ -82,7 +82,7 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     (params, info), seconds, cpu = h.timed(newton_fit, x, y, c, config,
                                            progress=progress)  # fmt: skip
     h.log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
-             info.steps, info.cg_iterations, info.columns)  # fmt: skip
+               info.steps, info.cg_iterations, info.columns)  # fmt: skip
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
     cfg = {k: getattr(config, k) for k in keys}
     cfg["hessian"] = resolve_hessian_dtype(config.hessian_dtype) or "float32"
@@ -118,13 +118,11 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     y = np.asarray(targets(labels, cands))
     x64, y64 = x.astype(np.float64), y.astype(np.float64)
     h.log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
-
     load_svc = h.load_average()
     svc = run_linearsvc(x64, y64, c, sampled_columns(cands, samples))
     w_f, fast = run_newton(x, y, c, FAST, progress)
     w_t, tight = run_newton(x, y, c, NewtonConfig(), progress)
     w_l, hist, lbfgs = run_lbfgs(x, y, c, progress)
-
     f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
                      for w in (w_f, w_t, w_l))  # fmt: skip
     cols = [t["column"] for t in svc]
@@ -303,7 +301,7 @@ def run(args) -> dict:
         cases.append(bench_case(name, x[: args.frames], samples, args.progress))
     else:
         h.log.warning("no Nordland data under %s: the real-frame case is left out",
-                    args.root)  # fmt: skip
+                      args.root)  # fmt: skip
     xv = video_like(args.video_frames, args.video_dim, **VIDEO)
     cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
     # mean cosine of frames lag apart (the rows are unit vectors)

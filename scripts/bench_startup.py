@@ -14,15 +14,7 @@ from _harness import REPO, bytecode, child, header, log, main, table
 
 HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
 QUICK = dict(repeats=1)  # --quick
-
-
-def commands(map_path: Path) -> dict[str, list[str]]:
-    script = shutil.which("rhythmic-jax") or "rhythmic-jax"
-    return {
-        "import rhythmic_jax": [sys.executable, "-c", "import rhythmic_jax"],
-        "rhythmic-jax --help": [script, "--help"],
-        "rhythmic-jax info MAP": [script, "info", str(map_path)],
-    }
+SCRIPT = shutil.which("rhythmic-jax") or "rhythmic-jax"
 
 
 # Run in a bare interpreter (no harness, so no numpy of its own): the heavy
@@ -52,8 +44,7 @@ def fit_map(folder: Path) -> Path:
     rng = np.random.default_rng(0)
     x = rng.standard_normal((600, 64)).astype(np.float32)
     np.save(folder / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
-    script = shutil.which("rhythmic-jax") or "rhythmic-jax"
-    cmd = [script, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
+    cmd = [SCRIPT, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
     child([*cmd, "--no-progress"], REPO)
     return folder / "route.map"
 
@@ -93,7 +84,12 @@ def run(args) -> dict:
         checkouts = {"before": args.before.resolve(), "after": REPO}
     bytecode(*checkouts.values())
     with tempfile.TemporaryDirectory() as tmp:
-        cmds = commands(fit_map(Path(tmp)))
+        route = fit_map(Path(tmp))
+        cmds = {
+            "import rhythmic_jax": [sys.executable, "-c", "import rhythmic_jax"],
+            "rhythmic-jax --help": [SCRIPT, "--help"],
+            "rhythmic-jax info MAP": [SCRIPT, "info", str(route)],
+        }
         seconds = {name: {v: [] for v in checkouts} for name in cmds}
         loads = {name: {v: loaded(path, cmd) for v, path in checkouts.items()}
                  for name, cmd in cmds.items()}  # fmt: skip

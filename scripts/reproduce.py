@@ -235,21 +235,6 @@ def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
                 compression_ratio=model.compression_ratio, **fit)  # fmt: skip
 
 
-def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """key -> (map images, map features, query features): Nordland summer ->
-    winter, winter (for Table 2), aerial LEVIR A -> B."""
-    kw = dict(progress=run.progress)
-    summer, winter = h.nordland_images(h.DATA, **kw)
-    xs, xw = h.nordland_features(h.DATA, run.desc, **kw)
-    xa, xb, route = h.aerial_features(h.DATA, run.desc, **kw)
-    n = run.settings.frames or len(xs)
-    return {
-        "nordland": (summer.images[:n], xs[:n], xw[:n]),
-        "winter": (winter.images[:n], xw[:n], xs[:n]),
-        "aerial": (route.map_tiles, xa, xb),
-    }
-
-
 def table2(run: Run, data, fits) -> list[dict]:
     """Paper Table 2: the queries are the map's own frames; exact accuracy."""
     out = []
@@ -649,7 +634,18 @@ def run(args) -> dict[str, Any]:
     preds = args.predictions or args.cache_dir / f"{args.stem}.npz"
     load_start, t0 = h.load_average(), time.perf_counter()
     run = Run(settings, args.cache_dir, args.progress)
-    data = load_features(run)
+    # key -> (map images, map features, query features): Nordland summer ->
+    # winter, winter (for Table 2), aerial LEVIR A -> B
+    kw = dict(progress=args.progress)
+    summer, winter = h.nordland_images(h.DATA, **kw)
+    xs, xw = h.nordland_features(h.DATA, run.desc, **kw)
+    xa, xb, route = h.aerial_features(h.DATA, run.desc, **kw)
+    n = settings.frames or len(xs)
+    data = {
+        "nordland": (summer.images[:n], xs[:n], xw[:n]),
+        "winter": (winter.images[:n], xw[:n], xs[:n]),
+        "aerial": (route.map_tiles, xa, xb),
+    }
     # every plain r = 2 map: summer and aerial at each level, winter at two
     plan = [(k, lv) for k in ("nordland", "aerial") for lv in settings.levels]
     plan += [("winter", lv) for lv in settings.levels[:2]]
