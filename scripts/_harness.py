@@ -105,10 +105,9 @@ def fastest(fn: Callable[[], object], repeats: int):
 
 
 def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
-    """``cmd`` in a fresh process (``checkout``'s package first on the path, JAX on
-    the CPU unless said, ``extra`` in its environment): rc, wall and CPU seconds and
-    peak resident bytes (its process tree), stdout, stderr and the 1-minute load
-    after it."""
+    """``cmd`` in a fresh process (``checkout`` first on the path, JAX on the CPU
+    unless said, ``extra`` in its environment): rc, wall and CPU seconds, peak
+    resident bytes (its process tree), stdout, stderr, the 1-minute load after."""
     env = dict(os.environ if env is None else env, TF_CPP_MIN_LOG_LEVEL="3", **extra)
     env.setdefault("JAX_PLATFORMS", "cpu")
     if checkout is not None:
@@ -130,9 +129,8 @@ def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
 
 
 def bytecode(*checkouts: Path) -> None:
-    """Compile each checkout's package to bytecode before it is timed, so no job
-    compiles Python (a checkout without .pyc files, or a shell that sets
-    PYTHONDONTWRITEBYTECODE, would otherwise in every process)."""
+    """Compile each checkout's package to bytecode before it is timed (without .pyc
+    files, or under PYTHONDONTWRITEBYTECODE, every job would compile Python)."""
     import compileall
 
     for tree in checkouts:
@@ -152,16 +150,14 @@ def job_env(compile_cache: str | None = None) -> dict[str, str]:
 
 
 def command(fn, *args) -> list[str]:
-    """The command that runs ``fn(*args)`` of a script in a fresh process (JSON
-    arguments) and prints its answer as JSON, last."""
+    """The command that runs ``fn(*args)`` of a script afresh, printing its JSON."""
     script = Path(sys.modules[fn.__module__].__file__).stem
     return [sys.executable, str(Path(__file__).resolve()), script, fn.__name__,
             json.dumps(args)]  # fmt: skip
 
 
 def call(fn, *args, checkout=None, **kw) -> dict:
-    """:func:`command` run by :func:`child` (``kw``: its options): its record, with
-    ``result`` the function's answer."""
+    """:func:`child`'s record of :func:`command` (``kw``), ``result`` the answer."""
     r = child(command(fn, *args), checkout, **kw)
     r["result"] = json.loads(r["stdout"].splitlines()[-1]) if r["rc"] == 0 else None
     return r
@@ -264,8 +260,7 @@ def unit_rows(a) -> np.ndarray:
 
 
 def digest(ident, *arrays) -> str:
-    """16 hex digits of sha256 over ``ident`` (JSON, sorted keys; a str as is)
-    and the bytes of ``arrays``: the key of a cached fit."""
+    """A cached fit's key: 16 hex digits of sha256 over ``ident`` and ``arrays``."""
     text = ident if isinstance(ident, str) else json.dumps(ident, sort_keys=True,
                                                            default=str)  # fmt: skip
     h = hashlib.sha256(text.encode())
@@ -389,12 +384,11 @@ def parser(doc: str) -> argparse.ArgumentParser:
 
 def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report",
          argv=None, refresh=None, md_stem=None, quick=None):  # fmt: skip
-    """Parse, record the machine, ``run(args)``, then write and print the
-    report; returns it. ``--quick`` gives the options ``quick`` names their values
-    there (those left at their defaults) and the report the name ``<stem>_quick``.
-    ``run`` may set ``args.stem`` (the report's name) and return None (nothing to
-    write). ``refresh(report, args)`` updates the report ``--render`` read back from
-    ``args.render`` before it is rendered."""
+    """Parse, record the machine, ``run(args)``, write and print the report; return
+    it. ``--quick`` sets the options in ``quick`` left at their defaults and names
+    the report ``<stem>_quick``. ``run`` may set ``args.stem`` (the report's name)
+    and return None (nothing to write). ``refresh(report, args)`` updates the report
+    ``--render`` read from ``args.render`` before it is rendered."""
     ap = parser(doc)
     if options:
         options(ap)

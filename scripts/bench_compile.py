@@ -87,8 +87,7 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
 
 
 def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
-    """(name, environment) of base, new cold, new warm: the warm run reuses the
-    cold run's compile cache (and network)."""
+    """(name, environment) of base, new cold and new warm (reusing the cold cache)."""
     env = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
     jit = tmp / "jit"
     new = {**env, "PYTHONPATH": str(h.REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}

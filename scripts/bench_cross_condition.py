@@ -324,8 +324,7 @@ HEADS = ["method", "R@1", "exact", "R@5", "L=5", "L=10", "L=20", "self",
 
 
 def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
-    """The ``where`` rows (by default the map's: alone, hybrid, digits) that have
-    ``key``, within ``budget``."""
+    """The ``where`` rows (default: the map's) that have ``key``, within ``budget``."""
     return [r for r in rows if where(r) and key in r
             and (budget is None or r["ratio"] <= budget + 1e-12)]  # fmt: skip
 

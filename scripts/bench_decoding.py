@@ -38,8 +38,7 @@ GRIDS = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
 
 
 def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
-    """``RhythmicMap(r=2, level=level).fit(x)``, cached on disk by features and
-    settings (a fit on 3576 frames takes minutes)."""
+    """``RhythmicMap(r=2, level=level).fit(x)``, cached on disk (minutes a fit)."""
     settings = get_descriptor(descriptor).settings()
     model = RhythmicMap(r=2, level=level, descriptor=descriptor,
                         descriptor_settings=settings)  # fmt: skip
@@ -57,8 +56,7 @@ def _row(method, out, gt, seconds, storage, **extra) -> dict:
 
 
 def per_period(fn):
-    """(T, p) -> (T, p): ``fn`` on each period's block of every frame's scores,
-    jitted (the periods static)."""
+    """(T, p) -> (T, p): ``fn`` on each period's block of scores, jitted."""
 
     @functools.partial(jax.jit, static_argnames=("periods",))
     def apply(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:

@@ -59,8 +59,7 @@ def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
 
 
 def fresh_cache(tmp: Path, warm: Path | None) -> Path:
-    """An empty descriptor cache; with ``warm``, holding that cache's built
-    network and compiled programs (a second job on the machine)."""
+    """An empty descriptor cache, or with ``warm``'s network and compiled programs."""
     cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
     for kept in ("compiled", "jax") if warm is not None else ():
         if (warm / kept).is_dir():

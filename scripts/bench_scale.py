@@ -40,8 +40,7 @@ def fitted(stdout: str) -> dict:
 
 
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
-    """Route-like frames (n, d) float32, unit rows: a smooth random walk plus an
-    independent perturbation per frame."""
+    """Route-like unit rows (n, d) float32: a smooth random walk, perturbed per row."""
     rng = np.random.default_rng(seed)
     x = np.empty((n, d), np.float32) if out is None else out
     pos = rng.normal(size=d) * 4.0
@@ -70,8 +69,7 @@ def dtypes(model: RhythmicMap) -> dict[str, RhythmicMap]:
 
 
 def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
-    """Fit one cell (source, n, d, r, processes, mode, rule) in a fresh process
-    and measure it."""
+    """Fit one cell (source, n, d, r, processes, mode, rule) afresh; measure it."""
     source, n, d, r, procs, mode, rule = cell
     out = tmp / f"{_key(cell)}.map"
     if rule == "least":  # fixed periods imply r
@@ -101,11 +99,8 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
 
 def rule_sums(n: int, r: int) -> tuple[int, int]:
     """Least and largest summed periods the candidate rule can choose at n places."""
-    sums = [
-        sum(c)
-        for c in itertools.combinations(candidate_periods(n, r), r)
-        if pairwise_coprime(c) and math.prod(c) >= n
-    ]
+    sets = itertools.combinations(candidate_periods(n, r), r)
+    sums = [sum(c) for c in sets if pairwise_coprime(c) and math.prod(c) >= n]
     return min(sums), max(sums)
 
 
@@ -115,8 +110,7 @@ def rule_range(ns: list[int], r: int) -> tuple[float, float]:
     lx = np.log(np.asarray(ns, float))
     w = (lx - lx.mean()) / np.sum((lx - lx.mean()) ** 2)
     sums = np.log([rule_sums(int(n), r) for n in ns])  # (points, 2): least, largest
-    low = np.where(w > 0, sums[:, 0], sums[:, 1])
-    high = np.where(w > 0, sums[:, 1], sums[:, 0])
+    low, high = (np.where(w > 0, sums[:, i], sums[:, 1 - i]) for i in (0, 1))
     return float(w @ low), float(w @ high)
 
 
@@ -129,10 +123,8 @@ def series(rows: list[dict], source: str, d: int, r: int, rule="errors") -> list
     one = [x for x in rows if (x["source"], x["d"], x["r"], x["processes"], _rule(x))
            == (source, d, r, 1, rule)]  # fmt: skip
     held = {x["n"] for x in one if x["mode"] == "memory"}
-    return sorted(
-        (x for x in one if x["mode"] == "memory" or x["n"] not in held),
-        key=lambda x: x["n"],
-    )
+    kept = [x for x in one if x["mode"] == "memory" or x["n"] not in held]
+    return sorted(kept, key=lambda x: x["n"])
 
 
 def slopes(rows: list[dict]) -> list[dict]:
@@ -167,7 +159,6 @@ def _group(r: dict) -> tuple:
 def figures(rows: list[dict], out_dir: Path) -> list[str]:
     from rhythmic_jax.eval.figures import new_figure, save_figure
 
-    names = []
     plots = (("storage_bytes", "map bytes", "scale_storage"),
              ("fit_seconds", "fit seconds", "scale_time"),
              ("pass_median_s", "seconds per pass", "scale_pass"))  # fmt: skip
@@ -181,8 +172,7 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
         ax.set(xlabel="N (places)", ylabel=label)
         ax.legend(fontsize=6)
         save_figure(fig, out_dir / f"{stem}.png", dpi=110)
-        names.append(f"{stem}.png")
-    return names
+    return [f"{stem}.png" for _, _, stem in plots]
 
 
 def _num(v, digits):

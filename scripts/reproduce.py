@@ -183,8 +183,7 @@ class Run:
         return h.cached_fit(model, x, self.cache_dir, fit, extra, (images,), "aug-")
 
     def fit_baseline(self, b, x: np.ndarray) -> float:
-        """Fit a faiss-backed baseline (ITQ, OPQ), or restore its trained index
-        and settings from ``cache_dir``; returns the seconds the fit took."""
+        """Fit a faiss baseline (ITQ, OPQ) or restore it from ``cache_dir``: fit s."""
         import faiss
 
         ident = {k: v for k, v in vars(b).items() if k != "n_threads"}
@@ -623,8 +622,7 @@ def options(ap) -> None:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Run (or ``--render``) the reproduction; writes ``reproduction.json`` and
-    ``REPRODUCTION.md`` into ``--out`` (``_quick`` after each name under --quick)."""
+    """Run or render reproduction.json and REPRODUCTION.md (``_quick`` if --quick)."""
     return h.main(__doc__, run, markdown, options, "reproduction", argv,
                   md_stem="REPRODUCTION")  # fmt: skip
 
