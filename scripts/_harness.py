@@ -279,8 +279,7 @@ def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=
 
     x = np.ascontiguousarray(x, np.float32)
     ident = dict(config=dataclasses.asdict(model.config), shape=list(x.shape))
-    h = digest(ident | (extra or {}), x, *arrays)
-    cfg = model.config
+    h, cfg = digest(ident | (extra or {}), x, *arrays), model.config
     path = Path(folder) / f"{tag}{cfg.descriptor}-L{cfg.level}-n{len(x)}-{h}.map"
     side = path.with_name(path.name + ".fit.json")
     if (path / "map.json").is_file():

@@ -46,8 +46,7 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    generator = torch.Generator().manual_seed(0)
-    rows = []
+    generator, rows = torch.Generator().manual_seed(0), []
     for threads in args.threads:
         torch.set_num_threads(threads)
         for h, w in SIZES[:1] if args.quick else SIZES:

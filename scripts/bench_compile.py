@@ -111,8 +111,7 @@ def run(args) -> dict:
     (n_fit, d_fit), n_nord, n_jpeg = small
     rows, agree = [], {}
     with tempfile.TemporaryDirectory(prefix="bench_compile") as tmpdir:
-        tmp = Path(tmpdir)
-        inputs = {}
+        tmp, inputs = Path(tmpdir), {}
         if "fit" in jobs:
             inputs["fit"] = tmp / "route.npy"
             np.save(inputs["fit"], route(n_fit, d_fit))

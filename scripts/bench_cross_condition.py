@@ -49,8 +49,7 @@ def _acc(pred, tol=TOL) -> float:
 
 def _recall(scores, k: int) -> float:
     scores = np.asarray(scores)
-    gt = np.arange(len(scores))
-    top = np.argpartition(-scores, k, axis=1)[:, :k]
+    gt, top = np.arange(len(scores)), np.argpartition(-scores, k, axis=1)[:, :k]
     return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
 
 
@@ -130,8 +129,7 @@ def train_weight(train, emb, pair, codes, n: int) -> tuple[float, dict]:
     t = max(2, round(pair[0] * len(ref) / n))  # as many places a phase as on test
     m, _ = fit_map(ref, emb=emb, layout=f"periods:{t},{t + 1}")
     hy = with_codes(m, ref, codes)
-    q = apply(emb, qry) if emb is not None else qry
-    sims = hy.codebook.similarity(q)
+    sims = hy.codebook.similarity(apply(emb, qry) if emb is not None else qry)
     return learn_weight(m.scores(qry), sims, m.periods, m.n, np.arange(len(qry)), TOL)
 
 
@@ -218,8 +216,7 @@ def augmented_row(ref, images, desc, qry, level, seed=0) -> dict:
     cfg = ko.AugmentConfig()
     aug = [ko.to_images(ko.augment(ko.to_batch(images[i : i + 256]), cfg, seed + i)[0])
            for i in range(0, len(images), 256)]  # fmt: skip
-    x_aug = describe(np.concatenate(aug), desc)
-    x = np.concatenate([ref, x_aug])
+    x = np.concatenate([ref, describe(np.concatenate(aug), desc)])
     labels = np.concatenate([np.arange(len(ref))] * 2)
     row = map_row(x, qry, "map raw + augmentation (all seven, 2 exemplars)",
                   labels=labels, level=level)  # fmt: skip

@@ -32,8 +32,7 @@ def random_features(n: int, d: int, b: int, seed: int):
 
 def random_map(d: int, periods: tuple[int, ...], seed: int) -> Templates:
     """Templates with random weights (d, p) and biases (p,)."""
-    rng = np.random.default_rng(seed)
-    p = sum(periods)
+    rng, p = np.random.default_rng(seed), sum(periods)
     w = rng.standard_normal((d, p), dtype=np.float32) / np.float32(np.sqrt(d))
     b = rng.standard_normal(p, dtype=np.float32) * np.float32(0.01)
     return Templates(jnp.asarray(w), jnp.asarray(b))

@@ -150,8 +150,7 @@ def _speeds(speeds) -> str:
 
 def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Single-frame brute force and SeqSLAM-style sequences on full descriptors."""
-    storage = ref.size * 4
-    flat = BruteForce(n_threads=h.cores()).fit(ref)
+    storage, flat = ref.size * 4, BruteForce(n_threads=h.cores()).fit(ref)
     pred, sec = h.fastest(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
     for window in (None, CONTRAST_WINDOW):
@@ -188,8 +187,7 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
 def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     """Hold 20 % of the route out of the map; query every winter frame."""
     hold = ol.holdout_split(len(ref), **HOLDOUT)
-    gt = hold.gt()
-    first = np.arange(len(qry)) < len(qry) // 2
+    gt, first = hold.gt(), np.arange(len(qry)) < len(qry) // 2
     kept = ref[hold.fit]
     model = fitted_map(kept, level, descriptor, progress)
     per, n = model.periods, model.n
@@ -205,8 +203,7 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
             cases[f"{label}, {kind}"] = ol.decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
-    flat = BruteForce(n_threads=h.cores()).fit(kept)
-    sim, top = flat.search(qry, 1)
+    sim, top = BruteForce(n_threads=h.cores()).fit(kept).search(qry, 1)
     cases["brute force, cosine"] = (top[:, 0], ol.finite_confidence(sim[:, 0]))
     for w in (None, CONTRAST_WINDOW):
         idx, score = sq.seqslam_decode(qry, kept, GRID_LENGTH, contrast_window=w)

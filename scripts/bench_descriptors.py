@@ -25,8 +25,7 @@ PCA_OF = "efficientnet_lite0 b10 224x112"
 
 def recall_at_1(queries: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     """Unit-norm rows; ground truth is the same index. (exact, within +-1)."""
-    nearest = np.argmax(queries @ reference.T, axis=1)
-    err = np.abs(nearest - np.arange(len(queries)))
+    err = np.abs(np.argmax(queries @ reference.T, axis=1) - np.arange(len(queries)))
     return float(np.mean(err == 0)), float(np.mean(err <= 1))
 
 

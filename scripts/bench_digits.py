@@ -73,8 +73,7 @@ def measure(groups: Groups, s_self, s_query, n: int, gt) -> dict:
 
 
 def brute(summer, winter, gt) -> dict:
-    sim = winter @ summer.T
-    top = np.argsort(-sim, axis=1)[:, :5]
+    top = np.argsort(-(winter @ summer.T), axis=1)[:, :5]
     row = {
         "soft_raw": accuracy(top[:, 0], gt, TOL),
         "soft_raw_exact": accuracy(top[:, 0], gt, 0),
@@ -134,8 +133,7 @@ def run(args) -> dict:
     summer, winter = (np.ascontiguousarray(np.load(path % s, mmap_mode="r")[test])
                       for s in ("summer", "winter"))  # fmt: skip
     n, d = summer.shape
-    gt = np.arange(n)
-    maps = layouts(n, [int(v) for v in args.levels.split(",")])
+    gt, maps = np.arange(n), layouts(n, [int(v) for v in args.levels.split(",")])
     y = jnp.concatenate([targets(gt, g) for _, _, g in maps], axis=1)
     log.info("fitting %d templates on %d x %d", y.shape[1], n, d)
     fit = summer, y, default_c(n), NewtonConfig()

@@ -34,8 +34,7 @@ def measure(repeats: int, shapes: list[str]) -> list[dict]:
     RhythmicMap().fit(rng.normal(size=(48, 8)).astype(np.float32), progress=False)
     for shape in shapes:
         n, d = map(int, shape.split("x"))
-        p = sum(candidate_periods(n))
-        x = rng.normal(size=(n, d)).astype(np.float32)
+        p, x = sum(candidate_periods(n)), rng.normal(size=(n, d)).astype(np.float32)
         estimate = sum(fit_bytes(n, d, p).values())
         admitted = check_memory(n, d, p, limit_bytes=estimate) == estimate
         t0 = time.perf_counter()

@@ -40,10 +40,8 @@ def run(args) -> dict:
     (summer,) = nordland_images(args.root, ("summer",))
     images = summer.images[: args.frames]
     with torch.inference_mode():
-        x = desc.prepare(_to_batch(images))
-        net = desc.network().eval()
-        reference = net(x[:64]).numpy()
-        rows = []
+        x, net = desc.prepare(_to_batch(images)), desc.network().eval()
+        reference, rows = net(x[:64]).numpy(), []
         with tempfile.TemporaryDirectory(prefix="bench_network") as cache:
             for b in args.batches:
                 eager = frames_per_s(compiled.Sliced(net, b), x, args.repeats)

@@ -43,8 +43,7 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
     faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
     w, b, per = fr.fitted_map(ref, r, level, gap, cache)
-    book = fr.fitted_codes(ref, bits, cache)
-    n = len(ref)
+    book, n = fr.fitted_codes(ref, bits, cache), len(ref)
     wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
     index = faiss.IndexBinaryFlat(bits)
     index.add(pack_bits(book.codes))
@@ -182,8 +181,7 @@ def run(args) -> dict:
                              progress=args.progress)  # fmt: skip
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
     given = {k: v for k in ("maps", "bits") if (v := getattr(args, k))}
-    cfg = dataclasses.replace(fr.FrontierConfig(), **given)
-    t0 = time.perf_counter()
+    cfg, t0 = dataclasses.replace(fr.FrontierConfig(), **given), time.perf_counter()
     cache = args.cache or None
     rows = fr.frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
     rep = {

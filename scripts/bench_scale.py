@@ -45,8 +45,7 @@ def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
     x = np.empty((n, d), np.float32) if out is None else out
     pos = rng.normal(size=d) * 4.0
     for lo in range(0, n, 8192):
-        steps = rng.normal(size=(min(8192, n - lo), d)) * 0.05
-        block = pos + np.cumsum(steps, axis=0)
+        block = pos + np.cumsum(rng.normal(size=(min(8192, n - lo), d)) * 0.05, axis=0)
         pos = block[-1]
         block = block / np.linalg.norm(block, axis=1, keepdims=True)
         block += rng.normal(size=block.shape) * (0.5 / np.sqrt(d))
@@ -137,8 +136,7 @@ def slopes(rows: list[dict]) -> list[dict]:
         if len(set(ns)) < 2:
             continue
         lx, ly = np.log(ns), np.log([p["storage_bytes"] for p in pts])
-        slope = float(np.polyfit(lx, ly, 1)[0])
-        top = np.asarray(ns) >= 10000
+        slope, top = float(np.polyfit(lx, ly, 1)[0]), np.asarray(ns) >= 10000
         upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         if rule == "errors":
             low, high = rule_range(ns, r)
@@ -352,8 +350,7 @@ def full(args) -> dict:
             raise RuntimeError(r["stderr"][-2000:])
     tries = [json.loads(line) for line in attempts.read_text().splitlines()]
     info = fitted(tries[-1]["out"])
-    run = info["fit"]
-    model = RhythmicMap.load(out)
+    run, model = info["fit"], RhythmicMap.load(out)
     picks = np.linspace(0, n - 1, min(n, 20000)).astype(int)
     x = np.asarray(np.load(path, mmap_mode="r")[picks])
     acc = {t: float(np.mean(m.predict(x) == picks)) for t, m in dtypes(model).items()}
@@ -446,8 +443,7 @@ def passes(path: str, memory: str, periods: str) -> dict:
     from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
     from rhythmic_jax.solvers import streamed as S
 
-    frames = open_frames(path)
-    fixed = tuple(int(t) for t in periods.split(","))
+    frames, fixed = open_frames(path), tuple(int(t) for t in periods.split(","))
     c, sets = default_c(frames.n), []
     for periods in (fixed, plan(MapConfig(r=3), frames.n, 1).candidates):
         p = sum(periods)
@@ -513,8 +509,7 @@ def run(args) -> dict:
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
-    real = (args.root / "nordland_64x32" / "summer").is_dir()
-    for cell in grid(args.quick, real):
+    for cell in grid(args.quick, (args.root / "nordland_64x32" / "summer").is_dir()):
         saved = args.cells / f"{_key(cell)}.json"
         if saved.exists():
             rows.append(json.loads(saved.read_text()))

@@ -26,8 +26,7 @@ def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
     for fn in cases.values():
         for q in queries[:50]:
             fn(q)
-    ts = {name: [] for name in cases}
-    done = 0
+    ts, done = {name: [] for name in cases}, 0
     while any(len(ts[k]) < calls[k] for k in cases):
         for name, fn in cases.items():
             for q in queries[done : done + block][: calls[name] - len(ts[name])]:
@@ -61,8 +60,7 @@ def run(args) -> dict:
     model.predict(queries[:1])  # builds the map's numpy lane
     same_locate = [model.locate(q) for q in queries] == batch_idx.tolist()
     wt, rows_p = small.wt, small.wt.shape[0]
-    unpadded = np.ascontiguousarray(wt[:p])
-    alone = "templates x query alone, "
+    unpadded, alone = np.ascontiguousarray(wt[:p]), "templates x query alone, "
     cases = {
         alone + f"{p} rows (one-thread sgemv)": lambda q: unpadded @ q,
         alone + f"padded to {rows_p} rows (the map's)": lambda q: wt @ q,

@@ -50,8 +50,7 @@ def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
     """``samples`` columns spread evenly over all p, with (period, phase)."""
     p = sum(periods)
     cols = np.unique(np.linspace(0, p - 1, samples).round().astype(int))
-    offs = period_offsets(periods)
-    out = []
+    offs, out = period_offsets(periods), []
     for col in cols:
         k = int(np.searchsorted(offs, col, side="right") - 1)
         out.append(dict(column=int(col), period=periods[k], phase=int(col - offs[k])))
@@ -93,19 +92,6 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     return params, record
 
 
-def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
-    """Warm-up (two steps, compiles), then the timed full solve (default
-    settings; the same ``optax.lbfgs()`` object so the jitted step is reused)."""
-    opt = optax.lbfgs()
-    _, warmup, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
-    load = h.load_average()
-    (params, history), seconds, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
-                                              progress=progress)  # fmt: skip
-    h.log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
-    record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load)
-    return params, history, record
-
-
 def _gap(ours, ref):
     return (ours - ref) / np.abs(ref)
 
@@ -122,18 +108,25 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     svc = run_linearsvc(x64, y64, c, sampled_columns(cands, samples))
     w_f, fast = run_newton(x, y, c, FAST, progress)
     w_t, tight = run_newton(x, y, c, NewtonConfig(), progress)
-    w_l, hist, lbfgs = run_lbfgs(x, y, c, progress)
+    # L-BFGS (default settings): a warm-up of two steps compiles, then the timed
+    # solve, with the same optax.lbfgs() object so the jitted step is reused
+    opt = optax.lbfgs()
+    _, warm, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
+    load = h.load_average()
+    (w_l, hist), wall, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
+                                     progress=progress)  # fmt: skip
+    h.log.info("L-BFGS: %.1f s (%d steps)", wall, len(hist))
+    lbfgs = dict(seconds=wall, cpu_s=cpu, warmup_s=warm, load_average_start=load)
+    lbfgs["steps"] = len(hist)
     f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
                      for w in (w_f, w_t, w_l))  # fmt: skip
-    cols = [t["column"] for t in svc]
-    f_svc = []
+    cols, f_svc = [t["column"] for t in svc], []
     for t, j in zip(svc, cols, strict=True):
         f = liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
         f_svc.append(f)
         t.update(objective=f, fast_gap=_gap(f_f[j], f), tight_gap=_gap(f_t[j], f),
                  lbfgs_gap=_gap(f_l[j], f))  # fmt: skip
-    f_svc = np.array(f_svc)
-    wall = np.array([t["seconds"] for t in svc])
+    f_svc, wall = np.array(f_svc), np.array([t["seconds"] for t in svc])
     cpu = np.array([t["cpu_s"] for t in svc])
     linearsvc = dict(
         settings=dict(loss="squared_hinge", dual=True, tol=1e-4, max_iter=1000, C=c),
@@ -143,7 +136,6 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         extrapolated_range_s=[float(wall.min() * p), float(wall.max() * p)],
         load_average_start=load_svc, templates=svc,
     )  # fmt: skip
-    lbfgs["steps"] = len(hist)
     for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t), (lbfgs, w_l, f_l)):
         errors = np.asarray(period_errors(scores(w, x), labels, cands))
         rec.update(

@@ -88,8 +88,7 @@ def markdown(r: dict) -> str:
         [k, *(int(v) for v in e), int(mv)]
         for k, (e, mv) in enumerate(zip(steps, move, strict=True))
     ] + [["end", *(int(v) for v in final), 0]]
-    act = full["active_per_frame"]
-    same = full["chosen"] == drop["chosen"]
+    act, same = full["active_per_frame"], full["chosen"] == drop["chosen"]
     head = header("The 0.1 % solve's work: losing candidates and idle frames", r)
     return "\n".join([*head, "\n\n".join([
         f"Nordland summer, patchnorm: n = {n}, d = {r['d']}, candidates {cands}"

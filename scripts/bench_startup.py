@@ -41,8 +41,7 @@ def loaded(checkout: Path, cmd: list[str]) -> list[str]:
 
 def fit_map(folder: Path) -> Path:
     """A 600-frame, 64-d map fitted with this checkout's command line."""
-    rng = np.random.default_rng(0)
-    x = rng.standard_normal((600, 64)).astype(np.float32)
+    x = np.random.default_rng(0).standard_normal((600, 64)).astype(np.float32)
     np.save(folder / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
     cmd = [SCRIPT, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
     child([*cmd, "--no-progress"], REPO)

@@ -29,8 +29,7 @@ QUICK = dict(repeats=1, walk_frames=5000, walk_periods="17,18,19")  # --quick
 def run_case(name, path: Path, periods, repeats: int) -> dict:
     """Every setting in turns on the frames in ``path``; the case's record."""
     frames = open_frames(path)
-    labels = np.arange(frames.n)
-    c = default_c(frames.n)
+    labels, c = np.arange(frames.n), default_c(frames.n)
     y = targets(labels, periods)
     (_, ref), ref_s, _ = timed(lambda: newton_fit(frames.read(0, frames.n), y, c))
     runs: dict[str, list[dict]] = {label: [] for label, _ in SETTINGS}
@@ -56,8 +55,7 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
 
 
 def markdown(report: dict) -> str:
-    title = "Streamed Newton-CG: preconditioner and compacted passes"
-    lines = header(title, report)
+    lines = header("Streamed Newton-CG: preconditioner and compacted passes", report)
     lines += [
         "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
         " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
@@ -86,8 +84,7 @@ def markdown(report: dict) -> str:
     lines.append(table(heads, rows))
     lines.append("")
     for case in report["cases"]:
-        med = case["median_wall_s"]
-        old, spec, comp = (med[label] for label, _ in SETTINGS)
+        old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
         lines.append(
             f"- {case['name']}: the spectral preconditioner {old / spec:.2f}x"
             f" ({spec:.1f} s against {old:.1f} s with Jacobi); compacted passes"

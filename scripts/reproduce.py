@@ -191,8 +191,7 @@ class Run:
         name = f"{type(b).__name__.lower()}-n{len(x)}-{key}.faiss"
         path, side = self.cache_dir / name, self.cache_dir / (name + ".json")
         if path.is_file() and side.is_file():
-            b.index = faiss.read_index(str(path))
-            state = json.loads(side.read_text())
+            b.index, state = faiss.read_index(str(path)), json.loads(side.read_text())
             for k, v in state["attributes"].items():
                 setattr(b, k, v)
             return state["fit_s"]
@@ -602,8 +601,7 @@ def draw(res: dict, out: Path) -> list[str]:
 
 
 def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
-    env = h.machine()
-    now = datetime.datetime.now(datetime.timezone.utc)
+    env, now = h.machine(), datetime.datetime.now(datetime.timezone.utc)
     return dict(date=now.strftime("%Y-%m-%d %H:%M UTC"),
                 version=rhythmic_jax.__version__, jax=env["jax"], faiss=env["faiss"],
                 numpy=env["numpy"], python=env["python"], cpu_count=env["cores"],
