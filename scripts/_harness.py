@@ -100,8 +100,7 @@ def fastest(fn: Callable[[], object], repeats: int):
     that compiles): on a shared machine the minimum is the least disturbed."""
     import jax
 
-    out = jax.block_until_ready(fn())
-    return out, min(timed(fn)[1] for _ in range(repeats))
+    return jax.block_until_ready(fn()), min(timed(fn)[1] for _ in range(repeats))
 
 
 def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:

@@ -202,7 +202,6 @@ def targets(report: dict) -> list[list]:
 
 def markdown(report: dict) -> str:
     keys = "job variant programs compiled hits compile_s wall load".split()
-    rows = [[r[k] for k in keys] for r in report["rows"]]
     agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
              for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
@@ -215,7 +214,7 @@ def markdown(report: dict) -> str:
         " persistent cache; compile s: their seconds (loads included); load: 1-minute"
         f" load average after the job. Sizes: fit {s['fit'][0]} x {s['fit'][1]},"
         f" Nordland patchnorm {s['nordland']} x 2048, {s['jpegs']} JPEGs (Lite0).",
-        h.table(HEAD, rows),
+        h.table(HEAD, [[r[k] for k in keys] for r in report["rows"]]),
         "Targets (the imports row is the floor under any fit's wall: a process that"
         " imports what a fit needs and exits, doing no work):",
         h.table(["target", "at most", "measured", ""], targets(report)),

@@ -243,9 +243,8 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
             args = ref, data["images"][a], data["descriptor"], qry, cfg["level"]
             rows.append(augmented_row(*args))
         for i, (label, emb) in enumerate(embeddings.items()):
-            eb = embedding_bytes(emb)
             er, eq = apply(emb, ref), apply(emb, qry)
-            rows.append(brute_row(er, eq, f"brute force {label}", eb))
+            rows.append(brute_row(er, eq, f"brute force {label}", embedding_bytes(emb)))
             if label not in cfg.get("map_levers", (first,)):
                 continue  # the gradient-trained heads: reference rows, brute force
             rows.append(map_row(ref, qry, f"map {label}", emb=emb,
@@ -295,8 +294,7 @@ def run(args) -> dict:
     for title, load, settings in plan(args.quick):
         if words and not any(w in title for w in words):
             continue
-        data = load(args.root, args.progress)
-        datasets[title] = run_dataset(title, data, settings)
+        datasets[title] = run_dataset(title, load(args.root, args.progress), settings)
         datasets[title]["seconds"] = time.perf_counter() - t0
         h.log.info("%s done at %.0f s", title, time.perf_counter() - t0)
         # after every data set: a run cut short still leaves the ones it finished

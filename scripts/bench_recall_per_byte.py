@@ -58,9 +58,8 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     }
     secs = {name: fastest(fn, 5)[1] for name, fn in fns.items()}
     out = {k: {"seconds": s, "queries_per_s": len(q) / s} for k, s in secs.items()}
-    base = out["map alone"]["seconds"]
     for v in out.values():
-        v["x map alone"] = v["seconds"] / base
+        v["x map alone"] = v["seconds"] / out["map alone"]["seconds"]
     out["setting"] = f"map r={r} level {level} {per} + ITQ {bits}, {len(q)} queries"
     return out
 
@@ -91,9 +90,8 @@ def _targets(rep: dict) -> list[str]:
         b = rep["budgets"][str(length)]
         none = [x for x in b if x["own"] is None]
         short = [x for x in b if x["own"] is not None and x["own_minus_itq"] < 0]
-        ok = len(b) - len(none) - len(short)
         line = f"- L = {length}: the map or a hybrid is at least ITQ's best at "
-        line += f"{ok} of {len(b)} budgets"
+        line += f"{len(b) - len(none) - len(short)} of {len(b)} budgets"
         if none:
             at = ", ".join(f"{100 * x['budget']:g} %" for x in none)
             line += f"; none of them fits in {at}"

@@ -474,7 +474,6 @@ def _periods(ts) -> str:
 
 def probe_lines(p: dict) -> list[str]:
     kinds = list(p["sets"][0]["seconds"])
-    head = ["periods", "templates", "rows / block", *kinds]
     rows = [
         [_periods(s["periods"]), s["templates"], s["block_rows"],
          *(round(s["seconds"][k], 1) for k in kinds)]
@@ -488,7 +487,7 @@ def probe_lines(p: dict) -> list[str]:
         " each includes its kernel's compilation). A CG pass from the kept"
         " curvature makes one product with the frames instead of two:",
         "",
-        bc.table(head, rows),
+        bc.table(["periods", "templates", "rows / block", *kinds], rows),
     ]
 
 

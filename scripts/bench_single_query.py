@@ -106,11 +106,10 @@ def markdown(r: dict) -> str:
         for s in ("RhythmicMap.locate", "RhythmicMap.predict", "faiss")
     )
     p = sum(r["periods"])
-    tbytes = 4 * r["d"] * p
     met = "met" if locate <= 20 else "not met"
     return "\n".join(header("One query to one place", r)) + "\n" + "\n\n".join([
         f"Map: N = {r['n']}, d = {r['d']}, periods {r['periods']}"
-        f" ({p} templates, {tbytes / 1e6:.2f} MB of float32, stored as"
+        f" ({p} templates, {4 * r['d'] * p / 1e6:.2f} MB of float32, stored as"
         f" {r.get('padded_rows', p)} rows).",
         table(["path", "median us", "p95 us", "calls"], lat),
         f"Batches of 1000: jitted decode {thr['jitted decode']['queries_per_s']:,.0f}"

@@ -48,8 +48,7 @@ def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
     """``samples`` columns spread evenly over all p, with (period, phase)."""
-    p = sum(periods)
-    cols = np.unique(np.linspace(0, p - 1, samples).round().astype(int))
+    cols = np.unique(np.linspace(0, sum(periods) - 1, samples).round().astype(int))
     offs, out = period_offsets(periods), []
     for col in cols:
         k = int(np.searchsorted(offs, col, side="right") - 1)
@@ -299,9 +298,8 @@ def run(args) -> dict:
     # mean cosine of frames lag apart (the rows are unit vectors)
     cosines = {str(lag): float(np.mean(np.sum(xv[lag:] * xv[:-lag], axis=1)))
                for lag in (1, 10, 100, 1000) if lag < len(xv)}  # fmt: skip
-    video = dict(**VIDEO, cosines=cosines)
     aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP)
-    return dict(aim=aim, video_like=video, cases=cases)
+    return dict(aim=aim, video_like=dict(**VIDEO, cosines=cosines), cases=cases)
 
 
 if __name__ == "__main__":
