@@ -85,9 +85,8 @@ def machine(threads: dict[str, int] | None = None) -> dict:
 
 
 def timed(fn, *args, **kwargs):
-    """``(fn(*args, **kwargs), wall seconds, process CPU seconds)``, JAX results
-    waited for. CPU seconds sum every thread of this process: they count the work
-    and are less sensitive than the wall clock to other processes' load."""
+    """(``fn(*args, **kwargs)``, wall s, CPU s of all this process's threads: the work,
+    less sensitive to other processes' load than the wall), JAX results waited for."""
     import jax
 
     wall, cpu = time.perf_counter(), time.process_time()
@@ -137,10 +136,9 @@ def bytecode(*checkouts: Path) -> None:
 
 
 def job_env(compile_cache: str | None = None) -> dict[str, str]:
-    """This process's environment without a compile-cache setting of its own (JAX's
-    ``JAX_COMPILATION_CACHE_*``, the project's ``RHYTHMIC_JAX_COMPILE_CACHE``), so a
-    job keeps its programs where the benchmark says: ``compile_cache`` (a folder,
-    or "0" for none), or by default under the job's ``RHYTHMIC_JAX_CACHE``."""
+    """This environment less its compile-cache settings (``JAX_COMPILATION_CACHE_*``,
+    ``RHYTHMIC_JAX_COMPILE_CACHE``): a job's programs go to ``compile_cache`` (a
+    folder, "0": none), by default under the job's ``RHYTHMIC_JAX_CACHE``."""
     own = ("JAX_COMPIL", "RHYTHMIC_JAX_COMPILE_CACHE")
     env = {k: v for k, v in os.environ.items() if not k.startswith(own)}
     if compile_cache is not None:
@@ -163,10 +161,9 @@ def call(fn, *args, checkout=None, **kw) -> dict:
 
 
 def compile_counter(out=None) -> dict:
-    """Counts of this process's XLA programs from here on, from JAX's compile log:
-    ``programs`` obtained, of them persistent-cache ``hits``, their ``compile_s``
-    (loads included), ``trace_s`` (tracing and lowering) and ``names`` (programs
-    by name); written as JSON to ``out`` at exit when given."""
+    """This process's XLA ``programs`` from now (JAX's compile log), of them cache
+    ``hits``, ``compile_s`` (loads included), ``trace_s`` (tracing, lowering) and
+    ``names`` (programs by name); written as JSON to ``out`` at exit if given."""
     import atexit
     import collections
     import re
@@ -270,10 +267,9 @@ def digest(ident, *arrays) -> str:
 
 def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=(),
                tag="", progress=False):  # fmt: skip
-    """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
-    ``model.fit(x, progress=progress)``), or loaded from ``folder`` where a fit with
-    the same settings (``extra`` too) and features (``arrays`` too) was saved. The
-    record holds the path, ``cached`` and the first fit's wall and CPU seconds."""
+    """(map, record): ``model`` fitted on ``x`` (``fit(model)``, default its fit), or
+    loaded from ``folder`` if saved with the same settings (and ``extra``) and
+    features (and ``arrays``); the record: path, ``cached``, the first fit's times."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     x = np.ascontiguousarray(x, np.float32)

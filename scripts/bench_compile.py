@@ -66,9 +66,8 @@ def run_job(argv: list[str], env: dict, tmp: Path) -> dict:
 
 
 def count_fit(n: int = 1000, d: int = 256) -> dict:
-    """The library job alone on :func:`route` frames, in a fresh process against this
-    checkout with no compile cache: its XLA programs (``names``: by name), cache
-    hits, compile and trace seconds and the periods."""
+    """The library job alone on :func:`route` frames afresh, this checkout, no compile
+    cache: its programs (``names``: by name), hits, compile and trace s, periods."""
     with tempfile.TemporaryDirectory() as tmp:
         x, out = Path(tmp) / "x.npy", Path(tmp) / "count.json"
         np.save(x, route(n, d))
@@ -79,8 +78,7 @@ def count_fit(n: int = 1000, d: int = 256) -> dict:
 
 def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     """Seconds until no builder lock is left under ``cache/compiled``."""
-    t = time.perf_counter()
-    folder = cache / "compiled"
+    t, folder = time.perf_counter(), cache / "compiled"
     while list(folder.glob("*.lock")) and time.perf_counter() - t < timeout:
         time.sleep(1.0)
     return time.perf_counter() - t
@@ -187,8 +185,7 @@ TARGETS = [
 
 def targets(report: dict) -> list[list]:
     """[target, limit, measured, met] for the targets this run's jobs answer."""
-    rows = {(r["job"], r["variant"]): r for r in report["rows"]}
-    out = []
+    rows, out = {(r["job"], r["variant"]): r for r in report["rows"]}, []
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
             value = measure(rows[job, variant], rows[job, "base"])

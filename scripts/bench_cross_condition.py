@@ -397,9 +397,8 @@ def _fmt(v):
 
 def markdown(report: dict) -> str:
     lines = h.header("Recognition under appearance change (split by place)", report)
-    walls = report.get("wall_seconds_by_process")
     wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
-    if walls:
+    if walls := report.get("wall_seconds_by_process"):
         wall = "Data sets run in parallel processes (the commands above, joined by "
         wall += "';'); wall time of each: "
         wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())

@@ -8,9 +8,8 @@ from _harness import header, load_average, main, nordland_images, table, timed
 
 
 def library() -> tuple:
-    """The augmented fit's modules (stream, features, images, newton) in this
-    checkout, or in the flat layout of a baseline one (``bench_frames.py`` runs
-    them in either)."""
+    """The augmented fit's modules (stream, features, images, newton) here, or in a
+    baseline checkout's flat layout (``bench_frames.py`` runs them in either)."""
     try:
         from rhythmic_jax.augment import stream
         from rhythmic_jax.frames import features
@@ -24,10 +23,9 @@ def library() -> tuple:
 
 
 def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
-    """One augmented epoch over ``images`` per variant (augmentation names;
-    ``("none",)``: describe and step, no augmentation) from the clean fit, after a
-    warm-up epoch (it compiles the optax step): each epoch's seconds by part, and
-    its wall."""
+    """One augmented epoch over ``images`` per variant (augmentation names; ``none``:
+    describe and step only) from the clean fit, after a warm-up epoch (it compiles
+    the optax step): each epoch's seconds by part, and its wall."""
     from rhythmic_jax.objective import default_c, targets
     from rhythmic_jax.periods import candidate_periods
 

@@ -115,8 +115,7 @@ def markdown(rep: dict) -> str:
         "",
     ]
     lines += ["### Targets", ""] + _targets(rep) + [""]
-    ls = rep["lengths"]
-    heads = ["representation", "kind", "storage B", "share %"]
+    ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["weight"]
     keys = [f"recall@1 L={k}" for k in ls]
     rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],

@@ -46,8 +46,7 @@ def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
     pos = rng.normal(size=d) * 4.0
     for lo in range(0, n, 8192):
         block = pos + np.cumsum(rng.normal(size=(min(8192, n - lo), d)) * 0.05, axis=0)
-        pos = block[-1]
-        block = block / np.linalg.norm(block, axis=1, keepdims=True)
+        pos, block = block[-1], block / np.linalg.norm(block, axis=1, keepdims=True)
         block += rng.normal(size=block.shape) * (0.5 / np.sqrt(d))
         x[lo : lo + len(block)] = block / np.linalg.norm(block, axis=1, keepdims=True)
     return x
@@ -256,8 +255,7 @@ def markdown(report: dict) -> str:
                   f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
     if report.get("full"):
         lines += ["", *full_lines(report["full"], report.get("probe"))]
-    probe = report.get("probe")
-    if probe:
+    if probe := report.get("probe"):
         lines += ["", *probe_lines(probe)]
     if report.get("missing"):
         lines += ["", "Not measured (time budget or --skip, or failed as said): "
@@ -327,9 +325,8 @@ def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
 
 
 def full(args) -> dict:
-    """The whole streamed r = 3 fit of ``--full`` route-like 256-d frames (in
-    ``--full-work``) with fixed periods under ``--full-memory``: wall, passes,
-    peak memory, accuracy."""
+    """The streamed r = 3 fit of ``--full`` route-like 256-d frames (``--full-work``),
+    fixed periods, ``--full-memory``: wall, passes, peak memory, accuracy."""
     n, periods, memory = args.full, args.full_periods, args.full_memory
     saved = args.cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
@@ -417,9 +414,8 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
 
 
 def probe(args) -> dict:
-    """Seconds of one streamed pass of each kind over ``--probe`` route-like 256-d
-    frames under ``--probe-memory``, fixed periods and the r = 3 candidate set,
-    and the peak memory (a fresh process)."""
+    """Seconds of one streamed pass of each kind over ``--probe`` 256-d frames under
+    ``--probe-memory``, fixed periods and r = 3 candidates; peak memory (afresh)."""
     n, memory, periods = args.probe, args.probe_memory, args.full_periods
     saved = args.cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
     if saved.exists():
@@ -537,8 +533,10 @@ def run(args) -> dict:
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
     report, stamps = {}, [r["measured"] for r in rows]
-    extras = (("probe", args.probe, probe), ("full fit", args.full, full))
-    for what, n, measure in extras:
+    for what, n, measure in (
+        ("probe", args.probe, probe),
+        ("full fit", args.full, full),
+    ):
         try:
             if n:
                 report[what.split()[0]] = measure(args)

@@ -541,10 +541,9 @@ def markdown(res: dict) -> str:
     """The report: :data:`REPORT` filled from the results."""
     t2, meta = res["table2"], res["meta"]
     summer = next(r for r in t2 if r["dataset"] == "Nordland summer")
-    errors = [100 * f(summer["candidate_errors"]) for f in (min, max)]
-    note = (
-        SOLVER_NOTE.format(summer["accuracy"], *errors) if summer["n"] == 3576 else ""
-    )
+    e = summer["candidate_errors"]
+    note = SOLVER_NOTE.format(summer["accuracy"], 100 * min(e), 100 * max(e))
+    note = note if summer["n"] == 3576 else ""
     t2rows = [[r["dataset"], r["n"], r["level"],
                f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
                joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
