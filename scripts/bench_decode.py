@@ -40,8 +40,7 @@ def random_map(d: int, periods: tuple[int, ...], seed: int) -> Templates:
 
 def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) -> dict:
     """Throughput and latency of both decoders on the same features."""
-    n, d = refs.shape
-    p = sum(periods)
+    (n, d), p = refs.shape, sum(periods)
     h.log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
     params = random_map(d, periods, seed=1)
     flat = BruteForce(n_threads=h.cores()).fit(refs)
@@ -110,8 +109,9 @@ def options(ap) -> None:
 def run(args) -> dict:
     kw = dict(repeats=args.repeats, singles=args.singles)
     refs, qry, src = random_features(10713, 4096, BATCH, seed=0)
-    name = "random, Nordland spring size"
-    cases = [bench_case(name, refs, qry, src, (105, 106), **kw)]
+    cases = [
+        bench_case("random, Nordland spring size", refs, qry, src, (105, 106), **kw)
+    ]
     del refs, qry
     periods = nominal_periods(3576, 2, 1, 7)
     if (args.root / "nordland_64x32").is_dir():

@@ -37,8 +37,7 @@ def options(ap) -> None:
 
 def run(args) -> dict:
     desc = get_descriptor("efficientnet_lite0", block=args.block)
-    (summer,) = nordland_images(args.root, ("summer",))
-    images = summer.images[: args.frames]
+    images = nordland_images(args.root, ("summer",))[0].images[: args.frames]
     with torch.inference_mode():
         x, net = desc.prepare(_to_batch(images)), desc.network().eval()
         reference, rows = net(x[:64]).numpy(), []

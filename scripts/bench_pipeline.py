@@ -73,9 +73,8 @@ def run(args) -> dict:
     (summer,) = nordland_images(args.root, ("summer",))
     images, desc = summer.images[: args.frames], get_descriptor(args.descriptor)
     n, load0, rows = len(images), load_average(), []
-    key = f"nordland-summer-{n}"
-    for names, tm in zip(variants, epochs(images, desc, key, variants, args.elastic),
-                         strict=True):  # fmt: skip
+    times = epochs(images, desc, f"nordland-summer-{n}", variants, args.elastic)
+    for names, tm in zip(variants, times, strict=True):
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
         rows.append(dict(augmentation=names[0], frames_per_s=fps,

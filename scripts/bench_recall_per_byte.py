@@ -23,6 +23,7 @@ BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
 DS = (256, 2048, 4096, 10976)
 BITS = (64, 128, 256, 512)
+BUDGET = ["budget", "best", "map or hybrid", "ITQ", "own - ITQ"]
 QUICK = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
@@ -124,17 +125,12 @@ def markdown(rep: dict) -> str:
     lines.append(table(heads, rows))
     for length in ls:
         key = f"recall@1 L={length}"
-
-        def cell(r, key=key):
-            return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
-
-        body = [[f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"]),
-                 cell(b["itq"]), round(b["own_minus_itq"], 3)]
+        body = [[f"{100 * b['budget']:g} %",
+                 *(f"{x['name']} ({x[key]:.3f})" if x else "none fits"
+                   for x in (b["best"], b["own"], b["itq"])),
+                 round(b["own_minus_itq"], 3)]
                 for b in rep["budgets"][str(length)]]  # fmt: skip
-        lines += ["", f"### Budget by budget, L = {length}", ""]
-        lines.append(
-            table(["budget", "best", "map or hybrid", "ITQ", "own - ITQ"], body)
-        )
+        lines += ["", f"### Budget by budget, L = {length}", "", table(BUDGET, body)]
     t = rep["timing"] or {"setting": "not measured in this run"}
     lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
     body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]

@@ -81,8 +81,7 @@ def markdown(report: dict) -> str:
     heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
              "steps", "passes", "reached", "true gap max", "true gap median",
              "templates per step", "column-passes"]  # fmt: skip
-    lines.append(table(heads, rows))
-    lines.append("")
+    lines += [table(heads, rows), ""]
     for case in report["cases"]:
         old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
         lines.append(
