@@ -84,15 +84,6 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     return time.perf_counter() - t
 
 
-def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
-    """(name, environment) of base, new cold and new warm (reusing the cold cache)."""
-    env = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
-    jit = tmp / "jit"
-    new = {**env, "PYTHONPATH": str(h.REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
-    old = {**env, "PYTHONPATH": str(base.resolve())}
-    return [("base", old), ("new cold", new), ("new warm", new)]
-
-
 def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--jobs", default="imports,fit,nordland,demo,jpeg")
@@ -120,7 +111,12 @@ def run(args) -> dict:
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
         h.bytecode(args.base, h.REPO)
-        for name, env in variants(args.base, tmp):
+        # base, new cold, new warm (the warm run reuses the cold run's compile cache)
+        common = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
+        old = {**common, "PYTHONPATH": str(args.base.resolve())}
+        new = {**common, "PYTHONPATH": str(h.REPO)}
+        new["RHYTHMIC_JAX_COMPILE_CACHE"] = str(tmp / "jit")
+        for name, env in (("base", old), ("new cold", new), ("new warm", new)):
             side = name.split()[0]
             if name == "new cold":
                 shutil.rmtree(network, ignore_errors=True)

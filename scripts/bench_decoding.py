@@ -307,22 +307,16 @@ def markdown(report: dict) -> str:
     return "\n\n".join(parts) + "\n"
 
 
-def available(names) -> list[str]:
-    out = []
-    for name in names:
-        try:
-            get_descriptor(name).settings()
-            out.append(name)
-        except Exception as err:  # noqa: BLE001 - weights missing, import failure
-            h.log.warning("skipping descriptor %s: %s", name, err)
-    return out
-
-
 def run(args: argparse.Namespace) -> dict:
     blocks, outliers = [], []
     repeats = 3 if args.quick else 5
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
-    for name in available(args.descriptors):
+    for name in args.descriptors:
+        try:
+            get_descriptor(name).settings()
+        except Exception as err:  # noqa: BLE001 - weights missing, import failure
+            h.log.warning("skipping descriptor %s: %s", name, err)
+            continue
         datasets = {
             "nordland": h.nordland_features(args.root, name, **kw),
             "aerial LEVIR": h.aerial_features(args.root, name, **kw)[:2],

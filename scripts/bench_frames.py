@@ -58,15 +58,6 @@ def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
     return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
-def fresh_cache(tmp: Path, warm: Path | None) -> Path:
-    """An empty descriptor cache, or with ``warm``'s network and compiled programs."""
-    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
-    for kept in ("compiled", "jax") if warm is not None else ():
-        if (warm / kept).is_dir():
-            shutil.copytree(warm / kept, cache / kept)
-    return cache
-
-
 def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--frames", type=int, default=1000)
@@ -111,10 +102,15 @@ def run(args) -> dict:
         for rep in range(args.repeats):
             # alternate which side goes first, so drifting load hits both alike
             for variant in ("base", "new") if rep % 2 == 0 else ("new", "base"):
-                kept = warm if variant == "new" else None
                 for job in jobs:
+                    # an empty descriptor cache; the new checkout's holds the warm
+                    # one's network and compiled programs (a second job)
+                    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
+                    for kept in ("compiled", "jax") if variant == "new" else ():
+                        if (warm / kept).is_dir():
+                            shutil.copytree(warm / kept, cache / kept)
                     cmd = job_cmd(job, variant, tmp, folders, args)
-                    r = timed_run(cmd, paths[variant], fresh_cache(tmp, kept))
+                    r = timed_run(cmd, paths[variant], cache)
                     if job.startswith("augmented"):
                         r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
                     print(variant, job, rep, round(r["wall"], 1), r["load"], flush=True)

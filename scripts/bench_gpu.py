@@ -16,15 +16,6 @@ from rhythmic_jax import RhythmicMap
 QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[])  # --quick
 
 
-def write_features(root: Path, path: Path) -> None:
-    """Nordland summer and winter patchnorm descriptors: one float16 (2, n, d) .npy."""
-    from rhythmic_jax.io.atomic import save_npy
-
-    both = np.stack(nordland_features(root)).astype(np.float16)
-    save_npy(path, both)
-    log.info("wrote %s %s", path, both.shape)
-
-
 def run_on(device, summer, winter, args) -> dict:
     """Every step of the report with ``device`` as JAX's default device."""
     out: dict = {"device": str(device), "kind": getattr(device, "device_kind", "")}
@@ -106,8 +97,12 @@ def options(ap) -> None:
 
 
 def run(args) -> dict | None:
-    if args.write_features:
-        write_features(args.root, args.write_features)
+    if args.write_features:  # Nordland summer and winter patchnorm, float16 (2, n, d)
+        from rhythmic_jax.io.atomic import save_npy
+
+        both = np.stack(nordland_features(args.root)).astype(np.float16)
+        save_npy(args.write_features, both)
+        log.info("wrote %s %s", args.write_features, both.shape)
         return None
     if args.features is None:
         raise SystemExit("--features (or --write-features) is required")
