@@ -296,9 +296,7 @@ def plain(obj):
         return [plain(v) for v in obj]
     if isinstance(obj, np.integer | np.bool_):
         return obj.item()
-    if isinstance(obj, np.floating):
-        return float(obj)
-    return obj
+    return float(obj) if isinstance(obj, np.floating) else obj
 
 
 def header(title: str, report: dict) -> list[str]:

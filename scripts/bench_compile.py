@@ -185,11 +185,9 @@ def targets(report: dict) -> list[list]:
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
             value = measure(rows[job, variant], rows[job, "base"])
-            if limit is None:  # a floor under the others, not a target
-                out.append([what, "", fmt.format(value), ""])
-                continue
-            ok = "met" if value <= limit else "not met"
-            out.append([what, fmt.format(limit), fmt.format(value), ok])
+            met = "" if limit is None else "met" if value <= limit else "not met"
+            limit = "" if limit is None else fmt.format(limit)  # None: a floor only
+            out.append([what, limit, fmt.format(value), met])
     return out
 
 

@@ -6,7 +6,7 @@ python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 import time
 
 import numpy as np
-from _harness import call, header, log, main, table
+from _harness import call, header, main, table
 
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
@@ -48,10 +48,6 @@ def measure(repeats: int, shapes: list[str]) -> list[dict]:
     return rows
 
 
-def kind(n: int, d: int) -> str:
-    return "wide (span)" if d > 2 * n else ("tall" if n > 2 * d else "square")
-
-
 def markdown(report: dict) -> str:
     rows = [[f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
              r["cold"] / MB, r["estimate"] / r["cold"],
@@ -89,11 +85,11 @@ def options(ap) -> None:
 def run(args) -> dict:
     rows = call(measure, args.repeats, args.shapes)["result"]
     for r in rows:
-        parts = fit_bytes(r["n"], r["d"], r["p"])
+        n, d = r["n"], r["d"]
+        parts = fit_bytes(n, d, r["p"])
+        kind = "wide (span)" if d > 2 * n else ("tall" if n > 2 * d else "square")
         est = sum(parts.values())
-        r.update(kind=kind(r["n"], r["d"]), parts=parts, estimate=est,
-                 arrays=est - parts["compile"])  # fmt: skip
-        log.info("%s", r)
+        r.update(kind=kind, parts=parts, estimate=est, arrays=est - parts["compile"])
     compile_bytes = rows[0]["parts"]["compile"] if rows else 0
     return dict(repeats=args.repeats, compile_bytes=compile_bytes, rows=rows)
 

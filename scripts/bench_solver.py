@@ -211,11 +211,9 @@ def case_markdown(r: dict) -> str:
         ("Newton 0.1 % vs Newton tight", every, fast["gap_vs_tight"]),
         ("L-BFGS vs Newton tight", every, lb["gap_vs_tight"]),
     )
-    gaps = [[label, which, *(_rel(g[k]) for k in ("max", "median", "min"))]
-            for label, which, g in comparisons]  # fmt: skip
-    gaps = h.table(GAPS, gaps)
-    errs = (r["candidates"], fast["training_error"], tight["training_error"],
-            lb["training_error"])  # fmt: skip
+    gaps = h.table(GAPS, [[what, n, *(_rel(g[k]) for k in ("max", "median", "min"))]
+                          for what, n, g in comparisons])  # fmt: skip
+    errs = (r["candidates"], *(t["training_error"] for t in (fast, tight, lb)))
     errors = h.table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
                      [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
     sampled = [[t["period"], t["phase"], t["seconds"], t["n_iter"],
