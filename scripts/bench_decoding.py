@@ -269,7 +269,7 @@ def markdown(report: dict) -> str:
                  f"{r['recall_at_1_exact']:.4f}", f"{r['queries_per_s']:,.0f}",
                  f"{r['storage_bytes'] / 2**20:.2f}",
                  f"{100 * r['storage_bytes'] / b['database_bytes']:.1f}"]
-                for r in b["rows"]]  # fmt: skip
+                for r in b["rows"] + b["references"]]  # fmt: skip
         parts += [
             f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
             f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"

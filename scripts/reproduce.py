@@ -632,9 +632,9 @@ def run(args) -> dict[str, Any]:
     # key -> (map images, map features, query features): Nordland summer ->
     # winter, winter (for Table 2), aerial LEVIR A -> B
     kw = dict(progress=args.progress)
-    summer, winter = h.nordland_images(h.DATA, **kw)
-    xs, xw = h.nordland_features(h.DATA, run.desc, **kw)
-    xa, xb, route = h.aerial_features(h.DATA, run.desc, **kw)
+    summer, winter = h.nordland_images(args.root, **kw)
+    xs, xw = h.nordland_features(args.root, run.desc, **kw)
+    xa, xb, route = h.aerial_features(args.root, run.desc, **kw)
     n = settings.frames or len(xs)
     data = {
         "nordland": (summer.images[:n], xs[:n], xw[:n]),
