@@ -38,8 +38,7 @@ def cores() -> int:
 
 
 def set_threads(n: int) -> dict[str, int]:
-    """Pin torch intra-op, BLAS and faiss OpenMP to ``n`` threads; the counts in
-    force afterwards, XLA's included."""
+    """Pin torch, BLAS and faiss to ``n`` threads; the counts in force, XLA's too."""
     import faiss
     import torch
     from threadpoolctl import threadpool_info, threadpool_limits
@@ -61,9 +60,8 @@ def git_commit(repo: Path = REPO) -> str:
     """The checkout's short commit, ``+`` when its package has changes."""
 
     def git(*a):
-        done = subprocess.run(["git", "-C", str(repo), *a], capture_output=True,
-                              text=True, check=False)  # fmt: skip
-        return done.stdout.strip()
+        cmd = ["git", "-C", str(repo), *a]
+        return subprocess.run(cmd, capture_output=True, text=True).stdout.strip()
 
     dirty = git("status", "--porcelain", "--untracked-files=no", "rhythmic_jax")
     return git("rev-parse", "--short", "HEAD") + ("+" if dirty else "")
@@ -77,21 +75,18 @@ def machine(threads: dict[str, int] | None = None) -> dict:
     import sklearn
     import torch
 
-    return dict(
-        devices=[str(d) for d in jax.devices()], jax=jax.__version__,
-        optax=optax.__version__, numpy=np.__version__, sklearn=sklearn.__version__,
-        faiss=faiss.__version__, torch=torch.__version__,
-        python=platform.python_version(),
-        cpu=platform.processor() or platform.machine(), cores=cores(),
-        threads=threads or {}, xla_flags=os.environ.get("XLA_FLAGS", ""),
-        commit=git_commit(),
-    )  # fmt: skip
+    return dict(devices=[str(d) for d in jax.devices()], jax=jax.__version__,
+                optax=optax.__version__, numpy=np.__version__,
+                sklearn=sklearn.__version__, faiss=faiss.__version__,
+                torch=torch.__version__, python=platform.python_version(),
+                cpu=platform.processor() or platform.machine(), cores=cores(),
+                threads=threads or {}, xla_flags=os.environ.get("XLA_FLAGS", ""),
+                commit=git_commit())  # fmt: skip
 
 
 def timed(fn, *args, **kwargs):
-    """``(fn(*args, **kwargs), wall seconds, process CPU seconds)``, JAX results
-    waited for. CPU seconds sum every thread of this process: they count the work
-    and are less sensitive than the wall clock to other processes' load."""
+    """(``fn(*args, **kwargs)``, wall s, CPU s of all this process's threads: the work,
+    less sensitive to other processes' load than the wall), JAX results waited for."""
     import jax
 
     wall, cpu = time.perf_counter(), time.process_time()
@@ -100,20 +95,17 @@ def timed(fn, *args, **kwargs):
 
 
 def fastest(fn: Callable[[], object], repeats: int):
-    """One untimed call (it compiles), then ``repeats`` :func:`timed` calls:
-    (the first call's output, the fastest wall seconds; on a shared machine the
-    minimum is the least disturbed estimate)."""
+    """(first output, fastest wall seconds of ``repeats`` calls after an untimed one
+    that compiles): on a shared machine the minimum is the least disturbed."""
     import jax
 
-    out = jax.block_until_ready(fn())
-    return out, min(timed(fn)[1] for _ in range(repeats))
+    return jax.block_until_ready(fn()), min(timed(fn)[1] for _ in range(repeats))
 
 
 def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
-    """``cmd`` in a fresh process (``checkout``'s package first on the path, JAX on
-    the CPU unless said, ``extra`` in its environment): rc, wall and CPU seconds and
-    peak resident bytes (its process tree), stdout, stderr and the 1-minute load
-    after it."""
+    """``cmd`` in a fresh process (``checkout`` first on the path, JAX on the CPU
+    unless said, ``extra`` in its environment): rc, wall and CPU seconds, peak
+    resident bytes (its process tree), stdout, stderr, the 1-minute load after."""
     env = dict(os.environ if env is None else env, TF_CPP_MIN_LOG_LEVEL="3", **extra)
     env.setdefault("JAX_PLATFORMS", "cpu")
     if checkout is not None:
@@ -135,9 +127,8 @@ def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
 
 
 def bytecode(*checkouts: Path) -> None:
-    """Compile each checkout's package to bytecode before it is timed, so no job
-    compiles Python (a checkout without .pyc files, or a shell that sets
-    PYTHONDONTWRITEBYTECODE, would otherwise in every process)."""
+    """Compile each checkout's package to bytecode before it is timed (without .pyc
+    files, or under PYTHONDONTWRITEBYTECODE, every job would compile Python)."""
     import compileall
 
     for tree in checkouts:
@@ -145,10 +136,9 @@ def bytecode(*checkouts: Path) -> None:
 
 
 def job_env(compile_cache: str | None = None) -> dict[str, str]:
-    """This process's environment without a compile-cache setting of its own (JAX's
-    ``JAX_COMPILATION_CACHE_*``, the project's ``RHYTHMIC_JAX_COMPILE_CACHE``), so a
-    job keeps its programs where the benchmark says: ``compile_cache`` (a folder,
-    or "0" for none), or by default under the job's ``RHYTHMIC_JAX_CACHE``."""
+    """This environment less its compile-cache settings (``JAX_COMPILATION_CACHE_*``,
+    ``RHYTHMIC_JAX_COMPILE_CACHE``): a job's programs go to ``compile_cache`` (a
+    folder, "0": none), by default under the job's ``RHYTHMIC_JAX_CACHE``."""
     own = ("JAX_COMPIL", "RHYTHMIC_JAX_COMPILE_CACHE")
     env = {k: v for k, v in os.environ.items() if not k.startswith(own)}
     if compile_cache is not None:
@@ -157,26 +147,23 @@ def job_env(compile_cache: str | None = None) -> dict[str, str]:
 
 
 def command(fn, *args) -> list[str]:
-    """The command line that runs ``fn(*args)``, a function of a script (JSON
-    arguments), in a fresh process and prints its answer as JSON, last."""
+    """The command that runs ``fn(*args)`` of a script afresh, printing its JSON."""
     script = Path(sys.modules[fn.__module__].__file__).stem
     return [sys.executable, str(Path(__file__).resolve()), script, fn.__name__,
             json.dumps(args)]  # fmt: skip
 
 
 def call(fn, *args, checkout=None, **kw) -> dict:
-    """:func:`command` run by :func:`child` (``kw``: its options): its record, with
-    ``result`` the function's answer."""
+    """:func:`child`'s record of :func:`command` (``kw``), ``result`` the answer."""
     r = child(command(fn, *args), checkout, **kw)
     r["result"] = json.loads(r["stdout"].splitlines()[-1]) if r["rc"] == 0 else None
     return r
 
 
 def compile_counter(out=None) -> dict:
-    """Counts of this process's XLA programs from here on, from JAX's compile log:
-    ``programs`` obtained, of them persistent-cache ``hits``, their ``compile_s``
-    (loads included), ``trace_s`` (tracing and lowering) and ``names`` (programs
-    by name); written as JSON to ``out`` at exit when given."""
+    """This process's XLA ``programs`` from now (JAX's compile log), of them cache
+    ``hits``, ``compile_s`` (loads included), ``trace_s`` (tracing, lowering) and
+    ``names`` (programs by name); written as JSON to ``out`` at exit if given."""
     import atexit
     import collections
     import re
@@ -213,8 +200,7 @@ def compile_counter(out=None) -> dict:
 
 
 def weights_folder() -> Path:
-    """The Lite0 weights' folder: a baseline checkout's ``query`` finds them by the
-    bare file name its map records, from there."""
+    """The Lite0 weights' folder (a baseline checkout's map records a bare name)."""
     from rhythmic_jax.frames.nets import lite0_weights_path
 
     return lite0_weights_path().parent
@@ -236,8 +222,8 @@ def nordland_images(root: Path, seasons=("summer", "winter"), progress=False):
 
 def nordland_features(root: Path, descriptor="patchnorm", seasons=("summer", "winter"),
                       key="nordland64x32-", progress=False, **kw):  # fmt: skip
-    """Descriptors of every season's frames (n, d) from the descriptor cache,
-    under the cache key ``key + season`` (``kw``: ``cached_describe``'s)."""
+    """Each season's descriptors (n, d), cached as ``key + season`` (``kw``:
+    ``cached_describe``'s)."""
     from rhythmic_jax.frames.features import cached_describe, get_descriptor
 
     desc = get_descriptor(descriptor) if isinstance(descriptor, str) else descriptor
@@ -270,8 +256,7 @@ def unit_rows(a) -> np.ndarray:
 
 
 def digest(ident, *arrays) -> str:
-    """16 hex digits of sha256 over ``ident`` (JSON, sorted keys; a str as is)
-    and the bytes of ``arrays``: the key of a cached fit."""
+    """A cached fit's key: 16 hex digits of sha256 over ``ident`` and ``arrays``."""
     text = ident if isinstance(ident, str) else json.dumps(ident, sort_keys=True,
                                                            default=str)  # fmt: skip
     h = hashlib.sha256(text.encode())
@@ -282,16 +267,14 @@ def digest(ident, *arrays) -> str:
 
 def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=(),
                tag="", progress=False):  # fmt: skip
-    """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``, default
-    ``model.fit(x, progress=progress)``), or loaded from ``folder`` where a fit with
-    the same settings (``extra`` too) and features (``arrays`` too) was saved. The
-    record holds the path, ``cached`` and the first fit's wall and CPU seconds."""
+    """(map, record): ``model`` fitted on ``x`` (``fit(model)``, default its fit), or
+    loaded from ``folder`` if saved with the same settings (and ``extra``) and
+    features (and ``arrays``); the record: path, ``cached``, the first fit's times."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     x = np.ascontiguousarray(x, np.float32)
     ident = dict(config=dataclasses.asdict(model.config), shape=list(x.shape))
-    h = digest(ident | (extra or {}), x, *arrays)
-    cfg = model.config
+    h, cfg = digest(ident | (extra or {}), x, *arrays), model.config
     path = Path(folder) / f"{tag}{cfg.descriptor}-L{cfg.level}-n{len(x)}-{h}.map"
     side = path.with_name(path.name + ".fit.json")
     if (path / "map.json").is_file():
@@ -313,9 +296,7 @@ def plain(obj):
         return [plain(v) for v in obj]
     if isinstance(obj, np.integer | np.bool_):
         return obj.item()
-    if isinstance(obj, np.floating):
-        return float(obj)
-    return obj
+    return float(obj) if isinstance(obj, np.floating) else obj
 
 
 def header(title: str, report: dict) -> list[str]:
@@ -374,22 +355,14 @@ def _write(path: Path, text: str) -> None:
 
 
 def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> None:
-    """Write ``<stem>.json`` and ``<md_stem or stem>.md`` under ``out`` and print
-    the Markdown."""
+    """Write ``<stem>.json`` and ``<md_stem or stem>.md`` under ``out``; print it."""
     _write(Path(out) / f"{stem}.json", json.dumps(report, indent=1) + "\n")
     _write(Path(out) / f"{md_stem or stem}.md", md + "\n")
     print(md)
 
 
-def command_line(script: str, argv: Sequence[str] | None) -> str:
-    """The command that ran ``script`` with ``argv`` (default: this process's)."""
-    args = sys.argv[1:] if argv is None else list(argv)
-    return " ".join(["python", f"scripts/{Path(script).name}", *args])
-
-
 def parser(doc: str) -> argparse.ArgumentParser:
-    """The options every script takes: --root, --out, --quick, --no-progress,
-    --render."""
+    """The options every script takes."""
     ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
     ap.add_argument("--root", type=Path, default=DATA, help="shared data folder")
     ap.add_argument("--out", type=Path, default=REPO / "reports", help="reports")
@@ -398,54 +371,48 @@ def parser(doc: str) -> argparse.ArgumentParser:
     ap.add_argument("--render", type=Path, nargs="?", const=Path(), default=None,
                     help="write the Markdown again from this JSON report (default:"
                     " the one in --out), measuring nothing")  # fmt: skip
-    ap.add_argument("--stem", default=None, help="report name (default by mode)")
     return ap
 
 
 def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report",
          argv=None, refresh=None, md_stem=None, quick=None):  # fmt: skip
-    """Parse, record the machine, ``run(args)``, then write and print the
-    report; returns it. ``--quick`` gives the options ``quick`` names their values
-    there (those left at their defaults) and the report the name ``<stem>_quick``.
-    ``run`` may set ``args.stem`` (the report's name) and return None (nothing to
-    write). ``refresh(report, args)`` updates a report read back by ``--render``
-    before it is rendered."""
+    """Parse, record the machine, ``run(args)``, write and print the report; return
+    it. ``--quick`` sets the options in ``quick`` left at their defaults and names
+    the report ``<stem>_quick``. ``run`` may set ``args.stem`` (the report's name)
+    and return None (nothing to write). ``refresh(report, args)`` updates the report
+    ``--render`` read from ``args.render`` before it is rendered."""
     ap = parser(doc)
-    ap.set_defaults(md_stem=md_stem)
     if options:
         options(ap)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    fixed = args.stem
-    args.stem = fixed or (f"{stem}_quick" if args.quick else stem)
-    if args.quick and not fixed and args.md_stem:
-        args.md_stem += "_quick"
+    args.stem = f"{stem}_quick" if args.quick else stem
+    md_stem = md_stem and md_stem + ("_quick" if args.quick else "")
     for key, value in (quick or {}).items() if args.quick else ():
         if getattr(args, key) == ap.get_default(key):
             setattr(args, key, value)
     if args.render is not None:
-        path = args.render if args.render.name else args.out / f"{args.stem}.json"
-        report = json.loads(path.read_text())
+        if not args.render.name:
+            args.render = args.out / f"{args.stem}.json"
+        report = json.loads(args.render.read_text())
         if refresh:
             refresh(report, args)
-        write_report(path.parent, path.stem, report, markdown(report), args.md_stem)
+        md = markdown(report)
+        write_report(args.render.parent, args.render.stem, report, md, md_stem)
         return report
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
     env, load0, t0 = machine(set_threads(cores())), load_average(), time.time()
     log.info("environment %s", env)
-    script = sys.modules[run.__module__].__file__ or "script"
+    script = Path(sys.modules[run.__module__].__file__ or "script").name
     out = run(args)
-    args.stem = fixed or args.stem
     if out is None:
         return None
-    report = dict(command=command_line(script, argv), environment=env,
-                  load_average=dict(start=load0, end=load_average()),
+    report = dict(command=" ".join(["python", f"scripts/{script}", *argv]),
+                  environment=env, load_average=dict(start=load0, end=load_average()),
                   wall_seconds=time.time() - t0)  # fmt: skip
     report = plain(report | out)
-    if args.out is None:  # a measurement printed only
-        print(markdown(report))
-    else:
-        write_report(args.out, args.stem, report, markdown(report), args.md_stem)
+    write_report(args.out, args.stem, report, markdown(report), md_stem)
     return report
 
 

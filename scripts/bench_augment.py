@@ -7,7 +7,7 @@ import statistics
 import time
 
 import torch
-from _harness import header, main
+from _harness import header, main, table
 
 from rhythmic_jax.augment.kornia_ops import NAMES, AugmentConfig, augment
 
@@ -46,8 +46,7 @@ def options(ap) -> None:
 
 
 def run(args) -> dict:
-    generator = torch.Generator().manual_seed(0)
-    rows = []
+    generator, rows = torch.Generator().manual_seed(0), []
     for threads in args.threads:
         torch.set_num_threads(threads)
         for h, w in SIZES[:1] if args.quick else SIZES:
@@ -65,24 +64,17 @@ def run(args) -> dict:
 def markdown(report: dict) -> str:
     """One table per thread count: a row per operation, a column per size."""
     sizes = list(dict.fromkeys(r["size"] for r in report["rows"]))
-    fps = {(r["threads"], r["op"], r["size"]): r for r in report["rows"]}
     ops = list(dict.fromkeys(r["op"] for r in report["rows"]))
+    cell = "{fps_best:.0f} ({fps_median:.0f})"
+    fps = {(r["threads"], r["op"], r["size"]): cell.format(**r) for r in report["rows"]}
     lines = header("Augmentation throughput (frames/s, CPU)", report) + [
         f"Batch {report['batch']}, p = 1, best (median) of {report['repeats']} runs "
         f"of >= 0.2 s."
     ]
     for threads in report["torch_threads"]:
-        lines += [
-            "",
-            f"## {threads} torch thread{'s' if threads > 1 else ''}",
-            "",
-            "| operation | " + " | ".join(sizes) + " |",
-            "|---|" + "---|" * len(sizes),
-        ]
-        for op in ops:
-            cells = [fps[threads, op, s] for s in sizes]
-            text = [f"{c['fps_best']:.0f} ({c['fps_median']:.0f})" for c in cells]
-            lines.append(f"| {op} | " + " | ".join(text) + " |")
+        rows = [[op, *(fps[threads, op, s] for s in sizes)] for op in ops]
+        title = f"## {threads} torch thread{'s' if threads > 1 else ''}"
+        lines += ["", title, "", table(["operation", *sizes], rows, "")]
     return "\n".join(lines)
 
 

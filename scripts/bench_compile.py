@@ -66,9 +66,8 @@ def run_job(argv: list[str], env: dict, tmp: Path) -> dict:
 
 
 def count_fit(n: int = 1000, d: int = 256) -> dict:
-    """The library job alone on :func:`route` frames, in a fresh process against this
-    checkout with no compile cache: its XLA programs (``names``: by name), cache
-    hits, compile and trace seconds and the periods."""
+    """The library job alone on :func:`route` frames afresh, this checkout, no compile
+    cache: its programs (``names``: by name), hits, compile and trace s, periods."""
     with tempfile.TemporaryDirectory() as tmp:
         x, out = Path(tmp) / "x.npy", Path(tmp) / "count.json"
         np.save(x, route(n, d))
@@ -79,31 +78,10 @@ def count_fit(n: int = 1000, d: int = 256) -> dict:
 
 def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     """Seconds until no builder lock is left under ``cache/compiled``."""
-    t = time.perf_counter()
-    folder = cache / "compiled"
+    t, folder = time.perf_counter(), cache / "compiled"
     while list(folder.glob("*.lock")) and time.perf_counter() - t < timeout:
         time.sleep(1.0)
     return time.perf_counter() - t
-
-
-def nordland_features(root: Path, tmp: Path, n: int | None) -> Path:
-    """The patch-normalised summer route as a .npy file."""
-    from rhythmic_jax.frames.features import describe, get_descriptor
-
-    images = h.nordland_images(root, ("summer",))[0].images[:n]
-    path = tmp / "nordland.npy"
-    np.save(path, describe(images, get_descriptor("patchnorm"), progress=False))
-    return path
-
-
-def variants(base: Path, tmp: Path) -> list[tuple[str, dict]]:
-    """(name, environment) of base, new cold, new warm: the warm run reuses the
-    cold run's compile cache (and network)."""
-    env = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
-    jit = tmp / "jit"
-    new = {**env, "PYTHONPATH": str(h.REPO), "RHYTHMIC_JAX_COMPILE_CACHE": str(jit)}
-    old = {**env, "PYTHONPATH": str(base.resolve())}
-    return [("base", old), ("new cold", new), ("new warm", new)]
 
 
 def options(ap) -> None:
@@ -118,23 +96,27 @@ def run(args) -> dict:
     args.small = args.small or args.quick
     args.stem = "compile" + ("_small" if args.small else "")
     jobs = args.jobs.split(",")
-    n_fit, d_fit = (200, 64) if args.small else (1000, 256)
-    n_nord = 300 if args.small else None
-    n_jpeg = 100 if args.small else 1000
-    rows: list[dict] = []
-    agree: dict[str, dict] = {}
+    small = ((200, 64), 300, 100) if args.small else ((1000, 256), None, 1000)
+    (n_fit, d_fit), n_nord, n_jpeg = small
+    rows, agree = [], {}
     with tempfile.TemporaryDirectory(prefix="bench_compile") as tmpdir:
-        tmp = Path(tmpdir)
-        inputs = {}
+        tmp, inputs = Path(tmpdir), {}
         if "fit" in jobs:
             inputs["fit"] = tmp / "route.npy"
             np.save(inputs["fit"], route(n_fit, d_fit))
         if "nordland" in jobs:
-            inputs["nordland"] = nordland_features(args.root, tmp, n_nord)
+            inputs["nordland"] = tmp / "nordland.npy"
+            (x,) = h.nordland_features(args.root, seasons=("summer",))
+            np.save(inputs["nordland"], x[:n_nord])
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
         h.bytecode(args.base, h.REPO)
-        for name, env in variants(args.base, tmp):
+        # base, new cold, new warm (the warm run reuses the cold run's compile cache)
+        common = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
+        old = {**common, "PYTHONPATH": str(args.base.resolve())}
+        new = {**common, "PYTHONPATH": str(h.REPO)}
+        new["RHYTHMIC_JAX_COMPILE_CACHE"] = str(tmp / "jit")
+        for name, env in (("base", old), ("new cold", new), ("new warm", new)):
             side = name.split()[0]
             if name == "new cold":
                 shutil.rmtree(network, ignore_errors=True)
@@ -199,36 +181,31 @@ TARGETS = [
 
 def targets(report: dict) -> list[list]:
     """[target, limit, measured, met] for the targets this run's jobs answer."""
-    rows = {(r["job"], r["variant"]): r for r in report["rows"]}
-    out = []
+    rows, out = {(r["job"], r["variant"]): r for r in report["rows"]}, []
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
             value = measure(rows[job, variant], rows[job, "base"])
-            if limit is None:  # a floor under the others, not a target
-                out.append([what, "", fmt.format(value), ""])
-                continue
-            ok = "met" if value <= limit else "not met"
-            out.append([what, fmt.format(limit), fmt.format(value), ok])
+            met = "" if limit is None else "met" if value <= limit else "not met"
+            limit = "" if limit is None else fmt.format(limit)  # None: a floor only
+            out.append([what, limit, fmt.format(value), met])
     return out
 
 
 def markdown(report: dict) -> str:
     keys = "job variant programs compiled hits compile_s wall load".split()
-    rows = [[r[k] for k in keys] for r in report["rows"]]
     agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
              for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
     title = "Compiling: XLA programs, compile seconds and wall per job"
     return "\n".join(h.header(title, report)) + "\n" + "\n\n".join([
-        f"Baseline checkout {report['base']} (no compile cache) against this one, "
-        "cold (empty compile cache) and warm (the cache the cold run left). Each "
-        "job is a fresh process, both checkouts' Python bytecode compiled before"
-        " the first. Programs: XLA programs the job obtained; hits: "
-        "of them, loaded from the persistent cache; compile s: their seconds "
-        f"(loads included); load: 1-minute load average after the job. Sizes: fit "
-        f"{s['fit'][0]} x {s['fit'][1]}, Nordland patchnorm {s['nordland']} x 2048,"
-        f" {s['jpegs']} JPEGs (Lite0).",
-        h.table(HEAD, rows),
+        f"Baseline checkout {report['base']} (no compile cache) against this one, cold"
+        " (empty compile cache) and warm (the cache the cold run left). Each job is a"
+        " fresh process, both checkouts' Python bytecode compiled before the first."
+        " Programs: XLA programs the job obtained; hits: of them, loaded from the"
+        " persistent cache; compile s: their seconds (loads included); load: 1-minute"
+        f" load average after the job. Sizes: fit {s['fit'][0]} x {s['fit'][1]},"
+        f" Nordland patchnorm {s['nordland']} x 2048, {s['jpegs']} JPEGs (Lite0).",
+        h.table(HEAD, [[r[k] for k in keys] for r in report["rows"]]),
         "Targets (the imports row is the floor under any fit's wall: a process that"
         " imports what a fit needs and exits, doing no work):",
         h.table(["target", "at most", "measured", ""], targets(report)),

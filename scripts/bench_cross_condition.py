@@ -31,7 +31,6 @@ from rhythmic_jax.rhythmic_map import RhythmicMap
 from rhythmic_jax.scalar_codes import scalar_code_bytes
 from rhythmic_jax.split import NORDLAND_SPLIT
 
-log = h.log
 TOL = 1
 LENGTHS = (5, 10, 20)
 BUDGETS = (0.15, 0.20)
@@ -50,8 +49,7 @@ def _acc(pred, tol=TOL) -> float:
 
 def _recall(scores, k: int) -> float:
     scores = np.asarray(scores)
-    gt = np.arange(len(scores))
-    top = np.argpartition(-scores, k, axis=1)[:, :k]
+    gt, top = np.arange(len(scores)), np.argpartition(-scores, k, axis=1)[:, :k]
     return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
 
 
@@ -70,9 +68,8 @@ def aerial_data(root: Path, progress: bool):
     desc = get_descriptor("patchnorm")
     out = dict(names=("A", "B"), descriptor=desc)
     for part, folder in (("train", "samples_DSIFN"), ("test", "samples_LEVIR")):
-        a, b, route = h.aerial_features(
-            root, desc, folder, f"{folder}-64-32-", progress
-        )
+        key = f"{folder}-64-32-"
+        a, b, route = h.aerial_features(root, desc, folder, key, progress)
         out[part] = [a, b]
         if part == "test":
             out["images"] = [route.map_tiles, route.query_tiles]
@@ -98,29 +95,22 @@ def brute_row(ref, qry, label, emb_bytes=0) -> dict:
     r, q = h.unit_rows(ref), h.unit_rows(qry)
     sim = q @ r.T
     pred = sim.argmax(1)
-    return dict(
-        method=label, r1=_acc(pred), r1_exact=_acc(pred, 0), r5=_recall(sim, 5),
-        storage_bytes=int(r.size * 4), embedding_bytes=int(emb_bytes),
-        seconds=time.perf_counter() - t0,
-    )  # fmt: skip
+    return dict(method=label, r1=_acc(pred), r1_exact=_acc(pred, 0), r5=_recall(sim, 5),
+                storage_bytes=int(r.size * 4), embedding_bytes=int(emb_bytes),
+                seconds=time.perf_counter() - t0)  # fmt: skip
 
 
 def seqslam_row(ref, qry) -> dict:
     t0 = time.perf_counter()
     row = dict(method="SeqSLAM raw", storage_bytes=int(np.asarray(ref).size * 4))
-    for L in LENGTHS:
-        idx, _ = seqslam_decode(qry, ref, L, progress=False)
-        row[f"L{L}"] = _acc(idx)
-    row["seconds"] = time.perf_counter() - t0
-    return row
+    row |= {f"L{L}": _acc(seqslam_decode(qry, ref, L)[0]) for L in LENGTHS}
+    return row | dict(seconds=time.perf_counter() - t0)
 
 
 def fit_map(ref, *, labels=None, emb=None, **kw) -> tuple[RhythmicMap, float]:
     """``RhythmicMap(r=2, **kw)`` fitted on ref (with ``emb``) -> (map, seconds)."""
-    t0 = time.perf_counter()
     m = RhythmicMap(r=2, gap=GAP, count=COUNT, embedding=emb, **kw)
-    m.fit(ref, labels, progress=False)
-    return m, time.perf_counter() - t0
+    return m, h.timed(m.fit, ref, labels, progress=False)[1]
 
 
 def with_codes(m: RhythmicMap, ref, codes, fusion: float = 0.5) -> RhythmicMap:
@@ -139,8 +129,7 @@ def train_weight(train, emb, pair, codes, n: int) -> tuple[float, dict]:
     t = max(2, round(pair[0] * len(ref) / n))  # as many places a phase as on test
     m, _ = fit_map(ref, emb=emb, layout=f"periods:{t},{t + 1}")
     hy = with_codes(m, ref, codes)
-    q = apply(emb, qry) if emb is not None else qry
-    sims = hy.codebook.similarity(q)
+    sims = hy.codebook.similarity(apply(emb, qry) if emb is not None else qry)
     return learn_weight(m.scores(qry), sims, m.periods, m.n, np.arange(len(qry)), TOL)
 
 
@@ -152,17 +141,14 @@ def eval_row(m: RhythmicMap, ref, qry, label: str, fit_s: float) -> dict:
     else:
         place = group_place_scores(m.scores(qry), m.groups, m.n)
     pred = m.predict(qry, "soft")
-    row = dict(
-        method=label, layout=m.groups.describe(), sizes=list(m.groups.sizes),
-        codes_bits=m.codebook.bits if m.codebook else None, r1=_acc(pred),
-        r1_exact=_acc(pred, 0), r5=_recall(place, 5),
-        self_r1=_acc(m.predict(ref[: m.n], "soft"), 0), storage_bytes=m.storage_bytes,
-        embedding_bytes=m.embedding_bytes, fit_seconds=fit_s,
-    )  # fmt: skip
-    for L in LENGTHS:
-        row[f"L{L}"] = _acc(m.predict(qry, "soft", sequence=L))
-    row["seconds"] = fit_s + time.perf_counter() - t0
-    return row
+    row = dict(method=label, layout=m.groups.describe(), sizes=list(m.groups.sizes),
+               codes_bits=m.codebook.bits if m.codebook else None, r1=_acc(pred),
+               r1_exact=_acc(pred, 0), r5=_recall(place, 5),
+               self_r1=_acc(m.predict(ref[: m.n], "soft"), 0),
+               storage_bytes=m.storage_bytes, embedding_bytes=m.embedding_bytes,
+               fit_seconds=fit_s)  # fmt: skip
+    row |= {f"L{L}": _acc(m.predict(qry, "soft", sequence=L)) for L in LENGTHS}
+    return row | dict(seconds=fit_s + time.perf_counter() - t0)
 
 
 def map_row(ref, qry, label, *, labels=None, emb=None, **kw) -> dict:
@@ -203,9 +189,7 @@ def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
         return rows
     if pair8 != pair:
         m, fit_s = fit_map(ref, emb=emb, layout=f"periods:{pair8[0]},{pair8[1]}")
-    t0 = time.perf_counter()
-    w, table = train_weight(train, emb, pair8, "int8", n)
-    learn_s = time.perf_counter() - t0
+    (w, table), learn_s, _ = h.timed(train_weight, train, emb, pair8, "int8", n)
     h8 = with_codes(m, ref, "int8", w)
     row = eval_row(h8, ref, qry, f"hybrid {label} + int8 codes (w = {w:g} "
                    "learned on the training places)", fit_s)  # fmt: skip
@@ -232,8 +216,7 @@ def augmented_row(ref, images, desc, qry, level, seed=0) -> dict:
     cfg = ko.AugmentConfig()
     aug = [ko.to_images(ko.augment(ko.to_batch(images[i : i + 256]), cfg, seed + i)[0])
            for i in range(0, len(images), 256)]  # fmt: skip
-    x_aug = describe(np.concatenate(aug), desc)
-    x = np.concatenate([ref, x_aug])
+    x = np.concatenate([ref, describe(np.concatenate(aug), desc)])
     labels = np.concatenate([np.arange(len(ref))] * 2)
     row = map_row(x, qry, "map raw + augmentation (all seven, 2 exemplars)",
                   labels=labels, level=level)  # fmt: skip
@@ -246,12 +229,10 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
     n, d_raw = test[0].shape
     embeddings, learn_info = {}, {}
     for label, lc in cfg["levers"].items():
-        t0 = time.perf_counter()
-        emb, info = cached_embedding(name, train, lc)
-        info["wall_seconds_this_run"] = time.perf_counter() - t0
-        info["bytes"] = embedding_bytes(emb)
+        (emb, info), wall, _ = h.timed(cached_embedding, name, train, lc)
+        info.update(wall_seconds_this_run=wall, bytes=embedding_bytes(emb))
         embeddings[label], learn_info[label] = emb, info
-        log.info("%s: %s ready in %.1f s", name, label, info["wall_seconds_this_run"])
+        h.log.info("%s: %s ready in %.1f s", name, label, info["wall_seconds_this_run"])
     directions, first = {}, next(iter(embeddings))
     for a, b in ((0, 1), (1, 0)):
         key = f"{data['names'][a]}->{data['names'][b]}"
@@ -262,9 +243,8 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
             args = ref, data["images"][a], data["descriptor"], qry, cfg["level"]
             rows.append(augmented_row(*args))
         for i, (label, emb) in enumerate(embeddings.items()):
-            eb = embedding_bytes(emb)
             er, eq = apply(emb, ref), apply(emb, qry)
-            rows.append(brute_row(er, eq, f"brute force {label}", eb))
+            rows.append(brute_row(er, eq, f"brute force {label}", embedding_bytes(emb)))
             if label not in cfg.get("map_levers", (first,)):
                 continue  # the gradient-trained heads: reference rows, brute force
             rows.append(map_row(ref, qry, f"map {label}", emb=emb,
@@ -275,7 +255,7 @@ def run_dataset(name: str, data: dict, cfg: dict) -> dict:
                 for kind in ("mixed", "hierarchical"):
                     rows.append(map_row(ref, qry, f"{kind} digits {label}", emb=emb,
                                         layout=kind, level=cfg["level"]))  # fmt: skip
-            log.info("%s %s %s done", name, key, label)
+            h.log.info("%s %s %s done", name, key, label)
         db = database_bytes(n, d_raw, 4)
         for r in rows:
             r["ratio"] = (r["storage_bytes"] + r.get("embedding_bytes", 0)) / db
@@ -314,10 +294,9 @@ def run(args) -> dict:
     for title, load, settings in plan(args.quick):
         if words and not any(w in title for w in words):
             continue
-        data = load(args.root, args.progress)
-        datasets[title] = run_dataset(title, data, settings)
+        datasets[title] = run_dataset(title, load(args.root, args.progress), settings)
         datasets[title]["seconds"] = time.perf_counter() - t0
-        log.info("%s done at %.0f s", title, time.perf_counter() - t0)
+        h.log.info("%s done at %.0f s", title, time.perf_counter() - t0)
         # after every data set: a run cut short still leaves the ones it finished
         args.out.mkdir(parents=True, exist_ok=True)
         saved.write_text(json.dumps(dict(datasets=datasets), default=float))
@@ -331,8 +310,7 @@ def run(args) -> dict:
 def refresh(report: dict, args) -> None:
     """Targets and figure again, for ``--render``."""
     report["targets"] = targets(report)
-    path = args.render if args.render.name else args.out / f"{args.stem}.json"
-    draw(report, path.with_suffix(".png"))
+    draw(report, args.render.with_suffix(".png"))
 
 
 COLS = ("r1", "r1_exact", "r5", "L5", "L10", "L20", "self_r1")
@@ -340,13 +318,8 @@ HEADS = ["method", "R@1", "exact", "R@5", "L=5", "L=10", "L=20", "self",
          "storage B", "embedding B", "ratio", "sizes", "fit s"]  # fmt: skip
 
 
-def is_map(row: dict) -> bool:
-    """Rows whose answer comes from a rhythmic map (alone, hybrid, digits)."""
-    return "layout" in row
-
-
-def within(rows, key, budget=None, where=is_map) -> list[dict]:
-    """The ``where`` rows that have ``key``, within ``budget``."""
+def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
+    """The ``where`` rows (default: the map's) that have ``key``, within ``budget``."""
     return [r for r in rows if where(r) and key in r
             and (budget is None or r["ratio"] <= budget + 1e-12)]  # fmt: skip
 
@@ -363,17 +336,13 @@ def _row(rows, name) -> dict | None:
     return next((r for r in rows if r["method"] == name), None)
 
 
-def _verdict(value, goal) -> str:
-    word = "met" if value >= goal else "NOT met"
-    return f"{word} ({value:.3f} vs {goal:.3f}, {value - goal:+.3f})"
-
-
 def _check(row, key, goal, share=True) -> str:
     """The verdict of ``row[key]`` against ``goal``, naming the row (and its share)."""
     if row is None:
         return "no map row fits 15 %"
-    tail = f", {100 * row['ratio']:.1f} %" if share else ""
-    return _verdict(row[key], goal) + f": {row['method']}{tail}"
+    v, tail = row[key], f", {100 * row['ratio']:.1f} %" if share else ""
+    word = "met" if v >= goal else "NOT met"
+    return f"{word} ({v:.3f} vs {goal:.3f}, {v - goal:+.3f}): {row['method']}{tail}"
 
 
 def targets(report: dict) -> list[tuple[str, str]]:
@@ -428,31 +397,29 @@ def _fmt(v):
 
 def markdown(report: dict) -> str:
     lines = h.header("Recognition under appearance change (split by place)", report)
-    walls = report.get("wall_seconds_by_process")
     wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
-    if walls:
+    if walls := report.get("wall_seconds_by_process"):
         wall = "Data sets run in parallel processes (the commands above, joined by "
         wall += "';'); wall time of each: "
         wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
     lines += [wall + ".", "",
-              "Maps are fitted on one condition of the test places and queried with"
-              " the other; every embedding was learned on the training places only"
+              "Maps are fitted on one condition of the test places and queried with the"
+              " other; every embedding was learned on the training places only"
               " (Nordland 0-1199, test 1220-3575; aerial: DSIFN pairs train, LEVIR"
-              " pairs test). R@1 and R@5 within +-1 place; `exact` without"
-              " tolerance; L = phase-domain sequence of the map's place scores, or"
-              " SeqSLAM on the raw descriptor; `self` = reference frames as queries"
-              " (exact). storage B: templates (with codes, the codes and their"
-              " transform; brute force: the database in float32); embedding B: its"
-              " parameters, stored once, not growing with N; ratio = both over the"
-              " raw float32 database. `hybrid`: the map's place scores and the ITQ"
-              " code similarities, each z-scored per query, summed (codes fitted on"
-              " the embedded reference frames); `+ int8 codes`: the same with a byte"
-              " per dimension of the embedded frame, fused with the map's share w"
-              " learned on the training places (the `chosen` configuration the"
-              " targets judge, fixed before any test place was scored); `int8 codes"
-              " alone`: those codes' own search, which shows what the templates add."
-              " Budget rows take the largest pair of periods (t, t + 1) that fits;"
-              " their t/N says how far from sub-linear they are.",
+              " pairs test). R@1 and R@5 within +-1 place; `exact` without tolerance; L"
+              " = phase-domain sequence of the map's place scores, or SeqSLAM on the"
+              " raw descriptor; `self` = reference frames as queries (exact). storage"
+              " B: templates (with codes, the codes and their transform; brute force:"
+              " the database in float32); embedding B: its parameters, stored once, not"
+              " growing with N; ratio = both over the raw float32 database. `hybrid`:"
+              " the map's place scores and the ITQ code similarities, each z-scored per"
+              " query, summed (codes fitted on the embedded reference frames); `+ int8"
+              " codes`: the same with a byte per dimension of the embedded frame, fused"
+              " with the map's share w learned on the training places (the `chosen`"
+              " configuration the targets judge, fixed before any test place was"
+              " scored); `int8 codes alone`: those codes' own search, which shows what"
+              " the templates add. Budget rows take the largest pair of periods (t, t +"
+              " 1) that fits; their t/N says how far from sub-linear they are.",
               "", "## Targets", ""]  # fmt: skip
     lines += [f"- {t}: **{v}**" for t, v in targets(report)] + [""]
     for name, ds in report["datasets"].items():

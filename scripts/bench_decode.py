@@ -16,7 +16,6 @@ from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
 
-log = h.log
 BATCH = 1000
 NOISE = 0.5  # query noise relative to a unit reference
 QUICK = dict(repeats=1, singles=30)  # --quick
@@ -33,8 +32,7 @@ def random_features(n: int, d: int, b: int, seed: int):
 
 def random_map(d: int, periods: tuple[int, ...], seed: int) -> Templates:
     """Templates with random weights (d, p) and biases (p,)."""
-    rng = np.random.default_rng(seed)
-    p = sum(periods)
+    rng, p = np.random.default_rng(seed), sum(periods)
     w = rng.standard_normal((d, p), dtype=np.float32) / np.float32(np.sqrt(d))
     b = rng.standard_normal(p, dtype=np.float32) * np.float32(0.01)
     return Templates(jnp.asarray(w), jnp.asarray(b))
@@ -42,9 +40,8 @@ def random_map(d: int, periods: tuple[int, ...], seed: int) -> Templates:
 
 def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) -> dict:
     """Throughput and latency of both decoders on the same features."""
-    n, d = refs.shape
-    p = sum(periods)
-    log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
+    (n, d), p = refs.shape, sum(periods)
+    h.log.info("%s: N=%d d=%d periods %s (p=%d)", name, n, d, periods, p)
     params = random_map(d, periods, seed=1)
     flat = BruteForce(n_threads=h.cores()).fit(refs)
     fns = dict(rhythmic=lambda q: decode(params, q, periods, n),
@@ -54,8 +51,8 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
         batch = time_batch(fn, queries, repeats=repeats)
         single = time_single_queries(fn, queries[:singles], warmup=10)
         out[label] = dict(batch=batch, single=single)
-        log.info("  %s: %.0f queries/s, single median %.3f ms", label,
-                 batch["queries_per_s"], 1e3 * single["median_s"])  # fmt: skip
+        h.log.info("  %s: %.0f queries/s, single median %.3f ms", label,
+                   batch["queries_per_s"], 1e3 * single["median_s"])  # fmt: skip
     top = fns["faiss"](queries)[1]
     r, f = out["rhythmic"], out["faiss"]
     return dict(
@@ -83,16 +80,14 @@ def case_markdown(c: dict) -> str:
         h.table([*head, "single ms p95"], rows),
         f"Rhythmic / faiss: **{c['batch_speedup']:.1f}x** batch throughput,"
         f" **{c['single_speedup_median']:.1f}x** single-query median latency"
-        f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p ="
-        f" {c['n']} / {c['p']} = **{c['flop_ratio']:.1f}**. Bytes read per"
-        f" single query: map {c['map_bytes'] / 2**20:.1f} MiB, database"
-        f" {c['database_bytes'] / 2**20:.1f} MiB. Threads: XLA"
-        f" {c['threads']['xla']}, faiss {c['threads']['faiss']}. Load average"
-        f" at the start of the case {c['load_average_start']}. Single queries"
-        f" timed: {c['single_queries']}; batch calls timed:"
-        f" {r['batch']['repeats']} each. faiss top-1 = the query's own"
-        f" reference (same index) for {100 * c['faiss_top1_is_source']:.1f} %"
-        " of queries.",
+        f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p = {c['n']} /"
+        f" {c['p']} = **{c['flop_ratio']:.1f}**. Bytes read per single query: map"
+        f" {c['map_bytes'] / 2**20:.1f} MiB, database {c['database_bytes'] / 2**20:.1f}"
+        f" MiB. Threads: XLA {c['threads']['xla']}, faiss {c['threads']['faiss']}. Load"
+        f" average at the start of the case {c['load_average_start']}. Single queries"
+        f" timed: {c['single_queries']}; batch calls timed: {r['batch']['repeats']}"
+        " each. faiss top-1 = the query's own reference (same index) for"
+        f" {100 * c['faiss_top1_is_source']:.1f} % of queries.",
     ]) + "\n"  # fmt: skip
 
 
@@ -114,8 +109,9 @@ def options(ap) -> None:
 def run(args) -> dict:
     kw = dict(repeats=args.repeats, singles=args.singles)
     refs, qry, src = random_features(10713, 4096, BATCH, seed=0)
-    name = "random, Nordland spring size"
-    cases = [bench_case(name, refs, qry, src, (105, 106), **kw)]
+    cases = [
+        bench_case("random, Nordland spring size", refs, qry, src, (105, 106), **kw)
+    ]
     del refs, qry
     periods = nominal_periods(3576, 2, 1, 7)
     if (args.root / "nordland_64x32").is_dir():
@@ -123,7 +119,7 @@ def run(args) -> dict:
         refs, qry = h.nordland_features(args.root, progress=args.progress)
         qry, src = qry[:BATCH], np.arange(BATCH)
     else:
-        log.warning("no Nordland data under %s: random features", args.root)
+        h.log.warning("no Nordland data under %s: random features", args.root)
         name = "random, Nordland 64x32 size"
         refs, qry, src = random_features(3576, 2048, BATCH, seed=0)
     cases.append(bench_case(name, refs, qry, src, periods, **kw))

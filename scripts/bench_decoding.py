@@ -24,8 +24,6 @@ from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
-log = h.log
-
 TOLERANCE = 1
 LENGTHS = (5, 10, 20)
 GRID_LENGTH = 10  # the length also run over the 5-speed grid
@@ -40,8 +38,7 @@ GRIDS = [(length, (1.0,)) for length in LENGTHS] + [(GRID_LENGTH, SPEEDS)]
 
 
 def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
-    """``RhythmicMap(r=2, level=level).fit(x)``, cached on disk by features and
-    settings (a fit on 3576 frames takes minutes)."""
+    """``RhythmicMap(r=2, level=level).fit(x)``, cached on disk (minutes a fit)."""
     settings = get_descriptor(descriptor).settings()
     model = RhythmicMap(r=2, level=level, descriptor=descriptor,
                         descriptor_settings=settings)  # fmt: skip
@@ -59,8 +56,7 @@ def _row(method, out, gt, seconds, storage, **extra) -> dict:
 
 
 def per_period(fn):
-    """(T, p) -> (T, p): ``fn`` on each period's block of every frame's scores,
-    jitted (the periods static)."""
+    """(T, p) -> (T, p): ``fn`` on each period's block of scores, jitted."""
 
     @functools.partial(jax.jit, static_argnames=("periods",))
     def apply(scores: jax.Array, periods: tuple[int, ...]) -> jax.Array:
@@ -154,8 +150,7 @@ def _speeds(speeds) -> str:
 
 def reference_rows(ref: np.ndarray, qry: np.ndarray, gt: np.ndarray, repeats: int):
     """Single-frame brute force and SeqSLAM-style sequences on full descriptors."""
-    storage = ref.size * 4
-    flat = BruteForce(n_threads=h.cores()).fit(ref)
+    storage, flat = ref.size * 4, BruteForce(n_threads=h.cores()).fit(ref)
     pred, sec = h.fastest(lambda: flat.search(qry, 1)[1][:, 0], repeats)
     rows = [_row("brute force", pred, gt, sec, storage)]
     for window in (None, CONTRAST_WINDOW):
@@ -192,9 +187,9 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
 def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
     """Hold 20 % of the route out of the map; query every winter frame."""
     hold = ol.holdout_split(len(ref), **HOLDOUT)
-    gt = hold.gt()
-    first = np.arange(len(qry)) < len(qry) // 2
-    model = fitted_map(ref[hold.fit], level, descriptor, progress)
+    gt, first = hold.gt(), np.arange(len(qry)) < len(qry) // 2
+    kept = ref[hold.fit]
+    model = fitted_map(kept, level, descriptor, progress)
     per, n = model.periods, model.n
     scores = model.scores(qry)
     label, centred = f"sequence soft L={GRID_LENGTH}", centre_templates(scores)
@@ -208,23 +203,18 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
             cases[f"{label}, {kind}"] = ol.decode_confidence(
                 acc, per, n, "soft", kind=kind, exclude=ex
             )
-    flat = BruteForce(n_threads=h.cores()).fit(ref[hold.fit])
-    sim, top = flat.search(qry, 1)
+    sim, top = BruteForce(n_threads=h.cores()).fit(kept).search(qry, 1)
     cases["brute force, cosine"] = (top[:, 0], ol.finite_confidence(sim[:, 0]))
     for w in (None, CONTRAST_WINDOW):
-        idx, score = sq.seqslam_decode(
-            qry, ref[hold.fit], GRID_LENGTH, contrast_window=w, progress=False
-        )
+        idx, score = sq.seqslam_decode(qry, kept, GRID_LENGTH, contrast_window=w)
         label = f"SeqSLAM L={GRID_LENGTH}" + (f", contrast w={w}" if w else "")
         cases[label + ", score"] = (np.asarray(idx), ol.finite_confidence(score))
     rows = []
     for label, (pred, conf) in cases.items():
         pred = np.asarray(pred).astype(np.int64)
         rows.append(dict(method=label, **_threshold_metrics(pred, conf, gt, first)))
-    return dict(
-        descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
-        n_held=len(hold.held), n_queries=len(qry), rows=rows,
-    )  # fmt: skip
+    return dict(descriptor=descriptor, level=level, periods=list(per), n_map=int(n),
+                n_held=len(hold.held), n_queries=len(qry), rows=rows)  # fmt: skip
 
 
 DECODING = ["method", "R@1 (±1)", "R@1 exact", "queries/s", "storage MiB",
@@ -233,23 +223,6 @@ OUTLIERS = ["method, confidence", "PR AUC", "R@100P", "threshold", "kept", "thr 
             "thr R", "outliers rejected"]  # fmt: skip
 TARGET = ["descriptor", "L", "map decode", "R@1", "SeqSLAM", "R@1", "points", "speed",
           "storage", "met"]  # fmt: skip
-
-
-def decoding_table(block: dict) -> str:
-    db = block["database_bytes"]
-    rows = [[r["method"], f"{r['recall_at_1']:.4f}", f"{r['recall_at_1_exact']:.4f}",
-             f"{r['queries_per_s']:,.0f}", f"{r['storage_bytes'] / 2**20:.2f}",
-             f"{100 * r['storage_bytes'] / db:.1f}"]
-            for r in block["rows"]]  # fmt: skip
-    return h.table(DECODING, rows, "lrrrrr")
-
-
-def outlier_table(block: dict) -> str:
-    rows = [[r["method"], f"{r['pr_auc']:.4f}", f"{r['recall_at_100_precision']:.4f}",
-             f"{r['threshold']:.4g}", r["retrieved"],
-             f"{r['precision_at_threshold']:.3f}", f"{r['recall_at_threshold']:.3f}",
-             f"{r['outliers_rejected']:.3f}"] for r in block["rows"]]  # fmt: skip
-    return h.table(OUTLIERS, rows, "lrrrrrrr")
 
 
 def target_table(blocks: list[dict]) -> str:
@@ -286,22 +259,24 @@ def markdown(report: dict) -> str:
     env = report["environment"]
     parts = [
         "# Decoders beyond the paper",
-        f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch"
-        " from descriptors to indices on "
-        f"{env.get('cores', env.get('cpus'))} CPUs, after one compiling call;"
-        " descriptor extraction not included. Maps: r=2, Newton solver, default"
-        " C = log N."
-        f" Command: `{report['command']}`.",
+        f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch from"
+        f" descriptors to indices on {env.get('cores', env.get('cpus'))} CPUs, after"
+        " one compiling call; descriptor extraction not included. Maps: r=2, Newton"
+        f" solver, default C = log N. Command: `{report['command']}`.",
     ]  # fmt: skip
     for b in report["decoding"]:
+        rows = [[r["method"], f"{r['recall_at_1']:.4f}",
+                 f"{r['recall_at_1_exact']:.4f}", f"{r['queries_per_s']:,.0f}",
+                 f"{r['storage_bytes'] / 2**20:.2f}",
+                 f"{100 * r['storage_bytes'] / b['database_bytes']:.1f}"]
+                for r in b["rows"] + b["references"]]  # fmt: skip
         parts += [
             f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
             f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"
             f" ({100 * b['compression_ratio']:.1f} % of the database).",
-            decoding_table({"rows": b["rows"] + b["references"], **b}),
+            h.table(DECODING, rows, "lrrrrr"),
         ]
-    target = target_table(report["decoding"])
-    if target:
+    if target := target_table(report["decoding"]):
         parts += [
             "## Target: level 4, within 5 points of SeqSLAM, >= 10x its speed,"
             " <= 14 % of its storage",
@@ -311,39 +286,37 @@ def markdown(report: dict) -> str:
             target,
         ]
     for b in report["outliers"]:
+        rows = [[r["method"], f"{r['pr_auc']:.4f}",
+                 f"{r['recall_at_100_precision']:.4f}", f"{r['threshold']:.4g}",
+                 r["retrieved"], f"{r['precision_at_threshold']:.3f}",
+                 f"{r['recall_at_threshold']:.3f}", f"{r['outliers_rejected']:.3f}"]
+                for r in b["rows"]]  # fmt: skip
         parts += [
             f"## Outliers: Nordland, {b['descriptor']}, level {b['level']}",
-            f"{b['n_held']} of {b['n_queries']} route frames held out of the summer"
-            f" map in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
+            f"{b['n_held']} of {b['n_queries']} route frames held out of the summer map"
+            f" in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
             f" {b['n_map']} frames, periods {b['periods']}. PR AUC and recall at 100 %"
-            " precision on the second half of the route. Threshold: chosen on the"
-            " first half (largest recall at 100 % precision; inf when none reaches"
-            " it, so everything is rejected); kept, thr P, thr R: second-half"
-            " queries kept at that threshold, their precision and recall;"
-            " outliers rejected: share of held-out places' queries rejected."
-            f" Margins exclude rivals within {EXCLUDE} places; recall within"
-            f" ±{TOLERANCE}.",
-            outlier_table(b),
+            " precision on the second half of the route. Threshold: chosen on the first"
+            " half (largest recall at 100 % precision; inf when none reaches it, so"
+            " everything is rejected); kept, thr P, thr R: second-half queries kept at"
+            " that threshold, their precision and recall; outliers rejected: share of"
+            " held-out places' queries rejected. Margins exclude rivals within"
+            f" {EXCLUDE} places; recall within ±{TOLERANCE}.",
+            h.table(OUTLIERS, rows, "lrrrrrrr"),
         ]
     return "\n\n".join(parts) + "\n"
-
-
-def available(names) -> list[str]:
-    out = []
-    for name in names:
-        try:
-            get_descriptor(name).settings()
-            out.append(name)
-        except Exception as err:  # noqa: BLE001 - weights missing, import failure
-            log.warning("skipping descriptor %s: %s", name, err)
-    return out
 
 
 def run(args: argparse.Namespace) -> dict:
     blocks, outliers = [], []
     repeats = 3 if args.quick else 5
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
-    for name in available(args.descriptors):
+    for name in args.descriptors:
+        try:
+            get_descriptor(name).settings()
+        except Exception as err:  # noqa: BLE001 - weights missing, import failure
+            h.log.warning("skipping descriptor %s: %s", name, err)
+            continue
         datasets = {
             "nordland": h.nordland_features(args.root, name, **kw),
             "aerial LEVIR": h.aerial_features(args.root, name, **kw)[:2],
@@ -353,24 +326,23 @@ def run(args: argparse.Namespace) -> dict:
             datasets = {k: (r[:f], q[:f]) for k, (r, q) in datasets.items()}
         for dataset, (ref, qry) in datasets.items():
             gt = np.arange(len(qry))
-            log.info("%s %s: references", dataset, name)
+            h.log.info("%s %s: references", dataset, name)
             refs = reference_rows(ref, qry, gt, repeats)
             for level in args.levels:
                 model = fitted_map(ref, level, name, args.progress)
-                log.info("%s %s level %d, periods %s", dataset, name, level,
-                         model.periods)  # fmt: skip
-                blocks.append(dict(
-                    dataset=dataset, descriptor=name,
-                    settings=get_descriptor(name).settings(), level=level,
-                    n=int(model.n), d=int(model.d), n_queries=len(qry),
-                    periods=list(model.periods),
-                    compression_ratio=model.compression_ratio,
-                    database_bytes=int(ref.size * 4),
-                    rows=map_rows(model, qry, gt, repeats), references=refs,
-                ))  # fmt: skip
+                h.log.info("%s %s level %d, periods %s", dataset, name, level,
+                           model.periods)  # fmt: skip
+                blocks.append(dict(dataset=dataset, descriptor=name,
+                                   settings=get_descriptor(name).settings(),
+                                   level=level, n=int(model.n), d=int(model.d),
+                                   n_queries=len(qry), periods=list(model.periods),
+                                   compression_ratio=model.compression_ratio,
+                                   database_bytes=int(ref.size * 4),
+                                   rows=map_rows(model, qry, gt, repeats),
+                                   references=refs))  # fmt: skip
         ref, qry = datasets["nordland"]
         for level in args.levels:
-            log.info("outlier protocol, %s level %d", name, level)
+            h.log.info("outlier protocol, %s level %d", name, level)
             outliers.append(outlier_rows(ref, qry, level, name, args.progress))
     return dict(tolerance=TOLERANCE, lengths=list(LENGTHS), speeds_grid=list(SPEEDS),
                 m=M, exclude=EXCLUDE, holdout=HOLDOUT, decoding=blocks,

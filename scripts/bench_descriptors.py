@@ -4,13 +4,11 @@ python scripts/bench_descriptors.py            # writes reports/descriptors.*
 """
 
 import os
-import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import torch
-from _harness import header, log, main, nordland_images, table
+from _harness import header, log, main, nordland_images, table, timed
 
 from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
 from rhythmic_jax.projection import fit_pca, project
@@ -27,16 +25,8 @@ PCA_OF = "efficientnet_lite0 b10 224x112"
 
 def recall_at_1(queries: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     """Unit-norm rows; ground truth is the same index. (exact, within +-1)."""
-    nearest = np.argmax(queries @ reference.T, axis=1)
-    err = np.abs(nearest - np.arange(len(queries)))
+    err = np.abs(np.argmax(queries @ reference.T, axis=1) - np.arange(len(queries)))
     return float(np.mean(err == 0)), float(np.mean(err <= 1))
-
-
-def frames_per_second(images: np.ndarray, descriptor, batch_size: int) -> float:
-    describe(images[:batch_size], descriptor, batch_size, progress=False)  # warm up
-    start = time.perf_counter()
-    describe(images, descriptor, batch_size, progress=False)
-    return len(images) / (time.perf_counter() - start)
 
 
 def run(args) -> dict:
@@ -57,22 +47,19 @@ def run(args) -> dict:
         ref = cached_describe(summer, d, key + "summer", progress=args.progress, **kw)
         qry = cached_describe(winter, d, key + "winter", progress=args.progress, **kw)
         exact, tol1 = recall_at_1(qry, ref)
-        fps = frames_per_second(timing, d, args.batch_size)
-        rows.append(dict(
-            descriptor=label, name=name, settings=d.settings(), dim=d.dim,
-            recall_at_1=exact, recall_at_1_tol1=tol1, frames_per_s=fps,
-        ))  # fmt: skip
+        describe(timing[: args.batch_size], d, args.batch_size)  # warm-up
+        fps = len(timing) / timed(describe, timing, d, args.batch_size)[1]
+        rows.append(dict(descriptor=label, name=name, settings=d.settings(), dim=d.dim,
+                         recall_at_1=exact, recall_at_1_tol1=tol1,
+                         frames_per_s=fps))  # fmt: skip
         log.info("%s: recall@1 %.4f (+-1: %.4f), %.1f frames/s", label, exact, tol1,
                  fps)  # fmt: skip
         kept[label] = (ref, qry, fps)
     ref, qry, fps = kept.get(PCA_OF) or next(iter(kept.values()))
     args.pca_dim = min(args.pca_dim, ref.shape[1] // 2, len(ref) - 1)
-    start = time.perf_counter()
-    pca = jax.block_until_ready(fit_pca(ref, args.pca_dim))
-    fit_s = time.perf_counter() - start
-    ref_p = np.asarray(project(pca, ref, normalize=True))
-    qry_p = np.asarray(project(pca, qry, normalize=True))
-    exact, tol1 = recall_at_1(qry_p, ref_p)
+    pca, fit_s, _ = timed(fit_pca, ref, args.pca_dim)
+    qp, rp = (np.asarray(project(pca, x, normalize=True)) for x in (qry, ref))
+    exact, tol1 = recall_at_1(qp, rp)
     of = PCA_OF if PCA_OF in kept else next(iter(kept))
     settings = dict(of=of, k=args.pca_dim, fit_on="summer", fit_s=round(fit_s, 2))
     rows.append(dict(descriptor=f"PCA-{args.pca_dim} of {of}", name="pca",

@@ -3,12 +3,12 @@
 python scripts/bench_digits.py          # writes reports/digits.{json,md}
 """
 
-import time
+import itertools
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-from _harness import header, log, main, table
+from _harness import header, log, main, table, timed
 
 from rhythmic_jax import database_bytes, storage_bytes
 from rhythmic_jax.decoding.dispatch import decode_scores
@@ -38,9 +38,7 @@ def layouts(n: int, levels) -> list[tuple[str, int, Groups]]:
         for kind in ("mixed", "hierarchical"):
             out.append((kind, level, resolve_layout(parse_layout(kind), n, 2, level)))
         # the same storage as the periods (the budget rule keeps a little less)
-        t = 2
-        while -(-n // t) + t > sum(per) + 6:
-            t += 1
+        t = next(t for t in itertools.count(2) if -(-n // t) + t <= sum(per) + 6)
         equal = Groups("mixed", (-(-n // t), t))
         if sum(per) - out[-2][2].p > 10:
             out.append(("mixed, equal storage", level, equal))
@@ -66,8 +64,7 @@ def measure(groups: Groups, s_self, s_query, n: int, gt) -> dict:
         ranked = ranked_places(sc, groups, n, 5)
         row[f"soft_{name}"] = accuracy(soft[name], gt, TOL)
         row[f"soft_{name}_exact"] = accuracy(soft[name], gt, 0)
-        recall = recall_at_k(ranked, gt, (5,), tolerance=TOL).as_dict()
-        row[f"recall@5_{name}"] = recall["recall@5"]
+        row[f"recall@5_{name}"] = recall_at_k(ranked, gt, (5,), tolerance=TOL)[5]
         for length in LENGTHS:
             idx, _ = sequence_decode(sc, groups, n, length, (1.0,), "soft")
             row[f"seq{length}_{name}"] = accuracy(np.asarray(idx), gt, TOL)
@@ -76,12 +73,11 @@ def measure(groups: Groups, s_self, s_query, n: int, gt) -> dict:
 
 
 def brute(summer, winter, gt) -> dict:
-    sim = winter @ summer.T
-    top = np.argsort(-sim, axis=1)[:, :5]
+    top = np.argsort(-(winter @ summer.T), axis=1)[:, :5]
     row = {
         "soft_raw": accuracy(top[:, 0], gt, TOL),
         "soft_raw_exact": accuracy(top[:, 0], gt, 0),
-        "recall@5_raw": recall_at_k(top, gt, (5,), tolerance=TOL).as_dict()["recall@5"],
+        "recall@5_raw": recall_at_k(top, gt, (5,), tolerance=TOL)[5],
     }
     for length in LENGTHS:
         idx, _ = seqslam_decode(winter, summer, length, (1.0,), progress=False)
@@ -99,20 +95,16 @@ def markdown(report: dict) -> str:
         f"{report['fit_wall_s']:.0f} s wall. Storage: sum of group sizes x (d + 1) "
         f"float32 over the N x d float32 database."
     )
-    cols = [
-        "layout", "sizes", "storage %", "self hard", "hard", "soft",
-        "soft exact", "R@5", "L=5", "L=10", "L=20", "label acc. (chance)",
-    ]  # fmt: skip
-    rows = []
-    for r in report["rows"]:
-        rows.append([
-            r["layout"], r["sizes"], round(100 * r["ratio"], 1),
-            r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
-            r["soft_raw_exact"], r["recall@5_raw"],
-            *(r[f"seq{length}_raw"] for length in LENGTHS),
-            " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
-                     r.get("label_chance", ()), strict=True)) or "-",
-        ])  # fmt: skip
+    cols = ["layout", "sizes", "storage %", "self hard", "hard", "soft", "soft exact",
+            "R@5", "L=5", "L=10", "L=20", "label acc. (chance)"]  # fmt: skip
+    rows = [[
+        r["layout"], r["sizes"], round(100 * r["ratio"], 1),
+        r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
+        r["soft_raw_exact"], r["recall@5_raw"],
+        *(r[f"seq{length}_raw"] for length in LENGTHS),
+        " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
+                 r.get("label_chance", ()), strict=True)) or "-",
+    ] for r in report["rows"]]  # fmt: skip
     lines += ["", table(cols, rows), ""]
     same = [r for r in report["rows"] if "calibrated_same_index" in r]
     lines.append(
@@ -141,14 +133,11 @@ def run(args) -> dict:
     summer, winter = (np.ascontiguousarray(np.load(path % s, mmap_mode="r")[test])
                       for s in ("summer", "winter"))  # fmt: skip
     n, d = summer.shape
-    gt = np.arange(n)
-    maps = layouts(n, [int(v) for v in args.levels.split(",")])
+    gt, maps = np.arange(n), layouts(n, [int(v) for v in args.levels.split(",")])
     y = jnp.concatenate([targets(gt, g) for _, _, g in maps], axis=1)
     log.info("fitting %d templates on %d x %d", y.shape[1], n, d)
-    t0 = time.perf_counter()
-    params, _ = newton_fit(summer, y, default_c(n), NewtonConfig(),
-                           progress=args.progress)  # fmt: skip
-    fit_wall = time.perf_counter() - t0
+    fit = summer, y, default_c(n), NewtonConfig()
+    (params, _), fit_wall, _ = timed(newton_fit, *fit, progress=args.progress)
     s_self = np.asarray(scores(params, jnp.asarray(summer)))
     s_query = np.asarray(scores(params, jnp.asarray(winter)))
     rows, start = [], 0
@@ -168,11 +157,9 @@ def run(args) -> dict:
     bf.update(layout="brute force", sizes="-", ratio=1.0,
               storage_bytes=database_bytes(n, d))  # fmt: skip
     rows.append(bf)
-    return dict(
-        descriptor=args.descriptor, places=f"{int(test[0])}-{int(test[-1])}", n=n,
-        d=d, templates_total=int(y.shape[1]), fit_wall_s=fit_wall, tolerance=TOL,
-        rows=rows,
-    )  # fmt: skip
+    return dict(descriptor=args.descriptor, places=f"{int(test[0])}-{int(test[-1])}",
+                n=n, d=d, templates_total=int(y.shape[1]), fit_wall_s=fit_wall,
+                tolerance=TOL, rows=rows)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -58,16 +58,6 @@ def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
     return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
-def fresh_cache(tmp: Path, warm: Path | None) -> Path:
-    """An empty descriptor cache; with ``warm``, holding that cache's built
-    network and compiled programs (a second job on the machine)."""
-    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
-    for kept in ("compiled", "jax") if warm is not None else ():
-        if (warm / kept).is_dir():
-            shutil.copytree(warm / kept, cache / kept)
-    return cache
-
-
 def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--frames", type=int, default=1000)
@@ -112,10 +102,15 @@ def run(args) -> dict:
         for rep in range(args.repeats):
             # alternate which side goes first, so drifting load hits both alike
             for variant in ("base", "new") if rep % 2 == 0 else ("new", "base"):
-                kept = warm if variant == "new" else None
                 for job in jobs:
+                    # an empty descriptor cache; the new checkout's holds the warm
+                    # one's network and compiled programs (a second job)
+                    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
+                    for kept in ("compiled", "jax") if variant == "new" else ():
+                        if (warm / kept).is_dir():
+                            shutil.copytree(warm / kept, cache / kept)
                     cmd = job_cmd(job, variant, tmp, folders, args)
-                    r = timed_run(cmd, paths[variant], fresh_cache(tmp, kept))
+                    r = timed_run(cmd, paths[variant], cache)
                     if job.startswith("augmented"):
                         r["inner"] = json.loads(r["stdout"].strip().splitlines()[-1])
                     print(variant, job, rep, round(r["wall"], 1), r["load"], flush=True)
@@ -135,12 +130,6 @@ def run(args) -> dict:
     return report
 
 
-def frames_of(job: str, report: dict) -> int:
-    if job.startswith("augmented"):
-        return report["aug_frames"]
-    return 100 if job == "fit100" else report["frames"]
-
-
 # job -> (smallest new/base frames/s ratio asked for, how the target reads)
 TARGETS = {
     "fit": (2.0, "fit frames/s >= 2x"),
@@ -155,29 +144,16 @@ def summary(report: dict) -> dict:
     """Per job: each checkout's median wall, CPU and frames/s; speedup, target."""
     out = {}
     for job, by in report["runs"].items():
-        row = {}
+        row, frames = {}, 100 if job == "fit100" else report["frames"]
         for variant, rs in by.items():
             fps = [r["inner"]["frames_per_s"] if job.startswith("augmented")
-                   else frames_of(job, report) / r["wall"] for r in rs]  # fmt: skip
+                   else frames / r["wall"] for r in rs]  # fmt: skip
             med = {k: float(np.median([r[k] for r in rs])) for k in ("wall", "cpu")}
             row[variant] = med | dict(frames_per_s=float(np.median(fps)))
         speedup = row["new"]["frames_per_s"] / row["base"]["frames_per_s"]
         need = TARGETS[job][0]
         out[job] = row | dict(speedup=speedup, target=need, met=bool(speedup >= need))
     return out
-
-
-def _within(report: dict) -> str:
-    """How often each checkout's query lands within 2 frames of the true place."""
-    w = report.get("prediction_within_2")
-    if not w:
-        return ""
-    return (
-        f"; within 2 frames of the true place: base {100 * w['base']:.1f} %, new"
-        f" {100 * w['new']:.1f} % (each checkout fits its own map and may choose"
-        " other periods; winter queries on a summer map are the appearance change"
-        " reports/cross_condition.md is about)"
-    )
 
 
 def markdown(report: dict) -> str:
@@ -192,6 +168,7 @@ def markdown(report: dict) -> str:
     ]  # fmt: skip
     loads = [r["load"] for by in report["runs"].values() for rs in by.values()
              for r in rs]  # fmt: skip
+    within = report["prediction_within_2"]  # query within 2 frames of the true place
     return "\n".join([
         *h.header("Frames per second from images, end to end", report),
         f"Baseline checkout {report['base']} run interleaved with this one in"
@@ -207,16 +184,17 @@ def markdown(report: dict) -> str:
                "base / new CPU s", "target (on frames/s)"],
               rows),  # fmt: skip
         "",
-        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout;"
-        f" `fit` and `query` on {report['frames']} 640x320 JPEG frames"
-        " (efficientnet_lite0); `fit100` on 100; `augmented_*`: one epoch over"
-        f" {report['aug_frames']} Nordland frames, frames/s over the epoch. Under"
-        " load, CPU-second ratios are the figure to expect on a quiet machine."
-        f" The two query runs agree on {100 * report['prediction_agreement']:.1f} %"
-        " of predictions"
-        f"{_within(report)}."
-        f" 1-minute load average at the end of each job: {min(loads):.1f} to"
-        f" {max(loads):.1f} (2 cores).",
+        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout; `fit` and `query`"
+        f" on {report['frames']} 640x320 JPEG frames (efficientnet_lite0); `fit100` on"
+        f" 100; `augmented_*`: one epoch over {report['aug_frames']} Nordland frames,"
+        " frames/s over the epoch. Under load, CPU-second ratios are the figure to"
+        " expect on a quiet machine. The two query runs agree on"
+        f" {100 * report['prediction_agreement']:.1f} % of predictions; within 2 frames"
+        f" of the true place: base {100 * within['base']:.1f} %, new"
+        f" {100 * within['new']:.1f} % (each checkout fits its own map and may choose"
+        " other periods; winter queries on a summer map are the appearance change"
+        " reports/cross_condition.md is about). 1-minute load average at the end of"
+        f" each job: {min(loads):.1f} to {max(loads):.1f} (2 cores).",
     ])  # fmt: skip
 
 

@@ -8,25 +8,12 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from _harness import header, log, main, table, timed
+from _harness import header, log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
 
 QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[])  # --quick
-
-
-def write_features(root: Path, path: Path) -> None:
-    """Nordland summer and winter patchnorm descriptors: one float16 (2, n, d) .npy."""
-    from rhythmic_jax.frames.features import describe, get_descriptor
-    from rhythmic_jax.io.atomic import save_npy
-    from rhythmic_jax.io.images import nordland
-
-    desc = get_descriptor("patchnorm")
-    summer, winter = nordland(root / "nordland_64x32", progress=False)
-    both = [describe(t.images, desc, progress=False) for t in (summer, winter)]
-    save_npy(path, np.stack(both).astype(np.float16))
-    log.info("wrote %s %s", path, (2, *both[0].shape))
 
 
 def run_on(device, summer, winter, args) -> dict:
@@ -110,15 +97,18 @@ def options(ap) -> None:
 
 
 def run(args) -> dict | None:
-    if args.write_features:
-        write_features(args.root, args.write_features)
+    if args.write_features:  # Nordland summer and winter patchnorm, float16 (2, n, d)
+        from rhythmic_jax.io.atomic import save_npy
+
+        both = np.stack(nordland_features(args.root)).astype(np.float16)
+        save_npy(args.write_features, both)
+        log.info("wrote %s %s", args.write_features, both.shape)
         return None
     if args.features is None:
         raise SystemExit("--features (or --write-features) is required")
     both = np.load(args.features)
     summer, winter = (np.asarray(x[: args.rows], np.float32) for x in both[:2])
-    gpus = [d for d in jax.devices() if d.platform == "gpu"]
-    gpu = gpus[0] if gpus else None
+    gpu = next((d for d in jax.devices() if d.platform == "gpu"), None)
     results = {"gpu": run_on(gpu, summer, winter, args) if gpu else None}
     results["cpu"] = run_on(jax.devices("cpu")[0], summer, winter, args)
     report = dict(

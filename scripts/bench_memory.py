@@ -6,7 +6,7 @@ python scripts/bench_memory.py [--shapes 1000x64 3000x128 ...] [--repeats 2]
 import time
 
 import numpy as np
-from _harness import call, header, log, main, table
+from _harness import call, header, main, table
 
 from rhythmic_jax.periods import candidate_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
@@ -34,8 +34,7 @@ def measure(repeats: int, shapes: list[str]) -> list[dict]:
     RhythmicMap().fit(rng.normal(size=(48, 8)).astype(np.float32), progress=False)
     for shape in shapes:
         n, d = map(int, shape.split("x"))
-        p = sum(candidate_periods(n))
-        x = rng.normal(size=(n, d)).astype(np.float32)
+        p, x = sum(candidate_periods(n)), rng.normal(size=(n, d)).astype(np.float32)
         estimate = sum(fit_bytes(n, d, p).values())
         admitted = check_memory(n, d, p, limit_bytes=estimate) == estimate
         t0 = time.perf_counter()
@@ -49,10 +48,6 @@ def measure(repeats: int, shapes: list[str]) -> list[dict]:
     return rows
 
 
-def kind(n: int, d: int) -> str:
-    return "wide (span)" if d > 2 * n else ("tall" if n > 2 * d else "square")
-
-
 def markdown(report: dict) -> str:
     rows = [[f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
              r["cold"] / MB, r["estimate"] / r["cold"],
@@ -63,19 +58,17 @@ def markdown(report: dict) -> str:
     return "\n".join(
         header("Memory of a full-batch fit: estimate against measured peak", report)
         + [
-            "Random float32 frames, the default map (r = 2, 7 candidate periods: p "
-            "templates). Peaks are the growth of the process's resident memory "
-            "during the fit, sampled every ms, over a baseline taken after "
-            "`malloc_trim(0)` (glibc otherwise serves the fit from memory an "
-            "earlier one freed, and the growth undercounts). *Cold*: the shape's "
-            "first fit in a process whose runtime is loaded (its functions "
-            "compile); *warm*: the largest of "
-            f"{report['repeats']} refits of the same frames after one unmeasured "
-            "(nothing compiles). "
-            "*Estimate*: the sum of `fit_bytes`; *arrays*: the same without its "
-            f"`compile` part ({report['compile_bytes'] / MB:.0f} MB). *Limit kept*: "
-            "the guard with its limit set to the estimate (`--memory X`, X = the "
-            "estimate) admits the fit and the cold peak stays under X.",
+            "Random float32 frames, the default map (r = 2, 7 candidate periods: p"
+            " templates). Peaks are the growth of the process's resident memory during"
+            " the fit, sampled every ms, over a baseline taken after `malloc_trim(0)`"
+            " (glibc otherwise serves the fit from memory an earlier one freed, and the"
+            " growth undercounts). *Cold*: the shape's first fit in a process whose"
+            " runtime is loaded (its functions compile); *warm*: the largest of"
+            f" {report['repeats']} refits of the same frames after one unmeasured"
+            " (nothing compiles). *Estimate*: the sum of `fit_bytes`; *arrays*: the"
+            f" same without its `compile` part ({report['compile_bytes'] / MB:.0f} MB)."
+            " *Limit kept*: the guard with its limit set to the estimate (`--memory X`,"
+            " X = the estimate) admits the fit and the cold peak stays under X.",
             "",
             table(HEAD, rows),
             "",
@@ -92,11 +85,11 @@ def options(ap) -> None:
 def run(args) -> dict:
     rows = call(measure, args.repeats, args.shapes)["result"]
     for r in rows:
-        parts = fit_bytes(r["n"], r["d"], r["p"])
+        n, d = r["n"], r["d"]
+        parts = fit_bytes(n, d, r["p"])
+        kind = "wide (span)" if d > 2 * n else ("tall" if n > 2 * d else "square")
         est = sum(parts.values())
-        r.update(kind=kind(r["n"], r["d"]), parts=parts, estimate=est,
-                 arrays=est - parts["compile"])  # fmt: skip
-        log.info("%s", r)
+        r.update(kind=kind, parts=parts, estimate=est, arrays=est - parts["compile"])
     compile_bytes = rows[0]["parts"]["compile"] if rows else 0
     return dict(repeats=args.repeats, compile_bytes=compile_bytes, rows=rows)
 

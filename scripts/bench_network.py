@@ -4,7 +4,6 @@ python scripts/bench_network.py [--batches 1 2 4 8 16 32 64] [--frames 512]
 """
 
 import tempfile
-import time
 
 import numpy as np
 import torch
@@ -14,11 +13,9 @@ from rhythmic_jax.frames import compiled
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.frames.pipeline import _to_batch
 
-HEAD = [
-    "batch", "eager best f/s", "eager median f/s", "compiled best f/s",
-    "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
-    "max rel diff",
-]  # fmt: skip
+HEAD = ["batch", "eager best f/s", "eager median f/s", "compiled best f/s",
+        "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
+        "max rel diff"]  # fmt: skip
 QUICK = dict(batches=[8], frames=64, repeats=1)  # --quick
 
 
@@ -40,20 +37,15 @@ def options(ap) -> None:
 
 def run(args) -> dict:
     desc = get_descriptor("efficientnet_lite0", block=args.block)
-    (summer,) = nordland_images(args.root, ("summer",))
-    images = summer.images[: args.frames]
+    images = nordland_images(args.root, ("summer",))[0].images[: args.frames]
     with torch.inference_mode():
-        x = desc.prepare(_to_batch(images))
-        net = desc.network().eval()
-        reference = net(x[:64]).numpy()
-        rows = []
+        x, net = desc.prepare(_to_batch(images)), desc.network().eval()
+        reference, rows = net(x[:64]).numpy(), []
         with tempfile.TemporaryDirectory(prefix="bench_network") as cache:
             for b in args.batches:
                 eager = frames_per_s(compiled.Sliced(net, b), x, args.repeats)
                 shape = (b, 3, desc.height, desc.width)
-                t = time.perf_counter()
-                fn = compiled._compiled(desc, shape, cache)
-                build = time.perf_counter() - t
+                fn, build, _ = timed(compiled._compiled, desc, shape, cache)
                 if fn is None:
                     raise RuntimeError("the network could not be compiled here")
                 run = compiled._chunked(fn, b)
@@ -63,12 +55,10 @@ def run(args) -> dict:
                            max_rel_diff=float(diff))  # fmt: skip
                 log.info("%s", row)
                 rows.append(row)
-    return dict(
-        descriptor=desc.name,
-        settings=dict(block=args.block, width=desc.width, height=desc.height),
-        frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
-        job_eager_batch=compiled.EAGER_BATCH, rows=rows,
-    )  # fmt: skip
+    return dict(descriptor=desc.name,
+                settings=dict(block=args.block, width=desc.width, height=desc.height),
+                frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
+                job_eager_batch=compiled.EAGER_BATCH, rows=rows)  # fmt: skip
 
 
 def markdown(report: dict) -> str:

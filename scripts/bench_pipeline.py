@@ -3,16 +3,13 @@
 python scripts/bench_pipeline.py [--frames 1024] [--descriptor patchnorm]
 """
 
-import time
-
 import numpy as np
-from _harness import header, load_average, main, nordland_images, table
+from _harness import header, load_average, main, nordland_images, table, timed
 
 
 def library() -> tuple:
-    """The augmented fit's modules (stream, features, images, newton) in this
-    checkout, or in the flat layout of a baseline one (``bench_frames.py`` runs
-    them in either)."""
+    """The augmented fit's modules (stream, features, images, newton) here, or in a
+    baseline checkout's flat layout (``bench_frames.py`` runs them in either)."""
     try:
         from rhythmic_jax.augment import stream
         from rhythmic_jax.frames import features
@@ -26,10 +23,9 @@ def library() -> tuple:
 
 
 def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
-    """One augmented epoch over ``images`` per variant (augmentation names;
-    ``("none",)``: describe and step, no augmentation) from the clean fit, after a
-    warm-up epoch (it compiles the optax step): each epoch's seconds by part, and
-    its wall."""
+    """One augmented epoch over ``images`` per variant (augmentation names; ``none``:
+    describe and step only) from the clean fit, after a warm-up epoch (it compiles
+    the optax step): each epoch's seconds by part, and its wall."""
     from rhythmic_jax.objective import default_c, targets
     from rhythmic_jax.periods import candidate_periods
 
@@ -49,9 +45,8 @@ def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
     for names in variants:
         settings = {"elastic_impl": elastic}
         cfg = stream.AugmentedFit(names=names, epochs=1, augment_settings=settings)
-        t = time.perf_counter()
-        tm = fit(images, plain if names == ("none",) else cfg)
-        out.append(dict(tm, wall=time.perf_counter() - t))
+        tm, wall, _ = timed(fit, images, plain if names == ("none",) else cfg)
+        out.append(dict(tm, wall=wall))
     return out
 
 
@@ -78,15 +73,13 @@ def run(args) -> dict:
     (summer,) = nordland_images(args.root, ("summer",))
     images, desc = summer.images[: args.frames], get_descriptor(args.descriptor)
     n, load0, rows = len(images), load_average(), []
-    key = f"nordland-summer-{n}"
-    for names, tm in zip(variants, epochs(images, desc, key, variants, args.elastic),
-                         strict=True):  # fmt: skip
+    times = epochs(images, desc, f"nordland-summer-{n}", variants, args.elastic)
+    for names, tm in zip(variants, times, strict=True):
         # n augmented frames: half the epoch's frames, so half its step time
         fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
-        rows.append(dict(
-            augmentation=names[0], frames_per_s=fps, augment_s=tm["augment"],
-            describe_s=tm["describe"], step_s=tm["step"], wall_s=tm["wall"],
-        ))  # fmt: skip
+        rows.append(dict(augmentation=names[0], frames_per_s=fps,
+                         augment_s=tm["augment"], describe_s=tm["describe"],
+                         step_s=tm["step"], wall_s=tm["wall"]))  # fmt: skip
     for r in rows:
         r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]
     return dict(descriptor=desc.settings() | {"name": args.descriptor}, frames=n,

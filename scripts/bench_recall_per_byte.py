@@ -23,6 +23,7 @@ BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
 DS = (256, 2048, 4096, 10976)
 BITS = (64, 128, 256, 512)
+BUDGET = ["budget", "best", "map or hybrid", "ITQ", "own - ITQ"]
 QUICK = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
@@ -43,8 +44,7 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
     faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
     w, b, per = fr.fitted_map(ref, r, level, gap, cache)
-    book = fr.fitted_codes(ref, bits, cache)
-    n = len(ref)
+    book, n = fr.fitted_codes(ref, bits, cache), len(ref)
     wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
     index = faiss.IndexBinaryFlat(bits)
     index.add(pack_bits(book.codes))
@@ -57,13 +57,10 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
         "codes alone (JAX)": lambda: book.similarity(qj).argmax(1),
         "codes alone (faiss IndexBinaryFlat)": lambda: index.search(codes(), 1)[1],
     }
-    out = {}
-    for name, fn in fns.items():
-        _, sec = fastest(fn, 5)
-        out[name] = {"seconds": sec, "queries_per_s": len(q) / sec}
-    base = out["map alone"]["seconds"]
+    secs = {name: fastest(fn, 5)[1] for name, fn in fns.items()}
+    out = {k: {"seconds": s, "queries_per_s": len(q) / s} for k, s in secs.items()}
     for v in out.values():
-        v["x map alone"] = v["seconds"] / base
+        v["x map alone"] = v["seconds"] / out["map alone"]["seconds"]
     out["setting"] = f"map r={r} level {level} {per} + ITQ {bits}, {len(q)} queries"
     return out
 
@@ -72,16 +69,8 @@ def _span(until, since) -> str:
     """Where the map is smaller: "<= 3e4 and >= 1.2e8", ">= 1e8", "never"."""
     if until and until >= 10**12:
         return "every N"
-    parts = []
-    if until:
-        parts.append(f"<= {until:.2g}")
-    if since:
-        parts.append(f">= {since:.2g}")
+    parts = [f"{op} {v:.2g}" for op, v in (("<=", until), (">=", since)) if v]
     return " and ".join(parts) or "never <= 1e12"
-
-
-def _num(v):
-    return "-" if v is None else v
 
 
 def _targets(rep: dict) -> list[str]:
@@ -102,9 +91,8 @@ def _targets(rep: dict) -> list[str]:
         b = rep["budgets"][str(length)]
         none = [x for x in b if x["own"] is None]
         short = [x for x in b if x["own"] is not None and x["own_minus_itq"] < 0]
-        ok = len(b) - len(none) - len(short)
         line = f"- L = {length}: the map or a hybrid is at least ITQ's best at "
-        line += f"{ok} of {len(b)} budgets"
+        line += f"{len(b) - len(none) - len(short)} of {len(b)} budgets"
         if none:
             at = ", ".join(f"{100 * x['budget']:g} %" for x in none)
             line += f"; none of them fits in {at}"
@@ -128,26 +116,21 @@ def markdown(rep: dict) -> str:
         "",
     ]
     lines += ["### Targets", ""] + _targets(rep) + [""]
-    ls = rep["lengths"]
-    heads = ["representation", "kind", "storage B", "share %"]
+    ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["weight"]
+    keys = [f"recall@1 L={k}" for k in ls]
     rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
-             *(_num(r[f"recall@1 L={k}"]) for k in ls), r.get("weight", "-")]
+             *("-" if r[k] is None else r[k] for k in keys), r.get("weight", "-")]
             for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
     lines.append(table(heads, rows))
     for length in ls:
         key = f"recall@1 L={length}"
-
-        def cell(r, key=key):
-            return f"{r['name']} ({r[key]:.3f})" if r else "none fits"
-
-        body = [[f"{100 * b['budget']:g} %", cell(b["best"]), cell(b["own"]),
-                 cell(b["itq"]), round(b["own_minus_itq"], 3)]
+        body = [[f"{100 * b['budget']:g} %",
+                 *(f"{x['name']} ({x[key]:.3f})" if x else "none fits"
+                   for x in (b["best"], b["own"], b["itq"])),
+                 round(b["own_minus_itq"], 3)]
                 for b in rep["budgets"][str(length)]]  # fmt: skip
-        lines += ["", f"### Budget by budget, L = {length}", ""]
-        lines.append(
-            table(["budget", "best", "map or hybrid", "ITQ", "own - ITQ"], body)
-        )
+        lines += ["", f"### Budget by budget, L = {length}", "", table(BUDGET, body)]
     t = rep["timing"] or {"setting": "not measured in this run"}
     lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
     body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
@@ -191,8 +174,7 @@ def run(args) -> dict:
                              progress=args.progress)  # fmt: skip
     tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
     given = {k: v for k in ("maps", "bits") if (v := getattr(args, k))}
-    cfg = dataclasses.replace(fr.FrontierConfig(), **given)
-    t0 = time.perf_counter()
+    cfg, t0 = dataclasses.replace(fr.FrontierConfig(), **given), time.perf_counter()
     cache = args.cache or None
     rows = fr.frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
     rep = {

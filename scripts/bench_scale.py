@@ -22,7 +22,6 @@ from rhythmic_jax.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
 
-log = bc.log
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
 DTYPES = ("float32", "float16", "int8")
@@ -41,16 +40,13 @@ def fitted(stdout: str) -> dict:
 
 
 def walk(n: int, d: int, seed: int = 0, out=None) -> np.ndarray:
-    """Route-like frames (n, d) float32, unit rows: a smooth random walk plus an
-    independent perturbation per frame."""
+    """Route-like unit rows (n, d) float32: a smooth random walk, perturbed per row."""
     rng = np.random.default_rng(seed)
     x = np.empty((n, d), np.float32) if out is None else out
     pos = rng.normal(size=d) * 4.0
     for lo in range(0, n, 8192):
-        steps = rng.normal(size=(min(8192, n - lo), d)) * 0.05
-        block = pos + np.cumsum(steps, axis=0)
-        pos = block[-1]
-        block = block / np.linalg.norm(block, axis=1, keepdims=True)
+        block = pos + np.cumsum(rng.normal(size=(min(8192, n - lo), d)) * 0.05, axis=0)
+        pos, block = block[-1], block / np.linalg.norm(block, axis=1, keepdims=True)
         block += rng.normal(size=block.shape) * (0.5 / np.sqrt(d))
         x[lo : lo + len(block)] = block / np.linalg.norm(block, axis=1, keepdims=True)
     return x
@@ -71,8 +67,7 @@ def dtypes(model: RhythmicMap) -> dict[str, RhythmicMap]:
 
 
 def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
-    """Fit one cell (source, n, d, r, processes, mode, rule) in a fresh process
-    and measure it."""
+    """Fit one cell (source, n, d, r, processes, mode, rule) afresh; measure it."""
     source, n, d, r, procs, mode, rule = cell
     out = tmp / f"{_key(cell)}.map"
     if rule == "least":  # fixed periods imply r
@@ -96,17 +91,14 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         block_rows=run.get("block_rows"), nice=os.nice(0),
         accuracy={t: accuracy(m, frames, n) for t, m in models.items()},
     )  # fmt: skip
-    log.info("%s", row)
+    bc.log.info("%s", row)
     return row
 
 
 def rule_sums(n: int, r: int) -> tuple[int, int]:
     """Least and largest summed periods the candidate rule can choose at n places."""
-    sums = [
-        sum(c)
-        for c in itertools.combinations(candidate_periods(n, r), r)
-        if pairwise_coprime(c) and math.prod(c) >= n
-    ]
+    sets = itertools.combinations(candidate_periods(n, r), r)
+    sums = [sum(c) for c in sets if pairwise_coprime(c) and math.prod(c) >= n]
     return min(sums), max(sums)
 
 
@@ -116,8 +108,7 @@ def rule_range(ns: list[int], r: int) -> tuple[float, float]:
     lx = np.log(np.asarray(ns, float))
     w = (lx - lx.mean()) / np.sum((lx - lx.mean()) ** 2)
     sums = np.log([rule_sums(int(n), r) for n in ns])  # (points, 2): least, largest
-    low = np.where(w > 0, sums[:, 0], sums[:, 1])
-    high = np.where(w > 0, sums[:, 1], sums[:, 0])
+    low, high = (np.where(w > 0, sums[:, i], sums[:, 1 - i]) for i in (0, 1))
     return float(w @ low), float(w @ high)
 
 
@@ -125,17 +116,13 @@ def _rule(row: dict) -> str:
     return row.get("rule", "errors")
 
 
-def series(
-    rows: list[dict], source: str, d: int, r: int, rule: str = "errors"
-) -> list[dict]:
+def series(rows: list[dict], source: str, d: int, r: int, rule="errors") -> list:
     """One process's fits of (source, d, r, rule) by N: in memory, else streamed."""
     one = [x for x in rows if (x["source"], x["d"], x["r"], x["processes"], _rule(x))
            == (source, d, r, 1, rule)]  # fmt: skip
     held = {x["n"] for x in one if x["mode"] == "memory"}
-    return sorted(
-        (x for x in one if x["mode"] == "memory" or x["n"] not in held),
-        key=lambda x: x["n"],
-    )
+    kept = [x for x in one if x["mode"] == "memory" or x["n"] not in held]
+    return sorted(kept, key=lambda x: x["n"])
 
 
 def slopes(rows: list[dict]) -> list[dict]:
@@ -148,19 +135,17 @@ def slopes(rows: list[dict]) -> list[dict]:
         if len(set(ns)) < 2:
             continue
         lx, ly = np.log(ns), np.log([p["storage_bytes"] for p in pts])
-        slope = float(np.polyfit(lx, ly, 1)[0])
-        top = np.asarray(ns) >= 10000
+        slope, top = float(np.polyfit(lx, ly, 1)[0]), np.asarray(ns) >= 10000
         upper = float(np.polyfit(lx[top], ly[top], 1)[0]) if top.sum() >= 2 else None
         if rule == "errors":
             low, high = rule_range(ns, r)
         else:  # the least-storage co-prime sets
             sums = [sum(nominal_periods(int(n), r)) for n in ns]
             low = high = float(np.polyfit(lx, np.log(sums), 1)[0])
-        out.append(dict(
-            source=source, d=d, r=r, rule=rule, points=len(pts), slope=slope,
-            slope_from_10k=upper, target=1 / r, within=abs(slope - 1 / r) <= 0.05,
-            rule_low=low, rule_high=high,
-        ))  # fmt: skip
+        out.append(dict(source=source, d=d, r=r, rule=rule, points=len(pts),
+                        slope=slope, slope_from_10k=upper, target=1 / r,
+                        within=abs(slope - 1 / r) <= 0.05, rule_low=low,
+                        rule_high=high))  # fmt: skip
     return out
 
 
@@ -169,17 +154,13 @@ def _group(r: dict) -> tuple:
 
 
 def figures(rows: list[dict], out_dir: Path) -> list[str]:
-    import matplotlib
+    from rhythmic_jax.eval.figures import new_figure, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = []
     plots = (("storage_bytes", "map bytes", "scale_storage"),
              ("fit_seconds", "fit seconds", "scale_time"),
              ("pass_median_s", "seconds per pass", "scale_pass"))  # fmt: skip
     for key, label, stem in plots:
-        fig, ax = plt.subplots(figsize=(5, 4))
+        fig, (ax,) = new_figure(width=5, height=4)
         for g in sorted({_group(r) for r in rows if r[key] is not None}):
             pts = sorted((r["n"], r[key]) for r in rows
                          if _group(r) == g and r[key] is not None)  # fmt: skip
@@ -187,21 +168,16 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
             ax.loglog(*zip(*pts, strict=True), "o-", label=label_g)
         ax.set(xlabel="N (places)", ylabel=label)
         ax.legend(fontsize=6)
-        fig.tight_layout()
-        fig.savefig(out_dir / f"{stem}.png", dpi=110)
-        plt.close(fig)
-        names.append(f"{stem}.png")
-    return names
+        save_figure(fig, out_dir / f"{stem}.png", dpi=110)
+    return [f"{stem}.png" for _, _, stem in plots]
 
 
 def _num(v, digits):
     return "-" if v is None else round(v, digits)
 
 
-SLOPES = [
-    "source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
-    "slope N >= 10^4", "the rule allows",
-]  # fmt: skip
+SLOPES = ["source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
+          "slope N >= 10^4", "the rule allows"]  # fmt: skip
 
 
 def _allows(s: dict) -> str:
@@ -215,13 +191,12 @@ def _allows(s: dict) -> str:
 def markdown(report: dict) -> str:
     lines = bc.header("Growth from real fits (--gap 1e-3)", report)
     lines += [
-        "Every fit ran niced beside other jobs (load above): the times are"
-        f" pessimistic. Niceness {report['nices']} (each cell's in the JSON; at 19 a"
-        " fit takes only CPU no one else wants). Cells were measured between"
-        f" {report['cells_from']} and {report['cells_to']} at a 1-minute load"
-        f" average of {report['load_cells']} (each cell's in the JSON); a rerun"
-        " reuses cells already measured, so the command above may only have"
-        " collected them.",
+        "Every fit ran niced beside other jobs (load above): the times are pessimistic."
+        f" Niceness {report['nices']} (each cell's in the JSON; at 19 a fit takes only"
+        f" CPU no one else wants). Cells were measured between {report['cells_from']}"
+        f" and {report['cells_to']} at a 1-minute load average of"
+        f" {report['load_cells']} (each cell's in the JSON); a rerun reuses cells"
+        " already measured, so the command above may only have collected them.",
         "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
@@ -259,21 +234,19 @@ def markdown(report: dict) -> str:
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
     lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
-              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the "
-              "summed periods, and the bytes, lie between the least and the "
-              "largest valid set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). "
-              "Over a short range of N, or from N where 6 is a large share of "
-              "N^(1/r) (10 at N = 1,000, r = 3), the errors' choice moves the "
-              "fitted slope further than 0.05 either way; the column 'the rule "
-              "allows' gives the least and the largest fitted slope that "
-              "the rule permits over the series' N (any choice of periods at "
-              "each N). "
-              "The slope tends to 1/r as N grows, where 6 becomes a small share "
-              "of N^(1/r). Rule 'least' fixes the least-storage co-prime set of "
-              "the same candidates before training (no search): its bytes follow "
-              "r N^(1/r) to within the rounding up to co-prime integers, and the "
-              "column gives that set's slope; the accuracy columns say what the "
-              "errors' choice buys over it."]  # fmt: skip
+              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the summed"
+              " periods, and the bytes, lie between the least and the largest valid"
+              " set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). Over a short"
+              " range of N, or from N where 6 is a large share of N^(1/r) (10 at N ="
+              " 1,000, r = 3), the errors' choice moves the fitted slope further than"
+              " 0.05 either way; the column 'the rule allows' gives the least and the"
+              " largest fitted slope that the rule permits over the series' N (any"
+              " choice of periods at each N). The slope tends to 1/r as N grows, where"
+              " 6 becomes a small share of N^(1/r). Rule 'least' fixes the"
+              " least-storage co-prime set of the same candidates before training (no"
+              " search): its bytes follow r N^(1/r) to within the rounding up to"
+              " co-prime integers, and the column gives that set's slope; the accuracy"
+              " columns say what the errors' choice buys over it."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
@@ -282,8 +255,7 @@ def markdown(report: dict) -> str:
                   f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
     if report.get("full"):
         lines += ["", *full_lines(report["full"], report.get("probe"))]
-    probe = report.get("probe")
-    if probe:
+    if probe := report.get("probe"):
         lines += ["", *probe_lines(probe)]
     if report.get("missing"):
         lines += ["", "Not measured (time budget or --skip, or failed as said): "
@@ -294,10 +266,8 @@ def markdown(report: dict) -> str:
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
     """Cells (source, n, d, r, processes, mode, rule), cheapest first."""
-    if quick:
-        ns, ds = (1000, 3000), (256,)
-    else:
-        ns, ds = (1000, 3000, 10000, 30000, 100000), (256, 2048)
+    ns = (1000, 3000) if quick else (1000, 3000, 10000, 30000, 100000)
+    ds = (256,) if quick else (256, 2048)
     cells = [("walk", n, d, r, 1, "memory") for d in ds for r in (3, 2) for n in ns]
     cells += [("walk", n, 256, 3, 2, "memory") for n in ns if n <= 30000]
     cells += [("walk", n, 256, 3, k, "stream") for n in ns if n <= 10000
@@ -313,9 +283,8 @@ def grid(quick: bool, real: bool = True) -> list[tuple]:
     cost = {"memory": 1, "stream": 4}
 
     def order(c):  # the storage slope at d = 256, r = 3 first, then by cost
-        return c[0] != "walk" or c[2:6] != (256, 3, 1, "memory"), (
-            c[1] * c[2] * (6 - c[3]) * cost[c[5]]
-        )
+        first = c[0] == "walk" and c[2:6] == (256, 3, 1, "memory")
+        return not first, c[1] * c[2] * (6 - c[3]) * cost[c[5]]
 
     return sorted(cells, key=order)
 
@@ -333,9 +302,7 @@ def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> P
         partial = path.with_name("partial.npy")
         if root is None:
             part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, d))
-            walk(n, d, out=part)
-            part.flush()
-            del part
+            walk(n, d, out=part).flush()
         else:
             np.save(partial, bc.nordland_features(root, seasons=("summer",))[0][:n])
         os.replace(partial, path)
@@ -358,9 +325,8 @@ def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
 
 
 def full(args) -> dict:
-    """The whole streamed r = 3 fit of ``--full`` route-like 256-d frames (in
-    ``--full-work``) with fixed periods under ``--full-memory``: wall, passes,
-    peak memory, accuracy."""
+    """The streamed r = 3 fit of ``--full`` route-like 256-d frames (``--full-work``),
+    fixed periods, ``--full-memory``: wall, passes, peak memory, accuracy."""
     n, periods, memory = args.full, args.full_periods, args.full_memory
     saved = args.cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
@@ -381,36 +347,27 @@ def full(args) -> dict:
             raise RuntimeError(r["stderr"][-2000:])
     tries = [json.loads(line) for line in attempts.read_text().splitlines()]
     info = fitted(tries[-1]["out"])
-    run = info["fit"]
-    model = RhythmicMap.load(out)
+    run, model = info["fit"], RhythmicMap.load(out)
     picks = np.linspace(0, n - 1, min(n, 20000)).astype(int)
     x = np.asarray(np.load(path, mmap_mode="r")[picks])
     acc = {t: float(np.mean(m.predict(x) == picks)) for t, m in dtypes(model).items()}
     kinds = pass_kinds(run["cg"], run["pass_seconds"])
-    row = dict(
-        n=n, d=256, r=3, periods=info["periods"], memory=memory,
-        command=" ".join(["nice", "-n", str(NICE), *cmd]),
-        file_bytes=path.stat().st_size, storage_bytes=info["storage_bytes"],
-        wall_seconds=sum(t["seconds"] for t in tries), attempts=len(tries),
-        starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
-        peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
-        passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
-        block_rows=run["block_rows"], kept_active_bytes=run.get("kept_active_bytes"),
-        pass_median_s=float(np.median(run["pass_seconds"])),
-        kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
-        group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
-        candidates=list(plan(MapConfig(r=3), n, 1).candidates),
-        code=bc.git_commit(),
-    )  # fmt: skip
+    row = dict(n=n, d=256, r=3, periods=info["periods"], memory=memory,
+               command=" ".join(["nice", "-n", str(NICE), *cmd]),
+               file_bytes=path.stat().st_size, storage_bytes=info["storage_bytes"],
+               wall_seconds=sum(t["seconds"] for t in tries), attempts=len(tries),
+               starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
+               peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
+               passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
+               block_rows=run["block_rows"],
+               kept_active_bytes=run.get("kept_active_bytes"),
+               pass_median_s=float(np.median(run["pass_seconds"])),
+               kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
+               group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
+               candidates=list(plan(MapConfig(r=3), n, 1).candidates),
+               code=bc.git_commit())  # fmt: skip
     saved.write_text(json.dumps(bc.plain(row)))
     return row
-
-
-def _attempts(f: dict) -> str:
-    if f["attempts"] == 1:
-        return f"started {f['starts'][0]}"
-    return (f"{f['attempts']} attempts started {', '.join(f['starts'])}, each"
-            " resumed from the last one's checkpoint")  # fmt: skip
 
 
 def full_lines(f: dict, probe: dict | None = None) -> list[str]:
@@ -427,12 +384,16 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
     basis = f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else ""
     errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
     took = f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes"
+    tries = f"started {f['starts'][0]}"
+    if f["attempts"] > 1:
+        tries = (f"{f['attempts']} attempts started {', '.join(f['starts'])}, each"
+                 " resumed from the last one's checkpoint")  # fmt: skip
     return [
         f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
         f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
         f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
         f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
-        f" wall** ({_attempts(f)}, at a 1-minute load average of"
+        f" wall** ({tries}, at a 1-minute load average of"
         f" {f['loads'][-1][0]:.1f} at its end, nice {f.get('nice', NICE)}),"
         f" {f['steps']} Newton steps, {f['passes']} passes, {f['pass_median_s']:.1f}"
         f" s per pass (median; gradient {k['gradient']:.1f}, CG {k['cg']:.1f}, line"
@@ -453,9 +414,8 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
 
 
 def probe(args) -> dict:
-    """Seconds of one streamed pass of each kind over ``--probe`` route-like 256-d
-    frames under ``--probe-memory``, fixed periods and the r = 3 candidate set,
-    and the peak memory (a fresh process)."""
+    """Seconds of one streamed pass of each kind over ``--probe`` 256-d frames under
+    ``--probe-memory``, fixed periods and r = 3 candidates; peak memory (afresh)."""
     n, memory, periods = args.probe, args.probe_memory, args.full_periods
     saved = args.cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
     if saved.exists():
@@ -479,8 +439,7 @@ def passes(path: str, memory: str, periods: str) -> dict:
     from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
     from rhythmic_jax.solvers import streamed as S
 
-    frames = open_frames(path)
-    fixed = tuple(int(t) for t in periods.split(","))
+    frames, fixed = open_frames(path), tuple(int(t) for t in periods.split(","))
     c, sets = default_c(frames.n), []
     for periods in (fixed, plan(MapConfig(r=3), frames.n, 1).candidates):
         p = sum(periods)
@@ -511,7 +470,6 @@ def _periods(ts) -> str:
 
 def probe_lines(p: dict) -> list[str]:
     kinds = list(p["sets"][0]["seconds"])
-    head = ["periods", "templates", "rows / block", *kinds]
     rows = [
         [_periods(s["periods"]), s["templates"], s["block_rows"],
          *(round(s["seconds"][k], 1) for k in kinds)]
@@ -525,7 +483,7 @@ def probe_lines(p: dict) -> list[str]:
         " each includes its kernel's compilation). A CG pass from the kept"
         " curvature makes one product with the frames instead of two:",
         "",
-        bc.table(head, rows),
+        bc.table(["periods", "templates", "rows / block", *kinds], rows),
     ]
 
 
@@ -546,8 +504,7 @@ def run(args) -> dict:
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
-    real = (args.root / "nordland_64x32" / "summer").is_dir()
-    for cell in grid(args.quick, real):
+    for cell in grid(args.quick, (args.root / "nordland_64x32" / "summer").is_dir()):
         saved = args.cells / f"{_key(cell)}.json"
         if saved.exists():
             rows.append(json.loads(saved.read_text()))
@@ -566,7 +523,7 @@ def run(args) -> dict:
         try:
             row = one(cell, x_path, args.cells, args.memory)
         except RuntimeError as err:
-            log.warning("%s failed: %s", name, err)
+            bc.log.warning("%s failed: %s", name, err)
             reason = str(err).strip().splitlines()[-1][-300:]
             failed.write_text(reason)
             missing.append(f"{name} (failed: {reason})")
@@ -576,13 +533,15 @@ def run(args) -> dict:
         saved.write_text(json.dumps(bc.plain(row)))
         rows.append(row)
     report, stamps = {}, [r["measured"] for r in rows]
-    extras = (("probe", args.probe, probe), ("full fit", args.full, full))
-    for what, n, measure in extras:
+    for what, n, measure in (
+        ("probe", args.probe, probe),
+        ("full fit", args.full, full),
+    ):
         try:
             if n:
                 report[what.split()[0]] = measure(args)
         except RuntimeError as err:
-            log.warning("%s failed: %s", what, err)
+            bc.log.warning("%s failed: %s", what, err)
             missing.append(f"{what} N={n} (failed)")
     loads = [r["load"][0] for r in rows] or [0]
     nices = [r.get("nice", 10) for r in rows]

@@ -5,9 +5,9 @@ python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 
 import time
 
-import jax.numpy as jnp
 import numpy as np
-from _harness import cores, header, log, main, table, unit_rows
+from _harness import cores, header, log, main, table
+from bench_decode import random_features, random_map
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import decode
@@ -15,7 +15,6 @@ from rhythmic_jax.decoding.small import SmallDecoder
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch
 from rhythmic_jax.groups import Groups
-from rhythmic_jax.objective import Templates
 from rhythmic_jax.periods import candidate_periods, choose_periods
 
 QUICK = dict(n=2000, singles=200, exact=20)  # --quick
@@ -27,8 +26,7 @@ def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
     for fn in cases.values():
         for q in queries[:50]:
             fn(q)
-    ts = {name: [] for name in cases}
-    done = 0
+    ts, done = {name: [] for name in cases}, 0
     while any(len(ts[k]) < calls[k] for k in cases):
         for name, fn in cases.items():
             for q in queries[done : done + block][: calls[name] - len(ts[name])]:
@@ -51,16 +49,8 @@ def run(args) -> dict:
     n, d = args.n, args.d
     cands = candidate_periods(n, 2, 1, 7)
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
-    rng = np.random.default_rng(0)
-    refs = unit_rows(rng.standard_normal((n, d), dtype=np.float32))
-    src = rng.integers(0, n, args.singles)
-    noise = rng.standard_normal((args.singles, d), dtype=np.float32)
-    queries = unit_rows(refs[src] + 0.5 / np.sqrt(d) * noise)
-    p = sum(periods)
-    params = Templates(
-        jnp.asarray(rng.standard_normal((d, p), dtype=np.float32) / np.sqrt(d)),
-        jnp.asarray(0.01 * rng.standard_normal(p, dtype=np.float32)),
-    )
+    refs, queries, _ = random_features(n, d, args.singles, seed=0)
+    params, p = random_map(d, periods, seed=1), sum(periods)
     model = RhythmicMap(r=2)
     model.params, model.periods, model.n, model.d = params, periods, n, d
     model.groups = Groups("periods", periods)
@@ -69,16 +59,8 @@ def run(args) -> dict:
     same = [small.index(q) for q in queries] == batch_idx.tolist()
     model.predict(queries[:1])  # builds the map's numpy lane
     same_locate = [model.locate(q) for q in queries] == batch_idx.tolist()
-    flat = None  # built after the map's paths are timed: its OpenMP threads spin
-
-    def exact(q):
-        nonlocal flat
-        flat = flat or BruteForce(n_threads=cores()).fit(refs)
-        return flat.search(q, 1)
-
     wt, rows_p = small.wt, small.wt.shape[0]
-    unpadded = np.ascontiguousarray(wt[:p])
-    alone = "templates x query alone, "
+    unpadded, alone = np.ascontiguousarray(wt[:p]), "templates x query alone, "
     cases = {
         alone + f"{p} rows (one-thread sgemv)": lambda q: unpadded @ q,
         alone + f"padded to {rows_p} rows (the map's)": lambda q: wt @ q,
@@ -96,19 +78,19 @@ def run(args) -> dict:
 
     one = {"jitted decode (1 row)": lambda q: jit(q[None])}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.singles)))
-    exact(queries[:1])
-    one = {"faiss IndexFlatIP (1 row)": lambda q: exact(q[None])}
+    flat = BruteForce(n_threads=cores()).fit(refs)  # last: its OpenMP threads spin on
+    one = {"faiss IndexFlatIP (1 row)": lambda q: flat.search(q[None], 1)}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.exact)))
     for name, row in rows.items():
         log.info("%s: %.1f us", name, 1e6 * row["median_s"])
     batch = queries[:1000]
     throughput = {"jitted decode": time_batch(jit, batch, repeats=5),
-                  "faiss IndexFlatIP": time_batch(exact, batch, repeats=3)}  # fmt: skip
-    return dict(
-        n=n, d=d, periods=list(periods), singles=args.singles,
-        single=rows, batch=throughput, same_as_batch_decode=bool(same),
-        locate_same_as_batch_decode=bool(same_locate), padded_rows=int(rows_p),
-    )  # fmt: skip
+                  "faiss IndexFlatIP": time_batch(lambda q: flat.search(q, 1), batch,
+                                                 repeats=3)}  # fmt: skip
+    return dict(n=n, d=d, periods=list(periods), singles=args.singles, single=rows,
+                batch=throughput, same_as_batch_decode=bool(same),
+                locate_same_as_batch_decode=bool(same_locate),
+                padded_rows=int(rows_p))  # fmt: skip
 
 
 def markdown(r: dict) -> str:
@@ -124,35 +106,31 @@ def markdown(r: dict) -> str:
         for s in ("RhythmicMap.locate", "RhythmicMap.predict", "faiss")
     )
     p = sum(r["periods"])
-    tbytes = 4 * r["d"] * p
     met = "met" if locate <= 20 else "not met"
     return "\n".join(header("One query to one place", r)) + "\n" + "\n\n".join([
         f"Map: N = {r['n']}, d = {r['d']}, periods {r['periods']}"
-        f" ({p} templates, {tbytes / 1e6:.2f} MB of float32, stored as"
+        f" ({p} templates, {4 * r['d'] * p / 1e6:.2f} MB of float32, stored as"
         f" {r.get('padded_rows', p)} rows).",
         table(["path", "median us", "p95 us", "calls"], lat),
-        "Batches of 1000: jitted decode"
-        f" {thr['jitted decode']['queries_per_s']:,.0f} queries/s, faiss flat"
-        f" {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}: **{ratio:.1f}x**."
-        " The numpy path gives the batch decode's place for every query:"
-        f" {r['same_as_batch_decode']} (SmallDecoder.index),"
+        f"Batches of 1000: jitted decode {thr['jitted decode']['queries_per_s']:,.0f}"
+        f" queries/s, faiss flat {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}:"
+        f" **{ratio:.1f}x**. The numpy path gives the batch decode's place for every"
+        f" query: {r['same_as_batch_decode']} (SmallDecoder.index),"
         f" {r.get('locate_same_as_batch_decode', 'not run')} (RhythmicMap.locate).",
-        f"Targets: one descriptor -> place <= 20 us median: {met} by"
-        f" RhythmicMap.locate ({locate:.1f} us; predict on one row {predict:.1f} us;"
-        f" faiss flat on one row {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x"
-        f" longer); batch decoding >= 40x faiss flat:"
-        f" {'met' if ratio >= 40 else 'not met'} ({ratio:.1f}x). A query's cost is"
-        " the templates' product with it: the rest (bias, one argmax over"
-        " both periods' blocks of rows, one look-up in the table of every"
-        " phase pair's place, the shape check) is a few microseconds. OpenBLAS"
-        " runs that sgemv on one thread below rows x cols = 460,800 and on its"
-        " thread pool from there; the map stores each period's templates in a"
-        " block of equal rows (spare rows zero, bias -inf) grown to that size,"
-        " which shares the product between the 2 cores (compare the first two"
-        " rows). The batch decode multiplies numpy queries by numpy's BLAS"
-        " where they lie and runs the rest jitted. The"
-        " numpy paths are timed in turns, so the load falls on each alike; the"
-        " thread pool's p95 grows with the load (the other core is busy).",
+        f"Targets: one descriptor -> place <= 20 us median: {met} by RhythmicMap.locate"
+        f" ({locate:.1f} us; predict on one row {predict:.1f} us; faiss flat on one row"
+        f" {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x longer); batch decoding >="
+        f" 40x faiss flat: {'met' if ratio >= 40 else 'not met'} ({ratio:.1f}x). A"
+        " query's cost is the templates' product with it: the rest (bias, one argmax"
+        " over both periods' blocks of rows, one look-up in the table of every phase"
+        " pair's place, the shape check) is a few microseconds. OpenBLAS runs that"
+        " sgemv on one thread below rows x cols = 460,800 and on its thread pool from"
+        " there; the map stores each period's templates in a block of equal rows (spare"
+        " rows zero, bias -inf) grown to that size, which shares the product between"
+        " the 2 cores (compare the first two rows). The batch decode multiplies numpy"
+        " queries by numpy's BLAS where they lie and runs the rest jitted. The numpy"
+        " paths are timed in turns, so the load falls on each alike; the thread pool's"
+        " p95 grows with the load (the other core is busy).",
     ])  # fmt: skip
 
 

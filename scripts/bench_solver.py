@@ -19,8 +19,6 @@ from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
 from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
-log = h.log
-
 AIM_SPEEDUP = 100.0
 AIM_GAP = 1e-3
 VIDEO = dict(rho=0.99, noise=0.3, seed=0)
@@ -40,12 +38,6 @@ def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarra
     return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
-def neighbour_cosines(x: np.ndarray, lags=(1, 10, 100, 1000)) -> dict[str, float]:
-    """Mean cosine of frames ``lag`` apart (rows are unit vectors)."""
-    return {str(lag): float(np.mean(np.sum(x[lag:] * x[:-lag], axis=1)))
-            for lag in lags if lag < len(x)}  # fmt: skip
-
-
 def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
     """(p,) liblinear primal of every template, float64: w (d, p), b (p,)."""
     w = np.asarray(w, np.float64).reshape(x64.shape[1], -1)
@@ -56,10 +48,8 @@ def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
     """``samples`` columns spread evenly over all p, with (period, phase)."""
-    p = sum(periods)
-    cols = np.unique(np.linspace(0, p - 1, samples).round().astype(int))
-    offs = period_offsets(periods)
-    out = []
+    cols = np.unique(np.linspace(0, sum(periods) - 1, samples).round().astype(int))
+    offs, out = period_offsets(periods), []
     for col in cols:
         k = int(np.searchsorted(offs, col, side="right") - 1)
         out.append(dict(column=int(col), period=periods[k], phase=int(col - offs[k])))
@@ -79,7 +69,7 @@ def run_linearsvc(x64: np.ndarray, y: np.ndarray, c: float, picks: list[dict]):
             dict(**pick, seconds=seconds, cpu_s=cpu, n_iter=int(svc.n_iter_))
             | dict(converged=converged, w=svc.coef_[0], b=svc.intercept_[0])
         )
-        log.info("LinearSVC %s: %.2f s, %d iterations", pick, seconds, svc.n_iter_)
+        h.log.info("LinearSVC %s: %.2f s, %d iterations", pick, seconds, svc.n_iter_)
     return rows
 
 
@@ -89,30 +79,16 @@ def run_newton(x: np.ndarray, y: np.ndarray, c: float, config, progress: bool):
     load = h.load_average()
     (params, info), seconds, cpu = h.timed(newton_fit, x, y, c, config,
                                            progress=progress)  # fmt: skip
-    log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
-             info.steps, info.cg_iterations, info.columns)  # fmt: skip
+    h.log.info("Newton %s: %.1f s (%d steps, CG %s, columns %s)", config, seconds,
+               info.steps, info.cg_iterations, info.columns)  # fmt: skip
     keys = ("gap_tol", "eta", "max_cg", "cg_start", "exact_gradient", "rank", "block")
     cfg = {k: getattr(config, k) for k in keys}
     cfg["hessian"] = resolve_hessian_dtype(config.hessian_dtype) or "float32"
-    record = dict(
-        seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load,
-        config=cfg, steps=info.steps, cg_iterations=list(info.cg_iterations),
-        columns=list(info.columns), max_gap_estimate=float(np.max(info.gap_estimate)),
-    )  # fmt: skip
+    record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load,
+                  config=cfg, steps=info.steps, cg_iterations=list(info.cg_iterations),
+                  columns=list(info.columns),
+                  max_gap_estimate=float(np.max(info.gap_estimate)))  # fmt: skip
     return params, record
-
-
-def run_lbfgs(x: np.ndarray, y: np.ndarray, c: float, progress: bool):
-    """Warm-up (two steps, compiles), then the timed full solve (default
-    settings; the same ``optax.lbfgs()`` object so the jitted step is reused)."""
-    opt = optax.lbfgs()
-    _, warmup, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
-    load = h.load_average()
-    (params, history), seconds, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
-                                              progress=progress)  # fmt: skip
-    log.info("L-BFGS: %.1f s (%d steps)", seconds, len(history))
-    record = dict(seconds=seconds, cpu_s=cpu, warmup_s=warmup, load_average_start=load)
-    return params, history, record
 
 
 def _gap(ours, ref):
@@ -126,25 +102,30 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     p, c, labels = sum(cands), default_c(n), np.arange(n)
     y = np.asarray(targets(labels, cands))
     x64, y64 = x.astype(np.float64), y.astype(np.float64)
-    log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
-
+    h.log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
     load_svc = h.load_average()
     svc = run_linearsvc(x64, y64, c, sampled_columns(cands, samples))
     w_f, fast = run_newton(x, y, c, FAST, progress)
     w_t, tight = run_newton(x, y, c, NewtonConfig(), progress)
-    w_l, hist, lbfgs = run_lbfgs(x, y, c, progress)
-
+    # L-BFGS (default settings): a warm-up of two steps compiles, then the timed
+    # solve, with the same optax.lbfgs() object so the jitted step is reused
+    opt = optax.lbfgs()
+    _, warm, _ = h.timed(fit_full_batch, x, y, c, steps=2, optimizer=opt, progress=0)
+    load = h.load_average()
+    (w_l, hist), wall, cpu = h.timed(fit_full_batch, x, y, c, optimizer=opt,
+                                     progress=progress)  # fmt: skip
+    h.log.info("L-BFGS: %.1f s (%d steps)", wall, len(hist))
+    lbfgs = dict(seconds=wall, cpu_s=cpu, warmup_s=warm, load_average_start=load)
+    lbfgs["steps"] = len(hist)
     f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
                      for w in (w_f, w_t, w_l))  # fmt: skip
-    cols = [t["column"] for t in svc]
-    f_svc = []
+    cols, f_svc = [t["column"] for t in svc], []
     for t, j in zip(svc, cols, strict=True):
         f = liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
         f_svc.append(f)
         t.update(objective=f, fast_gap=_gap(f_f[j], f), tight_gap=_gap(f_t[j], f),
                  lbfgs_gap=_gap(f_l[j], f))  # fmt: skip
-    f_svc = np.array(f_svc)
-    wall = np.array([t["seconds"] for t in svc])
+    f_svc, wall = np.array(f_svc), np.array([t["seconds"] for t in svc])
     cpu = np.array([t["cpu_s"] for t in svc])
     linearsvc = dict(
         settings=dict(loss="squared_hinge", dual=True, tol=1e-4, max_iter=1000, C=c),
@@ -154,7 +135,6 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         extrapolated_range_s=[float(wall.min() * p), float(wall.max() * p)],
         load_average_start=load_svc, templates=svc,
     )  # fmt: skip
-    lbfgs["steps"] = len(hist)
     for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t), (lbfgs, w_l, f_l)):
         errors = np.asarray(period_errors(scores(w, x), labels, cands))
         rec.update(
@@ -165,20 +145,15 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         )  # fmt: skip
         if rec is not lbfgs:  # Newton's
             margins = y64 * (x64 @ np.asarray(w.w, np.float64) + np.asarray(w.b))
+            # GFLOP of the CG products: per iteration Xa v and Xa^T (D Xa v) over
+            # the step's gathered columns, 4 n (d + 1) columns
+            work = np.dot(rec["cg_iterations"], rec["columns"])
             rec.update(active_fraction=float(np.mean(margins < 1.0)),
-                       gflop=cg_gflop(n, d, rec),
+                       gflop=float(4 * n * (d + 1) * work / 1e9),
                        chosen_periods=choose_periods(cands, errors, n, 2))  # fmt: skip
-    return h.plain(dict(
-        name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands, p=p, c=c,
-        linearsvc=linearsvc, newton_fast=fast, newton_tight=tight, lbfgs=lbfgs,
-    ))  # fmt: skip
-
-
-def cg_gflop(n: int, d: int, rec: dict) -> float:
-    """GFLOP of Newton's CG products: per iteration ``Xa v`` and ``Xa^T (D Xa v)``
-    over the step's gathered columns, ``4 n (d+1) columns``."""
-    pairs = zip(rec["cg_iterations"], rec["columns"], strict=True)
-    return float(sum(4 * n * (d + 1) * w * i for i, w in pairs) / 1e9)
+    return h.plain(dict(name=name, n=n, d=d, xla_threads=h.cores(), candidates=cands,
+                        p=p, c=c, linearsvc=linearsvc, newton_fast=fast,
+                        newton_tight=tight, lbfgs=lbfgs))  # fmt: skip
 
 
 def _rel(v: float) -> str:
@@ -193,18 +168,17 @@ SAMPLED = ["period", "phase", "LinearSVC s", "iterations", "converged", "objecti
 def _newton_line(label: str, nw: dict) -> str:
     cfg = nw["config"]
     return (
-        f"Newton {label} (gap_tol {cfg['gap_tol']:g}, eta {cfg['eta']:g},"
-        f" max_cg {cfg['max_cg']}, cg_start {cfg.get('cg_start')}, rank {cfg['rank']},"
-        f" block {cfg['block']}, gradient summed in"
+        f"Newton {label} (gap_tol {cfg['gap_tol']:g}, eta {cfg['eta']:g}, max_cg"
+        f" {cfg['max_cg']}, cg_start {cfg.get('cg_start')}, rank {cfg['rank']}, block"
+        f" {cfg['block']}, gradient summed in"
         f" {'float64' if cfg.get('exact_gradient', True) else 'float32'}):"
         f" {nw['steps']} steps, CG iterations {nw['cg_iterations']} over"
-        f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their"
-        f" products {nw['gflop']:,.4g} GFLOP with {cfg.get('hessian', 'float32')}"
-        " inputs, summed in float32, i.e."
-        f" {nw['gflop'] / nw['seconds']:.3g} GFLOP/s over the solve's wall time);"
-        f" largest estimated gap at the end {nw['max_gap_estimate']:.2e};"
-        f" {100 * nw['active_fraction']:.1f} % of (frame, template) margins active"
-        f" (< 1); first call (compiles) {nw['warmup_s']:.1f} s; periods chosen"
+        f" {nw['columns']} columns ({sum(nw['cg_iterations'])} in all, their products"
+        f" {nw['gflop']:,.4g} GFLOP with {cfg.get('hessian', 'float32')} inputs, summed"
+        f" in float32, i.e. {nw['gflop'] / nw['seconds']:.3g} GFLOP/s over the solve's"
+        f" wall time); largest estimated gap at the end {nw['max_gap_estimate']:.2e};"
+        f" {100 * nw['active_fraction']:.1f} % of (frame, template) margins active (<"
+        f" 1); first call (compiles) {nw['warmup_s']:.1f} s; periods chosen"
         f" {nw['chosen_periods']}."
     )
 
@@ -237,11 +211,9 @@ def case_markdown(r: dict) -> str:
         ("Newton 0.1 % vs Newton tight", every, fast["gap_vs_tight"]),
         ("L-BFGS vs Newton tight", every, lb["gap_vs_tight"]),
     )
-    gaps = [[label, which, *(_rel(g[k]) for k in ("max", "median", "min"))]
-            for label, which, g in comparisons]  # fmt: skip
-    gaps = h.table(GAPS, gaps)
-    errs = (r["candidates"], fast["training_error"], tight["training_error"],
-            lb["training_error"])  # fmt: skip
+    gaps = h.table(GAPS, [[what, n, *(_rel(g[k]) for k in ("max", "median", "min"))]
+                          for what, n, g in comparisons])  # fmt: skip
+    errs = (r["candidates"], *(t["training_error"] for t in (fast, tight, lb)))
     errors = h.table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
                      [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
     sampled = [[t["period"], t["phase"], t["seconds"], t["n_iter"],
@@ -256,23 +228,20 @@ def case_markdown(r: dict) -> str:
         f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
         f" {r['c']:.4f}. The load changed between solvers: see each row.",
         timing,
-        "LinearSVC(loss='squared_hinge', dual=True, C=log N, tol=1e-4,"
-        " max_iter=1000; intercept_scaling=1 makes the bias a regularised"
-        " constant-1 feature, the same objective) was run on"
-        f" {s['sampled']} of the {r['p']} templates only;"
-        f" its time is EXTRAPOLATED: per template {per['mean']:.2f} s mean"
-        f" (std {per['std']:.2f}, min {per['min']:.2f}, max {per['max']:.2f}),"
-        f" times p = {r['p']}: {s['extrapolated_s']:.0f} s (range"
-        f" {lo:.0f}-{hi:.0f} s from the fastest and slowest sampled template)."
-        f" liblinear runs on one thread, the JAX solvers on {r['xla_threads']}"
-        " (XLA's pool): CPU seconds (all threads of the process) count the"
-        " work, wall seconds what a user waits. Newton's times include its"
-        " setup (Xa^T Xa, the leading eigenvectors); its first call, which"
+        "LinearSVC(loss='squared_hinge', dual=True, C=log N, tol=1e-4, max_iter=1000;"
+        " intercept_scaling=1 makes the bias a regularised constant-1 feature, the same"
+        f" objective) was run on {s['sampled']} of the {r['p']} templates only; its"
+        f" time is EXTRAPOLATED: per template {per['mean']:.2f} s mean (std"
+        f" {per['std']:.2f}, min {per['min']:.2f}, max {per['max']:.2f}), times p ="
+        f" {r['p']}: {s['extrapolated_s']:.0f} s (range {lo:.0f}-{hi:.0f} s from the"
+        " fastest and slowest sampled template). liblinear runs on one thread, the JAX"
+        f" solvers on {r['xla_threads']} (XLA's pool): CPU seconds (all threads of the"
+        " process) count the work, wall seconds what a user waits. Newton's times"
+        " include its setup (Xa^T Xa, the leading eigenvectors); its first call, which"
         " also compiles, is reported below.",
         _newton_line("0.1 % gap", fast),
         _newton_line("tight", tight),
-        f"L-BFGS: {lb['steps']} steps (warm-up of two steps"
-        f" {lb['warmup_s']:.1f} s).",
+        f"L-BFGS: {lb['steps']} steps (warm-up of two steps {lb['warmup_s']:.1f} s).",
         f"Aim (>= {AIM_SPEEDUP:.0f}x over LinearSVC at <= {100 * AIM_GAP:.1f} %"
         f" objective gap, the 0.1 % setting): {'met' if aim else 'NOT met'}"
         f" ({fast['speedup_vs_linearsvc']:.1f}x wall,"
@@ -320,13 +289,15 @@ def run(args) -> dict:
         name = "Nordland summer, patchnorm 64x32"
         cases.append(bench_case(name, x[: args.frames], samples, args.progress))
     else:
-        log.warning("no Nordland data under %s: the real-frame case is left out",
-                    args.root)  # fmt: skip
+        h.log.warning("no Nordland data under %s: the real-frame case is left out",
+                      args.root)  # fmt: skip
     xv = video_like(args.video_frames, args.video_dim, **VIDEO)
     cases.append(bench_case("Video-like random walk", xv, samples, args.progress))
-    video = dict(**VIDEO, cosines=neighbour_cosines(xv))
+    # mean cosine of frames lag apart (the rows are unit vectors)
+    cosines = {str(lag): float(np.mean(np.sum(xv[lag:] * xv[:-lag], axis=1)))
+               for lag in (1, 10, 100, 1000) if lag < len(xv)}  # fmt: skip
     aim = dict(speedup=AIM_SPEEDUP, gap=AIM_GAP)
-    return dict(aim=aim, video_like=video, cases=cases)
+    return dict(aim=aim, video_like=dict(**VIDEO, cosines=cosines), cases=cases)
 
 
 if __name__ == "__main__":

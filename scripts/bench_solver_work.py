@@ -3,11 +3,10 @@
 python scripts/bench_solver_work.py [--slack 0.005] [--after 4]
 """
 
-import time
 from pathlib import Path
 
 import numpy as np
-from _harness import header, log, main, nordland_features, table
+from _harness import header, log, main, nordland_features, table, timed
 
 from rhythmic_jax.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
@@ -27,15 +26,6 @@ class Record:
         return np.zeros(sum(self.cands), bool)
 
 
-def solve(x, y, c, stop_for):
-    """Compiling call, then the timed one; (params, info, seconds, stop)."""
-    newton_fit(x, y, c, FAST, stop=stop_for())
-    stop = stop_for()
-    t = time.perf_counter()
-    params, info = newton_fit(x, y, c, FAST, stop=stop)
-    return params, info, time.perf_counter() - t, stop
-
-
 def options(ap) -> None:
     ap.add_argument("--frames", type=Path, default=None, help="(n, d) .npy")
     ap.add_argument("--slack", type=float, default=0.005)
@@ -49,8 +39,7 @@ def run(args) -> dict:
         (x,) = nordland_features(args.root, seasons=("summer",), progress=args.progress)
     if args.quick:
         x = x[:600]
-    n = len(x)
-    labels = np.arange(n)
+    n, labels = len(x), np.arange(len(x))
     cands = candidate_periods(n, 2, 1, 7)
     y, c = np.asarray(targets(labels, cands)), default_c(n)
     runs = {}
@@ -58,7 +47,9 @@ def run(args) -> dict:
         ("full", lambda: Record(labels, cands)),
         ("drop", lambda: DropLosers(labels, cands, n, 2, args.slack, args.after)),
     ):
-        params, info, seconds, stop = solve(x, y, c, make)
+        newton_fit(x, y, c, FAST, stop=make())  # compiles
+        stop = make()
+        (params, info), seconds, _ = timed(newton_fit, x, y, c, FAST, stop=stop)
         s = scores(params, x)
         errors = np.asarray(period_errors(s, labels, cands))
         chosen = choose_periods(cands, errors, n, 2)
@@ -71,8 +62,7 @@ def run(args) -> dict:
             dropped=[[k, list(t)] for k, t in getattr(stop, "dropped", [])],
         )  # fmt: skip
         if name == "full":
-            ym = y * np.asarray(s, np.float64)
-            active = (ym < 1).sum(axis=1)
+            active = (y * np.asarray(s, np.float64) < 1).sum(axis=1)
             runs[name]["active_per_frame"] = dict(
                 min=int(active.min()), mean=float(active.mean()),
                 idle_frames=int((active == 0).sum()),
@@ -83,11 +73,9 @@ def run(args) -> dict:
     offs = dict(zip(cands, period_offsets(cands), strict=True))
     cols = np.concatenate([np.arange(offs[t], offs[t] + t) for t in full["chosen"]])
     f0, f1 = np.asarray(full["objective"])[cols], np.asarray(drop["objective"])[cols]
-    return dict(
-        n=n, d=int(x.shape[1]), candidates=list(cands), c=c, slack=args.slack,
-        after=args.after, runs=runs,
-        chosen_gap=float(np.max(np.abs(f1 - f0) / f0)),
-    )  # fmt: skip
+    return dict(n=n, d=int(x.shape[1]), candidates=list(cands), c=c, slack=args.slack,
+                after=args.after, runs=runs,
+                chosen_gap=float(np.max(np.abs(f1 - f0) / f0)))  # fmt: skip
 
 
 def markdown(r: dict) -> str:
@@ -100,8 +88,7 @@ def markdown(r: dict) -> str:
         [k, *(int(v) for v in e), int(mv)]
         for k, (e, mv) in enumerate(zip(steps, move, strict=True))
     ] + [["end", *(int(v) for v in final), 0]]
-    act = full["active_per_frame"]
-    same = full["chosen"] == drop["chosen"]
+    act, same = full["active_per_frame"], full["chosen"] == drop["chosen"]
     head = header("The 0.1 % solve's work: losing candidates and idle frames", r)
     return "\n".join([*head, "\n\n".join([
         f"Nordland summer, patchnorm: n = {n}, d = {r['d']}, candidates {cands}"
@@ -118,21 +105,18 @@ def markdown(r: dict) -> str:
                  str(drop["columns"]), drop["work"], str(drop["chosen"])],
             ],
         ),  # fmt: skip
-        "The wall times differ by the machine's load only where the work is"
-        " the same.",
+        "The wall times differ by the machine's load only where the work is the same.",
         f"Candidates stopped (step, periods): {drop['dropped'] or 'none'}. Same"
         f" periods chosen: {same}; largest relative objective difference of the"
         f" chosen periods' templates between the two solves: {r['chosen_gap']:.1e}.",
-        "Training errors (frames) of every candidate after every Newton step of"
-        " the full solve, and the most any candidate still moves from there to"
-        " the end (what a safe slack must cover, for each of the 2r errors"
-        " compared):",
+        "Training errors (frames) of every candidate after every Newton step of the"
+        " full solve, and the most any candidate still moves from there to the end"
+        " (what a safe slack must cover, for each of the 2r errors compared):",
         table(["step", *(str(t) for t in cands), "largest move to the end"], rows),
-        f"Frames beyond the margin for every one of the {sum(cands)} templates at"
-        f" the end (which liblinear-style shrinking could drop from the dense"
-        f" products): {act['idle_frames']} of {n}; every frame is active"
-        f" (margin < 1) for {act['min']} templates at least, {act['mean']:.0f} on"
-        " average.",
+        f"Frames beyond the margin for every one of the {sum(cands)} templates at the"
+        " end (which liblinear-style shrinking could drop from the dense products):"
+        f" {act['idle_frames']} of {n}; every frame is active (margin < 1) for"
+        f" {act['min']} templates at least, {act['mean']:.0f} on average.",
     ])])  # fmt: skip
 
 

@@ -17,14 +17,6 @@ from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
 QUICK = dict(frames=400)  # --quick
 
 
-def objectives(params: Templates, x, y, c) -> np.ndarray:
-    """(p,) objective of every template in float64."""
-    with jax.enable_x64(True):
-        w, b = (np.asarray(v, np.float64) for v in params)
-        x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
-        return np.asarray(objective(Templates(w, b), x64, y64, c))
-
-
 def markdown(report: dict) -> str:
     rows = [[r["solver"], r["wall_s"], r["cpu_s"], r["steps"], r["cg_iterations"]]
             for r in report["rows"]]  # fmt: skip
@@ -62,18 +54,19 @@ def run(args) -> dict:
         ("direct (d-dim)", dataclasses.replace(NewtonConfig(), span=False)),
     ):
         (params, info), wall, cpu = timed(newton_fit, x, y, c, cfg, False)
-        answers[name] = objectives(params, x, y, c)
+        with jax.enable_x64(True):  # every template's objective, in float64
+            w, b = (np.asarray(v, np.float64) for v in params)
+            x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
+            answers[name] = np.asarray(objective(Templates(w, b), x64, y64, c))
         rows.append(dict(solver=name, wall_s=wall, cpu_s=cpu, steps=info.steps,
                          cg_iterations=sum(info.cg_iterations)))  # fmt: skip
         print(rows[-1], flush=True)
     span, direct = answers["span (n-dim)"], answers["direct (d-dim)"]
-    return dict(
-        descriptor=args.descriptor, settings=desc.settings(), n=n, d=d,
-        level=args.level, p=sum(cands), rows=rows,
-        speedup_wall=rows[1]["wall_s"] / rows[0]["wall_s"],
-        speedup_cpu=rows[1]["cpu_s"] / rows[0]["cpu_s"],
-        gap_span_vs_direct=stats((span - direct) / direct),
-    )  # fmt: skip
+    return dict(descriptor=args.descriptor, settings=desc.settings(), n=n, d=d,
+                level=args.level, p=sum(cands), rows=rows,
+                speedup_wall=rows[1]["wall_s"] / rows[0]["wall_s"],
+                speedup_cpu=rows[1]["cpu_s"] / rows[0]["cpu_s"],
+                gap_span_vs_direct=stats((span - direct) / direct))  # fmt: skip
 
 
 if __name__ == "__main__":

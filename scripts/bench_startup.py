@@ -14,15 +14,7 @@ from _harness import REPO, bytecode, child, header, log, main, table
 
 HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
 QUICK = dict(repeats=1)  # --quick
-
-
-def commands(map_path: Path) -> dict[str, list[str]]:
-    script = shutil.which("rhythmic-jax") or "rhythmic-jax"
-    return {
-        "import rhythmic_jax": [sys.executable, "-c", "import rhythmic_jax"],
-        "rhythmic-jax --help": [script, "--help"],
-        "rhythmic-jax info MAP": [script, "info", str(map_path)],
-    }
+SCRIPT = shutil.which("rhythmic-jax") or "rhythmic-jax"
 
 
 # Run in a bare interpreter (no harness, so no numpy of its own): the heavy
@@ -49,11 +41,9 @@ def loaded(checkout: Path, cmd: list[str]) -> list[str]:
 
 def fit_map(folder: Path) -> Path:
     """A 600-frame, 64-d map fitted with this checkout's command line."""
-    rng = np.random.default_rng(0)
-    x = rng.standard_normal((600, 64)).astype(np.float32)
+    x = np.random.default_rng(0).standard_normal((600, 64)).astype(np.float32)
     np.save(folder / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
-    script = shutil.which("rhythmic-jax") or "rhythmic-jax"
-    cmd = [script, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
+    cmd = [SCRIPT, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
     child([*cmd, "--no-progress"], REPO)
     return folder / "route.map"
 
@@ -93,7 +83,12 @@ def run(args) -> dict:
         checkouts = {"before": args.before.resolve(), "after": REPO}
     bytecode(*checkouts.values())
     with tempfile.TemporaryDirectory() as tmp:
-        cmds = commands(fit_map(Path(tmp)))
+        route = fit_map(Path(tmp))
+        cmds = {
+            "import rhythmic_jax": [sys.executable, "-c", "import rhythmic_jax"],
+            "rhythmic-jax --help": [SCRIPT, "--help"],
+            "rhythmic-jax info MAP": [SCRIPT, "info", str(route)],
+        }
         seconds = {name: {v: [] for v in checkouts} for name in cmds}
         loads = {name: {v: loaded(path, cmd) for v, path in checkouts.items()}
                  for name, cmd in cmds.items()}  # fmt: skip
@@ -102,10 +97,9 @@ def run(args) -> dict:
                 for v, path in checkouts.items():
                     seconds[name][v].append(child(cmd, path)["wall"])
             log.info("turn %d of %d done", i + 1, args.repeats)
-    return dict(
-        versions=list(checkouts), repeats=args.repeats, seconds=seconds,
-        checkouts={v: str(p) for v, p in checkouts.items()}, loaded=loads,
-    )  # fmt: skip
+    return dict(versions=list(checkouts), repeats=args.repeats, seconds=seconds,
+                checkouts={v: str(p) for v, p in checkouts.items()},
+                loaded=loads)  # fmt: skip
 
 
 if __name__ == "__main__":

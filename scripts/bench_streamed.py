@@ -3,6 +3,7 @@
 python scripts/bench_streamed.py [--repeats 2] [--walk-frames 100000]
 """
 
+import itertools
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -28,8 +29,7 @@ QUICK = dict(repeats=1, walk_frames=5000, walk_periods="17,18,19")  # --quick
 def run_case(name, path: Path, periods, repeats: int) -> dict:
     """Every setting in turns on the frames in ``path``; the case's record."""
     frames = open_frames(path)
-    labels = np.arange(frames.n)
-    c = default_c(frames.n)
+    labels, c = np.arange(frames.n), default_c(frames.n)
     y = targets(labels, periods)
     (_, ref), ref_s, _ = timed(lambda: newton_fit(frames.read(0, frames.n), y, c))
     runs: dict[str, list[dict]] = {label: [] for label, _ in SETTINGS}
@@ -44,7 +44,7 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
             runs[label].append(dict(
                 wall_s=wall, steps=info.steps, passes=len(info.pass_seconds),
                 cg_iterations=list(info.cg_iterations), columns=list(info.columns),
-                column_passes=_column_passes(info),
+                column_passes=int(np.dot(info.columns, np.add(info.cg_iterations, 3))),
                 reached=int(np.sum(info.gap_estimate <= config.gap_tol)),
                 true_gap_max=float(np.max(gap)), true_gap_median=float(np.median(gap)),
             ))  # fmt: skip
@@ -54,48 +54,36 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
                 median_wall_s=med)  # fmt: skip
 
 
-def _column_passes(info) -> int:
-    """Template-columns carried over all passes: each step's gradient pass,
-    CG passes and two line-search passes times its width."""
-    pairs = zip(info.columns, info.cg_iterations, strict=True)
-    return int(sum(w * (3 + k) for w, k in pairs))
-
-
 def markdown(report: dict) -> str:
-    title = "Streamed Newton-CG: preconditioner and compacted passes"
-    lines = header(title, report)
+    lines = header("Streamed Newton-CG: preconditioner and compacted passes", report)
     lines += [
-        "Each case runs the streamed fit (`FAST_STREAM`: a template stops once"
-        " its estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40"
-        f" Newton steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped"
-        " `.npy`) in three settings, in turns. Reached: templates whose"
-        " estimated gap met 1e-3. True gap: (f - f*) / f* of the final"
-        " objectives against the in-memory Newton optimum (tight) of the same"
-        " frames. Column-passes: templates carried, summed over every pass"
-        " (gradient, CG, two line-search passes per step).",
+        "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
+        " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
+        f" steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped `.npy`) in"
+        " three settings, in turns. Reached: templates whose estimated gap met 1e-3."
+        " True gap: (f - f*) / f* of the final objectives against the in-memory Newton"
+        " optimum (tight) of the same frames. Column-passes: templates carried, summed"
+        " over every pass (gradient, CG, two line-search passes per step).",
         "",
     ]
     rows = []
     for case in report["cases"]:
         for label, runs in case["runs"].items():
             first = runs[-1]
-            rows.append([
-                case["name"], f"{case['n']} x {case['d']}",
-                ", ".join(map(str, case["periods"])), label,
-                case["median_wall_s"][label],
-                ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
-                first["passes"], f"{first['reached']} / {case['templates']}",
-                f"{first['true_gap_max']:.1e}", f"{first['true_gap_median']:.1e}",
-                _widths(first["columns"]), first["column_passes"],
-            ])  # fmt: skip
+            rows.append([case["name"], f"{case['n']} x {case['d']}",
+                         ", ".join(map(str, case["periods"])), label,
+                         case["median_wall_s"][label],
+                         ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
+                         first["passes"], f"{first['reached']} / {case['templates']}",
+                         f"{first['true_gap_max']:.1e}",
+                         f"{first['true_gap_median']:.1e}", _widths(first["columns"]),
+                         first["column_passes"]])  # fmt: skip
     heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
              "steps", "passes", "reached", "true gap max", "true gap median",
              "templates per step", "column-passes"]  # fmt: skip
-    lines.append(table(heads, rows))
-    lines.append("")
+    lines += [table(heads, rows), ""]
     for case in report["cases"]:
-        med = case["median_wall_s"]
-        old, spec, comp = (med[label] for label, _ in SETTINGS)
+        old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
         lines.append(
             f"- {case['name']}: the spectral preconditioner {old / spec:.2f}x"
             f" ({spec:.1f} s against {old:.1f} s with Jacobi); compacted passes"
@@ -107,14 +95,8 @@ def markdown(report: dict) -> str:
 
 def _widths(columns: list[int]) -> str:
     """Templates per step, runs of equal widths shortened: '126 x 12, 8 x 2'."""
-    out, k = [], 0
-    while k < len(columns):
-        j = k
-        while j < len(columns) and columns[j] == columns[k]:
-            j += 1
-        out.append(f"{columns[k]} x {j - k}" if j - k > 1 else str(columns[k]))
-        k = j
-    return ", ".join(out)
+    runs = [(w, len(list(same))) for w, same in itertools.groupby(columns)]
+    return ", ".join(f"{w} x {k}" if k > 1 else str(w) for w, k in runs)
 
 
 def options(ap) -> None:

@@ -80,10 +80,9 @@ class Settings:
 
 
 FULL = Settings()
-QUICK = Settings(
-    frames=600, levels=(1, 2), aug_names=("hflip", "contrast"), aug_frames=600,
-    opq=False, timing_queries=50, batch_queries=300,
-)  # fmt: skip
+QUICK = Settings(frames=600, levels=(1, 2), aug_names=("hflip", "contrast"),
+                 aug_frames=600, opq=False, timing_queries=50,
+                 batch_queries=300)  # fmt: skip
 
 
 ACC = ["accuracy", "R@1", "R@5"]
@@ -100,8 +99,7 @@ FIG4 = ["r", "candidates", "periods", "storage bytes", "compression ratio", "acc
 
 
 def joined(values, scale=None) -> str:
-    """A list as a table cell: its items joined by commas (``scale``: times it,
-    two decimals)."""
+    """A table cell: the items joined by commas (``scale``: times it, 2 decimals)."""
     return ", ".join(str(v) if scale is None else f"{scale * v:.2f}" for v in values)
 
 
@@ -114,10 +112,9 @@ def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     """Bytes of the n x d float32 database and of a map with ``periods``."""
     periods = [int(t) for t in periods]
     orig, comp = database_bytes(n, d, 4), storage_bytes(periods, d, 4)
-    return dict(
-        name=name, n=int(n), d=int(d), periods=periods, sum_tau=sum(periods),
-        original_bytes=orig, compressed_bytes=comp, ratio=comp / orig,
-    )  # fmt: skip
+    return dict(name=name, n=int(n), d=int(d), periods=periods, sum_tau=sum(periods),
+                original_bytes=orig, compressed_bytes=comp,
+                ratio=comp / orig)  # fmt: skip
 
 
 def table1_paper() -> list[dict[str, Any]]:
@@ -131,10 +128,8 @@ def table1_paper() -> list[dict[str, Any]]:
             kind = "misprint" if abs(ratio - printed) >= 5e-4 else "rounding slip"
             flag = f"{kind}: the printed bytes give {ratio:.4f} ({ratio:.6f})"
         same = row["original_bytes"] == orig and row["compressed_bytes"] == comp
-        row.update(
-            printed_original_bytes=orig, printed_compressed_bytes=comp,
-            printed_ratio=printed, bytes_match=same, flag=flag,
-        )  # fmt: skip
+        row.update(printed_original_bytes=orig, printed_compressed_bytes=comp,
+                   printed_ratio=printed, bytes_match=same, flag=flag)  # fmt: skip
         rows.append(row)
     return rows
 
@@ -150,15 +145,6 @@ def table1_markdown(paper: list[dict], here: list[dict]) -> str:
         [r["name"], r["n"], r["d"], joined(r["periods"]), r["sum_tau"],
          f"{r['original_bytes']:,}", f"{r['compressed_bytes']:,}", f"{r['ratio']:.4f}",
          printed, note] for r, printed, note in rows], "")  # fmt: skip
-
-
-def table2_markdown(t2: list[dict]) -> str:
-    rows = [[r["dataset"], r["n"], r["level"],
-             f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
-             joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
-             r["paper_dataset"], r["paper_periods"], r["paper_e"], r["paper_accuracy"]]
-            for r in t2]  # fmt: skip
-    return h.table(T2, rows, "")
 
 
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
@@ -183,12 +169,9 @@ class Run:
         self.preds: dict[str, np.ndarray] = {}
 
     def fit(self, x, *, level=1, r=2, count=7, images=None, aug=None):
-        """(map, record): from ``cache_dir`` when fitted before with the same
-        settings and features (by default the folder ``bench_decoding`` fits into)."""
-        model = RhythmicMap(
-            r=r, level=level, count=count, descriptor=DESCRIPTOR,
-            descriptor_settings=self.desc.settings(),
-        )  # fmt: skip
+        """(map, record), from ``cache_dir`` (bench_decoding's) when fitted before."""
+        model = RhythmicMap(r=r, level=level, count=count, descriptor=DESCRIPTOR,
+                            descriptor_settings=self.desc.settings())  # fmt: skip
         if aug is None:
             return h.cached_fit(model, x, self.cache_dir, progress=self.progress)
         from rhythmic_jax.augment.stream import fit_map_augmented as augmented
@@ -200,8 +183,7 @@ class Run:
         return h.cached_fit(model, x, self.cache_dir, fit, extra, (images,), "aug-")
 
     def fit_baseline(self, b, x: np.ndarray) -> float:
-        """Fit a faiss-backed baseline (ITQ, OPQ), or restore its trained index
-        and settings from ``cache_dir``; returns the seconds the fit took."""
+        """Fit a faiss baseline (ITQ, OPQ) or restore it from ``cache_dir``: fit s."""
         import faiss
 
         ident = {k: v for k, v in vars(b).items() if k != "n_threads"}
@@ -209,8 +191,7 @@ class Run:
         name = f"{type(b).__name__.lower()}-n{len(x)}-{key}.faiss"
         path, side = self.cache_dir / name, self.cache_dir / (name + ".json")
         if path.is_file() and side.is_file():
-            b.index = faiss.read_index(str(path))
-            state = json.loads(side.read_text())
+            b.index, state = faiss.read_index(str(path)), json.loads(side.read_text())
             for k, v in state["attributes"].items():
                 setattr(b, k, v)
             return state["fit_s"]
@@ -228,11 +209,10 @@ class Run:
         pred, gt = np.asarray(pred, np.int64), np.arange(len(pred))
         self.preds[key], self.preds[key + "_gt"] = pred.astype(np.int32), gt
         rec = metrics.recall_at_k(ranked, gt, KS, tolerance=tol)
-        return dict(
-            accuracy=metrics.accuracy(pred, gt, tol), tolerance=tol,
-            **{f"recall_at_{k}": rec[k] for k in KS},
-            no_match=float(np.mean(pred == -1)), n_queries=len(gt), predictions=key,
-        )  # fmt: skip
+        return dict(accuracy=metrics.accuracy(pred, gt, tol), tolerance=tol,
+                    **{f"recall_at_{k}": rec[k] for k in KS},
+                    no_match=float(np.mean(pred == -1)), n_queries=len(gt),
+                    predictions=key)  # fmt: skip
 
     def score_map(self, key: str, model: RhythmicMap, q, tol: int) -> dict[str, Any]:
         ranked = ranked_places(model.scores(q), model.periods, model.n, max(KS))
@@ -245,38 +225,12 @@ class Run:
 
 def map_record(model: RhythmicMap, fit: dict) -> dict[str, Any]:
     err = dict(zip(model.candidates, model.candidate_errors, strict=True))
-    return dict(
-        level=model.config.level, r=model.config.r, n=model.n, d=model.d,
-        periods=list(model.periods), candidates=list(model.candidates),
-        candidate_errors=list(model.candidate_errors),
-        period_errors=[err[t] for t in model.periods],
-        storage_bytes=model.storage_bytes, compression_ratio=model.compression_ratio,
-        **fit,
-    )  # fmt: skip
-
-
-def load_features(run: Run) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """key -> (map images, map features, query features): Nordland summer ->
-    winter, winter (for Table 2), aerial LEVIR A -> B."""
-    kw = dict(progress=run.progress)
-    summer, winter = h.nordland_images(h.DATA, **kw)
-    xs, xw = h.nordland_features(h.DATA, run.desc, **kw)
-    xa, xb, route = h.aerial_features(h.DATA, run.desc, **kw)
-    n = run.settings.frames or len(xs)
-    return {
-        "nordland": (summer.images[:n], xs[:n], xw[:n]),
-        "winter": (winter.images[:n], xw[:n], xs[:n]),
-        "aerial": (route.map_tiles, xa, xb),
-    }
-
-
-def fit_all(run: Run, data) -> dict:
-    """Every plain r = 2 map: summer and aerial at each level, winter at two."""
-    s = run.settings
-    plan = [("nordland", lv) for lv in s.levels] + [("aerial", lv) for lv in s.levels]
-    plan += [("winter", lv) for lv in s.levels[:2]]
-    bar = tqdm(plan, desc="maps", disable=not run.progress)
-    return {(k, lv): run.fit(data[k][1], level=lv) for k, lv in bar}
+    return dict(level=model.config.level, r=model.config.r, n=model.n, d=model.d,
+                periods=list(model.periods), candidates=list(model.candidates),
+                candidate_errors=list(model.candidate_errors),
+                period_errors=[err[t] for t in model.periods],
+                storage_bytes=model.storage_bytes,
+                compression_ratio=model.compression_ratio, **fit)  # fmt: skip
 
 
 def table2(run: Run, data, fits) -> list[dict]:
@@ -326,10 +280,8 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
     for b in tqdm(baselines, desc="baselines", disable=not run.progress):
         cached = isinstance(b, ITQ | OPQ)
         fit_s = run.fit_baseline(b, x) if cached else h.timed(b.fit, x)[1]
-        note = b.note
-        if isinstance(b, OPQ):
-            note = "; ".join(filter(None, [note, f"{s.opq_niter} iterations"]))
-        methods.append((b.name, b, fit_s, note))
+        iters = f"{s.opq_niter} iterations" if isinstance(b, OPQ) else ""
+        methods.append((b.name, b, fit_s, "; ".join(filter(None, [b.note, iters]))))
     rows = []
     for name, obj, fit_s, note in methods:
         row = dict(method=name, fit_s=fit_s, storage_bytes=obj.storage_bytes, note=note)
@@ -343,10 +295,9 @@ def table3(run: Run, data, fits) -> dict[str, Any]:
             row[label] |= timing(fn, qq, s)
         rows.append(row)
     threads = dict(faiss=s.threads, kdtree=1, jax="XLA CPU default thread pool")
-    return dict(
-        database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
-        query_sets=list(sets), threads=threads, skipped=[] if s.opq else [OPQ_SKIPPED],
-    )  # fmt: skip
+    return dict(database_bytes=database_bytes(len(x), x.shape[1], 4), rows=rows,
+                query_sets=list(sets), threads=threads,
+                skipped=[] if s.opq else [OPQ_SKIPPED])  # fmt: skip
 
 
 def fig4(run: Run, data, fits) -> list[dict]:
@@ -590,10 +541,14 @@ def markdown(res: dict) -> str:
     """The report: :data:`REPORT` filled from the results."""
     t2, meta = res["table2"], res["meta"]
     summer = next(r for r in t2 if r["dataset"] == "Nordland summer")
-    errors = [100 * f(summer["candidate_errors"]) for f in (min, max)]
-    note = (
-        SOLVER_NOTE.format(summer["accuracy"], *errors) if summer["n"] == 3576 else ""
-    )
+    e = summer["candidate_errors"]
+    note = SOLVER_NOTE.format(summer["accuracy"], 100 * min(e), 100 * max(e))
+    note = note if summer["n"] == 3576 else ""
+    t2rows = [[r["dataset"], r["n"], r["level"],
+               f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
+               joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
+               r["paper_dataset"], r["paper_periods"], r["paper_e"],
+               r["paper_accuracy"]] for r in t2]  # fmt: skip
     fig3 = [[lv, joined(c), joined(e, 100), joined(p)]
             for lv, (c, e, p) in res["fig3"].items()]  # fmt: skip
     fig4 = [[r["r"], joined(r["candidates"]), joined(r["periods"]),
@@ -607,7 +562,7 @@ def markdown(res: dict) -> str:
         cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
         solver_note=note, threads=res["table3"]["threads"],
         sub=app["augmentation"], ae=res["aerial"],
-        table1=table1_markdown(t1["paper"], t1["here"]), table2=table2_markdown(t2),
+        table1=table1_markdown(t1["paper"], t1["here"]), table2=h.table(T2, t2rows, ""),
         table3=table3_markdown(res["table3"]), paper3=PAPER_TABLE3,
         fig3=h.table(FIG3, fig3, ""), fig4=h.table(FIG4, fig4, ""),
         levels=levels_markdown(app["full"]),
@@ -622,45 +577,38 @@ def draw(res: dict, out: Path) -> list[str]:
              "fig8_levels.png"]  # fmt: skip
     series = {f"level {lv}": v for lv, v in res["fig3"].items()}
     figures.plot_training_error(series, "Nordland summer", out / names[0])
-    f4 = res["fig4"]
-    figures.plot_r(
-        [r["r"] for r in f4], [r["compression_ratio"] for r in f4],
-        [r["accuracy"] for r in f4], "Nordland summer, level 1", out / names[1],
-    )  # fmt: skip
+    cols = ([r[k] for r in res["fig4"]] for k in ("r", "compression_ratio", "accuracy"))
+    figures.plot_r(*cols, "Nordland summer, level 1", out / names[1])
     sub = res["appearance"]["augmentation"]
     title = f"summer map, winter queries, first {sub['frames']} frames, level "
     title += str(sub["level"])
-    figures.plot_augmentation(
-        [r["name"] for r in sub["rows"]], [r["accuracy"] for r in sub["rows"]],
-        {"brute force": sub["brute_force"]["accuracy"]}, title,
-        "accuracy (±1 frame)", out / names[2],
-    )  # fmt: skip
+    figures.plot_augmentation([r["name"] for r in sub["rows"]],
+                              [r["accuracy"] for r in sub["rows"]],
+                              {"brute force": sub["brute_force"]["accuracy"]}, title,
+                              "accuracy (±1 frame)", out / names[2])  # fmt: skip
     series = {}
     for label, block in (("Nordland summer -> winter (±1)", res["appearance"]["full"]),
                          ("LEVIR A -> B (exact)", res["aerial"])):  # fmt: skip
         lv = block["levels"]
-        series[label] = dict(
-            levels=[r["level"] for r in lv], accuracy=[r["accuracy"] for r in lv],
-            ratio=[r["compression_ratio"] for r in lv],
-            brute_force=block["brute_force"]["accuracy"],
-        )  # fmt: skip
+        series[label] = dict(levels=[r["level"] for r in lv],
+                             accuracy=[r["accuracy"] for r in lv],
+                             ratio=[r["compression_ratio"] for r in lv],
+                             brute_force=block["brute_force"]["accuracy"])  # fmt: skip
     title = "accuracy and compression against the level"
     figures.plot_levels(series, title, out / names[3])
     return names
 
 
 def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
-    env = h.machine()
-    now = datetime.datetime.now(datetime.timezone.utc)
-    return dict(
-        date=now.strftime("%Y-%m-%d %H:%M UTC"), version=rhythmic_jax.__version__,
-        jax=env["jax"], faiss=env["faiss"], numpy=env["numpy"], python=env["python"],
-        cpu_count=env["cores"], machine=env["cpu"], load_start=load_start,
-        load_end=h.load_average(), elapsed_min=(time.perf_counter() - t0) / 60,
-        descriptor=DESCRIPTOR, descriptor_settings=run.desc.settings(),
-        d=int(data["nordland"][1].shape[1]), frames=len(data["nordland"][1]),
-        predictions=str(preds),
-    )  # fmt: skip
+    env, now = h.machine(), datetime.datetime.now(datetime.timezone.utc)
+    return dict(date=now.strftime("%Y-%m-%d %H:%M UTC"),
+                version=rhythmic_jax.__version__, jax=env["jax"], faiss=env["faiss"],
+                numpy=env["numpy"], python=env["python"], cpu_count=env["cores"],
+                machine=env["cpu"], load_start=load_start, load_end=h.load_average(),
+                elapsed_min=(time.perf_counter() - t0) / 60, descriptor=DESCRIPTOR,
+                descriptor_settings=run.desc.settings(),
+                d=int(data["nordland"][1].shape[1]), frames=len(data["nordland"][1]),
+                predictions=str(preds))  # fmt: skip
 
 
 def options(ap) -> None:
@@ -671,21 +619,33 @@ def options(ap) -> None:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Run (or ``--render``) the reproduction; writes ``reproduction.json`` and
-    ``REPRODUCTION.md`` into ``--out`` (``_quick`` after each name under --quick)."""
+    """Run or render reproduction.json and REPRODUCTION.md (``_quick`` if --quick)."""
     return h.main(__doc__, run, markdown, options, "reproduction", argv,
                   md_stem="REPRODUCTION")  # fmt: skip
 
 
 def run(args) -> dict[str, Any]:
     settings = dataclasses.replace(QUICK if args.quick else FULL, threads=args.threads)
-    preds = args.predictions or args.cache_dir / (
-        "reproduction_quick.npz" if args.quick else "reproduction.npz"
-    )
+    preds = args.predictions or args.cache_dir / f"{args.stem}.npz"
     load_start, t0 = h.load_average(), time.perf_counter()
     run = Run(settings, args.cache_dir, args.progress)
-    data = load_features(run)
-    fits = fit_all(run, data)
+    # key -> (map images, map features, query features): Nordland summer ->
+    # winter, winter (for Table 2), aerial LEVIR A -> B
+    kw = dict(progress=args.progress)
+    summer, winter = h.nordland_images(args.root, **kw)
+    xs, xw = h.nordland_features(args.root, run.desc, **kw)
+    xa, xb, route = h.aerial_features(args.root, run.desc, **kw)
+    n = settings.frames or len(xs)
+    data = {
+        "nordland": (summer.images[:n], xs[:n], xw[:n]),
+        "winter": (winter.images[:n], xw[:n], xs[:n]),
+        "aerial": (route.map_tiles, xa, xb),
+    }
+    # every plain r = 2 map: summer and aerial at each level, winter at two
+    plan = [(k, lv) for k in ("nordland", "aerial") for lv in settings.levels]
+    plan += [("winter", lv) for lv in settings.levels[:2]]
+    bar = tqdm(plan, desc="maps", disable=not args.progress)
+    fits = {(k, lv): run.fit(data[k][1], level=lv) for k, lv in bar}
     here = []
     for key, label in (("nordland", "Nordland summer"), ("winter", "Nordland winter"),
                        ("aerial", "aerial LEVIR")):  # fmt: skip

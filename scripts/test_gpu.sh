@@ -11,10 +11,7 @@ WORKERS="${WORKERS:-1}"
 export JAX_PLATFORMS="${JAX_PLATFORMS:-cuda}" TF_CPP_MIN_LOG_LEVEL=3
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 export XLA_PYTHON_CLIENT_MEM_FRACTION="${MEM_FRACTION:-$(python -c "print(round(0.9 / $WORKERS, 3))")}"
-python - <<'PY'
-import jax
-print("JAX", jax.__version__, "backend", jax.default_backend(), jax.devices())
-PY
+python -c 'import jax; print("JAX", jax.__version__, "backend", jax.default_backend(), jax.devices())'
 TESTS=(tests/solvers tests/decoding tests/test_rhythmic_map.py tests/test_codes.py
   tests/test_scalar_codes.py tests/test_embedding.py tests/test_learn.py
   tests/test_objective.py tests/test_closed_form.py tests/test_projection.py
