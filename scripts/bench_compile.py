@@ -88,6 +88,8 @@ def options(ap) -> None:
     ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
     ap.add_argument("--jobs", default="imports,fit,nordland,demo,jpeg")
     ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
+    ap.add_argument("--rounds", type=int, default=1, help="base, cold, warm, repeated:"
+                    " each target then takes the median of the rounds")  # fmt: skip
 
 
 def run(args) -> dict:
@@ -115,8 +117,10 @@ def run(args) -> dict:
         common = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
         old = {**common, "PYTHONPATH": str(args.base.resolve())}
         new = {**common, "PYTHONPATH": str(h.REPO)}
-        new["RHYTHMIC_JAX_COMPILE_CACHE"] = str(tmp / "jit")
-        for name, env in (("base", old), ("new cold", new), ("new warm", new)):
+        variants = (("base", old), ("new cold", new), ("new warm", new))
+        rounds = [(k, *v) for k in range(args.rounds) for v in variants]
+        for k, name, env in rounds:
+            new["RHYTHMIC_JAX_COMPILE_CACHE"] = str(tmp / f"jit{k}")  # cold: empty
             side = name.split()[0]
             if name == "new cold":
                 shutil.rmtree(network, ignore_errors=True)
@@ -142,7 +146,8 @@ def run(args) -> dict:
                     if argv[0] == "library":  # fit, nordland: the maps compared
                         r["periods"] = periods = json.loads(out.splitlines()[-1])
                         agree.setdefault(job, {})[name] = pred, periods["periods"]
-                    rows.append(dict(job=label, variant=name, **r))
+                    more = dict(round=k) if args.rounds > 1 else {}
+                    rows.append(dict(job=label, variant=name, **more, **r))
                     if label == "jpeg fit" and side == "new":
                         wait_for_build(cache)
                         if (cache / "compiled").is_dir():
@@ -180,14 +185,23 @@ TARGETS = [
 
 
 def targets(report: dict) -> list[list]:
-    """[target, limit, measured, met] for the targets this run's jobs answer."""
-    rows, out = {(r["job"], r["variant"]): r for r in report["rows"]}, []
+    """[target, limit, measured, met] for the targets this run's jobs answer; over
+    several rounds the median of the rounds (each against its round's baseline)."""
+    rows, out = {}, []
+    for r in report["rows"]:
+        rows.setdefault((r["job"], r["variant"]), []).append(r)
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
-            value = measure(rows[job, variant], rows[job, "base"])
+            pairs = zip(rows[job, variant], rows[job, "base"], strict=True)
+            v = [measure(*p) for p in pairs]
+            value = float(np.median(v))
+            text = fmt.format(value)
+            if len(v) > 1:
+                text += f" (median of {len(v)}: {fmt.format(min(v))} to "
+                text += f"{fmt.format(max(v))})"
             met = "" if limit is None else "met" if value <= limit else "not met"
             limit = "" if limit is None else fmt.format(limit)  # None: a floor only
-            out.append([what, limit, fmt.format(value), met])
+            out.append([what, limit, text, met])
     return out
 
 
@@ -196,6 +210,8 @@ def markdown(report: dict) -> str:
     agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
              for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
+    rows = [r | {"variant": f"{r['variant']}, round {r['round'] + 1}"} if "round" in r
+            else r for r in report["rows"]]  # fmt: skip
     title = "Compiling: XLA programs, compile seconds and wall per job"
     return "\n".join(h.header(title, report)) + "\n" + "\n\n".join([
         f"Baseline checkout {report['base']} (no compile cache) against this one, cold"
@@ -205,7 +221,7 @@ def markdown(report: dict) -> str:
         " persistent cache; compile s: their seconds (loads included); load: 1-minute"
         f" load average after the job. Sizes: fit {s['fit'][0]} x {s['fit'][1]},"
         f" Nordland patchnorm {s['nordland']} x 2048, {s['jpegs']} JPEGs (Lite0).",
-        h.table(HEAD, [[r[k] for k in keys] for r in report["rows"]]),
+        h.table(HEAD, [[r[k] for k in keys] for r in rows]),
         "Targets (the imports row is the floor under any fit's wall: a process that"
         " imports what a fit needs and exits, doing no work):",
         h.table(["target", "at most", "measured", ""], targets(report)),
