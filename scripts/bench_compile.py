@@ -129,7 +129,7 @@ def run(args) -> dict:
                 if side == "new" and (network / "compiled").is_dir():
                     shutil.copytree(network / "compiled", cache / "compiled")
                 env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
-                tag = name.replace(" ", "_")
+                tag = f"{name.replace(' ', '_')}-{k}"
                 pred, jpeg_map = tmp / f"{job}-{tag}.npy", str(tmp / f"jpeg-{tag}.map")
                 ref, q = folders.get("ref"), folders.get("q")
                 library = [(job, ["library", str(inputs.get(job)), str(pred)])]
@@ -145,7 +145,7 @@ def run(args) -> dict:
                     r, out = run_job(argv, env_job, tmp)
                     if argv[0] == "library":  # fit, nordland: the maps compared
                         r["periods"] = periods = json.loads(out.splitlines()[-1])
-                        agree.setdefault(job, {})[name] = pred, periods["periods"]
+                        agree.setdefault((job, k), {})[name] = pred, periods["periods"]
                     more = dict(round=k) if args.rounds > 1 else {}
                     rows.append(dict(job=label, variant=name, **more, **r))
                     if label == "jpeg fit" and side == "new":
@@ -154,14 +154,18 @@ def run(args) -> dict:
                             shutil.rmtree(network, ignore_errors=True)
                             shutil.copytree(cache / "compiled", network / "compiled")
                 print(json.dumps(rows[-1]), flush=True)
-        same = {}
-        for job, runs in agree.items():
+        same = {}  # every round's maps: periods equal in all, the lowest share
+        for (job, _), runs in agree.items():
             base_pred, base_periods = runs["base"]
             for name in ("new cold", "new warm"):
                 pred, periods = runs[name]
                 equal = float((np.load(pred) == np.load(base_pred)).mean())
-                same[f"{job}, {name}"] = dict(periods_equal=periods == base_periods,
-                                              predictions_equal=equal)  # fmt: skip
+                key = f"{job}, {name}"
+                was = same.get(key, {"periods_equal": True, "predictions_equal": 1.0})
+                same[key] = {
+                    "periods_equal": was["periods_equal"] and periods == base_periods,
+                    "predictions_equal": min(was["predictions_equal"], equal),
+                }
     sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
