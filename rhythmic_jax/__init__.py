@@ -7,8 +7,8 @@ This module is the public face, generated from the one table ``_API`` (module ->
 the names it gives the package). It imports nothing heavy: each name loads its
 module on first use (``rhythmic_jax.RhythmicMap`` imports JAX, ``BruteForce``
 faiss), so ``import rhythmic_jax`` and ``rhythmic-jax --help`` start at once. No
-public name is also a submodule's name (``rhythmic_jax.objective`` is the module;
-its per-template objective is ``rhythmic_jax.objective.objective``).
+public name is also a submodule's or folder's name (``rhythmic_jax.map`` is the
+folder of the map's modules, never a function).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from rhythmic_jax.version import __version__ as __version__
 # The public API, the only list of it: module (under rhythmic_jax) -> the names
 # it exports, separated by spaces. A new public name goes here and nowhere else.
 _API: dict[str, str] = {
-    "codes": "code_bytes code_similarity CodeBook CodeTransform fit_codes",
-    "config": "MapConfig",
+    "map.codes": "code_bytes code_similarity CodeBook CodeTransform fit_codes",
+    "map.config": "MapConfig",
     "decoding.dispatch": "decode_scores",
     "decoding.fusion": "fused_decode fused_sequence_decode learn_weight",
     "decoding.group_decode": (
@@ -32,7 +32,7 @@ _API: dict[str, str] = {
     "decoding.hard": "decode Decoded hard_decode",
     "decoding.sequence": "sequence_decode sequence_scores SPEEDS",
     "decoding.soft": "calibrate soft_decode topm_decode",
-    "embedding": (
+    "map.embedding": (
         "Embedding embedding_bytes fit_invariant load_embedding save_embedding"
     ),
     "eval.baselines": "BruteForce default_baselines ITQ KDTreeSearch OPQ",
@@ -43,18 +43,18 @@ _API: dict[str, str] = {
         "accuracy pr_auc pr_curve recall_at_100_precision recall_at_k RecallAtK"
     ),
     "eval.seqslam": "seqslam_decode",
-    "groups": "choose_radices choose_segment Groups parse_layout resolve_layout",
+    "map.groups": "choose_radices choose_segment Groups parse_layout resolve_layout",
     "jit_cache": "enable_compile_cache",
-    "learn": "learn_embedding LearnConfig",
-    "objective": (
+    "fitting.learn": "learn_embedding LearnConfig",
+    "solvers.objective": (
         "classifier_objective default_c period_errors squared_hinge targets Templates "
         "total_objective"
     ),
-    "periods": (
+    "map.periods": (
         "candidate_periods choose_periods compression_ratio crt_tables database_bytes "
         "nominal_periods pairwise_coprime storage_bytes"
     ),
-    "projection": "fit_pca PCA project",
+    "map.projection": "fit_pca PCA project",
     "rhythmic_map": "RhythmicMap",
     "solvers.candidates": "DropLosers",
     "solvers.memory": "check_memory fit_bytes",
@@ -63,7 +63,7 @@ _API: dict[str, str] = {
     "solvers.optax_loops": "fit_full_batch minibatch_step ridge_start TrainState",
     "solvers.protocol": "LBFGS Minibatch Newton Solution",
     "solvers.resumable": "memmap_batches RunConfig train_run",
-    "split": "NORDLAND_SPLIT pair_split PlaceSplit route_split",
+    "eval.split": "NORDLAND_SPLIT pair_split PlaceSplit route_split",
 }
 
 # public name -> the module that defines it

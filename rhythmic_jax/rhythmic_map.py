@@ -26,9 +26,6 @@ from typing import Any
 import jax
 import numpy as np
 
-from rhythmic_jax import map_file
-from rhythmic_jax.codes import CodeBook
-from rhythmic_jax.config import INT8, MapConfig
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.queries import (
     decode_map,
@@ -40,17 +37,25 @@ from rhythmic_jax.decoding.queries import (
     sequence_map,
 )
 from rhythmic_jax.decoding.small import SmallDecoder
-from rhythmic_jax.embedding import Embedding, embedding_bytes
-from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.fit_plan import FitPlan
-from rhythmic_jax.fit_plan import plan as plan_fit
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.objective import Templates, host_templates, period_errors, targets
-from rhythmic_jax.quantize import requantize
-from rhythmic_jax.scalar_codes import ScalarCodeBook
+from rhythmic_jax.fitting.fit_plan import FitPlan
+from rhythmic_jax.fitting.fit_plan import plan as plan_fit
+from rhythmic_jax.map import map_file
+from rhythmic_jax.map.codes import CodeBook
+from rhythmic_jax.map.config import INT8, MapConfig
+from rhythmic_jax.map.embedding import Embedding, embedding_bytes
+from rhythmic_jax.map.embedding import apply as apply_embedding
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.map.quantize import requantize
+from rhythmic_jax.map.scalar_codes import ScalarCodeBook
+from rhythmic_jax.map.storage import map_storage
+from rhythmic_jax.solvers.objective import (
+    Templates,
+    host_templates,
+    period_errors,
+    targets,
+)
 from rhythmic_jax.solvers.protocol import solver_for
-from rhythmic_jax.storage import map_storage
 from rhythmic_jax.validate import (
     check_features,
     check_labels,
@@ -115,9 +120,11 @@ class RhythmicMap:
           refine: optional ``refine(params, candidates, c) -> params`` run after
             the exact solve and before the period choice (e.g. minibatch steps
             over augmented frames, :func:`rhythmic_jax.augment.stream.fit_augmented`).
-          plan: the fit's plan when made already (:func:`rhythmic_jax.fit_plan.plan`
+          plan: the fit's plan when made already
+          (:func:`rhythmic_jax.fitting.fit_plan.plan`
             of this map's config for these places and the templates' d), its
-            memory checked (:meth:`~rhythmic_jax.fit_plan.FitPlan.check_memory`).
+            memory checked
+            (:meth:`~rhythmic_jax.fitting.fit_plan.FitPlan.check_memory`).
         """
         progress = bool(verbose) if progress is None else bool(progress)
         x = check_features(x, "reference features")
@@ -151,7 +158,7 @@ class RhythmicMap:
 
     def _take(self, kept, d: int) -> RhythmicMap:
         """Hold the templates and record of ``kept`` (a fit's :class:`Kept` or a
-        loaded :class:`~rhythmic_jax.map_file.MapFile`), fitted on d-dim frames."""
+        loaded :class:`~rhythmic_jax.map.map_file.MapFile`), fitted on d-dim frames."""
         self._set_stored(kept.stored, kept.params)
         self.groups, self.periods = kept.groups, kept.periods
         self.n, self.d, self.c = kept.n, d, float(kept.c)
@@ -299,7 +306,7 @@ class RhythmicMap:
         """Bytes split into a fixed part (the code transform), a per-place part
         (the codes) and a per-period part (``tau`` templates each, stored dtype);
         ``embedding`` is shown apart, and ``share`` counts everything against the
-        n x d float32 database (:func:`rhythmic_jax.storage.map_storage`)."""
+        n x d float32 database (:func:`rhythmic_jax.map.storage.map_storage`)."""
         self._check_fitted()
         return map_storage(
             self.groups.kind, self.groups.sizes, self.template_d, self.config.dtype,
@@ -314,14 +321,14 @@ class RhythmicMap:
 
     def info(self) -> dict[str, Any]:
         """What ``rhythmic-jax info --json`` prints
-        (:func:`rhythmic_jax.map_file.describe`)."""
+        (:func:`rhythmic_jax.map.map_file.describe`)."""
         self._check_fitted()
         return map_file.describe(self)
 
     # ----------------------------------------------------------------- disk
     def save(self, path: str | os.PathLike) -> None:
         """Save to the folder ``path`` (atomic; the format:
-        :mod:`rhythmic_jax.map_file`)."""
+        :mod:`rhythmic_jax.map.map_file`)."""
         self._check_fitted()
         map_file.save(path, self)
 

@@ -126,6 +126,16 @@ def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
                 load=load_average()[0])  # fmt: skip
 
 
+# The command line's module in whichever layout the checkout on sys.path has (a
+# baseline checkout may predate ``rhythmic_jax/app/``).
+CLI_MODULE = (
+    "__import__('importlib.util').util.find_spec('rhythmic_jax.app') "
+    "and 'rhythmic_jax.app.cli' or 'rhythmic_jax.cli'"
+)
+CLI = [sys.executable, "-c", f"import runpy; runpy.run_module({CLI_MODULE}, "
+       "run_name='__main__', alter_sys=True)"]  # fmt: skip
+
+
 def bytecode(*checkouts: Path) -> None:
     """Compile each checkout's package to bytecode before it is timed (without .pyc
     files, or under PYTHONDONTWRITEBYTECODE, every job would compile Python)."""

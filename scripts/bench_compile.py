@@ -39,7 +39,7 @@ def job(out: str, *argv: str) -> dict | None:
     if argv[0] == "imports":
         import jax.numpy  # noqa: F401
 
-        import rhythmic_jax.rhythmic_map  # noqa: F401
+        import rhythmic_jax.rhythmic_map  # noqa: F401  (in every layout)
     elif argv[0] == "library":
         import rhythmic_jax as rj
 
@@ -51,7 +51,7 @@ def job(out: str, *argv: str) -> dict | None:
         return dict(periods=list(model.periods))
     else:
         sys.argv = ["rhythmic-jax", *argv, "--no-progress"]
-        runpy.run_module("rhythmic_jax.cli", run_name="__main__", alter_sys=True)
+        runpy.run_module(eval(h.CLI_MODULE), run_name="__main__", alter_sys=True)
     return None
 
 

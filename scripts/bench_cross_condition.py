@@ -17,19 +17,19 @@ from pathlib import Path
 import _harness as h
 import numpy as np
 
-from rhythmic_jax import embedding as emb_files
-from rhythmic_jax.codes import fit_codebook
 from rhythmic_jax.decoding.fusion import learn_weight
 from rhythmic_jax.decoding.group_decode import place_scores as group_place_scores
-from rhythmic_jax.embedding import apply, embedding_bytes
 from rhythmic_jax.eval.seqslam import seqslam_decode
+from rhythmic_jax.eval.split import NORDLAND_SPLIT
+from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
 from rhythmic_jax.frames.cache_files import default_cache_dir
 from rhythmic_jax.frames.features import describe, get_descriptor
-from rhythmic_jax.learn import LearnConfig, learn_embedding
-from rhythmic_jax.periods import database_bytes
+from rhythmic_jax.map import embedding as emb_files
+from rhythmic_jax.map.codes import fit_codebook
+from rhythmic_jax.map.embedding import apply, embedding_bytes
+from rhythmic_jax.map.periods import database_bytes
+from rhythmic_jax.map.scalar_codes import scalar_code_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
-from rhythmic_jax.scalar_codes import scalar_code_bytes
-from rhythmic_jax.split import NORDLAND_SPLIT
 
 TOL = 1
 LENGTHS = (5, 10, 20)

@@ -13,8 +13,8 @@ import numpy as np
 from rhythmic_jax.decoding.hard import decode
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
-from rhythmic_jax.objective import Templates
-from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
+from rhythmic_jax.map.periods import database_bytes, nominal_periods, storage_bytes
+from rhythmic_jax.solvers.objective import Templates
 
 BATCH = 1000
 NOISE = 0.5  # query noise relative to a unit reference

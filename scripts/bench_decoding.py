@@ -21,7 +21,7 @@ from rhythmic_jax.eval import seqslam as sq
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import accuracy, pr_auc, recall_at_100_precision
 from rhythmic_jax.frames.features import get_descriptor
-from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.map.periods import period_offsets
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 TOLERANCE = 1

@@ -11,7 +11,7 @@ import torch
 from _harness import header, log, main, nordland_images, table, timed
 
 from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
-from rhythmic_jax.projection import fit_pca, project
+from rhythmic_jax.map.projection import fit_pca, project
 
 # (row label, registry name, settings)
 DESCRIPTORS = (

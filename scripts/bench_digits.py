@@ -17,11 +17,11 @@ from rhythmic_jax.decoding.soft import calibrate
 from rhythmic_jax.eval.metrics import accuracy, recall_at_k
 from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.eval.seqslam import seqslam_decode
-from rhythmic_jax.groups import Groups, parse_layout, resolve_layout
-from rhythmic_jax.objective import default_c, period_errors, scores, targets
-from rhythmic_jax.periods import candidate_periods, choose_periods
+from rhythmic_jax.eval.split import NORDLAND_SPLIT
+from rhythmic_jax.map.groups import Groups, parse_layout, resolve_layout
+from rhythmic_jax.map.periods import candidate_periods, choose_periods
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
-from rhythmic_jax.split import NORDLAND_SPLIT
+from rhythmic_jax.solvers.objective import default_c, period_errors, scores, targets
 
 TOL = 1
 LENGTHS = (5, 10, 20)

@@ -5,7 +5,6 @@ python scripts/bench_frames.py --base /tmp/base [--repeats 2]
 
 import json
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
@@ -67,12 +66,15 @@ def options(ap) -> None:
 
 
 def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]:
-    """One job's command line: each checkout's own ``python -m rhythmic_jax.cli``
+    """One job's command line: each checkout's own command-line module
     (the installed script imports this checkout's)."""
     if job.startswith("augmented"):
         root = str(args.root / "nordland_64x32")
         return h.command(augmented, root, args.aug_frames, job[10:])
-    exe, out_map = [sys.executable, "-m", "rhythmic_jax.cli"], tmp / f"{variant}.map"
+    exe, out_map = (
+        h.CLI,
+        tmp / f"{variant}.map",
+    )
     if job == "query":
         out = str(tmp / f"{variant}.npy")
         return [*exe, "query", str(out_map), str(folders["q"]), "--out", out,
@@ -184,7 +186,8 @@ def markdown(report: dict) -> str:
                "base / new CPU s", "target (on frames/s)"],
               rows),  # fmt: skip
         "",
-        "Jobs: a fresh `python -m rhythmic_jax.cli` of each checkout; `fit` and `query`"
+        "Jobs: a fresh `python -m rhythmic_jax.app.cli` of each checkout; `fit` and "
+        "`query`"
         f" on {report['frames']} 640x320 JPEG frames (efficientnet_lite0); `fit100` on"
         f" 100; `augmented_*`: one epoch over {report['aug_frames']} Nordland frames,"
         " frames/s over the epoch. Under load, CPU-second ratios are the figure to"

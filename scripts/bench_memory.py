@@ -8,7 +8,7 @@ import time
 import numpy as np
 from _harness import call, header, main, table
 
-from rhythmic_jax.periods import candidate_periods
+from rhythmic_jax.map.periods import candidate_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
 
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]

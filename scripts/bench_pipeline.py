@@ -26,8 +26,8 @@ def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
     """One augmented epoch over ``images`` per variant (augmentation names; ``none``:
     describe and step only) from the clean fit, after a warm-up epoch (it compiles
     the optax step): each epoch's seconds by part, and its wall."""
-    from rhythmic_jax.objective import default_c, targets
-    from rhythmic_jax.periods import candidate_periods
+    from rhythmic_jax.map.periods import candidate_periods
+    from rhythmic_jax.solvers.objective import default_c, targets
 
     (stream, features, _, newton), n = library(), len(images)
     clean = features.cached_describe(images, desc, key=key, progress=False)
@@ -62,7 +62,7 @@ def run(args) -> dict:
 
     from rhythmic_jax.augment.kornia_ops import NAMES
     from rhythmic_jax.frames.features import get_descriptor
-    from rhythmic_jax.periods import candidate_periods
+    from rhythmic_jax.map.periods import candidate_periods
 
     torch.set_num_threads(args.threads)
     variants = [("none",), *((k,) for k in NAMES), ("all",)]

@@ -13,11 +13,11 @@ import faiss
 import jax
 from _harness import fastest, header, main, nordland_features, table
 
-from rhythmic_jax.codes import code_bytes, pack_bits
 from rhythmic_jax.decoding.fusion import fused_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.eval import frontier as fr
-from rhythmic_jax.split import NORDLAND_SPLIT
+from rhythmic_jax.eval.split import NORDLAND_SPLIT
+from rhythmic_jax.map.codes import code_bytes, pack_bits
 
 BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
@@ -184,7 +184,7 @@ def run(args) -> dict:
             f" training places {int(tr[0])}-{int(tr[-1])} for the fusion weights."
             f" Maps: squared-hinge RhythmicMap (gap {cfg.gap}), soft decode; int8"
             f" rows are the same templates stored as int8 with a float32 scale per"
-            f" template (rhythmic_jax.quantize). Codes: ITQ fitted on the summer"
+            f" template (rhythmic_jax.map.quantize). Codes: ITQ fitted on the summer"
             f" references, its mean and projection counted. Fusion weights:"
             f" learned per map + code pair on the training places' single frames"
             f" and kept for sequences. Sequences (maps, codes, hybrids, brute"

@@ -17,10 +17,14 @@ import _harness as bc
 import numpy as np
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.config import MapConfig
-from rhythmic_jax.fit_plan import plan
+from rhythmic_jax.fitting.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
-from rhythmic_jax.periods import candidate_periods, nominal_periods, pairwise_coprime
+from rhythmic_jax.map.config import MapConfig
+from rhythmic_jax.map.periods import (
+    candidate_periods,
+    nominal_periods,
+    pairwise_coprime,
+)
 
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
@@ -435,9 +439,9 @@ def passes(path: str, memory: str, periods: str) -> dict:
     """The probe's process: one pass of each kind (seconds, compiling included)."""
     import jax.numpy as jnp
 
-    from rhythmic_jax.objective import default_c
-    from rhythmic_jax.scale_fit import block_rows_for, parse_bytes
+    from rhythmic_jax.fitting.scale_fit import block_rows_for, parse_bytes
     from rhythmic_jax.solvers import streamed as S
+    from rhythmic_jax.solvers.objective import default_c
 
     frames, fixed = open_frames(path), tuple(int(t) for t in periods.split(","))
     c, sets = default_c(frames.n), []

@@ -14,8 +14,8 @@ from rhythmic_jax.decoding.hard import decode
 from rhythmic_jax.decoding.small import SmallDecoder
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.periods import candidate_periods, choose_periods
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.map.periods import candidate_periods, choose_periods
 
 QUICK = dict(n=2000, singles=200, exact=20)  # --quick
 

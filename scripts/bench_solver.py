@@ -13,9 +13,9 @@ import optax
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.objective import default_c, period_errors, scores, targets
-from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
+from rhythmic_jax.map.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.solvers.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
 from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 

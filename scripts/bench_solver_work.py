@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 from _harness import header, log, main, nordland_features, table, timed
 
-from rhythmic_jax.objective import default_c, period_errors, scores, targets
-from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
+from rhythmic_jax.map.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.candidates import DropLosers
 from rhythmic_jax.solvers.newton import FAST, newton_fit
+from rhythmic_jax.solvers.objective import default_c, period_errors, scores, targets
 
 
 class Record:

@@ -10,9 +10,9 @@ import numpy as np
 from _harness import header, main, nordland_features, stats, table, timed
 
 from rhythmic_jax.frames.features import get_descriptor
-from rhythmic_jax.objective import Templates, default_c, objective, targets
-from rhythmic_jax.periods import candidate_periods
+from rhythmic_jax.map.periods import candidate_periods
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
+from rhythmic_jax.solvers.objective import Templates, default_c, objective, targets
 
 QUICK = dict(frames=400)  # --quick
 

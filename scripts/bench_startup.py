@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _harness import REPO, bytecode, child, header, log, main, table
+from _harness import CLI_MODULE, REPO, bytecode, child, header, log, main, table
 
 HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
 QUICK = dict(repeats=1)  # --quick
@@ -26,14 +26,14 @@ if argv == ["import"]:
 else:
     sys.argv = ["rhythmic-jax", *argv]
     with contextlib.suppress(SystemExit):
-        runpy.run_module("rhythmic_jax.cli", run_name="__main__")
+        runpy.run_module({cli}, run_name="__main__")
 print("LOADED", *(m for m in {heavy!r} if m in sys.modules))"""
 
 
 def loaded(checkout: Path, cmd: list[str]) -> list[str]:
     """The heavy packages a command loads (run once with the probe)."""
     argv = ["import"] if cmd[0] == sys.executable else cmd[1:]
-    code = PROBE.format(argv=argv, heavy=HEAVY)
+    code = PROBE.format(argv=argv, heavy=HEAVY, cli=CLI_MODULE)
     out = child([sys.executable, "-c", code], checkout, check=False)["stdout"]
     last = [line for line in out.splitlines() if line.startswith("LOADED")]
     return last[-1].split()[1:] if last else ["(probe failed)"]

@@ -13,8 +13,8 @@ from _harness import header, log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax.io.frame_files import open_frames
-from rhythmic_jax.objective import default_c, targets
 from rhythmic_jax.solvers.newton import newton_fit
+from rhythmic_jax.solvers.objective import default_c, targets
 from rhythmic_jax.solvers.streamed import FAST_STREAM, streamed_newton_fit
 
 BLOCK_ROWS = 4096

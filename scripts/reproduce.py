@@ -21,7 +21,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval import figures, metrics
 from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.io.atomic import atomic_path, write_file
-from rhythmic_jax.periods import database_bytes, nominal_periods, storage_bytes
+from rhythmic_jax.map.periods import database_bytes, nominal_periods, storage_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
 
 DESCRIPTOR = "patchnorm"

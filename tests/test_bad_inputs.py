@@ -33,7 +33,7 @@ from hypothesis.extra import numpy as hnp
 from skimage.io import imsave
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.cli import main
+from rhythmic_jax.app.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.features import Hog, describe, get_descriptor
 from rhythmic_jax.frames.nets import VGG16, EfficientNetLite0
@@ -1102,7 +1102,7 @@ SUBPROCESS_CASES = [
 
 
 def test_real_processes_exit_2_with_one_line(maps, tmp_path):
-    """The same lines from ``python -m rhythmic_jax.cli`` and from the installed
+    """The same lines from ``python -m rhythmic_jax.app.cli`` and from the installed
     ``rhythmic-jax``, run from another working directory."""
     script = shutil.which("rhythmic-jax")
     env = {**os.environ, "RHYTHMIC_JAX_CACHE": str(tmp_path / "cache")}
@@ -1116,7 +1116,7 @@ def test_real_processes_exit_2_with_one_line(maps, tmp_path):
         out.mkdir()
         argv = by_id[name].argv(src, maps, out)
         use_script = i > 0 and script is not None  # the installed entry point
-        cmd = [script] if use_script else [sys.executable, "-m", "rhythmic_jax.cli"]
+        cmd = [script] if use_script else [sys.executable, "-m", "rhythmic_jax.app.cli"]
         proc = subprocess.Popen(
             [*cmd, *argv],
             stdout=subprocess.PIPE,

@@ -27,7 +27,7 @@ N_IMAGES = 80
 KILLED_WRITER = """
 import os, signal, sys
 import numpy as np
-from rhythmic_jax import cli
+from rhythmic_jax.app import cli
 
 def save_then_die(fh, x, allow_pickle=False):
     x = np.asarray(x)
@@ -64,7 +64,7 @@ def _env(cache: Path) -> dict[str, str]:
 
 
 def _start(args: list[str], cache: Path, code: str | None = None):
-    head = ["-c", code] if code else ["-m", "rhythmic_jax.cli"]
+    head = ["-c", code] if code else ["-m", "rhythmic_jax.app.cli"]
     return subprocess.Popen(
         [sys.executable, *head, *args],
         env=_env(cache),

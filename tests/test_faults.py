@@ -23,7 +23,7 @@ import pytest
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding.hard import hard_decode
-from rhythmic_jax.objective import scores, targets
+from rhythmic_jax.solvers.objective import scores, targets
 from rhythmic_jax.solvers.optax_loops import ridge_start
 from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches, train_run
 
@@ -32,7 +32,7 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs SIGKILL")
 TRAIN_CHILD = """
 import sys
 import numpy as np
-from rhythmic_jax.objective import Templates
+from rhythmic_jax.solvers.objective import Templates
 from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches, train_run
 
 root = sys.argv[1]
@@ -228,7 +228,7 @@ def augmented_route(tmp_path_factory):
     """40 frames in a folder and the map of an uninterrupted augmented fit."""
     from skimage.io import imsave
 
-    from rhythmic_jax.cli import main
+    from rhythmic_jax.app.cli import main
 
     root = tmp_path_factory.mktemp("augmented")
     rng = np.random.default_rng(4)
@@ -253,12 +253,12 @@ def test_a_stopped_augmented_fit_resumes_to_the_same_map(
 ):
     """``rhythmic-jax fit --augment`` killed (or stopped with Ctrl-C) mid-run and
     run again with the same command ends on the uninterrupted run's map."""
-    from rhythmic_jax.cli import main
+    from rhythmic_jax.app.cli import main
 
     frames, out = augmented_route / "frames", tmp_path / "route.map"
     argv = ["fit", str(frames), "--out", str(out), *AUGMENTED_ARGS]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "rhythmic_jax.cli", *argv],
+        [sys.executable, "-m", "rhythmic_jax.app.cli", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

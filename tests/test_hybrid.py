@@ -112,7 +112,7 @@ def test_bad_codes_in_python(bits):
 def test_bad_codes_on_the_command_line(tmp_path, bits):
     x, _ = _route()
     np.save(tmp_path / "ref.npy", x)
-    cmd = [sys.executable, "-m", "rhythmic_jax.cli", "fit", "ref.npy", "--out", "m"]
+    cmd = [sys.executable, "-m", "rhythmic_jax.app.cli", "fit", "ref.npy", "--out", "m"]
     out = subprocess.run(
         cmd + ["--codes", bits], cwd=tmp_path, capture_output=True, text=True
     )
@@ -126,7 +126,7 @@ def test_cli_fit_info_evaluate_npy(tmp_path):
     x, q = _route()
     np.save(tmp_path / "ref.npy", x)
     np.save(tmp_path / "q.npy", q)
-    run = [sys.executable, "-m", "rhythmic_jax.cli"]
+    run = [sys.executable, "-m", "rhythmic_jax.app.cli"]
     fit = run + ["fit", "ref.npy", "--out", "m", "--codes", "16"]
     subprocess.run(fit, cwd=tmp_path, check=True, capture_output=True)
     info = subprocess.run(
@@ -156,12 +156,12 @@ def test_installed_command_on_test_place_folders(
     import os
     import shutil
 
+    from rhythmic_jax.eval.split import NORDLAND_SPLIT
     from rhythmic_jax.frames.cache_files import save_cached
     from rhythmic_jax.frames.features import get_descriptor
     from rhythmic_jax.frames.pipeline import files_cache_path
     from rhythmic_jax.frames.sources import source_key
     from rhythmic_jax.io.images import list_images
-    from rhythmic_jax.split import NORDLAND_SPLIT
 
     exe = shutil.which("rhythmic-jax")
     assert exe, "the rhythmic-jax command is not installed"
@@ -221,7 +221,7 @@ def test_int8_codes_in_a_map_save_load_and_cli(tmp_path):
     back = RhythmicMap.load(tmp_path / "m")
     assert np.array_equal(back.predict(q, sequence=5), model.predict(q, sequence=5))
     np.save(tmp_path / "ref.npy", x)
-    run = [sys.executable, "-m", "rhythmic_jax.cli"]
+    run = [sys.executable, "-m", "rhythmic_jax.app.cli"]
     fit = run + ["fit", "ref.npy", "--out", "c", "--codes", "int8"]
     out = subprocess.run(fit, cwd=tmp_path, check=True, capture_output=True, text=True)
     assert "with int8 codes" in out.stdout + out.stderr

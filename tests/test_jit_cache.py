@@ -81,7 +81,7 @@ def test_importing_the_library_changes_no_jax_setting():
         before = [getattr(jax.config, n) for n in names]
         import rhythmic_jax as rj
         rj.RhythmicMap, rj.enable_compile_cache, rj.decode
-        import rhythmic_jax.cli
+        import rhythmic_jax.app.cli
         print(json.dumps([before, [getattr(jax.config, n) for n in names]]))
         """
     )

@@ -144,7 +144,7 @@ def test_notebook_defines_no_core_logic(path):
     "source",
     [
         "from rhythmic_jax.eval.report import _ranked",
-        "from rhythmic_jax.periods import no_such_name",
+        "from rhythmic_jax.map.periods import no_such_name",
         "import rhythmic_jax as rj\nrj.objective.period_offsets\nrj._version",
         "from rhythmic_jax.frames import features\nfeatures._l2",
         "from rhythmic_jax.io.images import *",

@@ -27,15 +27,15 @@ import numpy as np
 import pytest
 
 import rhythmic_jax as rj
-from rhythmic_jax.closed_form import ridge_templates
-from rhythmic_jax.codes import fit_codebook
 from rhythmic_jax.decoding.fusion import fused_decode, fused_sequence_decode
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
-from rhythmic_jax.embedding import embed, fit_invariant
-from rhythmic_jax.learn import infonce_loss, map_episode_loss
-from rhythmic_jax.objective import targets
+from rhythmic_jax.fitting.closed_form import ridge_templates
+from rhythmic_jax.fitting.learn import infonce_loss, map_episode_loss
+from rhythmic_jax.map.codes import fit_codebook
+from rhythmic_jax.map.embedding import embed, fit_invariant
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
+from rhythmic_jax.solvers.objective import targets
 
 _LOOSE = (None, jax.lax.Precision.DEFAULT)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.cli import main
+from rhythmic_jax.app.cli import main
 from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.progress import bar, bars_disabled
 

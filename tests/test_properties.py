@@ -26,7 +26,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.checkpoint import load_map
 from rhythmic_jax.io.descriptor_files import load_descriptors
 from rhythmic_jax.io.images import read_rgb
-from rhythmic_jax.periods import (
+from rhythmic_jax.map.periods import (
     candidate_periods,
     crt_tables,
     pairwise_coprime,

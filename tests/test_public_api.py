@@ -61,6 +61,6 @@ def test_no_public_name_is_also_a_module():
     }
     assert "objective" in modules  # the module; its function is objective.objective
     assert not modules & set(rhythmic_jax.__all__)
-    import rhythmic_jax.objective as module
+    import rhythmic_jax.solvers.objective as module
 
-    assert rhythmic_jax.objective is module
+    assert rhythmic_jax.solvers.objective is module

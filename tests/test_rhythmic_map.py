@@ -7,8 +7,8 @@ import pytest
 
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
 from rhythmic_jax.decoding.dispatch import decode_scores
-from rhythmic_jax.objective import objective, period_errors, scores, targets
-from rhythmic_jax.periods import candidate_periods, choose_periods, storage_bytes
+from rhythmic_jax.map.periods import candidate_periods, choose_periods, storage_bytes
+from rhythmic_jax.solvers.objective import objective, period_errors, scores, targets
 
 
 def wide(n=150, d=250, seed=0):

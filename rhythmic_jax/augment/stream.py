@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import Templates, targets
+from rhythmic_jax.solvers.objective import Templates, targets
 
 __all__ = [
     "AugmentedEpoch",
@@ -278,7 +278,7 @@ def fit_map_augmented(
     :func:`fit_augmented` over every candidate (resumable from ``checkpoint``),
     then the period choice. Returns the model; ``model.timings`` holds the
     pipeline's timings. ``plan``: the fit's
-    :class:`~rhythmic_jax.fit_plan.FitPlan` when already made.
+    :class:`~rhythmic_jax.fitting.fit_plan.FitPlan` when already made.
     """
     labels = np.arange(len(clean)) if labels is None else np.asarray(labels)
     timings: dict[str, float] = {}

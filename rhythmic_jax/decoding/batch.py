@@ -28,9 +28,9 @@ import jax
 from rhythmic_jax.decoding.buckets import head, pad_rows
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.hard import Decoded
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.objective import Templates
-from rhythmic_jax.objective import scores as decision_values
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.solvers.objective import Templates
+from rhythmic_jax.solvers.objective import scores as decision_values
 
 __all__ = ["decode_queries", "sequence_queries"]
 

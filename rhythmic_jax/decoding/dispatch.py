@@ -8,7 +8,6 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
-from rhythmic_jax.config import DECODERS
 from rhythmic_jax.decoding.group_decode import (
     group_hard_decode,
     group_soft_decode,
@@ -17,7 +16,8 @@ from rhythmic_jax.decoding.group_decode import (
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups
+from rhythmic_jax.map.config import DECODERS
+from rhythmic_jax.map.groups import Groups
 
 __all__ = ["DECODERS", "decode_scores"]
 
@@ -36,7 +36,7 @@ def decode_scores(
     ``topm`` keeps the ``m`` best phases of every period (see
     :func:`rhythmic_jax.decoding.soft.topm_decode`). Every field of the result has the
     scores' leading shape. ``periods`` may be a map's
-    :class:`~rhythmic_jax.groups.Groups`: mixed-radix and hierarchical layouts
+    :class:`~rhythmic_jax.map.groups.Groups`: mixed-radix and hierarchical layouts
     decode in the place domain (:mod:`rhythmic_jax.decoding.group_decode`).
     """
     if method not in DECODERS:

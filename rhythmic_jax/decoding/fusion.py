@@ -1,7 +1,7 @@
 """A hybrid decode: a map's place scores fused with binary-code similarities.
 
 A map scores place ``i`` by ``S(i) = sum_k s_k[i mod tau_k]``
-(:mod:`rhythmic_jax.decoding.soft`); a code per place (:mod:`rhythmic_jax.codes`)
+(:mod:`rhythmic_jax.decoding.soft`); a code per place (:mod:`rhythmic_jax.map.codes`)
 scores it by ``C(i)``, the bits the query's code shares with place i's. The two live
 on different scales, so each is standardised over the places of the query and
 the fused score is
@@ -37,12 +37,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.config import check_weight
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.sequence import _accumulate, _shift_columns, frame_offsets
 from rhythmic_jax.decoding.soft import _best_two
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.periods import crt_tables, period_offsets, place_columns
+from rhythmic_jax.map.config import check_weight
+from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
 
 __all__ = [
     "check_weight",

@@ -1,6 +1,6 @@
 """Decoding any layout of groups in the place domain: all the evidence, summed.
 
-A map whose groups are not co-prime periods (:class:`~rhythmic_jax.groups.Groups`:
+A map whose groups are not co-prime periods (:class:`~rhythmic_jax.map.groups.Groups`:
 mixed-radix digits, or segments plus fine periods) has no Chinese remainder; it
 is decoded from the scores of every place,
 
@@ -39,7 +39,7 @@ import numpy as np
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.soft import _batched, _best_two, _empty
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups
+from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.validate import check_int as _check_int
 
 __all__ = [

@@ -3,7 +3,7 @@
 The paper's decode (Sec. III-C): for every period take the argmax phase
 ``j_k = argmax_j (w_j . x + b_j)`` (Eq. 3), then the unique index ``i < n`` with
 ``i mod tau_k = j_k`` for all k, found here in O(r) by the Chinese-remainder tables
-of :func:`rhythmic_jax.periods.crt_tables` (the paper intersects sorted candidate
+of :func:`rhythmic_jax.map.periods.crt_tables` (the paper intersects sorted candidate
 sets; the answer is the same). When the combination is ``>= n`` no frame has those
 phases and the answer is "no match" (-1).
 
@@ -29,9 +29,9 @@ import numpy as np
 
 from rhythmic_jax.decoding.buckets import head, pad_rows
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import Templates
-from rhythmic_jax.objective import scores as decision_values
-from rhythmic_jax.periods import crt_tables, period_offsets
+from rhythmic_jax.map.periods import crt_tables, period_offsets
+from rhythmic_jax.solvers.objective import Templates
+from rhythmic_jax.solvers.objective import scores as decision_values
 from rhythmic_jax.validate import check_int
 
 __all__ = ["Decoded", "check_scores", "decode", "hard_decode", "host_decode"]

@@ -34,9 +34,9 @@ from rhythmic_jax.decoding.fusion import (
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.decoding.small import SMALL_BATCH
-from rhythmic_jax.embedding import apply as apply_embedding
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import Templates, scores
+from rhythmic_jax.map.embedding import apply as apply_embedding
+from rhythmic_jax.solvers.objective import Templates, scores
 
 __all__ = [
     "decode_map",

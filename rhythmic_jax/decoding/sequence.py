@@ -33,7 +33,7 @@ from rhythmic_jax.decoding.group_decode import group_sequence_decode
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups
+from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -176,7 +176,7 @@ def sequence_decode(
     "topm": top-``m`` combinations, "hard": per-period argmax + CRT); per frame the
     speed with the highest decoded score wins (first in ``speeds`` on ties).
 
-    ``periods`` may be a map's :class:`~rhythmic_jax.groups.Groups`; a
+    ``periods`` may be a map's :class:`~rhythmic_jax.map.groups.Groups`; a
     mixed-radix or hierarchical map sums its evidence in the place domain and
     takes the argmax whatever the method
     (:func:`rhythmic_jax.decoding.group_decode.group_sequence_decode`).

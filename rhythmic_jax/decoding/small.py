@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rhythmic_jax.decoding.hard import Decoded
-from rhythmic_jax.objective import Templates
-from rhythmic_jax.periods import crt_tables, period_offsets
+from rhythmic_jax.map.periods import crt_tables, period_offsets
+from rhythmic_jax.solvers.objective import Templates
 from rhythmic_jax.validate import check_features
 
 __all__ = ["GEMV_THREADED", "SMALL_BATCH", "SmallDecoder", "block_rows", "gemv_rows"]

@@ -17,7 +17,8 @@ or beyond ``n`` (a "no match" of the paper), and it gives a runner-up score.
 
 Top-m decoding scores only the places whose phase is among the ``m`` best of every
 period: the ``prod_k min(m, tau_k)`` Chinese-remainder combinations (index
-``(sum_k T_k[j_k]) mod M`` with the tables of :func:`rhythmic_jax.periods.crt_tables`),
+``(sum_k T_k[j_k]) mod M`` with the tables of
+:func:`rhythmic_jax.map.periods.crt_tables`),
 combinations with index ``>= n`` dropped. ``m = 1`` is the paper's hard decode
 (no match when the argmax combination is ``>= n``); ``m >= max(tau)`` is exactly the
 soft decode (same sums in the same order, ties to the smaller index).
@@ -42,8 +43,8 @@ import numpy as np
 
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.periods import crt_tables, period_offsets, place_columns
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
 from rhythmic_jax.validate import check_int
 
 __all__ = ["calibrate", "soft_decode", "topm_decode"]
@@ -56,7 +57,8 @@ def calibrate(scores: jax.Array, periods: Sequence[int] | Groups) -> jax.Array:
 
     ``c_k[j] = s_k[j] - log sum_j' exp(s_k[j'])``, so ``sum_k c_k[i mod tau_k]`` is a
     sum of log-probabilities. Argmaxes (the hard decode) are unchanged. With a
-    :class:`~rhythmic_jax.groups.Groups` the softmax runs over every group's classes.
+    :class:`~rhythmic_jax.map.groups.Groups` the softmax runs over every group's
+    classes.
     """
     if isinstance(periods, Groups) and periods.kind != "periods":
         per = periods.sizes

@@ -12,7 +12,7 @@ never on the scored queries; without training places a fixed 0.5 is used.
 
 :func:`projected_bytes` and :func:`crossover_n` give the same byte counts for any
 N: a map keeps r pairwise co-prime periods from ``level * ceil(N^(1/r))`` up
-(the least-sum choice of :func:`rhythmic_jax.periods.choose_periods`), ``sum(tau)
+(the least-sum choice of :func:`rhythmic_jax.map.periods.choose_periods`), ``sum(tau)
 (d + 1) 4`` bytes; a code needs ``N ceil(bits/8) + (bits d + d) 4``.
 """
 
@@ -29,7 +29,6 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from rhythmic_jax.codes import CodeBook, code_bytes
 from rhythmic_jax.decoding.fusion import (
     code_sequence_scores,
     fused_decode,
@@ -38,9 +37,10 @@ from rhythmic_jax.decoding.fusion import (
 )
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
-from rhythmic_jax.periods import candidate_periods, choose_periods, database_bytes
-from rhythmic_jax.periods import storage_bytes as map_bytes
-from rhythmic_jax.quantize import dequantize, quantize, template_bytes
+from rhythmic_jax.map.codes import CodeBook, code_bytes
+from rhythmic_jax.map.periods import candidate_periods, choose_periods, database_bytes
+from rhythmic_jax.map.periods import storage_bytes as map_bytes
+from rhythmic_jax.map.quantize import dequantize, quantize, template_bytes
 
 __all__ = [
     "FrontierConfig",

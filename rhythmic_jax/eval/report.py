@@ -20,8 +20,8 @@ from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.eval.outliers import finite_confidence
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.periods import database_bytes, place_columns
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.map.periods import database_bytes, place_columns
 
 __all__ = ["evaluate_map", "format_evaluation", "ranked_places"]
 
@@ -38,7 +38,7 @@ def _ranked(scores: jax.Array, periods: tuple[int, ...], n: int, k: int) -> jax.
 def ranked_places(scores, periods, n: int, k: int = 10) -> np.ndarray:
     """The k best places by ``sum_k s_k[i mod tau_k]``: (b, p) -> (b, k) indices.
 
-    ``periods`` may be a map's :class:`~rhythmic_jax.groups.Groups` (then the
+    ``periods`` may be a map's :class:`~rhythmic_jax.map.groups.Groups` (then the
     summed evidence of every group,
     :func:`rhythmic_jax.decoding.group_decode.place_scores`).
     """
@@ -142,11 +142,11 @@ def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
     (``brute``: its predictions).
     ``truth`` is a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
     """
-    from rhythmic_jax.codes import code_bytes
     from rhythmic_jax.decoding.fusion import code_sequence_scores
     from rhythmic_jax.decoding.sequence import sequence_decode
     from rhythmic_jax.decoding.soft import soft_decode
     from rhythmic_jax.eval.ground_truth import gt_accuracy
+    from rhythmic_jax.map.codes import code_bytes
 
     length = int(sequence) if sequence else 1
     key, n, d = f"recall@1 L={length}", model.n, model.d

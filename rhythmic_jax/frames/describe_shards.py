@@ -3,7 +3,7 @@
 :func:`describe_to_shards` reads a folder's frames a chunk at a time, describes
 each chunk and writes it as a shard (:class:`rhythmic_jax.io.frame_files.ShardWriter`),
 so neither the images nor the descriptors of a route are ever held whole; the
-streamed fit (:func:`rhythmic_jax.scale_fit.fit_map_files`) reads the shards.
+streamed fit (:func:`rhythmic_jax.fitting.scale_fit.fit_map_files`) reads the shards.
 """
 
 from __future__ import annotations

@@ -266,7 +266,7 @@ def load_sources(
 
 
 def _fit_pca(x: np.ndarray, k: int) -> tuple[np.ndarray, dict]:
-    from rhythmic_jax.projection import fit_pca, project
+    from rhythmic_jax.map.projection import fit_pca, project
 
     if not 1 <= k <= min(x.shape):
         raise InputError(
@@ -284,7 +284,7 @@ def apply_projection(x: np.ndarray, extra: dict) -> np.ndarray:
     """Project descriptors (n, d) with a map's saved PCA, if it has one."""
     if "pca_components" not in extra:
         return x
-    from rhythmic_jax.projection import PCA, project
+    from rhythmic_jax.map.projection import PCA, project
 
     comps = np.asarray(extra["pca_components"])
     if x.shape[1] != comps.shape[1]:

@@ -2,7 +2,7 @@
 
 A map trains every template of every candidate period in one solve, then keeps
 the ``r`` pairwise co-prime periods of least summed training error
-(:func:`rhythmic_jax.periods.choose_periods`). Each template's solve is its own
+(:func:`rhythmic_jax.map.periods.choose_periods`). Each template's solve is its own
 (the objective is a sum over templates), so stopping a candidate's templates
 early changes nothing for the others: if the stopped candidate would have lost
 anyway, the chosen periods and their templates are those of the full solve.
@@ -32,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rhythmic_jax.objective import period_errors
-from rhythmic_jax.periods import pairwise_coprime, period_offsets
+from rhythmic_jax.map.periods import pairwise_coprime, period_offsets
+from rhythmic_jax.solvers.objective import period_errors
 
 __all__ = ["DropLosers", "losing_candidates"]
 

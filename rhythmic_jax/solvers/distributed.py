@@ -40,9 +40,9 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import Templates, targets
-from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.map.periods import period_offsets
 from rhythmic_jax.solvers.newton import NewtonConfig, NewtonInfo, newton_fit
+from rhythmic_jax.solvers.objective import Templates, targets
 
 __all__ = [
     "Cluster",
@@ -227,7 +227,7 @@ def launch_local(argv: Sequence[str], k: int) -> int:
             [
                 sys.executable,
                 "-m",
-                "rhythmic_jax.cli",
+                "rhythmic_jax.app.cli",
                 *argv,
                 *cluster,
                 "--process-id",

@@ -3,7 +3,7 @@
 Every template minimises ``f(theta) = 0.5 ||theta||^2 + C sum_i h_i^2`` with
 ``h_i = max(0, 1 - y_i m_i)``, margins ``m = Xa theta`` and ``Xa = [X, 1]`` (the
 bias as a constant-1 feature); theta is (q,), q = d + 1. That is
-:func:`rhythmic_jax.objective.margin_objectives`, the one vmapped objective at
+:func:`rhythmic_jax.solvers.objective.margin_objectives`, the one vmapped objective at
 the margins, and each step is the optax chain
 :func:`rhythmic_jax.solvers.newton_cg.newton_solver` on it (gradient, Hessian-vector
 products and line search all by autodiff of that objective). This module drives
@@ -47,7 +47,7 @@ stopping rule and the span of wide frames.
   EfficientNet-Lite0 frames, 441 templates: ``reports/span.md``).
 
 Measured on 3576 Nordland frames of 2048-d, 441 templates: ``reports/solver.md``.
-This is the same objective as :func:`rhythmic_jax.objective.objective`; with the
+This is the same objective as :func:`rhythmic_jax.solvers.objective.objective`; with the
 default (small) ``gap_tol`` it is solved to its optimum.
 """
 
@@ -65,9 +65,9 @@ import optax
 import scipy.linalg  # at import: loaded mid-process it changed a fit's last bits
 from threadpoolctl import threadpool_limits
 
-from rhythmic_jax.objective import Templates, margin_objectives
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver, round_design
+from rhythmic_jax.solvers.objective import Templates, margin_objectives
 from rhythmic_jax.solvers.precision import check_hessian_dtype, resolve_hessian_dtype
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
@@ -271,7 +271,7 @@ def _newton_step(
     :class:`~rhythmic_jax.solvers.newton_cg.Iterate`: theta (q, p), margins
     (n, p)); ``cols=None``: all p (no gather). The step is
     :func:`~rhythmic_jax.solvers.newton_cg.newton_solver` (optax) on
-    :func:`~rhythmic_jax.objective.margin_objectives`.
+    :func:`~rhythmic_jax.solvers.objective.margin_objectives`.
 
     Returns the updated iterate and optimiser state (other columns unchanged),
     and for the gathered columns the objective before and after (b,), the Newton
@@ -327,7 +327,8 @@ def newton_fit(
       x: (n, d) frames (float32). A ``jax.Array`` sharded by rows over a mesh
         (:mod:`rhythmic_jax.distributed`, frames of several processes) keeps
         its sharding: every product runs on local frames and XLA reduces.
-      y: (n, p) ±1 targets (:func:`rhythmic_jax.objective.targets`), sharded as x.
+      y: (n, p) ±1 targets (:func:`rhythmic_jax.solvers.objective.targets`), sharded as
+      x.
       c: the penalty C.
       config: solver settings.
       progress: show a progress bar over Newton steps.

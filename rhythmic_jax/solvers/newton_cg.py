@@ -3,7 +3,8 @@
 The iterate is :class:`Iterate`: every template's parameters ``theta`` (q, p) with
 their margins ``m = Xa theta`` (n, p) kept in step (the design ``Xa = [X, 1]``,
 q = d + 1). The objective is passed as optax's ``value_fn``: a function of the
-iterate, :func:`rhythmic_jax.objective.margin_objectives` (one value per template;
+iterate, :func:`rhythmic_jax.solvers.objective.margin_objectives` (one value per
+template;
 their sum is minimised; a scalar works too). Everything the solver needs of it
 comes from autodiff:
 
@@ -11,7 +12,8 @@ comes from autodiff:
   chain rule through ``m = Xa theta`` makes it ``g = d/dtheta + Xa^T d/dm``;
 - Hessian-vector products: ``jax.linearize`` of that gradient, applied to
   ``(v, Xa v)`` and pulled back by ``Xa^T`` (the squared hinge's second
-  derivative is its generalised Hessian, ``rhythmic_jax.objective.squared_hinge``);
+  derivative is its generalised Hessian,
+  ``rhythmic_jax.solvers.objective.squared_hinge``);
 - the line search: the gradient and its ``jax.jvp`` along the step.
 
 :func:`newton_cg` turns the gradient into the Newton step by preconditioned

@@ -1,6 +1,6 @@
 """Optimiser loops over the one objective: full-batch and minibatch, with optax.
 
-Both loops minimise :func:`rhythmic_jax.objective.total_objective`, the vmapped
+Both loops minimise :func:`rhythmic_jax.solvers.objective.total_objective`, the vmapped
 squared hinge of every template. The full-batch loop runs optax L-BFGS from the
 closed-form ridge start (with every margin active the squared hinge is a ridge
 problem); the minibatch loop takes optax steps on frames that arrive in batches
@@ -29,8 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from rhythmic_jax.objective import Templates, total_objective
 from rhythmic_jax.progress import bar
+from rhythmic_jax.solvers.objective import Templates, total_objective
 from rhythmic_jax.solvers.span import in_span
 
 __all__ = [

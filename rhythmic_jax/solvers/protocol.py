@@ -26,8 +26,8 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from rhythmic_jax.objective import Templates
 from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
+from rhythmic_jax.solvers.objective import Templates
 
 __all__ = [
     "LBFGS",

@@ -34,8 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import Templates, targets
 from rhythmic_jax.progress import bar as progress_bar
+from rhythmic_jax.solvers.objective import Templates, targets
 from rhythmic_jax.solvers.optax_loops import TrainState, adam, minibatch_step
 from rhythmic_jax.validate import check_int, check_labels
 

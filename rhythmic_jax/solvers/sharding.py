@@ -18,7 +18,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from rhythmic_jax.objective import Templates, total_objective
+from rhythmic_jax.solvers.objective import Templates, total_objective
 
 __all__ = ["make_mesh", "shard_problem", "sharded_value_and_grad"]
 

@@ -4,7 +4,8 @@
 float64: 5.8 GB for 10^6 frames and 721 templates. Here nothing of size n is
 kept but a checkpoint of the state after every Newton step (optional). The
 objective is the one of every fit,
-:func:`rhythmic_jax.objective.margin_objectives`, which is its regulariser plus a
+:func:`rhythmic_jax.solvers.objective.margin_objectives`, which is its regulariser plus
+a
 sum over frames, so it splits into the regulariser (theta alone, no frames) and
 one term per block of frames (:class:`rhythmic_jax.io.frame_files.Frames`) at the
 block's margins ``Xa_b theta``, recomputed from the current templates as the
@@ -64,11 +65,11 @@ import numpy as np
 
 from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.io.frame_files import Frames
-from rhythmic_jax.objective import Templates, margin_objectives, targets
-from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.map.periods import period_offsets
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton import chunk_width
 from rhythmic_jax.solvers.newton_cg import NewtonSystem
+from rhythmic_jax.solvers.objective import Templates, margin_objectives, targets
 from rhythmic_jax.solvers.precondition import outside_norms
 
 __all__ = [
@@ -161,7 +162,7 @@ def _block(x: np.ndarray, rows: int):
 
 def _block_loss(m, labels, periods, c, cols=None):
     """(b,) the loss term of one block at its margins m (B, b): the objective
-    :func:`~rhythmic_jax.objective.margin_objectives` of the block's frames with
+    :func:`~rhythmic_jax.solvers.objective.margin_objectives` of the block's frames with
     no parameters (the regulariser is counted once, in :func:`_regulariser`);
     padding rows (label -1) weigh 0. ``cols`` (b,): the templates m holds
     (None: all p)."""

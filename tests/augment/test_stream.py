@@ -13,7 +13,7 @@ from rhythmic_jax import RhythmicMap
 from rhythmic_jax.augment.kornia_ops import AugmentConfig, augmented_batch, epoch_order
 from rhythmic_jax.augment.stream import AugmentedEpoch, AugmentedFit, fit_map_augmented
 from rhythmic_jax.frames.features import describe, get_descriptor
-from rhythmic_jax.objective import targets
+from rhythmic_jax.solvers.objective import targets
 
 
 def epoch_batches(images, config, batch_size, seed, epoch):

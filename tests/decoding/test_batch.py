@@ -15,8 +15,8 @@ from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.hard import Decoded, decode
 from rhythmic_jax.decoding.sequence import sequence_decode
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.objective import Templates, scores
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.solvers.objective import Templates, scores
 
 _EVENT = "/jax/core/compile/backend_compile_duration"
 

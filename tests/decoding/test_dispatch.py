@@ -9,7 +9,7 @@ import pytest
 
 from rhythmic_jax.decoding.dispatch import DECODERS, _hard_jit, decode_scores
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.map.periods import period_offsets
 
 
 def encode(index: np.ndarray, periods, noise: float, seed: int) -> np.ndarray:

@@ -17,7 +17,7 @@ from rhythmic_jax.decoding.group_decode import (
 from rhythmic_jax.decoding.sequence import frame_offsets, sequence_decode
 from rhythmic_jax.decoding.soft import calibrate, soft_decode
 from rhythmic_jax.eval.report import ranked_places
-from rhythmic_jax.groups import Groups
+from rhythmic_jax.map.groups import Groups
 
 LAYOUTS = [
     (Groups("mixed", (5, 4, 5)), 83),

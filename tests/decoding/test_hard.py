@@ -10,7 +10,7 @@ import pytest
 
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.hard import decode, hard_decode, host_decode
-from rhythmic_jax.objective import Templates
+from rhythmic_jax.solvers.objective import Templates
 
 # (periods, n): n equal to and below the product; a period of 1; r = 2, 3, 4
 CASES = [

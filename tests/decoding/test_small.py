@@ -18,9 +18,9 @@ from rhythmic_jax.decoding.small import (
     gemv_rows,
 )
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.groups import Groups
-from rhythmic_jax.objective import Templates
-from rhythmic_jax.periods import candidate_periods, choose_periods
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.map.periods import candidate_periods, choose_periods
+from rhythmic_jax.solvers.objective import Templates
 
 
 def _templates(d: int, periods, seed: int = 0) -> Templates:

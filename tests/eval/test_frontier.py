@@ -4,7 +4,6 @@ import faiss
 import numpy as np
 import pytest
 
-from rhythmic_jax.codes import code_bytes
 from rhythmic_jax.eval.frontier import (
     FrontierConfig,
     budget_table,
@@ -13,6 +12,7 @@ from rhythmic_jax.eval.frontier import (
     projected_bytes,
     similarity_recalls,
 )
+from rhythmic_jax.map.codes import code_bytes
 
 
 def test_projected_bytes_by_hand():

@@ -15,7 +15,7 @@ import skimage.io
 from skimage.transform import resize
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.cli import main
+from rhythmic_jax.app.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import from_lists, from_positions
 from rhythmic_jax.eval.ground_truth_files import (

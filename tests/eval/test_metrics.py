@@ -17,7 +17,7 @@ from rhythmic_jax.eval.metrics import (
     time_batch,
     time_single_queries,
 )
-from rhythmic_jax.periods import database_bytes, storage_bytes
+from rhythmic_jax.map.periods import database_bytes, storage_bytes
 
 
 def random_case(b: int, n: int, seed: int, p_reject=0.0, p_outlier=0.0):

@@ -9,7 +9,7 @@ from sklearn.neighbors import NearestNeighbors
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.eval.report import evaluate_map, format_evaluation, ranked_places
-from rhythmic_jax.periods import period_offsets
+from rhythmic_jax.map.periods import period_offsets
 
 N, D = 60, 16
 COLS = [

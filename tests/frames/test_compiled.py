@@ -176,14 +176,14 @@ def _installed(*argv, cwd, env):
     import sys
 
     script = shutil.which("rhythmic-jax")
-    cmd = [script] if script else [sys.executable, "-m", "rhythmic_jax.cli"]
+    cmd = [script] if script else [sys.executable, "-m", "rhythmic_jax.app.cli"]
     return subprocess.run(
         [*cmd, *argv], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
     )
 
 
 def test_help_says_what_compiling_costs():
-    from rhythmic_jax.cli import _parser
+    from rhythmic_jax.app.cli import _parser
 
     sub = _parser()._subparsers._group_actions[0].choices
     for command in ("fit", "query", "evaluate", "learn"):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.cli import main
+from rhythmic_jax.app.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.features import _cache_settings, get_descriptor
 from rhythmic_jax.frames.weights import (

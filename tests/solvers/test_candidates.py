@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rhythmic_jax.objective import default_c, period_errors, scores, targets
-from rhythmic_jax.periods import candidate_periods, choose_periods, period_offsets
+from rhythmic_jax.map.periods import candidate_periods, choose_periods, period_offsets
 from rhythmic_jax.solvers.candidates import DropLosers, losing_candidates
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
+from rhythmic_jax.solvers.objective import default_c, period_errors, scores, targets
 from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
 

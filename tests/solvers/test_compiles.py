@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rhythmic_jax.objective import default_c, targets
-from rhythmic_jax.periods import candidate_periods
+from rhythmic_jax.map.periods import candidate_periods
 from rhythmic_jax.solvers import newton
 from rhythmic_jax.solvers.newton import chunk_width, chunks, newton_fit
+from rhythmic_jax.solvers.objective import default_c, targets
 
 REPO = Path(__file__).resolve().parents[2]
 

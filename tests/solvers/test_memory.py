@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.periods import candidate_periods
+from rhythmic_jax.map.periods import candidate_periods
 from rhythmic_jax.solvers.memory import (
     COMPILE_BYTES,
     SCRATCH_BYTES,

@@ -8,13 +8,7 @@ import numpy as np
 import pytest
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.objective import (
-    default_c,
-    period_errors,
-    scores,
-    targets,
-)
-from rhythmic_jax.periods import candidate_periods, period_offsets
+from rhythmic_jax.map.periods import candidate_periods, period_offsets
 from rhythmic_jax.solvers.newton import (
     FAST,
     NewtonConfig,
@@ -22,6 +16,12 @@ from rhythmic_jax.solvers.newton import (
     newton_fit,
 )
 from rhythmic_jax.solvers.newton_cg import Iterate, scale_by_exact_linesearch
+from rhythmic_jax.solvers.objective import (
+    default_c,
+    period_errors,
+    scores,
+    targets,
+)
 
 
 def liblinear_objective(w, b, x, y, c):
@@ -29,7 +29,7 @@ def liblinear_objective(w, b, x, y, c):
 
     With intercept_scaling=1 liblinear appends a constant-1 feature whose weight
     is the intercept and is regularised like the others: the same objective as
-    ``rhythmic_jax.objective.classifier_objective`` with C passed unchanged.
+    ``rhythmic_jax.solvers.objective.classifier_objective`` with C passed unchanged.
     """
     margin = y * (x @ w + b)
     return 0.5 * (w @ w + b * b) + c * np.sum(np.maximum(0.0, 1.0 - margin) ** 2)

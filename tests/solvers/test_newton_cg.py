@@ -10,18 +10,18 @@ import optax
 import pytest
 from sklearn.svm import LinearSVC
 
-from rhythmic_jax.objective import (
-    Templates,
-    margin_objectives,
-    targets,
-    total_objective,
-)
 from rhythmic_jax.solvers.newton_cg import (
     Iterate,
     derivatives,
     newton_cg,
     newton_solver,
     round_design,
+)
+from rhythmic_jax.solvers.objective import (
+    Templates,
+    margin_objectives,
+    targets,
+    total_objective,
 )
 from rhythmic_jax.solvers.precondition import spectral_setup
 

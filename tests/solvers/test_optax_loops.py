@@ -10,8 +10,8 @@ import numpy as np
 import optax
 import pytest
 
-from rhythmic_jax.objective import objective, targets, total_objective
 from rhythmic_jax.solvers.newton import newton_fit
+from rhythmic_jax.solvers.objective import objective, targets, total_objective
 from rhythmic_jax.solvers.optax_loops import (
     TrainState,
     _lbfgs_step,

@@ -43,7 +43,8 @@ def test_importing_the_solver_leaves_the_backend_for_jax_distributed():
     import sys
 
     code = (
-        "import rhythmic_jax, rhythmic_jax.solvers.newton, rhythmic_jax.scale_fit\n"
+        "import rhythmic_jax, rhythmic_jax.solvers.newton\n"
+        "import rhythmic_jax.fitting.scale_fit\n"
         "from jax._src import xla_bridge\n"
         "print(xla_bridge.backends_are_initialized())\n"
     )

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rhythmic_jax.objective import objective, targets
 from rhythmic_jax.solvers.newton import newton_fit
+from rhythmic_jax.solvers.objective import objective, targets
 from rhythmic_jax.solvers.optax_loops import ridge_start
 from rhythmic_jax.solvers.protocol import (
     LBFGS,

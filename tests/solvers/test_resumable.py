@@ -14,7 +14,7 @@ import pytest
 
 from rhythmic_jax.decoding.hard import hard_decode
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.objective import Templates, scores, targets
+from rhythmic_jax.solvers.objective import Templates, scores, targets
 from rhythmic_jax.solvers.optax_loops import init_state, minibatch_step, ridge_start
 from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches, train_run
 

@@ -12,7 +12,7 @@ def test_sharded_objective_matches_single_device():
     code = textwrap.dedent(
         """
         import jax, numpy as np
-        from rhythmic_jax.objective import targets
+        from rhythmic_jax.solvers.objective import targets
         from rhythmic_jax.solvers.sharding import make_mesh, shard_problem
         from rhythmic_jax.solvers.sharding import sharded_value_and_grad
         from rhythmic_jax.solvers.optax_loops import ridge_start

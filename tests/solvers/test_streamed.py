@@ -11,10 +11,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.io.frame_files import ShardWriter, open_frames
-from rhythmic_jax.objective import margin_objectives, period_errors, scores, targets
 from rhythmic_jax.solvers import streamed
 from rhythmic_jax.solvers.newton import newton_fit
 from rhythmic_jax.solvers.newton_cg import Iterate, scale_by_exact_linesearch
+from rhythmic_jax.solvers.objective import (
+    margin_objectives,
+    period_errors,
+    scores,
+    targets,
+)
 from rhythmic_jax.solvers.streamed import (
     StreamConfig,
     stream_errors,

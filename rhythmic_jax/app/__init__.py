@@ -1,0 +1,1 @@
+"""The application: the command line, its jobs and the demo."""

@@ -1,0 +1,192 @@
+"""The fit job at scale: K processes, a memory bound, shards written from images.
+
+``rhythmic-jax fit`` comes here (:func:`fit_scaled`) when the sources are
+descriptor files or shard folders and any of ``--processes``,
+``--coordinator``, ``--memory``, ``--stream`` or ``--shards`` is given; the fit
+itself is :func:`rhythmic_jax.fitting.scale_fit.fit_map_files`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["ScaleJob", "fit_scaled", "wants_scale"]
+
+
+@dataclass(frozen=True)
+class ScaleJob:
+    """How a fit is spread and bounded (see ``rhythmic-jax fit --help``)."""
+
+    processes: int = 1
+    coordinator: str | None = None
+    num_processes: int | None = None
+    process_id: int | None = None
+    memory: str | None = None
+    stream: bool = False
+    shards: str | None = None
+
+
+def wants_scale(job, scale: ScaleJob) -> bool:
+    """Whether ``job`` (a :class:`rhythmic_jax.app.jobs.FitJob`) fits from files
+    here."""
+    from rhythmic_jax.io.frame_files import is_frame_source
+
+    files = all(is_frame_source(s) for s in job.sources)
+    wanted = bool(
+        scale.processes != 1 or scale.coordinator or scale.memory or scale.stream
+    )
+    dirs = any(Path(s).is_dir() for s in job.sources)
+    if scale.shards is not None or (files and (wanted or dirs)):
+        if job.augment or job.pca is not None:
+            raise InputError(
+                "{opt:augment} and {opt:pca} need an in-memory fit of one process"
+            )
+        _check_in_memory_only(job)
+        return True
+    if wanted:
+        raise InputError(
+            "{opt:processes}, {opt:coordinator}, {opt:memory} and {opt:stream} need "
+            "descriptor "
+            "files (.npy) or shard folders; describe images with {opt:shards} DIR"
+        )
+    return False
+
+
+def _check_in_memory_only(job) -> None:
+    """Refuse the settings a fit from files at scale would leave unused."""
+    unused = [
+        name
+        for name, used in (
+            ("codes", job.config.codes is not None),
+            ("embedding", job.embedding is not None),
+            ("positions", job.positions is not None),
+            ("solver", job.config.solver != "newton"),
+        )
+        if used
+    ]
+    if unused:
+        opts = ", ".join(f"{{opt:{name}}}" for name in unused)
+        raise InputError(
+            f"{opts}: not used by a fit from files at scale (descriptor files with "
+            "{opt:processes}, {opt:coordinator}, {opt:memory}, {opt:stream}, shard "
+            "folders or {opt:shards}); fit in memory without them"
+        )
+
+
+def _describe_to_shards(job, scale: ScaleJob, progress: bool) -> list[str]:
+    """Describe image folders into ``--shards`` (one shard folder per source)."""
+    from rhythmic_jax.frames.describe_shards import describe_to_shards
+    from rhythmic_jax.io.frame_files import is_frame_source
+
+    root = Path(scale.shards).expanduser().absolute()
+    if any(is_frame_source(s) for s in job.sources):
+        raise InputError("{opt:shards} describes image folders; these are descriptors")
+    if job.reading.tile is not None:
+        raise InputError("{opt:shards} takes image folders, not {opt:tile}")
+    if root.exists():
+        raise InputError(f"{{opt:shards}} {root}: exists; give a new folder")
+    name = job.reading.descriptor or "patchnorm"
+    settings = {}
+    if job.reading.weights is not None:
+        settings = {"weights": str(Path(job.reading.weights).expanduser().absolute())}
+    out = []
+    for i, src in enumerate(job.sources):
+        if not Path(src).is_dir():
+            raise InputError(f"{src}: {{opt:shards}} needs image folders")
+        folder = root / f"{i:02d}-{Path(src).name}"
+        describe_to_shards(src, folder, name, settings, progress=progress)
+        out.append(str(folder))
+    return out
+
+
+def _child_argv(argv: list[str], sources: list[str], shard_sources) -> list[str]:
+    """``argv`` without ``--processes`` (and with the shard folders in place of
+    the image sources once they are described)."""
+    out, skip, srcs = [], False, list(sources)
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in ("--processes", "--shards"):
+            skip = True
+        elif a.startswith(("--processes=", "--shards=")):
+            continue
+        elif shard_sources is not None and a in srcs:
+            srcs.remove(a)
+        else:
+            out.append(a)
+    if shard_sources is None:
+        return out
+    at = out.index("fit") + 1
+    return out[:at] + list(shard_sources) + out[at:]
+
+
+def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
+    """Run the fit; returns ``(map, run)`` on the process that saved it, and
+    ``(None, None)`` on the others (and in the launcher of local processes)."""
+    from rhythmic_jax.fitting.scale_fit import fit_map_files, parse_bytes
+    from rhythmic_jax.io.checkpoint import check_target
+    from rhythmic_jax.solvers import distributed
+
+    check_target(job.out)
+    memory = parse_bytes(scale.memory) if scale.memory is not None else None
+    sources = list(job.sources)
+    shard_sources = None
+    if scale.shards is not None:
+        sources = shard_sources = _describe_to_shards(job, scale, progress)
+    if scale.processes < 1:
+        raise InputError(f"{{opt:processes}} must be >= 1, got {scale.processes}")
+    if scale.coordinator is None and scale.processes > 1:
+        child = _child_argv(argv, list(job.sources), shard_sources)
+        status = distributed.launch_local(child, scale.processes)
+        if status != 0:
+            raise InputError(f"a fit process failed (exit status {status})")
+        return None, None
+    if scale.coordinator is not None:
+        if scale.num_processes is None or scale.process_id is None:
+            raise InputError(
+                "{opt:coordinator} needs {opt:num_processes} and {opt:process_id}"
+            )
+        cluster = distributed.Cluster(
+            scale.coordinator, scale.num_processes, scale.process_id
+        )
+        distributed.initialize(cluster)
+    import jax
+
+    from rhythmic_jax.io.frame_files import shard_descriptor
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    name, settings = shard_descriptor(sources[0])
+    model = RhythmicMap(
+        replace(job.config, descriptor=name, descriptor_settings=settings)
+    )
+    ckpt = Path(job.checkpoint or str(Path(job.out)) + ".ckpt").absolute()
+    if ckpt.exists() and not ckpt.is_dir():
+        raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
+    run = fit_map_files(
+        model, sources, memory=memory, stream=scale.stream, progress=progress,
+        checkpoint=ckpt,
+    )  # fmt: skip
+    if name == "features":
+        model.config = replace(model.config, descriptor_settings={"dim": model.d})
+    model.reference = {
+        "sources": [str(Path(src).expanduser().absolute()) for src in sources],
+        "tile": None,
+        "stride": None,
+    }
+    if jax.process_index() == 0:
+        model.save(job.out)
+    distributed.allreduce(np.zeros(1))  # every process waits for the saved map
+    (ckpt / f"stream-{jax.process_index()}-of-{jax.process_count()}.npz").unlink(
+        missing_ok=True
+    )
+    with contextlib.suppress(OSError):
+        ckpt.rmdir()  # once every process has removed its file
+    if jax.process_index() != 0:
+        return None, None
+    return model, run

@@ -1,0 +1,2 @@
+"""The map: its configuration, periods and layouts, storage, quantisation, codes,
+embedding and file."""

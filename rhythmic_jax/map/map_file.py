@@ -1,0 +1,282 @@
+"""A map's file format: what a map folder holds, written, read and checked here.
+
+A map folder (:mod:`rhythmic_jax.io.checkpoint` writes it atomically) holds the
+arrays
+
+* ``w`` (d, p), ``b`` (p,): the kept templates in their dtype, with ``scale``
+  (p,) when they are int8;
+* ``extra_<name>``: arrays a source kept with the map (a projection, ...);
+* the codes' arrays (:data:`CODE_ARRAYS`, by kind) when the map has codes;
+* the embedding's arrays when one is applied before the map;
+
+and ``map.json``: every key of :data:`INFO_KEYS` (what ``rhythmic-jax info``
+shows, :meth:`rhythmic_jax.RhythmicMap.info`) plus ``codes_kind``, ``dtype``,
+``package_version`` and ``format_version``.
+
+:func:`save` writes a fitted map, :func:`load` reads one back as a checked
+:class:`MapFile` the map is rebuilt from, and :func:`info` describes a folder from
+``map.json`` alone when its metadata is complete and consistent and its arrays
+are listed as saved (no JAX imported, no array data read). Maps saved before
+layouts, embeddings or codes existed still load.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.checkpoint import (
+    arrays_listed,
+    load_map,
+    read_metadata,
+    save_map,
+)
+from rhythmic_jax.map.periods import database_bytes
+from rhythmic_jax.map.quantize import dequantize
+
+__all__ = [
+    "CODE_ARRAYS",
+    "INFO_KEYS",
+    "MapFile",
+    "consistent",
+    "describe",
+    "embedding_info",
+    "info",
+    "load",
+    "save",
+]
+
+INFO_KEYS = (
+    "n", "d", "periods", "storage_bytes", "database_bytes", "compression_ratio",
+    "c", "candidates", "candidate_errors", "descriptor", "descriptor_settings",
+    "config", "reference", "storage", "codes_bits", "embedding_bytes", "embedding",
+    "layout", "groups", "group_errors",
+)  # fmt: skip
+# by kind of codes (rhythmic_jax.map.codes, rhythmic_jax.map.scalar_codes)
+CODE_ARRAYS = {
+    "itq": {"codes_mean", "codes_projection", "codes_packed"},
+    "int8": {"codes_vmin", "codes_vdiff", "codes_uint8"},
+}
+EMBEDDING_KEYS = ("kind", "head", "d", "k", "descriptor", "descriptor_settings",
+                  "learn", "sources")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class MapFile:
+    """A map folder's contents, checked: what :class:`rhythmic_jax.RhythmicMap`
+    is rebuilt from. ``stored`` holds ``w`` (k, p), ``b`` (p,) and ``scale`` (p,)
+    for int8 templates; ``k`` is the embedding's output dimension, else ``d``."""
+
+    config: Any  # the map's MapConfig
+    stored: dict[str, np.ndarray]
+    params: tuple[np.ndarray, np.ndarray]  # stored's float32 values (w, b)
+    periods: tuple[int, ...]
+    n: int
+    d: int
+    groups: Any  # rhythmic_jax.map.groups.Groups
+    group_errors: tuple[float, ...]
+    c: float
+    candidates: tuple[int, ...]
+    candidate_errors: tuple[float, ...]
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    embedding: Any = None  # rhythmic_jax.map.embedding.Embedding or None
+    codebook: Any = None  # CodeBook, ScalarCodeBook or None
+    reference: dict[str, Any] = field(default_factory=dict)
+
+
+def describe(model) -> dict[str, Any]:
+    """The :data:`INFO_KEYS` and ``codes_kind`` of the fitted ``model`` (a
+    :class:`rhythmic_jax.RhythmicMap`): what ``map.json`` and ``rhythmic-jax
+    info --json`` hold."""
+    book, emb = model.codebook, model.embedding
+    storage = model.storage()
+    return {
+        "n": model.n,
+        "d": model.d,
+        "periods": list(model.periods),
+        "layout": model.groups.describe(),
+        "groups": model.groups.to_dict(),
+        "group_errors": list(model.group_errors),
+        "storage_bytes": storage["total"],
+        "embedding_bytes": model.embedding_bytes,
+        "embedding": None if emb is None else {"kind": emb.kind, "k": emb.k},
+        "database_bytes": database_bytes(model.n, model.d, 4),
+        "compression_ratio": storage["share"],
+        "storage": storage,
+        "codes_bits": book.bits if book else None,
+        "codes_kind": book.kind if book else None,
+        "c": model.c,
+        "candidates": list(model.candidates),
+        "candidate_errors": list(model.candidate_errors),
+        "descriptor": model.config.descriptor,
+        "descriptor_settings": model.config.descriptor_settings,
+        "config": dict(asdict(model.config)),
+        "reference": model.reference,
+    }
+
+
+def save(path: str | os.PathLike, model) -> None:
+    """Write the fitted ``model`` (a :class:`rhythmic_jax.RhythmicMap`) to the
+    folder ``path``, atomically."""
+    from rhythmic_jax.map.embedding import embedding_arrays
+    from rhythmic_jax.version import __version__
+
+    arrays = dict(model._stored)
+    arrays.update({f"extra_{k}": np.asarray(v) for k, v in model.extra.items()})
+    if model.codebook is not None:
+        arrays.update(model.codebook.arrays())
+    if model.embedding is not None:
+        arrays.update(embedding_arrays(model.embedding))
+    meta = model.info()
+    meta.update(dtype=model.config.dtype, package_version=__version__)
+    save_map(path, arrays, meta)
+
+
+def load(
+    path: str | os.PathLike,
+    make_config: Callable[..., Any],
+    *,
+    descriptor: str | None = None,
+    descriptor_settings: dict | None = None,
+    d: int | None = None,
+) -> MapFile:
+    """Read and check the map folder ``path``; ``make_config(**meta["config"])``
+    builds its configuration. A map built for another descriptor, other settings
+    or another d is refused (:class:`InputError`), as is a corrupt one."""
+    from rhythmic_jax.map.codes import codebook_from_arrays
+    from rhythmic_jax.map.embedding import embedding_from_arrays
+    from rhythmic_jax.map.groups import Groups
+
+    arrays, meta = load_map(path)
+    try:
+        cfg = make_config(**meta["config"])
+        periods = tuple(int(t) for t in meta["periods"])
+        n, dim = int(meta["n"]), int(meta["d"])
+        c = float(meta["c"])
+        cands = tuple(int(t) for t in meta.get("candidates", ()))
+        errors = tuple(float(e) for e in meta.get("candidate_errors", ()))
+        group_errors = tuple(float(e) for e in meta.get("group_errors", ()))
+        w, b = arrays["w"], arrays["b"]
+        # maps saved before layouts existed are periods maps
+        kind = meta.get("groups", {}).get("kind", "periods")
+        groups = (
+            Groups("periods", periods)
+            if kind == "periods"
+            else Groups.from_dict(meta["groups"])
+        )
+        emb = embedding_from_arrays(arrays)
+    except (KeyError, TypeError, ValueError, AttributeError, InputError) as err:
+        raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
+    tdim = dim if emb is None else emb.k
+    if emb is not None and emb.d != dim:
+        raise InputError(f"{path}: embedding expects {emb.d}-d input, map says {dim}")
+    if w.shape != (tdim, groups.p) or b.shape != (groups.p,):
+        raise InputError(
+            f"{path}: weights of shape {w.shape} do not fit "
+            f"{groups.describe()}, d={tdim}"
+        )
+    try:
+        groups.check(n)
+    except InputError as err:
+        raise InputError(f"{path}: corrupt map metadata ({err})") from None
+    _check_queries(path, cfg, dim, descriptor, descriptor_settings, d)
+    stored = {"w": w, "b": b}
+    if "scale" in arrays:
+        stored["scale"] = arrays["scale"]
+    if (w.dtype == np.int8) != ("scale" in stored) or str(w.dtype) != cfg.dtype:
+        raise InputError(f"{path}: weights stored as {w.dtype}, map says {cfg.dtype}")
+    codebook = None
+    if cfg.codes is not None:
+        try:
+            codebook = codebook_from_arrays(arrays, n, tdim, cfg.codes)
+        except KeyError as err:
+            raise InputError(f"{path}: codes are missing ({err})") from None
+        except InputError as err:
+            raise InputError(f"{path}: {err}") from None
+    reference = meta.get("reference", {})
+    return MapFile(
+        config=cfg,
+        stored=stored,
+        params=dequantize(stored),
+        periods=periods,
+        n=n,
+        d=dim,
+        groups=groups,
+        group_errors=group_errors,
+        c=c,
+        candidates=cands,
+        candidate_errors=errors,
+        extra={k[6:]: v for k, v in arrays.items() if k.startswith("extra_")},
+        embedding=emb,
+        codebook=codebook,
+        reference=reference if isinstance(reference, dict) else {},
+    )
+
+
+def _check_queries(path, cfg, dim, descriptor, descriptor_settings, d) -> None:
+    """Refuse queries described otherwise than the map's reference frames."""
+    if descriptor is not None and descriptor != cfg.descriptor:
+        raise InputError(
+            f"{path}: map built with descriptor {cfg.descriptor!r}, "
+            f"queries use {descriptor!r}"
+        )
+    if descriptor_settings is not None and descriptor_settings != (
+        cfg.descriptor_settings
+    ):
+        raise InputError(
+            f"{path}: map built with {cfg.descriptor} settings "
+            f"{cfg.descriptor_settings}, queries use {descriptor_settings}"
+        )
+    if d is not None and d != dim:
+        raise InputError(f"{path}: map built for {dim}-d features, queries are {d}-d")
+
+
+def consistent(meta: dict[str, Any], listed: set[str]) -> bool:
+    """Whether a map's metadata holds every info field, agreeing with itself, and
+    ``listed`` (the arrays a completed save lists) holds the arrays it needs."""
+    try:
+        n, d, periods = int(meta["n"]), int(meta["d"]), list(meta["periods"])
+        k = int(meta["embedding"]["k"]) if meta["embedding"] else d  # templates' d
+        templates = sum(int(t) for t in periods) * (k + 1) * 4
+        st = meta["storage"]
+        ok = sum(st["per_period"].values()) == templates
+        ok = ok and meta["storage_bytes"] == templates + st["fixed"] + st["per_place"]
+        ok = ok and meta["database_bytes"] == n * d * 4
+        kind = meta.get("codes_kind") or "itq"
+        arrays = {"w", "b"} | (CODE_ARRAYS[kind] if meta["codes_bits"] else set())
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return False
+    return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
+
+
+def info(
+    path: str | os.PathLike, load_info: Callable[[str | os.PathLike], dict]
+) -> dict[str, Any]:
+    """What the map (or embedding) folder ``path`` holds.
+
+    A map whose metadata is :func:`consistent` is described from ``map.json``
+    alone; any other is handed to ``load_info`` (the loaded map's own
+    :meth:`~rhythmic_jax.RhythmicMap.info`, whose load says what is wrong).
+    """
+    folder, meta = read_metadata(path)
+    if meta.get("kind") == "embedding":
+        return embedding_info(meta)
+    if consistent(meta, arrays_listed(folder)):
+        return {key: meta[key] for key in INFO_KEYS} | {
+            "codes_kind": meta.get("codes_kind")
+        }
+    return load_info(path)
+
+
+def embedding_info(meta: dict[str, Any]) -> dict[str, Any]:
+    """What an embedding folder holds (written by ``learn``), from its metadata:
+    kind, dimensions, descriptor, how it was learned and the fusion weight learned
+    with it (None in one written before the weight was kept)."""
+    return {key: meta.get(key) for key in EMBEDDING_KEYS} | {
+        "fusion": meta.get("fusion")
+    }

@@ -1,0 +1,141 @@
+"""8-bit scalar codes per place: every dimension quantised on its own range.
+
+The reference frames ``x`` (n, d) are stored as one byte per dimension,
+
+    code[i, j] = floor(255 * clip((x[i, j] - vmin[j]) / vdiff[j], 0, 1))
+    x'[i, j]   = vmin[j] + (code[i, j] + 0.5) / 255 * vdiff[j]
+
+with ``vmin`` and ``vdiff`` the per-dimension minimum and range of the frames
+(faiss's ``ScalarQuantizer`` ``QT_8bit`` with its min-max range: the codes equal
+faiss's bit for bit, which the tests check). A query is compared with every
+decoded reference by cosine similarity, in JAX, without decoding the whole
+database in a separate step.
+
+Where ITQ (:mod:`rhythmic_jax.map.codes`) keeps ``bits`` signs of a projection, these
+codes keep every dimension: ``d`` bytes a place, a quarter of float32. On a
+low-dimensional embedding (k = 64-256) that is what makes them worth their bytes.
+
+Storage: ``n * d + 2 * d * 4`` bytes: a per-place part and a fixed part.
+
+Shapes: ``n`` places, ``b`` queries, ``d`` features.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_features
+
+__all__ = ["ScalarCodeBook", "scalar_code_bytes"]
+
+_F32 = 4
+LEVELS = 255
+
+
+def scalar_code_bytes(n: int, d: int) -> dict[str, int]:
+    """Storage of ``n`` 8-bit codes of d-dim frames: ``{"fixed", "per_place",
+    "total"}`` in bytes (the range ``vmin``, ``vdiff`` in float32 is fixed)."""
+    fixed, per_place = 2 * int(d) * _F32, int(n) * int(d)
+    return {"fixed": fixed, "per_place": per_place, "total": fixed + per_place}
+
+
+def _encode(x: np.ndarray, vmin: np.ndarray, vdiff: np.ndarray) -> np.ndarray:
+    """(n, d) float -> (n, d) uint8, faiss's 8-bit codec."""
+    u = np.clip((x - vmin[None, :]) / vdiff[None, :], 0.0, 1.0)
+    return (LEVELS * u).astype(np.uint8)
+
+
+@jax.jit
+def _cosine(q, codes, vmin, vdiff) -> jax.Array:
+    """Cosine of queries (b, d) with the decoded codes (n, d) -> (b, n)."""
+    ref = vmin[None, :] + (codes.astype(jnp.float32) + 0.5) * (vdiff / LEVELS)[None, :]
+    ref = ref / jnp.maximum(jnp.linalg.norm(ref, axis=1, keepdims=True), 1e-12)
+    q = q / jnp.maximum(jnp.linalg.norm(q, axis=1, keepdims=True), 1e-12)
+    return jnp.matmul(q, ref.T, precision="highest")
+
+
+@dataclass(frozen=True)
+class ScalarCodeBook:
+    """One 8-bit code per place and the range that made them.
+
+    Attributes:
+      vmin: (d,) float32, per-dimension minimum of the frames the range was fitted on.
+      vdiff: (d,) float32, per-dimension range (max - min; 1 where it is 0).
+      codes: (n, d) uint8, the code of place i in row i.
+    """
+
+    vmin: np.ndarray
+    vdiff: np.ndarray
+    codes: np.ndarray
+
+    kind = "int8"
+
+    @classmethod
+    def fit(cls, x, fit_on=None) -> ScalarCodeBook:
+        """Codes of the places x (n, d); the range fitted on ``fit_on`` (default x)."""
+        x = np.asarray(check_features(x, "frames for the codes"), np.float32)
+        f = x if fit_on is None else np.asarray(
+            check_features(fit_on, "frames for the code range", d=x.shape[1]),
+            np.float32,
+        )  # fmt: skip
+        vmin = f.min(axis=0)
+        vdiff = f.max(axis=0) - vmin
+        vdiff = np.where(vdiff > 0, vdiff, 1.0).astype(np.float32)
+        return cls(vmin, vdiff, _encode(x, vmin, vdiff))
+
+    @property
+    def d(self) -> int:
+        return int(self.codes.shape[1])
+
+    @property
+    def bits(self) -> int:
+        """Bits a place: 8 per dimension."""
+        return 8 * self.d
+
+    def decode(self) -> np.ndarray:
+        """(n, d) float32: the frames as the codes keep them."""
+        return (
+            self.vmin[None, :]
+            + (self.codes + np.float32(0.5)) * (self.vdiff / LEVELS)[None, :]
+        )
+
+    def similarity(self, q) -> jax.Array:
+        """Cosine of each query (b, d) with each decoded place: (b, n) float32."""
+        q = check_features(q, "queries for the codes", d=self.d)
+        return _cosine(
+            jnp.asarray(q, jnp.float32),
+            jnp.asarray(self.codes),
+            jnp.asarray(self.vmin),
+            jnp.asarray(self.vdiff),
+        )
+
+    def storage(self) -> dict[str, int]:
+        """:func:`scalar_code_bytes` of this book."""
+        return scalar_code_bytes(len(self.codes), self.d)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """What a map folder stores: the range and the codes."""
+        return {
+            "codes_vmin": self.vmin,
+            "codes_vdiff": self.vdiff,
+            "codes_uint8": self.codes,
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, n: int, d: int) -> ScalarCodeBook:
+        """Inverse of :meth:`arrays`; shapes checked against n and d."""
+        vmin, vdiff = arrays["codes_vmin"], arrays["codes_vdiff"]
+        codes = arrays["codes_uint8"]
+        if (vmin.shape, vdiff.shape, codes.shape) != ((d,), (d,), (n, d)):
+            raise InputError(
+                f"8-bit codes of shapes {vmin.shape}, {vdiff.shape}, {codes.shape} "
+                f"do not fit n={n}, d={d}"
+            )
+        if codes.dtype != np.uint8:
+            raise InputError(f"8-bit codes stored as {codes.dtype}, not uint8")
+        return cls(vmin.astype(np.float32), vdiff.astype(np.float32), codes)
