@@ -158,9 +158,10 @@ def test_public_name_check_catches_private_or_missing_names(source):
 
 def test_public_name_check_follows_aliases_and_submodules():
     source = "import rhythmic_jax as rj\nfrom rhythmic_jax.io import images\n"
-    source += "rj.RhythmicMap\nrj.periods.phases\nimages.read_rgb\n"
+    source += "rj.RhythmicMap\nrj.map.periods.phases\nimages.read_rgb\n"
     assert check_public_names(ast.parse(source), "example") == {
-        "rj", "images", "rj.RhythmicMap", "rj.periods", "rj.periods.phases",
+        "rj", "images", "rj.RhythmicMap", "rj.map", "rj.map.periods",
+        "rj.map.periods.phases",
         "images.read_rgb",
     }  # fmt: skip
 

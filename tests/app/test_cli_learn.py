@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 import pytest
-from test_embedding import two_conditions
+from map.test_embedding import two_conditions
 
 
 def _cli(*argv, cwd, env):

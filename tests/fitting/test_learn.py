@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_embedding import two_conditions
+from map.test_embedding import two_conditions
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.errors import InputError
