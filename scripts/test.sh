@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The test suite, then the slow real-data checks in a bounded second step, each over
-# two workers. Run after `pip install -e ".[test]"`.
+# two workers. Run after `pip install -c constraints.txt -e ".[test]"` (README).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export JAX_PLATFORMS=cpu TF_CPP_MIN_LOG_LEVEL=3
