@@ -32,6 +32,9 @@ programs compiled after it; ``jit(fn, compiler_options={...})`` adds options to
 one program. :func:`describe` states the setting (``rhythmic-jax info`` and the
 log line at the start of a fit print it).
 
+The module imports JAX only when a program is first called, so the command line
+can state the setting (``describe``) without starting JAX.
+
 A program called while another is being traced (inside ``jax.jit``,
 ``jax.grad``, ``jax.vmap``) is inlined into the outer one, and JAX takes
 compiler options only on the outermost program, so there it runs without them.
@@ -46,8 +49,6 @@ import logging
 import os
 from collections.abc import Callable
 from typing import Any
-
-import jax
 
 from rhythmic_jax.errors import InputError
 
@@ -131,6 +132,8 @@ def describe(platform: str | None = None) -> str:
 
 def _platform() -> str:
     """The platform of JAX's default device (``jax.default_device`` included)."""
+    import jax
+
     device = jax.config.jax_default_device
     if device is None:
         return jax.default_backend()
@@ -138,6 +141,8 @@ def _platform() -> str:
 
 
 def _traced(args: tuple, kwargs: dict) -> bool:
+    import jax
+
     leaves = jax.tree_util.tree_leaves((args, kwargs))
     return any(isinstance(leaf, jax.core.Tracer) for leaf in leaves)
 
@@ -158,6 +163,8 @@ class _Jitted:
         key = tuple(sorted(options.items()))
         program = self._programs.get(key)
         if program is None:
+            import jax
+
             program = jax.jit(self._fn, compiler_options=options or None, **self._kw)
             self._programs[key] = program
         return program
@@ -170,7 +177,7 @@ class _Jitted:
             return self._program(self._extra)(*args, **kwargs)
         try:
             return self._current()(*args, **kwargs)
-        except jax.errors.JaxRuntimeError as error:
+        except Exception as error:  # jax.errors.JaxRuntimeError
             if "No such compile option" not in str(error):
                 raise
             # An XLA without one of these flag names: warn once, compile without.

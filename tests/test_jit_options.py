@@ -126,7 +126,8 @@ def test_every_jitted_program_of_the_package_goes_through_the_wrapper():
 def test_the_scan_finds_a_bare_jit(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("import jax\nf = jax.jit(abs)\nfrom jax import jit\n")
-    assert sorted(_jit_sites(bad)) == ["bad.py:2 jax.jit", "bad.py:3 from jax import jit"]
+    found = sorted(_jit_sites(bad))
+    assert found == ["bad.py:2 jax.jit", "bad.py:3 from jax import jit"]
 
 
 def _product(a, b):
@@ -202,8 +203,42 @@ def test_static_arguments_methods_and_attributes_pass_through():
     assert "power" in lowered.as_text()
 
 
-
 def test_explicit_options_are_added_to_the_backend_s(monkeypatch, tmp_path):
     f = jit(lambda x: x - 1, compiler_options={"xla_dump_to": str(tmp_path)})
     np.testing.assert_array_equal(f(jnp.arange(2)), [-1, 0])
     assert any(tmp_path.iterdir())
+
+
+def test_a_fit_logs_its_compile_options(caplog):
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    x = np.random.default_rng(2).normal(size=(40, 16)).astype(np.float32)
+    with caplog.at_level(logging.INFO, logger="rhythmic_jax.rhythmic_map"):
+        RhythmicMap(r=2, level=1).fit(x)
+    lines = [r.getMessage() for r in caplog.records if "compile options" in (
+        r.getMessage())]  # fmt: skip
+    assert lines == [f"compile options {describe(jax.default_backend())}"]
+
+
+def test_info_states_the_compile_options(tmp_path, capsys):
+    from rhythmic_jax.app.cli import main
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    x = np.random.default_rng(3).normal(size=(40, 16)).astype(np.float32)
+    RhythmicMap(r=2, level=1).fit(x).save(str(tmp_path / "m.map"))
+    assert main(["info", str(tmp_path / "m.map")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1].split(": ", 1) == ["   compile options", describe()]
+
+
+def test_the_command_line_states_it_without_starting_jax():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from rhythmic_jax.jit_options import describe; "
+        "print(describe()); print('jax' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True,
+                         text=True, check=True).stdout.split("\n")  # fmt: skip
+    assert out[0] == describe() and out[1] == "False"
