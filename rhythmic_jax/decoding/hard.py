@@ -199,4 +199,4 @@ def decode(
         products += np.asarray(params.b, products.dtype)
         return Decoded(*(jax.device_put(f) for f in host_decode(products, periods, n)))
     padded, b = pad_rows(queries)
-    return head(_localise(params, padded, periods, n), b)
+    return head(_localise(params, jax.device_put(padded), periods, n), b)

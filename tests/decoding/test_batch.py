@@ -116,6 +116,8 @@ def test_jitted_hard_decode_pads_device_batches():
         got = decode(params, jnp.asarray(q), periods, n)  # device: the jitted path
         want = decode(params, q, periods, n)  # numpy on the CPU: the host path
         np.testing.assert_array_equal(np.asarray(got.index), np.asarray(want.index))
+        host = decode(params, q.astype(np.float64), periods, n)  # jitted everywhere
+        np.testing.assert_array_equal(np.asarray(host.index), np.asarray(want.index))
         assert got.index.shape == (b,)
     assert hard._localise._cache_size() == 1
 
