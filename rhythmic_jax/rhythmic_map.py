@@ -40,6 +40,7 @@ from rhythmic_jax.decoding.small import SmallDecoder
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.fitting.fit_plan import FitPlan
 from rhythmic_jax.fitting.fit_plan import plan as plan_fit
+from rhythmic_jax.jit_options import describe as compile_options
 from rhythmic_jax.map import map_file
 from rhythmic_jax.map.codes import CodeBook
 from rhythmic_jax.map.config import INT8, MapConfig
@@ -143,6 +144,7 @@ class RhythmicMap:
             raise InputError("codes need one reference frame per place, in order")
         trained, c = plan.trained, plan.c
         log.info("fitting %s on %d x %d, C=%.3g", plan.describe(), *x.shape, c)
+        log.info("compile options %s", compile_options(jax.default_backend()))
         solver = solver_for(cfg.solver, cfg.gap, progress)
         params, _ = solver.run(None, x, targets(labels, trained), c)
         if refine is not None:

@@ -2,18 +2,64 @@
 
 python scripts/bench_gpu.py --write-features nordland_f16.npy
 python scripts/bench_gpu.py --features nordland_f16.npy [--fit-sizes 20000 100000]
+python scripts/bench_gpu.py --quick   # a CPU rehearsal on synthetic frames
+
+Beside the in-process steps, each device's first calls in fresh processes: the
+first fit and the first predict of each batch size, once with an empty compile
+cache (cold) and once with the cache that run filled (warm), and ``rhythmic-jax
+demo`` cold and warm. Programs compile with the library's compile options
+(``rhythmic_jax.jit_options``; ``RHYTHMIC_JAX_GPU_AUTOTUNE=1`` measures XLA's
+autotuner instead), stated in the report.
 """
 
+import tempfile
 from pathlib import Path
 
+import _harness as h
 import jax
 import numpy as np
 from _harness import header, log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
+from rhythmic_jax.jit_options import describe
 
-QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[])  # --quick
+QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[2000])  # --quick
+
+
+def first_calls(features: str, rows: int | None, batches: list[int]) -> dict:
+    """In this (fresh) process: wall seconds of the first fit and of the first
+    predict of each batch size, compile included, and the backend's name."""
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.jit_cache import enable_compile_cache
+
+    enable_compile_cache()  # the folder $RHYTHMIC_JAX_COMPILE_CACHE names
+    both = np.load(features)
+    summer, winter = (np.asarray(x[:rows], np.float32) for x in both[:2])
+    m, fit_s, _ = timed(RhythmicMap(r=2, level=1).fit, summer)
+    predict = {b: timed(m.predict, winter[:b])[1] for b in batches}
+    device = jax.devices()[0]
+    return dict(fit_first_s=fit_s, predict_first_s=predict,
+                device=getattr(device, "device_kind", str(device)))  # fmt: skip
+
+
+def fresh(platform: str, args) -> dict:
+    """:func:`first_calls` and the demo on ``platform`` ("cuda", "cpu"), each in a
+    fresh process: cold (an empty compile cache), then warm (the cache it filled)."""
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = h.job_env(compile_cache=str(Path(tmp) / "jax"))
+        for run in ("cold", "warm"):
+            r = h.call(first_calls, str(args.features), args.rows, args.batches,
+                       env=env, JAX_PLATFORMS=platform)  # fmt: skip
+            out[run] = r["result"]
+        demo = [*h.CLI, "demo", "--out", str(Path(tmp) / "demo"), "--no-progress"]
+        demo += ["--quick"] if args.quick else []
+        for run in ("cold", "warm"):
+            r = h.child(demo, env=env, JAX_PLATFORMS=platform)
+            out[run]["demo_s"], out[run]["demo_cpu_s"] = r["wall"], r["cpu"]
+    log.info("%s fresh processes: %s", platform, out)
+    return out
 
 
 def run_on(device, summer, winter, args) -> dict:
@@ -42,7 +88,11 @@ def run_on(device, summer, winter, args) -> dict:
         seconds("sequence_first_s", m.predict, winter, **seq)
         seconds("sequence_s", m.predict, winter, **seq)
         d, sizes = summer.shape[1], args.fit_sizes
-        out["fits_s"] = {n: timed(fit, walk(n, d, n), count=3)[1] for n in sizes}
+        out["fits_first_s"], out["fits_s"] = {}, {}
+        for n in sizes:  # the first call compiles; the second is the warm fit
+            frames = walk(n, d, n)
+            out["fits_first_s"][n] = timed(fit, frames, count=3)[1]
+            out["fits_s"][n] = timed(fit, frames, count=3)[1]
     log.info("%s: %s", device, {k: v for k, v in out.items() if k[-1] == "s"})
     return out
 
@@ -51,12 +101,19 @@ def markdown(report: dict) -> str:
     gpu, cpu = report["gpu"], report["cpu"]
     name = gpu["kind"] if gpu else "no GPU"
     lines = header("JAX on a GPU against the same machine's CPU", report)
+    synthetic = "walk_f16" in report["features"]  # --quick without --features
+    source = "Synthetic route frames" if synthetic else "Nordland summer patchnorm"
     if not gpu:
         lines += ["**No GPU was found: a CPU rehearsal, not the GPU report.**", ""]
 
+    def pick(side, key, sub):
+        value = side[key]
+        for part in sub if isinstance(sub, tuple) else () if sub is None else (sub,):
+            value = value[str(part)]
+        return value
+
     def row(label, key, sub=None):
-        g, c = ("-" if not s else s[key] if sub is None else s[key][str(sub)]
-                for s in (gpu, cpu))  # fmt: skip
+        g, c = ("-" if not s else pick(s, key, sub) for s in (gpu, cpu))
         return [label, g, c, c / g if gpu and isinstance(g, float) and g > 0 else "-"]
 
     rows = [row("first fit, compile included (s)", "fit_first_s"),
@@ -66,11 +123,32 @@ def markdown(report: dict) -> str:
     rows += [row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
              row(f"soft sequence decode L = {report['length']}, warm (s)",
                  "sequence_s")]  # fmt: skip
-    rows += [row(f"fit {n:,} x {report['d']}, 3 candidates (s)", "fits_s", n)
-             for n in report["fit_sizes"]]  # fmt: skip
+    for n in report["fit_sizes"]:
+        rows += [row(f"fit {n:,} x {report['d']}, 3 candidates, first (s)",
+                     "fits_first_s", n),
+                 row(f"fit {n:,} x {report['d']}, 3 candidates, warm (s)",
+                     "fits_s", n)]  # fmt: skip
+    for run in ("cold", "warm"):
+        cache = "empty compile cache" if run == "cold" else "compile cache warm"
+        rows += [row(f"fresh process, {cache}: first fit (s)", "fresh",
+                     (run, "fit_first_s"))]  # fmt: skip
+        rows += [
+            row(
+                f"fresh process, {cache}: first predict {b} (s)",
+                "fresh",
+                (run, "predict_first_s", str(b)),
+            )
+            for b in report["batches"]
+        ]
+        rows += [row(f"fresh process, {cache}: `rhythmic-jax demo{report['demo']}`"
+                     " (s)", "fresh", (run, "demo_s"))]  # fmt: skip
     lines += [
-        f"Nordland summer patchnorm {report['n']} x {report['d']}"
+        f"{source} {report['n']} x {report['d']}"
         f" (`{report['features']}`); GPU: {name}; CPU: {cpu['device']}.",
+        "",
+        f"Compile options: {report['compile_options']}. Fresh processes: one per"
+        " row group, JAX's persistent compile cache empty (cold) or filled by the"
+        " cold process (warm).",
         "",
         table(["step", f"GPU ({name})", "CPU", "CPU / GPU"], rows),
         "",
@@ -104,6 +182,10 @@ def run(args) -> dict | None:
         save_npy(args.write_features, both)
         log.info("wrote %s %s", args.write_features, both.shape)
         return None
+    if args.features is None and args.quick:  # a rehearsal on synthetic frames
+        args.features = Path(tempfile.mkdtemp()) / "walk_f16.npy"
+        frames = walk(2 * args.rows, 256, 0)
+        np.save(args.features, np.stack([frames[::2], frames[1::2]]).astype("f2"))
     if args.features is None:
         raise SystemExit("--features (or --write-features) is required")
     both = np.load(args.features)
@@ -111,11 +193,15 @@ def run(args) -> dict | None:
     gpu = next((d for d in jax.devices() if d.platform == "gpu"), None)
     results = {"gpu": run_on(gpu, summer, winter, args) if gpu else None}
     results["cpu"] = run_on(jax.devices("cpu")[0], summer, winter, args)
+    for side, platform in (("gpu", "cuda"), ("cpu", "cpu")):
+        if results[side] is not None:
+            results[side]["fresh"] = fresh(platform, args)
     report = dict(
         features=str(args.features), n=len(summer), d=summer.shape[1],
         batches=args.batches, decode=args.decode, length=args.length,
         fit_sizes=args.fit_sizes,
         compilation_cache=str(jax.config.jax_compilation_cache_dir),
+        compile_options=describe(), demo=" --quick" if args.quick else "",
     )  # fmt: skip
     for key in ("self", "winter") if gpu else ():
         same = results["gpu"][key] == results["cpu"][key]

@@ -18,7 +18,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "rhythmic_jax"
 
 LAYERS = [
     ["errors", "version"],
-    ["progress"],
+    ["jit_options", "progress"],
     ["validate"],
     ["io.atomic", "io.checkpoint", "io.images"],
     ["io.descriptor_files", "io.tiles"],

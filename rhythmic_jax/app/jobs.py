@@ -37,6 +37,7 @@ from rhythmic_jax.frames.compiled import (
     LOAD_MIN_FRAMES,
     CompilePolicy,
 )
+from rhythmic_jax.jit_options import describe as compile_options
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.validate import Domain, check_int, int_option, number_option
 
@@ -642,7 +643,7 @@ def info_lines(info: dict[str, Any]) -> str:
         f"{'period ' + str(t):>18}: training error {e:.4f}"
         for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)
     ]
-    return "\n".join(lines)
+    return "\n".join(lines + [f"{'compile options':>18}: {compile_options()}"])
 
 
 def _embedding_lines(info: dict[str, Any]) -> str:

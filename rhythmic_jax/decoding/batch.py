@@ -28,6 +28,7 @@ import jax
 from rhythmic_jax.decoding.buckets import head, pad_rows
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.hard import Decoded
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.solvers.objective import Templates
 from rhythmic_jax.solvers.objective import scores as decision_values
@@ -35,7 +36,7 @@ from rhythmic_jax.solvers.objective import scores as decision_values
 __all__ = ["decode_queries", "sequence_queries"]
 
 
-@functools.partial(jax.jit, static_argnames=("groups", "n", "method", "m"))
+@functools.partial(jit, static_argnames=("groups", "n", "method", "m"))
 def _decode_jit(params, queries, groups, n, method, m):
     return decode_scores(decision_values(params, queries), groups, n, method, m)
 
@@ -58,7 +59,7 @@ def decode_queries(
     return head(_decode_jit(params, padded, groups, n, method, int(m)), b)
 
 
-_scores_jit = jax.jit(decision_values)
+_scores_jit = jit(decision_values)
 
 
 def sequence_queries(

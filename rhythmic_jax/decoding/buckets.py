@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.jit_options import jit
+
 __all__ = ["MIN_BUCKET", "bucket", "head", "pad_rows"]
 
 MIN_BUCKET = 16
@@ -27,7 +29,7 @@ def bucket(b: int) -> int:
     return max(MIN_BUCKET, 1 << max(int(b) - 1, 0).bit_length())
 
 
-@functools.partial(jax.jit, static_argnames=("rows",))
+@functools.partial(jit, static_argnames=("rows",))
 def _pad_device(x: jax.Array, rows: int) -> jax.Array:
     return jnp.pad(x, ((0, rows - x.shape[0]),) + ((0, 0),) * (x.ndim - 1))
 

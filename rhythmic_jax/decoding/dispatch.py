@@ -16,12 +16,13 @@ from rhythmic_jax.decoding.group_decode import (
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.config import DECODERS
 from rhythmic_jax.map.groups import Groups
 
 __all__ = ["DECODERS", "decode_scores"]
 
-_hard_jit = functools.partial(jax.jit, static_argnames=("periods", "n"))(hard_decode)
+_hard_jit = functools.partial(jit, static_argnames=("periods", "n"))(hard_decode)
 
 
 def decode_scores(

@@ -41,6 +41,7 @@ from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.sequence import _accumulate, _shift_columns, frame_offsets
 from rhythmic_jax.decoding.soft import _best_two
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.config import check_weight
 from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
 
@@ -123,7 +124,7 @@ def _batched(one, s, sim, weight, batch_size, **static) -> Decoded:
 
 
 @functools.partial(
-    jax.jit,
+    jit,
     static_argnames=("periods", "n", "method", "m", "codes", "exclude", "batch"),
 )
 def _fused_jit(s, sim, weight, periods, n, method, m, codes, exclude, batch):
@@ -190,7 +191,7 @@ def fused_decode(
     return _fused_jit(s, sim, w, per, n, method, m, weight < 1, exclude, batch)
 
 
-@jax.jit
+@jit
 def _fused_scores_jit(place, sims, weight):
     return weight * _zrow(place) + (1 - weight) * _zrow(sims)
 
@@ -208,10 +209,10 @@ def fused_place_scores(scores, sims, periods, n: int, weight: float = 0.5):
     return _fused_scores_jit(place, sim, jnp.float32(check_weight(weight)))
 
 
-_place_sum_jit = jax.jit(_place_sum, static_argnums=(1, 2))
+_place_sum_jit = jit(_place_sum, static_argnums=(1, 2))
 
 
-@functools.partial(jax.jit, static_argnames=("length", "speed"))
+@functools.partial(jit, static_argnames=("length", "speed"))
 def _code_seq_jit(sims, length, speed):
     frames, n = sims.shape
     offs = frame_offsets(length, speed)

@@ -39,6 +39,7 @@ import numpy as np
 from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.soft import _batched, _best_two, _empty
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.validate import check_int as _check_int
 
@@ -82,7 +83,7 @@ def _place_sum(scores: jax.Array, groups: Groups, n: int) -> jax.Array:
     return total
 
 
-@functools.partial(jax.jit, static_argnames=("groups", "n"))
+@functools.partial(jit, static_argnames=("groups", "n"))
 def _place_jit(scores, groups, n):
     return _place_sum(scores, groups, n)
 
@@ -112,9 +113,7 @@ def _topm_one(s, groups: Groups, n: int, m: int, exclude: int) -> Decoded:
     return _best_two(total, jnp.arange(n, dtype=jnp.int32), valid, exclude)
 
 
-@functools.partial(
-    jax.jit, static_argnames=("groups", "n", "m", "exclude", "batch_size")
-)
+@functools.partial(jit, static_argnames=("groups", "n", "m", "exclude", "batch_size"))
 def _decode_jit(scores, groups, n, m, exclude, batch_size):
     if m is None:
         return _batched(
@@ -212,7 +211,7 @@ def _hard(scores: jax.Array, groups: Groups, n: int) -> Decoded:
     return Decoded(index, total, total - gap)
 
 
-_hard_jit = functools.partial(jax.jit, static_argnames=("groups", "n"))(_hard)
+_hard_jit = functools.partial(jit, static_argnames=("groups", "n"))(_hard)
 
 
 def group_hard_decode(scores: jax.Array, groups: Groups, n: int) -> Decoded:
@@ -244,7 +243,7 @@ def _shifted(place: jax.Array, shift: int) -> jax.Array:
 
 
 @functools.partial(
-    jax.jit, static_argnames=("groups", "n", "offsets", "exclude", "batch_size")
+    jit, static_argnames=("groups", "n", "offsets", "exclude", "batch_size")
 )
 def _sequence_chunk(window, groups, n, offsets, exclude, batch_size):
     """window (C + L - 1, p) scores, oldest first -> Decoded (C,) of its C ends."""

@@ -29,6 +29,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.buckets import head, pad_rows
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.periods import crt_tables, period_offsets
 from rhythmic_jax.solvers.objective import Templates
 from rhythmic_jax.solvers.objective import scores as decision_values
@@ -131,7 +132,7 @@ def hard_decode(scores: jax.Array, periods: tuple[int, ...], n: int) -> Decoded:
     )
 
 
-@functools.partial(jax.jit, static_argnames=("periods", "n"))
+@functools.partial(jit, static_argnames=("periods", "n"))
 def _localise(params: Templates, queries: jax.Array, periods, n) -> Decoded:
     return hard_decode(decision_values(params, queries), periods, n)
 
@@ -198,4 +199,4 @@ def decode(
         products += np.asarray(params.b, products.dtype)
         return Decoded(*(jax.device_put(f) for f in host_decode(products, periods, n)))
     padded, b = pad_rows(queries)
-    return head(_localise(params, padded, periods, n), b)
+    return head(_localise(params, jax.device_put(padded), periods, n), b)

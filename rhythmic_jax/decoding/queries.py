@@ -35,6 +35,7 @@ from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.hard import decode as localise
 from rhythmic_jax.decoding.small import SMALL_BATCH
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.solvers.objective import Templates, scores
 
@@ -49,7 +50,7 @@ __all__ = [
 ]
 
 
-@jax.jit
+@jit
 def map_scores(params: Templates, q: jax.Array) -> jax.Array:
     """Decision values ``q @ w + b`` (b, p) of queries (b, k), jitted."""
     return scores(params, q)

@@ -33,6 +33,7 @@ from rhythmic_jax.decoding.group_decode import group_sequence_decode
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.validate import check_int
 
@@ -108,7 +109,7 @@ def _accumulate(scores: jax.Array, columns: np.ndarray) -> jax.Array:
     return jax.lax.fori_loop(0, length, add, jnp.zeros_like(scores))
 
 
-@functools.partial(jax.jit, static_argnames=("periods", "length", "speed"))
+@functools.partial(jit, static_argnames=("periods", "length", "speed"))
 def _sequence_scores_jit(scores, periods, length, speed):
     return _accumulate(scores, _shift_columns(periods, length, speed))
 
@@ -138,7 +139,7 @@ def sequence_scores(
 
 
 @functools.partial(
-    jax.jit,
+    jit,
     static_argnames=("periods", "n", "length", "speeds", "method", "m", "exclude"),
 )
 def _decode_jit(scores, periods, n, length, speeds, method, m, exclude):

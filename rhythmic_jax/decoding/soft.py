@@ -43,6 +43,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
 from rhythmic_jax.validate import check_int
@@ -129,16 +130,14 @@ def _batched(one, scores: jax.Array, batch_size: int, **static) -> Decoded:
     return Decoded(*(x.reshape(lead) for x in out))
 
 
-@functools.partial(jax.jit, static_argnames=("periods", "n", "exclude", "batch_size"))
+@functools.partial(jit, static_argnames=("periods", "n", "exclude", "batch_size"))
 def _soft_jit(scores, periods, n, exclude, batch_size):
     return _batched(
         _soft_one, scores, batch_size, periods=periods, n=n, exclude=exclude
     )
 
 
-@functools.partial(
-    jax.jit, static_argnames=("periods", "n", "m", "exclude", "batch_size")
-)
+@functools.partial(jit, static_argnames=("periods", "n", "m", "exclude", "batch_size"))
 def _topm_jit(scores, periods, n, m, exclude, batch_size):
     return _batched(
         _topm_one, scores, batch_size, periods=periods, n=n, m=m, exclude=exclude

@@ -44,6 +44,7 @@ from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.soft import calibrate, soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import pr_curve
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.validate import check_int
 
 __all__ = [
@@ -62,7 +63,7 @@ CONFIDENCES = ("margin", "likelihood")
 _BIG = float(np.finfo(np.float64).max)
 
 # the per-period log-softmax as one program (periods static), not one per op
-_calibrated = jax.jit(calibrate, static_argnums=1)
+_calibrated = jit(calibrate, static_argnums=1)
 
 
 def finite_confidence(confidence) -> np.ndarray:

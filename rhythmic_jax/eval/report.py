@@ -20,6 +20,7 @@ from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.eval.outliers import finite_confidence
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import database_bytes, place_columns
 
@@ -28,7 +29,7 @@ __all__ = ["evaluate_map", "format_evaluation", "ranked_places"]
 KS = (1, 5, 10)
 
 
-@functools.partial(jax.jit, static_argnames=("periods", "n", "k"))
+@functools.partial(jit, static_argnames=("periods", "n", "k"))
 def _ranked(scores: jax.Array, periods: tuple[int, ...], n: int, k: int) -> jax.Array:
     cols = place_columns(periods, n)
     total = jnp.sum(scores[:, cols], axis=1)  # (b, n)

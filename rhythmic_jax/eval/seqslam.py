@@ -31,6 +31,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.sequence import frame_offsets
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
@@ -45,7 +46,7 @@ __all__ = [
 _EPS = 1e-6
 
 
-@jax.jit
+@jit
 def normalise_rows(a: jax.Array) -> jax.Array:
     """Rows scaled to unit L2 norm (zero rows stay zero): (m, d) -> (m, d)."""
     a = jnp.asarray(a)
@@ -53,7 +54,7 @@ def normalise_rows(a: jax.Array) -> jax.Array:
     return a / jnp.maximum(norm, _EPS)
 
 
-@jax.jit
+@jit
 def similarity(queries: jax.Array, references: jax.Array) -> jax.Array:
     """Cosine similarity matrix: queries (T, d), references (N, d) -> S (T, N)."""
     return jnp.matmul(
@@ -61,7 +62,7 @@ def similarity(queries: jax.Array, references: jax.Array) -> jax.Array:
     )
 
 
-@functools.partial(jax.jit, static_argnames=("window",))
+@functools.partial(jit, static_argnames=("window",))
 def enhance_contrast(sim: jax.Array, window: int) -> jax.Array:
     """Local contrast along the reference axis: S (T, N) -> (S - mu) / sigma (T, N).
 
@@ -117,7 +118,7 @@ def sequence_similarity(sim: jax.Array, length: int, speed: float = 1.0) -> jax.
     return _sequence_similarity(sim, length, float(speed))
 
 
-@functools.partial(jax.jit, static_argnames=("length", "speed"))
+@functools.partial(jit, static_argnames=("length", "speed"))
 def _sequence_similarity(sim: jax.Array, length: int, speed: float) -> jax.Array:
     """:func:`sequence_similarity` once checked, one program."""
     sim = jnp.asarray(sim)
@@ -125,7 +126,7 @@ def _sequence_similarity(sim: jax.Array, length: int, speed: float) -> jax.Array
     return _diagonal_sums(ext, length, speed)
 
 
-@functools.partial(jax.jit, static_argnames=("length", "speeds", "window", "chunk"))
+@functools.partial(jit, static_argnames=("length", "speeds", "window", "chunk"))
 def _chunk_jit(queries, valid, references, start, length, speeds, window, chunk):
     """Best reference and score for query rows [start, start + chunk) of the padding."""
     rows = length - 1 + chunk
@@ -211,7 +212,7 @@ def seqslam_decode(
     return index, np.concatenate([np.asarray(v) for v in scores])[:frames]
 
 
-@functools.partial(jax.jit, static_argnames=("before", "after"))
+@functools.partial(jit, static_argnames=("before", "after"))
 def _prepare(q, x, before: int, after: int):
     """Unit rows of queries (T, d), padded with ``before`` zero rows on top and
     ``after`` below, and of references (N, d), in their common float dtype."""

@@ -44,6 +44,7 @@ from rhythmic_jax.fitting.closed_form import (
     ridge_templates,
     window_periods,
 )
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.embedding import Embedding, fit_invariant, linear
 from rhythmic_jax.map.projection import fit_pca
 from rhythmic_jax.solvers.objective import targets
@@ -235,7 +236,7 @@ def learn_embedding(
         decay += sum(jnp.sum(prm[k] ** 2) for k in ("w1", "w2") if k in prm)
         return loss + cfg.weight_decay * decay
 
-    @jax.jit
+    @jit
     def step(prm, st, key):
         k1, k2, k3, k4 = jax.random.split(key, 4)
         start = jax.random.randint(k1, (), 0, n_fit - win + 1)
@@ -248,7 +249,7 @@ def learn_embedding(
 
     val_start = n_fit + gap
 
-    @jax.jit
+    @jit
     def val_loss(prm):
         total = 0.0
         for a in range(n_cond):

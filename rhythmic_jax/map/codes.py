@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.config import INT8, codes_setting
 from rhythmic_jax.map.scalar_codes import ScalarCodeBook
 from rhythmic_jax.validate import check_features
@@ -82,12 +83,12 @@ def unpack_bits(packed: np.ndarray, bits: int) -> np.ndarray:
     return out[..., :bits].astype(bool)
 
 
-@jax.jit
+@jit
 def _encode(mean: jax.Array, projection: jax.Array, x: jax.Array) -> jax.Array:
     return jnp.matmul(x - mean[None, :], projection.T, precision="highest") > 0
 
 
-@jax.jit
+@jit
 def _agreements(q_bits: jax.Array, ref_signs: jax.Array) -> jax.Array:
     signs = jnp.where(q_bits, 1.0, -1.0).astype(ref_signs.dtype)
     return 0.5 * (

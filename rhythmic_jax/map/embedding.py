@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.projection import fit_pca
 
 __all__ = [
@@ -86,7 +87,7 @@ def embed(emb: Embedding, x: jax.Array) -> jax.Array:
     return z / jnp.maximum(jnp.linalg.norm(z, axis=1, keepdims=True), 1e-12)
 
 
-_embed_jit = jax.jit(embed)
+_embed_jit = jit(embed)
 
 
 def apply(emb: Embedding, x, batch: int = 4096) -> np.ndarray:

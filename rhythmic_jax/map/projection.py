@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.validate import check_int
 
 __all__ = ["PCA", "fit_pca", "project"]
@@ -87,7 +88,7 @@ def fit_pca(x: jax.Array, k: int) -> PCA:
     return PCA(*_pca(x, k))
 
 
-@functools.partial(jax.jit, static_argnames="k")
+@functools.partial(jit, static_argnames="k")
 def _pca(x: jax.Array, k: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     mean = x.mean(axis=0)
     s, v = _right_singular(x - mean[None, :])
@@ -105,7 +106,7 @@ def project(model: PCA, x: jax.Array, normalize: bool = False) -> jax.Array:
     return _project(model.mean, model.components, x, normalize)
 
 
-@functools.partial(jax.jit, static_argnames="normalize")
+@functools.partial(jit, static_argnames="normalize")
 def _project(mean, components, x, normalize: bool) -> jax.Array:
     y = jnp.matmul(x - mean[None, :], components.T, precision="highest")
     if normalize:

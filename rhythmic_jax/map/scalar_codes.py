@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.validate import check_features
 
 __all__ = ["ScalarCodeBook", "scalar_code_bytes"]
@@ -50,7 +51,7 @@ def _encode(x: np.ndarray, vmin: np.ndarray, vdiff: np.ndarray) -> np.ndarray:
     return (LEVELS * u).astype(np.uint8)
 
 
-@jax.jit
+@jit
 def _cosine(q, codes, vmin, vdiff) -> jax.Array:
     """Cosine of queries (b, d) with the decoded codes (n, d) -> (b, n)."""
     ref = vmin[None, :] + (codes.astype(jnp.float32) + 0.5) * (vdiff / LEVELS)[None, :]

@@ -40,6 +40,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.periods import period_offsets
 from rhythmic_jax.solvers.newton import NewtonConfig, NewtonInfo, newton_fit
 from rhythmic_jax.solvers.objective import Templates, targets
@@ -145,17 +146,17 @@ def allreduce(tree):
     return jax.tree.unflatten(treedef, out)
 
 
-@jax.jit
+@jit
 def _sum0(a: jax.Array) -> jax.Array:
     return jnp.sum(a, axis=0)
 
 
-@functools.partial(jax.jit, static_argnames=("periods",))
+@functools.partial(jit, static_argnames=("periods",))
 def _targets(labels: jax.Array, periods: tuple[int, ...]) -> jax.Array:
     return targets(labels, periods)
 
 
-@functools.partial(jax.jit, static_argnames=("periods",))
+@functools.partial(jit, static_argnames=("periods",))
 def _wrong(w, b, x, labels, valid, periods: tuple[int, ...]) -> jax.Array:
     """(k,) frames whose argmax phase is wrong, per period (padding not counted)."""
     s = jnp.matmul(x, w, precision="highest") + b[None, :]

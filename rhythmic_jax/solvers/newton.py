@@ -65,6 +65,7 @@ import optax
 import scipy.linalg  # at import: loaded mid-process it changed a fit's last bits
 from threadpoolctl import threadpool_limits
 
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton_cg import Iterate, newton_solver, round_design
 from rhythmic_jax.solvers.objective import Templates, margin_objectives
@@ -175,7 +176,7 @@ class NewtonInfo:
 REFRESH_AFTER = 20  # CG iterations after which a step's margins are recomputed
 
 
-@jax.jit
+@jit
 def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
     """Margins ``Xa theta`` (n, p) from scratch: float32 product, float64 result."""
     return jnp.matmul(xa, theta.astype(jnp.float32), precision="highest").astype(
@@ -183,33 +184,33 @@ def _margins(xa: jax.Array, theta: jax.Array) -> jax.Array:
     )
 
 
-@jax.jit
+@jit
 def _design(x: jax.Array, bias: jax.Array) -> jax.Array:
     """The design ``Xa = [x, bias]`` (n, q) in float32; jitted, so frames sharded
     over a mesh keep their sharding."""
     return jnp.concatenate([x.astype(jnp.float32), bias[:, None]], axis=1)
 
 
-@jax.jit
+@jit
 def _zeros_like(y: jax.Array) -> jax.Array:
     """Zeros of y's shape, dtype and sharding."""
     return y - y
 
 
-@partial(jax.jit, static_argnames=("rank", "iters"))
+@partial(jit, static_argnames=("rank", "iters"))
 def _spectral(xa: jax.Array, rank: int, iters: int, seed) -> tuple:
     """:func:`~rhythmic_jax.solvers.precondition.spectral_setup` from an integer
     seed (the key is drawn inside the program: no program of its own)."""
     return spectral_setup(xa, rank, iters, jax.random.PRNGKey(seed))
 
 
-@partial(jax.jit, static_argnames=("eta", "max_cg", "block"))
+@partial(jit, static_argnames=("eta", "max_cg", "block"))
 def _start(params: Iterate, eta: float, max_cg: int, block: int):
     """The optimiser's initial state for ``params`` (one program)."""
     return newton_solver(eta, max_cg, block).init(params)
 
 
-@jax.jit
+@jit
 def _warm(w: jax.Array, b: jax.Array, xa: jax.Array) -> Iterate:
     """The float64 iterate of templates ``w`` (d, p), ``b`` (p,): theta (q, p)
     and its margins ``Xa theta`` (n, p)."""
@@ -217,7 +218,7 @@ def _warm(w: jax.Array, b: jax.Array, xa: jax.Array) -> Iterate:
     return Iterate(theta, _margins(xa, theta))
 
 
-@jax.jit
+@jit
 def _finish(theta: jax.Array, xa: jax.Array, y: jax.Array, c: jax.Array):
     """Every template's objective (p,) from margins made afresh, and the
     templates as float32: w (d, p), b (p,)."""
@@ -262,7 +263,7 @@ def _put(tree, part, cols):
     )
 
 
-@partial(jax.jit, static_argnames=("eta", "block", "exact_gradient"))
+@partial(jit, static_argnames=("eta", "block", "exact_gradient"))
 def _newton_step(
     xa, spectral, cols, params, opt_state, y, c, eta, block, max_cg,
     exact_gradient=True, rounded=None,

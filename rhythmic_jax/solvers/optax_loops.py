@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.progress import bar
 from rhythmic_jax.solvers.objective import Templates, total_objective
 from rhythmic_jax.solvers.span import in_span
@@ -154,7 +155,7 @@ def init_state(
     return TrainState.create(params, optimizer)
 
 
-@jax.jit
+@jit
 def minibatch_step(
     state: TrainState, x: jax.Array, y: jax.Array, c: float, scale: float
 ) -> tuple[TrainState, jax.Array]:
@@ -167,7 +168,7 @@ def minibatch_step(
     return state.apply_gradients(grad), loss
 
 
-@jax.jit
+@jit
 def _lbfgs_step(state: TrainState, x, y, c):
     def fun(params):
         return total_objective(params, x, y, c)

@@ -19,6 +19,8 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
+from rhythmic_jax.jit_options import jit
+
 __all__ = [
     "block_preconditioner",
     "in_basis",
@@ -54,7 +56,7 @@ def top_eigen(gram: jax.Array, k: int, iters: int, key: jax.Array):
     )
 
 
-@partial(jax.jit, static_argnames=("rank", "iters"))
+@partial(jit, static_argnames=("rank", "iters"))
 def spectral_setup(xa: jax.Array, rank: int, iters: int, key: jax.Array):
     """Leading eigenvectors ``V`` (q, k) of ``Xa^T Xa``, ``F = Xa V`` (n, k), and
     each frame's squared norm outside them, ``||xa_i||^2 - ||F_i||^2`` (n,)."""

@@ -18,6 +18,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.solvers.objective import Templates, total_objective
 
 __all__ = ["make_mesh", "shard_problem", "sharded_value_and_grad"]
@@ -49,7 +50,7 @@ def shard_problem(
     return x, y, params
 
 
-@jax.jit
+@jit
 def sharded_value_and_grad(params: Templates, x, y, c):
     """The joint objective and its gradient; shardings follow the inputs'."""
     return jax.value_and_grad(total_objective)(params, x, y, c)

@@ -65,6 +65,7 @@ import numpy as np
 
 from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.io.frame_files import Frames
+from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.periods import period_offsets
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton import chunk_width
@@ -197,7 +198,7 @@ def _curvature(xa, h, vecs):
     )
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _gram_pass(xa, labels, periods):
     """``Xa^T Xa`` (q, q) of one block (padding rows are zero)."""
     del labels, periods
@@ -214,7 +215,7 @@ def _block_sums(xa, labels, theta, c, vecs, periods, cols):
     return (loss, jnp.matmul(xa.T, dm, precision="highest"), _curvature(xa, h, vecs)), h
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _grad_pass(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     """Sums of one block: the loss (p,), its gradient in theta ``Xa^T dL/dm``
     (q, p) and :func:`_curvature` (the Hessian's diagonal in theta, ``(Xa^2)^T
@@ -224,7 +225,7 @@ def _grad_pass(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     return _block_sums(xa, labels, theta, c, vecs, periods, cols)[0]
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _grad_keep(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     """:func:`_grad_pass`'s sums, and what a CG pass needs of the curvature h
     (B, p) at the block's margins: where it is not 0, packed to bits (B,
@@ -236,7 +237,7 @@ def _grad_keep(xa, labels, theta, c, vecs=None, *, periods, cols=None):
     return sums, (jnp.packbits(on, axis=1), top, flat)
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _hess_kept(xa, bits, v, top, periods, cols=None):
     """:func:`_hess_pass` from the kept curvature (bits times its one value
     ``top`` (p,)): one product with the frames fewer. The bits are of v's
@@ -250,7 +251,7 @@ def _hess_kept(xa, bits, v, top, periods, cols=None):
     )
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _hess_pass(xa, labels, theta, v, c, periods, cols=None):
     """``Xa^T (h * Xa v)`` (q, p) over one block: the loss's Hessian in theta
     applied to v, by linearising its gradient at the block's margins."""
@@ -260,7 +261,7 @@ def _hess_pass(xa, labels, theta, v, c, periods, cols=None):
     return jnp.matmul(xa.T, hessian(both[:, p:]), precision="highest")
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _line_pass(xa, labels, theta, s, ts, c, periods, cols=None):
     """The block's loss along the step, ``phi_b(t) = L_b(m + t Xa s)`` per
     template: ``phi_b'`` and ``phi_b''`` (K, p) at the step lengths ts (K, p).
@@ -570,7 +571,7 @@ def _resume(path, key, theta, done, info, stream, reduce) -> int:
     return steps
 
 
-@jax.jit
+@jit
 def _regulariser_derivatives(theta, c):
     """The regulariser's value (p,), gradient (q, p) and Hessian diagonal (q, p)
     at theta (q, p), by autodiff. Its Hessian is that diagonal (``0.5
@@ -720,7 +721,7 @@ def _line_search(stream, th32, s, c, grad, reg, cols=None) -> np.ndarray:
     return np.where(g_lo < 0, t, lo)
 
 
-@partial(jax.jit, static_argnames=("periods",))
+@partial(jit, static_argnames=("periods",))
 def _wrong_pass(xa, labels, w, periods):
     """(k,) frames of a block whose argmax phase is wrong, per period."""
     s = jnp.matmul(xa, w, precision="highest")

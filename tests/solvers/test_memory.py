@@ -138,8 +138,22 @@ def test_memory_estimate_holds_twenty_fits_in_a_row():
         _check_bounds(run, warm_ratio=float("inf"))
 
 
+@pytest.fixture
+def on_the_cpu():
+    """The estimate is of a CPU fit's host memory: the step compiles for the CPU,
+    on a GPU machine too."""
+    import jax
+
+    try:
+        cpu = jax.devices("cpu")[0]
+    except RuntimeError:
+        pytest.skip("no CPU backend: the estimate is of a CPU fit's host memory")
+    with jax.default_device(cpu):
+        yield cpu
+
+
 @pytest.mark.parametrize("n, d", [(1000, 64), (400, 1024)])  # tall; wide: span
-def test_memory_estimate_bounds_the_compiled_newton_step(n, d):
+def test_memory_estimate_bounds_the_compiled_newton_step(n, d, on_the_cpu):
     """The step's arrays (design, system, templates) hold XLA's own count of a
     Newton step's arguments, results and temporaries, whole or compacted."""
     import jax

@@ -46,8 +46,9 @@ def test_top_eigen_matches_eigh(system, k):
     want = np.linalg.eigvalsh(gram)[::-1][:k]
     vecs, vals = top_eigen(jnp.asarray(gram, jnp.float32), k, 30, KEY)
     np.testing.assert_allclose(np.asarray(vals), want, rtol=1e-4)
-    np.testing.assert_allclose(np.asarray(vecs.T @ vecs), np.eye(k), atol=1e-5)
-    ritz = np.asarray(vecs).T @ gram @ np.asarray(vecs)
+    v = np.asarray(vecs, np.float64)  # products in float64, not the device's default
+    np.testing.assert_allclose(v.T @ v, np.eye(k), atol=1e-5)
+    ritz = v.T @ gram @ v
     np.testing.assert_allclose(np.diag(ritz), want, rtol=1e-4)
 
 

@@ -7,6 +7,7 @@ import json
 import logging
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -224,7 +225,8 @@ def test_config_and_devices_are_logged(problem, caplog):
     with caplog.at_level(logging.INFO, logger="rhythmic_jax.solvers.resumable"):
         train_run(in_memory(x, labels), init, C, N, CONFIG, None, progress=False)
     text = caplog.text
-    assert "RunConfig(epochs=2, batch_size=8" in text and "CpuDevice" in text
+    device = repr(jax.devices()[0])  # CpuDevice(id=0), CudaDevice(id=0), ...
+    assert "RunConfig(epochs=2, batch_size=8" in text and device in text
 
 
 @pytest.mark.parametrize(

@@ -197,7 +197,8 @@ def test_line_pass_is_the_loss_along_the_step_differentiated_in_t():
     slope, curv = streamed._line_pass(xa, labels, theta, step, ts, c, periods)
 
     def phi(t):  # (p,) -> (p,): the block's loss at theta + t step, per template
-        m = xa @ (theta + t[None, :] * step)
+        w = theta + t[None, :] * step  # float32 products at full precision, as
+        m = jnp.matmul(xa, w, precision=jax.lax.Precision.HIGHEST)  # the pass's
         return streamed._block_loss(m, labels, periods, c)
 
     ones = jnp.ones(7, jnp.float32)
