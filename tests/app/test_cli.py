@@ -294,16 +294,34 @@ def test_every_domain_refuses_in_one_line(value, capsys):
 
 
 def test_every_rule_names_options_of_its_commands():
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import cli, jobs
 
     commands = _commands()
-    for rule in cli.RULES:
-        for name in rule.commands:
-            dests = {a.dest for a in commands[name]._actions}
+    made = {"fit": jobs.FitJob, "learn": jobs.LearnJob, "query": jobs.QueryJob}
+    for name, job in {**made, "evaluate": jobs.EvaluateJob}.items():
+        dests = {a.dest for a in commands[name]._actions}
+        for rule in job.RULES:
             assert set(rule.options) <= dests, (name, rule.options)
     for table in (cli.WRITES, cli.READS):
         for name, dests in table.items():
             assert set(dests) <= {a.dest for a in commands[name]._actions}
+
+
+@pytest.mark.parametrize("command", ["query", "info"])
+def test_a_reader_that_leaves_early_ends_the_command_quietly(npy_route, command):
+    """``rhythmic-jax query MAP Q | head -1``: when the reader has closed the
+    pipe, the command stops with nothing on stderr and SIGPIPE's status 141, as
+    the shell's own tools do (the reader here closes before a line is written)."""
+    ref = str(npy_route / "ref.npy")
+    assert main(["fit", ref, "--out", str(npy_route / "m.map"), "--no-progress"]) == 0
+    args = [str(npy_route / "m.map")] + ([ref, "--no-progress"] * (command == "query"))
+    code = "from rhythmic_jax.app.cli import run; run()"
+    cmd = [sys.executable, "-c", code, command, *args]
+    writer = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    writer.stdout.close()  # the reader is gone before the first line
+    err = writer.stderr.read().decode()
+    assert writer.wait(timeout=120) == 141, err
+    assert err == ""
 
 
 def test_an_option_scripts_pass_always_is_warned_once(npy_route, capsys):
