@@ -21,9 +21,8 @@ import os
 import sys
 import textwrap
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from rhythmic_jax.app import jobs
-from rhythmic_jax.app.jobs import DOMAINS
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import (
     BUILD_MIN_FRAMES,
@@ -32,6 +31,9 @@ from rhythmic_jax.frames.compile_policy import (
     CompilePolicy,
 )
 from rhythmic_jax.map.config import DECODERS, DTYPES, SOLVERS, MapConfig
+
+if TYPE_CHECKING:  # imported where used: no numpy, but not the parser's either
+    from rhythmic_jax.app import jobs
 
 __all__ = ["main"]
 
@@ -90,6 +92,8 @@ EXAMPLES = {
 
 
 def _quiet_logs(verbose: bool) -> None:
+    from rhythmic_jax.app import jobs
+
     jobs.quiet_io_threads()
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     logging.basicConfig(
@@ -214,6 +218,8 @@ def check_paths(args) -> str | None:
 
 def _stated(parser: argparse.ArgumentParser) -> None:
     """Give every numeric option its domain (:data:`DOMAINS`), stated in --help."""
+    from rhythmic_jax.app.jobs import DOMAINS
+
     for action in parser._actions:
         domain = DOMAINS.get(action.dest)
         if domain is not None and action.option_strings:
@@ -488,11 +494,15 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _reading(args) -> jobs.Reading:
+    from rhythmic_jax.app import jobs
+
     compile_ = CompilePolicy(args.compile, args.compile_min_frames)
     return jobs.Reading(args.descriptor, args.weights, args.tile, args.stride, compile_)
 
 
 def _fit_job(args, given: frozenset[str]) -> jobs.FitJob:
+    from rhythmic_jax.app import jobs
+
     config = MapConfig(
         r=args.r, level=args.level, count=args.count, c=args.c, solver=args.solver,
         gap=args.gap, layout=args.layout, dtype=args.dtype, codes=args.codes,
@@ -513,6 +523,8 @@ def _fit_job(args, given: frozenset[str]) -> jobs.FitJob:
 
 
 def _learn_job(args, given: frozenset[str]) -> jobs.LearnJob:
+    from rhythmic_jax.app import jobs
+
     config = jobs.learn_config(
         method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
     )
@@ -522,6 +534,8 @@ def _learn_job(args, given: frozenset[str]) -> jobs.LearnJob:
 
 
 def _query_job(args, given: frozenset[str]) -> jobs.QueryJob:
+    from rhythmic_jax.app import jobs
+
     return jobs.QueryJob(
         args.map, args.source, decode=args.decode, sequence=args.sequence,
         threshold=args.threshold, out=args.out, reading=_reading(args), given=given,
@@ -529,6 +543,8 @@ def _query_job(args, given: frozenset[str]) -> jobs.QueryJob:
 
 
 def _evaluate_job(args, given: frozenset[str]) -> jobs.EvaluateJob:
+    from rhythmic_jax.app import jobs
+
     return jobs.EvaluateJob(
         args.map, args.source, reference=args.reference, tolerance=args.tolerance,
         decode=args.decode, sequence=args.sequence, tolerance_m=args.tolerance_m,
@@ -538,6 +554,8 @@ def _evaluate_job(args, given: frozenset[str]) -> jobs.EvaluateJob:
 
 
 def _cmd_fit(args, job: jobs.FitJob) -> int:
+    from rhythmic_jax.app import jobs
+
     run = None
     if jobs.wants_scale(job):
         model, run = jobs.fit_scaled(job, args.argv, not args.no_progress)
@@ -555,6 +573,8 @@ def _cmd_fit(args, job: jobs.FitJob) -> int:
 
 
 def _cmd_query(args, job: jobs.QueryJob) -> int:
+    from rhythmic_jax.app import jobs
+
     pred = jobs.query(job, progress=not args.no_progress)
     if args.json:
         print(json.dumps({"predictions": pred.tolist()}))
@@ -566,24 +586,32 @@ def _cmd_query(args, job: jobs.QueryJob) -> int:
 
 
 def _cmd_learn(args, job: jobs.LearnJob) -> int:
+    from rhythmic_jax.app import jobs
+
     emb, info = jobs.learn(job, progress=not args.no_progress)
     print(jobs.learn_summary(args.out, emb, info))
     return 0
 
 
 def _cmd_info(args, job: None) -> int:
+    from rhythmic_jax.app import jobs
+
     info = jobs.info(args.map)
     print(json.dumps(info, indent=2) if args.json else jobs.info_lines(info))
     return 0
 
 
 def _cmd_evaluate(args, job: jobs.EvaluateJob) -> int:
+    from rhythmic_jax.app import jobs
+
     result = jobs.evaluate(job, progress=not args.no_progress)
     print(json.dumps(result, indent=2) if args.json else jobs.evaluate_summary(result))
     return 0
 
 
 def _cmd_demo(args, job: None) -> int:
+    from rhythmic_jax.app import jobs
+
     jobs.demo(args.out, quick=args.quick, progress=not args.no_progress)
     return 0
 
@@ -602,6 +630,8 @@ COMMANDS = {
 def _checked_job(args, prog: str):
     """The command's job, made (so checked) from the options; a refused option
     or a path written over one read ends in one usage line (InputError)."""
+    from rhythmic_jax.app import jobs
+
     make = COMMANDS[args.command][0]
     job = make and make(args, frozenset(_given_options(args.argv, args)))
     line = check_paths(args)
@@ -616,6 +646,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``rhythmic-jax``; returns the exit status (2: bad input,
     one line on stderr; 0 after ``--help``; 141 when standard output is closed
     early, as by ``| head``: quietly, as a command killed by SIGPIPE)."""
+    from rhythmic_jax.app import jobs
+
     try:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed

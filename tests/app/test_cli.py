@@ -248,7 +248,7 @@ def test_every_numeric_option_states_its_domain(capsys):
     import ast
     from pathlib import Path
 
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import cli, jobs
 
     tree = ast.parse(Path(cli.__file__).read_text())
     typed = [
@@ -262,27 +262,27 @@ def test_every_numeric_option_states_its_domain(capsys):
     used = set()
     for name, command in _commands().items():
         for action in command._actions:
-            if action.dest in cli.DOMAINS and action.option_strings:
+            if action.dest in jobs.DOMAINS and action.option_strings:
                 used.add(action.dest)
-                assert action.type is cli.DOMAINS[action.dest]
+                assert action.type is jobs.DOMAINS[action.dest]
                 assert main([name, "--help"]) == 0
                 text = " ".join(capsys.readouterr().out.split())
-                domain = cli.DOMAINS[action.dest].text()
+                domain = jobs.DOMAINS[action.dest].text()
                 assert f"[{domain}]" in text, (name, action.dest)
-    assert used == set(cli.DOMAINS)
+    assert used == set(jobs.DOMAINS)
 
 
 @pytest.mark.parametrize("value", ["nan", "-1e9", "1e400", "x", ""])
 def test_every_domain_refuses_in_one_line(value, capsys):
     """Each numeric option of each command refuses a value outside its domain
     where it is parsed: exit 2, one line naming the flag."""
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import jobs
 
     for name, command in _commands().items():
         required = {"fit": ["a.npy", "--out", "m.map"], "learn": ["a", "b", "--out",
                     "e.emb"], "query": ["m", "q"], "evaluate": ["m", "q"]}  # fmt: skip
         for action in command._actions:
-            if action.dest not in cli.DOMAINS or not action.option_strings:
+            if action.dest not in jobs.DOMAINS or not action.option_strings:
                 continue
             if value == "-1e9" and action.dest == "threshold":
                 continue  # any finite number
