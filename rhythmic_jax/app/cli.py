@@ -1,12 +1,14 @@
 """The ``rhythmic-jax`` command line: argparse over :mod:`rhythmic_jax.app.jobs`.
 
-Every command parses its arguments, runs one job and prints what it returns; bad
-input ends with one line on stderr (settings spelled as flags) and exit status 2,
-and nothing half-written on disk.
+Every command parses its arguments, makes its job (which checks itself: each
+option in its domain, :data:`rhythmic_jax.app.jobs.DOMAINS`, and against the
+others, the job's rules), runs it and prints what it returns; bad input ends
+with one line on stderr (settings spelled as flags) and exit status 2, and
+nothing half-written on disk.
 
-The parser is built from light modules only (the map's configuration, the
-option domains, the compile policy): ``rhythmic-jax --help`` imports no numpy,
-JAX or torch. The jobs, and what they need, are imported when a command runs.
+The parser is built from light modules only (the jobs' settings and domains, the
+map's configuration, the compile policy): ``rhythmic-jax --help`` imports no
+numpy, JAX or torch. What a job needs is imported when it runs.
 """
 
 from __future__ import annotations
@@ -18,8 +20,6 @@ import logging
 import os
 import sys
 import textwrap
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,12 +28,12 @@ from rhythmic_jax.frames.compile_policy import (
     BUILD_MIN_FRAMES,
     COMPILE_MODES,
     LOAD_MIN_FRAMES,
+    CompilePolicy,
 )
 from rhythmic_jax.map.config import DECODERS, DTYPES, SOLVERS, MapConfig
-from rhythmic_jax.validate import Domain, int_option, number_option
 
-if TYPE_CHECKING:  # the jobs are imported when a command runs
-    from rhythmic_jax.app.jobs import Reading
+if TYPE_CHECKING:  # imported where used: no numpy, but not the parser's either
+    from rhythmic_jax.app import jobs
 
 __all__ = ["main"]
 
@@ -152,142 +152,6 @@ def _add_source_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
 
 
-# ------------------------------------------------------------- option rules
-def _memory_bytes(text: str) -> int:
-    """``--memory``'s text in bytes (:func:`rhythmic_jax.app.jobs.memory_bytes`)."""
-    from rhythmic_jax.app.jobs import memory_bytes
-
-    return memory_bytes(text)
-
-
-# Every numeric option's domain, by destination (the same in every command that
-# has it): the parser reads the option with it and --help states it.
-DOMAINS: dict[str, Domain] = {
-    "r": int_option(2),
-    "level": int_option(1),
-    "count": int_option(2),
-    "c": number_option(0),
-    "gap": number_option(0, 1),
-    "epochs": int_option(1),
-    "batch_size": int_option(1),
-    "checkpoint_every": int_option(1),
-    "pca": int_option(1),
-    "processes": int_option(1),
-    "num_processes": int_option(1),
-    "process_id": int_option(0),
-    "memory": Domain(True, 1, parse=_memory_bytes, what="a size (1GiB, 800M)"),
-    "places": int_option(1),
-    "codes": Domain(True, 1, words=("int8",)),
-    "fusion": number_option(0, 1, closed=True),
-    "tile": int_option(1),
-    "stride": int_option(1),
-    "compile_min_frames": int_option(0),
-    "k": int_option(1),
-    "steps": int_option(1),
-    "seed": int_option(0, 2**32 - 1),
-    "sequence": int_option(1),
-    "threshold": number_option(),
-    "tolerance": int_option(0),
-    "tolerance_m": number_option(0),
-}
-
-
-@dataclass(frozen=True)
-class Rule:
-    """Where an option acts: given in one of ``commands`` where ``holds(args)``
-    is false, each of ``options`` is refused with the line ``--OPTION says``, or,
-    for options that scripts pass always (``warn``), named in one warning line
-    and ignored."""
-
-    commands: tuple[str, ...]
-    options: tuple[str, ...]
-    says: str
-    holds: Callable[[argparse.Namespace], bool]
-    warn: bool = False
-
-
-def _given(name: str) -> Callable[[argparse.Namespace], bool]:
-    return lambda args: getattr(args, name) not in (None, False)
-
-
-def _layout(args) -> tuple[str, str, str]:
-    """``--layout`` as (kind, its first sizes, hierarchical's fine periods)."""
-    kind, _, rest = str(args.layout).strip().partition(":")
-    sizes, _, fine = rest.partition(":")
-    return kind, sizes, fine
-
-
-def _chooses_sizes(args) -> bool:
-    """Whether the layout leaves sizes for ``--r`` to choose."""
-    kind, sizes, fine = _layout(args)
-    return not sizes or (kind == "hierarchical" and not fine)
-
-
-def _read_sources(args) -> list[str]:
-    srcs = getattr(args, "sources", None) or [args.source]
-    return srcs + ([args.reference] if getattr(args, "reference", None) else [])
-
-
-def _images(args) -> bool:
-    """Whether a source of the job may be images (not only .npy descriptors)."""
-    return not all(str(s).lower().endswith(".npy") for s in _read_sources(args))
-
-
-def _scaled(args) -> bool:
-    """Whether a fit may run from files at scale (where --checkpoint acts too)."""
-    wanted = args.processes != 1 or args.coordinator or args.memory or args.stream
-    dirs = any(Path(s).is_dir() for s in args.sources)
-    return bool(wanted or args.shards or dirs)
-
-
-FIT, READERS = ("fit",), ("fit", "learn", "query", "evaluate")
-RULES: tuple[Rule, ...] = (
-    Rule(READERS, ("stride",), "needs --tile (it is the step between tiles)",
-         _given("tile")),
-    Rule(READERS, ("descriptor", "weights"),
-         "applies to images; .npy files are descriptors", _images),
-    Rule(FIT, ("epochs", "batch_size", "checkpoint_every"),
-         "needs --augment (it shapes the augmented fit)", _given("augment")),
-    Rule(FIT, ("checkpoint",),
-         "needs --augment or a fit from files at scale (it keeps their progress)",
-         lambda a: bool(a.augment) or _scaled(a)),
-    Rule(FIT, ("fusion",), "needs --codes (it weighs the map's scores against "
-         "the codes')", _given("codes")),
-    Rule(FIT, ("codes",), "needs a periods layout (--layout periods or "
-         "periods:T1,T2): codes fuse with its place scores",
-         lambda a: _layout(a)[0] == "periods"),
-    Rule(FIT, ("count",), "acts only with --layout periods (the map chooses its "
-         "periods among --count candidates)",
-         lambda a: _layout(a) == ("periods", "", "")),
-    Rule(FIT, ("level",), "acts only with a --layout that leaves its sizes out",
-         lambda a: not _layout(a)[1]),
-    Rule(FIT, ("r",), "acts only with a --layout that leaves its sizes out",
-         _chooses_sizes),
-    Rule(FIT, ("gap",), "acts only with --solver newton (where Newton stops)",
-         lambda a: a.solver == "newton"),
-    Rule(FIT, ("places",), "needs --positions (it groups the frames by them)",
-         _given("positions")),
-    Rule(FIT, ("num_processes", "process_id"), "needs --coordinator",
-         _given("coordinator")),
-    Rule(FIT, ("coordinator",), "needs --num-processes and --process-id",
-         lambda a: a.num_processes is not None and a.process_id is not None),
-    Rule(FIT, ("process_id",), "must be below --num-processes",
-         lambda a: a.num_processes is None or a.process_id < a.num_processes),
-    Rule(FIT, ("processes",), "acts only without --coordinator (each host then "
-         "runs one process)", lambda a: a.coordinator is None),
-    Rule(("evaluate",), ("tolerance",), "acts only without --ground-truth (which "
-         "names the right places itself)", lambda a: a.ground_truth is None),
-    Rule(("evaluate",), ("tolerance_m",), "needs --ground-truth (positions or "
-         "names: it is their radius of a right match)", _given("ground_truth")),
-    Rule(("learn",), ("head", "steps", "seed"), "acts only with --method map or "
-         "infonce (the closed forms take no steps)",
-         lambda a: a.method in ("map", "infonce")),
-    Rule(READERS, ("compile_min_frames",), "acts only with --compile auto; ignored",
-         lambda a: a.compile == "auto", warn=True),
-    Rule(READERS, ("compile", "compile_min_frames"), "applies to images; .npy "
-         "files are descriptors; ignored", _images, warn=True),
-)  # fmt: skip
-
 # What each command writes and reads, by destination: no path written may be,
 # hold or lie inside another the job reads or writes.
 WRITES = {
@@ -352,26 +216,10 @@ def check_paths(args) -> str | None:
     return None
 
 
-def check_rules(args, given: set[str]) -> tuple[str | None, list[str]]:
-    """(the line refusing an option given where it has no effect, or None; the
-    warnings for those only warned about), from :data:`RULES`."""
-    warnings: dict[str, str] = {}  # one a option
-    for rule in RULES:
-        if args.command not in rule.commands:
-            continue
-        named = [o for o in rule.options if o in given]
-        if not named or rule.holds(args):
-            continue
-        for option in named:
-            line = f"{_flag(option)} {rule.says}"
-            if not rule.warn:
-                return line, []
-            warnings.setdefault(option, line)
-    return None, list(warnings.values())
-
-
 def _stated(parser: argparse.ArgumentParser) -> None:
     """Give every numeric option its domain (:data:`DOMAINS`), stated in --help."""
+    from rhythmic_jax.app.jobs import DOMAINS
+
     for action in parser._actions:
         domain = DOMAINS.get(action.dest)
         if domain is not None and action.option_strings:
@@ -386,39 +234,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-class _Main(_Parser):
-    """The top-level parser: after parsing, every option is checked against the
-    others (:data:`RULES`) and every path written against those read
-    (:func:`check_paths`), before any work."""
-
-    commands: dict[str, argparse.ArgumentParser]
-    checks: bool = True
-
-    def parse_known_args(self, args=None, namespace=None):
-        parsed, extras = super().parse_known_args(args, namespace)
-        if self.checks and getattr(parsed, "command", None) in self.commands:
-            argv = list(sys.argv[1:] if args is None else args)
-            sub = self.commands[parsed.command]
-            line, warnings = check_rules(parsed, _given_options(argv, parsed))
-            line = line or check_paths(parsed)
-            if line is not None:
-                sub.error(line)
-            for warning in warnings:
-                print(f"{sub.prog}: warning: {warning}", file=sys.stderr)
-        return parsed, extras
-
-
 def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
     """The destinations of the options ``argv`` gives (not left at a default)."""
-    parser = _parser(checks=False)
+    parser = _parser()
     for action in parser.commands[parsed.command]._actions:
         action.default = argparse.SUPPRESS  # left out: not in the namespace
     seen, _ = parser.parse_known_args(argv)
     return set(vars(seen))
 
 
-def _parser(checks: bool = True) -> argparse.ArgumentParser:
-    parser = _Main(
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -429,7 +255,7 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    parser.checks, parser.commands = checks, {}
+    parser.commands = {}
 
     def add(name: str, help_: str) -> argparse.ArgumentParser:
         parser.commands[name] = sub.add_parser(
@@ -478,10 +304,10 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
         "separated names from gaussian_blur, hflip, random_crop, elastic, "
         "contrast, invert, grayscale, or 'all'",
     )
-    p.add_argument("--epochs", default=3, help="augmented epochs (3)")
+    p.add_argument("--epochs", default=None, help="augmented epochs (3)")
     p.add_argument(
         "--batch-size",
-        default=128,
+        default=None,
         help="augmented frames per step (128)",
     )
     p.add_argument(
@@ -493,7 +319,7 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint-every",
-        default=50,
+        default=None,
         help="steps between checkpoints of an augmented fit (50)",
     )
     p.add_argument(
@@ -667,41 +493,72 @@ def _parser(checks: bool = True) -> argparse.ArgumentParser:
     return parser
 
 
-def _reading(args) -> Reading:
-    from rhythmic_jax.app.jobs import CompilePolicy, Reading
+def _reading(args) -> jobs.Reading:
+    from rhythmic_jax.app import jobs
 
-    return Reading(
-        descriptor=args.descriptor,
-        weights=args.weights,
-        tile=args.tile,
-        stride=args.stride,
-        compile=CompilePolicy(args.compile, args.compile_min_frames),
-    )
+    compile_ = CompilePolicy(args.compile, args.compile_min_frames)
+    return jobs.Reading(args.descriptor, args.weights, args.tile, args.stride, compile_)
 
 
-def _cmd_fit(args) -> int:
+def _fit_job(args, given: frozenset[str]) -> jobs.FitJob:
     from rhythmic_jax.app import jobs
 
     config = MapConfig(
         r=args.r, level=args.level, count=args.count, c=args.c, solver=args.solver,
         gap=args.gap, layout=args.layout, dtype=args.dtype, codes=args.codes,
     )  # fmt: skip
-    job = jobs.FitJob(
-        sources=tuple(args.sources), out=args.out, config=config, pca=args.pca,
-        augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
-        checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
-        reading=_reading(args),
-        positions=tuple(args.positions) if args.positions else None,
-        places=args.places, fusion=args.fusion, embedding=args.embedding,
-    )  # fmt: skip
     scale = jobs.ScaleJob(
         processes=args.processes, coordinator=args.coordinator,
         num_processes=args.num_processes, process_id=args.process_id,
         memory=args.memory, stream=args.stream, shards=args.shards,
     )  # fmt: skip
+    return jobs.FitJob(
+        sources=tuple(args.sources), out=args.out, config=config, pca=args.pca,
+        augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
+        checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
+        reading=_reading(args), places=args.places, fusion=args.fusion,
+        positions=tuple(args.positions) if args.positions else None,
+        embedding=args.embedding, scale=scale, given=given,
+    )  # fmt: skip
+
+
+def _learn_job(args, given: frozenset[str]) -> jobs.LearnJob:
+    from rhythmic_jax.app import jobs
+
+    config = jobs.learn_config(
+        method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
+    )
+    return jobs.LearnJob(
+        tuple(args.sources), args.out, config, _reading(args), args.codes, given
+    )
+
+
+def _query_job(args, given: frozenset[str]) -> jobs.QueryJob:
+    from rhythmic_jax.app import jobs
+
+    return jobs.QueryJob(
+        args.map, args.source, decode=args.decode, sequence=args.sequence,
+        threshold=args.threshold, out=args.out, reading=_reading(args), given=given,
+    )  # fmt: skip
+
+
+def _evaluate_job(args, given: frozenset[str]) -> jobs.EvaluateJob:
+    from rhythmic_jax.app import jobs
+
+    return jobs.EvaluateJob(
+        args.map, args.source, reference=args.reference, tolerance=args.tolerance,
+        decode=args.decode, sequence=args.sequence, tolerance_m=args.tolerance_m,
+        ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
+        plot=args.plot, reading=_reading(args), given=given,
+    )  # fmt: skip
+
+
+def _cmd_fit(args, job: jobs.FitJob) -> int:
+    from rhythmic_jax.app import jobs
+
     run = None
-    if jobs.wants_scale(job, scale):
-        model, run = jobs.fit_scaled(job, scale, args.argv, not args.no_progress)
+    if jobs.wants_scale(job):
+        model, run = jobs.fit_scaled(job, args.argv, not args.no_progress)
         if model is None:
             return 0
     else:
@@ -715,14 +572,10 @@ def _cmd_fit(args) -> int:
     return 0
 
 
-def _cmd_query(args) -> int:
+def _cmd_query(args, job: jobs.QueryJob) -> int:
     from rhythmic_jax.app import jobs
 
-    pred = jobs.query(
-        args.map, args.source, decode=args.decode, sequence=args.sequence,
-        threshold=args.threshold, out=args.out, reading=_reading(args),
-        progress=not args.no_progress,
-    )  # fmt: skip
+    pred = jobs.query(job, progress=not args.no_progress)
     if args.json:
         print(json.dumps({"predictions": pred.tolist()}))
     elif not args.out:
@@ -732,21 +585,15 @@ def _cmd_query(args) -> int:
     return 0
 
 
-def _cmd_learn(args) -> int:
+def _cmd_learn(args, job: jobs.LearnJob) -> int:
     from rhythmic_jax.app import jobs
 
-    config = jobs.learn_config(
-        method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
-    )
-    job = jobs.LearnJob(
-        tuple(args.sources), args.out, config, _reading(args), args.codes
-    )
     emb, info = jobs.learn(job, progress=not args.no_progress)
     print(jobs.learn_summary(args.out, emb, info))
     return 0
 
 
-def _cmd_info(args) -> int:
+def _cmd_info(args, job: None) -> int:
     from rhythmic_jax.app import jobs
 
     info = jobs.info(args.map)
@@ -754,54 +601,76 @@ def _cmd_info(args) -> int:
     return 0
 
 
-def _cmd_evaluate(args) -> int:
+def _cmd_evaluate(args, job: jobs.EvaluateJob) -> int:
     from rhythmic_jax.app import jobs
 
-    result = jobs.evaluate(
-        args.map, args.source, reference=args.reference, tolerance=args.tolerance,
-        decode=args.decode, sequence=args.sequence, reading=_reading(args),
-        progress=not args.no_progress, tolerance_m=args.tolerance_m, plot=args.plot,
-        ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
-    )  # fmt: skip
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        print(jobs.evaluate_summary(result))
+    result = jobs.evaluate(job, progress=not args.no_progress)
+    print(json.dumps(result, indent=2) if args.json else jobs.evaluate_summary(result))
     return 0
 
 
-def _cmd_demo(args) -> int:
+def _cmd_demo(args, job: None) -> int:
     from rhythmic_jax.app import jobs
 
     jobs.demo(args.out, quick=args.quick, progress=not args.no_progress)
     return 0
 
 
+# command -> (how its options make its job, what runs it)
 COMMANDS = {
-    "fit": _cmd_fit,
-    "learn": _cmd_learn,
-    "query": _cmd_query,
-    "info": _cmd_info,
-    "evaluate": _cmd_evaluate,
-    "demo": _cmd_demo,
+    "fit": (_fit_job, _cmd_fit),
+    "learn": (_learn_job, _cmd_learn),
+    "query": (_query_job, _cmd_query),
+    "info": (None, _cmd_info),
+    "evaluate": (_evaluate_job, _cmd_evaluate),
+    "demo": (None, _cmd_demo),
 }
+
+
+def _checked_job(args, prog: str):
+    """The command's job, made (so checked) from the options; a refused option
+    or a path written over one read ends in one usage line (InputError)."""
+    from rhythmic_jax.app import jobs
+
+    make = COMMANDS[args.command][0]
+    job = make and make(args, frozenset(_given_options(args.argv, args)))
+    line = check_paths(args)
+    if line is not None:
+        raise jobs.OptionRefused(line)
+    for warning in getattr(job, "warnings", ()):
+        print(f"{prog}: warning: {InputError(warning).as_flag()}", file=sys.stderr)
+    return job
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``rhythmic-jax``; returns the exit status (2: bad input,
-    one line on stderr; 0 after ``--help``)."""
+    one line on stderr; 0 after ``--help``; 141 when standard output is closed
+    early, as by ``| head``: quietly, as a command killed by SIGPIPE)."""
+    from rhythmic_jax.app import jobs
+
     try:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed
         return int(done.code or 0)
     args.argv = list(sys.argv[1:] if argv is None else argv)
+    prog = f"rhythmic-jax {args.command}"
+    try:
+        job = _checked_job(args, prog)
+    except jobs.OptionRefused as err:
+        print(f"{prog}: error: {err.as_flag()} (see {prog} --help)", file=sys.stderr)
+        return 2
+    except InputError as err:
+        print(f"{prog}: error: {err.as_flag()}", file=sys.stderr)
+        return 2
     _quiet_logs(args.verbose)
     if args.command != "info":
         from rhythmic_jax.jit_cache import enable_compile_cache
 
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
-        return COMMANDS[args.command](args)
+        status = COMMANDS[args.command][1](args, job)
+        sys.stdout.flush()  # a closed pipe is found here, not at exit
+        return status
     except InputError as err:
         print(f"rhythmic-jax {args.command}: error: {err.as_flag()}", file=sys.stderr)
         return 2
@@ -812,6 +681,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"rhythmic-jax {args.command}: {err.note}", file=sys.stderr)
         print(f"rhythmic-jax {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader left (| head): nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 def run() -> None:

@@ -1,13 +1,19 @@
 """Jobs: what ``rhythmic-jax`` runs, as library functions notebooks call too.
 
-A job is the policy around the library's pieces, written once:
+A job is a frozen dataclass that checks itself when it is made, before any work:
+each numeric setting against its domain (:data:`DOMAINS`, which the command line
+also parses its options with) and every setting against the others (the job's
+``RULES``: an option given where it has no effect, or without one it needs).
+The command line builds the job from its options and reports the first refusal.
+Then:
 
-- :func:`fit`: settings checked before any work (the map folder, the augmented
-  fit's settings and checkpoint folder, the memory a full-batch fit needs), the
-  sources read, the map fitted (plainly, or over frames augmented on the fly with
-  a resumable checkpoint folder, default ``OUT.ckpt``, removed once the map is
-  saved), provenance recorded (the sources' absolute paths and tiling, so that
-  ``evaluate`` can find the reference frames again), the map saved atomically;
+- :func:`fit`: the map folder, the augmented fit's settings and checkpoint
+  folder and the fit's plan (from descriptor files' headers when it can, so a
+  fit too large for memory ends before they are read) settled first, the
+  sources read, the map fitted (plainly, or over frames augmented on the fly
+  with a resumable checkpoint folder, default ``OUT.ckpt``, removed once the map
+  is saved), provenance recorded (the sources' absolute paths and tiling, so
+  that ``evaluate`` finds the reference frames again), the map saved atomically;
 - :func:`query`: queries described the way the map was built, localised, and
   predictions written atomically;
 - :func:`info`, :func:`evaluate` (beside brute force over the map's own
@@ -15,67 +21,168 @@ A job is the policy around the library's pieces, written once:
 
 Errors name settings by parameter (``{opt:tile}``); the command line spells them
 as flags. Nothing here prints; the ``*_summary`` functions return the lines the
-command line shows.
+command line shows. Importing this module imports no numpy: the command line
+builds its parser from :data:`DOMAINS`.
 """
 
 from __future__ import annotations
 
 import shutil
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from rhythmic_jax.app.scale_jobs import ScaleJob, fit_scaled, wants_scale
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames.compiled import (
-    AUTO,
-    BUILD_MIN_FRAMES,
-    COMPILE_MODES,
-    LOAD_MIN_FRAMES,
-    CompilePolicy,
-)
+from rhythmic_jax.frames.compile_policy import AUTO, CompilePolicy
 from rhythmic_jax.jit_options import describe as compile_options
 from rhythmic_jax.map.config import MapConfig
-from rhythmic_jax.validate import Domain, check_int, int_option, number_option
+from rhythmic_jax.validate import Domain, int_option, is_number, number_option
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
-    "FitInterrupted",
-    "FitJob",
-    "Reading",
-    "ScaleJob",
-    "BUILD_MIN_FRAMES",
-    "COMPILE_MODES",
-    "CompilePolicy",
-    "Domain",
-    "LOAD_MIN_FRAMES",
-    "augmentation_ablation",
-    "demo",
-    "evaluate",
-    "evaluate_summary",
-    "fit",
-    "fit_scaled",
-    "fit_summary",
-    "FitInterrupted",
-    "FitJob",
-    "fusion_of",
-    "info",
-    "info_lines",
-    "learn",
-    "learn_fusion",
-    "learn_summary",
-    "LearnJob",
-    "learn_config",
-    "memory_bytes",
-    "query",
-    "int_option",
-    "number_option",
-    "query_summary",
-    "quiet_io_threads",
-    "wants_scale",
-]
+    "DOMAINS", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob", "OptionRefused",
+    "QueryJob", "Reading", "ScaleJob", "augmentation_ablation", "demo", "evaluate",
+    "evaluate_summary", "fit", "fit_scaled", "fit_summary", "fusion_of", "info",
+    "info_lines", "learn", "learn_config", "learn_fusion", "learn_summary", "query",
+    "query_summary", "quiet_io_threads", "wants_scale",
+]  # fmt: skip
+
+
+def memory_bytes(text: str) -> int:
+    """``--memory``'s text (``1GiB``, ``800M``) in bytes; ``ValueError`` when it
+    is no size (:func:`rhythmic_jax.fitting.scale_fit.parse_bytes`)."""
+    from rhythmic_jax.fitting.scale_fit import parse_bytes
+
+    return parse_bytes(text)
+
+
+# Every numeric setting's domain, by name (the same in every job that has it): a
+# job checks its values with it, and the command line parses its options with it
+# and states it in --help.
+DOMAINS: dict[str, Domain] = {
+    "r": int_option(2),
+    "level": int_option(1),
+    "count": int_option(2),
+    "c": number_option(0),
+    "gap": number_option(0, 1),
+    "epochs": int_option(1),
+    "batch_size": int_option(1),
+    "checkpoint_every": int_option(1),
+    "pca": int_option(1),
+    "processes": int_option(1),
+    "num_processes": int_option(1),
+    "process_id": int_option(0),
+    "memory": Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"),
+    "places": int_option(1),
+    "codes": Domain(True, 1, words=("int8",)),
+    "fusion": number_option(0, 1, closed=True),
+    "tile": int_option(1),
+    "stride": int_option(1),
+    "compile_min_frames": int_option(0),
+    "k": int_option(1),
+    "steps": int_option(1),
+    "seed": int_option(0, 2**32 - 1),
+    "sequence": int_option(1),
+    "threshold": number_option(),
+    "tolerance": int_option(0),
+    "tolerance_m": number_option(0),
+}
+
+
+class OptionRefused(InputError):
+    """A setting given where it has no effect, or without one it needs."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Where a setting acts: given (away from its default, or named in the job's
+    ``given``) where ``holds(job)`` is false, each of ``options`` is refused with
+    the line ``{opt:OPTION} says``, or, for options that scripts pass always
+    (``warn``), named in one warning line and ignored."""
+
+    options: tuple[str, ...]
+    says: str
+    holds: Callable[[Any], bool]
+    warn: bool = False
+
+
+PARTS = ("reading", "compile", "scale", "config")  # a job's nested settings
+RENAMED = {"mode": "compile", "min_frames": "compile_min_frames"}  # their options
+
+
+def _settings(obj) -> dict[str, tuple[Any, Any]]:
+    """``{setting: (value, default)}`` of a job and of the parts it holds
+    (:data:`PARTS`, flattened; a name of the job itself, or of an earlier part,
+    wins)."""
+    own = {}
+    for f in fields(obj):
+        if f.name not in PARTS:
+            default = f.default if f.default_factory is MISSING else f.default_factory()
+            own[RENAMED.get(f.name, f.name)] = (getattr(obj, f.name), default)
+    for part in PARTS:
+        value = getattr(obj, part, None)
+        if is_dataclass(value):
+            own = {**_settings(value), **own}
+    return own
+
+
+@dataclass(frozen=True)
+class Checked:
+    """A job that checks itself when made: every numeric setting against its
+    :data:`DOMAINS` entry, then every rule of ``RULES`` (:class:`Rule`); a
+    refused rule raises :class:`OptionRefused`, and ``warnings`` holds the
+    lines naming settings a warning rule ignores.
+
+    ``given`` (a field of each job) names settings given explicitly, as the
+    command line's options are: a rule refuses them even at their default.
+    """
+
+    RULES: ClassVar[tuple[Rule, ...]] = ()
+    warnings: tuple[str, ...] = field(default=(), init=False, compare=False)
+
+    def __post_init__(self):
+        values = _settings(self)
+        for name, (value, _) in values.items():
+            if name in DOMAINS and is_number(value):
+                try:
+                    DOMAINS[name].check(value)
+                except InputError as err:
+                    raise InputError(f"{{opt:{name}}} {err}") from None
+        given = {k for k, (v, d) in values.items() if v != d} | set(self.given)
+        warned: dict[str, str] = {}
+        for rule in self.RULES:
+            named = [o for o in rule.options if o in given]
+            if not named or rule.holds(self):
+                continue
+            for option in named:
+                line = f"{{opt:{option}}} {rule.says}"
+                if not rule.warn:
+                    raise OptionRefused(line)
+                warned.setdefault(option, line)
+        object.__setattr__(self, "warnings", tuple(warned.values()))
+
+
+def _images(job) -> bool:
+    """Whether a source of the job may be images (not only .npy descriptors)."""
+    return not all(str(s).lower().endswith(".npy") for s in job.read_sources)
+
+
+READS = (
+    Rule(("stride",), "needs {opt:tile} (it is the step between tiles)",
+         lambda j: j.reading.tile is not None),
+    Rule(("descriptor", "weights"), "applies to images; .npy files are descriptors",
+         _images),
+)  # fmt: skip
+IGNORED = (
+    Rule(("compile_min_frames",), "acts only with {opt:compile} auto; ignored",
+         lambda j: j.reading.compile.mode == "auto", warn=True),
+    Rule(("compile", "compile_min_frames"), "applies to images; .npy files are "
+         "descriptors; ignored", _images, warn=True),
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -100,8 +207,22 @@ class Reading:
     compile: CompilePolicy = AUTO
 
 
+def _layout(job):
+    """The job's ``--layout`` (:func:`rhythmic_jax.map.groups.parse_layout`)."""
+    from rhythmic_jax.map.groups import parse_layout
+
+    return parse_layout(job.config.layout)
+
+
+def _scaled(job) -> bool:
+    """Whether a fit may run from files at scale (where a checkpoint acts too)."""
+    s = job.scale
+    wanted = (s.processes or 1) != 1 or s.coordinator or s.memory or s.stream
+    return bool(wanted or s.shards or any(Path(p).is_dir() for p in job.sources))
+
+
 @dataclass(frozen=True)
-class FitJob:
+class FitJob(Checked):
     """A map to fit from reference sources and write to ``out``.
 
     ``rhythmic-jax fit ref.npy --out route.map`` is ``fit(FitJob(("ref.npy",),
@@ -109,18 +230,20 @@ class FitJob:
     descriptor is the sources', and its fusion weight ``fusion``'s); ``pca``
     projects the descriptors to that many dimensions first. ``augment``
     (comma-separated kornia operation names, or ``"all"``) trains over frames
-    augmented on the fly for ``epochs`` passes of ``batch_size`` frames,
-    checkpointed every ``checkpoint_every`` steps in ``checkpoint`` (default
-    ``OUT.ckpt``, removed once the map is saved; a given folder is kept).
-    ``positions`` (one CSV/.npy per source, or ``("names",)`` for
-    ``@easting@northing@`` file names) are saved in the map for :func:`evaluate`'s
-    ground truth; ``places`` groups the frames into that many places by k-means
-    over them (the RobotCar protocol; traversals may then differ in length).
-    ``embedding`` names a folder written by :func:`learn`: it is saved inside the
-    map and applied to every query (with codes, ITQ is fitted on the embedded
-    reference frames); image sources are described with its descriptor unless
-    ``reading`` names one, and ``fusion`` None takes the weight it learned for
-    the config's codes (else 0.5, the weight without one).
+    augmented on the fly for ``epochs`` passes (None: 3) of ``batch_size``
+    frames (None: 128), checkpointed every ``checkpoint_every`` steps (None: 50)
+    in ``checkpoint`` (default ``OUT.ckpt``, removed once the map is saved; a
+    given folder is kept). ``positions`` (one CSV/.npy per source, or
+    ``("names",)`` for ``@easting@northing@`` file names) are saved in the map
+    for :func:`evaluate`'s ground truth; ``places`` groups the frames into that
+    many places by k-means over them (the RobotCar protocol; traversals may then
+    differ in length). ``embedding`` names a folder written by :func:`learn`: it
+    is saved inside the map and applied to every query (with codes, ITQ is
+    fitted on the embedded reference frames); image sources are described with
+    its descriptor unless ``reading`` names one, and ``fusion`` None takes the
+    weight it learned for the config's codes (else 0.5, the weight without
+    one). ``scale`` spreads and bounds a fit from files
+    (:mod:`rhythmic_jax.app.scale_jobs`); ``given``: see :class:`Checked`.
     """
 
     sources: tuple[str, ...]
@@ -128,30 +251,64 @@ class FitJob:
     config: MapConfig = field(default_factory=MapConfig)
     pca: int | None = None
     augment: str | None = None
-    epochs: int = 3
-    batch_size: int = 128
+    epochs: int | None = None
+    batch_size: int | None = None
     checkpoint: str | None = None
-    checkpoint_every: int = 50
+    checkpoint_every: int | None = None
     fusion: float | None = None
     reading: Reading = Reading()
     positions: tuple[str, ...] | None = None
     places: int | None = None
     embedding: str | None = None
+    scale: ScaleJob = ScaleJob()
+    given: frozenset[str] = frozenset()
 
+    RULES = (
+        *READS,
+        Rule(("epochs", "batch_size", "checkpoint_every"),
+             "needs {opt:augment} (it shapes the augmented fit)",
+             lambda j: bool(j.augment)),
+        Rule(("checkpoint",), "needs {opt:augment} or a fit from files at scale (it "
+             "keeps their progress)", lambda j: bool(j.augment) or _scaled(j)),
+        Rule(("fusion",), "needs {opt:codes} (it weighs the map's scores against "
+             "the codes')", lambda j: j.config.codes is not None),
+        Rule(("codes",), "needs a periods layout ({opt:layout} periods or "
+             "periods:T1,T2): codes fuse with its place scores",
+             lambda j: _layout(j).kind == "periods"),
+        Rule(("count",), "acts only with {opt:layout} periods (the map chooses its "
+             "periods among {opt:count} candidates)",
+             lambda j: _layout(j).kind == "periods" and not _layout(j).sizes),
+        Rule(("level",), "acts only with a {opt:layout} that leaves its sizes out",
+             lambda j: not (_layout(j).sizes or _layout(j).segment)),
+        Rule(("r",), "acts only with a {opt:layout} that leaves its sizes out",
+             lambda j: not (_layout(j).sizes or _layout(j).fine)),
+        Rule(("gap",), "acts only with {opt:solver} newton (where Newton stops)",
+             lambda j: j.config.solver == "newton"),
+        Rule(("places",), "needs {opt:positions} (it groups the frames by them)",
+             lambda j: j.positions is not None),
+        Rule(("num_processes", "process_id"), "needs {opt:coordinator}",
+             lambda j: j.scale.coordinator is not None),
+        Rule(("coordinator",), "needs {opt:num_processes} and {opt:process_id}",
+             lambda j: None not in (j.scale.num_processes, j.scale.process_id)),
+        Rule(("process_id",), "must be below {opt:num_processes}",
+             lambda j: j.scale.num_processes is None
+             or j.scale.process_id < j.scale.num_processes),
+        Rule(("processes",), "acts only without {opt:coordinator} (each host then "
+             "runs one process)", lambda j: j.scale.coordinator is None),
+        *IGNORED,
+    )  # fmt: skip
 
-def memory_bytes(text: str) -> int:
-    """``--memory``'s text (``1GiB``, ``800M``) in bytes; ``ValueError`` when it
-    is no size (:func:`rhythmic_jax.fitting.scale_fit.parse_bytes`)."""
-    from rhythmic_jax.fitting.scale_fit import parse_bytes
+    @property
+    def read_sources(self) -> tuple[str, ...]:
+        return self.sources
 
-    return parse_bytes(text)
-
-
-def _check_reading(reading: Reading) -> None:
-    if reading.stride is not None and reading.tile is None:
-        from rhythmic_jax.frames.sources import STRIDE_NEEDS_TILE
-
-        raise InputError(STRIDE_NEEDS_TILE)
+    @property
+    def checkpoint_folder(self) -> Path:
+        """The checkpoint folder (default ``OUT.ckpt``); refused when a file."""
+        ckpt = Path(self.checkpoint or str(Path(self.out)) + ".ckpt").absolute()
+        if ckpt.exists() and not ckpt.is_dir():
+            raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
+        return ckpt
 
 
 def quiet_io_threads() -> None:
@@ -179,32 +336,19 @@ def _augmented_settings(job: FitJob):
 
     if job.pca is not None:
         raise InputError("{opt:augment} and {opt:pca} together are not supported")
-    for name in ("epochs", "batch_size", "checkpoint_every"):
-        value = getattr(job, name)
-        check_int(value, name, 1, msg=f"{{opt:{name}}} must be >= 1, got {value}")
     names = tuple(job.augment.split(","))
     AugmentConfig(names=names)  # unknown names end here, not after describing
     config = AugmentedFit(
         names=names,
-        epochs=job.epochs,
-        batch_size=job.batch_size,
-        checkpoint_every=job.checkpoint_every,
+        epochs=job.epochs or 3,
+        batch_size=job.batch_size or 128,
+        checkpoint_every=job.checkpoint_every or 50,
     )
-    ckpt = Path(job.checkpoint or str(Path(job.out)) + ".ckpt").absolute()
-    if ckpt.exists() and not ckpt.is_dir():
-        raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
-    return config, ckpt
+    return config, job.checkpoint_folder
 
 
-def _fit_augmented(
-    model,
-    feats,
-    config,
-    ckpt: Path,
-    progress: bool,
-    policy: CompilePolicy = AUTO,
-    fit_plan=None,
-) -> None:
+def _fit_augmented(model, feats, config, ckpt: Path, progress: bool, policy,
+                   fit_plan) -> None:  # fmt: skip
     from rhythmic_jax.augment.stream import fit_map_augmented
     from rhythmic_jax.frames.compiled import FastDescriptor
 
@@ -226,51 +370,64 @@ def _fit_augmented(
         ) from None
 
 
-def _check_sources_memory(sources: Sequence[str], config: MapConfig) -> None:
-    """Refuse descriptor files too large for a full-batch fit, from their headers.
-
-    Only ``.npy`` sources that exist are looked at (anything else is reported
-    when it is read), planned with ``config``
-    (:func:`rhythmic_jax.fitting.fit_plan.plan`); settings that plan no fit are left to
-    the fit to report. See :func:`rhythmic_jax.solvers.memory.check_memory`.
-    """
-    from rhythmic_jax.fitting.fit_plan import plan
+def _header_shape(job: FitJob, learned) -> tuple[int, int, int] | None:
+    """``(frames, places, d)`` of a fit of descriptor files, from their headers:
+    None where only reading the sources tells (images, files that are missing or
+    disagree, ``pca``, ``places``, an embedding for other descriptors)."""
     from rhythmic_jax.io.descriptor_files import descriptor_shape
 
-    if not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources):
-        return
+    sources = job.sources
+    if (
+        job.pca is not None
+        or job.places is not None
+        or not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources)
+    ):
+        return None
     shapes = [descriptor_shape(s) for s in sources]
     if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
-        return  # reading them says what is wrong
+        return None  # reading them says what is wrong
     n, d = shapes[0]
-    try:
-        fit_plan = plan(replace(config, codes=None), n, d)
-    except InputError:
-        return  # the map's settings say what is wrong
-    fit_plan.check_memory(n * len(shapes))
+    if learned is not None and learned[0].d != d:
+        return None  # the embedding's check says what is wrong
+    return n * len(shapes), n, d if learned is None else learned[0].k
+
+
+def _planned(config: MapConfig, frames: int, n: int, d: int, emb):
+    """The fit's plan for ``n`` places of ``d`` features (the templates'), its
+    memory for ``frames`` rows checked (:func:`rhythmic_jax.fitting.fit_plan.plan`,
+    :meth:`~rhythmic_jax.fitting.fit_plan.FitPlan.check_memory`)."""
+    from rhythmic_jax.fitting.fit_plan import plan
+
+    if isinstance(config.codes, int) and config.codes > d:
+        what = "descriptors'" if emb is None else "embedding's"
+        raise InputError(
+            f"{{opt:codes}} {config.codes}: at most d={d} bits (the {what} dimension)"
+        )
+    fit_plan = plan(config, n, d)
+    fit_plan.check_memory(frames)
+    return fit_plan
 
 
 def fit(job: FitJob, progress: bool = False):
     """Fit, record provenance and save the map of ``job``; returns the map.
 
     Everything the settings alone decide is refused before any source is read:
-    the map folder, the augmented fit's settings, the memory a fit of descriptor
-    files needs (from their headers); the plan of the fit
-    (:func:`rhythmic_jax.fitting.fit_plan.plan`) and the disk it needs, once the frames
-    are read and before the solve.
+    the map folder, the augmented fit's settings, and for descriptor files the
+    fit's plan and the memory it needs (from their headers); for images the plan
+    once they are read. The disk the map needs is checked before the solve, and
+    the one plan is the fit's (:func:`rhythmic_jax.fitting.fit_plan.plan`).
     """
-    from rhythmic_jax.fitting.fit_plan import plan
+    import numpy as np
+
     from rhythmic_jax.frames.sources import load_sources
     from rhythmic_jax.io.checkpoint import check_space, check_target
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
-    _check_reading(job.reading)
     augmented = _augmented_settings(job) if job.augment else None
-    if job.places is not None and job.positions is None:
-        raise InputError("{opt:places} groups frames by their {opt:positions}")
     learned, read = _learned(job)  # before describing: its descriptor
     check_target(job.out)  # before the fit, not after it
-    _check_sources_memory(job.sources, job.config)
+    shape = _header_shape(job, learned)
+    fit_plan = shape and _planned(job.config, *shape, learned)
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
@@ -278,30 +435,25 @@ def fit(job: FitJob, progress: bool = False):
     )  # fmt: skip
     emb = _embedding_for(job.embedding, learned, feats)
     fusion = fusion_of(job.fusion, job.config.codes, learned and learned[1])
-    reference = _provenance(job, read, fusion)
     if job.positions is not None:
         feats = _with_positions(feats, job)
     config = replace(
         job.config, descriptor=feats.descriptor, descriptor_settings=feats.settings,
         fusion=fusion["weight"],
     )  # fmt: skip
-    dim = feats.x.shape[1] if emb is None else emb.k
-    if isinstance(config.codes, int) and config.codes > dim:
-        what = "descriptors'" if emb is None else "embedding's"
-        raise InputError(
-            f"{{opt:codes}} {config.codes}: at most d={dim} bits (the {what} dimension)"
-        )
-    model = RhythmicMap(config, embedding=emb)
-    fit_plan = plan(config, int(feats.labels.max()) + 1, int(dim))
-    fit_plan.check_memory(len(feats.x))
+    if fit_plan is None:
+        dim = feats.x.shape[1] if emb is None else emb.k
+        n = int(feats.labels.max()) + 1
+        fit_plan = _planned(job.config, len(feats.x), n, int(dim), emb)
     extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
     check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
+    model = RhythmicMap(config, embedding=emb)
     if augmented is not None:
         _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
     else:
         model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
     model.extra.update(feats.extra)
-    model.reference = reference
+    model.reference = _provenance(job, read, fusion)
     model.save(job.out)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
@@ -327,6 +479,8 @@ def _provenance(job: FitJob, read: Reading, fusion: dict[str, Any]) -> dict:
 def _with_positions(feats, job: FitJob):
     """Features whose extra holds the frames' positions (and k-means places)."""
     import dataclasses
+
+    import numpy as np
 
     from rhythmic_jax.eval.ground_truth_files import in_metres, positions_of_sources
     from rhythmic_jax.io.images import gps_places
@@ -417,7 +571,7 @@ def _embedding_for(path: str | None, learned, feats):
 
 
 @dataclass(frozen=True)
-class LearnJob:
+class LearnJob(Checked):
     """An embedding to learn from two or more traversals and write to ``out``.
 
     ``rhythmic-jax learn a.npy b.npy --out route.emb`` is
@@ -425,7 +579,7 @@ class LearnJob:
     :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed). ``codes``
     (a number of ITQ bits, or int8; None: none) are those a map's fusion weight
     is learned for on the same traversals (:func:`learn_fusion`), saved with
-    the embedding for ``fit --embedding``.
+    the embedding for ``fit --embedding``. ``given``: see :class:`Checked`.
     """
 
     sources: tuple[str, ...]
@@ -433,6 +587,19 @@ class LearnJob:
     config: Any = None
     reading: Reading = Reading()
     codes: int | str | None = "int8"
+    given: frozenset[str] = frozenset()
+
+    RULES = (
+        *READS,
+        Rule(("head", "steps", "seed"), "acts only with {opt:method} map or infonce "
+             "(the closed forms take no steps)",
+             lambda j: j.config is None or j.config.method in ("map", "infonce")),
+        *IGNORED,
+    )  # fmt: skip
+
+    @property
+    def read_sources(self) -> tuple[str, ...]:
+        return self.sources
 
 
 FUSION_TOLERANCE = 1  # places: a match within one place counts, as in the reports
@@ -450,6 +617,8 @@ def learn_fusion(traversals, emb, codes="int8") -> dict[str, Any]:
     "recall", "places", "table": [[w, recall@1], ...], "seconds"}``.
     """
     import time
+
+    import numpy as np
 
     from rhythmic_jax.decoding.fusion import learn_weight
     from rhythmic_jax.map.embedding import apply
@@ -487,6 +656,8 @@ def learn_config(**settings) -> Any:
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     """Learn, save and return ``(embedding, info)`` of ``job``; with ``job.codes``
     also the fusion weight for them (``info["fusion"]``, saved beside it)."""
+    import numpy as np
+
     from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
     from rhythmic_jax.frames.sources import load_sources
     from rhythmic_jax.io.checkpoint import check_target
@@ -557,39 +728,95 @@ def fit_summary(out: str, info: dict[str, Any]) -> str:
     )
 
 
-def _load_queries(map_path: str, source: str, reading: Reading, progress: bool):
+@dataclass(frozen=True)
+class QueryJob(Checked):
+    """Queries of ``source`` to localise with the map at ``map``.
+
+    ``rhythmic-jax query route.map q.npy --out pred.npy`` is
+    ``query(QueryJob("route.map", "q.npy", out="pred.npy"))``: ``decode``,
+    ``sequence`` and ``threshold`` as :meth:`rhythmic_jax.RhythmicMap.predict`
+    takes them; with ``out`` the predictions are also written there (``.npy``,
+    atomically; its folder must exist). ``given``: see :class:`Checked`.
+    """
+
+    map: str
+    source: str
+    decode: str | None = None
+    sequence: int | None = None
+    threshold: float | None = None
+    out: str | None = None
+    reading: Reading = Reading()
+    given: frozenset[str] = frozenset()
+
+    RULES = (*READS, *IGNORED)
+
+    @property
+    def read_sources(self) -> tuple[str, ...]:
+        return (self.source,)
+
+
+@dataclass(frozen=True)
+class EvaluateJob(Checked):
+    """The map at ``map`` judged on the queries of ``source``, beside brute force.
+
+    Brute force searches ``reference`` when given, else the sources the map was
+    fitted on when they are still there. ``ground_truth`` names the right places
+    (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`; None: query
+    i is place i, give or take ``tolerance`` frames; positions match within
+    ``tolerance_m`` metres); ``plot``: a .png of PR curves and recall@K bars.
+    ``decode`` and ``sequence`` as :class:`QueryJob`'s; ``given``: see
+    :class:`Checked`.
+    """
+
+    map: str
+    source: str
+    reference: str | None = None
+    tolerance: int = 0
+    decode: str | None = None
+    sequence: int | None = None
+    ground_truth: tuple[str, ...] | None = None
+    tolerance_m: float = 25.0
+    plot: str | None = None
+    reading: Reading = Reading()
+    given: frozenset[str] = frozenset()
+
+    RULES = (
+        *READS,
+        Rule(("tolerance",), "acts only without {opt:ground_truth} (which names the "
+             "right places itself)", lambda j: j.ground_truth is None),
+        Rule(("tolerance_m",), "needs {opt:ground_truth} (positions or names: it is "
+             "their radius of a right match)", lambda j: j.ground_truth is not None),
+        *IGNORED,
+    )  # fmt: skip
+
+    @property
+    def read_sources(self) -> tuple[str, ...]:
+        return (self.source,) + ((self.reference,) if self.reference else ())
+
+
+def _load_queries(job, progress: bool):
     from rhythmic_jax.frames.sources import load_query_source
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
-    _check_reading(reading)
-    model = RhythmicMap.load(map_path)
+    model, read = RhythmicMap.load(job.map), job.reading
     feats = load_query_source(
-        source, model, reading.descriptor, reading.tile, reading.stride, progress,
-        weights=reading.weights, compile=reading.compile,
+        job.source, model, read.descriptor, read.tile, read.stride, progress,
+        weights=read.weights, compile=read.compile,
     )  # fmt: skip
     return model, feats
 
 
-def query(
-    map_path: str,
-    source: str,
-    *,
-    decode: str | None = None,
-    sequence: int | None = None,
-    threshold: float | None = None,
-    out: str | None = None,
-    reading: Reading = Reading(),
-    progress: bool = False,
-) -> np.ndarray:
-    """Localise the frames of ``source`` with the map at ``map_path``: (b,) int64.
+def query(job: QueryJob, progress: bool = False) -> np.ndarray:
+    """The predicted places of ``job``'s queries: (b,) int64, ``-1`` no match."""
+    import numpy as np
 
-    ``-1`` is no match. With ``out`` the predictions are also written there
-    (``.npy``, atomically); its folder must exist.
-    """
+    out = job.out
     if out and not Path(out).parent.is_dir():
         raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
-    model, feats = _load_queries(map_path, source, reading, progress)
-    pred = model.predict(feats.x, decode, sequence=sequence, threshold=threshold)
+    model, feats = _load_queries(job, progress)
+    pred = model.predict(
+        feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
+    )
     pred = np.asarray(pred).astype(np.int64)
     if out:
         from rhythmic_jax.io.atomic import save_npy
@@ -691,58 +918,36 @@ def _learned_lines(info: dict[str, Any]) -> list[str]:
     return lines
 
 
-def evaluate(
-    map_path: str,
-    source: str,
-    *,
-    reference: str | None = None,
-    tolerance: int = 0,
-    decode: str | None = None,
-    sequence: int | None = None,
-    ground_truth: tuple[str, ...] | None = None,
-    tolerance_m: float = 25.0,
-    plot: str | None = None,
-    reading: Reading = Reading(),
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Judge the map on the queries of ``source``, beside brute force.
-
-    ``plot``: a .png to draw recall (within ``tolerance``, with the decode and
-    sequence asked for) against storage: the map, with codes also the hybrid and
-    the codes alone, and brute force (:func:`rhythmic_jax.eval.figures.plot_frontier`).
-
-    Brute force searches ``reference`` when given, else the sources the map was
-    fitted on when they are still there; ``reference_note`` says which, or why
-    there is no brute-force line. ``ground_truth`` names the right places
-    (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`; default: query
-    i is place i, give or take ``tolerance`` frames); ``plot`` writes PR curves
-    and recall@K bars (.png). See :func:`rhythmic_jax.eval.report.evaluate_map`.
-    """
+def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
+    """Judge the map on the queries of ``job`` beside brute force
+    (:func:`rhythmic_jax.eval.report.evaluate_map`); ``reference_note`` says
+    which frames brute force searched, or why there is no brute-force line."""
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.frames.sources import reference_features
 
+    plot, reference, read = job.plot, job.reference, job.reading
     if plot and not str(plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
-    model, feats = _load_queries(map_path, source, reading, progress)
+    model, feats = _load_queries(job, progress)
     ref, labels, note = reference_features(
-        model, reference, reading.descriptor, reading.tile, reading.stride, progress,
-        weights=reading.weights, compile=reading.compile,
+        model, reference, read.descriptor, read.tile, read.stride, progress,
+        weights=read.weights, compile=read.compile,
     )  # fmt: skip
     if ref is not None and reference is None and "reference_labels" in model.extra:
         labels = model.extra["reference_labels"]  # frames grouped into places
     truth = None
-    if ground_truth is not None:
+    if job.ground_truth is not None:
         from rhythmic_jax.eval.ground_truth_files import load_ground_truth
 
         refs = [reference] if reference else model.reference.get("sources") or []
         truth = load_ground_truth(
-            ground_truth, n_queries=len(feats.x), n_places=model.n,
-            query_source=source, reference_sources=refs, map_extra=model.extra,
-            tolerance_m=tolerance_m,
+            job.ground_truth, n_queries=len(feats.x), n_places=model.n,
+            query_source=job.source, reference_sources=refs, map_extra=model.extra,
+            tolerance_m=job.tolerance_m,
         )  # fmt: skip
     result = evaluate_map(
-        model, feats.x, reference=ref, reference_labels=labels, tolerance=tolerance,
-        method=decode, sequence=sequence, ground_truth=truth, curves=bool(plot),
+        model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,
+        method=job.decode, sequence=job.sequence, ground_truth=truth, curves=bool(plot),
     )  # fmt: skip
     result["reference_note"] = note
     if plot:

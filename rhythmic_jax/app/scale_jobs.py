@@ -12,8 +12,6 @@ import contextlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
 from rhythmic_jax.errors import InputError
 
 __all__ = ["ScaleJob", "fit_scaled", "wants_scale"]
@@ -21,7 +19,8 @@ __all__ = ["ScaleJob", "fit_scaled", "wants_scale"]
 
 @dataclass(frozen=True)
 class ScaleJob:
-    """How a fit is spread and bounded (see ``rhythmic-jax fit --help``)."""
+    """How a fit is spread and bounded (see ``rhythmic-jax fit --help``); its
+    settings are checked with the fit job's (:class:`rhythmic_jax.app.jobs.FitJob`)."""
 
     processes: int = 1
     coordinator: str | None = None
@@ -32,11 +31,12 @@ class ScaleJob:
     shards: str | None = None
 
 
-def wants_scale(job, scale: ScaleJob) -> bool:
+def wants_scale(job) -> bool:
     """Whether ``job`` (a :class:`rhythmic_jax.app.jobs.FitJob`) fits from files
     here."""
     from rhythmic_jax.io.frame_files import is_frame_source
 
+    scale = job.scale
     files = all(is_frame_source(s) for s in job.sources)
     wanted = bool(
         scale.processes != 1 or scale.coordinator or scale.memory or scale.stream
@@ -79,12 +79,12 @@ def _check_in_memory_only(job) -> None:
         )
 
 
-def _describe_to_shards(job, scale: ScaleJob, progress: bool) -> list[str]:
+def _describe_to_shards(job, progress: bool) -> list[str]:
     """Describe image folders into ``--shards`` (one shard folder per source)."""
     from rhythmic_jax.frames.describe_shards import describe_to_shards
     from rhythmic_jax.io.frame_files import is_frame_source
 
-    root = Path(scale.shards).expanduser().absolute()
+    root = Path(job.scale.shards).expanduser().absolute()
     if any(is_frame_source(s) for s in job.sources):
         raise InputError("{opt:shards} describes image folders; these are descriptors")
     if job.reading.tile is not None:
@@ -126,32 +126,29 @@ def _child_argv(argv: list[str], sources: list[str], shard_sources) -> list[str]
     return out[:at] + list(shard_sources) + out[at:]
 
 
-def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
+def fit_scaled(job, argv: list[str], progress: bool = True):
     """Run the fit; returns ``(map, run)`` on the process that saved it, and
     ``(None, None)`` on the others (and in the launcher of local processes)."""
+    import numpy as np
+
     from rhythmic_jax.fitting.scale_fit import fit_map_files, parse_bytes
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.solvers import distributed
 
+    scale = job.scale
     check_target(job.out)
     memory = parse_bytes(scale.memory) if scale.memory is not None else None
     sources = list(job.sources)
     shard_sources = None
     if scale.shards is not None:
-        sources = shard_sources = _describe_to_shards(job, scale, progress)
-    if scale.processes < 1:
-        raise InputError(f"{{opt:processes}} must be >= 1, got {scale.processes}")
+        sources = shard_sources = _describe_to_shards(job, progress)
     if scale.coordinator is None and scale.processes > 1:
         child = _child_argv(argv, list(job.sources), shard_sources)
         status = distributed.launch_local(child, scale.processes)
         if status != 0:
             raise InputError(f"a fit process failed (exit status {status})")
         return None, None
-    if scale.coordinator is not None:
-        if scale.num_processes is None or scale.process_id is None:
-            raise InputError(
-                "{opt:coordinator} needs {opt:num_processes} and {opt:process_id}"
-            )
+    if scale.coordinator is not None:  # with both (the job's rules)
         cluster = distributed.Cluster(
             scale.coordinator, scale.num_processes, scale.process_id
         )
@@ -165,9 +162,7 @@ def fit_scaled(job, scale: ScaleJob, argv: list[str], progress: bool = True):
     model = RhythmicMap(
         replace(job.config, descriptor=name, descriptor_settings=settings)
     )
-    ckpt = Path(job.checkpoint or str(Path(job.out)) + ".ckpt").absolute()
-    if ckpt.exists() and not ckpt.is_dir():
-        raise InputError(f"{{opt:checkpoint}} {ckpt}: a file, not a folder")
+    ckpt = job.checkpoint_folder
     run = fit_map_files(
         model, sources, memory=memory, stream=scale.stream, progress=progress,
         checkpoint=ckpt,

@@ -248,7 +248,7 @@ def test_every_numeric_option_states_its_domain(capsys):
     import ast
     from pathlib import Path
 
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import cli, jobs
 
     tree = ast.parse(Path(cli.__file__).read_text())
     typed = [
@@ -262,27 +262,27 @@ def test_every_numeric_option_states_its_domain(capsys):
     used = set()
     for name, command in _commands().items():
         for action in command._actions:
-            if action.dest in cli.DOMAINS and action.option_strings:
+            if action.dest in jobs.DOMAINS and action.option_strings:
                 used.add(action.dest)
-                assert action.type is cli.DOMAINS[action.dest]
+                assert action.type is jobs.DOMAINS[action.dest]
                 assert main([name, "--help"]) == 0
                 text = " ".join(capsys.readouterr().out.split())
-                domain = cli.DOMAINS[action.dest].text()
+                domain = jobs.DOMAINS[action.dest].text()
                 assert f"[{domain}]" in text, (name, action.dest)
-    assert used == set(cli.DOMAINS)
+    assert used == set(jobs.DOMAINS)
 
 
 @pytest.mark.parametrize("value", ["nan", "-1e9", "1e400", "x", ""])
 def test_every_domain_refuses_in_one_line(value, capsys):
     """Each numeric option of each command refuses a value outside its domain
     where it is parsed: exit 2, one line naming the flag."""
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import jobs
 
     for name, command in _commands().items():
         required = {"fit": ["a.npy", "--out", "m.map"], "learn": ["a", "b", "--out",
                     "e.emb"], "query": ["m", "q"], "evaluate": ["m", "q"]}  # fmt: skip
         for action in command._actions:
-            if action.dest not in cli.DOMAINS or not action.option_strings:
+            if action.dest not in jobs.DOMAINS or not action.option_strings:
                 continue
             if value == "-1e9" and action.dest == "threshold":
                 continue  # any finite number
@@ -294,16 +294,34 @@ def test_every_domain_refuses_in_one_line(value, capsys):
 
 
 def test_every_rule_names_options_of_its_commands():
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import cli, jobs
 
     commands = _commands()
-    for rule in cli.RULES:
-        for name in rule.commands:
-            dests = {a.dest for a in commands[name]._actions}
+    made = {"fit": jobs.FitJob, "learn": jobs.LearnJob, "query": jobs.QueryJob}
+    for name, job in {**made, "evaluate": jobs.EvaluateJob}.items():
+        dests = {a.dest for a in commands[name]._actions}
+        for rule in job.RULES:
             assert set(rule.options) <= dests, (name, rule.options)
     for table in (cli.WRITES, cli.READS):
         for name, dests in table.items():
             assert set(dests) <= {a.dest for a in commands[name]._actions}
+
+
+@pytest.mark.parametrize("command", ["query", "info"])
+def test_a_reader_that_leaves_early_ends_the_command_quietly(npy_route, command):
+    """``rhythmic-jax query MAP Q | head -1``: when the reader has closed the
+    pipe, the command stops with nothing on stderr and SIGPIPE's status 141, as
+    the shell's own tools do (the reader here closes before a line is written)."""
+    ref = str(npy_route / "ref.npy")
+    assert main(["fit", ref, "--out", str(npy_route / "m.map"), "--no-progress"]) == 0
+    args = [str(npy_route / "m.map")] + ([ref, "--no-progress"] * (command == "query"))
+    code = "from rhythmic_jax.app.cli import run; run()"
+    cmd = [sys.executable, "-c", code, command, *args]
+    writer = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    writer.stdout.close()  # the reader is gone before the first line
+    err = writer.stderr.read().decode()
+    assert writer.wait(timeout=120) == 141, err
+    assert err == ""
 
 
 def test_an_option_scripts_pass_always_is_warned_once(npy_route, capsys):

@@ -12,7 +12,15 @@ import pytest
 
 from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap
 from rhythmic_jax.app import jobs
-from rhythmic_jax.app.jobs import FitJob, Reading, _check_sources_memory
+from rhythmic_jax.app.jobs import (
+    EvaluateJob,
+    FitJob,
+    OptionRefused,
+    QueryJob,
+    Reading,
+    _header_shape,
+    _planned,
+)
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +55,8 @@ def test_fit_saves_the_map_with_its_provenance(route):
 def test_query_writes_what_the_map_predicts(route, tmp_path):
     folder, _, q, model = route
     out = tmp_path / "pred.npy"
-    pred = jobs.query(str(folder / "m.map"), str(folder / "qry.npy"), out=str(out))
+    job = QueryJob(str(folder / "m.map"), str(folder / "qry.npy"), out=str(out))
+    pred = jobs.query(job)
     np.testing.assert_array_equal(pred, model.predict(q))
     np.testing.assert_array_equal(np.load(out), pred)
     assert jobs.query_summary(pred, "p.npy").endswith("no match) -> p.npy")
@@ -55,7 +64,7 @@ def test_query_writes_what_the_map_predicts(route, tmp_path):
 
 def test_evaluate_finds_the_reference_again_for_brute_force(route):
     folder, x, q, _ = route
-    result = jobs.evaluate(str(folder / "m.map"), str(folder / "qry.npy"))
+    result = jobs.evaluate(EvaluateJob(str(folder / "m.map"), str(folder / "qry.npy")))
     want = BruteForce().fit(x).search(q, 1)[1][:, 0]
     brute = result["methods"]["brute force"]["accuracy"]
     assert brute == pytest.approx(float((want == np.arange(90)).mean()))
@@ -68,19 +77,18 @@ def test_option_checks_name_parameters_and_run_before_any_work(route, tmp_path):
     ref = (str(folder / "ref.npy"),)
     cases = [
         (dict(augment="all", pca=4), "augment and pca together"),
-        (dict(augment="all", epochs=0), "^epochs must be >= 1, got 0$"),
+        (dict(augment="all", epochs=0), "^epochs must be an integer >= 1, got 0$"),
         (dict(augment="all"), "augment needs image sources .folders or tile., not"),
     ]
     for extra, match in cases:
-        job = FitJob(ref, str(tmp_path / "x.map"), **extra)
         with pytest.raises(InputError, match=match) as err:
-            jobs.fit(job, progress=False)
+            jobs.fit(FitJob(ref, str(tmp_path / "x.map"), **extra), progress=False)
         assert "--" in err.value.as_flag()
     assert not (tmp_path / "x.map").exists()
     with pytest.raises(InputError, match="^out .*: folder .* not found$"):
-        jobs.query(str(folder / "m.map"), ref[0], out=str(tmp_path / "no" / "p.npy"))
+        jobs.query(QueryJob(str(folder / "m.map"), ref[0], out=str(tmp_path / "p/q")))
     with pytest.raises(InputError, match="tile cuts one large image"):
-        jobs.query(str(folder / "m.map"), ref[0], reading=Reading(tile=8))
+        jobs.query(QueryJob(str(folder / "m.map"), ref[0], reading=Reading(tile=8)))
 
 
 def test_info_reads_the_metadata_alone_and_says_what_load_says(route, tmp_path):
@@ -110,20 +118,53 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
     header = {"descr": "<f4", "fortran_order": False, "shape": (10**8, 2048)}
     with open(tmp_path / "huge.npy", "wb") as f:
         np.lib.format.write_array_header_1_0(f, header)
+    huge = FitJob((str(tmp_path / "huge.npy"),), "m.map")
+    assert _header_shape(huge, None) == (10**8, 10**8, 2048)
     with pytest.raises(InputError, match="needs about .* stream the frames instead"):
-        _check_sources_memory(
-            [str(tmp_path / "huge.npy")], MapConfig(r=2, level=1, count=7)
-        )
+        _planned(huge.config, *_header_shape(huge, None), None)
     np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
-    _check_sources_memory(
-        [str(tmp_path / "small.npy")], MapConfig(r=2, level=1, count=7)
-    )  # fits
-    _check_sources_memory(
-        [str(tmp_path / "absent.npy")], MapConfig(r=2, level=1, count=7)
-    )  # left to the read
-    _check_sources_memory(
-        [str(tmp_path / "small.npy")], MapConfig(r=1, level=1, count=7)
-    )  # left to the map
+    two = FitJob((str(tmp_path / "small.npy"),) * 2, "m.map")
+    assert _planned(two.config, *_header_shape(two, None), None).n == 100  # fits
+    for left in (  # to the read: absent, projected, grouped into places
+        FitJob((str(tmp_path / "absent.npy"),), "m.map"),
+        FitJob(two.sources, "m.map", pca=4),
+        FitJob(two.sources, "m.map", positions=("names",), places=5),
+    ):
+        assert _header_shape(left, None) is None
+
+
+@pytest.mark.parametrize("kind", ["npy", "images"])
+def test_a_fit_is_planned_once(kind, tmp_path, monkeypatch):
+    """From descriptor files' headers before they are read, or from the frames
+    once images are described: one plan, which the map's fit takes as it is."""
+    from skimage.io import imsave
+
+    from rhythmic_jax.fitting import fit_plan
+
+    rng = np.random.default_rng(2)
+    if kind == "npy":
+        source = str(tmp_path / "ref.npy")
+        np.save(source, rng.normal(size=(30, 8)).astype(np.float32))
+    else:
+        source = str(tmp_path / "frames")
+        (tmp_path / "frames").mkdir()
+        for i in range(30):
+            pixels = rng.integers(0, 256, (16, 32, 3), dtype=np.uint8)
+            imsave(tmp_path / "frames" / f"f{i}.png", pixels, check_contrast=False)
+    from rhythmic_jax import rhythmic_map
+
+    made = []
+
+    def counted(*args):
+        made.append(plan(*args))
+        return made[-1]
+
+    plan = fit_plan.plan
+    monkeypatch.setattr(fit_plan, "plan", counted)
+    monkeypatch.setattr(rhythmic_map, "plan_fit", counted)
+    model = jobs.fit(FitJob((source,), str(tmp_path / "m.map")))
+    assert len(made) == 1 and (made[0].n, made[0].d) == (30, model.d)
+    assert set(model.periods) <= set(made[0].candidates)
 
 
 def test_the_descriptor_is_resolved_once_and_carried_to_the_augmented_fit(
@@ -162,3 +203,27 @@ def test_the_descriptor_is_resolved_once_and_carried_to_the_augmented_fit(
     saved = RhythmicMap.load(tmp_path / "m.map").config
     assert saved.descriptor == model.config.descriptor == "patchnorm"
     assert saved.descriptor_settings == resolved[0].settings()
+
+
+def test_a_job_checks_its_rules_when_made():
+    """The rules the command line reports are the job's: a setting away from its
+    default where it has no effect is refused when the job is made, one given
+    explicitly (``given``) even at its default; warning rules only warn."""
+    with pytest.raises(OptionRefused, match="^epochs needs augment .it shapes"):
+        FitJob(("a.npy",), "m.map", epochs=5)
+    FitJob(("a.npy",), "m.map", epochs=5, augment="all")
+    with pytest.raises(OptionRefused, match="^r acts only with a layout that"):
+        FitJob(("a.npy",), "m.map", config=MapConfig(layout="mixed:8,8"), given={"r"})
+    FitJob(("a.npy",), "m.map", config=MapConfig(layout="mixed:8,8"))  # r default
+    with pytest.raises(OptionRefused, match="^stride needs tile"):
+        QueryJob("m.map", "q", reading=Reading(stride=4))
+    with pytest.raises(OptionRefused, match="^tolerance_m needs ground_truth"):
+        EvaluateJob("m.map", "q.npy", tolerance_m=10.0)
+    with pytest.raises(InputError, match="^places must be an integer >= 1, got 0"):
+        FitJob(("a.npy",), "m.map", places=0, positions=("names",))
+    policy = jobs.CompilePolicy("never", 5)
+    job = QueryJob("m.map", "q.npy", reading=Reading(compile=policy))
+    assert [InputError(w).as_flag() for w in job.warnings] == [
+        "--compile-min-frames acts only with --compile auto; ignored",
+        "--compile applies to images; .npy files are descriptors; ignored",
+    ]

@@ -81,7 +81,7 @@ def test_modules_that_act_on_the_words_share_them():
 def test_the_command_line_offers_the_config_defaults_and_words():
     from rhythmic_jax.app.cli import _parser
 
-    parser = _parser(checks=False)
+    parser = _parser()
     fit = {a.dest: a for a in parser.commands["fit"]._actions}
     default = MapConfig()
     for name in ("r", "level", "count", "c", "solver", "gap", "layout", "dtype"):
