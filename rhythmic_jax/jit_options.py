@@ -10,17 +10,9 @@ Why, on a GPU: XLA's GPU compiler autotunes every matrix product by compiling an
 timing candidate Triton kernels (the Triton GEMM search and the fusion
 autotuner). For this library's float32 products at ``precision="highest"`` that
 search was most of every first call, and the warm programs were faster without
-it. Measured on an NVIDIA H100 (JAX 0.11.2, Nordland summer 3576 x 2048, a fresh
-process and an empty compile cache per setting; same places in every column):
-
-==============================  ==============  ========================  =============
-step                            XLA default     Triton GEMM and fusion    autotune
-                                                autotuner off (chosen)    level 0
-==============================  ==============  ========================  =============
-first fit, compile included     29.7 s          2.5 s                     4.2 s
-second fit, same shapes         0.36 s          0.18 s                    0.30 s
-first predict, 100/300/700      3.0/8.3/11.0 s  0.26/0.17/0.17 s          0.27-0.32 s
-==============================  ==============  ========================  =============
+it: on an NVIDIA H100 it was most of a first fit's and a first predict's time,
+with the same places in every setting (the measurements: ``docs/performance.md``,
+section "On a GPU").
 
 So a GPU program compiles with :data:`GPU_OPTIONS`, the quickest setting both cold
 and warm. On the CPU (and any other backend) no option is passed: the CPU's

@@ -315,7 +315,7 @@ def plot_evaluation(
     path: str | os.PathLike | None = None,
 ):
     """PR curves (left) and recall@K bars (right) of each method of
-    :func:`rhythmic_jax.report.evaluate_map` (run with ``curves=True``): the
+    :func:`rhythmic_jax.eval.report.evaluate_map` (run with ``curves=True``): the
     map beside brute force, as ``rhythmic-jax evaluate --plot`` draws them; for a
     map with codes a third panel, recall against storage of the templates alone,
     the codes alone, both fused and brute force (``result["frontier"]``).
@@ -418,7 +418,7 @@ def plot_frontier(
 
     Args:
       rows: ``{"kind", "share", "recall@1 L=<L>"}`` per representation (as
-        :func:`rhythmic_jax.frontier.frontier_rows` and ``rhythmic-jax evaluate``
+        :func:`rhythmic_jax.eval.frontier.frontier_rows` and ``rhythmic-jax evaluate``
         give them; a row without a length's recall is left out of that panel).
     """
     if not rows:

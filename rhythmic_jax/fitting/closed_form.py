@@ -8,7 +8,7 @@ so the templates of a window of frames z (n, k) with +-1 targets y (n, p) are
 solved by a Cholesky factorisation (``jax.scipy.linalg.cho_solve``), through
 which gradients flow to z. ``lam = ridge * tr(A^T A) / k`` is relative to the
 frames' scale; a large ``ridge`` tends to the class-mean (prototype) template.
-Queries are then decoded in the place domain as :mod:`rhythmic_jax.soft` does,
+Queries are then decoded in the place domain as :mod:`rhythmic_jax.decoding.soft` does,
 with per-period log-softmax calibration: place i of the window scores
 ``S(i) = sum_k log softmax(scale * s_k)[(i + offset) mod tau_k]``.
 

@@ -9,9 +9,9 @@ shape, the last chunk padded, so nothing is ever compiled again; the eager modul
 runs in slices of :data:`EAGER_BATCH` frames (:class:`Sliced`). The package is
 written once (atomically) under ``<cache folder>/compiled/`` and keyed by the
 descriptor's settings, the weights file, the input shape, torch's version and thread
-count and the CPU's vector instructions; later jobs load it in a fifth of a second
-instead of compiling (torch's package loader itself, without importing inductor,
-which took 2.3 s).
+count and the CPU's vector instructions; later jobs load it instead of compiling
+(torch's package loader itself, without importing inductor, which is slower to
+import than loading is; ``reports/frames.md``).
 
 Whether compiling pays is decided per job (:func:`plan`, with the policy and
 numbers of :mod:`rhythmic_jax.frames.compile_policy`): loading a ready

@@ -17,7 +17,7 @@ size and returns L2-normalised float32 rows. Registered names:
 
 ``python scripts/bench_descriptors.py`` measures them all on Nordland.
 
-torch (2-3 s to import) and scikit-image's HOG load when a descriptor first
+torch (seconds to import) and scikit-image's HOG load when a descriptor first
 computes rows: naming a descriptor, its settings and a cache hit need neither.
 """
 

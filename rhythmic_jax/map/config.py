@@ -6,7 +6,7 @@ and layout. The vocabularies (:data:`SOLVERS`, :data:`DECODERS`,
 :data:`DTYPES`) are written once, here; the command line offers them and the
 modules that act on them import them from here. What a configuration means for
 ``n`` places of ``d`` features (candidate periods, the penalty, the memory a fit
-needs) is :func:`rhythmic_jax.plan.plan`.
+needs) is :func:`rhythmic_jax.fitting.fit_plan.plan`.
 
 No JAX and no numpy: ``import rhythmic_jax.map.config`` and a default
 :class:`MapConfig` are cheap (integer maths), so the command line builds its

@@ -84,7 +84,7 @@ class NewtonConfig:
 
     The default solves to the optimum (estimated relative gap <= 1e-7, CG to a
     tenth of the gradient): objectives within 1e-5 of liblinear at a tight
-    tolerance and the same training errors (``tests/test_newton.py``).
+    tolerance and the same training errors (``tests/solvers/test_newton.py``).
     ``FAST`` (estimated gap <= 1e-3 before a template's last step, 3 CG
     iterations in the first step after the ridge start, one more each step up
     to 8) is for a 0.1 % gap: ``scripts/bench_solver.py`` times it against
@@ -326,7 +326,7 @@ def newton_fit(
 
     Args:
       x: (n, d) frames (float32). A ``jax.Array`` sharded by rows over a mesh
-        (:mod:`rhythmic_jax.distributed`, frames of several processes) keeps
+        (:mod:`rhythmic_jax.solvers.distributed`, frames of several processes) keeps
         its sharding: every product runs on local frames and XLA reduces.
       y: (n, p) ±1 targets (:func:`rhythmic_jax.solvers.objective.targets`), sharded as
       x.
