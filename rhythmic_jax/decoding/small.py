@@ -6,8 +6,8 @@ small its work; one query's work is a (p, d) matrix-vector product (BLAS
 microseconds. :class:`SmallDecoder` holds the templates transposed (p, d),
 C-contiguous, so the product streams rows, and the CRT tables as Python ints
 (for two periods, one table of every phase pair's place).
-It gives the same :class:`~rhythmic_jax.soft.Decoded` as
-:func:`rhythmic_jax.decode.decode` (the batch decode) up to float32 rounding of
+It gives the same :class:`~rhythmic_jax.decoding.hard.Decoded` as
+:func:`rhythmic_jax.decoding.hard.decode` (the batch decode) up to float32 rounding of
 the product (a phase can differ only where two phases tie to ~1e-6).
 
 The product is the whole cost of one query (the 201 x 2048 float32 templates of
