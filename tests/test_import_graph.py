@@ -22,6 +22,7 @@ LAYERS = [
     ["validate"],
     ["io.atomic", "io.checkpoint", "io.images"],
     ["io.descriptor_files", "io.tiles"],
+    ["io.vpr_files"],
     ["io.frame_files"],
     ["map.periods", "map.projection", "map.quantize", "map.scalar_codes"],
     ["map.embedding", "map.groups", "map.storage"],
