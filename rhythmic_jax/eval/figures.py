@@ -342,8 +342,11 @@ def plot_evaluation(
             label=f"{name} (AUC {row['pr_auc']:.3f}, R@100P {row['recall@100p']:.3f})",
         )
         xs = [j + (i - (len(methods) - 1) / 2) * width for j in range(len(ks))]
-        bars = right.bar(xs, [row[f"recall@{k}"] for k in ks], width, label=name)
-        right.bar_label(bars, fmt="%.2f", fontsize=7)
+        # SeqSLAM gives one match per query: no bar beyond its recall@1
+        vals = [row.get(f"recall@{k}", float("nan")) for k in ks]
+        bars = right.bar(xs, vals, width, label=name)
+        text = ["" if v != v else f"{v:.2f}" for v in vals]  # NaN: no bar
+        right.bar_label(bars, labels=text, fontsize=7)
     left.set_xlabel("recall")
     left.set_ylabel("precision")
     left.set_xlim(0, 1.02)
