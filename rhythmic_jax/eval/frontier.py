@@ -53,6 +53,7 @@ __all__ = [
     "pareto_front",
     "choose",
     "projected_bytes",
+    "projection_rows",
     "recall_at_full_precision",
     "similarity_recalls",
 ]
@@ -476,4 +477,21 @@ def budget_table(
                 - (itq[key] if itq else 0.0),
             }
         )
+    return out
+
+
+def projection_rows(
+    ds: Sequence[int], ns: Sequence[int], bits: Sequence[int], rs=(2, 3)
+) -> list[dict]:
+    """Map bytes (level 1) for every N of ``ns`` at each d and r, and where the
+    map is smaller than each code size (:func:`crossover_n`): one dict per (d, r)
+    with ``map N=<N>`` and ``until <bits>`` / ``since <bits>``."""
+    out = []
+    for d in ds:
+        for r in rs:
+            row = {"d": d, "r": r}
+            row.update({f"map N={n:.0e}": projected_bytes(n, d, r) for n in ns})
+            for b in bits:
+                row[f"until {b}"], row[f"since {b}"] = crossover_n(d, b, r)
+            out.append(row)
     return out
