@@ -206,7 +206,7 @@ def fitted_codes(ref, bits: int, cache=None, fit_on=None) -> CodeBook:
     return CodeBook.from_arrays(got, n, d, bits)
 
 
-def _parts(ref, queries, cfg, cache=None):
+def _parts(ref, queries, cfg, cache=None, tick=None):
     """Maps' scores (per stored dtype) and codes' similarities of ``queries``.
 
     Returns ``({(r, level, dtype): (periods, scores (b, p), bytes)},
@@ -224,12 +224,16 @@ def _parts(ref, queries, cfg, cache=None):
             )
             maps[(r, level, dtype)] = (per, s, template_bytes(sum(per), d, dtype))
         log.info("map r=%d level %d %s: %.1f s", r, level, per, _since(t))
+        if tick is not None:
+            tick(1)
     codes = {}
     for bits in cfg.bits:
         t = time.perf_counter()
         book = fitted_codes(ref, bits, cache)
         codes[bits] = np.asarray(book.similarity(queries)), book
         log.info("ITQ %d bits on %d frames: %.1f s", bits, len(ref), _since(t))
+        if tick is not None:
+            tick(1)
     return maps, codes
 
 
@@ -277,7 +281,12 @@ def frontier_rows(
     b = len(queries)
     db, tol, lengths = database_bytes(n, d, 4), config.tolerance, config.lengths
     lengths = tuple(k for k in lengths if k <= b)
-    maps, codes = _parts(ref, queries, config, cache=cache)
+    fits = len(config.maps) + len(config.bits)  # fitted first, then judged
+    total = fits + 1 + seqslam + len(config.pq) + config.scalar
+    total += len(config.maps) * len(config.dtypes) * (1 + len(config.bits))
+    total += len(config.bits)
+    ticks = bar(total=total, show=progress, desc="frontier", unit="step")
+    maps, codes = _parts(ref, queries, config, cache=cache, tick=ticks.update)
     weights = {}
     if train is not None:
         tmaps, tcodes = _parts(*train, config, cache=cache)
@@ -287,9 +296,6 @@ def frontier_rows(
                 nt = len(train[0])
                 weights[key, bits] = learn_weight(s, sims, per, nt, gt, tol)[0]
                 log.info("weight %s + %d bits: %.2f", key, bits, weights[key, bits])
-    total = 1 + seqslam + len(maps) * (1 + len(codes)) + len(codes)
-    total += len(config.pq) + config.scalar
-    ticks = bar(total=total, show=progress, desc="frontier", unit="row")
 
     def row(kind, name, size, recalls, **extra):
         out = {"kind": kind, "name": name, "storage_bytes": int(size)}
