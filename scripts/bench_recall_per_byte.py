@@ -29,15 +29,7 @@ QUICK = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 def projections() -> list[dict]:
     """Map and code bytes for N = 1e4 .. 1e9, and the N where the map gets smaller."""
-    out = []
-    for d in DS:
-        for r in (2, 3):
-            row = {"d": d, "r": r}
-            row.update({f"map N={n:.0e}": fr.projected_bytes(n, d, r) for n in NS})
-            for b in BITS:
-                row[f"until {b}"], row[f"since {b}"] = fr.crossover_n(d, b, r)
-            out.append(row)
-    return out
+    return fr.projection_rows(DS, NS, BITS)
 
 
 def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:

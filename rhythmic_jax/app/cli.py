@@ -88,6 +88,11 @@ EXAMPLES = {
       rhythmic-jax demo
       rhythmic-jax demo --out demo_report --quick
     """,
+    "frontier": """
+      rhythmic-jax frontier summer.npy winter.npy --tolerance 1 --budget 2000
+      rhythmic-jax frontier db.h5 q.h5 --ground-truth GT.npz --lengths 1 \\
+          --csv frontier.csv --plot frontier.png
+    """,
 }
 
 
@@ -484,6 +489,39 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     _add_source_options(p)
 
+    p = add("frontier", "recall against bytes per place of every representation")
+    p.add_argument("reference", help="reference descriptors (.npy, .h5) or folder")
+    p.add_argument("queries", help="query descriptors (.npy, .h5) or folder")
+    p.add_argument(
+        "--ground-truth",
+        nargs="+",
+        default=None,
+        metavar="FILE",
+        help="as evaluate reads it (default: query i is place i)",
+    )
+    p.add_argument("--tolerance", default=0, help="frame tolerance (default 0)")
+    p.add_argument("--tolerance-m", default=25.0, help="radius for positions, m")
+    p.add_argument(
+        "--budget",
+        default=None,
+        metavar="BYTES_PER_PLACE",
+        help="name the best representation within this many bytes",
+    )
+    p.add_argument(
+        "--maps",
+        default="2:1,2:2,2:3,2:4,3:1,3:2,3:3,3:4",
+        help="maps as r:level,... (default every r=2,3 at levels 1-4)",
+    )
+    p.add_argument("--bits", default="32,64,128,256,512", help="ITQ code sizes")
+    p.add_argument("--pq", default="8,16,32,64", help="PQ sub-quantisers ('': none)")
+    p.add_argument("--lengths", default="1,5,10", help="sequence lengths L")
+    p.add_argument("--descriptor", default=None, help="descriptor for image folders")
+    p.add_argument("--cache", default="", help="folder keeping fitted maps and codes")
+    p.add_argument("--csv", default=None, help="write the rows as CSV")
+    p.add_argument("--plot", default=None, help="draw the frontier (.png)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+
     p = add("demo", "fit and query a map on built-in photographs; write a report")
     p.add_argument("--out", default="rhythmic_demo", help="report folder")
     p.add_argument("--quick", action="store_true", help="a smaller route (CI)")
@@ -616,6 +654,12 @@ def _cmd_demo(args, job: None) -> int:
     return 0
 
 
+def _cmd_frontier(args, job: None) -> int:
+    from rhythmic_jax.app.frontier import main as frontier_main
+
+    return frontier_main(args)
+
+
 # command -> (how its options make its job, what runs it)
 COMMANDS = {
     "fit": (_fit_job, _cmd_fit),
@@ -624,6 +668,7 @@ COMMANDS = {
     "info": (None, _cmd_info),
     "evaluate": (_evaluate_job, _cmd_evaluate),
     "demo": (None, _cmd_demo),
+    "frontier": (None, _cmd_frontier),
 }
 
 

@@ -90,6 +90,7 @@ DOMAINS: dict[str, Domain] = {
     "threshold": number_option(),
     "tolerance": int_option(0),
     "tolerance_m": number_option(0),
+    "budget": number_option(0),
 }
 
 

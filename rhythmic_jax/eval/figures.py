@@ -342,8 +342,11 @@ def plot_evaluation(
             label=f"{name} (AUC {row['pr_auc']:.3f}, R@100P {row['recall@100p']:.3f})",
         )
         xs = [j + (i - (len(methods) - 1) / 2) * width for j in range(len(ks))]
-        bars = right.bar(xs, [row[f"recall@{k}"] for k in ks], width, label=name)
-        right.bar_label(bars, fmt="%.2f", fontsize=7)
+        # SeqSLAM gives one match per query: no bar beyond its recall@1
+        vals = [row.get(f"recall@{k}", float("nan")) for k in ks]
+        bars = right.bar(xs, vals, width, label=name)
+        text = ["" if v != v else f"{v:.2f}" for v in vals]  # NaN: no bar
+        right.bar_label(bars, labels=text, fontsize=7)
     left.set_xlabel("recall")
     left.set_ylabel("precision")
     left.set_xlim(0, 1.02)
@@ -374,16 +377,23 @@ _KIND_STYLE = {
 }
 
 
-def frontier_panel(ax, rows: Sequence[Mapping[str, Any]], length: int = 1) -> None:
+def frontier_panel(
+    ax, rows: Sequence[Mapping[str, Any]], length: int = 1, per_place: bool = False
+) -> None:
     """Draw recall@1 at sequence ``length`` against storage on ``ax``: one marker
-    per kind, and the upper frontier of the points as a step line."""
+    per kind, and the upper frontier of the points as a step line. Storage is the
+    share of the float32 database in %, or bytes per place (``per_place``)."""
     key = f"recall@1 L={length}"
+
+    def size(r):
+        return r["bytes_per_place"] if per_place else 100 * r["share"]
+
     pts = [r for r in rows if r.get(key) is not None]
     for kind, (marker, colour) in _KIND_STYLE.items():
         sel = [r for r in pts if r["kind"] == kind]
         if sel:
             ax.scatter(
-                [100 * r["share"] for r in sel],
+                [size(r) for r in sel],
                 [r[key] for r in sel],
                 marker=marker,
                 color=colour,
@@ -394,12 +404,15 @@ def frontier_panel(ax, rows: Sequence[Mapping[str, Any]], length: int = 1) -> No
     for r in sorted(pts, key=lambda r: r["share"]):
         if r[key] > best:
             best = r[key]
-            front.append((100 * r["share"], best))
+            front.append((size(r), best))
     if front:
         xs, ys = zip(*front, strict=True)
-        ax.step(xs, ys, where="post", color="grey", lw=1, alpha=0.7)
+        ax.step(xs, ys, where="post", color="grey", lw=1.5, alpha=0.8,
+                label="best within the bytes")  # fmt: skip
     ax.set_xscale("log")
-    ax.set_xlabel("storage, % of the float32 database")
+    ax.set_xlabel(
+        "bytes per place (log)" if per_place else "storage, % of the float32 database"
+    )
     ax.set_ylabel(f"recall@1, L = {length}")
     ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
@@ -411,6 +424,7 @@ def plot_frontier(
     path: str | os.PathLike | None = None,
     lengths: Sequence[int] = (1,),
     title: str = "",
+    per_place: bool = False,
 ):
     """Recall@1 against storage (share of the float32 database, log scale), one
     panel per sequence length, one marker per kind (map, codes, hybrid, brute force)
@@ -420,11 +434,12 @@ def plot_frontier(
       rows: ``{"kind", "share", "recall@1 L=<L>"}`` per representation (as
         :func:`rhythmic_jax.eval.frontier.frontier_rows` and ``rhythmic-jax evaluate``
         give them; a row without a length's recall is left out of that panel).
+      per_place: storage as bytes per place (rows need ``bytes_per_place``).
     """
     if not rows:
         raise InputError("plot_frontier: no rows to plot")
     fig, axes = new_figure(len(lengths), width=4.4)
     for ax, length in zip(axes, lengths, strict=True):
-        frontier_panel(ax, rows, length)
+        frontier_panel(ax, rows, length, per_place)
     fig.suptitle(title or "recall per byte")
     return _finish(fig, path)

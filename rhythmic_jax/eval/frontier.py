@@ -37,6 +37,7 @@ from rhythmic_jax.decoding.fusion import (
 )
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
+from rhythmic_jax.eval.metrics import pr_points
 from rhythmic_jax.map.codes import CodeBook, code_bytes
 from rhythmic_jax.map.periods import candidate_periods, choose_periods, database_bytes
 from rhythmic_jax.map.periods import storage_bytes as map_bytes
@@ -49,7 +50,11 @@ __all__ = [
     "fitted_codes",
     "fitted_map",
     "frontier_rows",
+    "pareto_front",
+    "choose",
     "projected_bytes",
+    "projection_rows",
+    "recall_at_full_precision",
     "similarity_recalls",
 ]
 
@@ -61,7 +66,9 @@ class FrontierConfig:
     """What :func:`frontier_rows` measures.
 
     ``python scripts/bench_recall_per_byte.py`` uses the defaults on the Nordland
-    split (summer references, winter queries, EfficientNet-Lite0).
+    split (summer references, winter queries, EfficientNet-Lite0);
+    ``rhythmic-jax frontier`` adds float16 maps, product quantisation
+    (``pq``: numbers of 8-bit sub-quantisers) and int8 per place (``scalar``).
     """
 
     maps: tuple[tuple[int, int], ...] = tuple(
@@ -73,20 +80,70 @@ class FrontierConfig:
     gap: float = 5e-4
     weight: float = 0.5
     dtypes: tuple[str, ...] = ("float32", "int8")
+    pq: tuple[int, ...] = ()  # faiss product quantisers: sub-vectors of 8 bits
+    scalar: bool = False  # int8 per place (rhythmic_jax.map.scalar_codes)
 
 
-def _recall(idx, tol: int) -> float:
-    idx = np.asarray(idx)
-    return float(np.mean((idx >= 0) & (np.abs(idx - np.arange(len(idx))) <= tol)))
+def _recall(idx, tol: int, truth=None) -> float:
+    """Recall@1 of decisions (b,): among in-map queries, the share answered with
+    a right place (``truth``: a GroundTruth; else query i is place i +- tol)."""
+    return float(np.mean(_correct(idx, tol, truth)[_in_map(len(idx), truth)]))
 
 
-def similarity_recalls(sims, lengths, tol) -> dict[int, float]:
+def _in_map(b: int, truth) -> np.ndarray:
+    return np.ones(b, bool) if truth is None else np.asarray(truth.in_map)
+
+
+def _correct(idx, tol: int, truth=None) -> np.ndarray:
+    idx = np.asarray(idx).astype(np.int64)
+    if truth is not None:
+        return np.asarray(truth.hits(idx))
+    return (idx >= 0) & (np.abs(idx - np.arange(len(idx))) <= tol)
+
+
+def recall_at_full_precision(idx, confidence, tol: int, truth=None) -> float:
+    """Recall at 100 % precision (b,) decisions thresholded on ``confidence``:
+    the largest share of in-map queries answered before the first wrong one
+    (VPR_Tutorial's single-best-match PR curve, :func:`pr_points`)."""
+    idx, conf = np.asarray(idx), np.asarray(confidence, np.float64)
+    finite = np.isfinite(conf)
+    top = conf[finite].max() + 1.0 if finite.any() else 1.0
+    conf = np.where(finite, conf, np.where(conf > 0, top, -top))
+    keep = idx >= 0
+    ok = _correct(idx, tol, truth)[keep]
+    precision, recall, _ = pr_points(
+        conf[keep], ok, int(_in_map(len(idx), truth).sum())
+    )
+    return float(recall[precision == 1.0].max())
+
+
+def _timed(fn, b: int):
+    """``(fn(), seconds per query)`` of a second call (the first compiles)."""
+    fn()
+    t = time.perf_counter()
+    out = fn()
+    jax.block_until_ready(out)
+    return out, (time.perf_counter() - t) / max(b, 1)
+
+
+def similarity_recalls(sims, lengths, tol, truth=None) -> dict[int, float]:
     """Recall@1 of place similarities (b, n) of consecutive queries (query i is
-    place i) per sequence length, summed along the diagonal."""
+    place i, or ``truth``) per sequence length, summed along the diagonal."""
     out = {}
     for length in lengths:
         acc = sims if length == 1 else code_sequence_scores(sims, length)
-        out[length] = _recall(np.asarray(acc).argmax(1), tol)
+        out[length] = _recall(np.asarray(acc).argmax(1), tol, truth)
+    return out
+
+
+def _similarity_extra(sims, tol, truth, search=None) -> dict:
+    """R@100p (top similarity as confidence) and the latency of ``search``."""
+    sims = np.asarray(sims)
+    idx = sims.argmax(1)
+    conf = sims[np.arange(len(sims)), idx]
+    out = {"recall@100p": recall_at_full_precision(idx, conf, tol, truth)}
+    if search is not None:
+        out["latency_s"] = _timed(search, len(sims))[1]
     return out
 
 
@@ -149,11 +206,11 @@ def fitted_codes(ref, bits: int, cache=None, fit_on=None) -> CodeBook:
     return CodeBook.from_arrays(got, n, d, bits)
 
 
-def _parts(ref, queries, cfg, cache=None):
+def _parts(ref, queries, cfg, cache=None, tick=None):
     """Maps' scores (per stored dtype) and codes' similarities of ``queries``.
 
     Returns ``({(r, level, dtype): (periods, scores (b, p), bytes)},
-    {bits: similarities (b, n)})``.
+    {bits: (similarities (b, n), code book)})``.
     """
     d = ref.shape[1]
     maps = {}
@@ -167,12 +224,16 @@ def _parts(ref, queries, cfg, cache=None):
             )
             maps[(r, level, dtype)] = (per, s, template_bytes(sum(per), d, dtype))
         log.info("map r=%d level %d %s: %.1f s", r, level, per, _since(t))
+        if tick is not None:
+            tick(1)
     codes = {}
     for bits in cfg.bits:
         t = time.perf_counter()
         book = fitted_codes(ref, bits, cache)
-        codes[bits] = np.asarray(book.similarity(queries))
+        codes[bits] = np.asarray(book.similarity(queries)), book
         log.info("ITQ %d bits on %d frames: %.1f s", bits, len(ref), _since(t))
+        if tick is not None:
+            tick(1)
     return maps, codes
 
 
@@ -189,88 +250,179 @@ def frontier_rows(
     train: tuple[np.ndarray, np.ndarray] | None = None,
     seqslam: bool = True,
     cache=None,
+    truth=None,
+    progress: bool = False,
 ) -> list[dict]:
     """Recall@1 against total bytes on the places of ``ref``.
 
     Args:
       ref: (n, d) reference descriptors of the scored places (place i in row i).
-      queries: (n, d) descriptors of the same places in another condition.
+      queries: (b, d) descriptors of the places in another condition, in route
+        order (query i is place i unless ``truth`` says otherwise).
       train: (reference, query) descriptors of *other* places, for the hybrids'
         fusion weights (learned per map + code pair on single frames).
       seqslam: add SeqSLAM on the raw descriptors (sequences only).
       cache: a folder where fitted templates and code books are kept.
+      truth: a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth` of the
+        queries (default: query i is place i within ``config.tolerance``).
+      progress: a bar over the representations (:mod:`rhythmic_jax.progress`).
 
     Returns one dict per representation: ``kind`` (brute force | SeqSLAM | map |
     codes | hybrid), ``name``, ``r``, ``level``, ``periods``, ``dtype``, ``bits``,
-    ``weight``, ``storage_bytes``, ``share`` (of the float32 database) and
-    ``recall@1 L=<L>`` for every length of the config (None where not measured).
+    ``weight``, ``storage_bytes``, ``bytes_per_place``, ``share`` (of the float32
+    database), ``recall@1 L=<L>`` for every length of the config (None where not
+    measured), ``recall@100p`` (single frames, thresholded on the decode's
+    confidence) and ``latency_s`` (single-frame decode of every query, per query).
     """
+    from rhythmic_jax.progress import bar
+
     ref, queries = np.asarray(ref, np.float32), np.asarray(queries, np.float32)
     n, d = ref.shape
+    b = len(queries)
     db, tol, lengths = database_bytes(n, d, 4), config.tolerance, config.lengths
-    maps, codes = _parts(ref, queries, config, cache=cache)
+    lengths = tuple(k for k in lengths if k <= b)
+    fits = len(config.maps) + len(config.bits)  # fitted first, then judged
+    total = fits + 1 + seqslam + len(config.pq) + config.scalar
+    total += len(config.maps) * len(config.dtypes) * (1 + len(config.bits))
+    total += len(config.bits)
+    ticks = bar(total=total, show=progress, desc="frontier", unit="step")
+    maps, codes = _parts(ref, queries, config, cache=cache, tick=ticks.update)
     weights = {}
     if train is not None:
         tmaps, tcodes = _parts(*train, config, cache=cache)
         gt = np.arange(len(train[1]))
         for key, (per, s, _) in tmaps.items():
-            for bits, sims in tcodes.items():
+            for bits, (sims, _) in tcodes.items():
                 nt = len(train[0])
                 weights[key, bits] = learn_weight(s, sims, per, nt, gt, tol)[0]
                 log.info("weight %s + %d bits: %.2f", key, bits, weights[key, bits])
 
     def row(kind, name, size, recalls, **extra):
         out = {"kind": kind, "name": name, "storage_bytes": int(size)}
-        out.update(share=size / db, **extra)
-        out.update({f"recall@1 L={k}": recalls.get(k) for k in lengths})
+        out.update(share=size / db, bytes_per_place=size / n, **extra)
+        out.update({f"recall@1 L={k}": recalls.get(k) for k in config.lengths})
         log.info("%s", out)
+        ticks.update(1)
         return out
 
-    brute = np.asarray(
-        jax.numpy.matmul(queries, np.asarray(ref).T, precision="highest")
-    )
+    def decided(idx, conf, latency=None) -> dict:
+        out = {"recall@100p": recall_at_full_precision(idx, conf, tol, truth)}
+        return out if latency is None else {**out, "latency_s": latency}
+
+    qj, rj = jax.numpy.asarray(queries), jax.numpy.asarray(ref)
+    brute = np.asarray(jax.numpy.matmul(qj, rj.T, precision="highest"))
+    search = lambda: jax.numpy.matmul(qj, rj.T).argmax(1)  # noqa: E731
     rows = [
-        row("brute force", "brute force", db, similarity_recalls(brute, lengths, tol))
-    ]
+        row("brute force", "brute force", db,
+            similarity_recalls(brute, lengths, tol, truth),
+            **_similarity_extra(brute, tol, truth, search))
+    ]  # fmt: skip
     if seqslam:
         from rhythmic_jax.eval.seqslam import seqslam_decode
 
-        rec = {k: _recall(seqslam_decode(queries, ref, k)[0], tol) for k in lengths}
+        rec = {
+            k: _recall(seqslam_decode(queries, ref, k)[0], tol, truth) for k in lengths
+        }
         rows.append(row("SeqSLAM", "SeqSLAM (raw descriptors)", db, rec))
     for (r, level, dtype), (per, s, size) in maps.items():
-        rec = {
-            k: _recall(
-                soft_decode(s, per, n).index
-                if k == 1
-                else sequence_decode(s, per, n, k, (1.0,), "soft")[0],
-                tol,
-            )
-            for k in lengths
-        }
+        sj = jax.numpy.asarray(s)
+        one, sec = _timed(lambda sj=sj, per=per: soft_decode(sj, per, n), b)
+        rec = {1: _recall(one.index, tol, truth)}
+        for k in lengths:
+            if k > 1:
+                seq = sequence_decode(s, per, n, k, (1.0,), "soft")[0]
+                rec[k] = _recall(seq, tol, truth)
         name = _map_name(r, level, per, dtype)
         extra = dict(r=r, level=level, periods=per, dtype=dtype)
+        extra |= decided(np.asarray(one.index), np.asarray(one.confidence), sec)
         rows.append(row("map", name, size, rec, **extra))
-    for bits, sims in codes.items():
+    for bits, (sims, book) in codes.items():
         size = code_bytes(n, d, bits)["total"]
-        rec = similarity_recalls(sims, lengths, tol)
-        rows.append(row("codes", f"ITQ {bits} bits", size, rec, bits=bits))
+        rec = similarity_recalls(sims, lengths, tol, truth)
+        find = lambda book=book: book.similarity(qj).argmax(1)  # noqa: E731
+        extra = _similarity_extra(sims, tol, truth, find)
+        rows.append(row("codes", f"ITQ {bits} bits", size, rec, bits=bits, **extra))
+    rows += _other_codes(ref, queries, config, lengths, tol, truth, row)
     for (r, level, dtype), (per, s, msize) in maps.items():
-        for bits, sims in codes.items():
+        for bits, (sims, _) in codes.items():
             w = weights.get(((r, level, dtype), bits), config.weight)
-            rec = {
-                k: _recall(
-                    fused_decode(s, sims, per, n, w).index
-                    if k == 1
-                    else fused_sequence_decode(s, sims, per, n, k, weight=w)[0],
-                    tol,
-                )
-                for k in lengths
-            }
+            one = fused_decode(s, sims, per, n, w)
+            rec = {1: _recall(one.index, tol, truth)}
+            for k in lengths:
+                if k > 1:
+                    seq = fused_sequence_decode(s, sims, per, n, k, weight=w)[0]
+                    rec[k] = _recall(seq, tol, truth)
             size = msize + code_bytes(n, d, bits)["total"]
             name = f"{_map_name(r, level, per, dtype)} + ITQ {bits}"
             extra = dict(r=r, level=level, periods=per, dtype=dtype, bits=bits)
+            extra |= decided(np.asarray(one.index), np.asarray(one.confidence))
             rows.append(row("hybrid", name, size, rec, weight=w, **extra))
+    ticks.close()
     return rows
+
+
+def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
+    """Product quantisation (faiss ``IndexPQ``, inner product) with
+    ``config.pq`` sub-quantisers of 8 bits, and int8 per place."""
+    n, d = ref.shape
+    out = []
+    for m in config.pq:
+        if d % m:
+            log.info("PQ %d: d = %d is not a multiple; skipped", m, d)
+            continue
+        import faiss
+
+        nbits = min(8, int(np.log2(n)))  # k-means needs 2^nbits training points
+        index = faiss.IndexPQ(d, m, nbits, faiss.METRIC_INNER_PRODUCT)
+        index.train(ref)
+        index.add(ref)
+        sims = queries @ index.reconstruct_n(0, n).T  # the ADC inner products
+        # codes, and the sub-quantisers' centroids (2^nbits of d/m floats each)
+        size = n * index.code_size + 2**nbits * d * 4
+        find = lambda index=index: index.search(queries, 1)[1]  # noqa: E731
+        extra = _similarity_extra(sims, tol, truth, find)
+        rec = similarity_recalls(sims, lengths, tol, truth)
+        name = f"PQ {m}x{nbits} bits"
+        out.append(row("codes", name, size, rec, bits=nbits * m, **extra))
+    if config.scalar:
+        from rhythmic_jax.map.scalar_codes import ScalarCodeBook, scalar_code_bytes
+
+        book = ScalarCodeBook.fit(ref)
+        qj = jax.numpy.asarray(queries)
+        sims = np.asarray(book.similarity(qj))
+        find = lambda: book.similarity(qj).argmax(1)  # noqa: E731
+        extra = _similarity_extra(sims, tol, truth, find)
+        rec = similarity_recalls(sims, lengths, tol, truth)
+        size = scalar_code_bytes(n, d)["total"]
+        out.append(row("codes", "int8 per place", size, rec, bits=8 * d, **extra))
+    return out
+
+
+def pareto_front(rows: Sequence[dict], key: str = "recall@1 L=1") -> list[bool]:
+    """Per row: no other row is at most as large and strictly better on ``key``
+    (or as good and strictly smaller). Rows without ``key`` are never on it."""
+    pts = [(r["storage_bytes"], r.get(key)) for r in rows]
+    out = []
+    for size, rec in pts:
+        if rec is None:
+            out.append(False)
+            continue
+        beaten = any(
+            v is not None and s <= size and v >= rec and (s < size or v > rec)
+            for s, v in pts
+        )
+        out.append(not beaten)
+    return out
+
+
+def choose(
+    rows: Sequence[dict], bytes_per_place: float, key: str = "recall@1 L=1"
+) -> dict | None:
+    """The row of best ``key`` within ``bytes_per_place`` (fewest bytes on ties),
+    or None when nothing fits."""
+    fit = [r for r in rows if r.get(key) is not None]
+    fit = [r for r in fit if r["bytes_per_place"] <= bytes_per_place]
+    return max(fit, key=lambda r: (r[key], -r["storage_bytes"])) if fit else None
 
 
 @functools.lru_cache(maxsize=65536)
@@ -331,4 +483,21 @@ def budget_table(
                 - (itq[key] if itq else 0.0),
             }
         )
+    return out
+
+
+def projection_rows(
+    ds: Sequence[int], ns: Sequence[int], bits: Sequence[int], rs=(2, 3)
+) -> list[dict]:
+    """Map bytes (level 1) for every N of ``ns`` at each d and r, and where the
+    map is smaller than each code size (:func:`crossover_n`): one dict per (d, r)
+    with ``map N=<N>`` and ``until <bits>`` / ``since <bits>``."""
+    out = []
+    for d in ds:
+        for r in rs:
+            row = {"d": d, "r": r}
+            row.update({f"map N={n:.0e}": projected_bytes(n, d, r) for n in ns})
+            for b in bits:
+                row[f"until {b}"], row[f"since {b}"] = crossover_n(d, b, r)
+            out.append(row)
     return out

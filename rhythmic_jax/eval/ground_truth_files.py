@@ -11,6 +11,10 @@
   unnamed columns or an ``(n, 2)`` ``.npy`` holds easting, northing in metres.
 * **File names** ``@easting@northing@...`` as the Pittsburgh and GSV downloaders
   write them (:func:`positions_from_names`).
+* **OpenVPRLab** ``<name>_gt_25m.npy``, **VPR_Tutorial** ``GT.npz`` and
+  **Patch-NetVLAD** ``.npz`` (``utmQ``, ``utmDb``, ``posDistThr``), read by
+  :mod:`rhythmic_jax.io.vpr_files` (:func:`read_openvprlab`,
+  :func:`read_tutorial_gt`, :func:`read_patchnetvlad_gt`).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import csv
 import io
 import pickle
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,12 +32,16 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
 
 __all__ = [
+    "SoftGroundTruth",
     "in_metres",
     "load_ground_truth",
     "latlon_to_metres",
     "positions_from_names",
     "positions_of_sources",
+    "read_openvprlab",
+    "read_patchnetvlad_gt",
     "read_positions",
+    "read_tutorial_gt",
     "read_vpr_bench",
     "safe_object_npy",
 ]
@@ -289,6 +298,8 @@ def load_ground_truth(
         ref = positions_of_sources(["names"], reference_sources)
         qry = positions_from_names(list_images(Path(query_source), "query")), "metres"
         src = f"@easting@northing@ names of {query_source} and the reference"
+    elif len(specs) == 1 and (tool := _vpr_tool(specs[0])):
+        return tool(specs[0], n_queries=n_queries, n_places=n_places)
     elif len(specs) == 1 and _object_npy(specs[0]):
         return read_vpr_bench(specs[0], n_queries, n_places)
     else:
@@ -336,3 +347,108 @@ def _object_npy(path: str) -> bool:
             return bool(read(f)[2].hasobject)
     except (OSError, ValueError):
         return False
+
+
+@dataclass(frozen=True, eq=False)
+class SoftGroundTruth(GroundTruth):
+    """Hard positives, and soft ones that are not counted wrong (VPR_Tutorial).
+
+    ``soft``: b sorted int64 arrays of the places only in the soft set. Ranked
+    candidates (b, K) skip them, as the tutorial's ``recallAtK`` does by
+    setting their similarity to the minimum, so recall@K counts the first K
+    places that are not soft-only; a single prediction (b,) on a soft-only
+    place counts as right.
+    """
+
+    soft: tuple[np.ndarray, ...] = ()
+
+    def hits(self, ranked) -> np.ndarray:
+        ranked = np.asarray(ranked)
+        plain = GroundTruth(self.positives, self.n_places, self.source)
+        if ranked.ndim == 1:
+            loose = GroundTruth(self.soft, self.n_places, self.source)
+            return plain.hits(ranked) | loose.hits(ranked)
+        skip = GroundTruth(self.soft, self.n_places, self.source).hits(ranked)
+        order = np.argsort(skip, axis=1, kind="stable")  # soft-only to the end
+        kept = np.where(np.take_along_axis(skip, order, 1), -1,
+                        np.take_along_axis(ranked, order, 1))  # fmt: skip
+        return plain.hits(kept)
+
+
+def read_tutorial_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
+    """VPR_Tutorial ``GT.npz``: hard positives, soft-only places not counted wrong."""
+    from rhythmic_jax.io.vpr_files import read_vpr_tutorial
+
+    hard, soft = read_vpr_tutorial(path)
+    _sizes(path, hard.shape[0], hard.shape[1], n_places, n_queries)
+    src = f"VPR_Tutorial GT.npz {Path(path).absolute()} (GThard; GTsoft not wrong)"
+    pos = from_lists([np.flatnonzero(c) for c in hard.T], n_places, src).positives
+    only = tuple(np.flatnonzero(c) for c in (soft & ~hard).T)
+    return SoftGroundTruth(pos, n_places, src, soft=only)
+
+
+def read_openvprlab(path, *, n_queries: int, n_places: int) -> GroundTruth:
+    """OpenVPRLab ``<name>_gt_25m.npy`` positives; the ``<name>_dbImages.npy`` and
+    ``<name>_qImages.npy`` beside it, when there, must list as many images."""
+    from rhythmic_jax.io.vpr_files import read_image_list, read_openvprlab_positives
+
+    path = Path(path)
+    rows = read_openvprlab_positives(path, n_places)
+    stem = path.name.split("_gt_")[0]
+    sizes = {"db": n_places, "q": len(rows)}
+    for tag in sizes:
+        lst = path.with_name(f"{stem}_{tag}Images.npy")
+        if lst.is_file() and len(read_image_list(lst)) != sizes[tag]:
+            raise InputError(
+                f"{lst}: {len(read_image_list(lst))} images, but "
+                f"{'the map has' if tag == 'db' else path.name + ' has'} {sizes[tag]}"
+            )
+    _sizes(path, n_places, len(rows), n_places, n_queries)
+    src = f"OpenVPRLab positives {path.absolute()}"
+    return from_lists(rows, n_places, src)
+
+
+def read_patchnetvlad_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
+    """Patch-NetVLAD ``.npz``: database places within ``posDistThr`` metres."""
+    from rhythmic_jax.io.vpr_files import read_patchnetvlad
+
+    db, q, thr = read_patchnetvlad(path)
+    _sizes(path, len(db), len(q), n_places, n_queries)
+    src = f"Patch-NetVLAD utmDb/utmQ {Path(path).absolute()}"
+    gt = from_positions(db, q, thr, None, src)
+    return GroundTruth(gt.positives, n_places, src, thr)
+
+
+def _sizes(path, n_db: int, n_q: int, n_places: int, n_queries: int) -> None:
+    if (n_db, n_q) != (n_places, n_queries):
+        raise InputError(
+            f"{{opt:ground_truth}} {path}: {n_db} database images and {n_q} queries, "
+            f"but the map has {n_places} places and there are {n_queries} queries"
+        )
+
+
+def _vpr_tool(spec: str):
+    """The reader of a VPR tool's ground-truth file, or None (by name)."""
+    p = Path(spec)
+    if not p.is_file():
+        return None
+    if p.suffix.lower() == ".npy" and "_gt_" in p.name:
+        return read_openvprlab
+    return _read_npz if p.suffix.lower() == ".npz" else None
+
+
+def _read_npz(path, *, n_queries: int, n_places: int) -> GroundTruth:
+    """A ground-truth ``.npz``: VPR_Tutorial's or Patch-NetVLAD's, by its keys."""
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            keys = set(f.files)
+    except Exception as err:  # noqa: BLE001 - zipfile errors on a truncated file
+        raise InputError(f"{path}: not a readable .npz ({err!r})"[:300]) from None
+    if {"GThard", "GTsoft"} & keys:
+        return read_tutorial_gt(path, n_queries=n_queries, n_places=n_places)
+    if {"utmQ", "utmDb"} & keys:
+        return read_patchnetvlad_gt(path, n_queries=n_queries, n_places=n_places)
+    raise InputError(
+        f"{path}: neither VPR_Tutorial's GThard/GTsoft nor Patch-NetVLAD's "
+        f"utmQ/utmDb (holds {sorted(keys)})"
+    )

@@ -37,6 +37,7 @@ __all__ = [
     "pr_points",
     "recall_at_100_precision",
     "recall_at_k",
+    "recall_line",
     "time_batch",
     "time_single_queries",
 ]
@@ -153,6 +154,19 @@ def recall_at_k(
     first = np.where(hit.any(1), hit.argmax(1), ranked.shape[1])  # (b_in,)
     recall = {k: float((first < k).mean()) for k in ks}
     return RecallAtK(recall=recall, tolerance=tol, n_queries=int(inmap.sum()))
+
+
+def recall_line(row: Mapping[str, float | None], ks=(1, 5, 10, 20)) -> str:
+    """Recall@K in the form VPR papers quote, in percent with one decimal:
+    ``R@1: 47.3, R@5: 61.0, R@10: 66.2, R@20: 70.9`` (the line
+    VPR-methods-evaluation prints). ``row`` holds ``"recall@k"`` fractions;
+    a K it lacks (or holds None for) is left out."""
+    parts = [
+        f"R@{k}: {100 * row[f'recall@{k}']:.1f}"
+        for k in ks
+        if row.get(f"recall@{k}") is not None
+    ]
+    return ", ".join(parts)
 
 
 def pr_curve(pred, score, gt, tolerance: int) -> tuple[np.ndarray, ...]:

@@ -22,6 +22,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
+from rhythmic_jax.io.vpr_files import HDF5_SUFFIXES
 from rhythmic_jax.validate import check_int
 
 if TYPE_CHECKING:
@@ -63,7 +64,8 @@ class Features:
 def _kind(path: Path, tile: int | None) -> str:
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
-    kind = "folder" if path.is_dir() else "npy" if path.suffix.lower() == ".npy" else ""
+    files = (".npy", *HDF5_SUFFIXES)  # descriptor files: numpy's, or hloc's .h5
+    kind = "folder" if path.is_dir() else "npy" if path.suffix.lower() in files else ""
     if kind and tile is not None:
         what = "a folder of frames" if kind == "folder" else "a descriptor file"
         raise InputError(
@@ -75,7 +77,7 @@ def _kind(path: Path, tile: int | None) -> str:
     if tile is not None:
         return "image"
     raise InputError(
-        f"{path}: not a .npy descriptor file or an image folder "
+        f"{path}: not a .npy or .h5 descriptor file or an image folder "
         "(to tile one large image, give {option} SIZE)",
         option="tile",
     )
@@ -187,10 +189,10 @@ def _one(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """(descriptors, images or None) of one source, described with the resolved
     ``desc`` (None for ``.npy``); a folder's frames are kept only with ``keep``."""
-    from rhythmic_jax.io.descriptor_files import load_descriptors
+    from rhythmic_jax.io.vpr_files import load_descriptor_file
 
     if kind == "npy":
-        return load_descriptors(path), None
+        return load_descriptor_file(path), None
     key = source_key(path, tile, stride)
     if kind == "folder":
         return _describe_folder(path, desc, key, progress, compile, keep)

@@ -10,6 +10,8 @@ from rhythmic_jax.eval.frontier import (
     crossover_n,
     frontier_rows,
     projected_bytes,
+    projection_rows,
+    recall_at_full_precision,
     similarity_recalls,
 )
 from rhythmic_jax.map.codes import code_bytes
@@ -89,3 +91,21 @@ def test_frontier_rows_against_faiss(tmp_path):
         rows["map"]["storage_bytes"] + rows["codes"]["storage_bytes"]
     )
     assert rows["hybrid"]["weight"] == 0.5  # no training places: the fixed weight
+
+
+def test_projection_rows_by_hand():
+    (row,) = projection_rows((256,), (10**4,), (64,), rs=(2,))
+    assert row["map N=1e+04"] == (100 + 101) * 257 * 4
+    assert (row["until 64"], row["since 64"]) == crossover_n(256, 64, 2)
+
+
+def test_recall_at_full_precision_against_sklearn():
+    from sklearn.metrics import precision_recall_curve
+
+    rng = np.random.default_rng(1)
+    idx = np.where(rng.random(50) < 0.7, np.arange(50), rng.integers(0, 50, 50))
+    conf = rng.random(50)
+    ok = idx == np.arange(50)
+    p, r, _ = precision_recall_curve(ok, conf)
+    want = r[p == 1.0].max() * ok.sum() / 50  # sklearn's recall is out of ok.sum()
+    assert recall_at_full_precision(idx, conf, 0) == pytest.approx(want)

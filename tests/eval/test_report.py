@@ -18,13 +18,14 @@ COLS = [
     "recall@1",
     "recall@5",
     "recall@10",
+    "recall@20",
     "pr_auc",
     "recall@100p",
     "storage_bytes",
     "latency_median_s",
     "queries_per_s",
 ]
-HEAD = ["accuracy", "acc_tol", *COLS[2:7], "bytes", "latency", "queries/s"]
+HEAD = ["accuracy", "acc_tol", *COLS[2:8], "bytes", "latency", "queries/s"]
 W = 13
 
 
@@ -256,21 +257,24 @@ def test_format_evaluation_prints_every_row_and_column(case):
     res = evaluate_map(model, q, reference=x, tolerance=2, timing=False)
     text = format_evaluation(res)
     lines = text.split("\n")
-    assert len(lines) == 6
+    assert len(lines) == 8
     assert lines[:3] == [
         f"n={N} d={D} queries={N}; compression ratio {res['compression_ratio']:.4f}",
-        "decode=hard sequence=off; recall@K ranks single-frame scores (brute force: "
-        "single frames)",
+        "decode=hard sequence=off; recall@K ranks single-frame scores (single frames)",
         "ground truth: index-aligned (query i is place i), tolerance ±2 frames",
     ]
     assert lines[3] == f"{'method':<12}" + "".join(f"{c:>{W}}" for c in HEAD)
-    for line, name in zip(lines[4:], ["map", "brute force"], strict=True):
+    for line, name in zip(lines[6:], ["map", "brute force"], strict=True):
+        r = res["methods"][name]
+        want = ", ".join(f"R@{k}: {100 * r[f'recall@{k}']:.1f}" for k in (1, 5, 10, 20))
+        assert line == f"{name}: {want}"
+    for line, name in zip(lines[4:6], ["map", "brute force"], strict=True):
         row = res["methods"][name]
         assert line.startswith(f"{name:<12}")
         cells = line[12:]
         assert len(cells) == W * len(COLS)
         cells = [cells[i : i + W].strip() for i in range(0, len(cells), W)]
-        for c in COLS[:7]:
+        for c in COLS[:8]:
             assert cells[COLS.index(c)] == f"{row[c]:.4f}"
         assert cells[COLS.index("storage_bytes")] == f"{row['storage_bytes']:,}"
         assert cells[-2:] == ["-", "-"]  # no timing
@@ -301,8 +305,8 @@ def test_format_evaluation_hand_case():
     lines = format_evaluation(result).split("\n")
     assert lines[:3] == [
         "n=1000 d=8 queries=3; compression ratio 0.1235",
-        "decode=topm sequence=4; recall@K ranks single-frame scores (brute force: "
-        "single frames)",
+        "decode=topm sequence=4; recall@K ranks single-frame scores (peers at the "
+        "same L=4)",
         "ground truth: index-aligned (query i is place i), tolerance ±0 frames",
     ]
     assert lines[3].split() == ["method", *HEAD]
@@ -310,7 +314,34 @@ def test_format_evaluation_hand_case():
     assert lines[4] == (
         f"{'map':<12}"
         + f"{'0.5000':>{W}}{'0.7500':>{W}}{'0.5000':>{W}}{'1.0000':>{W}}"
-        + dash * 3
+        + dash * 4
         + f"{'1,234,567':>{W}}{'2.500 ms':>{W}}{'12,346':>{W}}"
     )
-    assert lines[5] == f"{'kd':<12}{'0.3333':>{W}}" + dash * 8 + f"{'55.5000':>{W}}"
+    assert lines[5] == f"{'kd':<12}{'0.3333':>{W}}" + dash * 9 + f"{'55.5000':>{W}}"
+    assert lines[6:] == ["map: R@1: 50.0, R@5: 100.0", "kd: "]
+
+
+def test_sequence_peers_sum_brute_force_along_the_diagonal(case):
+    """With a sequence, brute force ranks its similarities summed over L frames
+    (checked against a float64 loop) and SeqSLAM stands beside them."""
+    from rhythmic_jax.eval.seqslam import seqslam_decode
+
+    model, x, q = case
+    L = 4
+    res = evaluate_map(model, q, reference=x, sequence=L, tolerance=1, timing=False)
+    assert set(res["methods"]) == {"map", "brute force", "SeqSLAM"}
+    sims = q.astype(np.float64) @ x.astype(np.float64).T
+    z = (sims - sims.mean(1, keepdims=True)) / sims.std(1, keepdims=True)
+    acc = np.zeros_like(z)
+    for t in range(len(q)):
+        for lag in range(min(L, t + 1)):
+            acc[t, lag:] += z[t - lag, : N - lag]
+    top = np.argsort(-acc, axis=1)[:, :5]
+    want = np.mean([(np.abs(top[i] - i) <= 1).any() for i in range(len(q))])
+    assert res["methods"]["brute force"]["recall@5"] == pytest.approx(want)
+    idx = seqslam_decode(q, x, L)[0]
+    got = res["methods"]["SeqSLAM"]
+    assert got["recall@1"] == pytest.approx(np.mean(np.abs(idx - np.arange(N)) <= 1))
+    assert "recall@5" not in got and got["recall_line"].startswith("R@1: ")
+    text = format_evaluation(res)
+    assert "(peers at the same L=4)" in text and "single frames" not in text

@@ -1,0 +1,216 @@
+"""``rhythmic-jax frontier REF QUERIES``: how few bytes a route needs, in one step.
+
+Every representation the library has is fitted on the reference descriptors and
+judged on the queries (:func:`rhythmic_jax.eval.frontier.frontier_rows`): maps at
+their levels and layouts stored as float32, float16 and int8, ITQ codes, int8
+per place, product quantisation (faiss), the map + code hybrids, exact brute
+force and, for sequences, SeqSLAM. Each row gives bytes per place, recall@1 (single
+frames and along sequences of L = 5 and 10), recall at 100 % precision and the
+query latency; the rows no other row beats at fewer bytes form the Pareto
+front, and ``--budget`` names the best representation within a byte budget.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from rhythmic_jax.errors import InputError
+
+__all__ = ["frontier", "frontier_lines", "main", "write_csv"]
+
+MAPS = tuple((r, level) for r in (2, 3) for level in (1, 2, 3, 4))
+BITS = (32, 64, 128, 256, 512)
+PQ = (8, 16, 32, 64)
+COLUMNS = ("name", "kind", "bytes_per_place", "storage_bytes", "share",
+           "recall@1 L=1", "recall@100p", "recall@1 L=5", "recall@1 L=10",
+           "latency_s", "pareto")  # fmt: skip
+
+
+def _ints(text: str, what: str) -> tuple:
+    """``64,128`` -> (64, 128); ``2:4,3:4`` -> ((2, 4), (3, 4))."""
+    try:
+        parts = [tuple(int(v) for v in p.split(":")) for p in str(text).split(",")]
+    except ValueError:
+        msg = f"{{opt:{what}}} {text!r}: give integers, comma-separated"
+        raise InputError(msg) from None
+    return tuple(p if len(p) > 1 else p[0] for p in parts)
+
+
+def frontier(
+    reference: str,
+    queries: str,
+    *,
+    ground_truth: tuple[str, ...] | None = None,
+    tolerance: int = 0,
+    tolerance_m: float = 25.0,
+    maps=MAPS,
+    bits=BITS,
+    pq=PQ,
+    dtypes=("float32", "float16", "int8"),
+    lengths=(1, 5, 10),
+    budget: float | None = None,
+    cache: str | None = None,
+    descriptor: str | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Recall against bytes for every representation of ``reference``'s places.
+
+    Args:
+      reference, queries: descriptor files (.npy, hloc .h5) or image folders;
+        row i of the reference is place i.
+      ground_truth, tolerance_m: as ``evaluate`` reads them
+        (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`);
+        default: query i is place i within ``tolerance`` frames.
+      lengths: sequence lengths (queries in route order); lengths longer than
+        the queries are left out.
+      budget: bytes per place; the result's ``choice`` is the best row within.
+
+    Returns ``{"rows", "pareto" (names), "choice", "ground_truth", "config",
+    "n", "d", "n_queries", "seconds"}``.
+    """
+    from rhythmic_jax.eval import frontier as fr
+    from rhythmic_jax.frames.sources import load_sources
+
+    t0 = time.perf_counter()
+    ref = load_sources([reference], descriptor, progress=progress).x
+    qry = load_sources([queries], descriptor, progress=progress).x
+    if ref.shape[1] != qry.shape[1]:
+        raise InputError(
+            f"{queries}: {qry.shape[1]}-d descriptors but {reference} has "
+            f"{ref.shape[1]}-d"
+        )
+    truth = None
+    if ground_truth:
+        from rhythmic_jax.eval.ground_truth_files import load_ground_truth
+
+        truth = load_ground_truth(
+            ground_truth, n_queries=len(qry), n_places=len(ref),
+            query_source=queries, reference_sources=[reference],
+            tolerance_m=tolerance_m,
+        )  # fmt: skip
+    elif len(qry) > len(ref):
+        raise InputError(
+            f"{queries}: {len(qry)} queries for {len(ref)} places; without "
+            "{opt:ground_truth} query i is place i"
+        )
+    d = ref.shape[1]
+    cfg = fr.FrontierConfig(
+        maps=tuple(maps), bits=tuple(b for b in bits if b <= d),
+        lengths=tuple(k for k in lengths if k <= len(qry)), tolerance=int(tolerance),
+        dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
+    )  # fmt: skip
+    rows = fr.frontier_rows(
+        ref, qry, cfg, cache=cache, truth=truth, progress=progress,
+        seqslam=max(cfg.lengths) > 1,
+    )  # fmt: skip
+    for row, front in zip(rows, fr.pareto_front(rows), strict=True):
+        row["pareto"] = front
+    if truth is not None:
+        described = truth.describe()
+    else:
+        described = {"source": "index-aligned (query i is place i)",
+                     "tolerance_frames": int(tolerance)}  # fmt: skip
+    choice = None if budget is None else fr.choose(rows, float(budget))
+    return {
+        "n": len(ref),
+        "d": d,
+        "n_queries": len(qry),
+        "ground_truth": described,
+        "config": dataclasses.asdict(cfg),
+        "budget_bytes_per_place": budget,
+        "choice": choice["name"] if choice else None,
+        "pareto": [r["name"] for r in rows if r["pareto"]],
+        "rows": rows,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def _cell(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "*" if v else ""
+    if isinstance(v, float):
+        return f"{v:.4f}" if v <= 1 else f"{v:,.0f}"
+    return f"{v:,}" if isinstance(v, int) else str(v)
+
+
+def frontier_lines(result: dict[str, Any]) -> str:
+    """The table, fewest bytes first, Pareto rows marked ``*``, and the choice."""
+    g = result["ground_truth"]
+    tol = (f"{g['tolerance_m']:g} m" if g.get("tolerance_m") is not None
+           else f"±{g.get('tolerance_frames')} frames")  # fmt: skip
+    lengths = result["config"]["lengths"]
+    keys = ["recall@1 L=1", "recall@100p"] + [f"recall@1 L={k}" for k in lengths[1:]]
+    heads = ["", "representation", "B/place", "share %", "R@1", "R@100P"]
+    heads += [f"R@1 L={k}" for k in lengths[1:]] + ["ms/query"]
+    body = []
+    for r in sorted(result["rows"], key=lambda r: (r["storage_bytes"], r["name"])):
+        lat = r.get("latency_s")
+        body.append(["*" if r["pareto"] else "", r["name"],
+                     f"{r['bytes_per_place']:,.0f}", f"{100 * r['share']:.2f}",
+                     *(_cell(r.get(k)) for k in keys),
+                     "-" if lat is None else f"{1e3 * lat:.3f}"])  # fmt: skip
+    widths = [max(len(str(x)) for x in col) for col in zip(heads, *body, strict=True)]
+    fmt = [f"{{:<{w}}}" if i < 2 else f"{{:>{w}}}" for i, w in enumerate(widths)]
+    lines = [
+        f"{result['n']} places of {result['d']}-d, {result['n_queries']} queries; "
+        f"ground truth: {g['source']}, tolerance {tol}; {result['seconds']:.0f} s",
+        "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)),
+    ]
+    lines += ["  ".join(f.format(c) for f, c in zip(fmt, row, strict=True))
+              for row in body]  # fmt: skip
+    lines.append("* Pareto front: no other row has at least its recall@1 (L=1) in "
+                 "fewer bytes")  # fmt: skip
+    if result["budget_bytes_per_place"] is not None:
+        b = result["budget_bytes_per_place"]
+        pick = result["choice"] or f"nothing fits in {b:g} bytes per place"
+        lines.append(f"within {b:g} bytes per place: {pick}")
+    return "\n".join(lines)
+
+
+def write_csv(rows, path: str | Path) -> None:
+    """One line per representation, the columns of :data:`COLUMNS`."""
+    from rhythmic_jax.io.atomic import atomic_path
+
+    with atomic_path(Path(path)) as tmp, open(tmp, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(COLUMNS)
+        for r in rows:
+            out.writerow(["" if r.get(c) is None else r.get(c) for c in COLUMNS])
+
+
+def main(args) -> int:
+    """The ``frontier`` command: the table (or ``--json``), ``--csv``, ``--plot``."""
+    for opt in ("csv", "plot"):
+        out = getattr(args, opt)
+        if out and not Path(out).absolute().parent.is_dir():
+            where = Path(out).parent
+            raise InputError(f"{{opt:{opt}}} {out}: folder {where} not found")
+    if args.plot and not str(args.plot).lower().endswith(".png"):
+        raise InputError(f"{{opt:plot}} {args.plot}: give a .png file name")
+    result = frontier(
+        args.reference, args.queries,
+        ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
+        tolerance=args.tolerance, tolerance_m=args.tolerance_m,
+        maps=_ints(args.maps, "maps"), bits=_ints(args.bits, "bits"),
+        pq=_ints(args.pq, "pq") if args.pq else (),
+        lengths=_ints(args.lengths, "lengths"), budget=args.budget,
+        cache=args.cache or None, descriptor=args.descriptor,
+        progress=not args.no_progress,
+    )  # fmt: skip
+    if args.csv:
+        write_csv(result["rows"], args.csv)
+    if args.plot:
+        from rhythmic_jax.eval.figures import plot_frontier
+
+        plot_frontier(result["rows"], args.plot, result["config"]["lengths"],
+                      title=f"recall per byte, {result['n']} places",
+                      per_place=True)  # fmt: skip
+    print(json.dumps(result, indent=2) if args.json else frontier_lines(result))
+    return 0

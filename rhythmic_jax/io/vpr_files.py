@@ -1,0 +1,341 @@
+"""The files place-recognition tools write, read as plain numpy arrays.
+
+Each reader takes one tool's own layout, checks it, and refuses anything else with
+one line (:class:`~rhythmic_jax.errors.InputError`); none of them unpickles
+arbitrary objects.
+
+* **OpenVPRLab** (and the MixVPR, SALAD, BoQ validation files):
+  ``<name>_dbImages.npy`` and ``<name>_qImages.npy`` hold image paths relative
+  to the dataset root (string arrays), ``<name>_gt_25m.npy`` the positives of
+  each query as indices into the database list. The tools write the positives
+  with ``np.save`` of a ragged list of integer arrays, i.e. an object array,
+  which numpy stores as a pickle (they read it back with ``allow_pickle=True``).
+  :func:`read_openvprlab_positives` unpickles it with a loader that knows
+  only numpy's array constructors (no other callable can be named) and then
+  accepts only integer arrays; a rectangular ``(b, k)`` integer array (every
+  query with k positives) is read without any pickle.
+* **VPR_Tutorial** ``GT.npz``: ``GThard`` and ``GTsoft``, boolean
+  ``(database, query)`` matrices; hard positives count for recall, places only
+  in the soft set are not counted wrong (the tutorial's ``createPR`` and
+  ``recallAtK`` suppress them).
+* **hloc** ``global-feats-*.h5``: one HDF5 group per image name (nested groups
+  where the name has ``/``) holding a ``global_descriptor`` dataset of shape
+  ``(d,)``; read with ``h5py`` (the optional ``hdf5`` extra).
+* **Patch-NetVLAD** ground-truth ``.npz``: ``utmQ`` (b, 2) and ``utmDb``
+  (n, 2) positions in metres and ``posDistThr``, the radius of a positive.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+from pathlib import Path
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+
+__all__ = [
+    "HDF5_SUFFIXES",
+    "load_descriptor_file",
+    "read_hloc_descriptors",
+    "read_image_list",
+    "read_openvprlab_positives",
+    "read_patchnetvlad",
+    "read_vpr_tutorial",
+]
+
+HDF5_SUFFIXES = (".h5", ".hdf5")
+
+
+def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype a ``.npy`` file declares, from its header alone."""
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        with path.open("rb") as f:
+            version = np.lib.format.read_magic(f)
+            read = {
+                (1, 0): np.lib.format.read_array_header_1_0,
+                (2, 0): np.lib.format.read_array_header_2_0,
+                (3, 0): np.lib.format.read_array_header_2_0,
+            }.get(version)
+            if read is None:
+                raise ValueError(f"format version {version}")
+            shape, _, dtype = read(f)
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror})") from None
+    except ValueError as err:
+        raise InputError(f"{path}: not a .npy file ({err})") from None
+    return tuple(int(k) for k in shape), dtype
+
+
+def _plain_npy(path: Path) -> np.ndarray:
+    """A ``.npy`` without Python objects, loaded with ``allow_pickle=False``."""
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as err:
+        raise InputError(f"{path}: unreadable .npy ({err})"[:300]) from None
+
+
+def read_image_list(path: str | os.PathLike, root: str | os.PathLike | None = None):
+    """An OpenVPRLab ``*_dbImages.npy`` / ``*_qImages.npy``: (n,) image paths.
+
+    Paths are resolved against ``root`` (the dataset folder) when given, and
+    must then exist. Returns a list of n :class:`~pathlib.Path`.
+    """
+    path = Path(path)
+    shape, dtype = _npy_header(path)
+    if dtype.kind not in "US" or len(shape) != 1 or not shape[0]:
+        raise InputError(
+            f"{path}: expected a 1-d array of image paths, got {dtype} {shape}"
+        )
+    names = [str(v) for v in _plain_npy(path).tolist()]
+    if root is None:
+        return [Path(v) for v in names]
+    out = [Path(root) / v for v in names]
+    missing = [p for p in out if not p.is_file()]
+    if missing:
+        raise InputError(
+            f"{path}: {len(missing)} of {len(out)} images not under {root}, "
+            f"e.g. {missing[0]}"
+        )
+    return out
+
+
+def _reconstruct_names() -> dict[tuple[str, str], object]:
+    """The only callables an object ``.npy`` of integer arrays names."""
+    try:
+        from numpy._core.multiarray import _reconstruct
+    except ImportError:  # numpy < 2
+        from numpy.core.multiarray import _reconstruct
+    out: dict[tuple[str, str], object] = {
+        ("numpy", "ndarray"): np.ndarray,
+        ("numpy", "dtype"): np.dtype,
+    }
+    for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
+        out[module, "_reconstruct"] = _reconstruct
+    return out
+
+
+class _ArraysOnly(pickle.Unpickler):
+    """Unpickles numpy arrays and nothing that names another callable."""
+
+    def __init__(self, data: bytes, where: Path):
+        super().__init__(io.BytesIO(data))
+        self.where, self.allowed = where, _reconstruct_names()
+
+    def find_class(self, module: str, name: str):
+        found = self.allowed.get((module, name))
+        if found is None:
+            raise InputError(
+                f"{self.where}: refused: the pickle names {module}.{name}; only "
+                "numpy integer arrays are read"
+            )
+        return found
+
+    def persistent_load(self, pid):
+        raise InputError(f"{self.where}: refused: the pickle holds external objects")
+
+
+def _object_payload(path: Path) -> bytes:
+    with path.open("rb") as f:
+        version = np.lib.format.read_magic(f)
+        read = (
+            np.lib.format.read_array_header_1_0
+            if version == (1, 0)
+            else np.lib.format.read_array_header_2_0
+        )
+        read(f)
+        return f.read()
+
+
+def read_openvprlab_positives(
+    path: str | os.PathLike, n_database: int | None = None
+) -> list[np.ndarray]:
+    """An OpenVPRLab ``<name>_gt_25m.npy``: b int64 arrays of database indices.
+
+    Object arrays go through a loader that admits only numpy's array
+    constructors (see the module); every element must be a 1-d integer array
+    (empty: no positive). ``n_database``: when given, every index must be below.
+    """
+    path = Path(path)
+    shape, dtype = _npy_header(path)
+    if not dtype.hasobject:
+        arr = _plain_npy(path)
+        if arr.dtype.kind not in "iu" or arr.ndim != 2:
+            raise InputError(
+                f"{path}: expected positives per query (object array of index "
+                f"arrays, or (b, k) integers), got {arr.dtype} {arr.shape}"
+            )
+        rows = list(arr.astype(np.int64))
+    else:
+        try:
+            arr = _ArraysOnly(_object_payload(path), path).load()
+        except InputError:
+            raise
+        except Exception as err:  # noqa: BLE001 - a broken pickle raises many kinds
+            raise InputError(
+                f"{path}: unreadable object array ({err!r})"[:300]
+            ) from None
+        if not isinstance(arr, np.ndarray) or arr.shape != shape or arr.ndim != 1:
+            raise InputError(f"{path}: not the 1-d array of {shape} its header says")
+        rows = []
+        for i, v in enumerate(arr.tolist()):
+            ok = isinstance(v, np.ndarray) and v.ndim <= 1 and v.dtype.kind in "iu"
+            if not ok:
+                raise InputError(
+                    f"{path}: query {i} holds {type(v).__name__}; expected an "
+                    "integer array of database indices"
+                )
+            rows.append(v.reshape(-1).astype(np.int64))
+    if not rows:
+        raise InputError(f"{path}: no query")
+    for i, v in enumerate(rows):
+        if v.size and (
+            v.min() < 0 or (n_database is not None and v.max() >= n_database)
+        ):
+            bad = v.min() if v.min() < 0 else v.max()
+            raise InputError(
+                f"{path}: query {i} lists database image {bad}, outside "
+                f"0..{(n_database or 0) - 1}"
+            )
+    return rows
+
+
+def _npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The named arrays of an ``.npz``, none of them a pickle."""
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            missing = [k for k in keys if k not in f.files]
+            if missing:
+                raise InputError(
+                    f"{path}: no array {missing[0]!r} (holds {sorted(f.files)})"
+                )
+            return {k: f[k] for k in keys}
+    except InputError:
+        raise
+    except ValueError as err:
+        if "allow_pickle" in str(err):
+            raise InputError(
+                f"{path}: refused: holds Python objects (a pickle)"
+            ) from None
+        raise InputError(f"{path}: not a readable .npz ({err})"[:300]) from None
+    except (OSError, EOFError, KeyError) as err:
+        raise InputError(f"{path}: not a readable .npz ({err})"[:300]) from None
+    except Exception as err:  # noqa: BLE001 - zipfile errors on a truncated file
+        raise InputError(f"{path}: not a readable .npz ({err!r})"[:300]) from None
+
+
+def read_vpr_tutorial(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """VPR_Tutorial ``GT.npz``: ``(hard, soft)``, bool (database, query) each.
+
+    The soft matrix is taken as ``GTsoft | GThard`` (the tutorial's soft set
+    contains the hard one).
+    """
+    path = Path(path)
+    got = _npz(path, ("GThard", "GTsoft"))
+    out = []
+    for key in ("GThard", "GTsoft"):
+        a = got[key]
+        if a.dtype.kind not in "biuf" or a.ndim != 2 or 0 in a.shape:
+            raise InputError(
+                f"{path}: {key} must be a (database, query) matrix, got "
+                f"{a.dtype} {a.shape}"
+            )
+        if a.dtype.kind != "b" and not np.isin(a, (0, 1)).all():
+            raise InputError(f"{path}: {key} holds values other than 0 and 1")
+        out.append(a.astype(bool))
+    hard, soft = out
+    if hard.shape != soft.shape:
+        raise InputError(
+            f"{path}: GThard is {hard.shape} but GTsoft is {soft.shape}; they must "
+            "match"
+        )
+    return hard, soft | hard
+
+
+def read_patchnetvlad(
+    path: str | os.PathLike,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Patch-NetVLAD ground truth: ``(utmDb (n, 2), utmQ (b, 2), posDistThr)``."""
+    path = Path(path)
+    got = _npz(path, ("utmQ", "utmDb", "posDistThr"))
+    xy = []
+    for key in ("utmDb", "utmQ"):
+        a = got[key]
+        if a.dtype.kind not in "iuf" or a.ndim != 2 or a.shape[1] != 2 or not len(a):
+            raise InputError(
+                f"{path}: {key} must be (n, 2) positions in metres, got "
+                f"{a.dtype} {a.shape}"
+            )
+        a = a.astype(np.float64)
+        if not np.isfinite(a).all():
+            raise InputError(f"{path}: {key} holds NaN or infinite values")
+        xy.append(a)
+    thr = got["posDistThr"]
+    if (
+        thr.dtype.kind not in "iuf"
+        or thr.size != 1
+        or not float(thr.reshape(-1)[0]) > 0
+    ):
+        raise InputError(f"{path}: posDistThr must be one positive number, got {thr}")
+    return xy[0], xy[1], float(thr.reshape(-1)[0])
+
+
+def read_hloc_descriptors(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
+    """hloc ``global-feats-*.h5``: ``(names, descriptors (n, d) float32)``.
+
+    Every dataset called ``global_descriptor`` is one image, named by its
+    group's path (hloc writes the image name as the group name); rows are in
+    name order, which is the route's order for numbered frames.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        import h5py
+    except ImportError:
+        raise InputError(
+            f"{path}: reading .h5 needs h5py (pip install 'rhythmic-jax[hdf5]')"
+        ) from None
+    found: dict[str, np.ndarray] = {}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset) and name.split("/")[-1] == "global_descriptor":
+            found[name.rpartition("/")[0]] = obj
+
+    try:
+        with h5py.File(path, "r") as f:
+            f.visititems(visit)
+            names = sorted(found)
+            if not names:
+                raise InputError(f"{path}: no global_descriptor dataset (not hloc's)")
+            shapes = {found[k].shape for k in names}
+            kinds = {found[k].dtype.kind for k in names}
+            if len(shapes) != 1 or len(next(iter(shapes))) != 1 or kinds - set("fiu"):
+                raise InputError(
+                    f"{path}: global_descriptor datasets must all be (d,) numbers, "
+                    f"got shapes {sorted(shapes)[:3]} of kinds {sorted(kinds)}"
+                )
+            x = np.stack([found[k][()] for k in names]).astype(np.float32)
+    except InputError:
+        raise
+    except Exception as err:  # noqa: BLE001 - h5py raises OSError, KeyError, ...
+        raise InputError(f"{path}: not a readable HDF5 file ({err})"[:300]) from None
+    if not np.isfinite(x).all():
+        row = int(np.flatnonzero(~np.isfinite(x).all(1))[0])
+        raise InputError(f"{path}: {names[row]} holds NaN or inf")
+    return names, x
+
+
+def load_descriptor_file(path: str | os.PathLike) -> np.ndarray:
+    """(n, d) float32 descriptors of a ``.npy`` or an hloc ``.h5`` file."""
+    if Path(path).suffix.lower() in HDF5_SUFFIXES:
+        return read_hloc_descriptors(path)[1]
+    from rhythmic_jax.io.descriptor_files import load_descriptors
+
+    return load_descriptors(path)

@@ -1,0 +1,122 @@
+"""``rhythmic-jax frontier``: every representation's recall against its bytes,
+the Pareto front, the choice under a budget, JSON, CSV and the plot."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from rhythmic_jax.app.cli import main
+from rhythmic_jax.eval.frontier import choose, pareto_front
+
+N, D = 90, 16
+
+
+@pytest.fixture(scope="module")
+def route(tmp_path_factory):
+    """A route of N places; queries are the places seen again with noise."""
+    rng = np.random.default_rng(0)
+    walk = np.cumsum(rng.standard_normal((N, D)), axis=0).astype(np.float32)
+    ref = walk + 0.3 * rng.standard_normal((N, D)).astype(np.float32)
+    qry = walk + 0.8 * rng.standard_normal((N, D)).astype(np.float32)
+    folder = tmp_path_factory.mktemp("route")
+    np.save(folder / "ref.npy", ref)
+    np.save(folder / "qry.npy", qry)
+    return folder, ref, qry
+
+
+def test_frontier_command_table_json_csv_plot(route, capsys):
+    folder, ref, qry = route
+    args = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--maps", "2:1,2:2", "--bits", "8,16", "--pq", "4,8",
+            "--lengths", "1,5", "--tolerance", "1", "--budget", "40",
+            "--no-progress"]  # fmt: skip
+    csv_path, png = folder / "f.csv", folder / "f.png"
+    assert main([*args, "--json", "--csv", str(csv_path), "--plot", str(png)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    rows = {r["name"]: r for r in result["rows"]}
+    kinds = {r["kind"] for r in result["rows"]}
+    assert kinds == {"brute force", "SeqSLAM", "map", "codes", "hybrid"}
+    assert {"PQ 4x6 bits", "PQ 8x6 bits", "int8 per place", "ITQ 8 bits"} <= set(rows)
+    assert any("float16" in n for n in rows) and any("int8 +" in n for n in rows)
+    # brute force against numpy float64: right within one frame
+    sims = qry.astype(np.float64) @ ref.astype(np.float64).T
+    want = np.mean(np.abs(sims.argmax(1) - np.arange(N)) <= 1)
+    assert rows["brute force"]["recall@1 L=1"] == pytest.approx(want)
+    assert rows["brute force"]["bytes_per_place"] == D * 4
+    # the Pareto front by brute force over every pair of rows
+    key = "recall@1 L=1"
+    for r in result["rows"]:
+        beaten = any(
+            o[key] is not None and o["storage_bytes"] <= r["storage_bytes"]
+            and o[key] >= r[key]
+            and (o["storage_bytes"] < r["storage_bytes"] or o[key] > r[key])
+            for o in result["rows"]
+        )  # fmt: skip
+        assert r["pareto"] == (not beaten), r["name"]
+    fits = [r for r in result["rows"] if r["bytes_per_place"] <= 40]
+    assert result["choice"] == max(fits, key=lambda r: r[key])["name"]
+    for r in result["rows"]:
+        assert r["kind"] == "SeqSLAM" or 0 <= r["recall@100p"] <= r[key] + 1e-12
+    with csv_path.open() as f:
+        lines = list(csv.DictReader(f))
+    assert [x["name"] for x in lines] == [r["name"] for r in result["rows"]]
+    assert png.stat().st_size > 10_000
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert f"within 40 bytes per place: {result['choice']}" in text
+    assert "* Pareto front" in text and "tolerance ±1 frames" in text
+
+
+def test_frontier_refuses_in_one_line(route, capsys):
+    folder, _, _ = route
+    base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy")]
+    assert main([*base, "--bits", "a,b"]) == 2
+    assert "--bits 'a,b': give integers" in capsys.readouterr().err
+    assert main([*base, "--plot", str(folder / "f.pdf")]) == 2
+    assert "--plot" in capsys.readouterr().err
+    np.save(folder / "wide.npy", np.zeros((5, D + 1), np.float32))
+    assert main(["frontier", str(folder / "ref.npy"), str(folder / "wide.npy")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "17-d descriptors" in err
+
+
+def test_choose_and_pareto_by_hand():
+    rows = [
+        {"name": "a", "storage_bytes": 10, "bytes_per_place": 1, "recall@1 L=1": 0.2},
+        {"name": "b", "storage_bytes": 20, "bytes_per_place": 2, "recall@1 L=1": 0.1},
+        {"name": "c", "storage_bytes": 30, "bytes_per_place": 3, "recall@1 L=1": 0.5},
+    ]
+    assert pareto_front(rows) == [True, False, True]
+    assert choose(rows, 2.5)["name"] == "a" and choose(rows, 0.5) is None
+
+
+@pytest.mark.slow
+def test_installed_command_on_nordland_frames(nordland_root, tmp_path):
+    """The installed command on real frames (image folders), run elsewhere."""
+    exe = shutil.which("rhythmic-jax")
+    if exe is None:
+        pytest.skip("the rhythmic-jax command is not installed")
+    for season in ("summer", "winter"):
+        (tmp_path / season).mkdir()
+        names = sorted(os.listdir(nordland_root / season))[1300:1420]
+        for name in names:
+            shutil.copy(nordland_root / season / name, tmp_path / season / name)
+    run = subprocess.run(
+        [exe, "frontier", "summer", "winter", "--tolerance", "1", "--maps", "2:1",
+         "--bits", "64", "--pq", "8", "--lengths", "1,5", "--json", "--no-progress"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout)
+    rows = {r["name"]: r for r in result["rows"]}
+    assert result["n"] == result["n_queries"] == 120
+    best = max(r["recall@1 L=1"] for r in result["rows"])
+    assert any(r["pareto"] and r["recall@1 L=1"] == best for r in result["rows"])
+    assert rows["brute force"]["recall@1 L=1"] > 0.1  # winter against summer
