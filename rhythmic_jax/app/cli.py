@@ -821,7 +821,13 @@ def run() -> None:
     the garbage collector's reach (``gc.freeze``): its last full collection would
     otherwise walk torch's and JAX's objects one by one, about 0.6 s on the
     reference machine, to free memory the process hands back on exit anyway.
+
+    Ctrl-C and SIGTERM end the command at once, with one line and exit status
+    130 (143), writing nothing more (:mod:`rhythmic_jax.app.signals`).
     """
+    from rhythmic_jax.app import signals
+
+    signals.install(next((a for a in sys.argv[1:] if a in COMMANDS), None))
     status = main()
     gc.freeze()
     sys.exit(status)
