@@ -37,6 +37,7 @@ from rhythmic_jax.frames.compiled import (
     LOAD_MIN_FRAMES,
     CompilePolicy,
 )
+from rhythmic_jax.io.outputs import check_place, write_errors
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.validate import Domain, check_int, int_option, number_option
 
@@ -204,6 +205,7 @@ def _fit_augmented(
     policy: CompilePolicy = AUTO,
     fit_plan=None,
 ) -> None:
+    from rhythmic_jax.app import signals
     from rhythmic_jax.augment.stream import fit_map_augmented
     from rhythmic_jax.frames.compiled import FastDescriptor
 
@@ -213,6 +215,8 @@ def _fit_augmented(
         )
     frames = len(feats.images) * config.epochs  # frames the network will see
     descriptor = FastDescriptor(feats.describer, frames, policy)
+    signals.set_note(f"the augmented fit's checkpoint is kept in {ckpt}; run the "
+                     "same command again to resume")  # fmt: skip
     try:
         fit_map_augmented(
             model, feats.images, feats.x, descriptor, config, feats.labels,
@@ -264,6 +268,10 @@ def fit(job: FitJob, progress: bool = False):
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     _check_reading(job.reading)
+    check_place("out", job.out)
+    if job.augment:
+        ckpt = job.checkpoint or str(Path(job.out)) + ".ckpt"
+        check_place("checkpoint", ckpt, inside=True)
     augmented = _augmented_settings(job) if job.augment else None
     if job.places is not None and job.positions is None:
         raise InputError("{opt:places} groups frames by their {opt:positions}")
@@ -296,12 +304,14 @@ def fit(job: FitJob, progress: bool = False):
     extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
     check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
     if augmented is not None:
-        _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
+        with write_errors("checkpoint", augmented[1]):
+            _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
     else:
         model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
     model.extra.update(feats.extra)
     model.reference = reference
-    model.save(job.out)
+    with write_errors("out", job.out):
+        model.save(job.out)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     return model
@@ -492,6 +502,7 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     from rhythmic_jax.map.embedding import save_embedding
 
     check_target(job.out)
+    check_place("out", job.out)
     if len(job.sources) < 2:
         raise InputError("learn needs two or more traversals of the training route")
     bits = isinstance(job.codes, int) and not isinstance(job.codes, bool)
@@ -521,7 +532,8 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
         sources=[str(Path(s).expanduser().absolute()) for s in job.sources],
         fusion=info.get("fusion"),
     )
-    save_embedding(job.out, emb, meta)
+    with write_errors("out", job.out):
+        save_embedding(job.out, emb, meta)
     info["traversals"] = len(job.sources)
     return emb, info
 
@@ -587,13 +599,16 @@ def query(
     """
     if out and not Path(out).parent.is_dir():
         raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
+    if out:
+        check_place("out", out)
     model, feats = _load_queries(map_path, source, reading, progress)
     pred = model.predict(feats.x, decode, sequence=sequence, threshold=threshold)
     pred = np.asarray(pred).astype(np.int64)
     if out:
         from rhythmic_jax.io.atomic import save_npy
 
-        save_npy(out, pred)
+        with write_errors("out", out):
+            save_npy(out, pred)
     return pred
 
 
@@ -722,6 +737,8 @@ def evaluate(
 
     if plot and not str(plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
+    if plot:
+        check_place("plot", plot)
     model, feats = _load_queries(map_path, source, reading, progress)
     ref, labels, note = reference_features(
         model, reference, reading.descriptor, reading.tile, reading.stride, progress,
@@ -747,7 +764,8 @@ def evaluate(
     if plot:
         from rhythmic_jax.eval.figures import plot_evaluation
 
-        plot_evaluation(result, path=plot)
+        with write_errors("plot", plot):
+            plot_evaluation(result, path=plot)
         for row in result["methods"].values():
             row.pop("pr_curve", None)
         result["plot"] = str(plot)

@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import logging
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -44,6 +46,8 @@ __all__ = [
 WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
 _WORDS = ("No space left on device", "Disk quota exceeded", "Read-only file system",
           "Permission denied")  # fmt: skip
+# numpy's tofile on a full disk: an OSError with no errno
+_SHORT = re.compile(r"^\d+ requested and \d+ written$")
 _COMMIT = threading.Lock()
 _CANCELLED = threading.Event()
 
@@ -79,6 +83,8 @@ def _reason(err: BaseException) -> str:
     if isinstance(err, OSError) and err.errno is not None:
         return os.strerror(err.errno)
     text = str(err)
+    if _SHORT.search(text):
+        return f"the disk is full: {text}"
     return next((w for w in _WORDS if w in text), text.splitlines()[0] if text else "")
 
 
@@ -122,6 +128,8 @@ def _concerns(err: BaseException, target: Path) -> bool:
     """Whether ``err`` is a failed write of the output at ``target`` (its file or
     folder, a hidden temporary beside it, or a folder made for it)."""
     if isinstance(err, OSError):
+        if err.errno is None and _SHORT.search(str(err)):
+            return True
         if err.errno not in WRITE_ERRNOS:
             return False
         if err.filename is None:
@@ -141,8 +149,13 @@ def _concerns(err: BaseException, target: Path) -> bool:
 @contextlib.contextmanager
 def write_errors(option: str, path: str | os.PathLike) -> Iterator[None]:
     """Within, a failed write of the output at ``path`` (a full, read-only or
-    forbidden place) ends in one line (:class:`InputError`); other errors pass."""
+    forbidden place) ends in one line (:class:`InputError`); other errors pass.
+    Orbax's echoes of a failed write (error logs with tracebacks, from its
+    writer threads) stay off stderr: the line says it once."""
     target = Path(path).expanduser().absolute()
+    absl = logging.getLogger("absl")
+    level = absl.level
+    absl.setLevel(logging.CRITICAL)
     try:
         yield
     except InputError:
@@ -151,9 +164,10 @@ def write_errors(option: str, path: str | os.PathLike) -> Iterator[None]:
         if not _concerns(err, target):
             raise
         raise InputError(
-            f"{{opt:{option}}} {path}: could not write it ({_reason(err)}); "
-            "nothing was put in its place"
+            f"{{opt:{option}}} {path}: could not write it ({_reason(err)})"
         ) from None
+    finally:
+        absl.setLevel(level)
 
 
 def _alive(pid: int) -> bool:
