@@ -19,9 +19,10 @@ written stays, so the same command resumes from it.
 
 A worker started by ``fit --processes``
 (:func:`rhythmic_jax.solvers.distributed.launch_local` names its launcher in
-:data:`LAUNCHER_ENV`) ends silently, with status 143, when its launcher is gone,
-however the launcher ended: Linux signals it (``prctl(PR_SET_PDEATHSIG)``), and
-the watcher also polls its parent.
+:data:`LAUNCHER_ENV`) keeps the default actions of SIGINT and SIGTERM, which end
+it even while a collective holds the interpreter, and dies with its launcher,
+however the launcher ended: Linux kills it (``prctl(PR_SET_PDEATHSIG)``), and a
+watcher thread also polls its parent.
 """
 
 from __future__ import annotations
@@ -29,14 +30,14 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
-import select
 import signal
 import sys
 import threading
+import time
 
 from rhythmic_jax.io.outputs import cancel
 
-__all__ = ["LAUNCHER_ENV", "install", "set_note"]
+__all__ = ["LAUNCHER_ENV", "finish", "install", "set_note"]
 
 # the launcher's process id, set in a worker's environment by launch_local
 LAUNCHER_ENV = "RHYTHMIC_JAX_LAUNCHER"
@@ -57,27 +58,27 @@ def _line(prefix: str, signum: int) -> str:
     return f"{prefix}: {what}" + (f"; {note}" if note else "")
 
 
-def _end(signum: int, prefix: str, quiet: bool) -> None:
-    """Cancel the outputs, say so in one line (unless ``quiet``), exit now."""
+def _end(signum: int, prefix: str) -> None:
+    """Cancel the outputs, say so in one line, exit now."""
     cancel()
-    if not quiet:
-        with contextlib.suppress(Exception):
-            sys.stderr.flush()  # a progress bar's last output before the line
-        with contextlib.suppress(OSError):
-            os.write(2, (_line(prefix, signum) + "\n").encode())
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()  # a progress bar's last output before the line
+    with contextlib.suppress(OSError):
+        os.write(2, (_line(prefix, signum) + "\n").encode())
     os._exit(128 + signum)
 
 
-def _watch(read_fd: int, prefix: str, launcher: int | None) -> None:
-    timeout = POLL_SECONDS if launcher is not None else None
+def _watch(read_fd: int, prefix: str) -> None:
     while True:
-        ready, _, _ = select.select([read_fd], [], [], timeout)
-        if ready:
-            got = [s for s in os.read(read_fd, 64) if s in SIGNALS]
-            if got:
-                _end(got[0], prefix, quiet=launcher is not None)
-        elif launcher is not None and os.getppid() != launcher:
-            _end(signal.SIGTERM, prefix, quiet=True)
+        got = [s for s in os.read(read_fd, 64) if s in SIGNALS]
+        if got:
+            _end(got[0], prefix)
+
+
+def _watch_launcher(launcher: int) -> None:
+    while os.getppid() == launcher:
+        time.sleep(POLL_SECONDS)
+    os._exit(128 + signal.SIGKILL)
 
 
 def _relay(signum: int, frame) -> None:
@@ -88,19 +89,23 @@ def _relay(signum: int, frame) -> None:
 
 
 def _die_with(launcher: int) -> None:
-    """Have Linux send SIGTERM when the launcher ends; exit at once if it has."""
+    """End this worker when its launcher ends (at once if it has already)."""
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
             libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
     if os.getppid() != launcher:  # it ended before prctl took effect
-        os._exit(128 + signal.SIGTERM)
+        os._exit(128 + signal.SIGKILL)
+    threading.Thread(
+        target=_watch_launcher, args=(launcher,), name="launcher", daemon=True
+    ).start()
 
 
 def install(command: str | None = None) -> bool:
     """Take SIGINT and SIGTERM over for the rest of the process (the command
     line calls this first); returns False, doing nothing, outside the main
-    thread.
+    thread. A worker of ``fit --processes`` only arranges to die with its
+    launcher.
 
     Args:
       command: the command running, named in the line (``rhythmic-jax fit:
@@ -108,18 +113,33 @@ def install(command: str | None = None) -> bool:
     """
     if threading.current_thread() is not threading.main_thread():
         return False
+    launcher = os.environ.pop(LAUNCHER_ENV, None)
+    if launcher is not None and launcher.isdigit():
+        _die_with(int(launcher))  # a worker: its launcher speaks for it
+        return True
     read_fd, write_fd = os.pipe()
     os.set_blocking(write_fd, False)
     _state["pipe"] = write_fd
     signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     for signum in SIGNALS:
         signal.signal(signum, _relay)
-    launcher = os.environ.pop(LAUNCHER_ENV, None)
-    launcher = int(launcher) if launcher and launcher.isdigit() else None
     prefix = "rhythmic-jax" + (f" {command}" if command else "")
     threading.Thread(
-        target=_watch, args=(read_fd, prefix, launcher), name="signals", daemon=True
+        target=_watch, args=(read_fd, prefix), name="signals", daemon=True
     ).start()
-    if launcher is not None:
-        _die_with(launcher)
     return True
+
+
+def finish(status: int) -> None:
+    """End a failed command now (its line is written): flush, then ``os._exit``.
+
+    The interpreter's shutdown has nothing left to do for it, and may wait:
+    a failed process of a multi-process fit would wait there for the others,
+    which wait for it.
+    """
+    if status == 0:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(status)
