@@ -823,14 +823,15 @@ def run() -> None:
     reference machine, to free memory the process hands back on exit anyway.
 
     Ctrl-C and SIGTERM end the command at once, with one line and exit status
-    130 (143), writing nothing more; a failed command ends at once too
-    (:mod:`rhythmic_jax.app.signals`).
+    130 (143), writing nothing more; a failed process of a multi-process fit
+    ends at once too (:mod:`rhythmic_jax.app.signals`).
     """
     from rhythmic_jax.app import signals
 
     signals.install(next((a for a in sys.argv[1:] if a in COMMANDS), None))
     status = main()
-    signals.finish(status)  # a failure: nothing to shut down, nothing to wait for
+    if any(a.split("=")[0] == "--coordinator" for a in sys.argv[1:]):
+        signals.finish(status)  # failed: its cluster's peers must not be waited for
     gc.freeze()
     sys.exit(status)
 

@@ -131,11 +131,9 @@ def install(command: str | None = None) -> bool:
 
 
 def finish(status: int) -> None:
-    """End a failed command now (its line is written): flush, then ``os._exit``.
-
-    The interpreter's shutdown has nothing left to do for it, and may wait:
-    a failed process of a multi-process fit would wait there for the others,
-    which wait for it.
+    """End a failed process of a multi-process fit now (its line is written):
+    flush, then ``os._exit``. The interpreter's shutdown would wait there for
+    the other processes (``jax.distributed``'s last barrier), which wait for it.
     """
     if status == 0:
         return
