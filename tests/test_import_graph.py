@@ -20,6 +20,7 @@ LAYERS = [
     ["errors", "version"],
     ["jit_options", "progress"],
     ["validate"],
+    ["io.outputs"],
     ["io.atomic", "io.checkpoint", "io.images"],
     ["io.descriptor_files", "io.tiles"],
     ["io.vpr_files"],
@@ -56,6 +57,7 @@ LAYERS = [
     ["eval.baselines", "eval.figures", "eval.metrics", "eval.seqslam", "eval.split"],
     ["eval.frontier", "eval.ground_truth", "eval.outliers"],
     ["eval.ground_truth_files", "eval.report"],
+    ["app.signals"],
     ["app.demo", "app.frontier", "app.scale_jobs"],
     ["app.jobs"],
     ["app.cli"],
@@ -131,8 +133,8 @@ def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():
     """At load the command line imports only what its parser is built from; the
     jobs are imported inside the commands (tests/test_cli.py runs --help)."""
     assert _imports(PACKAGE / "app" / "cli.py", top=True) <= PARSER
-    jobs = {"app.jobs", "app.frontier", "jit_cache"}  # imported inside commands
-    assert _imports(PACKAGE / "app" / "cli.py") <= PARSER | jobs
+    inside = {"app.jobs", "app.frontier", "app.signals", "jit_cache"}  # in commands
+    assert _imports(PACKAGE / "app" / "cli.py") <= PARSER | inside
 
 
 def test_folders_say_what_they_hold_and_import_nothing():

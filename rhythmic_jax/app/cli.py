@@ -738,8 +738,17 @@ def run() -> None:
     the garbage collector's reach (``gc.freeze``): its last full collection would
     otherwise walk torch's and JAX's objects one by one, about 0.6 s on the
     reference machine, to free memory the process hands back on exit anyway.
+
+    Ctrl-C and SIGTERM end the command at once, with one line and exit status
+    130 (143), writing nothing more; a failed process of a multi-process fit
+    ends at once too (:mod:`rhythmic_jax.app.signals`).
     """
+    from rhythmic_jax.app import signals
+
+    signals.install(next((a for a in sys.argv[1:] if a in COMMANDS), None))
     status = main()
+    if any(a.split("=")[0] == "--coordinator" for a in sys.argv[1:]):
+        signals.finish(status)  # failed: its cluster's peers must not be waited for
     gc.freeze()
     sys.exit(status)
 

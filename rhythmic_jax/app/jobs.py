@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from rhythmic_jax.app.scale_jobs import ScaleJob, fit_scaled, wants_scale
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import AUTO, CompilePolicy
+from rhythmic_jax.io.outputs import check_place, write_errors
 from rhythmic_jax.jit_options import describe as compile_options
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.validate import Domain, int_option, is_number, number_option
@@ -350,6 +351,7 @@ def _augmented_settings(job: FitJob):
 
 def _fit_augmented(model, feats, config, ckpt: Path, progress: bool, policy,
                    fit_plan) -> None:  # fmt: skip
+    from rhythmic_jax.app import signals
     from rhythmic_jax.augment.stream import fit_map_augmented
     from rhythmic_jax.frames.compiled import FastDescriptor
 
@@ -359,6 +361,8 @@ def _fit_augmented(model, feats, config, ckpt: Path, progress: bool, policy,
         )
     frames = len(feats.images) * config.epochs  # frames the network will see
     descriptor = FastDescriptor(feats.describer, frames, policy)
+    signals.set_note(f"the augmented fit's checkpoint is kept in {ckpt}; run the "
+                     "same command again to resume")  # fmt: skip
     try:
         fit_map_augmented(
             model, feats.images, feats.x, descriptor, config, feats.labels,
@@ -424,6 +428,9 @@ def fit(job: FitJob, progress: bool = False):
     from rhythmic_jax.io.checkpoint import check_space, check_target
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
+    check_place("out", job.out)
+    if job.augment:
+        check_place("checkpoint", job.checkpoint_folder, inside=True)
     augmented = _augmented_settings(job) if job.augment else None
     learned, read = _learned(job)  # before describing: its descriptor
     check_target(job.out)  # before the fit, not after it
@@ -450,12 +457,14 @@ def fit(job: FitJob, progress: bool = False):
     check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
     model = RhythmicMap(config, embedding=emb)
     if augmented is not None:
-        _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
+        with write_errors("checkpoint", augmented[1]):
+            _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
     else:
         model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
     model.extra.update(feats.extra)
     model.reference = _provenance(job, read, fusion)
-    model.save(job.out)
+    with write_errors("out", job.out):
+        model.save(job.out)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     return model
@@ -665,6 +674,7 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     from rhythmic_jax.map.embedding import save_embedding
 
     check_target(job.out)
+    check_place("out", job.out)
     if len(job.sources) < 2:
         raise InputError("learn needs two or more traversals of the training route")
     bits = isinstance(job.codes, int) and not isinstance(job.codes, bool)
@@ -694,7 +704,8 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
         sources=[str(Path(s).expanduser().absolute()) for s in job.sources],
         fusion=info.get("fusion"),
     )
-    save_embedding(job.out, emb, meta)
+    with write_errors("out", job.out):
+        save_embedding(job.out, emb, meta)
     info["traversals"] = len(job.sources)
     return emb, info
 
@@ -814,6 +825,8 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
     out = job.out
     if out and not Path(out).parent.is_dir():
         raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
+    if out:
+        check_place("out", out)
     model, feats = _load_queries(job, progress)
     pred = model.predict(
         feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
@@ -822,7 +835,8 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
     if out:
         from rhythmic_jax.io.atomic import save_npy
 
-        save_npy(out, pred)
+        with write_errors("out", out):
+            save_npy(out, pred)
     return pred
 
 
@@ -929,6 +943,8 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     plot, reference, read = job.plot, job.reference, job.reading
     if plot and not str(plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
+    if plot:
+        check_place("plot", plot)
     model, feats = _load_queries(job, progress)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,
@@ -954,7 +970,8 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     if plot:
         from rhythmic_jax.eval.figures import plot_evaluation
 
-        plot_evaluation(result, path=plot)
+        with write_errors("plot", plot):
+            plot_evaluation(result, path=plot)
         for row in result["methods"].values():
             row.pop("pr_curve", None)
         result["plot"] = str(plot)

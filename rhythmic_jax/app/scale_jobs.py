@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.outputs import check_place, staged_folder, write_errors
 
 __all__ = ["ScaleJob", "fit_scaled", "wants_scale"]
 
@@ -91,18 +92,20 @@ def _describe_to_shards(job, progress: bool) -> list[str]:
         raise InputError("{opt:shards} takes image folders, not {opt:tile}")
     if root.exists():
         raise InputError(f"{{opt:shards}} {root}: exists; give a new folder")
+    check_place("shards", root)
     name = job.reading.descriptor or "patchnorm"
     settings = {}
     if job.reading.weights is not None:
         settings = {"weights": str(Path(job.reading.weights).expanduser().absolute())}
-    out = []
-    for i, src in enumerate(job.sources):
+    for src in job.sources:
         if not Path(src).is_dir():
             raise InputError(f"{src}: {{opt:shards}} needs image folders")
-        folder = root / f"{i:02d}-{Path(src).name}"
-        describe_to_shards(src, folder, name, settings, progress=progress)
-        out.append(str(folder))
-    return out
+    names = [f"{i:02d}-{Path(src).name}" for i, src in enumerate(job.sources)]
+    # staged whole: a failed or killed run leaves no folder that blocks the next
+    with write_errors("shards", root), staged_folder(root) as staged:
+        for src, folder in zip(job.sources, names, strict=True):
+            describe_to_shards(src, staged / folder, name, settings, progress=progress)
+    return [str(root / folder) for folder in names]
 
 
 def _child_argv(argv: list[str], sources: list[str], shard_sources) -> list[str]:
@@ -137,6 +140,9 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
 
     scale = job.scale
     check_target(job.out)
+    check_place("out", job.out)
+    if job.checkpoint is not None:
+        check_place("checkpoint", job.checkpoint, inside=True)
     memory = parse_bytes(scale.memory) if scale.memory is not None else None
     sources = list(job.sources)
     shard_sources = None
@@ -163,10 +169,11 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         replace(job.config, descriptor=name, descriptor_settings=settings)
     )
     ckpt = job.checkpoint_folder
-    run = fit_map_files(
-        model, sources, memory=memory, stream=scale.stream, progress=progress,
-        checkpoint=ckpt,
-    )  # fmt: skip
+    with write_errors("checkpoint", ckpt):
+        run = fit_map_files(
+            model, sources, memory=memory, stream=scale.stream, progress=progress,
+            checkpoint=ckpt,
+        )  # fmt: skip
     if name == "features":
         model.config = replace(model.config, descriptor_settings={"dim": model.d})
     model.reference = {
@@ -175,7 +182,8 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         "stride": None,
     }
     if jax.process_index() == 0:
-        model.save(job.out)
+        with write_errors("out", job.out):
+            model.save(job.out)
     distributed.allreduce(np.zeros(1))  # every process waits for the saved map
     (ckpt / f"stream-{jax.process_index()}-of-{jax.process_count()}.npz").unlink(
         missing_ok=True

@@ -77,8 +77,9 @@ def _kind(path: Path, tile: int | None) -> str:
     if tile is not None:
         return "image"
     raise InputError(
-        f"{path}: not a .npy or .h5 descriptor file or an image folder "
-        "(to tile one large image, give {option} SIZE)",
+        f"{path}: not a .npy descriptor file or an image folder "
+        "(to tile one large image, give {option} SIZE); hloc's .h5 descriptor "
+        "files are read too",
         option="tile",
     )
 

@@ -5,7 +5,9 @@ cache, figures, predictions, reports) goes through :func:`atomic_path`: the
 content is written to a hidden temporary file in the target's folder, flushed to
 disk, given the permissions a plain ``open`` would give, and renamed over the
 target (``os.replace``, atomic on POSIX). Anything raised on the way, Ctrl-C
-included, removes the temporary file and leaves the previous content in place.
+included, removes the temporary file and leaves the previous content in place;
+once the job is cancelled (:func:`rhythmic_jax.io.outputs.cancel`) nothing is
+renamed into place.
 Map folders use the same rename at folder level (:mod:`rhythmic_jax.io.checkpoint`).
 """
 
@@ -18,6 +20,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+
+from rhythmic_jax.io.outputs import committing
 
 __all__ = ["atomic_path", "save_npy", "write_file"]
 
@@ -41,7 +45,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes the file owner-only
-        os.replace(tmp, path)
+        with committing():
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -58,6 +58,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 FRAMES = "frames"
+# names the launcher's process id in its workers' environment (read there by
+# rhythmic_jax.app.signals, which this layer cannot import)
+LAUNCHER_ENV = "RHYTHMIC_JAX_LAUNCHER"
 _DEFAULT = NewtonConfig()
 
 
@@ -216,6 +219,11 @@ def launch_local(argv: Sequence[str], k: int) -> int:
 
     Process 0 prints; the others' output goes to their stderr only. When one
     fails the others are stopped. Returns the first non-zero exit status, or 0.
+
+    The workers run in a process group of their own, so a terminal's Ctrl-C
+    reaches the launcher alone, and each learns the launcher's id
+    (:data:`LAUNCHER_ENV`) to die with it however it ends, killed included
+    (:mod:`rhythmic_jax.app.signals`): no worker goes on to write the map.
     """
     if k < 1:
         raise InputError(f"{{opt:processes}} must be >= 1, got {k}")
@@ -223,6 +231,7 @@ def launch_local(argv: Sequence[str], k: int) -> int:
     cluster = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", str(k)]
     env = dict(os.environ)
     env.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    env[LAUNCHER_ENV] = str(os.getpid())
     procs = [
         subprocess.Popen(
             [
@@ -236,6 +245,7 @@ def launch_local(argv: Sequence[str], k: int) -> int:
             ],
             stdout=None if i == 0 else subprocess.DEVNULL,
             env=env,
+            process_group=0,
         )  # fmt: skip
         for i in range(k)
     ]

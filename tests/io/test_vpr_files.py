@@ -178,5 +178,7 @@ def test_hloc_file_is_a_descriptor_source(tmp_path):
     np.testing.assert_array_equal(h5.x, npy.x)
     assert h5.settings == npy.settings == {"dim": 6}
     (tmp_path / "feats.txt").write_text("1 2 3")
-    with pytest.raises(InputError, match="not a .npy or .h5 descriptor file"):
+    with pytest.raises(
+        InputError, match="not a .npy descriptor file.*.h5 descriptor files are read"
+    ):
         load_sources([str(tmp_path / "feats.txt")])
