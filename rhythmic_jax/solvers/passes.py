@@ -136,6 +136,9 @@ def _hess_pass(xa, labels, theta, v, c, periods, cols=None):
     return jnp.matmul(xa.T, hessian(both[:, p:]), precision="highest")
 
 
+_LINE_PARTS = 4  # row chunks of a line pass: float64 temporaries, a quarter each
+
+
 @partial(jax.jit, static_argnames=("periods",))
 def _line_pass(xa, labels, theta, s, t, c, periods, cols=None):
     """The block's loss along the step, ``phi_b(t) = L_b(m + t Xa s)`` per
@@ -149,19 +152,28 @@ def _line_pass(xa, labels, theta, s, t, c, periods, cols=None):
     ``phi_b`` in t twice. The margins are float32 products, then taken to t's
     dtype (float64 in a fit): ``phi_b`` is then piecewise quadratic in t to
     float64 rounding, and the exact line search's Newton iterations stop on its
-    minimiser instead of wandering in float32's rounding of ``m + t u``."""
-    both = jnp.matmul(xa, jnp.concatenate([theta, s], axis=1), precision="highest")
-    p, both = theta.shape[1], both.astype(t.dtype)
-    m, u = both[:, :p], both[:, p:]
-    g, hu = jax.jvp(_loss_grad(labels, periods, c, cols), (m + t * u,), (u,))
-    change = _block_loss(m + t * u, labels, periods, c, cols) - _block_loss(
-        m, labels, periods, c, cols
-    )
-    return (
-        change[None, :],
-        jnp.sum(g * u, axis=0, keepdims=True),
-        jnp.sum(hu * u, axis=0, keepdims=True),
-    )
+    minimiser instead of wandering in float32's rounding of ``m + t u``. The
+    rows go in ``_LINE_PARTS`` chunks (padded with rows of label -1), so the
+    float64 temporaries take no more memory than the float32 ones of the other
+    passes."""
+    rows = -(-xa.shape[0] // _LINE_PARTS)
+    pad = rows * _LINE_PARTS - xa.shape[0]
+    xs = jnp.pad(xa, ((0, pad), (0, 0))).reshape(_LINE_PARTS, rows, -1)
+    ls = jnp.pad(labels, (0, pad), constant_values=-1).reshape(_LINE_PARTS, rows)
+    both = jnp.concatenate([theta, s], axis=1)
+    p = theta.shape[1]
+
+    def part(chunk):
+        xa, labels = chunk
+        mu = jnp.matmul(xa, both, precision="highest").astype(t.dtype)
+        m, u = mu[:, :p], mu[:, p:]
+        g, hu = jax.jvp(_loss_grad(labels, periods, c, cols), (m + t * u,), (u,))
+        change = _block_loss(m + t * u, labels, periods, c, cols) - _block_loss(
+            m, labels, periods, c, cols
+        )
+        return change, jnp.sum(g * u, axis=0), jnp.sum(hu * u, axis=0)
+
+    return tuple(jnp.sum(a, axis=0, keepdims=True) for a in jax.lax.map(part, (xs, ls)))
 
 
 @partial(jax.jit, static_argnames=("periods",))
