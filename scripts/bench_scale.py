@@ -29,7 +29,7 @@ from rhythmic_jax.map.periods import (
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
 DTYPES = ("float32", "float16", "int8")
-PASSES = ("gradient", "gradient + bits", "CG", "CG from bits", "line search")
+PASSES = ("gradient", "CG", "gradient + bits", "CG from bits", "line search")
 
 
 def fit_command(path: Path, out: Path, *options: str) -> list[str]:
@@ -313,18 +313,20 @@ def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> P
     return path
 
 
-def pass_kinds(cg: list[int], seconds: list[float]) -> dict:
+def pass_kinds(cg: list[int], seconds: list[float], line=None) -> dict:
     """Seconds of every pass of a streamed fit by kind: basis, then per Newton step
-    gradient, CG and two line-search passes, then a last gradient pass."""
-    at = len(seconds) - (sum(3 + its for its in cg) + 1)
+    gradient, CG and line-search passes (``line`` per step; a fit recorded without
+    it took two), then a last gradient pass."""
+    line = [2] * len(cg) if line is None else line
+    at = len(seconds) - (sum(cg) + sum(line) + len(cg) + 1)
     kinds = {"basis": list(seconds[:at]), "gradient": [], "cg": [], "line": [],
              "step": []}  # fmt: skip
-    for its in cg:
+    for its, k in zip(cg, line, strict=True):
         kinds["gradient"].append(seconds[at])
         kinds["cg"] += seconds[at + 1 : at + 1 + its]
-        kinds["line"] += seconds[at + 1 + its : at + 3 + its]
-        kinds["step"].append(sum(seconds[at : at + 3 + its]))
-        at += 3 + its
+        kinds["line"] += seconds[at + 1 + its : at + 1 + its + k]
+        kinds["step"].append(sum(seconds[at : at + 1 + its + k]))
+        at += 1 + its + k
     return kinds
 
 
@@ -355,7 +357,7 @@ def full(args) -> dict:
     picks = np.linspace(0, n - 1, min(n, 20000)).astype(int)
     x = np.asarray(np.load(path, mmap_mode="r")[picks])
     acc = {t: float(np.mean(m.predict(x) == picks)) for t, m in dtypes(model).items()}
-    kinds = pass_kinds(run["cg"], run["pass_seconds"])
+    kinds = pass_kinds(run["cg"], run["pass_seconds"], run.get("line"))
     row = dict(n=n, d=256, r=3, periods=info["periods"], memory=memory,
                command=" ".join(["nice", "-n", str(NICE), *cmd]),
                file_bytes=path.stat().st_size, storage_bytes=info["storage_bytes"],
@@ -363,6 +365,7 @@ def full(args) -> dict:
                starts=[t["start"] for t in tries], loads=[t["load"] for t in tries],
                peak_bytes=max(t["peak"] for t in tries), steps=run["steps"],
                passes=run["passes"], pass_seconds=run["pass_seconds"], cg=run["cg"],
+               line=run.get("line"),
                block_rows=run["block_rows"],
                kept_active_bytes=run.get("kept_active_bytes"),
                pass_median_s=float(np.median(run["pass_seconds"])),
@@ -383,7 +386,8 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         sec = probe["sets"][-1]["seconds"]
         steps, cg = len(f["cg"]), sum(f["cg"])
         total = (steps + 1) * sec["gradient + bits"] + cg * sec["CG from bits"]
-        search = (total + 2 * steps * sec["line search"]) / 3600
+        line = sum(f.get("line") or [2] * steps)
+        search = (total + line * sec["line search"]) / 3600
         how = "the candidate set's measured pass of each kind (below)"
     basis = f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else ""
     errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
@@ -437,11 +441,11 @@ def probe(args) -> dict:
 
 def passes(path: str, memory: str, periods: str) -> dict:
     """The probe's process: one pass of each kind (seconds, compiling included)."""
-    import jax.numpy as jnp
+    import jax
 
     from rhythmic_jax.fitting.scale_fit import block_rows_for, parse_bytes
-    from rhythmic_jax.solvers import streamed as S
     from rhythmic_jax.solvers.objective import default_c
+    from rhythmic_jax.solvers.passes import Passes
 
     frames, fixed = open_frames(path), tuple(int(t) for t in periods.split(","))
     c, sets = default_c(frames.n), []
@@ -450,15 +454,15 @@ def passes(path: str, memory: str, periods: str) -> dict:
         bits = frames.n * -(-p // 8)
         rows = min(frames.n, block_rows_for(parse_bytes(memory) - bits, frames.d, p))
         labels = np.arange(frames.n, dtype=np.int32)
-        st = S._Stream(frames, 0, frames.n, labels, periods, rows, lambda t: t, True)
-        theta = jnp.zeros((frames.d + 1, p), jnp.float32)
+        st = Passes(frames, 0, frames.n, labels, periods, rows, lambda t: t, True)
+        theta = np.zeros((frames.d + 1, p), np.float32)
         v = theta + 1e-3
-        ts = jnp.asarray(np.repeat(np.asarray(S._GRID)[:, None], p, 1), jnp.float32)
-        st.run(S._grad_pass, theta, c)
-        st.run(S._grad_keep, theta, c, bits="write")
-        st.run(S._hess_pass, theta, v, c)
-        st.run(S._hess_kept, v, jnp.asarray(st.top, jnp.float32), bits="read")
-        st.run(S._line_pass, theta, v, ts, c)
+        st.gradient(theta, c)
+        st.hessian(theta, v, c)  # nothing kept yet: two products with the frames
+        st.gradient(theta, c, keep=True)
+        st.hessian(theta, v, c)  # from the kept bits
+        with jax.enable_x64(True):  # as in a fit: the search's sums in float64
+            st.line(theta, v, np.ones((1, p)), c)
         sec = dict(zip(PASSES, st.seconds, strict=False))
         sets.append(dict(periods=periods, templates=p, block_rows=rows, seconds=sec))
         del st

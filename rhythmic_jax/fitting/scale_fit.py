@@ -170,6 +170,7 @@ def fit_map_files(
         )
         run.update(block_rows=rows, steps=info.steps, passes=len(info.pass_seconds))
         run.update(kept_active_bytes=bits if keep else 0, cg=info.cg_iterations)
+        run.update(line=info.line_passes)
         run.update(pass_seconds=info.pass_seconds)
         run["pass_median_s"] = float(np.median(info.pass_seconds))
     model._take(fit_plan.keep(params, np.asarray(errors), cfg.dtype), d)

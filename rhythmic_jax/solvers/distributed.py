@@ -12,8 +12,9 @@ training errors) is computed on local frames, and XLA inserts the all-reduces.
 Blocks are padded to equal sizes with zero rows whose bias is 0 too (they
 add nothing to any product; the solver takes their constant off the objective).
 
-The streamed solver (:mod:`rhythmic_jax.solvers.streamed`) reduces its per-pass sums
-with :func:`allreduce`, the same way.
+The streamed solver (:mod:`rhythmic_jax.solvers.streamed`) takes the same Newton
+steps (:func:`rhythmic_jax.solvers.newton_cg.newton_solver`) and reduces every
+pass's sums with :func:`allreduce`.
 
 Launch: ``rhythmic-jax fit ref.npy --out m --processes 2`` on one machine, or
 on each of K hosts ``rhythmic-jax fit ref.npy --out m --coordinator HOST:PORT

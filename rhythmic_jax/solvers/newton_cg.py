@@ -26,6 +26,13 @@ template separately (the objective is piecewise quadratic along a line). optax's
 every template, and also chains after :func:`newton_cg` (tested); the exact
 per-template search takes fewer Newton steps and is the default.
 
+Both transformations also take the system already summed
+(:class:`NewtonSystem`, the ``system`` argument): the gradient, Hessian-vector
+products and the objective along a step given as functions, e.g. passes over
+frames read from disk in blocks (:mod:`rhythmic_jax.solvers.streamed`). Run by
+:func:`host_loop` over numpy arrays, CG and the line search are the same code in
+float64 numpy on the host, and compile no program.
+
 Names: n frames, q = d + 1 parameters, p templates.
 """
 
@@ -35,6 +42,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 from rhythmic_jax.solvers.precondition import block_preconditioner
@@ -94,20 +102,27 @@ def _total(value_fn):
     return lambda params: jnp.sum(value_fn(params))
 
 
+def _xp(a):
+    """The array module of ``a``: numpy for host arrays (a :func:`host_loop`'s
+    CG or line search), else jax.numpy (traced, or eager jax arrays)."""
+    return np if isinstance(a, np.ndarray) else jnp
+
+
 def _cg(hvp, precond, r0, eta, max_iter, loop=jax.lax.while_loop):
     """Preconditioned CG from 0 for ``H s = r0``, every column (template) at once.
 
     ``hvp`` maps (q, p) to ``(H v, Xa v)``, or to ``(H v, None)`` where the
     margins are not kept (a streamed fit). Column j stops when
     ``||r_j|| <= eta ||r0_j||``. ``loop`` runs it: ``jax.lax.while_loop``, or
-    :func:`host_loop` where every product is a pass over files. Returns the
-    step ``s`` (q, p), its margins ``Xa s`` (n, p) (accumulated from the
-    products, no extra product; None without margins) and the number of
-    iterations.
+    :func:`host_loop` where every product is a pass over files (with ``r0`` a
+    numpy array, in numpy). Returns the step ``s`` (q, p), its margins ``Xa s``
+    (n, p) (accumulated from the products, no extra product; None without
+    margins) and the number of iterations.
     """
-    target = eta * jnp.linalg.norm(r0, axis=0, keepdims=True)
+    xp = _xp(r0)
+    target = eta * xp.linalg.norm(r0, axis=0, keepdims=True)
     z = precond(r0)
-    rz = jnp.sum(r0 * z, axis=0, keepdims=True)
+    rz = xp.sum(r0 * z, axis=0, keepdims=True)
     if loop is jax.lax.while_loop:
         _, xz = jax.eval_shape(hvp, r0)
         zero_u = None if xz is None else jnp.zeros(xz.shape, xz.dtype)
@@ -115,34 +130,35 @@ def _cg(hvp, precond, r0, eta, max_iter, loop=jax.lax.while_loop):
         zero_u = None
 
     def live(r):
-        return jnp.linalg.norm(r, axis=0, keepdims=True) > target
+        return xp.linalg.norm(r, axis=0, keepdims=True) > target
 
     def cond(state):
         *_, r, _, _, it = state
-        return jnp.logical_and(it < max_iter, jnp.any(live(r)))
+        return xp.logical_and(it < max_iter, xp.any(live(r)))
 
     def body(state):
         s, u, r, d, rz, it = state
         on = live(r)
         ad, xd = hvp(d)
-        dad = jnp.sum(d * ad, axis=0, keepdims=True)
-        step = jnp.where(on, rz / jnp.where(dad > 0, dad, 1.0), 0.0)
+        dad = xp.sum(d * ad, axis=0, keepdims=True)
+        step = xp.where(on, rz / xp.where(dad > 0, dad, 1.0), 0.0)
         s, r = s + step * d, r - step * ad
         u = None if xd is None else u + step * xd
         z = precond(r)
-        rz_new = jnp.sum(r * z, axis=0, keepdims=True)
-        beta = rz_new / jnp.where(rz > 0, rz, 1.0)
-        d = jnp.where(on, z + beta * d, d)
-        return s, u, r, d, jnp.where(on, rz_new, rz), it + 1
+        rz_new = xp.sum(r * z, axis=0, keepdims=True)
+        beta = rz_new / xp.where(rz > 0, rz, 1.0)
+        d = xp.where(on, z + beta * d, d)
+        return s, u, r, d, xp.where(on, rz_new, rz), it + 1
 
-    init = (jnp.zeros_like(r0), zero_u, r0, z, rz, jnp.int32(0))
+    init = (xp.zeros_like(r0), zero_u, r0, z, rz, xp.int32(0))
     s, u, *_, it = loop(cond, body, init)
     return s, u, it
 
 
 def host_loop(cond, body, init):
     """``jax.lax.while_loop``'s contract run by Python, for bodies that cannot be
-    traced (a Hessian-vector product that reads its frames from disk)."""
+    traced (a Hessian-vector product that reads its frames from disk): the loop
+    of a :class:`NewtonSystem` over numpy arrays."""
     state = init
     while bool(cond(state)):
         state = body(state)
@@ -150,14 +166,20 @@ def host_loop(cond, body, init):
 
 
 class NewtonSystem(NamedTuple):
-    """The Newton system ``H s = -g`` as :func:`newton_cg`'s CG takes it.
+    """The Newton system ``H s = -g`` as :func:`newton_cg`'s CG takes it, and the
+    objective along a step as :func:`scale_by_exact_linesearch` takes it.
 
     ``grad`` (q, p) the gradient in theta (the iterate's dtype); ``hvp``:
     (q, p) -> ``(scale H v, Xa v or None)``; ``precond``: an approximate inverse
     of ``scale H``; ``scale``: the factor the system is multiplied by before
-    CG (the step is the same); ``dtype`` CG's; ``loop`` runs CG
-    (``jax.lax.while_loop`` or :func:`host_loop`). :func:`in_memory_system`
-    builds it from the objective and the design; a streamed fit sums it over
+    CG (the step is the same); ``dtype`` CG's; ``loop`` runs CG and the line
+    search (``jax.lax.while_loop``, or :func:`host_loop` over numpy arrays).
+    ``value`` (p,): the objective of every template at the iterate; ``line``:
+    ``s`` (q, p) -> ``along``, with ``along(t)`` for step lengths t (1, p) giving
+    ``phi(t) - phi(0)`` (p,), ``phi'(t)`` and ``phi''(t)`` (1, p), ``phi_j(t)``
+    the objective of template j at ``theta + t s`` (None: the line search
+    differentiates ``value_fn``). :func:`in_memory_system` builds the first six
+    from the objective and the design; a streamed fit sums all of them over
     blocks of frames (:mod:`rhythmic_jax.solvers.streamed`).
     """
 
@@ -167,6 +189,8 @@ class NewtonSystem(NamedTuple):
     scale: Any
     dtype: Any
     loop: Any = jax.lax.while_loop
+    value: Any = None
+    line: Any = None
 
 
 def in_memory_system(
@@ -212,10 +236,11 @@ def newton_cg(
 
     ``update(grad, state, params, *, system, max_cg=None)`` instead takes the
     system already summed (:class:`NewtonSystem`: a streamed fit's, whose
-    products are passes over blocks of frames); the step's margins are then
-    None. In memory the step's margins come from CG's products, or, where
-    those are rounded (``rounded``), from one product ``Xa s`` in the design's
-    dtype.
+    products are passes over blocks of frames; ``grad`` is then unused); the
+    step's margins are then None. In memory the step's margins come from CG's
+    products, or, where those are rounded (``rounded``), from one product
+    ``Xa s`` in the design's dtype. With numpy arrays (``params.theta`` and the
+    system's) the state and step are numpy arrays too.
 
     Args:
       eta: CG forcing term (relative residual at which a template stops).
@@ -226,11 +251,11 @@ def newton_cg(
     """
 
     def init_fn(params: Iterate) -> NewtonCGState:
-        p = params.theta.shape[-1]
+        p, xp = params.theta.shape[-1], _xp(params.theta)
         return NewtonCGState(
-            count=jnp.zeros([], jnp.int32),
-            decrement=jnp.full((p,), jnp.inf, params.theta.dtype),
-            cg_iterations=jnp.zeros([], jnp.int32),
+            count=xp.zeros([], xp.int32),
+            decrement=xp.full((p,), xp.inf, params.theta.dtype),
+            cg_iterations=xp.zeros([], xp.int32),
         )
 
     def update_fn(
@@ -259,7 +284,7 @@ def newton_cg(
             u = jnp.matmul(design, s, precision="highest")
         s = s.astype(dtype)
         u = None if u is None else u.astype(dtype)
-        decrement = 0.5 * jnp.sum(-system.grad * s, axis=0)
+        decrement = 0.5 * _xp(s).sum(-system.grad * s, axis=0)
         new_state = NewtonCGState(state.count + 1, decrement, it)
         return Iterate(s, u), new_state
 
@@ -343,7 +368,9 @@ def derivatives(
     return g, hvp, curv.margins, jnp.mean(curv.theta)
 
 
-def _bracketed_root(slope, t0, iters: int, rtol: float = 0.0):
+def _bracketed_root(
+    slope, t0, iters: int, rtol: float = 0.0, g0=None, loop=jax.lax.while_loop
+):
     """Root over t >= 0 of a continuous, piecewise-linear, nondecreasing ``phi'``.
 
     ``slope(t)`` returns ``phi'(t)`` and ``phi''(t)`` (1, p). From ``t0`` each
@@ -353,33 +380,37 @@ def _bracketed_root(slope, t0, iters: int, rtol: float = 0.0):
     A column also stops once ``|phi'(t)| <= rtol |phi'(0)|``: in floating point
     Newton's step can creep towards the root by an ulp at a time from one side
     (the bracket never closes), which would run every column to ``iters``.
+    ``g0``: ``phi'(0)`` where it is known (else ``slope`` at 0 gives it);
+    ``loop``: ``jax.lax.while_loop``, or :func:`host_loop` (numpy ``t0``).
     Returns t (1, p) and ``phi'(0)``.
     """
+    xp = _xp(t0)
 
     def body(state):
         t, lo, glo, hi, ghi, done, it = state
         g, h = slope(t)
         left = g < 0
-        lo, glo = jnp.where(left, t, lo), jnp.where(left, g, glo)
-        hi, ghi = jnp.where(left, hi, t), jnp.where(left, ghi, g)
-        newton = t - g / jnp.maximum(h, 1e-300)
+        lo, glo = xp.where(left, t, lo), xp.where(left, g, glo)
+        hi, ghi = xp.where(left, hi, t), xp.where(left, ghi, g)
+        newton = t - g / xp.maximum(h, 1e-300)
         inside = (newton > lo) & (newton < hi)
-        secant = lo - glo * (hi - lo) / jnp.where(ghi > glo, ghi - glo, 1.0)
-        new = jnp.where(inside | jnp.isinf(hi), newton, secant)
-        narrow = jnp.isfinite(hi) & (hi - lo <= 1e-12 * hi)
-        flat = jnp.abs(g) <= rtol * jnp.abs(g0)
+        secant = lo - glo * (hi - lo) / xp.where(ghi > glo, ghi - glo, 1.0)
+        new = xp.where(inside | xp.isinf(hi), newton, secant)
+        narrow = xp.isfinite(hi) & (hi - lo <= 1e-12 * hi)
+        flat = xp.abs(g) <= rtol * xp.abs(g0)
         stop = done | (g == 0) | (new == t) | narrow | flat
-        return jnp.where(stop, t, new), lo, glo, hi, ghi, stop, it + 1
+        return xp.where(stop, t, new), lo, glo, hi, ghi, stop, it + 1
 
     def cond(state):
         *_, done, it = state
-        return jnp.logical_and(it < iters, ~jnp.all(done))
+        return xp.logical_and(it < iters, ~xp.all(done))
 
-    zero = jnp.zeros_like(t0)
-    g0, _ = slope(zero)
-    state = (t0, zero, g0, jnp.full_like(t0, jnp.inf), zero, g0 >= 0, 0)
-    t, *_ = jax.lax.while_loop(cond, body, state)
-    return jnp.where(g0 < 0, t, 0.0), g0
+    zero = xp.zeros_like(t0)
+    if g0 is None:
+        g0, _ = slope(zero)
+    state = (t0, zero, g0, xp.full_like(t0, xp.inf), zero, g0 >= 0, 0)
+    t, *_ = loop(cond, body, state)
+    return xp.where(g0 < 0, t, 0.0), g0
 
 
 def scale_by_exact_linesearch(
@@ -396,15 +427,21 @@ def scale_by_exact_linesearch(
     forward on 3576 frames x 441 templates). The minimiser is found by
     :func:`_bracketed_root` from t = 1 (the Newton step); a step that does not
     decrease ``phi`` becomes 0.
+
+    ``update(updates, state, params, *, system)`` takes ``phi`` from a
+    :class:`NewtonSystem`'s ``value`` and ``line`` instead (``phi'(0)`` is its
+    gradient along the step), and searches in its ``loop``.
     """
 
     def init_fn(params: Iterate) -> ExactLinesearchState:
-        p = params.theta.shape[-1]
-        zero = jnp.zeros((p,), params.theta.dtype)
-        return ExactLinesearchState(jnp.ones((1, p), params.theta.dtype), zero, zero)
+        p, xp = params.theta.shape[-1], _xp(params.theta)
+        zero = xp.zeros((p,), params.theta.dtype)
+        return ExactLinesearchState(xp.ones((1, p), params.theta.dtype), zero, zero)
 
-    def update_fn(updates, state, params, *, value_fn, **extra_args):
-        del state, extra_args
+    def update_fn(updates, state, params, *, value_fn=None, system=None, **extra):
+        del state, extra
+        if system is not None and system.line is not None:
+            return _search_system(updates, system, max_iterations, rtol)
         p = params.theta.shape[-1]
         grad = jax.grad(_total(value_fn))
 
@@ -432,6 +469,26 @@ def scale_by_exact_linesearch(
         return scaled, ExactLinesearchState(t, f0, f1)
 
     return optax.GradientTransformationExtraArgs(init_fn, update_fn)
+
+
+def _search_system(updates: Iterate, system: NewtonSystem, iters: int, rtol: float):
+    """:func:`scale_by_exact_linesearch`'s update along ``updates.theta`` (q, p)
+    with ``phi`` from ``system.line`` (one call of ``along`` per iteration)."""
+    s = updates.theta
+    xp = _xp(s)
+    along = system.line(s)
+    g0 = xp.sum(system.grad * s, axis=0, keepdims=True)
+    # from 1, or from 0 where the step does not descend (it stays there): the
+    # search then ends at the step lengths of its last call of ``along``
+    t0 = xp.where(g0 < 0, 1.0, 0.0).astype(g0.dtype)
+    t, _ = _bracketed_root(lambda t: along(t)[1:], t0, iters, rtol, g0, system.loop)
+    f0 = system.value
+    f1 = f0 + along(t)[0]
+    worse = (f1 > f0)[None, :]
+    t = xp.where(worse, 0.0, t)
+    f1 = xp.where(worse[0], f0, f1)
+    scaled = jax.tree.map(lambda a: t * a, updates)
+    return scaled, ExactLinesearchState(t, f0, f1)
 
 
 def newton_solver(

@@ -6,7 +6,12 @@ leading eigenvectors ``V`` (q, k) of ``Xa^T Xa`` (:func:`top_eigen`, subspace
 iteration in float32, computed once per fit by :func:`spectral_setup`). In their
 span :func:`block_preconditioner` inverts each template's system exactly on the
 first ``block`` directions (where the active set couples directions most) and by
-its diagonal on the rest; outside it, by a scalar per template.
+its diagonal on the rest; outside it, by a scalar per template. A fit whose
+frames are read in blocks (:mod:`rhythmic_jax.solvers.streamed`) cannot keep
+``Xa V``: it sums :func:`curvature_sums` over the blocks and takes
+:func:`diagonal_preconditioner`, the diagonal in the same basis and the same
+scalar outside it. Both apply to jax arrays, or to numpy arrays on the host
+(float64, no program), as the CG that calls them runs.
 
 Names: n frames, q = d + 1 (the bias is a constant-1 feature), k eigenvectors,
 p templates.
@@ -18,11 +23,14 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from rhythmic_jax.jit_options import jit
 
 __all__ = [
     "block_preconditioner",
+    "curvature_sums",
+    "diagonal_preconditioner",
     "in_basis",
     "outside_norms",
     "spectral_setup",
@@ -73,19 +81,56 @@ def outside_norms(xa: jax.Array, lead: jax.Array) -> jax.Array:
     return jnp.maximum(rest, 0.0)
 
 
+def _matmul(a, b):
+    """``a @ b``: numpy's for host arrays, else jax's at full float32 precision."""
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
+        return a @ b
+    return jnp.matmul(a, b, precision="highest")
+
+
 def in_basis(vecs: jax.Array, inside, tail: jax.Array):
     """A preconditioner split by an orthonormal basis ``vecs`` (q, k): ``inside``
     maps the coefficients ``V^T v`` (k, p) to the system's inverse applied there;
     outside the basis each column is divided by ``tail`` (1, p). Returns
-    ``apply`` mapping (q, p) -> (q, p)."""
+    ``apply`` mapping (q, p) -> (q, p) (numpy arrays stay numpy)."""
 
     def apply(v):
-        coef = jnp.matmul(vecs.T, v, precision="highest")
-        return (
-            jnp.matmul(vecs, inside(coef) - coef / tail, precision="highest") + v / tail
-        )
+        coef = _matmul(vecs.T, v)
+        return _matmul(vecs, inside(coef) - coef / tail) + v / tail
 
     return apply
+
+
+def curvature_sums(xa: jax.Array, h: jax.Array, vecs: jax.Array | None):
+    """What :func:`diagonal_preconditioner` needs of ``Xa^T diag(h_j) Xa`` over
+    some frames ``xa`` (B, q) with curvatures ``h`` (B, p), summed over them: its
+    diagonal in the basis ``vecs`` (q, k), ``sum_i h_ij (xa_i . v_l)^2`` (k, p),
+    and its trace outside the basis, ``sum_i h_ij ||xa_i outside V||^2`` (p,);
+    with ``vecs`` None its diagonal in theta (q, p) (Jacobi). Sums over blocks of
+    frames add up."""
+    if vecs is None:
+        return jnp.matmul((xa * xa).T, h, precision="highest")
+    lead = jnp.matmul(xa, vecs, precision="highest")
+    return jnp.matmul((lead * lead).T, h, precision="highest"), jnp.matmul(
+        outside_norms(xa, lead), h, precision="highest"
+    )
+
+
+def diagonal_preconditioner(vecs, sums, lam):
+    """Preconditioner of ``H_j = lam_j I + Xa^T diag(h_j) Xa`` for every template
+    from :func:`curvature_sums` over every frame: in the basis ``vecs`` (q, k) its
+    diagonal ``lam + sums[0]``, outside it ``lam`` plus the mean over the q - k
+    remaining directions of the trace there (as :func:`block_preconditioner`
+    with no exact block); ``vecs`` None: ``1 / (lam + diagonal)`` (Jacobi).
+    ``lam`` (1, p) or, for Jacobi, (q, p). Returns ``apply`` (q, p) -> (q, p)."""
+    if vecs is None:
+        diag = lam + sums
+        return lambda r: r / diag
+    inside, outside = sums
+    q, k = vecs.shape
+    diag = lam + inside
+    tail = lam + outside[None, :] / max(q - k, 1)
+    return in_basis(vecs, lambda coef: coef / diag, tail)
 
 
 def block_preconditioner(vecs, lead, rest, mask, lam, block):

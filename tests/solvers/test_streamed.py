@@ -9,17 +9,26 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from rhythmic_jax.io.frame_files import ShardWriter, open_frames
-from rhythmic_jax.solvers import streamed
+from rhythmic_jax.solvers import newton_cg as newton_cg_module
+from rhythmic_jax.solvers import passes, streamed
 from rhythmic_jax.solvers.newton import newton_fit
-from rhythmic_jax.solvers.newton_cg import Iterate, scale_by_exact_linesearch
+from rhythmic_jax.solvers.newton_cg import (
+    Iterate,
+    newton_cg,
+    newton_solver,
+    scale_by_exact_linesearch,
+)
 from rhythmic_jax.solvers.objective import (
     margin_objectives,
     period_errors,
     scores,
     targets,
 )
+from rhythmic_jax.solvers.passes import Passes
+from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.streamed import (
     StreamConfig,
     stream_errors,
@@ -41,6 +50,10 @@ def test_streamed_fit_reaches_the_in_memory_optimum(tmp_path):
         frames, np.arange(n), periods, c, StreamConfig(block_rows=96), progress=False
     )
     assert len(info.pass_seconds) > info.steps  # gradient, CG and line passes
+    # the basis, every step's gradient, CG and line passes, the final gradient
+    steps = zip(info.cg_iterations, info.line_passes, strict=True)
+    assert len(info.pass_seconds) == 2 + sum(1 + cg + line for cg, line in steps)
+    assert all(line >= 1 for line in info.line_passes)
     rel = np.abs(info.objective - ref_info.objective) / ref_info.objective
     assert rel.max() < 1e-6
     w_ref = np.asarray(ref.w)
@@ -50,6 +63,33 @@ def test_streamed_fit_reaches_the_in_memory_optimum(tmp_path):
     np.testing.assert_allclose(errors, want, atol=1.5 / n)
 
 
+def _small_stream(tmp_path, seed, n=50, d=6, periods=(4, 5)):
+    """Unit rows (n, d) written to shards of 20 and their passes in blocks of 7:
+    ``(x, passes, xa (n, d + 1) float64, y (n, p) float64)``."""
+    x = np.random.default_rng(seed).normal(size=(n, d)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    with ShardWriter(tmp_path / "s", rows=20) as w:
+        w.write(x)
+    stream = Passes(
+        open_frames(tmp_path / "s"), 0, n, np.arange(n, dtype=np.int32),
+        periods, 7, lambda tree: tree,
+    )  # fmt: skip
+    xa = np.hstack([x, np.ones((n, 1), np.float32)]).astype(np.float64)
+    return x, stream, xa, np.asarray(targets(np.arange(n), periods), np.float64)
+
+
+def _streamed_system(stream, theta, c, vecs=None):
+    """The streamed fit's :class:`NewtonSystem` at theta (q, p) float64."""
+    th32 = np.asarray(theta, np.float32)
+    loss, gx, curv = stream.gradient(th32, c, vecs)
+    reg, reg_grad, reg_diag = streamed._regulariser_terms(np.asarray(theta), c)
+    system = streamed._system(
+        stream, th32, reg + loss, reg_grad + gx, curv, c, (reg_grad, reg_diag),
+        vecs=vecs,
+    )  # fmt: skip
+    return system, reg + loss
+
+
 def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_path):
     """What the streamed solver hands newton_cg (the objective, its gradient and
     Hessian products summed over blocks, padding included) is autodiff of the
@@ -57,16 +97,7 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
     per-template minimiser along the step (the in-memory optax search's)."""
     rng = np.random.default_rng(1)
     n, d, periods, c = 50, 6, (4, 5), 2.5
-    x = rng.normal(size=(n, d)).astype(np.float32)
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    with ShardWriter(tmp_path / "s", rows=20) as w:
-        w.write(x)
-    stream = streamed._Stream(
-        open_frames(tmp_path / "s"), 0, n, np.arange(n, dtype=np.int32),
-        periods, 7, lambda tree: tree,
-    )  # fmt: skip
-    xa = np.hstack([x, np.ones((n, 1), np.float32)]).astype(np.float64)
-    y = np.asarray(targets(np.arange(n), periods), np.float64)
+    x, stream, xa, y = _small_stream(tmp_path, 1, n, d, periods)
     with jax.enable_x64(True):
         theta = jnp.asarray(rng.normal(size=(d + 1, sum(periods))) * 0.5)
 
@@ -74,13 +105,10 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
             return margin_objectives(th, jnp.asarray(xa) @ th, jnp.asarray(y), c)
 
         grad_ref = jax.grad(lambda th: jnp.sum(f(th)))(theta)
-        th32 = np.asarray(theta, np.float32)
-        loss, gx, diag = stream.run(streamed._grad_pass, th32, c, split=1)
-        reg, reg_grad, reg_diag = streamed._regulariser_terms(np.asarray(theta), c)
-        np.testing.assert_allclose(reg + loss, f(theta), rtol=1e-6)
-        grad = reg_grad + gx
+        system, value = _streamed_system(stream, theta, c)
+        np.testing.assert_allclose(value, f(theta), rtol=1e-6)
+        grad = system.grad
         np.testing.assert_allclose(grad, grad_ref, rtol=1e-4, atol=1e-4)
-        system = streamed._system(stream, th32, grad, diag, c, reg_diag)
         v = rng.normal(size=theta.shape)
         hv, margins = system.hvp(v)
         assert margins is None  # nothing of size n is kept
@@ -95,11 +123,16 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
             active = (y[:, j] * (xa @ th[:, j]) < 1)[:, None]
             hessian = np.eye(d + 1) + 2 * c * xa.T @ (active * xa)
             s[:, j] = np.linalg.solve(hessian, -g64[:, j])
-        # the host CG converges to that step
-        cg, its = streamed._newton_direction(system, 1e-8, 200)
-        assert 0 < its < 200
-        np.testing.assert_allclose(cg, s, rtol=1e-3, atol=1e-4)
-        t = streamed._line_search(stream, th32, s, c, grad, (reg_grad, reg_diag))
+        # newton_cg's CG on the streamed system, on the host, converges to it
+        it = Iterate(th, None)
+        opt = newton_cg(eta=1e-8, max_cg=200)
+        cg, state = opt.update(Iterate(grad, None), opt.init(it), it, system=system)
+        assert isinstance(cg.theta, np.ndarray) and cg.margins is None
+        assert 0 < int(state.cg_iterations) < 200
+        np.testing.assert_allclose(cg.theta, s, rtol=1e-3, atol=1e-4)
+        search = scale_by_exact_linesearch()
+        _, found = search.update(Iterate(s, None), search.init(it), it, system=system)
+        t = found.step_size[0]
         s = jnp.asarray(s)
         it = Iterate(theta, jnp.asarray(xa) @ theta)
         step = Iterate(s, jnp.asarray(xa) @ s)
@@ -107,14 +140,86 @@ def test_streamed_passes_are_the_objectives_derivatives_summed_over_blocks(tmp_p
         def value_fn(p):
             return margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
 
-        search = scale_by_exact_linesearch()
         _, exact = search.update(step, search.init(it), it, value_fn=value_fn)
-        # exact once the bracket holds one piece of phi'; within it otherwise
-        np.testing.assert_allclose(t, exact.step_size[0], rtol=2e-3)
+        # the same search on float32 margins: to their rounding
+        np.testing.assert_allclose(t, exact.step_size[0], rtol=1e-5)
         end = theta + jnp.asarray(t)[None, :] * s
         reached = value_fn(Iterate(end, jnp.asarray(xa) @ end))
         np.testing.assert_allclose(reached, exact.new_value, rtol=1e-5)
+        np.testing.assert_allclose(found.new_value, exact.new_value, rtol=1e-5)
         assert not np.allclose(t, 1.0, rtol=1e-3)  # the search moved the step
+
+
+def test_a_streamed_step_is_newton_solvers_step_in_memory(tmp_path):
+    """One Newton step (CG to a tight tolerance, then the exact per-template
+    search) of ``newton_solver`` on the streamed system, run on the host, is the
+    same transformation's step on the in-memory system of the same frames
+    (float64 design): the same step, step sizes, values and decrements, to the
+    float32 rounding of the streamed products."""
+    rng = np.random.default_rng(7)
+    n, d, periods, c = 50, 6, (4, 5), 2.5
+    x, stream, xa, y = _small_stream(tmp_path, 7, n, d, periods)
+    with jax.enable_x64(True):
+        theta = rng.normal(size=(d + 1, sum(periods))) * 0.5
+        opt = newton_solver(eta=1e-10, max_cg=100)
+        design = jnp.asarray(xa)
+        spectral = spectral_setup(design, d + 1, 1, jax.random.PRNGKey(0))
+        it = Iterate(jnp.asarray(theta), design @ theta)
+
+        def value_fn(p):
+            return margin_objectives(p.theta, p.margins, jnp.asarray(y), c)
+
+        grad = jax.grad(lambda p: jnp.sum(value_fn(p)))(it)
+        want, (cg_want, search_want) = opt.update(
+            grad, opt.init(it), it, value_fn=value_fn, design=design,
+            spectral=spectral,
+        )  # fmt: skip
+        vecs = np.linalg.eigh(xa.T @ xa)[1][:, ::-1].astype(np.float32)
+        system, _ = _streamed_system(stream, theta, c, vecs)
+        host = Iterate(theta, None)
+        got, (cg, search) = opt.update(
+            Iterate(system.grad, None), opt.init(host), host, system=system
+        )
+        want, cg_want, search_want = jax.tree.map(
+            np.asarray, (want, cg_want, search_want)
+        )
+    assert isinstance(got.theta, np.ndarray) and got.margins is None
+    assert int(cg.cg_iterations) > 1  # a diagonal preconditioner, not exact
+    scale = np.linalg.norm(want.theta, axis=0)
+    err = np.linalg.norm(got.theta - want.theta, axis=0)
+    assert np.all(err <= 1e-5 * scale), (err / scale).max()
+    np.testing.assert_allclose(search.step_size, search_want.step_size, rtol=1e-5)
+    assert not np.allclose(search.step_size, 1.0, rtol=1e-3)
+    np.testing.assert_allclose(search.value, search_want.value, rtol=1e-6)
+    np.testing.assert_allclose(search.new_value, search_want.new_value, rtol=1e-6)
+    np.testing.assert_allclose(cg.decrement, cg_want.decrement, rtol=1e-5)
+
+
+def test_the_streamed_fit_steps_by_newton_solver_on_the_host(tmp_path, monkeypatch):
+    """Every Newton step of a streamed fit is one ``newton_solver`` update on the
+    streamed system, its CG and its line search each run by ``host_loop``."""
+    calls = {"update": 0, "loop": 0}
+
+    def solver(*args, **kwargs):
+        real = newton_cg_module.newton_solver(*args, **kwargs)
+
+        def update(*a, system, **kw):
+            assert system.loop is counted and system.line is not None
+            calls["update"] += 1
+            return real.update(*a, system=system, **kw)
+
+        return optax.GradientTransformationExtraArgs(real.init, update)
+
+    def counted(cond, body, init):
+        calls["loop"] += 1
+        return newton_cg_module.host_loop(cond, body, init)
+
+    monkeypatch.setattr(streamed, "newton_solver", solver)
+    monkeypatch.setattr(streamed, "host_loop", counted)
+    frames = _route_file(tmp_path, seed=8, n=120, d=8)
+    _, info = _fits(frames, (9, 10), [StreamConfig(block_rows=50)])[0]
+    assert info.steps > 1
+    assert calls == {"update": info.steps, "loop": 2 * info.steps}
 
 
 def _route_file(tmp_path, seed: int, n: int, d: int):
@@ -166,6 +271,7 @@ def test_a_stopped_streamed_fit_resumes_from_its_checkpoint(tmp_path):
     )
     assert info.steps == whole_info.steps
     assert info.cg_iterations == whole_info.cg_iterations
+    assert info.line_passes == whole_info.line_passes
     np.testing.assert_allclose(info.objective, whole_info.objective, rtol=1e-9)
     np.testing.assert_allclose(got.w, whole.w, rtol=1e-5, atol=1e-7)
     # a checkpoint of other settings is not taken up
@@ -193,24 +299,27 @@ def test_line_pass_is_the_loss_along_the_step_differentiated_in_t():
     labels = jnp.asarray(np.r_[np.arange(36), -np.ones(4)].astype(np.int32))  # padding
     theta = jnp.asarray(rng.normal(size=(q, 7)).astype(np.float32) * 0.3)
     step = jnp.asarray(rng.normal(size=(q, 7)).astype(np.float32) * 0.3)
-    ts = jnp.asarray(np.repeat([[0.0], [0.5], [2.0]], 7, axis=1).astype(np.float32))
-    slope, curv = streamed._line_pass(xa, labels, theta, step, ts, c, periods)
 
     def phi(t):  # (p,) -> (p,): the block's loss at theta + t step, per template
-        w = theta + t[None, :] * step  # float32 products at full precision, as
-        m = jnp.matmul(xa, w, precision=jax.lax.Precision.HIGHEST)  # the pass's
-        return streamed._block_loss(m, labels, periods, c)
+        # the pass's own precision: the backend's default (TF32 on a GPU) is not
+        m = jnp.matmul(
+            xa, theta + t[None, :] * step, precision=jax.lax.Precision.HIGHEST
+        )
+        return passes._block_loss(m, labels, periods, c)
 
     ones = jnp.ones(7, jnp.float32)
 
     def dphi(t):
         return jax.jvp(phi, (t,), (ones,))[1]
 
-    for k, t in enumerate(ts):
-        d1 = dphi(t)
-        d2 = jax.jvp(dphi, (t,), (ones,))[1]
-        np.testing.assert_allclose(slope[k], d1, rtol=1e-4, atol=1e-4)
-        np.testing.assert_allclose(curv[k], d2, rtol=1e-4, atol=1e-4)
+    for value in (0.0, 0.5, 2.0):
+        t = jnp.full((1, 7), value, jnp.float32)
+        change, slope, curv = passes._line_pass(xa, labels, theta, step, t, c, periods)
+        d1 = dphi(t[0])
+        d2 = jax.jvp(dphi, (t[0],), (ones,))[1]
+        np.testing.assert_allclose(change[0], phi(t[0]) - phi(0 * ones), atol=1e-4)
+        np.testing.assert_allclose(slope[0], d1, rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(curv[0], d2, rtol=1e-4, atol=1e-4)
 
 
 def test_compacted_passes_take_the_same_steps_on_fewer_columns(tmp_path):
@@ -230,28 +339,6 @@ def test_compacted_passes_take_the_same_steps_on_fewer_columns(tmp_path):
     assert info.steps == ref_info.steps
     assert info.cg_iterations == ref_info.cg_iterations
     _same_optimum(ref, got)  # float32 products of other widths round differently
-
-
-def test_spectral_preconditioner_inverts_a_hessian_diagonal_in_its_basis():
-    """In the full eigenbasis of Xa^T Xa, with every frame active (h = 2C
-    everywhere) the Hessian is diagonal there: the preconditioner is its exact
-    inverse; with fewer vectors it is exact inside their span."""
-    rng = np.random.default_rng(6)
-    n, q, p, c = 40, 9, 3, 1.5
-    xa = rng.normal(size=(n, q)).astype(np.float32)
-    vals, vecs = np.linalg.eigh(xa.T.astype(np.float64) @ xa)
-    h = np.full((n, p), 2 * c, np.float32)
-    hessian = np.eye(q) + 2 * c * xa.T.astype(np.float64) @ xa
-    with jax.enable_x64(True):
-        for k in (q, 4):
-            basis = jnp.asarray(vecs[:, ::-1][:, :k], jnp.float32)
-            curv = jax.tree.map(
-                lambda a: np.asarray(a, np.float64),
-                streamed._curvature(jnp.asarray(xa), jnp.asarray(h), basis),
-            )
-            apply = streamed._preconditioner(jnp.ones((1, p)), curv, basis)
-            v = vecs[:, ::-1][:, :k] @ rng.normal(size=(k, p))  # inside the span
-            np.testing.assert_allclose(apply(jnp.asarray(hessian @ v)), v, rtol=2e-4)
 
 
 def test_spectral_preconditioning_reaches_the_optimum_in_fewer_cg_passes(tmp_path):
