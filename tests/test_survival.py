@@ -39,11 +39,8 @@ def _same(got: dict, want: dict) -> bool:
 
 
 def _leftovers(path: Path) -> list[str]:
-    return sorted(
-        p.name
-        for p in path.parent.iterdir()
-        if p.name.startswith(f".{path.name}.") and p.name != f".{path.name}.lock"
-    )
+    """Hidden names beside ``path``: temporary folders, backups, lock files."""
+    return sorted(p.name for p in path.parent.iterdir() if p.name.startswith("."))
 
 
 def _in_thread(fn, *args) -> tuple[threading.Thread, dict]:

@@ -11,9 +11,9 @@ renames, the previous map is still found under its hidden backup name and
 :func:`load_map` takes it from there).
 
 One writer at a time, one whole version for every reader (as git locks a ref): a
-save holds an exclusive OS lock (``fcntl.flock``) on the hidden ``.<name>.lock``
-beside the target from its first write to its last rename, and a read (metadata,
-digests, arrays) holds a shared one, so two saves onto one path end with one
+save holds an exclusive OS lock (``fcntl.flock``) on the folder that holds the
+target from its first write to its last rename, and a read (metadata, digests,
+arrays) holds a shared one, so two saves onto one path end with one
 complete map (the second waits for the first), and a reader sees the previous or
 the new map whole, never half of each. Whoever holds the exclusive lock knows
 that every hidden ``.<name>.tmp-*`` or ``.old-*`` folder is a killed writer's
@@ -115,21 +115,19 @@ def save_map(
     except OSError as err:
         raise InputError(f"{target}: cannot create its folder ({err})") from None
     values = {name: array_digest(value) for name, value in arrays.items()}
+    body = {"format_version": FORMAT_VERSION, **meta}
+    size = len(json.dumps(body, indent=2)) + 100 * (len(values) + 16)
+    check_space(target, sum(v.nbytes for v in arrays.values()) + size)
     with locked(target, exclusive=True):
         check_target(target)  # another save may have left something else there
         _recover(target)
         _clean(target, "old", "tmp")  # killed saves' leftovers: their locks are free
-        body = {"format_version": FORMAT_VERSION, **meta}
-        size = len(json.dumps(body, indent=2)) + 100 * (len(values) + 16)
-        check_space(target, sum(v.nbytes for v in arrays.values()) + size)
         tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex[:8]}"
         old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
         try:
+            body[_DIGESTS] = {"sha256": {"arrays": values}}
             with _disk_full_is_input_error(target, tmp):
-                _write_arrays(tmp, arrays)
-                files = _file_digests(tmp / _ARRAYS)
-                body[_DIGESTS] = {"sha256": {"files": files, "arrays": values}}
-                _write_meta(tmp, json.dumps(body, indent=2))
+                _write(tmp, arrays, body)
             if target.exists():
                 os.rename(target, old)
             os.rename(tmp, target)
@@ -148,42 +146,30 @@ def locked(path: str | os.PathLike, *, exclusive: bool) -> Iterator[None]:
     """Hold the lock of the map (or embedding) folder ``path``: exclusive for a
     save, shared for a read.
 
-    The lock is ``fcntl.flock`` on the hidden ``.<name>.lock`` beside ``path``
-    (created on first use, never removed: removing it would let two processes
-    lock two different files); the OS releases it when its holder dies, so a
-    killed writer never blocks the next. A reader that cannot create the lock
-    file (a read-only folder, where no save can happen either) reads unlocked.
-    Waiting longer than :data:`LOCK_WAIT_S` ends in :class:`InputError`.
+    The lock is ``fcntl.flock`` on the folder that holds ``path`` (its parent
+    directory, opened read-only): nothing is created beside the user's files, a
+    read-only folder locks as well, and the OS releases the lock when its holder
+    dies, so a killed writer never blocks the next. Saves of two maps in one
+    folder take turns too (a save lasts a second or so). A path whose parent does
+    not exist is read unlocked (there is nothing to read). Waiting longer than
+    :data:`LOCK_WAIT_S` ends in :class:`InputError`.
     """
     target = Path(path).expanduser().absolute()
-    lock = target.parent / f".{target.name}.lock"
-    fd = _open_lock(lock, exclusive)
-    if fd is None:
-        yield
+    try:
+        fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as err:
+        if exclusive:
+            raise InputError(
+                f"{target.parent}: cannot lock the folder "
+                f"({(err.strerror or str(err)).lower()})"
+            ) from None
+        yield  # no such folder: the read says so
         return
     try:
         _acquire(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH, target)
         yield
     finally:
         os.close(fd)  # releases the lock
-
-
-def _open_lock(lock: Path, exclusive: bool) -> int | None:
-    try:
-        return os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
-    except FileNotFoundError:
-        if exclusive:
-            raise InputError(f"{lock.parent}: no such folder") from None
-        return None  # nothing to read there either: the caller says so
-    except OSError as err:
-        if exclusive:
-            raise InputError(
-                f"{lock.parent}: cannot write a map there ({err.strerror.lower()})"
-            ) from None
-    try:  # a read-only folder: lock an existing lock file read-only, or read as is
-        return os.open(lock, os.O_RDONLY | os.O_CLOEXEC)
-    except OSError:
-        return None
 
 
 def _acquire(fd: int, mode: int, target: Path) -> None:
@@ -269,9 +255,13 @@ def _write_arrays(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
             ckpt.close()
 
 
-def _write_meta(tmp: Path, body: str) -> None:
+def _write(tmp: Path, arrays: dict[str, np.ndarray], body: dict) -> None:
+    """The new map's files in the hidden folder ``tmp``: the arrays, then
+    ``map.json`` holding ``body`` with the sha256 of every file just written."""
+    _write_arrays(tmp, arrays)
+    body[_DIGESTS]["sha256"]["files"] = _file_digests(tmp / _ARRAYS)
     with open(tmp / _META, "w") as fh:
-        fh.write(body)
+        fh.write(json.dumps(body, indent=2))
         fh.flush()
         os.fsync(fh.fileno())
 
@@ -326,16 +316,19 @@ def checksums_of(meta: dict[str, Any]) -> str:
     return "none (saved before maps carried checksums; not checked)"
 
 
-def verify_files(folder: Path, meta: dict[str, Any]) -> None:
-    """Refuse (:class:`InputError`, naming the file) a map whose array files are
-    missing or whose bytes differ from those its save recorded; a map saved
-    before digests passes unchecked."""
+def verify_files(folder: Path, meta: dict[str, Any], missing: bool = True) -> None:
+    """Refuse (:class:`InputError`, naming the file) a map whose array files
+    differ from those its save recorded, or (``missing``) are missing; a map
+    saved before digests passes unchecked. :func:`load_map` leaves missing files
+    to orbax's restore, which names what it lacks."""
     digests = _digests(meta, folder)
     if digests is None:
         return
     root = folder / _ARRAYS
     for name, expected in digests["files"].items():
         path = root / name
+        if not missing and not path.exists():
+            continue
         try:
             actual = _sha256_file(path)
         except OSError as err:
@@ -488,7 +481,7 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
     folders raise :class:`InputError`."""
     with locked(path, exclusive=False):
         folder, meta = read_metadata(path)
-        verify_files(folder, meta)
+        verify_files(folder, meta, missing=False)
         ckpt = _checkpointer()
         with _quiet_orbax_failures():
             try:
@@ -502,6 +495,7 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
                 ) from None
             finally:
                 ckpt.close()  # an unclosed checkpointer leaks its event loop
+        verify_files(folder, meta)  # files orbax did without are missing still
     arrays = {k: np.asarray(v) for k, v in raw.items()}
     _verify_arrays(folder, meta, arrays)
     meta.pop(_DIGESTS, None)  # the file's business, not the map's

@@ -273,11 +273,12 @@ def info(
     """
     with locked(path, exclusive=False):  # one whole version, not half of two
         folder, meta = read_metadata(path)
-        verify_files(folder, meta)
+        listed = arrays_listed(folder)  # empty: the load names what is missing
+        verify_files(folder, meta, missing=bool(listed))
         checksums = {"checksums": checksums_of(meta)}
         if meta.get("kind") == "embedding":
             return embedding_info(meta) | checksums
-        if consistent(meta, arrays_listed(folder)):
+        if consistent(meta, listed):
             return (
                 {key: meta[key] for key in INFO_KEYS}
                 | checksums

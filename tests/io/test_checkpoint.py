@@ -41,14 +41,7 @@ META = {
 
 
 def _hidden(folder: Path) -> list[str]:
-    """Hidden names beside ``folder`` but its lock file (which stays: removing it
-    would let two processes lock two different files)."""
-    lock = f".{folder.name}.lock"
-    return sorted(
-        p.name
-        for p in folder.parent.iterdir()
-        if p.name.startswith(".") and p.name != lock
-    )
+    return sorted(p.name for p in folder.parent.iterdir() if p.name.startswith("."))
 
 
 def _assert_same(got: dict, want: dict) -> None:
@@ -232,7 +225,7 @@ def test_failed_first_save_leaves_nothing(tmp_path, monkeypatch):
     _failing_rename(monkeypatch, path, "second")
     with pytest.raises(OSError, match="injected"):
         save_map(path, {"w": np.zeros(4, np.float32)}, {})
-    assert [p.name for p in tmp_path.iterdir()] == [".map.lock"]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_unserialisable_metadata_keeps_old_map(saved, tmp_path):
