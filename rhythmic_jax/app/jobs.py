@@ -881,6 +881,8 @@ def info_lines(info: dict[str, Any]) -> str:
         f"{'period ' + t:>18}: {b:,} B (templates)" for t, b in st["per_period"].items()
     ]
     lines.append(f"{'share':>18}: {st['share']:.4f} of the float32 database")
+    if info.get("checksums"):
+        lines.append(f"{'checksums':>18}: {info['checksums']}")
     lines += [
         f"{'period ' + str(t):>18}: training error {e:.4f}"
         for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)

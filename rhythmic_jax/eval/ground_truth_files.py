@@ -170,6 +170,22 @@ _METRES = (("easting", "northing"), ("x", "y"), ("east", "north"))
 _DEGREES = (("latitude", "longitude"), ("lat", "lon"), ("lat", "lng"))
 
 
+def _plain_npy(path: Path) -> np.ndarray:
+    """A numeric ``.npy``; one holding pickled objects is refused unread (nothing
+    is unpickled), as is a file that is not a ``.npy``."""
+    try:
+        return np.load(path, allow_pickle=False)
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror or err})") from None
+    except ValueError as err:
+        if "allow_pickle" in str(err):
+            raise InputError(
+                f"{path}: holds pickled objects, not numbers; refusing to unpickle "
+                "it (save the positions as a numeric (n, 2) array or a CSV)"
+            ) from None
+        raise InputError(f"{path}: not a .npy file ({err})") from None
+
+
 def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
     """Per-frame positions of a file: ``(n, 2)`` and their unit.
 
@@ -180,7 +196,7 @@ def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
     if not path.is_file():
         raise InputError(f"{path}: positions file not found")
     if path.suffix.lower() == ".npy":
-        return _checked(np.load(path, allow_pickle=False), path), "metres"
+        return _checked(_plain_npy(path), path), "metres"
     try:
         rows = list(csv.reader(path.read_text().splitlines()))
     except (OSError, UnicodeDecodeError) as err:

@@ -21,9 +21,16 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import save_npy
 
-__all__ = ["cache_key_check", "default_cache_dir", "load_cached", "save_cached"]
+__all__ = [
+    "cache_key_check",
+    "cache_unusable",
+    "default_cache_dir",
+    "load_cached",
+    "save_cached",
+]
 
 log = logging.getLogger(__name__)
+_WARNED: set[str] = set()  # what this process has warned about already
 
 
 def default_cache_dir() -> Path:
@@ -41,9 +48,9 @@ def cache_key_check(key: str) -> None:
 def load_cached(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
     """The float32 array of ``shape`` in the cache file ``path``, else None
     (missing, unreadable or mis-shaped: the caller recomputes it)."""
-    if not path.is_file():
-        return None
     try:
+        if not path.is_file():
+            return None
         x = np.load(path, allow_pickle=False)
         if x.shape == tuple(shape) and x.dtype == np.float32:
             return x
@@ -58,5 +65,28 @@ def save_cached(path: Path, x: np.ndarray) -> None:
     folder, flushed, then ``os.replace``). Jobs sharing the cache may write one
     entry at once: each replace puts a whole file in place, and a reader holds
     the whole file it opened. A writer killed mid-write leaves its hidden
-    temporary file, never a partial entry."""
-    save_npy(path, np.asarray(x))
+    temporary file, never a partial entry.
+
+    A cache is only a cache: one that cannot be written (a full or read-only
+    disk, ``$RHYTHMIC_JAX_CACHE`` naming a file) warns once
+    (:func:`cache_unusable`) and the job goes on without it."""
+    try:
+        save_npy(path, np.asarray(x))
+    except OSError as err:
+        cache_unusable(path.parent, "writing", err)
+
+
+def cache_unusable(folder: Path, doing: str, err: OSError) -> None:
+    """Warn, once per folder and process, that the cache ``folder`` failed
+    (``doing``: "reading", "writing", ...) and the job goes on without it."""
+    if str(folder) in _WARNED:
+        return
+    _WARNED.add(str(folder))
+    reason = err.strerror or str(err) or type(err).__name__
+    log.warning(
+        "cache %s: %s failed (%s); going on without the cache (set "
+        "RHYTHMIC_JAX_CACHE to a writable folder to keep results)",
+        folder,
+        doing,
+        reason.lower(),
+    )

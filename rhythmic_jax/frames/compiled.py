@@ -398,11 +398,17 @@ def network_runner(
     eager = Sliced(descriptor.network().eval(), EAGER_BATCH)
     shape = (COMPILE_BATCH, 3, descriptor.height, descriptor.width)
     path = package_path(descriptor, shape, cache_dir)
-    step = plan(descriptor, frames, policy, path.is_file())
-    if step == "load" and not package_ready(path):  # damaged: deleted
-        step = plan(descriptor, frames, policy, False)
-    if step == "background":
-        start_build(descriptor, shape, cache_dir)
+    try:
+        step = plan(descriptor, frames, policy, path.is_file())
+        if step == "load" and not package_ready(path):  # damaged: deleted
+            step = plan(descriptor, frames, policy, False)
+        if step == "background":
+            start_build(descriptor, shape, cache_dir)
+    except OSError as err:  # a cache that cannot be read or written: warn once
+        from rhythmic_jax.frames.cache_files import cache_unusable
+
+        cache_unusable(path.parent, "using the compiled network", err)
+        return eager
     if step in ("eager", "background"):
         return eager
     fn = _compiled(descriptor, shape, None if cache_dir is None else str(cache_dir))

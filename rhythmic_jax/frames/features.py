@@ -37,7 +37,11 @@ from typing import TYPE_CHECKING, ClassVar, Protocol
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames.cache_files import default_cache_dir
+from rhythmic_jax.frames.cache_files import (
+    default_cache_dir,
+    load_cached,
+    save_cached,
+)
 from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
 from rhythmic_jax.frames.weights import (
     LITE0_PACKAGE,
@@ -47,7 +51,6 @@ from rhythmic_jax.frames.weights import (
     packaged_record,
     resolve_weights,
 )
-from rhythmic_jax.io.atomic import save_npy
 from rhythmic_jax.validate import check_int
 
 if TYPE_CHECKING:
@@ -491,17 +494,14 @@ def cached_describe(
     """:func:`describe`, memoised in an .npy file (see :func:`cache_path`).
 
     The file is written atomically (temporary file, then ``os.replace``); an
-    unreadable or mis-shaped cache file is recomputed.
+    unreadable or mis-shaped cache file is recomputed, and a cache that cannot
+    be written (full, read-only, a file) warns once and is gone without.
     """
     images = np.ascontiguousarray(images)
     path = cache_path(images, descriptor, key, cache_dir)
-    if path.is_file():
-        try:
-            x = np.load(path, allow_pickle=False)
-            if x.shape == (len(images), descriptor.dim) and x.dtype == np.float32:
-                return x
-        except (OSError, ValueError, EOFError) as err:
-            log.warning("recomputing unreadable cache file %s (%s)", path, err)
+    x = load_cached(path, (len(images), descriptor.dim))
+    if x is not None:
+        return x
     x = describe(images, descriptor, batch_size, progress, num_threads, compile)
-    save_npy(path, x)
+    save_cached(path, x)  # a cache that cannot be written warns once
     return x

@@ -1,12 +1,28 @@
-"""Maps on disk: orbax-checkpoint arrays plus a JSON metadata file, saved atomically.
+"""Maps on disk: orbax-checkpoint arrays plus a JSON metadata file, saved atomically
+under a lock, every stored byte checksummed.
 
 A map folder holds ``arrays/`` (an orbax checkpoint of named arrays) and
 ``map.json`` (format version, periods, n, d, C, dtype, descriptor and its
-settings, package version, candidate errors). Saving writes a hidden temporary
-folder beside the target and renames it into place, so a process killed during a
-save leaves the previous map loadable (if it dies between the two renames, the
-previous map is still found under its hidden backup name and :func:`load_map`
-takes it from there; the next successful save removes what a killed one left).
+settings, package version, candidate errors, and ``digests``: the sha256 of every
+file under ``arrays/`` and of every array's values). Saving writes a hidden
+temporary folder beside the target and renames it into place, so a process killed
+during a save leaves the previous map loadable (if it dies between the two
+renames, the previous map is still found under its hidden backup name and
+:func:`load_map` takes it from there).
+
+One writer at a time, one whole version for every reader (as git locks a ref): a
+save holds an exclusive OS lock (``fcntl.flock``) on the folder that holds the
+target from its first write to its last rename, and a read (metadata, digests,
+arrays) holds a shared one, so two saves onto one path end with one
+complete map (the second waits for the first), and a reader sees the previous or
+the new map whole, never half of each. Whoever holds the exclusive lock knows
+that every hidden ``.<name>.tmp-*`` or ``.old-*`` folder is a killed writer's
+leftover, and removes it; no live writer's temporary folder is ever touched.
+
+Checksums (as SQLite checks every page): :func:`load_map` and
+:func:`verify_files` refuse a map whose files changed since it was saved, in one
+line naming the file; maps saved before digests existed still load
+(:func:`checksums_of` says so).
 
 The new map is written beside the previous one, so the disk must hold both for a
 moment: :func:`check_space` refuses a save (and the command line a fit, before
@@ -18,12 +34,16 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
+import hashlib
 import json
 import logging
 import os
 import shutil
 import sys
+import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +55,11 @@ __all__ = [
     "FORMAT_VERSION",
     "check_space",
     "check_target",
+    "checksums_of",
     "load_map",
+    "locked",
     "save_map",
+    "verify_files",
     "without_closed_loop",
 ]
 
@@ -47,6 +70,9 @@ _ARRAYS = "arrays"
 # about 16 files and folders of at most a 4 KiB block each
 OVERHEAD_BYTES = 64 * 1024
 _FULL = (errno.ENOSPC, errno.EDQUOT)
+_DIGESTS = "digests"
+# how long a save or a read waits for another process's save (or reads) to end
+LOCK_WAIT_S = 120.0
 log = logging.getLogger(__name__)
 
 
@@ -74,7 +100,8 @@ def _checkpointer():
 def save_map(
     path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict
 ) -> Path:
-    """Write ``arrays`` and ``meta`` to the folder ``path``, replacing it atomically."""
+    """Write ``arrays`` and ``meta`` to the folder ``path``, replacing it atomically
+    under the path's exclusive lock (another save onto it waits its turn)."""
     target = check_target(path)
     arrays = {k: np.asarray(v) for k, v in arrays.items()}
     for name, value in arrays.items():  # orbax fails on these, some after a mkdir
@@ -87,24 +114,101 @@ def save_map(
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"{target}: cannot create its folder ({err})") from None
-    body = json.dumps({"format_version": FORMAT_VERSION, **meta}, indent=2)
-    check_space(target, sum(v.nbytes for v in arrays.values()) + len(body))
-    tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex[:8]}"
-    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
-    try:
-        with _disk_full_is_input_error(target, tmp):
-            _write(tmp, arrays, body)
-        if target.exists():
-            _clean(target, "old")  # a killed clean-up's leftovers: keep one backup
-            os.rename(target, old)
-        os.rename(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old.exists() and not target.exists():
-            os.rename(old, target)  # put the previous map back
-        raise
-    _clean(target, "old", "tmp")  # the previous map, and killed saves' leftovers
+    values = {name: array_digest(value) for name, value in arrays.items()}
+    body = {"format_version": FORMAT_VERSION, **meta}
+    size = len(json.dumps(body, indent=2)) + 100 * (len(values) + 16)
+    check_space(target, sum(v.nbytes for v in arrays.values()) + size)
+    with locked(target, exclusive=True):
+        check_target(target)  # another save may have left something else there
+        _recover(target)
+        _clean(target, "old", "tmp")  # killed saves' leftovers: their locks are free
+        tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex[:8]}"
+        old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
+        try:
+            body[_DIGESTS] = {"sha256": {"arrays": values}}
+            with _disk_full_is_input_error(target, tmp):
+                _write(tmp, arrays, body)
+            if target.exists():
+                os.rename(target, old)
+            os.rename(tmp, target)
+            _fsync_folder(target.parent)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if old.exists() and not target.exists():
+                os.rename(old, target)  # put the previous map back
+            raise
+        shutil.rmtree(old, ignore_errors=True)
     return target
+
+
+@contextlib.contextmanager
+def locked(path: str | os.PathLike, *, exclusive: bool) -> Iterator[None]:
+    """Hold the lock of the map (or embedding) folder ``path``: exclusive for a
+    save, shared for a read.
+
+    The lock is ``fcntl.flock`` on the folder that holds ``path`` (its parent
+    directory, opened read-only): nothing is created beside the user's files, a
+    read-only folder locks as well, and the OS releases the lock when its holder
+    dies, so a killed writer never blocks the next. Saves of two maps in one
+    folder take turns too (a save lasts a second or so). A path whose parent does
+    not exist is read unlocked (there is nothing to read). Waiting longer than
+    :data:`LOCK_WAIT_S` ends in :class:`InputError`.
+    """
+    target = Path(path).expanduser().absolute()
+    try:
+        fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as err:
+        if exclusive:
+            raise InputError(
+                f"{target.parent}: cannot lock the folder "
+                f"({(err.strerror or str(err)).lower()})"
+            ) from None
+        yield  # no such folder: the read says so
+        return
+    try:
+        _acquire(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH, target)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _acquire(fd: int, mode: int, target: Path) -> None:
+    """Take the lock, waiting for its holder (logged once) up to LOCK_WAIT_S."""
+    deadline = None
+    while True:
+        try:
+            fcntl.flock(fd, mode | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            pass
+        if deadline is None:
+            deadline = time.monotonic() + LOCK_WAIT_S
+            log.info("%s: waiting for another process's save to end", target)
+        elif time.monotonic() > deadline:
+            raise InputError(
+                f"{target}: another process has held it for over {LOCK_WAIT_S:.0f} "
+                "s (saving or reading it); try again when it is done"
+            )
+        time.sleep(0.02)
+
+
+def _recover(target: Path) -> None:
+    """Put back the previous map of a save killed between its two renames."""
+    backups = sorted(
+        target.parent.glob(f".{target.name}.old-*"), key=lambda p: p.stat().st_mtime
+    )
+    if not target.exists() and backups and (backups[-1] / _META).is_file():
+        os.rename(backups[-1], target)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make the renames in ``folder`` durable (where the file system allows)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def without_closed_loop(hook):
@@ -140,8 +244,8 @@ def _quiet_orbax_failures():
         sys.unraisablehook = hook
 
 
-def _write(tmp: Path, arrays: dict[str, np.ndarray], body: str) -> None:
-    """The new map's files in the hidden folder ``tmp``."""
+def _write_arrays(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
+    """The new map's arrays in the hidden folder ``tmp``."""
     ckpt = _checkpointer()
     with _quiet_orbax_failures():
         try:
@@ -149,10 +253,110 @@ def _write(tmp: Path, arrays: dict[str, np.ndarray], body: str) -> None:
             ckpt.wait_until_finished()
         finally:
             ckpt.close()
+
+
+def _write(tmp: Path, arrays: dict[str, np.ndarray], body: dict) -> None:
+    """The new map's files in the hidden folder ``tmp``: the arrays, then
+    ``map.json`` holding ``body`` with the sha256 of every file just written."""
+    _write_arrays(tmp, arrays)
+    body[_DIGESTS]["sha256"]["files"] = _file_digests(tmp / _ARRAYS)
     with open(tmp / _META, "w") as fh:
-        fh.write(body)
+        fh.write(json.dumps(body, indent=2))
         fh.flush()
         os.fsync(fh.fileno())
+
+
+# ------------------------------------------------------------------- checksums
+
+
+def _sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _file_digests(folder: Path) -> dict[str, str]:
+    """sha256 of every file under ``folder``, by its path relative to it."""
+    return {
+        p.relative_to(folder).as_posix(): _sha256_file(p)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def array_digest(x: np.ndarray) -> str:
+    """sha256 of an array's values: its dtype's name, its shape and its elements
+    in C order, little-endian (the same for a big-endian or Fortran-ordered array
+    of the same values, as orbax reads them back native and C-ordered)."""
+    x = np.asarray(x)
+    x = np.ascontiguousarray(x, dtype=x.dtype.newbyteorder("<"))
+    head = f"{x.dtype.name}{list(x.shape)}".encode()
+    return hashlib.sha256(head + x.tobytes()).hexdigest()
+
+
+def _digests(meta: dict[str, Any], folder: Path) -> dict[str, dict[str, str]] | None:
+    """The map's recorded digests ({"files": ..., "arrays": ...}), None in a map
+    saved before they existed."""
+    if _DIGESTS not in meta:
+        return None
+    try:
+        table = meta[_DIGESTS]["sha256"]
+        files, values = dict(table["files"]), dict(table["arrays"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{folder / _META}: corrupt metadata (digests)") from None
+    return {"files": files, "arrays": values}
+
+
+def checksums_of(meta: dict[str, Any]) -> str:
+    """What ``info`` says of a map's checksums."""
+    if _DIGESTS in meta:
+        return "sha256 of every stored array, checked"
+    return "none (saved before maps carried checksums; not checked)"
+
+
+def verify_files(folder: Path, meta: dict[str, Any], missing: bool = True) -> None:
+    """Refuse (:class:`InputError`, naming the file) a map whose array files
+    differ from those its save recorded, or (``missing``) are missing; a map
+    saved before digests passes unchecked. :func:`load_map` leaves missing files
+    to orbax's restore, which names what it lacks."""
+    digests = _digests(meta, folder)
+    if digests is None:
+        return
+    root = folder / _ARRAYS
+    for name, expected in digests["files"].items():
+        path = root / name
+        if not missing and not path.exists():
+            continue
+        try:
+            actual = _sha256_file(path)
+        except OSError as err:
+            raise InputError(
+                f"{folder}: arrays are missing or corrupt ({path}: "
+                f"{(err.strerror or str(err)).lower()})"
+            ) from None
+        if actual != expected:
+            raise InputError(
+                f"{folder}: arrays are missing or corrupt ({_ARRAYS}/{name} changed "
+                "since the map was saved: its sha256 differs)"
+            )
+
+
+def _verify_arrays(folder: Path, meta: dict, arrays: dict[str, np.ndarray]) -> None:
+    digests = _digests(meta, folder)
+    if digests is None:
+        return
+    expected = digests["arrays"]
+    if set(expected) != set(arrays):
+        missing = sorted(set(expected) ^ set(arrays))
+        raise InputError(f"{folder}: arrays are missing or corrupt ({missing})")
+    for name, value in arrays.items():
+        if array_digest(value) != expected[name]:
+            raise InputError(
+                f"{folder}: arrays are missing or corrupt (array {name!r} changed "
+                "since the map was saved: its sha256 differs)"
+            )
 
 
 def _free_bytes(folder: Path) -> int:
@@ -271,19 +475,28 @@ def arrays_listed(folder: Path) -> set[str]:
 
 
 def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Read a map folder: (arrays, metadata). Bad folders raise :class:`InputError`."""
-    folder, meta = read_metadata(path)
-    ckpt = _checkpointer()
-    with _quiet_orbax_failures():
-        try:
-            raw = ckpt.restore(folder / _ARRAYS)
-        except Exception as err:  # noqa: BLE001 - orbax raises many kinds
-            msg = str(err).splitlines()[0] if str(err) else type(err).__name__
-            msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's JSON spec
-            msg = msg.split(": Error reading")[0]  # the file, not the driver's chain
-            raise InputError(
-                f"{folder}: arrays are missing or corrupt ({msg})"
-            ) from None
-        finally:
-            ckpt.close()  # an unclosed checkpointer leaks its event loop
-    return {k: np.asarray(v) for k, v in raw.items()}, meta
+    """Read a map folder: (arrays, metadata), under the path's shared lock (a save
+    waits for the read, the read for a save), every file and array checked
+    against its save's digests (which the metadata returned leaves out). Bad
+    folders raise :class:`InputError`."""
+    with locked(path, exclusive=False):
+        folder, meta = read_metadata(path)
+        verify_files(folder, meta, missing=False)
+        ckpt = _checkpointer()
+        with _quiet_orbax_failures():
+            try:
+                raw = ckpt.restore(folder / _ARRAYS)
+            except Exception as err:  # noqa: BLE001 - orbax raises many kinds
+                msg = str(err).splitlines()[0] if str(err) else type(err).__name__
+                msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's spec
+                msg = msg.split(": Error reading")[0]  # the file, not the chain
+                raise InputError(
+                    f"{folder}: arrays are missing or corrupt ({msg})"
+                ) from None
+            finally:
+                ckpt.close()  # an unclosed checkpointer leaks its event loop
+        verify_files(folder, meta)  # files orbax did without are missing still
+    arrays = {k: np.asarray(v) for k, v in raw.items()}
+    _verify_arrays(folder, meta, arrays)
+    meta.pop(_DIGESTS, None)  # the file's business, not the map's
+    return arrays, meta

@@ -141,12 +141,33 @@ def _read_jpeg_reduced(path: Path, at_least: tuple[int, int]) -> np.ndarray | No
         return None
 
 
+# colour spaces other than RGB and grey: PIL's convert("RGB") defines their RGB
+# (skimage hands CMYK's four channels on as they are, the fourth then read as alpha)
+_COLOUR_SPACES = frozenset({"CMYK", "YCbCr", "LAB", "HSV"})
+
+
+def _read_other_colour_space(path: Path) -> np.ndarray | None:
+    """A CMYK, YCbCr, LAB or HSV image as PIL converts it to uint8 (H, W, 3) RGB;
+    None for any other image (or a file PIL cannot open: skimage then reads it and
+    names what is wrong)."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            if im.mode not in _COLOUR_SPACES:
+                return None
+            return np.asarray(im.convert("RGB"))
+    except (OSError, ValueError, Image.DecompressionBombError):
+        return None
+
+
 def read_rgb(
     path: str | os.PathLike, at_least: tuple[int, int] | None = None
 ) -> np.ndarray:
     """Read one image as uint8 (H, W, 3) RGB.
 
-    Grey images are repeated to three channels; an alpha channel is composited
+    Grey images are repeated to three channels; CMYK, YCbCr, LAB and HSV images
+    are converted as PIL's ``convert("RGB")`` defines; an alpha channel is composited
     over black (``rgb * alpha / 255``; opaque pixels are unchanged). 16-bit and
     float images are rescaled to ``0..255``.
 
@@ -166,7 +187,9 @@ def read_rgb(
     import skimage.util
 
     try:
-        image = np.asarray(skimage.io.imread(path))
+        image = _read_other_colour_space(path)
+        if image is None:
+            image = np.asarray(skimage.io.imread(path))
     except Exception as exc:  # truncated, corrupt or not an image at all
         reason = str(exc)
         if isinstance(exc, OSError) and exc.strerror:  # missing, permission denied

@@ -11,13 +11,15 @@ arrays
 
 and ``map.json``: every key of :data:`INFO_KEYS` (what ``rhythmic-jax info``
 shows, :meth:`rhythmic_jax.RhythmicMap.info`) plus ``codes_kind``, ``dtype``,
-``package_version`` and ``format_version``.
+``package_version``, ``format_version`` and ``digests`` (the sha256 of every
+stored file and array, checked by :func:`load` and :func:`info`).
 
 :func:`save` writes a fitted map, :func:`load` reads one back as a checked
 :class:`MapFile` the map is rebuilt from, and :func:`info` describes a folder from
-``map.json`` alone when its metadata is complete and consistent and its arrays
-are listed as saved (no JAX imported, no array data read). Maps saved before
-layouts, embeddings or codes existed still load.
+``map.json`` and its files' checksums when its metadata is complete and
+consistent and its arrays are listed as saved (no JAX imported, no array
+decoded). Maps saved before layouts, embeddings, codes or checksums existed still
+load.
 """
 
 from __future__ import annotations
@@ -32,9 +34,12 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.checkpoint import (
     arrays_listed,
+    checksums_of,
     load_map,
+    locked,
     read_metadata,
     save_map,
+    verify_files,
 )
 from rhythmic_jax.map.periods import database_bytes
 from rhythmic_jax.map.quantize import dequantize
@@ -259,18 +264,27 @@ def info(
 ) -> dict[str, Any]:
     """What the map (or embedding) folder ``path`` holds.
 
-    A map whose metadata is :func:`consistent` is described from ``map.json``
-    alone; any other is handed to ``load_info`` (the loaded map's own
-    :meth:`~rhythmic_jax.RhythmicMap.info`, whose load says what is wrong).
+    Every file of the map is first checked against its save's digests (a changed
+    byte ends in :class:`InputError` naming the file; ``checksums`` says whether
+    the map carries them). A map whose metadata is :func:`consistent` is then
+    described from ``map.json`` alone; any other is handed to ``load_info`` (the
+    loaded map's own :meth:`~rhythmic_jax.RhythmicMap.info`, whose load says what
+    is wrong).
     """
-    folder, meta = read_metadata(path)
-    if meta.get("kind") == "embedding":
-        return embedding_info(meta)
-    if consistent(meta, arrays_listed(folder)):
-        return {key: meta[key] for key in INFO_KEYS} | {
-            "codes_kind": meta.get("codes_kind")
-        }
-    return load_info(path)
+    with locked(path, exclusive=False):  # one whole version, not half of two
+        folder, meta = read_metadata(path)
+        listed = arrays_listed(folder)  # empty: the load names what is missing
+        verify_files(folder, meta, missing=bool(listed))
+        checksums = {"checksums": checksums_of(meta)}
+        if meta.get("kind") == "embedding":
+            return embedding_info(meta) | checksums
+        if consistent(meta, listed):
+            return (
+                {key: meta[key] for key in INFO_KEYS}
+                | checksums
+                | {"codes_kind": meta.get("codes_kind")}
+            )
+    return load_info(path) | checksums
 
 
 def embedding_info(meta: dict[str, Any]) -> dict[str, Any]:

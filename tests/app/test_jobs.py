@@ -47,7 +47,8 @@ def test_fit_saves_the_map_with_its_provenance(route):
         "tile": None,
         "stride": None,
     }
-    assert jobs.info(str(folder / "m.map")) == loaded.info()
+    checked = {"checksums": "sha256 of every stored array, checked"}
+    assert jobs.info(str(folder / "m.map")) == loaded.info() | checked
     line = jobs.fit_summary("m.map", loaded.info())
     assert line.startswith(f"map m.map: n=90 d=12 periods {loaded.periods}")
 
@@ -94,7 +95,8 @@ def test_option_checks_name_parameters_and_run_before_any_work(route, tmp_path):
 def test_info_reads_the_metadata_alone_and_says_what_load_says(route, tmp_path):
     folder = route[0]
     path = str(folder / "m.map")
-    assert jobs.info(path) == RhythmicMap.load(path).info()
+    checked = {"checksums": "sha256 of every stored array, checked"}
+    assert jobs.info(path) == RhythmicMap.load(path).info() | checked
     code = (
         "import sys; from rhythmic_jax.app import jobs; "
         f"jobs.info({path!r}); print('jax' in sys.modules)"

@@ -227,3 +227,27 @@ def test_positions_of_aligned_traversals_name_places(tmp_path):
         load_ground_truth(specs, n_queries=2, n_places=7, query_source="q")
     with pytest.raises(InputError, match="2 query positions for 3 queries"):
         load_ground_truth(specs, n_queries=3, n_places=10, query_source="q")
+
+
+def test_pickled_positions_are_refused_unread(tmp_path):
+    """A positions or ground-truth ``.npy`` of pickled objects: one line naming the
+    file, nothing unpickled (NumPy's own refusal was a traceback)."""
+    from rhythmic_jax.eval.ground_truth_files import load_ground_truth
+
+    marker = tmp_path / "ran"
+    evil = np.empty((3, 2), object)
+    evil[:] = 1.0
+    evil[0, 0] = _Marker(marker)
+    bad = tmp_path / "pos.npy"
+    np.save(bad, evil, allow_pickle=True)
+    with pytest.raises(InputError, match=r"pos\.npy: holds pickled objects"):
+        read_positions(bad)
+    good = tmp_path / "ref.npy"
+    np.save(good, np.zeros((3, 2)))
+    for specs in ([str(good), str(bad)], [str(bad), str(good)]):
+        with pytest.raises(InputError, match=r"pos\.npy: holds pickled objects"):
+            load_ground_truth(specs, n_queries=3, n_places=3, query_source="q")
+    (tmp_path / "junk.npy").write_bytes(b"\x93NUMPY not really")
+    with pytest.raises(InputError, match=r"junk\.npy: not a \.npy file"):
+        read_positions(tmp_path / "junk.npy")
+    assert not marker.exists()

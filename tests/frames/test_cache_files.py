@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -59,3 +61,38 @@ def test_a_truncated_entry_is_recomputed_with_a_warning(tmp_path, caplog):
     with caplog.at_level("WARNING", logger="rhythmic_jax.frames.cache_files"):
         assert load_cached(path, (40, 8)) is None
     assert "recomputing unreadable cache file" in caplog.text
+
+
+@pytest.mark.parametrize("fault", ["a file", "full", "read-only"])
+def test_a_cache_that_cannot_be_written_warns_once_and_the_job_goes_on(
+    monkeypatch, tmp_path, caplog, fault
+):
+    """``RHYTHMIC_JAX_CACHE`` naming a file, a full disk, a read-only one: the
+    descriptors are still computed (equal to an uncached run's), one warning."""
+    import errno
+
+    from rhythmic_jax.frames import cache_files
+    from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
+    from rhythmic_jax.io import atomic
+
+    monkeypatch.setattr(cache_files, "_WARNED", set())
+    folder = tmp_path / "cache"
+    if fault == "a file":
+        folder.write_text("not a folder")
+    else:
+        code = errno.ENOSPC if fault == "full" else errno.EROFS
+
+        def refuse(*args, **kwargs):
+            raise OSError(code, os.strerror(code))
+
+        monkeypatch.setattr(atomic.tempfile, "mkstemp", refuse)
+    images = np.random.default_rng(0).integers(0, 256, (3, 32, 64, 3), np.uint8)
+    d = get_descriptor("patchnorm", width=64, height=32, patch=8)
+    with caplog.at_level("WARNING", logger="rhythmic_jax.frames.cache_files"):
+        for key in ("a", "b"):
+            got = cached_describe(images, d, key, cache_dir=folder, progress=False)
+            np.testing.assert_array_equal(got, describe(images, d, progress=False))
+        save_cached(folder / "c.npy", np.ones((2, 2), np.float32))
+    warnings = [r for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "going on without the cache" in warnings[0].message
+    assert not list(tmp_path.glob("**/*.tmp"))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import skimage.io
 import skimage.transform
+import skimage.util
 from sklearn.cluster import KMeans
 from sklearn.metrics import adjusted_rand_score
 from sklearn.preprocessing import StandardScaler
@@ -18,6 +19,7 @@ from rhythmic_jax.io.images import (
     load_traversal,
     natural_key,
     nordland,
+    read_rgb,
 )
 
 RNG = np.random.default_rng(0)
@@ -54,6 +56,61 @@ def test_grey_rgba_and_16_bit_become_rgb(tmp_path, rgb, write_image):
     expected = np.rint(half[..., :3] * (128 / 255)).astype(np.uint8)
     np.testing.assert_array_equal(t.images[2], expected)
     np.testing.assert_array_equal(t.images[3], t.images[0])  # top byte kept
+
+
+@pytest.mark.parametrize(
+    "space, name", [("CMYK", "f.jpg"), ("CMYK", "f.tif"), ("YCbCr", "f.tif"),
+                    ("LAB", "f.tif")]
+)  # fmt: skip
+def test_other_colour_spaces_convert_as_pil_does(tmp_path, rgb, space, name):
+    """A CMYK (or YCbCr, LAB) image is PIL's convert("RGB") of it, full size and
+    reduced; its fourth channel is not alpha (a CMYK JPEG was read as black)."""
+    from PIL import Image
+
+    image = Image.fromarray(rgb(24, 32)).convert(space)
+    path = tmp_path / name
+    image.save(path)
+    with Image.open(path) as im:
+        assert im.mode == space
+        expected = np.asarray(im.convert("RGB"))
+    got = read_rgb(path)
+    assert got.shape == (24, 32, 3) and got.dtype == np.uint8
+    np.testing.assert_array_equal(got, expected)
+    assert got.mean() > 60  # not the black of CMYK's K taken for alpha
+    np.testing.assert_array_equal(read_rgb(path, at_least=(32, 24)), expected)
+
+
+def test_palette_grey_alpha_bilevel_and_16_bit_modes(tmp_path, rgb):
+    """P, LA, 1-bit and I;16 images against PIL's and scikit-image's conversions."""
+    from PIL import Image
+
+    colour = Image.fromarray(rgb(6, 9))
+    grey = colour.convert("L")
+    alpha = Image.fromarray(RNG.integers(0, 256, (6, 9), dtype=np.uint8))
+    deep = RNG.integers(0, 65536, (6, 9)).astype(np.uint16)
+    colour.convert("P").save(tmp_path / "p.png")
+    Image.merge("LA", (grey, alpha)).save(tmp_path / "la.png")
+    colour.convert("1").save(tmp_path / "b.png")
+    Image.fromarray(deep).save(tmp_path / "i16.png")
+    with Image.open(tmp_path / "p.png") as im:
+        np.testing.assert_array_equal(
+            read_rgb(tmp_path / "p.png"), np.asarray(im.convert("RGB"))
+        )
+    over_black = np.asarray(grey, np.float64) * np.asarray(alpha) / 255.0
+    np.testing.assert_array_equal(
+        read_rgb(tmp_path / "la.png"),
+        np.repeat(np.rint(over_black).astype(np.uint8)[..., None], 3, axis=2),
+    )
+    with Image.open(tmp_path / "b.png") as im:
+        assert im.mode == "1"
+        bits = np.asarray(im.convert("RGB"))
+    np.testing.assert_array_equal(read_rgb(tmp_path / "b.png"), bits)
+    with Image.open(tmp_path / "i16.png") as im:
+        assert im.mode.startswith("I")
+    top = skimage.util.img_as_ubyte(skimage.io.imread(tmp_path / "i16.png"))
+    np.testing.assert_array_equal(
+        read_rgb(tmp_path / "i16.png"), np.repeat(top[..., None], 3, axis=2)
+    )
 
 
 def test_jpeg_frames_load(tmp_path, write_image):

@@ -32,7 +32,8 @@ def test_the_metadata_holds_every_info_key_and_the_arrays_it_needs(saved):
     listed = arrays_listed(folder)
     assert {"w", "b"} | map_file.CODE_ARRAYS["itq"] <= listed
     assert map_file.consistent(meta, listed)
-    assert map_file.info(saved, _refused) == model.info()
+    checked = {"checksums": "sha256 of every stored array, checked"}
+    assert map_file.info(saved, _refused) == model.info() | checked
 
 
 @pytest.mark.parametrize(
@@ -46,12 +47,14 @@ def test_the_metadata_holds_every_info_key_and_the_arrays_it_needs(saved):
 def test_inconsistent_metadata_is_handed_to_the_load(saved, tmp_path, change):
     folder, meta = read_metadata(saved)
     change(meta)
+    meta.pop("digests")  # no arrays to check: the metadata alone is at fault
     assert not map_file.consistent(meta, arrays_listed(folder))
     assert not map_file.consistent(read_metadata(saved)[1], {"w", "b"})  # no codes
     (tmp_path / "m.map").mkdir()
     (tmp_path / "m.map" / "map.json").write_text(json.dumps(meta))
     assert map_file.info(tmp_path / "m.map", lambda p: {"loaded": str(p)}) == {
-        "loaded": str(tmp_path / "m.map")
+        "loaded": str(tmp_path / "m.map"),
+        "checksums": "none (saved before maps carried checksums; not checked)",
     }
 
 
