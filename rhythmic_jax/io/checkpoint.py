@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.outputs import committing
 
 __all__ = [
     "FORMAT_VERSION",
@@ -128,9 +129,10 @@ def save_map(
             body[_DIGESTS] = {"sha256": {"arrays": values}}
             with _disk_full_is_input_error(target, tmp):
                 _write(tmp, arrays, body)
-            if target.exists():
-                os.rename(target, old)
-            os.rename(tmp, target)
+            with committing():  # a cancelled job puts no map in place
+                if target.exists():
+                    os.rename(target, old)
+                os.rename(tmp, target)
             _fsync_folder(target.parent)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -352,3 +352,33 @@ def test_shards_that_fail_to_write_leave_nothing_that_blocks_a_rerun(
     assert main(argv) == 0  # the rerun is not refused
     assert sorted(p.name for p in shards.iterdir()) == ["00-frames"]
     assert out.is_dir()
+
+
+CANCEL_MAP = """
+import sys
+import numpy as np
+from pathlib import Path
+from rhythmic_jax.io import checkpoint, outputs
+
+target = Path(sys.argv[1]) / "m.map"
+checkpoint.save_map(target, {"w": np.ones((3, 2), np.float32)}, {"kind": "first"})
+outputs.cancel()
+try:
+    checkpoint.save_map(target, {"w": np.zeros((3, 2), np.float32)}, {"kind": "new"})
+except outputs.Cancelled:
+    print("refused")
+arrays, meta = checkpoint.load_map(target)
+print(meta["kind"], float(arrays["w"].sum()))
+"""
+
+
+def test_a_cancelled_job_puts_no_map_in_place(tmp_path):
+    """A map's folder is renamed into place under the same commit lock as every
+    other output: once cancelled, the save is refused, the previous map stays
+    whole and no temporary folder is left."""
+    script = tmp_path / "cancel_map.py"
+    script.write_text(textwrap.dedent(CANCEL_MAP))
+    got = subprocess.run([sys.executable, str(script), str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert got.stdout.split() == ["refused", "first", "6.0"], got.stderr
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".m.map")] == []
