@@ -21,7 +21,6 @@ import os
 import sys
 import textwrap
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import (
@@ -31,9 +30,6 @@ from rhythmic_jax.frames.compile_policy import (
     CompilePolicy,
 )
 from rhythmic_jax.map.config import DECODERS, DTYPES, SOLVERS, MapConfig
-
-if TYPE_CHECKING:  # imported where used: no numpy, but not the parser's either
-    from rhythmic_jax.app import jobs
 
 __all__ = ["main"]
 
@@ -96,65 +92,187 @@ EXAMPLES = {
 }
 
 
-def _quiet_logs(verbose: bool) -> None:
+def _jobs():
+    """:mod:`rhythmic_jax.app.jobs`, imported when first asked for: the parser's
+    ``--help`` loads no numpy, JAX or torch."""
     from rhythmic_jax.app import jobs
 
-    jobs.quiet_io_threads()
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    logging.basicConfig(
-        level=logging.INFO if verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
-    for name in ("absl", "jax", "orbax", "jax._src.xla_bridge"):
-        logging.getLogger(name).setLevel(logging.ERROR)
+    return jobs
 
 
-def _add_source_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--descriptor",
-        default=None,
-        help="descriptor for image sources (patchnorm, hog, efficientnet_lite0, "
-        "vgg16_fc7); a map remembers its own",
-    )
-    p.add_argument(
-        "--weights",
-        default=None,
-        help="weights file of vgg16_fc7 (a state dict); when querying a map, a "
-        "moved copy of the file it was fitted with (its sha256 is checked)",
-    )
-    p.add_argument(
-        "--tile",
-        default=None,
-        help="tile a large image: size (queries of a tiled map: the map's own)",
-    )
-    p.add_argument(
-        "--stride",
-        default=None,
-        help="tile stride, with --tile (default size/2)",
-    )
-    p.add_argument(
-        "--compile",
-        default="auto",
-        choices=COMPILE_MODES,
-        help="run a network descriptor (efficientnet_lite0, vgg16_fc7) compiled "
-        "for this CPU: about 1.5-1.8x the frames/s of the eager network, but building "
-        "it costs up to a minute once per machine and settings (kept in the cache "
-        "folder) and loading it about 0.2 s per job. auto (default): a job of "
-        f">= {LOAD_MIN_FRAMES} frames loads the compiled network; the first such "
-        "job on a machine runs eagerly and pays only for a background build "
-        "(a niced process, about a minute of CPU beside it), so the next job "
-        f"runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
-        "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; "
-        "never (the eager reference). Without a C++ compiler the job runs eagerly "
-        "and says so",
-    )
-    p.add_argument(
-        "--compile-min-frames",
-        default=None,
-        metavar="N",
-        help="with --compile auto, compile from N frames on (built or not)",
-    )
-    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+def _opt(flags: str, help_: str | None = None, **settings) -> tuple[list[str], dict]:
+    """One row of :data:`OPTIONS`: the flags (or a positional's name) and what
+    ``add_argument`` takes (``group``: the title of the option's group)."""
+    return flags.split(), {"help": help_, **settings}
+
+
+FLAG = {"action": "store_true"}
+SOURCE = (  # how the frames of image sources are read (fit, learn, query, evaluate)
+    _opt("--descriptor", "descriptor for image sources (patchnorm, hog, "
+         "efficientnet_lite0, vgg16_fc7); a map remembers its own"),
+    _opt("--weights", "weights file of vgg16_fc7 (a state dict); when querying a "
+         "map, a moved copy of the file it was fitted with (its sha256 is checked)"),
+    _opt("--tile", "tile a large image: size (queries of a tiled map: the map's own)"),
+    _opt("--stride", "tile stride, with --tile (default size/2)"),
+    _opt("--compile", "run a network descriptor (efficientnet_lite0, vgg16_fc7) "
+         "compiled for this CPU: about 1.5-1.8x the frames/s of the eager network, but "
+         "building it costs up to a minute once per machine and settings (kept in the "
+         "cache folder) and loading it about 0.2 s per job. auto (default): a job of "
+         f">= {LOAD_MIN_FRAMES} frames loads the compiled network; the first such "
+         "job on a machine runs eagerly and pays only for a background build "
+         "(a niced process, about a minute of CPU beside it), so the next job "
+         f"runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
+         "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; "
+         "never (the eager reference). Without a C++ compiler the job runs eagerly "
+         "and says so", default="auto", choices=COMPILE_MODES),
+    _opt("--compile-min-frames", "with --compile auto, compile from N frames on "
+         "(built or not)", metavar="N"),
+    _opt("--no-progress", "hide progress bars", **FLAG),
+)  # fmt: skip
+QUERIES = "query descriptors .npy, image folder or image"
+SCALE = "scale (descriptor files or shard folders)"
+CODES = {"metavar": "BITS|int8"}
+
+# command -> (what it does, its options in the order --help lists them); a
+# numeric option's type and the domain --help states come from jobs.DOMAINS
+OPTIONS = {
+    "fit": ("fit a map on reference frames (.npy, image folders, or --tile)", (
+        _opt("sources", "descriptor .npy, image folder(s), image", nargs="+"),
+        _opt("--out", "map folder to write", required=True),
+        _opt("--r", f"number of periods (default {DEFAULTS.r})", default=DEFAULTS.r),
+        _opt("--level", "period level c (c*N^(1/r))", default=DEFAULTS.level),
+        _opt("--count", f"candidate periods (default {DEFAULTS.count})",
+             default=DEFAULTS.count),
+        _opt("--c", "SVM penalty (default log N)", default=DEFAULTS.c),
+        _opt("--solver", default=DEFAULTS.solver, choices=SOLVERS),
+        _opt("--gap", "stop the solver at this estimated relative objective gap "
+             "(default 1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
+             default=DEFAULTS.gap),
+        _opt("--layout", "how frames are labelled: periods (default, chosen by "
+             "training error), periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix "
+             "digits, most significant first: it classifies contiguous segments), "
+             "hierarchical, hierarchical:SEG or hierarchical:SEG:T1,T2 (segments of "
+             "SEG frames plus co-prime fine periods); sizes left out match the "
+             "storage of --r/--level", default=DEFAULTS.layout),
+        _opt("--json", "print the map's info as JSON", **FLAG),
+        _opt("--augment", "train over frames augmented on the fly (image sources): "
+             "comma-separated names from gaussian_blur, hflip, random_crop, elastic, "
+             "contrast, invert, grayscale, or 'all'"),
+        _opt("--epochs", "augmented epochs (3)"),
+        _opt("--batch-size", "augmented frames per step (128)"),
+        _opt("--checkpoint", "checkpoint folder of an augmented fit (default "
+             "OUT.ckpt, removed once the map is saved); a killed or interrupted fit "
+             "resumes from it when the same command runs again"),
+        _opt("--checkpoint-every", "steps between checkpoints of an augmented fit "
+             "(50)"),
+        _opt("--pca", "project descriptors to K dims (saved)"),
+        _opt("--dtype", "how the map stores its templates (int8: a scale per "
+             "template)", default=DEFAULTS.dtype, choices=DTYPES),
+        _opt("--processes", "start this many local processes for one fit (frames "
+             "split by rows)", default=1, group=SCALE),
+        _opt("--coordinator", "HOST:PORT of process 0", group=SCALE),
+        _opt("--num-processes", "K hosts", group=SCALE),
+        _opt("--process-id", "this one's i", group=SCALE),
+        _opt("--memory", "bytes each process may use (1GiB, 800M); frames that do "
+             "not fit are streamed from disk in blocks", group=SCALE),
+        _opt("--stream", "stream the frames from disk always", group=SCALE, **FLAG),
+        _opt("--shards", "image sources: describe them into this folder of .npy "
+             "shards as they are read, then fit from the shards", group=SCALE),
+        _opt("--positions", "per-frame positions of the sources, one CSV/.npy per "
+             "source (easting,northing metres or latitude,longitude), or 'names' for "
+             "@easting@northing@ file names; saved for evaluate --ground-truth",
+             nargs="+"),
+        _opt("--places", "group the frames into K places by k-means over "
+             "--positions (the RobotCar protocol); traversals may then differ in "
+             "length"),
+        _opt("--codes", "also store a code per place: BITS-bit ITQ (1 <= BITS <= "
+             "d), or int8 (a byte per dimension: d bytes a place, best on an "
+             "--embedding); queries fuse the map's place scores with the code "
+             "similarities", **CODES),
+        _opt("--fusion", "the map's share of the fused score with --codes "
+             "(default: the weight the --embedding learned for these codes, else "
+             "0.5)"),
+        *SOURCE,
+        _opt("--embedding", "embedding folder written by 'rhythmic-jax learn' "
+             "(saved in the map and applied to every query; its descriptor unless "
+             "--descriptor is given)"),
+    )),
+    "learn": ("learn an embedding from two or more traversals of a training route", (
+        _opt("sources", "one source per traversal (same places)", nargs="+"),
+        _opt("--out", "embedding folder to write", required=True),
+        _opt("--method", "closed form (default), principal axes only, learned "
+             "through the map, or InfoNCE", default="invariant",
+             choices=("invariant", "pca", "map", "infonce")),
+        _opt("--head", default="linear", choices=("linear", "mlp")),
+        _opt("--k", "output dimensions (256)", default=256),
+        _opt("--steps", "gradient steps (300)", default=300),
+        _opt("--seed", "PRNG seed (0)", default=0),
+        _opt("--codes", "codes a map's fusion weight is learned for on these "
+             "traversals and saved with the embedding for fit --embedding (int8)",
+             default="int8", **CODES),
+        *SOURCE,
+    )),
+    "query": ("localise queries against a map (-1 = no match)", (
+        _opt("map", "map folder"),
+        _opt("source", QUERIES),
+        _opt("--out", "write predictions to this .npy"),
+        _opt("--decode", choices=DECODERS),
+        _opt("--sequence", "sequence length L (at most the number of queries)"),
+        _opt("--threshold", "reject queries whose confidence is below this"),
+        _opt("--json", "print predictions as JSON", **FLAG),
+        *SOURCE,
+    )),
+    "info": ("describe a map (n, d, periods, storage, candidate errors) or an "
+             "embedding", (
+        _opt("map", "map folder (or embedding folder)"),
+        _opt("--json", "print JSON", **FLAG),
+    )),
+    "evaluate": ("accuracy, recall@K, storage and latency beside brute force", (
+        _opt("map", "map folder"),
+        _opt("source", QUERIES),
+        _opt("--reference", "reference source for the brute-force line (default: "
+             "the sources the map was fitted on, when they are still there)"),
+        _opt("--tolerance", "frame tolerance (default 0)", default=0),
+        _opt("--decode", choices=DECODERS),
+        _opt("--sequence", "sequence length L, at most the number of queries "
+             "(accuracy, PR and recall@K use the sequence scores)"),
+        _opt("--ground-truth", "VPR-Bench ground_truth_new.npy; or QUERY_POSITIONS "
+             "(the map's from fit --positions); or REF_POSITIONS QUERY_POSITIONS; or "
+             "'names' (@easting@northing@ file names). Default: query i is place i",
+             nargs="+", metavar="FILE"),
+        _opt("--tolerance-m", "radius of a right match for positions, metres "
+             "(default 25)", default=25.0),
+        _opt("--plot", "write PR curves and recall@K (.png)"),
+        _opt("--json", "print JSON", **FLAG),
+        *SOURCE,
+    )),
+    "demo": ("fit and query a map on built-in photographs; write a report", (
+        _opt("--out", "report folder", default="rhythmic_demo"),
+        _opt("--quick", "a smaller route (CI)", **FLAG),
+        _opt("--no-progress", "hide progress bars", **FLAG),
+    )),
+    "frontier": ("recall against bytes per place of every representation", (
+        _opt("reference", "reference descriptors (.npy, .h5) or folder"),
+        _opt("queries", "query descriptors (.npy, .h5) or folder"),
+        _opt("--ground-truth", "as evaluate reads it (default: query i is place i)",
+             nargs="+", metavar="FILE"),
+        _opt("--tolerance", "frame tolerance (default 0)", default=0),
+        _opt("--tolerance-m", "radius for positions, m", default=25.0),
+        _opt("--budget", "name the best representation within this many bytes",
+             metavar="BYTES_PER_PLACE"),
+        _opt("--maps", "maps as r:level,... (default every r=2,3 at levels 1-4)",
+             default="2:1,2:2,2:3,2:4,3:1,3:2,3:3,3:4"),
+        _opt("--bits", "ITQ code sizes", default="32,64,128,256,512"),
+        _opt("--pq", "PQ sub-quantisers ('': none)", default="8,16,32,64"),
+        _opt("--lengths", "sequence lengths L", default="1,5,10"),
+        _opt("--descriptor", "descriptor for image folders"),
+        _opt("--cache", "folder keeping fitted maps and codes", default=""),
+        _opt("--csv", "write the rows as CSV"),
+        _opt("--plot", "draw the frontier (.png)"),
+        _opt("--json", "print JSON", **FLAG),
+        _opt("--no-progress", "hide progress bars", **FLAG),
+    )),
+}  # fmt: skip
 
 
 # What each command writes and reads, by destination: no path written may be,
@@ -164,14 +282,21 @@ WRITES = {
     "learn": ("out",),
     "query": ("out",),
     "evaluate": ("plot",),
+    "frontier": ("csv", "plot"),
 }
 READS = {
     "fit": ("sources", "embedding", "positions", "weights"),
     "learn": ("sources", "weights"),
     "query": ("map", "source", "weights"),
     "evaluate": ("map", "source", "reference", "ground_truth", "weights"),
+    "frontier": ("reference", "queries", "ground_truth"),
 }
-ROLES = {"map": "the map", "source": "the queries", "sources": "the source"}
+ROLES = {
+    "map": "the map",
+    "source": "the queries",
+    "sources": "the source",
+    "queries": "the queries",
+}
 NAMES = ("names",)  # --positions / --ground-truth names: no file
 
 
@@ -221,17 +346,6 @@ def check_paths(args) -> str | None:
     return None
 
 
-def _stated(parser: argparse.ArgumentParser) -> None:
-    """Give every numeric option its domain (:data:`DOMAINS`), stated in --help."""
-    from rhythmic_jax.app.jobs import DOMAINS
-
-    for action in parser._actions:
-        domain = DOMAINS.get(action.dest)
-        if domain is not None and action.option_strings:
-            action.type = domain
-            action.help = f"{action.help or ''} [{domain.text()}]".lstrip()
-
-
 class _Parser(argparse.ArgumentParser):
     """Usage errors in one line, like every other refusal (exit status 2)."""
 
@@ -249,6 +363,8 @@ def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
 
 
 def _parser() -> argparse.ArgumentParser:
+    """The parser rendered from :data:`OPTIONS`; every numeric option parsed
+    with its domain (:data:`rhythmic_jax.app.jobs.DOMAINS`), stated in --help."""
     parser = _Parser(
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
@@ -260,439 +376,151 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    parser.commands = {}
-
-    def add(name: str, help_: str) -> argparse.ArgumentParser:
-        parser.commands[name] = sub.add_parser(
-            name,
-            help=help_,
-            description=help_,
+    parser.commands, domains = {}, _jobs().DOMAINS
+    for name, (help_, options) in OPTIONS.items():
+        p = parser.commands[name] = sub.add_parser(
+            name, help=help_, description=help_,
             epilog="examples:" + textwrap.dedent(EXAMPLES[name]),
             formatter_class=argparse.RawDescriptionHelpFormatter,
-        )
-        return parser.commands[name]
-
-    p = add("fit", "fit a map on reference frames (.npy, image folders, or --tile)")
-    p.add_argument("sources", nargs="+", help="descriptor .npy, image folder(s), image")
-    p.add_argument("--out", required=True, help="map folder to write")
-    p.add_argument(
-        "--r", default=DEFAULTS.r, help=f"number of periods (default {DEFAULTS.r})"
-    )
-    p.add_argument("--level", default=DEFAULTS.level, help="period level c (c*N^(1/r))")
-    p.add_argument(
-        "--count",
-        default=DEFAULTS.count,
-        help=f"candidate periods (default {DEFAULTS.count})",
-    )
-    p.add_argument("--c", default=DEFAULTS.c, help="SVM penalty (default log N)")
-    p.add_argument("--solver", default=DEFAULTS.solver, choices=SOLVERS)
-    p.add_argument(
-        "--gap",
-        default=DEFAULTS.gap,
-        help="stop the solver at this estimated relative objective gap (default "
-        "1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
-    )
-    p.add_argument(
-        "--layout",
-        default=DEFAULTS.layout,
-        help="how frames are labelled: periods (default, chosen by training error), "
-        "periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix digits, most "
-        "significant first: it classifies contiguous segments), hierarchical, "
-        "hierarchical:SEG or hierarchical:SEG:T1,T2 (segments of SEG frames plus "
-        "co-prime fine periods); sizes left out match the storage of --r/--level",
-    )
-    p.add_argument("--json", action="store_true", help="print the map's info as JSON")
-    p.add_argument(
-        "--augment",
-        default=None,
-        help="train over frames augmented on the fly (image sources): comma-"
-        "separated names from gaussian_blur, hflip, random_crop, elastic, "
-        "contrast, invert, grayscale, or 'all'",
-    )
-    p.add_argument("--epochs", default=None, help="augmented epochs (3)")
-    p.add_argument(
-        "--batch-size",
-        default=None,
-        help="augmented frames per step (128)",
-    )
-    p.add_argument(
-        "--checkpoint",
-        default=None,
-        help="checkpoint folder of an augmented fit (default OUT.ckpt, removed once "
-        "the map is saved); a killed or interrupted fit resumes from it when the "
-        "same command runs again",
-    )
-    p.add_argument(
-        "--checkpoint-every",
-        default=None,
-        help="steps between checkpoints of an augmented fit (50)",
-    )
-    p.add_argument(
-        "--pca",
-        default=None,
-        help="project descriptors to K dims (saved)",
-    )
-    p.add_argument(
-        "--dtype",
-        default=DEFAULTS.dtype,
-        choices=DTYPES,
-        help="how the map stores its templates (int8: a scale per template)",
-    )
-    scale = p.add_argument_group("scale (descriptor files or shard folders)")
-    scale.add_argument(
-        "--processes",
-        default=1,
-        help="start this many local processes for one fit (frames split by rows)",
-    )
-    scale.add_argument("--coordinator", default=None, help="HOST:PORT of process 0")
-    scale.add_argument("--num-processes", default=None, help="K hosts")
-    scale.add_argument("--process-id", default=None, help="this one's i")
-    scale.add_argument(
-        "--memory",
-        default=None,
-        help="bytes each process may use (1GiB, 800M); frames that do not fit "
-        "are streamed from disk in blocks",
-    )
-    scale.add_argument(
-        "--stream", action="store_true", help="stream the frames from disk always"
-    )
-    scale.add_argument(
-        "--shards",
-        default=None,
-        help="image sources: describe them into this folder of .npy shards as "
-        "they are read, then fit from the shards",
-    )
-    p.add_argument(
-        "--positions",
-        nargs="+",
-        default=None,
-        help="per-frame positions of the sources, one CSV/.npy per source "
-        "(easting,northing metres or latitude,longitude), or 'names' for "
-        "@easting@northing@ file names; saved for evaluate --ground-truth",
-    )
-    p.add_argument(
-        "--places",
-        default=None,
-        help="group the frames into K places by k-means over --positions (the "
-        "RobotCar protocol); traversals may then differ in length",
-    )
-    p.add_argument(
-        "--codes",
-        default=None,
-        metavar="BITS|int8",
-        help="also store a code per place: BITS-bit ITQ (1 <= BITS <= d), or int8 "
-        "(a byte per dimension: d bytes a place, best on an --embedding); queries "
-        "fuse the map's place scores with the code similarities",
-    )
-    p.add_argument(
-        "--fusion",
-        default=None,
-        help="the map's share of the fused score with --codes (default: the weight "
-        "the --embedding learned for these codes, else 0.5)",
-    )
-    _add_source_options(p)
-
-    p.add_argument(
-        "--embedding",
-        default=None,
-        help="embedding folder written by 'rhythmic-jax learn' (saved in the map "
-        "and applied to every query; its descriptor unless --descriptor is given)",
-    )
-
-    p = add(
-        "learn",
-        "learn an embedding from two or more traversals of a training route",
-    )
-    p.add_argument("sources", nargs="+", help="one source per traversal (same places)")
-    p.add_argument("--out", required=True, help="embedding folder to write")
-    p.add_argument(
-        "--method",
-        default="invariant",
-        choices=("invariant", "pca", "map", "infonce"),
-        help="closed form (default), principal axes only, learned through the "
-        "map, or InfoNCE",
-    )
-    p.add_argument("--head", default="linear", choices=("linear", "mlp"))
-    p.add_argument("--k", default=256, help="output dimensions (256)")
-    p.add_argument("--steps", default=300, help="gradient steps (300)")
-    p.add_argument("--seed", default=0, help="PRNG seed (0)")
-    p.add_argument(
-        "--codes",
-        default="int8",
-        metavar="BITS|int8",
-        help="codes a map's fusion weight is learned for on these traversals and "
-        "saved with the embedding for fit --embedding (int8)",
-    )
-    _add_source_options(p)
-
-    p = add("query", "localise queries against a map (-1 = no match)")
-    p.add_argument("map", help="map folder")
-    p.add_argument("source", help="query descriptors .npy, image folder or image")
-    p.add_argument("--out", default=None, help="write predictions to this .npy")
-    p.add_argument("--decode", default=None, choices=DECODERS)
-    p.add_argument(
-        "--sequence",
-        default=None,
-        help="sequence length L (at most the number of queries)",
-    )
-    p.add_argument(
-        "--threshold",
-        default=None,
-        help="reject queries whose confidence is below this",
-    )
-    p.add_argument("--json", action="store_true", help="print predictions as JSON")
-    _add_source_options(p)
-
-    p = add(
-        "info",
-        "describe a map (n, d, periods, storage, candidate errors) or an embedding",
-    )
-    p.add_argument("map", help="map folder (or embedding folder)")
-    p.add_argument("--json", action="store_true", help="print JSON")
-
-    p = add("evaluate", "accuracy, recall@K, storage and latency beside brute force")
-    p.add_argument("map", help="map folder")
-    p.add_argument("source", help="query descriptors .npy, image folder or image")
-    p.add_argument(
-        "--reference",
-        default=None,
-        help="reference source for the brute-force line (default: the sources the "
-        "map was fitted on, when they are still there)",
-    )
-    p.add_argument(
-        "--tolerance",
-        default=0,
-        help="frame tolerance (default 0)",
-    )
-    p.add_argument("--decode", default=None, choices=DECODERS)
-    p.add_argument(
-        "--sequence",
-        default=None,
-        help="sequence length L, at most the number of queries (accuracy, PR and "
-        "recall@K use the sequence scores)",
-    )
-    p.add_argument(
-        "--ground-truth",
-        nargs="+",
-        default=None,
-        metavar="FILE",
-        help="VPR-Bench ground_truth_new.npy; or QUERY_POSITIONS (the map's from "
-        "fit --positions); or REF_POSITIONS QUERY_POSITIONS; or 'names' "
-        "(@easting@northing@ file names). Default: query i is place i",
-    )
-    p.add_argument(
-        "--tolerance-m",
-        default=25.0,
-        help="radius of a right match for positions, metres (default 25)",
-    )
-    p.add_argument("--plot", default=None, help="write PR curves and recall@K (.png)")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    _add_source_options(p)
-
-    p = add("frontier", "recall against bytes per place of every representation")
-    p.add_argument("reference", help="reference descriptors (.npy, .h5) or folder")
-    p.add_argument("queries", help="query descriptors (.npy, .h5) or folder")
-    p.add_argument(
-        "--ground-truth",
-        nargs="+",
-        default=None,
-        metavar="FILE",
-        help="as evaluate reads it (default: query i is place i)",
-    )
-    p.add_argument("--tolerance", default=0, help="frame tolerance (default 0)")
-    p.add_argument("--tolerance-m", default=25.0, help="radius for positions, m")
-    p.add_argument(
-        "--budget",
-        default=None,
-        metavar="BYTES_PER_PLACE",
-        help="name the best representation within this many bytes",
-    )
-    p.add_argument(
-        "--maps",
-        default="2:1,2:2,2:3,2:4,3:1,3:2,3:3,3:4",
-        help="maps as r:level,... (default every r=2,3 at levels 1-4)",
-    )
-    p.add_argument("--bits", default="32,64,128,256,512", help="ITQ code sizes")
-    p.add_argument("--pq", default="8,16,32,64", help="PQ sub-quantisers ('': none)")
-    p.add_argument("--lengths", default="1,5,10", help="sequence lengths L")
-    p.add_argument("--descriptor", default=None, help="descriptor for image folders")
-    p.add_argument("--cache", default="", help="folder keeping fitted maps and codes")
-    p.add_argument("--csv", default=None, help="write the rows as CSV")
-    p.add_argument("--plot", default=None, help="draw the frontier (.png)")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
-
-    p = add("demo", "fit and query a map on built-in photographs; write a report")
-    p.add_argument("--out", default="rhythmic_demo", help="report folder")
-    p.add_argument("--quick", action="store_true", help="a smaller route (CI)")
-    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
-    for command in parser.commands.values():
-        _stated(command)
+        )  # fmt: skip
+        groups = {}
+        for flags, settings in options:
+            settings = dict(settings)
+            title = settings.pop("group", None)
+            if title is not None and title not in groups:
+                groups[title] = p.add_argument_group(title)
+            action = groups.get(title, p).add_argument(*flags, **settings)
+            domain = domains.get(action.dest)
+            if domain is not None and action.option_strings:
+                action.type = domain
+                action.help = f"{action.help or ''} [{domain.text()}]".lstrip()
     return parser
 
 
-def _reading(args) -> jobs.Reading:
-    from rhythmic_jax.app import jobs
-
-    compile_ = CompilePolicy(args.compile, args.compile_min_frames)
-    return jobs.Reading(args.descriptor, args.weights, args.tile, args.stride, compile_)
-
-
-def _fit_job(args, given: frozenset[str]) -> jobs.FitJob:
-    from rhythmic_jax.app import jobs
-
-    config = MapConfig(
-        r=args.r, level=args.level, count=args.count, c=args.c, solver=args.solver,
-        gap=args.gap, layout=args.layout, dtype=args.dtype, codes=args.codes,
-    )  # fmt: skip
-    scale = jobs.ScaleJob(
-        processes=args.processes, coordinator=args.coordinator,
-        num_processes=args.num_processes, process_id=args.process_id,
-        memory=args.memory, stream=args.stream, shards=args.shards,
-    )  # fmt: skip
-    return jobs.FitJob(
-        sources=tuple(args.sources), out=args.out, config=config, pca=args.pca,
-        augment=args.augment, epochs=args.epochs, batch_size=args.batch_size,
-        checkpoint=args.checkpoint, checkpoint_every=args.checkpoint_every,
-        reading=_reading(args), places=args.places, fusion=args.fusion,
-        positions=tuple(args.positions) if args.positions else None,
-        embedding=args.embedding, scale=scale, given=given,
-    )  # fmt: skip
+def _take(args, names: str) -> dict:
+    """``{name: option}`` of the space-separated ``names`` (lists as tuples)."""
+    values = {name: getattr(args, name) for name in names.split()}
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
-def _learn_job(args, given: frozenset[str]) -> jobs.LearnJob:
-    from rhythmic_jax.app import jobs
-
-    config = jobs.learn_config(
-        method=args.method, head=args.head, k=args.k, steps=args.steps, seed=args.seed
-    )
-    return jobs.LearnJob(
-        tuple(args.sources), args.out, config, _reading(args), args.codes, given
-    )
-
-
-def _query_job(args, given: frozenset[str]) -> jobs.QueryJob:
-    from rhythmic_jax.app import jobs
-
-    return jobs.QueryJob(
-        args.map, args.source, decode=args.decode, sequence=args.sequence,
-        threshold=args.threshold, out=args.out, reading=_reading(args), given=given,
-    )  # fmt: skip
+# command -> (its job's class in jobs, the options that are the job's own)
+JOBS = {
+    "fit": ("FitJob", "sources out pca augment epochs batch_size checkpoint "
+            "checkpoint_every fusion positions places embedding"),
+    "learn": ("LearnJob", "sources out codes"),
+    "query": ("QueryJob", "map source decode sequence threshold out"),
+    "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
+                 "ground_truth tolerance_m plot"),
+}  # fmt: skip
 
 
-def _evaluate_job(args, given: frozenset[str]) -> jobs.EvaluateJob:
-    from rhythmic_jax.app import jobs
+def _job(args, given: frozenset[str]):
+    """The command's job made (so checked) from its options; None for info and
+    demo, which take no settings a rule could refuse."""
+    if args.command not in JOBS:
+        return None
+    jobs = _jobs()
+    kind, own = JOBS[args.command]
+    parts = {"reading": jobs.Reading(
+        compile=CompilePolicy(args.compile, args.compile_min_frames),
+        **_take(args, "descriptor weights tile stride"),
+    )}  # fmt: skip
+    if args.command == "fit":
+        parts["config"] = MapConfig(
+            **_take(args, "r level count c solver gap layout dtype codes")
+        )
+        parts["scale"] = jobs.ScaleJob(**_take(
+            args, "processes coordinator num_processes process_id memory stream shards"
+        ))  # fmt: skip
+    elif args.command == "learn":
+        parts["config"] = jobs.learn_config(**_take(args, "method head k steps seed"))
+    return getattr(jobs, kind)(**_take(args, own), **parts, given=given)
 
-    return jobs.EvaluateJob(
-        args.map, args.source, reference=args.reference, tolerance=args.tolerance,
-        decode=args.decode, sequence=args.sequence, tolerance_m=args.tolerance_m,
-        ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
-        plot=args.plot, reading=_reading(args), given=given,
-    )  # fmt: skip
 
-
-def _cmd_fit(args, job: jobs.FitJob) -> int:
-    from rhythmic_jax.app import jobs
-
-    run = None
+def _fit(args, job, progress: bool) -> str:
+    jobs, run = _jobs(), None
     if jobs.wants_scale(job):
-        model, run = jobs.fit_scaled(job, args.argv, not args.no_progress)
+        model, run = jobs.fit_scaled(job, args.argv, progress)
         if model is None:
-            return 0
+            return None
     else:
-        model = jobs.fit(job, progress=not args.no_progress)
+        model = jobs.fit(job, progress=progress)
     info = model.info()
     if run is not None:
         info["fit"] = dict(run)
         if "pass_seconds" in run:  # every pass, to the millisecond
             info["fit"]["pass_seconds"] = [round(t, 3) for t in run["pass_seconds"]]
-    print(json.dumps(info, indent=2) if args.json else jobs.fit_summary(args.out, info))
-    return 0
+    return json.dumps(info, indent=2) if args.json else jobs.fit_summary(args.out, info)
 
 
-def _cmd_query(args, job: jobs.QueryJob) -> int:
-    from rhythmic_jax.app import jobs
-
-    pred = jobs.query(job, progress=not args.no_progress)
+def _query(args, job, progress: bool) -> str:
+    pred = _jobs().query(job, progress=progress)
     if args.json:
-        print(json.dumps({"predictions": pred.tolist()}))
-    elif not args.out:
-        print("\n".join(str(int(v)) for v in pred))
-    else:
-        print(jobs.query_summary(pred, args.out))
-    return 0
+        return json.dumps({"predictions": pred.tolist()})
+    if not args.out:
+        return "\n".join(str(int(v)) for v in pred)
+    return _jobs().query_summary(pred, args.out)
 
 
-def _cmd_learn(args, job: jobs.LearnJob) -> int:
-    from rhythmic_jax.app import jobs
-
-    emb, info = jobs.learn(job, progress=not args.no_progress)
-    print(jobs.learn_summary(args.out, emb, info))
-    return 0
+def _learn(args, job, progress: bool) -> str:
+    return _jobs().learn_summary(args.out, *_jobs().learn(job, progress=progress))
 
 
-def _cmd_info(args, job: None) -> int:
-    from rhythmic_jax.app import jobs
-
-    info = jobs.info(args.map)
-    print(json.dumps(info, indent=2) if args.json else jobs.info_lines(info))
-    return 0
+def _info(args, job, progress: bool) -> str:
+    info = _jobs().info(args.map)
+    return json.dumps(info, indent=2) if args.json else _jobs().info_lines(info)
 
 
-def _cmd_evaluate(args, job: jobs.EvaluateJob) -> int:
-    from rhythmic_jax.app import jobs
-
-    result = jobs.evaluate(job, progress=not args.no_progress)
-    print(json.dumps(result, indent=2) if args.json else jobs.evaluate_summary(result))
-    return 0
-
-
-def _cmd_demo(args, job: None) -> int:
-    from rhythmic_jax.app import jobs
-
-    jobs.demo(args.out, quick=args.quick, progress=not args.no_progress)
-    return 0
+def _evaluate(args, job, progress: bool) -> str:
+    result = _jobs().evaluate(job, progress=progress)
+    if args.json:
+        return json.dumps(result, indent=2)
+    return _jobs().evaluate_summary(result)
 
 
-def _cmd_frontier(args, job: None) -> int:
-    from rhythmic_jax.app.frontier import main as frontier_main
-
-    return frontier_main(args)
+def _demo(args, job, progress: bool) -> None:
+    _jobs().demo(args.out, quick=args.quick, progress=progress)
 
 
-# command -> (how its options make its job, what runs it)
-COMMANDS = {
-    "fit": (_fit_job, _cmd_fit),
-    "learn": (_learn_job, _cmd_learn),
-    "query": (_query_job, _cmd_query),
-    "info": (None, _cmd_info),
-    "evaluate": (_evaluate_job, _cmd_evaluate),
-    "demo": (None, _cmd_demo),
-    "frontier": (None, _cmd_frontier),
-}
+def _frontier(args, job, progress: bool) -> None:
+    from rhythmic_jax.app.frontier import main as frontier
+
+    frontier(args)  # prints its table itself, before its files are written
+
+
+# command -> what runs its job and returns the text it prints (None: nothing)
+COMMANDS = {"fit": _fit, "learn": _learn, "query": _query, "info": _info,
+            "evaluate": _evaluate, "demo": _demo, "frontier": _frontier}  # fmt: skip
 
 
 def _checked_job(args, prog: str):
     """The command's job, made (so checked) from the options; a refused option
     or a path written over one read ends in one usage line (InputError)."""
-    from rhythmic_jax.app import jobs
-
-    make = COMMANDS[args.command][0]
-    job = make and make(args, frozenset(_given_options(args.argv, args)))
+    job = _job(args, frozenset(_given_options(args.argv, args)))
     line = check_paths(args)
     if line is not None:
-        raise jobs.OptionRefused(line)
+        raise _jobs().OptionRefused(line)
     for warning in getattr(job, "warnings", ()):
         print(f"{prog}: warning: {InputError(warning).as_flag()}", file=sys.stderr)
     return job
+
+
+def _quiet_logs(verbose: bool) -> None:
+    _jobs().quiet_io_threads()
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    for name in ("absl", "jax", "orbax", "jax._src.xla_bridge"):
+        logging.getLogger(name).setLevel(logging.ERROR)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``rhythmic-jax``; returns the exit status (2: bad input,
     one line on stderr; 0 after ``--help``; 141 when standard output is closed
     early, as by ``| head``: quietly, as a command killed by SIGPIPE)."""
-    from rhythmic_jax.app import jobs
-
+    jobs = _jobs()
     try:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed
@@ -713,18 +541,18 @@ def main(argv: list[str] | None = None) -> int:
 
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
-        status = COMMANDS[args.command][1](args, job)
+        text = COMMANDS[args.command](args, job, not getattr(args, "no_progress", 0))
+        if text is not None:
+            print(text)
         sys.stdout.flush()  # a closed pipe is found here, not at exit
-        return status
+        return 0
     except InputError as err:
-        print(f"rhythmic-jax {args.command}: error: {err.as_flag()}", file=sys.stderr)
+        print(f"{prog}: error: {err.as_flag()}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
-        from rhythmic_jax.app.jobs import FitInterrupted
-
-        if isinstance(err, FitInterrupted):
-            print(f"rhythmic-jax {args.command}: {err.note}", file=sys.stderr)
-        print(f"rhythmic-jax {args.command}: interrupted", file=sys.stderr)
+        if isinstance(err, jobs.FitInterrupted):
+            print(f"{prog}: {err.note}", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader left (| head): nothing more to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

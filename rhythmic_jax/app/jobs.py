@@ -331,148 +331,127 @@ class FitInterrupted(KeyboardInterrupt):
         self.note = note
 
 
-def _augmented_settings(job: FitJob):
-    """The augmented fit's settings and checkpoint folder, checked before any work."""
-    from rhythmic_jax.augment.kornia_ops import AugmentConfig
-    from rhythmic_jax.augment.stream import AugmentedFit
+def _before_reading(job: FitJob):
+    """What a fit's settings and its sources' headers decide, refused before
+    any source is read: the augmented fit's settings (and checkpoint folder),
+    the embedding of ``fit --embedding`` and the reading of the sources it
+    implies (its descriptor and weights, for images that name none), the map
+    folder, and for descriptor files of one shape the plan and its memory.
 
-    if job.pca is not None:
-        raise InputError("{opt:augment} and {opt:pca} together are not supported")
-    names = tuple(job.augment.split(","))
-    AugmentConfig(names=names)  # unknown names end here, not after describing
-    config = AugmentedFit(
-        names=names,
-        epochs=job.epochs or 3,
-        batch_size=job.batch_size or 128,
-        checkpoint_every=job.checkpoint_every or 50,
-    )
-    return config, job.checkpoint_folder
-
-
-def _fit_augmented(model, feats, config, ckpt: Path, progress: bool, policy,
-                   fit_plan) -> None:  # fmt: skip
-    from rhythmic_jax.app import signals
-    from rhythmic_jax.augment.stream import fit_map_augmented
-    from rhythmic_jax.frames.compiled import FastDescriptor
-
-    if feats.images is None:
-        raise InputError(
-            "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
-        )
-    frames = len(feats.images) * config.epochs  # frames the network will see
-    descriptor = FastDescriptor(feats.describer, frames, policy)
-    signals.set_note(f"the augmented fit's checkpoint is kept in {ckpt}; run the "
-                     "same command again to resume")  # fmt: skip
-    try:
-        fit_map_augmented(
-            model, feats.images, feats.x, descriptor, config, feats.labels,
-            progress=progress, checkpoint=ckpt, plan=fit_plan,
-        )  # fmt: skip
-    except KeyboardInterrupt:
-        raise FitInterrupted(
-            f"the augmented fit's checkpoint is kept in {ckpt}; "
-            "run the same command again to resume"
-        ) from None
-
-
-def _header_shape(job: FitJob, learned) -> tuple[int, int, int] | None:
-    """``(frames, places, d)`` of a fit of descriptor files, from their headers:
-    None where only reading the sources tells (images, files that are missing or
-    disagree, ``pca``, ``places``, an embedding for other descriptors)."""
-    from rhythmic_jax.io.descriptor_files import descriptor_shape
-
-    sources = job.sources
-    if (
-        job.pca is not None
-        or job.places is not None
-        or not all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources)
-    ):
-        return None
-    shapes = [descriptor_shape(s) for s in sources]
-    if any(len(s) != 2 or s != shapes[0] for s in shapes) or 0 in shapes[0]:
-        return None  # reading them says what is wrong
-    n, d = shapes[0]
-    if learned is not None and learned[0].d != d:
-        return None  # the embedding's check says what is wrong
-    return n * len(shapes), n, d if learned is None else learned[0].k
-
-
-def _planned(config: MapConfig, frames: int, n: int, d: int, emb):
-    """The fit's plan for ``n`` places of ``d`` features (the templates'), its
-    memory for ``frames`` rows checked (:func:`rhythmic_jax.fitting.fit_plan.plan`,
-    :meth:`~rhythmic_jax.fitting.fit_plan.FitPlan.check_memory`)."""
-    from rhythmic_jax.fitting.fit_plan import plan
-
-    if isinstance(config.codes, int) and config.codes > d:
-        what = "descriptors'" if emb is None else "embedding's"
-        raise InputError(
-            f"{{opt:codes}} {config.codes}: at most d={d} bits (the {what} dimension)"
-        )
-    fit_plan = plan(config, n, d)
-    fit_plan.check_memory(frames)
-    return fit_plan
-
-
-def fit(job: FitJob, progress: bool = False):
-    """Fit, record provenance and save the map of ``job``; returns the map.
-
-    Everything the settings alone decide is refused before any source is read:
-    the map folder, the augmented fit's settings, and for descriptor files the
-    fit's plan and the memory it needs (from their headers); for images the plan
-    once they are read. The disk the map needs is checked before the solve, and
-    the one plan is the fit's (:func:`rhythmic_jax.fitting.fit_plan.plan`).
+    Returns ``(augmented, learned, reading, plan)``: ``(AugmentedFit, checkpoint
+    folder)`` or None, ``(embedding, meta)`` or None, the :class:`Reading`, and
+    the :class:`~rhythmic_jax.fitting.fit_plan.FitPlan`, or None where only
+    reading the sources tells (images, files missing or of other shapes,
+    ``pca``, ``places``, an embedding of another dimension: reading them says
+    what is wrong).
     """
-    import numpy as np
-
-    from rhythmic_jax.frames.sources import load_sources
-    from rhythmic_jax.io.checkpoint import check_space, check_target
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.io.checkpoint import check_target
+    from rhythmic_jax.io.descriptor_files import descriptor_shape
 
     check_place("out", job.out)
     if job.augment:
         check_place("checkpoint", job.checkpoint_folder, inside=True)
-    augmented = _augmented_settings(job) if job.augment else None
-    learned, read = _learned(job)  # before describing: its descriptor
+    augmented = learned = fit_plan = None
+    read, sources = job.reading, job.sources
+    if job.augment:
+        from rhythmic_jax.augment.kornia_ops import AugmentConfig
+        from rhythmic_jax.augment.stream import AugmentedFit
+
+        if job.pca is not None:
+            raise InputError("{opt:augment} and {opt:pca} together are not supported")
+        names = tuple(job.augment.split(","))
+        AugmentConfig(names=names)  # unknown names end here, not after describing
+        augmented = AugmentedFit(
+            names=names, epochs=job.epochs or 3, batch_size=job.batch_size or 128,
+            checkpoint_every=job.checkpoint_every or 50,
+        ), job.checkpoint_folder  # fmt: skip
+    if job.embedding is not None:
+        from rhythmic_jax.map.embedding import load_embedding
+
+        learned = load_embedding(job.embedding)
+        read = _reading_of_embedding(read, learned, sources)
     check_target(job.out)  # before the fit, not after it
-    shape = _header_shape(job, learned)
-    fit_plan = shape and _planned(job.config, *shape, learned)
-    feats = load_sources(
-        job.sources, read.descriptor, read.tile, read.stride, progress,
-        pca=job.pca, weights=read.weights, same_length=job.places is None,
-        compile=read.compile, keep_images=augmented is not None,
-    )  # fmt: skip
-    emb = _embedding_for(job.embedding, learned, feats)
-    fusion = fusion_of(job.fusion, job.config.codes, learned and learned[1])
+    files = (
+        job.pca is None
+        and job.places is None
+        and all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources)
+    )
+    shapes = {descriptor_shape(s) for s in sources} if files else set()
+    shape = shapes.pop() if len(shapes) == 1 else ()
+    n, d = shape if len(shape) == 2 and 0 not in shape else (0, 0)
+    if n and (learned is None or learned[0].d == d):
+        k = d if learned is None else learned[0].k
+        fit_plan = _planned(job.config, n * len(sources), n, k, learned)
+    return augmented, learned, read, fit_plan
+
+
+def _reading_of_embedding(read: Reading, learned, sources) -> Reading:
+    """``read`` with the embedding's descriptor (and weights) when it names none
+    and the sources are images (.npy files are descriptors already)."""
+    name = learned[1].get("descriptor") if learned is not None else None
+    if (
+        read.descriptor is not None
+        or name in (None, "features")
+        or all(str(s).lower().endswith(".npy") for s in sources)
+    ):
+        return read
+    settings = learned[1].get("descriptor_settings") or {}
+    return replace(
+        read, descriptor=name, weights=read.weights or settings.get("weights")
+    )
+
+
+def _planned(config: MapConfig, frames: int, n: int, d: int, learned):
+    """The fit's plan for ``n`` places of ``d`` features (the templates'), its
+    memory for ``frames`` rows checked (:func:`rhythmic_jax.fitting.fit_plan.plan`);
+    codes of more bits than ``d`` are refused in the job's words."""
+    from rhythmic_jax.fitting import fit_plan
+
+    if isinstance(config.codes, int) and config.codes > d:
+        what = "descriptors'" if learned is None else "embedding's"
+        raise InputError(
+            f"{{opt:codes}} {config.codes}: at most d={d} bits (the {what} dimension)"
+        )
+    return fit_plan.plan(config, n, d, frames)
+
+
+def _after_reading(job: FitJob, learned, read: Reading, fit_plan, feats):
+    """The map to fit on the read ``feats``: the embedding checked against them,
+    the frames' positions (and k-means places) added, the plan made where the
+    headers could not tell, the disk the map needs checked (before the solve),
+    and the map's settings and provenance (the sources' absolute paths and
+    tiling, so that :func:`evaluate` finds the reference frames again; the
+    embedding and the fusion weight). Returns ``(config, embedding or None,
+    provenance, feats, plan)``."""
+    import numpy as np
+
+    from rhythmic_jax.io.checkpoint import check_space
+
+    emb, meta = learned or (None, None)
+    if meta is not None and meta.get("descriptor") != feats.descriptor:
+        raise InputError(
+            f"{{opt:embedding}} {job.embedding}: learned on "
+            f"{meta.get('descriptor')!r} descriptors, the map's are "
+            f"{feats.descriptor!r}"
+        )
+    if emb is not None and emb.d != feats.x.shape[1]:
+        raise InputError(
+            f"{{opt:embedding}} {job.embedding}: expects {emb.d}-d descriptors, "
+            f"got {feats.x.shape[1]}"
+        )
+    fusion = fusion_of(job.fusion, job.config.codes, meta)
     if job.positions is not None:
         feats = _with_positions(feats, job)
+    if fit_plan is None:
+        d = feats.x.shape[1] if emb is None else emb.k
+        n = int(feats.labels.max()) + 1
+        fit_plan = _planned(job.config, len(feats.x), n, int(d), learned)
+    extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
+    check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
     config = replace(
         job.config, descriptor=feats.descriptor, descriptor_settings=feats.settings,
         fusion=fusion["weight"],
     )  # fmt: skip
-    if fit_plan is None:
-        dim = feats.x.shape[1] if emb is None else emb.k
-        n = int(feats.labels.max()) + 1
-        fit_plan = _planned(job.config, len(feats.x), n, int(dim), emb)
-    extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
-    check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
-    model = RhythmicMap(config, embedding=emb)
-    if augmented is not None:
-        with write_errors("checkpoint", augmented[1]):
-            _fit_augmented(model, feats, *augmented, progress, read.compile, fit_plan)
-    else:
-        model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
-    model.extra.update(feats.extra)
-    model.reference = _provenance(job, read, fusion)
-    with write_errors("out", job.out):
-        model.save(job.out)
-    if augmented is not None and job.checkpoint is None:
-        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
-    return model
-
-
-def _provenance(job: FitJob, read: Reading, fusion: dict[str, Any]) -> dict:
-    """Where a map's reference frames came from (the sources' absolute paths and
-    tiling), and its embedding and fusion weight."""
     ref = {
         "sources": [str(Path(src).expanduser().absolute()) for src in job.sources],
         "tile": read.tile,
@@ -483,7 +462,67 @@ def _provenance(job: FitJob, read: Reading, fusion: dict[str, Any]) -> dict:
         ref["descriptor_from_embedding"] = read != job.reading
     if job.config.codes is not None:
         ref["fusion"] = fusion
-    return ref
+    return config, emb, ref, feats, fit_plan
+
+
+def fit(job: FitJob, progress: bool = False):
+    """Fit, record provenance and save the map of ``job``; returns the map.
+
+    Everything the settings alone decide is refused before any source is read
+    (:func:`_before_reading`: for descriptor files the fit's plan and the memory
+    it needs, from their headers); for images the plan once they are read
+    (:func:`_after_reading`), with the disk the map needs before the solve. The
+    one plan is the fit's (:func:`rhythmic_jax.fitting.fit_plan.plan`). An
+    augmented fit (image sources) keeps a checkpoint folder, default
+    ``OUT.ckpt``, removed once the map is saved; Ctrl-C raises
+    :class:`FitInterrupted`, which says where it is kept.
+    """
+    from rhythmic_jax.frames.sources import load_sources
+    from rhythmic_jax.rhythmic_map import RhythmicMap
+
+    augmented, learned, read, fit_plan = _before_reading(job)
+    feats = load_sources(
+        job.sources, read.descriptor, read.tile, read.stride, progress,
+        pca=job.pca, weights=read.weights, same_length=job.places is None,
+        compile=read.compile, keep_images=augmented is not None,
+    )  # fmt: skip
+    config, emb, ref, feats, fit_plan = _after_reading(
+        job, learned, read, fit_plan, feats
+    )
+    model = RhythmicMap(config, embedding=emb)
+    model.extra.update(feats.extra)
+    model.reference = ref
+    if augmented is None:
+        model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
+    else:
+        from rhythmic_jax.augment.stream import fit_map_augmented
+        from rhythmic_jax.frames.compiled import FastDescriptor
+
+        if feats.images is None:
+            raise InputError(
+                "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
+            )
+        from rhythmic_jax.app import signals
+
+        config, ckpt = augmented
+        frames = len(feats.images) * config.epochs  # frames the network will see
+        kept = (f"the augmented fit's checkpoint is kept in {ckpt}; run the same "
+                "command again to resume")  # fmt: skip
+        signals.set_note(kept)
+        try:
+            with write_errors("checkpoint", ckpt):
+                fit_map_augmented(
+                    model, feats.images, feats.x,
+                    FastDescriptor(feats.describer, frames, read.compile), config,
+                    feats.labels, progress=progress, checkpoint=ckpt, plan=fit_plan,
+                )  # fmt: skip
+        except KeyboardInterrupt:
+            raise FitInterrupted(kept) from None
+    with write_errors("out", job.out):
+        model.save(job.out)
+    if augmented is not None and job.checkpoint is None:
+        shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
+    return model
 
 
 def _with_positions(feats, job: FitJob):
@@ -511,32 +550,6 @@ def _with_positions(feats, job: FitJob):
     return dataclasses.replace(feats, labels=labels, extra=extra)
 
 
-def _learned(job: FitJob) -> tuple[Any, Reading]:
-    """``(embedding, meta)`` of ``fit --embedding`` (None without one) and the
-    reading of the sources that follows from it (:func:`_reading_of_embedding`)."""
-    if job.embedding is None:
-        return None, job.reading
-    from rhythmic_jax.map.embedding import load_embedding
-
-    learned = load_embedding(job.embedding)
-    return learned, _reading_of_embedding(job.reading, learned, job.sources)
-
-
-def _reading_of_embedding(read: Reading, learned, sources) -> Reading:
-    """``read`` with the embedding's descriptor (and weights) when it names none
-    and the sources are images (.npy files are descriptors already)."""
-    if learned is None or read.descriptor is not None:
-        return read
-    meta = learned[1]
-    name = meta.get("descriptor")
-    if name in (None, "features") or all(
-        str(s).lower().endswith(".npy") for s in sources
-    ):
-        return read
-    weights = read.weights or (meta.get("descriptor_settings") or {}).get("weights")
-    return replace(read, descriptor=name, weights=weights)
-
-
 def fusion_of(option: float | None, codes, meta: dict | None) -> dict[str, Any]:
     """The map's share of the fused score and where it comes from: ``option``
     when given, else the weight an embedding's ``meta`` learned for ``codes``,
@@ -559,25 +572,6 @@ def fusion_of(option: float | None, codes, meta: dict | None) -> dict[str, Any]:
             f"{learned['recall']:.3f} on its {learned['places']} training places",
         }
     return {"weight": 0.5, "from": "default", "note": note}
-
-
-def _embedding_for(path: str | None, learned, feats):
-    """The embedding of ``fit --embedding``, checked against the features."""
-    if learned is None:
-        return None
-    emb, meta = learned
-    if meta.get("descriptor") != feats.descriptor:
-        raise InputError(
-            f"{{opt:embedding}} {path}: learned on {meta.get('descriptor')!r} "
-            "descriptors, "
-            f"the map's are {feats.descriptor!r}"
-        )
-    if emb.d != feats.x.shape[1]:
-        raise InputError(
-            f"{{opt:embedding}} {path}: expects {emb.d}-d descriptors, "
-            f"got {feats.x.shape[1]}"
-        )
-    return emb
 
 
 @dataclass(frozen=True)

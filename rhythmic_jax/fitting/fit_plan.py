@@ -156,13 +156,15 @@ class FitPlan:
         )  # fmt: skip
 
 
-def plan(config: MapConfig, n: int, d: int) -> FitPlan:
+def plan(config: MapConfig, n: int, d: int, frames: int | None = None) -> FitPlan:
     """The fit of ``config`` for ``n`` places of ``d`` features (see the module).
 
     Refuses (:class:`InputError`), before any work: codes of more bits than
     ``d`` or beside a layout other than periods, a layout whose sizes do not fit
     ``n``, and ``r``, ``level``, ``count`` that give no ``r`` pairwise co-prime
-    candidates with a product >= n.
+    candidates with a product >= n; with ``frames`` (the rows the fit will
+    solve over), also a solve that does not fit in memory
+    (:meth:`FitPlan.check_memory`).
     """
     if config.codes not in (None, INT8):  # a setting the config checked
         check_bits(config.codes, d)
@@ -179,4 +181,7 @@ def plan(config: MapConfig, n: int, d: int) -> FitPlan:
         cands = candidate_periods(n, config.r, config.level, config.count)
         choose_periods(cands, [0.0] * len(cands), n, config.r)  # impossible r: now
     c = config.c if config.c is not None else default_c(n)
-    return FitPlan(int(n), int(d), int(config.r), cands, groups, float(c))
+    made = FitPlan(int(n), int(d), int(config.r), cands, groups, float(c))
+    if frames is not None:
+        check_memory(frames, made.d, made.p)
+    return made

@@ -18,8 +18,7 @@ from rhythmic_jax.app.jobs import (
     OptionRefused,
     QueryJob,
     Reading,
-    _header_shape,
-    _planned,
+    _before_reading,
 )
 
 
@@ -120,19 +119,20 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
     header = {"descr": "<f4", "fortran_order": False, "shape": (10**8, 2048)}
     with open(tmp_path / "huge.npy", "wb") as f:
         np.lib.format.write_array_header_1_0(f, header)
-    huge = FitJob((str(tmp_path / "huge.npy"),), "m.map")
-    assert _header_shape(huge, None) == (10**8, 10**8, 2048)
+    out = str(tmp_path / "m.map")
+    huge = FitJob((str(tmp_path / "huge.npy"),), out)
     with pytest.raises(InputError, match="needs about .* stream the frames instead"):
-        _planned(huge.config, *_header_shape(huge, None), None)
+        _before_reading(huge)
     np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
-    two = FitJob((str(tmp_path / "small.npy"),) * 2, "m.map")
-    assert _planned(two.config, *_header_shape(two, None), None).n == 100  # fits
+    two = FitJob((str(tmp_path / "small.npy"),) * 2, out)
+    planned = _before_reading(two)[3]  # fits
+    assert (planned.n, planned.d) == (100, 8)
     for left in (  # to the read: absent, projected, grouped into places
-        FitJob((str(tmp_path / "absent.npy"),), "m.map"),
-        FitJob(two.sources, "m.map", pca=4),
-        FitJob(two.sources, "m.map", positions=("names",), places=5),
+        FitJob((str(tmp_path / "absent.npy"),), out),
+        FitJob(two.sources, out, pca=4),
+        FitJob(two.sources, out, positions=("names",), places=5),
     ):
-        assert _header_shape(left, None) is None
+        assert _before_reading(left)[3] is None
 
 
 @pytest.mark.parametrize("kind", ["npy", "images"])
