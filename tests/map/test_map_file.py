@@ -8,8 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from rhythmic_jax import InputError, MapConfig, RhythmicMap, map_file
+from rhythmic_jax import InputError, MapConfig, RhythmicMap
 from rhythmic_jax.io.checkpoint import arrays_listed, read_metadata
+from rhythmic_jax.map import map_file
 
 
 @pytest.fixture(scope="module")
