@@ -7,8 +7,9 @@ kept beside the map (``extra``), the codes (a
 :class:`~rhythmic_jax.map.codes.CodeBook` or
 :class:`~rhythmic_jax.map.scalar_codes.ScalarCodeBook`, registered here as
 pytrees of their arrays) and the embedding (its arrays), None where absent.
-Everything else is static and hashable: the layout (``groups``), periods, n, d,
-the configuration (dtype, descriptor, decode settings) and the fit's record. So
+The fit's record (penalty, training errors) are leaves too. Everything else is
+static and hashable: the layout (``groups``), periods, n, d, the configuration
+(dtype, descriptor, decode settings) and the candidate periods. So
 a map can be an argument of ``jax.jit`` (a new layout or configuration compiles
 anew, new template values do not) and maps of one layout can be stacked and
 ``jax.vmap``-ed. The pure functions over it live along the pipeline:
@@ -87,18 +88,23 @@ _STATIC = dict(metadata=dict(static=True))
 class Map:
     """A fitted map: arrays as leaves, layout and record as static fields.
 
-    Leaves: ``w`` (k, p) and ``b`` (p,) float32, the values queries are scored
-    with; ``stored``: ``w`` (k, p), ``b`` (p,) in ``config.dtype`` (and
-    ``scale`` (p,) for int8), what a map file holds; ``extra``: named arrays kept
-    with the map (a projection, reference labels); ``codebook``: codes per place
-    or None; ``embedding``: applied to frames and queries first, or None.
+    Leaves: ``w`` (k, p) and ``b`` (p,) float32 device arrays, the values
+    queries are scored with; ``stored``: ``w`` (k, p), ``b`` (p,) in
+    ``config.dtype`` (and ``scale`` (p,) for int8), what a map file holds;
+    ``extra``: named arrays kept with the map (a projection, reference labels);
+    ``codebook``: codes per place or None; ``embedding``: applied to frames and
+    queries first, or None; and the fit's record, float64: the penalty ``c`` (a
+    0-d array), the training error of every candidate period
+    (``candidate_errors`` (k,)) and of every kept group (``group_errors``
+    (r,)). Leaves that are numpy arrays are copied to the device by every jitted
+    call that takes the map: ``jax.device_put(map)`` once keeps them there.
 
     Static: ``config`` (:class:`~rhythmic_jax.map.config.MapConfig`),
     ``groups`` (:class:`~rhythmic_jax.map.groups.Groups`), ``periods`` (the
     co-prime periods; empty for another layout), ``n`` places, ``d`` input
-    features, the penalty ``c``, the ``candidates`` periods and their
-    ``candidate_errors``, ``group_errors`` and ``reference`` (JSON text: where the
-    reference frames came from).
+    features, the ``candidates`` periods and ``reference`` (JSON text: where the
+    reference frames came from). Maps of one layout and configuration, fitted
+    on different frames, share them and stack (``jax.vmap``).
     """
 
     w: jax.Array
@@ -107,15 +113,15 @@ class Map:
     extra: dict[str, Any] = field(default_factory=dict)
     codebook: CodeBook | ScalarCodeBook | None = None
     embedding: Embedding | None = None
+    c: np.ndarray = field(default_factory=lambda: np.ones((), np.float64))
+    candidate_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    group_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     config: MapConfig = field(default_factory=MapConfig, **_STATIC)
     groups: Groups = field(default=Groups("periods", (1,)), **_STATIC)
     periods: tuple[int, ...] = field(default=(), **_STATIC)
     n: int = field(default=1, **_STATIC)
     d: int = field(default=1, **_STATIC)
-    c: float = field(default=1.0, **_STATIC)
     candidates: tuple[int, ...] = field(default=(), **_STATIC)
-    candidate_errors: tuple[float, ...] = field(default=(), **_STATIC)
-    group_errors: tuple[float, ...] = field(default=(), **_STATIC)
     reference: str = field(default="{}", **_STATIC)
 
     @classmethod
@@ -130,9 +136,10 @@ class Map:
         return cls(
             w=w, b=b, stored=dict(kept.stored), config=config, groups=kept.groups,
             periods=tuple(int(t) for t in kept.periods), n=int(kept.n), d=int(d),
-            c=float(kept.c), candidates=tuple(kept.candidates),
-            candidate_errors=tuple(kept.candidate_errors),
-            group_errors=tuple(kept.group_errors), reference=reference, **arrays,
+            c=np.asarray(kept.c, np.float64), candidates=tuple(kept.candidates),
+            candidate_errors=np.asarray(kept.candidate_errors, np.float64),
+            group_errors=np.asarray(kept.group_errors, np.float64),
+            reference=reference, **arrays,
         )  # fmt: skip
 
     @property
