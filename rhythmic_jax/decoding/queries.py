@@ -33,7 +33,6 @@ dimension, p templates, n places.
 from __future__ import annotations
 
 import functools
-import weakref
 from collections.abc import Sequence
 
 import jax
@@ -72,15 +71,11 @@ __all__ = [
 _scores_jit = jax.jit(decision_values)
 
 
-def _traced(*values) -> bool:
-    return any(isinstance(v, jax.core.Tracer) for v in jax.tree.leaves(values))
-
-
 def queries(m: Map, q) -> np.ndarray | jax.Array:
     """Checked (b, d) queries of ``m``, embedded to (b, k) when it has an
     embedding; in host memory (the bucketed decodes pad them there). Inside a
     trace they are taken as they are."""
-    if _traced(q):
+    if isinstance(q, jax.core.Tracer):
         return q if m.embedding is None else embed(m.embedding, q)
     q = check_features(q, "queries", d=m.d)
     return q if m.embedding is None else apply_embedding(m.embedding, q)
@@ -189,16 +184,29 @@ def predict(
     return idx
 
 
-_LANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def lane(m: Map) -> SmallDecoder:
-    """The numpy lane of the periods map ``m`` (built on first use, kept while
-    ``m`` lives)."""
-    small = _LANES.get(m)
+    """The numpy lane of the periods map ``m``: built on first use and kept on
+    the map value (as ``functools.cached_property`` keeps a value: outside its
+    fields, so not a leaf, and not carried to a map made from it)."""
+    small = vars(m).get("_numpy_lane")
     if small is None:
-        small = _LANES[m] = SmallDecoder.build(m.params, m.periods, m.n)
+        small = SmallDecoder.build(m.params, m.periods, m.n)
+        object.__setattr__(m, "_numpy_lane", small)
     return small
+
+
+def _locate_lane(m: Map) -> SmallDecoder | None:
+    """:func:`lane` where ``locate`` may answer by it alone (the paper's hard
+    decode of a periods map without threshold, codes or embedding), else None;
+    decided once per map."""
+    got = vars(m).get("_locate_lane", False)
+    if got is False:
+        cfg = m.config
+        plain = m.embedding is None and m.codebook is None and cfg.threshold is None
+        fits = plain and cfg.decode == "hard" and m.groups.kind == "periods"
+        got = lane(m) if fits and not isinstance(m.w, jax.core.Tracer) else None
+        object.__setattr__(m, "_locate_lane", got)
+    return got
 
 
 def places(m: Map, q, how: str) -> np.ndarray | None:
@@ -216,7 +224,7 @@ def places(m: Map, q, how: str) -> np.ndarray | None:
         and q.ndim == 2
         and 0 < len(q) <= SMALL_BATCH
         and q.shape[1] == m.d
-        and not _traced(m.w)
+        and not isinstance(m.w, jax.core.Tracer)
     ):
         small = lane(m)
         found = [small.place(row) for row in q]
@@ -231,18 +239,14 @@ def locate(m: Map, q) -> int:
     threshold, codes or embedding) a float32 (d,) numpy array goes straight to
     one BLAS product (no dispatch, no copies; a NaN or inf is caught on its
     scores); anything else takes ``predict``'s checks."""
-    cfg = m.config
+    small = _locate_lane(m)
     if (
-        type(q) is np.ndarray
+        small is not None
+        and type(q) is np.ndarray
         and q.dtype == np.float32
         and q.shape == (m.d,)
-        and m.embedding is None
-        and m.codebook is None
-        and cfg.decode == "hard"
-        and cfg.threshold is None
-        and m.groups.kind == "periods"
     ):
-        found = lane(m).place(q)
+        found = small.place(q)
         if found is not None:
             return found
     return int(predict(m, one_query(q, m.d))[0])

@@ -130,7 +130,7 @@ def test_locate_is_predict_of_one_row():
     q = np.random.default_rng(7).standard_normal((60, 16), dtype=np.float32)
     want = model.predict(q).tolist()
     assert [model.locate(row) for row in q] == want  # first call builds the lane
-    assert model.map in queries._LANES
+    assert queries.lane(model.map) is queries.lane(model.map)  # kept on the map
     assert [model.locate(row) for row in q] == want
     assert model.locate(q[3].astype(np.float64)) == want[3]  # converted
     assert model.locate(q[3].tolist()) == want[3]
