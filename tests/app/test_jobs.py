@@ -10,7 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap, jobs
+from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap
+from rhythmic_jax.app import jobs
 from rhythmic_jax.app.jobs import FitJob, Reading, _check_sources_memory
 
 
