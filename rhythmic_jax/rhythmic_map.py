@@ -25,18 +25,17 @@ UNFITTED = dict(n=None, d=None, periods=(), groups=None, c=None, candidates=(),
 
 
 def _field(name: str, get=lambda v: v, put=lambda v: v) -> property:
-    """The map's field ``name`` (before a fit, as set on the estimator)."""
+    """The map's field ``name``; before a fit, as set on the estimator."""
 
     def set_(self, value):
         self._pre[name] = put(value)
-        if self.map is not None:
+        if self.map is not None:  # a new value: the map is not changed in place
             self.map = replace(self.map, **{name: put(value)})
 
-    return property(lambda s: get(_source(s)[name]), set_, doc=f"The map's {name}.")
+    return property(lambda s: get(_fields(s)[name]), set_, doc=f"The map's {name}.")
 
 
-def _source(model) -> dict:
-    """Where the fields of ``model`` are: its map's, or before a fit its own."""
+def _fields(model) -> dict:
     return model._pre if model.map is None else vars(model.map)
 
 
@@ -57,7 +56,6 @@ class RhythmicMap:
 
     reference = _field("reference", json.loads, lambda v: json.dumps(v, sort_keys=True))
     params = property(lambda s: s.value.params, doc="Templates (w, b) queries use.")
-    template_d = property(lambda s: s.value.k, doc="Dimension of the templates.")
     storage_bytes = property(lambda s: s.storage()["total"], doc="Bytes stored.")
     compression_ratio = property(lambda s: s.storage()["share"], doc="Of float32.")
     embedding_bytes = property(
@@ -80,8 +78,9 @@ class RhythmicMap:
         return self._take(got)
 
     def _take(self, kept, d: int | None = None) -> RhythmicMap:
-        """Hold a fitted map, or a fit's ``kept`` templates of d-dim frames."""
-        extra, ref = self.extra, _source(self)["reference"]
+        """Hold a fitted map, or a fit's ``kept`` templates of d-dim frames (a fit
+        from files), with this estimator's extra arrays and reference."""
+        extra, ref = self.extra, _fields(self)["reference"]
         if d is not None:
             kept = pytree.Map.build(kept, d, self.config, embedding=self.embedding)
         self.map = replace(kept, extra=extra, reference=ref)

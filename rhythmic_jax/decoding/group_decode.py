@@ -13,7 +13,8 @@ tau_g`` and this is soft decode (:mod:`rhythmic_jax.decoding.soft`)):
   frames away (as the periods' soft decode);
 - top-m: the same argmax over the places whose label is among the ``m`` best of
   every group (``m = 1``: every group's argmax; ``m >= max(size)``: soft);
-- hard: mixed radix, the argmax digits give the index directly
+- hard (the one kernel, :func:`rhythmic_jax.decoding.hard.hard_decode`):
+  mixed radix, the argmax digits give the index directly
   (``sum_k d_k prod(b_{k+1..r})``, no match when it is ``>= n``); hierarchical,
   the argmax segment, then its best place by the summed fine scores. Confidence
   is the smallest top-2 margin (of every digit; of the segment and of the place
