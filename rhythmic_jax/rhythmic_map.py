@@ -95,9 +95,12 @@ class RhythmicMap:
     scores = _pure(queries.scores, "Decision values of queries (b, d) -> (b, p).")
     place_scores = _pure(queries.place_scores, "Place scores (b, n) of queries.")
     decode = _pure(queries.decode, "Decode queries (b, d) (method, m): Decoded.")
-    locate = _pure(queries.locate, "Place of one descriptor (d,), -1: no match.")
     storage = _pure(pytree.storage, "Bytes of templates, codes and embedding.")
     info = _pure(map_file.describe, "What ``rhythmic-jax info --json`` prints.")
+
+    def locate(self, q) -> int:
+        """Place of one descriptor q (d,), -1 for no match."""
+        return queries.locate(self.map or self.value, q)  # the map, or a refusal
 
     def save(self, path) -> None:
         """Save to the folder ``path`` (atomic; :mod:`rhythmic_jax.map.map_file`)."""
@@ -106,8 +109,8 @@ class RhythmicMap:
     def predict(self, q, method=None, *, m=None, sequence=None, speeds=(1.0,),
                 threshold=None):  # fmt: skip
         """Place of every query (b,), -1 for no match (:func:`queries.predict`)."""
-        return queries.predict(self.value, q, method, top=m, sequence=sequence,
-                               speeds=speeds, threshold=threshold)  # fmt: skip
+        how = dict(top=m, sequence=sequence, speeds=speeds, threshold=threshold)
+        return queries.predict(self.map or self.value, q, method, **how)
 
     @classmethod
     def load(cls, path, *, descriptor=None, descriptor_settings=None, d=None):

@@ -5,6 +5,7 @@ python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 
 import time
 
+import jax
 import numpy as np
 from _harness import cores, header, log, main, table
 from bench_decode import random_features, random_map
@@ -72,7 +73,7 @@ def run(args) -> dict:
     rows = latencies(cases, queries, dict.fromkeys(cases, args.singles))
 
     def jit(q):  # timed after the numpy paths: XLA's threads spin on after a call
-        return decode(params, q, periods, n).index.block_until_ready()
+        return jax.block_until_ready(decode(params, q, periods, n).index)
 
     one = {"jitted decode (1 row)": lambda q: jit(q[None])}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.singles)))

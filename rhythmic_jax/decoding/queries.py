@@ -37,6 +37,7 @@ from collections.abc import Sequence
 
 import jax
 import numpy as np
+from jax.core import Tracer
 
 from rhythmic_jax.decoding import hard
 from rhythmic_jax.decoding.buckets import head, pad_rows
@@ -75,7 +76,7 @@ def queries(m: Map, q) -> np.ndarray | jax.Array:
     """Checked (b, d) queries of ``m``, embedded to (b, k) when it has an
     embedding; in host memory (the bucketed decodes pad them there). Inside a
     trace they are taken as they are."""
-    if isinstance(q, jax.core.Tracer):
+    if isinstance(q, Tracer):
         return q if m.embedding is None else embed(m.embedding, q)
     q = check_features(q, "queries", d=m.d)
     return q if m.embedding is None else apply_embedding(m.embedding, q)
@@ -195,17 +196,18 @@ def lane(m: Map) -> SmallDecoder:
     return small
 
 
-def _locate_lane(m: Map) -> SmallDecoder | None:
-    """:func:`lane` where ``locate`` may answer by it alone (the paper's hard
-    decode of a periods map without threshold, codes or embedding), else None;
-    decided once per map."""
-    got = vars(m).get("_locate_lane", False)
+def _plain_lane(m: Map) -> SmallDecoder | None:
+    """:func:`lane` where a hard decode may answer by it alone (a periods map
+    without codes or embedding, outside a trace), else None; decided once per
+    map and kept on it, so a query pays one look-up."""
+    got = vars(m).get("_plain_lane", False)
     if got is False:
-        cfg = m.config
-        plain = m.embedding is None and m.codebook is None and cfg.threshold is None
-        fits = plain and cfg.decode == "hard" and m.groups.kind == "periods"
-        got = lane(m) if fits and not isinstance(m.w, jax.core.Tracer) else None
-        object.__setattr__(m, "_locate_lane", got)
+        plain = m.embedding is None and m.codebook is None
+        if plain and m.groups.kind == "periods" and not isinstance(m.w, Tracer):
+            got = lane(m)
+        else:
+            got = None
+        object.__setattr__(m, "_plain_lane", got)
     return got
 
 
@@ -214,19 +216,18 @@ def places(m: Map, q, how: str) -> np.ndarray | None:
     of a periods map without codes or embedding, by its numpy lane (one
     matrix-vector product each, the scores' finiteness checking the values);
     None where that does not apply."""
+    small = vars(m).get("_plain_lane", False)
+    if small is False:
+        small = _plain_lane(m)
     if (
-        how == "hard"
-        and m.codebook is None
-        and m.embedding is None
-        and m.groups.kind == "periods"
+        small is not None
+        and how == "hard"
         and type(q) is np.ndarray
         and q.dtype == np.float32
         and q.ndim == 2
         and 0 < len(q) <= SMALL_BATCH
         and q.shape[1] == m.d
-        and not isinstance(m.w, jax.core.Tracer)
     ):
-        small = lane(m)
         found = [small.place(row) for row in q]
         if None not in found:
             return np.array(found, np.int64)
@@ -239,12 +240,17 @@ def locate(m: Map, q) -> int:
     threshold, codes or embedding) a float32 (d,) numpy array goes straight to
     one BLAS product (no dispatch, no copies; a NaN or inf is caught on its
     scores); anything else takes ``predict``'s checks."""
-    small = _locate_lane(m)
+    small = vars(m).get("_plain_lane", False)
+    if small is False:
+        small = _plain_lane(m)
+    cfg = m.config
     if (
         small is not None
         and type(q) is np.ndarray
         and q.dtype == np.float32
         and q.shape == (m.d,)
+        and cfg.decode == "hard"
+        and cfg.threshold is None
     ):
         found = small.place(q)
         if found is not None:
