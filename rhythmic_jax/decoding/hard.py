@@ -19,12 +19,12 @@ and a threshold on it rejects queries (the paper's "lower bound of decision valu
 Soft and top-m decodes (:mod:`rhythmic_jax.decoding.soft`) share the :class:`Decoded`
 result and its confidence.
 
-A jitted call costs about a hundred microseconds of dispatch on a CPU however
-small its work, while one query's work is a (p, d) matrix-vector product, k
-argmaxes and k look-ups. :class:`SmallDecoder` is the numpy lane for such
-queries: the templates transposed (rows, d), C-contiguous, so the product
-streams rows; the CRT tables as Python ints (for two periods, one table of every
-phase pair's place). It gives the kernel's index up to float32 rounding of the
+A jitted call pays a dispatch however small its work, and one query's work is
+only a (p, d) matrix-vector product, k argmaxes and k look-ups.
+:class:`SmallDecoder` is the numpy lane for such queries: the templates
+transposed (rows, d), C-contiguous, so the product streams rows; the CRT
+tables as Python ints (for two periods, one table of every phase pair's
+place). It gives the kernel's index up to float32 rounding of the
 product (a phase can differ only where two phases tie to ~1e-6). OpenBLAS runs
 ``sgemv`` on one thread below ``rows * cols`` = :data:`GEMV_THREADED` elements
 and on its thread pool from there, so the matrix gets zero rows up to that size
@@ -158,7 +158,7 @@ def _top_two(block: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     ``jnp.argmax`` takes the first NaN) by a min over the columns, and the
     second best a max with the argmax masked: plain reductions, which XLA
     vectorises on a CPU (its variadic argmax reduction and ``top_k`` it does
-    not; half the time of ``jnp.argmax`` for 10^4 queries of 100 phases)."""
+    not)."""
     t = block.shape[1]
     top = jnp.max(block, axis=1)
     col = jax.lax.broadcasted_iota(jnp.int32, block.shape, 1)
