@@ -5,17 +5,18 @@ python scripts/bench_single_query.py [--singles 2000] [--exact 200]
 
 import time
 
+import jax
 import numpy as np
 from _harness import cores, header, log, main, table
 from bench_decode import random_features, random_map
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decoding.hard import decode
-from rhythmic_jax.decoding.small import SmallDecoder
+from rhythmic_jax.decoding.hard import SmallDecoder, decode
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import candidate_periods, choose_periods
+from rhythmic_jax.map.pytree import Map
 
 QUICK = dict(n=2000, singles=200, exact=20)  # --quick
 
@@ -52,11 +53,12 @@ def run(args) -> dict:
     refs, queries, _ = random_features(n, d, args.singles, seed=0)
     params, p = random_map(d, periods, seed=1), sum(periods)
     model = RhythmicMap(r=2)
-    model.params, model.periods, model.n, model.d = params, periods, n, d
-    model.groups = Groups("periods", periods)
+    groups = Groups("periods", periods)
+    model.map = Map(*params, stored=dict(params._asdict()), config=model.config,
+                    groups=groups, periods=periods, n=n, d=d)  # fmt: skip
     small = SmallDecoder.build(params, periods, n)
     batch_idx = np.asarray(decode(params, queries, periods, n).index)
-    same = [small.index(q) for q in queries] == batch_idx.tolist()
+    same = [small.place(q) for q in queries] == batch_idx.tolist()
     model.predict(queries[:1])  # builds the map's numpy lane
     same_locate = [model.locate(q) for q in queries] == batch_idx.tolist()
     wt, rows_p = small.wt, small.wt.shape[0]
@@ -66,15 +68,12 @@ def run(args) -> dict:
         alone + f"padded to {rows_p} rows (the map's)": lambda q: wt @ q,
         "RhythmicMap.locate (1 descriptor)": model.locate,
         "RhythmicMap.predict (1 row)": lambda q: model.predict(q[None]),
-        "numpy index (SmallDecoder.index)": small.index,
-        "numpy decode (SmallDecoder, 1 row: index, score, runner-up)": lambda q: small(
-            q[None]
-        ),
+        "numpy index (SmallDecoder.place)": small.place,
     }
     rows = latencies(cases, queries, dict.fromkeys(cases, args.singles))
 
     def jit(q):  # timed after the numpy paths: XLA's threads spin on after a call
-        return decode(params, q, periods, n).index.block_until_ready()
+        return jax.block_until_ready(decode(params, q, periods, n).index)
 
     one = {"jitted decode (1 row)": lambda q: jit(q[None])}
     rows.update(latencies(one, queries, dict.fromkeys(one, args.singles)))
@@ -115,7 +114,7 @@ def markdown(r: dict) -> str:
         f"Batches of 1000: jitted decode {thr['jitted decode']['queries_per_s']:,.0f}"
         f" queries/s, faiss flat {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}:"
         f" **{ratio:.1f}x**. The numpy path gives the batch decode's place for every"
-        f" query: {r['same_as_batch_decode']} (SmallDecoder.index),"
+        f" query: {r['same_as_batch_decode']} (SmallDecoder.place),"
         f" {r.get('locate_same_as_batch_decode', 'not run')} (RhythmicMap.locate).",
         f"Targets: one descriptor -> place <= 20 us median: {met} by RhythmicMap.locate"
         f" ({locate:.1f} us; predict on one row {predict:.1f} us; faiss flat on one row"

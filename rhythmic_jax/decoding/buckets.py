@@ -3,8 +3,9 @@
 XLA compiles a program per input shape; a batch of b queries padded to
 :func:`bucket` ``(b)`` rows (the next power of two from :data:`MIN_BUCKET` on)
 shares its program with every batch of that bucket. :func:`pad_rows` pads a
-numpy batch on the host (no program) and :func:`head` cuts the (b,) results on
-the host, so no shape-specific program runs around a bucketed one.
+numpy batch on the host (no program) and :func:`head` cuts the (b,) results
+where they lie, so no shape-specific program runs around a bucketed one on a
+CPU.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 
 from rhythmic_jax.jit_options import jit
 
-__all__ = ["MIN_BUCKET", "bucket", "head", "pad_rows"]
+__all__ = ["MIN_BUCKET", "bucket", "head", "in_host_memory", "pad_rows"]
 
 MIN_BUCKET = 16
 """The smallest bucket: batches of 1-16 queries share one program."""
@@ -53,9 +54,28 @@ def pad_rows(x) -> tuple[jax.Array | np.ndarray, int]:
     return out, b
 
 
+def in_host_memory(a) -> np.ndarray | None:
+    """``a`` as a numpy array where it lies in host memory already (a numpy
+    array, or a JAX array on a CPU device: a view, no copy and no program);
+    None for a tracer or an array on another device."""
+    if isinstance(a, np.ndarray):
+        return a
+    if isinstance(a, jax.core.Tracer) or not isinstance(a, jax.Array):
+        return None
+    if all(d.platform == "cpu" for d in a.devices()):
+        return np.asarray(a)
+    return None
+
+
 def head(tree, b: int):
-    """The first ``b`` rows of every array of ``tree``, cut on the host (the
-    (b,) results of a batch are small; cutting them on the device would compile
-    a program per b) and put back on the default device (``jax.device_put``:
-    ``jnp.asarray`` of a numpy array compiles a program per shape)."""
-    return jax.tree.map(lambda a: jax.device_put(np.asarray(a)[:b]), tree)
+    """The first ``b`` rows of every array of ``tree``, cut where it lies: in
+    host memory a view (on a CPU device the results are there already; cutting
+    them with XLA would compile a program per b), on another device a slice
+    there (the results stay on the device until the caller asks for them)."""
+
+    def cut(a):
+        host = in_host_memory(a)
+        a = a if host is None else host
+        return a if a.shape[0] == b else a[:b]
+
+    return jax.tree.map(cut, tree)

@@ -2,27 +2,18 @@
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import jax
-import jax.numpy as jnp
 
-from rhythmic_jax.decoding.group_decode import (
-    group_hard_decode,
-    group_soft_decode,
-    group_topm_decode,
-)
+from rhythmic_jax.decoding.group_decode import group_soft_decode, group_topm_decode
 from rhythmic_jax.decoding.hard import Decoded, check_scores, hard_decode
 from rhythmic_jax.decoding.soft import soft_decode, topm_decode
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.config import DECODERS
 from rhythmic_jax.map.groups import Groups
 
 __all__ = ["DECODERS", "decode_scores"]
-
-_hard_jit = functools.partial(jit, static_argnames=("periods", "n"))(hard_decode)
 
 
 def decode_scores(
@@ -47,13 +38,10 @@ def decode_scores(
             return group_soft_decode(scores, periods, n)
         if method == "topm":
             return group_topm_decode(scores, periods, n, m)
-        return group_hard_decode(scores, periods, n)
+        return hard_decode(scores, periods, n)
     periods, n = check_scores(scores, getattr(periods, "sizes", periods), n)
     if method == "soft":
         return soft_decode(scores, periods, n)
     if method == "topm":
         return topm_decode(scores, periods, n, m)
-    scores = jnp.asarray(scores)
-    lead = scores.shape[:-1]
-    out = _hard_jit(scores.reshape((-1, scores.shape[-1])), periods, n)
-    return Decoded(*(x.reshape(lead) for x in out))
+    return hard_decode(scores, periods, n)

@@ -13,7 +13,8 @@ tau_g`` and this is soft decode (:mod:`rhythmic_jax.decoding.soft`)):
   frames away (as the periods' soft decode);
 - top-m: the same argmax over the places whose label is among the ``m`` best of
   every group (``m = 1``: every group's argmax; ``m >= max(size)``: soft);
-- hard: mixed radix, the argmax digits give the index directly
+- hard (the one kernel, :func:`rhythmic_jax.decoding.hard.hard_decode`):
+  mixed radix, the argmax digits give the index directly
   (``sum_k d_k prod(b_{k+1..r})``, no match when it is ``>= n``); hierarchical,
   the argmax segment, then its best place by the summed fine scores. Confidence
   is the smallest top-2 margin (of every digit; of the segment and of the place
@@ -36,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.decoding.hard import Decoded
+from rhythmic_jax.decoding.hard import Decoded, hard_decode
 from rhythmic_jax.decoding.soft import _batched, _best_two, _empty
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
@@ -167,66 +168,15 @@ def group_topm_decode(
 
 
 # --------------------------------------------------------------------- hard
-def _top_two(block: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """(b, t) -> argmax (b,), max (b,), max - second (b,) (inf when t == 1)."""
-    arg = jnp.argmax(block, axis=1)
-    top = jnp.max(block, axis=1)
-    hit = jnp.arange(block.shape[1])[None, :] == arg[:, None]
-    second = jnp.max(jnp.where(hit, -jnp.inf, block), axis=1)
-    return arg, top, top - second
-
-
-def _hard(scores: jax.Array, groups: Groups, n: int) -> Decoded:
-    b = scores.shape[0]
-    offs = groups.offsets
-    if groups.kind == "mixed":
-        index = jnp.zeros((b,), jnp.int32)
-        total = jnp.zeros((b,), scores.dtype)
-        gap = jnp.full((b,), jnp.inf, scores.dtype)
-        for off, t, w in zip(offs, groups.sizes, groups.weights(), strict=True):
-            digit, top, margin = _top_two(scores[:, off : off + t])
-            index = index + digit.astype(jnp.int32) * w
-            total = total + top
-            gap = jnp.minimum(gap, margin)
-        found = index < n
-        return Decoded(
-            jnp.where(found, index, -1),
-            jnp.where(found, total, jnp.asarray(-jnp.inf, scores.dtype)),
-            total - gap,
-        )
-    # hierarchical: the argmax segment, then its best place by the fine scores
-    s = groups.segment
-    seg, seg_top, seg_gap = _top_two(scores[:, : groups.sizes[0]])
-    place = (seg * s).astype(jnp.int32)[:, None] + jnp.arange(s, dtype=jnp.int32)[
-        None, :
-    ]
-    fine = jnp.zeros(place.shape, scores.dtype)
-    for off, t in zip(offs[1:], groups.sizes[1:], strict=True):
-        fine = fine + jnp.take_along_axis(scores, off + place % t, axis=1)
-    fine = jnp.where(place < n, fine, -jnp.inf)
-    best, fine_top, fine_gap = _top_two(fine)
-    total = seg_top + fine_top
-    gap = jnp.minimum(seg_gap, fine_gap)
-    index = (seg * s + best).astype(jnp.int32)
-    return Decoded(index, total, total - gap)
-
-
-_hard_jit = functools.partial(jit, static_argnames=("groups", "n"))(_hard)
-
-
 def group_hard_decode(scores: jax.Array, groups: Groups, n: int) -> Decoded:
-    """Hard decode of a mixed or hierarchical map: scores (..., p) -> Decoded (...)."""
+    """Hard decode of a mixed or hierarchical map: scores (..., p) -> Decoded (...)
+    (the one kernel, :func:`rhythmic_jax.decoding.hard.hard_decode`)."""
     n = check_group_scores(scores, groups, n)
     if groups.kind == "periods":
         raise InputError(
             "periods maps decode with rhythmic_jax.decoding.hard.hard_decode"
         )
-    scores = jnp.asarray(scores)
-    lead = scores.shape[:-1]
-    if math.prod(lead) == 0:
-        return _empty(lead, scores.dtype)
-    out = _hard_jit(scores.reshape((-1, scores.shape[-1])), groups, n)
-    return Decoded(*(x.reshape(lead) for x in out))
+    return hard_decode(scores, groups, n)
 
 
 # ---------------------------------------------------------------- sequences

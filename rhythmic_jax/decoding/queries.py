@@ -1,134 +1,262 @@
-"""Which decode answers a fitted map's queries.
+"""Queries of a map: pure functions of a :class:`~rhythmic_jax.map.pytree.Map`.
 
-A map (:class:`rhythmic_jax.RhythmicMap`) decodes its checked queries ``x``
-(b, k) (embedded when it has an embedding) in one of these lanes:
+``scores(map, q)``, ``place_scores(map, q)``, ``decode(map, q, how)``,
+``decode_sequence(map, q, length)``, ``predict(map, q)`` and ``locate(map, q)``
+take the map as a value. Queries (b, d) are checked and embedded (when the map
+has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
+``jax.vmap`` over stacked maps) they are taken as they are. Then:
 
-- with codes, its place scores fused with the code similarities
+- with codes, the place scores are fused with the code similarities
   (:mod:`rhythmic_jax.decoding.fusion`; ``hard`` then scores every place, as
-  ``soft``);
-- the paper's hard decode of a periods map: numpy for up to
-  :data:`~rhythmic_jax.decoding.small.SMALL_BATCH` queries
-  (:mod:`rhythmic_jax.decoding.small`), else a host BLAS product with jitted
-  argmaxes and look-ups (:mod:`rhythmic_jax.decoding.hard`);
-- any other decode or layout, jitted in padded buckets
-  (:mod:`rhythmic_jax.decoding.batch`);
+  ``soft``; the code similarities are computed on the host, so such a map is
+  decoded outside a trace);
+- the hard decode of any layout: the one kernel
+  (:func:`rhythmic_jax.decoding.hard.decode`), with up to
+  :data:`~rhythmic_jax.decoding.hard.SMALL_BATCH` float32 queries of a periods
+  map answered by its numpy lane (:class:`~rhythmic_jax.decoding.hard.SmallDecoder`,
+  built once per map) in ``predict`` and ``locate``;
+- soft and top-m decodes, jitted in padded buckets of rows
+  (:mod:`rhythmic_jax.decoding.buckets`: one program per bucket);
 
 and a sequence of queries in the phase domain, or fused with codes
-(:mod:`rhythmic_jax.decoding.sequence`). The functions read the map's params,
-groups, periods, n, codebook, fusion weight and numpy decoder.
+(:mod:`rhythmic_jax.decoding.sequence`). Results stay where they were computed
+(a device array of a jitted decode) until ``predict`` hands back its (b,) places.
+
+Padding rows decode to something and are dropped; every decode here is per
+query (rows do not interact), and the sequence decode looks only backwards in
+time, so rows appended after the last frame change no real frame's answer.
+
+Shapes: b queries (T frames of a sequence), d features, k the templates'
+dimension, p templates, n places.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 
 import jax
 import numpy as np
+from jax.core import Tracer
 
-from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
+from rhythmic_jax.decoding import hard
+from rhythmic_jax.decoding.buckets import head, pad_rows
+from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.fusion import (
     fused_decode,
     fused_place_scores,
     fused_sequence_decode,
 )
-from rhythmic_jax.decoding.hard import Decoded
-from rhythmic_jax.decoding.hard import decode as localise
-from rhythmic_jax.decoding.small import SMALL_BATCH
+from rhythmic_jax.decoding.hard import SMALL_BATCH, Decoded, SmallDecoder
+from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.embedding import apply as apply_embedding
-from rhythmic_jax.solvers.objective import Templates, scores
+from rhythmic_jax.map.embedding import embed
+from rhythmic_jax.map.groups import Groups
+from rhythmic_jax.map.pytree import Map, Templates, decision_values
+from rhythmic_jax.validate import check_features, check_number, check_sequence
 
 __all__ = [
-    "decode_map",
-    "few_places",
-    "locate_fast",
-    "map_scores",
+    "decode",
+    "decode_queries",
+    "decode_sequence",
+    "lane",
+    "locate",
     "one_query",
-    "place_scores_map",
-    "sequence_map",
+    "place_scores",
+    "predict",
+    "scores",
+    "sequence_queries",
 ]
 
-
-@jit
-def map_scores(params: Templates, q: jax.Array) -> jax.Array:
-    """Decision values ``q @ w + b`` (b, p) of queries (b, k), jitted."""
-    return scores(params, q)
+_scores_jit = jit(decision_values)
 
 
-def decode_map(model, x, method: str, m: int) -> Decoded:
-    """Decode the map's checked queries x (b, k) with ``method`` (top-``m``)."""
-    if model.codebook is not None:
-        return fused_decode(
-            map_scores(model.params, x), model.codebook.similarity(x),
-            model.periods, model.n, model.config.fusion,
-            "soft" if method == "hard" else method, m,
-        )  # fmt: skip
-    if method == "hard" and model.groups.kind == "periods":
-        x = np.asarray(x, np.float32)
-        if len(x) <= SMALL_BATCH:  # numpy: no dispatch for a single query
-            return model._small_decoder()(x)
-        # host BLAS product, jitted argmaxes and look-ups
-        return localise(model.params, x, model.periods, model.n)
-    return decode_queries(model.params, x, model.groups, model.n, method, m)
+def queries(m: Map, q) -> np.ndarray | jax.Array:
+    """Checked (b, d) queries of ``m``, embedded to (b, k) when it has an
+    embedding; in host memory (the bucketed decodes pad them there). Inside a
+    trace they are taken as they are."""
+    if isinstance(q, Tracer):
+        return q if m.embedding is None else embed(m.embedding, q)
+    q = check_features(q, "queries", d=m.d)
+    return q if m.embedding is None else apply_embedding(m.embedding, q)
 
 
-def place_scores_map(model, x) -> jax.Array:
-    """Score of every place (b, n) for the map's checked queries x (b, k): its
-    summed phase scores, or with codes the fused z-scores."""
-    book = model.codebook
+def scores(m: Map, q) -> jax.Array:
+    """Decision values of queries (b, d) -> (b, p)."""
+    return _scores_jit(m.params, queries(m, q))
+
+
+def place_scores(m: Map, q) -> jax.Array:
+    """Score of every place for queries (b, d) -> (b, n): the map's summed phase
+    scores, or with codes the fused z-scores."""
+    x = queries(m, q)
+    book = m.codebook
     sims = None if book is None else book.similarity(x)
     return fused_place_scores(
-        map_scores(model.params, x), sims, model.periods, model.n, model.config.fusion
+        _scores_jit(m.params, x), sims, m.periods, m.n, m.config.fusion
     )
 
 
-def few_places(model, q, method: str) -> np.ndarray | None:
-    """Places (b,) int64 of up to :data:`SMALL_BATCH` raw queries q (b, d) of the
-    map by the numpy hard decode (:meth:`SmallDecoder.places`); None where that
-    decode does not apply (codes, another decode or layout, more queries)."""
-    if model.codebook is not None or method != "hard":
-        return None
-    model._check_fitted()
-    if model.groups.kind != "periods":
-        return None
-    emb = model.embedding
-    embed = None if emb is None else functools.partial(apply_embedding, emb)
-    return model._small_decoder().places(q, model.d, embed)
-
-
-def sequence_map(model, x, sequence: int, speeds, method: str, m: int):
-    """``(index, confidence)`` (b,) of the map's checked queries x (b, k), each
-    decoded with the ``sequence - 1`` before it at ``speeds``."""
-    if model.codebook is not None:
-        return fused_sequence_decode(
-            map_scores(model.params, x), model.codebook.similarity(x),
-            model.periods, model.n, sequence, speeds, model.config.fusion, method, m,
+def decode(m: Map, q, how: str | None = None, top: int | None = None) -> Decoded:
+    """Decode queries (b, d): index (b,) (-1 no match), score, runner-up,
+    confidence; ``how`` "hard", "soft" or "topm" (default: the map's), ``top``
+    the phases top-m keeps (default: the map's)."""
+    how, top = how or m.config.decode, top or m.config.m
+    x = queries(m, q)
+    if m.codebook is not None:
+        return fused_decode(
+            _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
+            m.config.fusion, "soft" if how == "hard" else how, top,
         )  # fmt: skip
-    return sequence_queries(
-        model.params, x, model.groups, model.n, sequence, speeds, method, m
-    )
+    if how == "hard":
+        return hard.decode(m.params, x, m.groups, m.n)
+    return decode_queries(m.params, x, m.groups, m.n, how, top)
 
 
-def locate_fast(model, q) -> int | None:
-    """The place of one float32 (d,) numpy descriptor ``q`` by one BLAS product
-    (no dispatch, no copies), for the paper's hard decode of a map without
-    threshold, codes or embedding whose numpy decoder is built; None where that
-    does not apply (or a NaN or inf shows in the scores)."""
-    small = model._small
+def decode_sequence(
+    m: Map,
+    q,
+    length: int,
+    speeds: Sequence[float] = (1.0,),
+    how: str | None = None,
+    top: int | None = None,
+) -> tuple[jax.Array, jax.Array]:
+    """``(index, confidence)`` (T,) of consecutive query frames q (T, d), each
+    decoded with the ``length - 1`` before it at ``speeds``
+    (:mod:`rhythmic_jax.decoding.sequence`)."""
+    how, top = how or m.config.decode, top or m.config.m
+    return _sequence(m, queries(m, q), length, speeds, how, top)
+
+
+def _sequence(m: Map, x, length, speeds, how: str, top: int):
+    """:func:`decode_sequence` of checked, embedded queries x (T, k)."""
+    if m.codebook is not None:
+        return fused_sequence_decode(
+            _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
+            length, speeds, m.config.fusion, how, top,
+        )  # fmt: skip
+    return sequence_queries(m.params, x, m.groups, m.n, length, speeds, how, top)
+
+
+def predict(
+    m: Map,
+    q,
+    how: str | None = None,
+    *,
+    top: int | None = None,
+    sequence: int | None = None,
+    speeds: tuple[float, ...] = (1.0,),
+    threshold: float | None = None,
+) -> np.ndarray:
+    """Place index of every query (b,) int64 in host memory, -1 for no match.
+
+    Args:
+      q: (b, d) queries (consecutive frames of a traversal when ``sequence``).
+      how: "hard" (paper), "soft" or "topm"; default from the map's config.
+      sequence: decode each frame with the L previous ones in the phase
+        domain (:mod:`rhythmic_jax.decoding.sequence`; mixed-radix and
+        hierarchical maps sum place scores instead); None (or 1) for single
+        frames; at most b.
+      speeds: map frames per query frame tried by the sequence decode.
+      threshold: reject queries whose confidence is below it (finite; default
+        the map's).
+    """
+    how = how or m.config.decode
+    thr = m.config.threshold
+    if threshold is not None:
+        thr = check_number(threshold, "{opt:threshold}")
+    sequence = check_sequence(sequence)
+    if sequence is not None and sequence > 1:  # embedded once here
+        q = queries(m, q)
+    if sequence is not None:
+        check_sequence(sequence, len(q))
+    if sequence is not None and sequence > 1:
+        idx, conf = _sequence(m, q, sequence, speeds, how, top or m.config.m)
+    else:
+        few = places(m, q, how) if thr is None else None
+        if few is not None:
+            return few
+        out = decode(m, q, how, top)
+        idx, conf = out.index, out.confidence
+    idx = np.asarray(idx).astype(np.int64)
+    if thr is not None:
+        idx = np.where(np.asarray(conf, np.float64) >= thr, idx, -1)
+    return idx
+
+
+def lane(m: Map) -> SmallDecoder:
+    """The numpy lane of the periods map ``m``: built on first use and kept on
+    the map value (as ``functools.cached_property`` keeps a value: outside its
+    fields, so not a leaf, and not carried to a map made from it)."""
+    small = vars(m).get("_numpy_lane")
+    if small is None:
+        small = SmallDecoder.build(m.params, m.periods, m.n)
+        object.__setattr__(m, "_numpy_lane", small)
+    return small
+
+
+def _plain_lane(m: Map) -> SmallDecoder | None:
+    """:func:`lane` where a hard decode may answer by it alone (a periods map
+    without codes or embedding, outside a trace), else None; decided once per
+    map and kept on it, so a query pays one look-up."""
+    got = vars(m).get("_plain_lane", False)
+    if got is False:
+        plain = m.embedding is None and m.codebook is None
+        if plain and m.groups.kind == "periods" and not isinstance(m.w, Tracer):
+            got = lane(m)
+        else:
+            got = None
+        object.__setattr__(m, "_plain_lane", got)
+    return got
+
+
+def places(m: Map, q, how: str) -> np.ndarray | None:
+    """Places (b,) int64 of up to :data:`SMALL_BATCH` float32 queries q (b, d)
+    of a periods map without codes or embedding, by its numpy lane (one
+    matrix-vector product each, the scores' finiteness checking the values);
+    None where that does not apply."""
+    small = vars(m).get("_plain_lane", False)
+    if small is False:
+        small = _plain_lane(m)
     if (
         small is not None
-        and small.params is model.params
+        and how == "hard"
         and type(q) is np.ndarray
         and q.dtype == np.float32
-        and q.shape == (model.d,)
-        and model.embedding is None
-        and model.codebook is None
-        and model.config.decode == "hard"
-        and model.config.threshold is None
+        and q.ndim == 2
+        and 0 < len(q) <= SMALL_BATCH
+        and q.shape[1] == m.d
     ):
-        return small.place(q)
+        found = [small.place(row) for row in q]
+        if None not in found:
+            return np.array(found, np.int64)
     return None
+
+
+def locate(m: Map, q) -> int:
+    """Place of one descriptor ``q`` (d,), -1 for no match: ``predict(m,
+    q[None])[0]`` with nothing around it. For the paper's hard decode (no
+    threshold, codes or embedding) a float32 (d,) numpy array goes straight to
+    one BLAS product (no dispatch, no copies; a NaN or inf is caught on its
+    scores); anything else takes ``predict``'s checks."""
+    small = vars(m).get("_plain_lane", False)
+    if small is False:
+        small = _plain_lane(m)
+    cfg = m.config
+    if (
+        small is not None
+        and type(q) is np.ndarray
+        and q.dtype == np.float32
+        and q.shape == (m.d,)
+        and cfg.decode == "hard"
+        and cfg.threshold is None
+    ):
+        found = small.place(q)
+        if found is not None:
+            return found
+    return int(predict(m, one_query(q, m.d))[0])
 
 
 def one_query(q, d: int):
@@ -143,3 +271,49 @@ def one_query(q, d: int):
             f"query: expected one descriptor of shape ({d},), got shape {x.shape}"
         )
     return x[None]
+
+
+# ------------------------------------------- templates and queries, bucketed
+@functools.partial(jit, static_argnames=("groups", "n", "method", "m"))
+def _decode_jit(params, queries, groups, n, method, m):
+    return decode_scores(decision_values(params, queries), groups, n, method, m)
+
+
+def decode_queries(
+    params: Templates,
+    queries,
+    groups: Groups,
+    n: int,
+    method: str = "hard",
+    m: int = 3,
+) -> Decoded:
+    """Scores and decode of queries (b, d) in one program per bucket: Decoded (b,).
+
+    ``decode_scores(decision_values(params, queries), groups, n, method, m)``
+    (:func:`rhythmic_jax.decoding.dispatch.decode_scores`) with the batch padded
+    to :func:`~rhythmic_jax.decoding.buckets.bucket` ``(b)`` rows.
+    """
+    padded, b = pad_rows(queries)
+    return head(_decode_jit(params, padded, groups, n, method, int(m)), b)
+
+
+def sequence_queries(
+    params: Templates,
+    queries,
+    groups: Groups,
+    n: int,
+    length: int,
+    speeds: Sequence[float] = (1.0,),
+    method: str = "soft",
+    m: int = 3,
+) -> tuple[jax.Array, jax.Array]:
+    """Sequence decode of T consecutive query frames (T, d), every program
+    compiled once per bucket: index (T,), confidence (T,)
+    (:func:`rhythmic_jax.decoding.sequence.sequence_decode` of their scores).
+
+    The frames are padded at the end; a frame's answer depends on the frames
+    before it only.
+    """
+    padded, b = pad_rows(queries)
+    s = _scores_jit(params, padded)
+    return head(sequence_decode(s, groups, n, length, speeds, method, m), b)

@@ -14,20 +14,20 @@ shows, :meth:`rhythmic_jax.RhythmicMap.info`) plus ``codes_kind``, ``dtype``,
 ``package_version``, ``format_version`` and ``digests`` (the sha256 of every
 stored file and array, checked by :func:`load` and :func:`info`).
 
-:func:`save` writes a fitted map, :func:`load` reads one back as a checked
-:class:`MapFile` the map is rebuilt from, and :func:`info` describes a folder from
+:func:`save` writes a :class:`~rhythmic_jax.map.pytree.Map`, :func:`load`
+reads one back, checked, and :func:`info` describes a folder from
 ``map.json`` and its files' checksums when its metadata is complete and
 consistent and its arrays are listed as saved (no JAX imported, no array
-decoded). Maps saved before layouts, embeddings, codes or checksums existed still
-load.
+decoded). Maps saved before layouts, embeddings, codes or checksums existed
+still load.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import asdict
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -71,92 +71,94 @@ EMBEDDING_KEYS = ("kind", "head", "d", "k", "descriptor", "descriptor_settings",
                   "learn", "sources")  # fmt: skip
 
 
-@dataclass(frozen=True)
-class MapFile:
-    """A map folder's contents, checked: what :class:`rhythmic_jax.RhythmicMap`
-    is rebuilt from. ``stored`` holds ``w`` (k, p), ``b`` (p,) and ``scale`` (p,)
-    for int8 templates; ``k`` is the embedding's output dimension, else ``d``."""
+class MapFile(NamedTuple):
+    """A map folder's templates and record, checked: what the
+    :class:`~rhythmic_jax.map.pytree.Map` is built from. ``stored`` holds ``w``
+    (k, p), ``b`` (p,) and ``scale`` (p,) for int8 templates; ``params`` their
+    float32 values; ``k`` is the embedding's output dimension, else ``d``."""
 
-    config: Any  # the map's MapConfig
     stored: dict[str, np.ndarray]
-    params: tuple[np.ndarray, np.ndarray]  # stored's float32 values (w, b)
+    params: tuple[np.ndarray, np.ndarray]
     periods: tuple[int, ...]
     n: int
-    d: int
     groups: Any  # rhythmic_jax.map.groups.Groups
     group_errors: tuple[float, ...]
     c: float
     candidates: tuple[int, ...]
     candidate_errors: tuple[float, ...]
-    extra: dict[str, np.ndarray] = field(default_factory=dict)
-    embedding: Any = None  # rhythmic_jax.map.embedding.Embedding or None
-    codebook: Any = None  # CodeBook, ScalarCodeBook or None
-    reference: dict[str, Any] = field(default_factory=dict)
 
 
-def describe(model) -> dict[str, Any]:
-    """The :data:`INFO_KEYS` and ``codes_kind`` of the fitted ``model`` (a
-    :class:`rhythmic_jax.RhythmicMap`): what ``map.json`` and ``rhythmic-jax
+def describe(m) -> dict[str, Any]:
+    """The :data:`INFO_KEYS` and ``codes_kind`` of the map ``m`` (a
+    :class:`~rhythmic_jax.map.pytree.Map`): what ``map.json`` and ``rhythmic-jax
     info --json`` hold."""
-    book, emb = model.codebook, model.embedding
-    storage = model.storage()
+    from rhythmic_jax.map.embedding import embedding_bytes
+    from rhythmic_jax.map.pytree import storage as map_storage
+
+    book, emb = m.codebook, m.embedding
+    storage = map_storage(m)
     return {
-        "n": model.n,
-        "d": model.d,
-        "periods": list(model.periods),
-        "layout": model.groups.describe(),
-        "groups": model.groups.to_dict(),
-        "group_errors": list(model.group_errors),
+        "n": m.n,
+        "d": m.d,
+        "periods": list(m.periods),
+        "layout": m.groups.describe(),
+        "groups": m.groups.to_dict(),
+        "group_errors": [float(e) for e in m.group_errors],
         "storage_bytes": storage["total"],
-        "embedding_bytes": model.embedding_bytes,
+        "embedding_bytes": 0 if emb is None else embedding_bytes(emb),
         "embedding": None if emb is None else {"kind": emb.kind, "k": emb.k},
-        "database_bytes": database_bytes(model.n, model.d, 4),
+        "database_bytes": database_bytes(m.n, m.d, 4),
         "compression_ratio": storage["share"],
         "storage": storage,
         "codes_bits": book.bits if book else None,
         "codes_kind": book.kind if book else None,
-        "c": model.c,
-        "candidates": list(model.candidates),
-        "candidate_errors": list(model.candidate_errors),
-        "descriptor": model.config.descriptor,
-        "descriptor_settings": model.config.descriptor_settings,
-        "config": dict(asdict(model.config)),
-        "reference": model.reference,
+        "c": float(m.c),
+        "candidates": list(m.candidates),
+        "candidate_errors": [float(e) for e in m.candidate_errors],
+        "descriptor": m.config.descriptor,
+        "descriptor_settings": m.config.descriptor_settings,
+        "config": dict(asdict(m.config)),
+        "reference": m.where_from(),
     }
 
 
-def save(path: str | os.PathLike, model) -> None:
-    """Write the fitted ``model`` (a :class:`rhythmic_jax.RhythmicMap`) to the
+def save(path: str | os.PathLike, m) -> None:
+    """Write the map ``m`` (a :class:`~rhythmic_jax.map.pytree.Map`) to the
     folder ``path``, atomically."""
     from rhythmic_jax.map.embedding import embedding_arrays
     from rhythmic_jax.version import __version__
 
-    arrays = dict(model._stored)
-    arrays.update({f"extra_{k}": np.asarray(v) for k, v in model.extra.items()})
-    if model.codebook is not None:
-        arrays.update(model.codebook.arrays())
-    if model.embedding is not None:
-        arrays.update(embedding_arrays(model.embedding))
-    meta = model.info()
-    meta.update(dtype=model.config.dtype, package_version=__version__)
+    arrays = {k: np.asarray(v) for k, v in m.stored.items()}
+    arrays.update({f"extra_{k}": np.asarray(v) for k, v in m.extra.items()})
+    if m.codebook is not None:
+        arrays.update(m.codebook.arrays())
+    if m.embedding is not None:
+        arrays.update(embedding_arrays(m.embedding))
+    meta = describe(m)
+    meta.update(dtype=m.config.dtype, package_version=__version__)
     save_map(path, arrays, meta)
 
 
 def load(
     path: str | os.PathLike,
-    make_config: Callable[..., Any],
+    make_config: Callable[..., Any] | None = None,
     *,
     descriptor: str | None = None,
     descriptor_settings: dict | None = None,
     d: int | None = None,
-) -> MapFile:
-    """Read and check the map folder ``path``; ``make_config(**meta["config"])``
-    builds its configuration. A map built for another descriptor, other settings
-    or another d is refused (:class:`InputError`), as is a corrupt one."""
+):
+    """Read and check the map folder ``path`` into a
+    :class:`~rhythmic_jax.map.pytree.Map`; ``make_config(**meta["config"])``
+    (default :class:`~rhythmic_jax.map.config.MapConfig`) builds its
+    configuration. A map built for another descriptor, other settings or another
+    d is refused (:class:`InputError`), as is a corrupt one."""
     from rhythmic_jax.map.codes import codebook_from_arrays
+    from rhythmic_jax.map.config import MapConfig
     from rhythmic_jax.map.embedding import embedding_from_arrays
     from rhythmic_jax.map.groups import Groups
+    from rhythmic_jax.map.pytree import Map
 
+    make_config = make_config or MapConfig
     arrays, meta = load_map(path)
     try:
         cfg = make_config(**meta["config"])
@@ -204,23 +206,16 @@ def load(
         except InputError as err:
             raise InputError(f"{path}: {err}") from None
     reference = meta.get("reference", {})
-    return MapFile(
-        config=cfg,
-        stored=stored,
-        params=dequantize(stored),
-        periods=periods,
-        n=n,
-        d=dim,
-        groups=groups,
-        group_errors=group_errors,
-        c=c,
-        candidates=cands,
+    kept = MapFile(
+        stored=stored, params=dequantize(stored), periods=periods, n=n,
+        groups=groups, group_errors=group_errors, c=c, candidates=cands,
         candidate_errors=errors,
+    )  # fmt: skip
+    return Map.build(
+        kept, dim, cfg, codebook=codebook, embedding=emb,
         extra={k[6:]: v for k, v in arrays.items() if k.startswith("extra_")},
-        embedding=emb,
-        codebook=codebook,
         reference=reference if isinstance(reference, dict) else {},
-    )
+    )  # fmt: skip
 
 
 def _check_queries(path, cfg, dim, descriptor, descriptor_settings, d) -> None:

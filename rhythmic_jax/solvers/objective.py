@@ -22,15 +22,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import period_offsets
+from rhythmic_jax.map.pytree import (  # the map's value and its scores
+    Templates,
+    host_templates,
+)
+from rhythmic_jax.map.pytree import decision_values as scores
 
 __all__ = [
     "Templates",
@@ -49,30 +52,9 @@ __all__ = [
 ]
 
 
-class Templates(NamedTuple):
-    """Linear templates: ``w`` (d, p) weights and ``b`` (p,) biases."""
-
-    w: jax.Array
-    b: jax.Array
-
-
 def default_c(n: int) -> float:
     """The paper's penalty ``C = log N`` (natural log, Sec. III-A)."""
     return float(math.log(n))
-
-
-def host_templates(params, x) -> Templates:
-    """A solve's templates as float32 host arrays ``w`` (d, p), ``b`` (p,);
-    refused (InputError) when not finite, which frames x (n, d) with too large
-    values give."""
-    params = Templates(*(np.asarray(v, np.float32) for v in params))
-    if not all(np.isfinite(v).all() for v in params):
-        raise InputError(
-            "reference features: the solve gave non-finite templates (largest "
-            f"|feature| {float(np.abs(x).max()):.3g}); scale the features, "
-            "e.g. to unit-length rows"
-        )
-    return params
 
 
 def _label_parts(labels, periods) -> tuple[list, tuple[int, ...]]:
@@ -230,11 +212,6 @@ def total_objective(
 ) -> jax.Array:
     """Sum of :func:`objective` over templates: the scalar an optimiser minimises."""
     return jnp.sum(objective(params, x, y, c, frame_weight))
-
-
-def scores(params: Templates, x: jax.Array) -> jax.Array:
-    """Decision values ``x @ w + b``: (n, d) -> (n, p)."""
-    return jnp.matmul(x, params.w, precision="highest") + params.b[None, :]
 
 
 def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:

@@ -153,7 +153,7 @@ def test_a_fit_is_planned_once(kind, tmp_path, monkeypatch):
         for i in range(30):
             pixels = rng.integers(0, 256, (16, 32, 3), dtype=np.uint8)
             imsave(tmp_path / "frames" / f"f{i}.png", pixels, check_contrast=False)
-    from rhythmic_jax import rhythmic_map
+    from rhythmic_jax.fitting import fit as fit_module
 
     made = []
 
@@ -163,7 +163,7 @@ def test_a_fit_is_planned_once(kind, tmp_path, monkeypatch):
 
     plan = fit_plan.plan
     monkeypatch.setattr(fit_plan, "plan", counted)
-    monkeypatch.setattr(rhythmic_map, "plan_fit", counted)
+    monkeypatch.setattr(fit_module, "plan_fit", counted)
     model = jobs.fit(FitJob((source,), str(tmp_path / "m.map")))
     assert len(made) == 1 and (made[0].n, made[0].d) == (30, model.d)
     assert set(model.periods) <= set(made[0].candidates)

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from rhythmic_jax.decoding.dispatch import DECODERS, _hard_jit, decode_scores
+from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
+from rhythmic_jax.decoding.hard import _hard_jit
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.periods import period_offsets
 

@@ -1,4 +1,4 @@
-"""The numpy decode of a few queries equals the jitted batch decode."""
+"""The numpy lane's place of one query equals the hard-decode kernel's."""
 
 from __future__ import annotations
 
@@ -9,18 +9,19 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decoding.hard import decode
-from rhythmic_jax.decoding.small import (
+from rhythmic_jax.decoding import queries
+from rhythmic_jax.decoding.hard import (
     GEMV_THREADED,
     SMALL_BATCH,
     SmallDecoder,
     block_rows,
+    decode,
     gemv_rows,
 )
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import candidate_periods, choose_periods
-from rhythmic_jax.solvers.objective import Templates
+from rhythmic_jax.map.pytree import Map, Templates
 
 
 def _templates(d: int, periods, seed: int = 0) -> Templates:
@@ -31,27 +32,16 @@ def _templates(d: int, periods, seed: int = 0) -> Templates:
     return Templates(jnp.asarray(w), jnp.asarray(b))
 
 
-def _same(small, batch) -> None:
-    np.testing.assert_array_equal(small.index, np.asarray(batch.index))
-    found = small.index >= 0
-    assert np.all(np.isneginf(small.score[~found]))
-    np.testing.assert_allclose(small.score[found], np.asarray(batch.score)[found],
-                               rtol=1e-4, atol=1e-5)  # fmt: skip
-    np.testing.assert_allclose(small.confidence, np.asarray(batch.confidence),
-                               rtol=1e-4, atol=1e-5)  # fmt: skip
-
-
 @pytest.mark.parametrize("periods,n", [((100, 101), 10_000), ((7, 9, 11), 600),
                                        ((13,), 13), ((1, 5), 5)])  # fmt: skip
 def test_random_queries_decode_as_the_batch(periods, n):
     params = _templates(64, periods)
     q = np.random.default_rng(1).standard_normal((500, 64), dtype=np.float32)
     small = SmallDecoder.build(params, periods, n)
-    batch = decode(params, q, periods, n)
-    _same(small(q), batch)
-    assert [small.index(x) for x in q[:100]] == np.asarray(batch.index)[:100].tolist()
+    want = np.asarray(decode(params, q, periods, n).index).tolist()
+    assert [small.place(x) for x in q] == want
     if n < np.prod(periods):
-        assert (small(q).index == -1).any()  # the no-match branch is exercised
+        assert -1 in want  # the no-match branch is exercised
 
 
 def test_real_queries_decode_as_the_batch(nordland_patchnorm):
@@ -61,34 +51,27 @@ def test_real_queries_decode_as_the_batch(nordland_patchnorm):
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
     params = _templates(summer.shape[1], periods, seed=2)
     small = SmallDecoder.build(params, periods, n)
-    _same(small(winter), decode(params, winter, periods, n))
-    one = [small.index(x) for x in winter[:300]]
-    assert one == small(winter[:300]).index.tolist()
+    want = np.asarray(decode(params, winter, periods, n).index).tolist()
+    assert [small.place(x) for x in winter] == want
 
 
-def test_map_uses_it_for_few_queries():
+def test_predict_answers_few_queries_in_numpy():
     rng = np.random.default_rng(3)
     x = rng.standard_normal((60, 16), dtype=np.float32)
     model = RhythmicMap(r=2).fit(x, progress=False)
     q = x + 0.1 * rng.standard_normal(x.shape, dtype=np.float32)
-    full = model.decode(q)  # a batch: the jitted decode
-    for i in range(0, 60, 7):
-        part = model.decode(q[i : i + SMALL_BATCH])
-        assert isinstance(part.index, np.ndarray)  # the numpy path
-        np.testing.assert_array_equal(
-            part.index, np.asarray(full.index)[i : i + SMALL_BATCH]
-        )
-    assert model.predict(q[:1]).tolist() == [int(full.index[0])]
+    full = np.asarray(model.decode(q).index)  # a batch: the kernel
     for i in range(0, 60, 5):  # predict's own path: places only, in numpy
-        few = model._few_places(q[i : i + 5], "hard")
+        few = queries.places(model.map, q[i : i + 5], "hard")
         assert few.dtype == np.int64
-        np.testing.assert_array_equal(few, np.asarray(full.index)[i : i + 5])
+        np.testing.assert_array_equal(few, full[i : i + 5])
         np.testing.assert_array_equal(model.predict(q[i : i + 5]), few)
-    assert model._few_places(q[:9], "hard") is None  # a batch: jitted
-    assert model._few_places(q[:1], "soft") is None
-    first = model._small_decoder()
-    model.fit(x[::-1].copy(), progress=False)  # new templates: a new decoder
-    assert model._small_decoder() is not first
+    assert queries.places(model.map, q[: SMALL_BATCH + 1], "hard") is None  # a batch
+    assert queries.places(model.map, q[:1], "soft") is None
+    first = queries.lane(model.map)
+    assert queries.lane(model.map) is first  # built once per map
+    model.fit(x[::-1].copy(), progress=False)  # new templates: a new lane
+    assert queries.lane(model.map) is not first
 
 
 def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
@@ -106,10 +89,7 @@ def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
     assert not small.wt[spare].any() and np.isneginf(small.b[spare]).all()
     np.testing.assert_array_equal(small.wt[113:214], np.asarray(params.w)[:, 100:].T)
     q = np.random.default_rng(5).standard_normal((200, 2048), dtype=np.float32)
-    batch = decode(params, q, periods, n)
-    _same(small(q), batch)
-    want = np.asarray(batch.index).tolist()
-    assert [small.index(x) for x in q] == want
+    want = np.asarray(decode(params, q, periods, n).index).tolist()
     assert [small.place(x) for x in q] == want
 
 
@@ -123,16 +103,17 @@ def test_blocks_only_for_near_equal_periods():
     assert small.block is None and small.wt.shape[0] == 13
     q = np.random.default_rng(9).standard_normal((100, 32), dtype=np.float32)
     want = np.asarray(decode(params, q, periods, n).index).tolist()
-    assert [small.index(x) for x in q] == [small.place(x) for x in q] == want
+    assert [small.place(x) for x in q] == want
 
 
 @pytest.mark.parametrize(
     "periods,n", [((100, 101), 10_000), ((7, 9, 11), 600), ((2, 11), 22)]
 )
 def test_place_rejects_non_finite_queries(periods, n):
-    small = SmallDecoder.build(_templates(32, periods), periods, n)
+    params = _templates(32, periods)
+    small = SmallDecoder.build(params, periods, n)
     q = np.random.default_rng(6).standard_normal(32, dtype=np.float32)
-    assert small.place(q) == small.index(q)
+    assert small.place(q) == int(decode(params, q[None], periods, n).index[0])
     for bad in (np.nan, np.inf, -np.inf):
         x = q.copy()
         x[7] = bad
@@ -142,17 +123,14 @@ def test_place_rejects_non_finite_queries(periods, n):
 def test_locate_is_predict_of_one_row():
     periods, n = (7, 9), 60
     model = RhythmicMap(r=2)  # as fit leaves it, without a fit's compiles
-    model.params, model.periods, model.n, model.d = (
-        _templates(16, periods),
-        periods,
-        n,
-        16,
-    )
-    model.groups = Groups("periods", periods)
+    params = _templates(16, periods)
+    groups = Groups("periods", periods)
+    model.map = Map(*params, stored=dict(params._asdict()), config=model.config,
+                    groups=groups, periods=periods, n=n, d=16)  # fmt: skip
     q = np.random.default_rng(7).standard_normal((60, 16), dtype=np.float32)
     want = model.predict(q).tolist()
     assert [model.locate(row) for row in q] == want  # first call builds the lane
-    assert model._small is not None
+    assert queries.lane(model.map) is queries.lane(model.map)  # kept on the map
     assert [model.locate(row) for row in q] == want
     assert model.locate(q[3].astype(np.float64)) == want[3]  # converted
     assert model.locate(q[3].tolist()) == want[3]
