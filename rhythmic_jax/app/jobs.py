@@ -259,7 +259,8 @@ def _with_positions(feats, job: FitJob):
     extra["reference_positions_degrees"] = np.asarray(int(unit == "degrees"))
     labels = feats.labels
     if job.places is not None:
-        labels = gps_places(in_metres((xy, unit))[0], job.places)
+        metres = in_metres((xy, unit))[0]
+        labels = gps_places(metres, job.places)
         extra["reference_labels"] = labels
     return dataclasses.replace(feats, labels=labels, extra=extra)
 
