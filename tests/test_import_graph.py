@@ -3,8 +3,8 @@
 Every ``rhythmic_jax`` import in the package, including those inside functions,
 is read from the source. Modules sit in layers, lowest first; a module may import
 only from lower layers. The command line builds its parser from light modules
-(the map's configuration, the option domains, the compile policy) and imports the
-jobs only when a command runs; nothing imports the public face.
+(the map's configuration, the jobs' settings and domains, the compile policy) and
+runs the jobs only when a command runs; nothing imports the public face.
 """
 
 from __future__ import annotations
@@ -58,8 +58,9 @@ LAYERS = [
     ["eval.baselines", "eval.figures", "eval.metrics", "eval.seqslam", "eval.split"],
     ["eval.frontier", "eval.ground_truth", "eval.outliers"],
     ["eval.ground_truth_files", "eval.report"],
-    ["app.signals"],
-    ["app.demo", "app.frontier", "app.scale_jobs"],
+    ["eval.ablation"],
+    ["app.signals", "app.specs"],
+    ["app.demo", "app.frontier", "app.fusion", "app.render", "app.scale_jobs"],
     ["app.jobs"],
     ["app.cli"],
     [""],  # the public face, rhythmic_jax/__init__.py: nothing imports it
@@ -127,14 +128,22 @@ def test_imports_point_down(path):
 
 
 # no numpy, JAX, torch at load (jit_cache is imported inside a function)
-PARSER = {"errors", "map.config", "validate", "frames.compile_policy"}
+PARSER = {"app.specs", "errors", "map.config", "validate", "frames.compile_policy"}
 
 
 def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():
     """At load the command line imports only what its parser is built from; the
     jobs are imported inside the commands (tests/test_cli.py runs --help)."""
     assert _imports(PACKAGE / "app" / "cli.py", top=True) <= PARSER
-    inside = {"app.jobs", "app.frontier", "app.signals", "jit_cache"}  # in commands
+    inside = {
+        "app.demo",
+        "app.frontier",
+        "app.jobs",
+        "app.render",
+        "app.scale_jobs",
+        "app.signals",
+        "jit_cache",
+    }  # in commands
     assert _imports(PACKAGE / "app" / "cli.py") <= PARSER | inside
 
 

@@ -1,10 +1,10 @@
 """The ``rhythmic-jax`` command line: argparse over :mod:`rhythmic_jax.app.jobs`.
 
-Every command parses its arguments, makes its job (which checks itself: each
-option in its domain, :data:`rhythmic_jax.app.jobs.DOMAINS`, and against the
-others, the job's rules), runs it and prints what it returns; bad input ends
-with one line on stderr (settings spelled as flags) and exit status 2, and
-nothing half-written on disk.
+Every command parses its arguments, makes its job (:mod:`rhythmic_jax.app.specs`:
+it checks itself, each option in its domain and against the others, the job's
+rules), runs it (:mod:`rhythmic_jax.app.jobs`) and prints what it returns
+(:mod:`rhythmic_jax.app.render`); bad input ends with one line on stderr
+(settings spelled as flags) and exit status 2, and nothing half-written on disk.
 
 The parser is built from light modules only (the jobs' settings and domains, the
 map's configuration, the compile policy): ``rhythmic-jax --help`` imports no
@@ -20,8 +20,8 @@ import logging
 import os
 import sys
 import textwrap
-from pathlib import Path
 
+from rhythmic_jax.app import specs
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import (
     BUILD_MIN_FRAMES,
@@ -92,14 +92,6 @@ EXAMPLES = {
 }
 
 
-def _jobs():
-    """:mod:`rhythmic_jax.app.jobs`, imported when first asked for: the parser's
-    ``--help`` loads no numpy, JAX or torch."""
-    from rhythmic_jax.app import jobs
-
-    return jobs
-
-
 def _opt(flags: str, help_: str | None = None, **settings) -> tuple[list[str], dict]:
     """One row of :data:`OPTIONS`: the flags (or a positional's name) and what
     ``add_argument`` takes (``group``: the title of the option's group)."""
@@ -134,7 +126,7 @@ SCALE = "scale (descriptor files or shard folders)"
 CODES = {"metavar": "BITS|int8"}
 
 # command -> (what it does, its options in the order --help lists them); a
-# numeric option's type and the domain --help states come from jobs.DOMAINS
+# numeric option's type and the domain --help states come from specs.DOMAINS
 OPTIONS = {
     "fit": ("fit a map on reference frames (.npy, image folders, or --tile)", (
         _opt("sources", "descriptor .npy, image folder(s), image", nargs="+"),
@@ -275,77 +267,6 @@ OPTIONS = {
 }  # fmt: skip
 
 
-# What each command writes and reads, by destination: no path written may be,
-# hold or lie inside another the job reads or writes.
-WRITES = {
-    "fit": ("out", "checkpoint", "shards"),
-    "learn": ("out",),
-    "query": ("out",),
-    "evaluate": ("plot",),
-    "frontier": ("csv", "plot"),
-}
-READS = {
-    "fit": ("sources", "embedding", "positions", "weights"),
-    "learn": ("sources", "weights"),
-    "query": ("map", "source", "weights"),
-    "evaluate": ("map", "source", "reference", "ground_truth", "weights"),
-    "frontier": ("reference", "queries", "ground_truth"),
-}
-ROLES = {
-    "map": "the map",
-    "source": "the queries",
-    "sources": "the source",
-    "queries": "the queries",
-}
-NAMES = ("names",)  # --positions / --ground-truth names: no file
-
-
-def _flag(dest: str) -> str:
-    return ROLES.get(dest) or "--" + dest.replace("_", "-")
-
-
-def _paths(args, dests) -> list[tuple[str, str]]:
-    """(dest, path) of every path given to ``dests`` (lists flattened)."""
-    out = []
-    for dest in dests:
-        value = getattr(args, dest, None)
-        for v in value if isinstance(value, list | tuple) else [value]:
-            if v is not None and v not in NAMES:
-                out.append((dest, str(v)))
-    return out
-
-
-def _clash(w: Path, r: Path) -> str | None:
-    if w == r:
-        return "the same path as"
-    if r in w.parents and not r.is_file():  # under a file: no path (said later)
-        return "inside"
-    if w in r.parents:
-        return "holding"
-    return None
-
-
-def check_paths(args) -> str | None:
-    """The line refusing a path the job would write over something it reads
-    (or writes twice), compared resolved (through links and ``..``), or None."""
-    writes = _paths(args, WRITES.get(args.command, ()))
-    if args.command == "fit" and args.checkpoint is None:
-        writes.append(("checkpoint", str(args.out) + ".ckpt"))  # its default
-    reads = _paths(args, READS.get(args.command, ()))
-    for i, (dest, path) in enumerate(writes):
-        w = Path(path).expanduser().resolve()
-        others = [(d, p, "reads") for d, p in reads]
-        others += [(d, p, "writes") for d, p in writes[i + 1 :]]
-        for other, opath, verb in others:
-            how = _clash(w, Path(opath).expanduser().resolve())
-            if how is not None:
-                return (
-                    f"{_flag(dest)} {path}: {how} {_flag(other)} {opath}, which "
-                    f"this job {verb}; give another path"
-                )
-    return None
-
-
 class _Parser(argparse.ArgumentParser):
     """Usage errors in one line, like every other refusal (exit status 2)."""
 
@@ -364,7 +285,7 @@ def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
 
 def _parser() -> argparse.ArgumentParser:
     """The parser rendered from :data:`OPTIONS`; every numeric option parsed
-    with its domain (:data:`rhythmic_jax.app.jobs.DOMAINS`), stated in --help."""
+    with its domain (:data:`rhythmic_jax.app.specs.DOMAINS`), stated in --help."""
     parser = _Parser(
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
@@ -376,7 +297,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    parser.commands, domains = {}, _jobs().DOMAINS
+    parser.commands = {}
     for name, (help_, options) in OPTIONS.items():
         p = parser.commands[name] = sub.add_parser(
             name, help=help_, description=help_,
@@ -390,7 +311,7 @@ def _parser() -> argparse.ArgumentParser:
             if title is not None and title not in groups:
                 groups[title] = p.add_argument_group(title)
             action = groups.get(title, p).add_argument(*flags, **settings)
-            domain = domains.get(action.dest)
+            domain = specs.DOMAINS.get(action.dest)
             if domain is not None and action.option_strings:
                 action.type = domain
                 action.help = f"{action.help or ''} [{domain.text()}]".lstrip()
@@ -403,7 +324,7 @@ def _take(args, names: str) -> dict:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
-# command -> (its job's class in jobs, the options that are the job's own)
+# command -> (its job's class in specs, the options that are the job's own)
 JOBS = {
     "fit": ("FitJob", "sources out pca augment epochs batch_size checkpoint "
             "checkpoint_every fusion positions places embedding"),
@@ -419,9 +340,8 @@ def _job(args, given: frozenset[str]):
     demo, which take no settings a rule could refuse."""
     if args.command not in JOBS:
         return None
-    jobs = _jobs()
     kind, own = JOBS[args.command]
-    parts = {"reading": jobs.Reading(
+    parts = {"reading": specs.Reading(
         compile=CompilePolicy(args.compile, args.compile_min_frames),
         **_take(args, "descriptor weights tile stride"),
     )}  # fmt: skip
@@ -429,18 +349,20 @@ def _job(args, given: frozenset[str]):
         parts["config"] = MapConfig(
             **_take(args, "r level count c solver gap layout dtype codes")
         )
-        parts["scale"] = jobs.ScaleJob(**_take(
+        parts["scale"] = specs.ScaleJob(**_take(
             args, "processes coordinator num_processes process_id memory stream shards"
         ))  # fmt: skip
     elif args.command == "learn":
-        parts["config"] = jobs.learn_config(**_take(args, "method head k steps seed"))
-    return getattr(jobs, kind)(**_take(args, own), **parts, given=given)
+        parts["config"] = specs.learn_config(**_take(args, "method head k steps seed"))
+    return getattr(specs, kind)(**_take(args, own), **parts, given=given)
 
 
-def _fit(args, job, progress: bool) -> str:
-    jobs, run = _jobs(), None
-    if jobs.wants_scale(job):
-        model, run = jobs.fit_scaled(job, args.argv, progress)
+def _fit(args, job, progress: bool) -> str | None:
+    from rhythmic_jax.app import jobs, render, scale_jobs
+
+    run = None
+    if scale_jobs.wants_scale(job):
+        model, run = scale_jobs.fit_scaled(job, args.argv, progress)
         if model is None:
             return None
     else:
@@ -450,36 +372,48 @@ def _fit(args, job, progress: bool) -> str:
         info["fit"] = dict(run)
         if "pass_seconds" in run:  # every pass, to the millisecond
             info["fit"]["pass_seconds"] = [round(t, 3) for t in run["pass_seconds"]]
-    return json.dumps(info, indent=2) if args.json else jobs.fit_summary(args.out, info)
+    return (
+        json.dumps(info, indent=2) if args.json else render.fit_summary(args.out, info)
+    )
 
 
 def _query(args, job, progress: bool) -> str:
-    pred = _jobs().query(job, progress=progress)
+    from rhythmic_jax.app import jobs, render
+
+    pred = jobs.query(job, progress=progress)
     if args.json:
         return json.dumps({"predictions": pred.tolist()})
     if not args.out:
         return "\n".join(str(int(v)) for v in pred)
-    return _jobs().query_summary(pred, args.out)
+    return render.query_summary(pred, args.out)
 
 
 def _learn(args, job, progress: bool) -> str:
-    return _jobs().learn_summary(args.out, *_jobs().learn(job, progress=progress))
+    from rhythmic_jax.app import jobs, render
+
+    return render.learn_summary(args.out, *jobs.learn(job, progress=progress))
 
 
 def _info(args, job, progress: bool) -> str:
-    info = _jobs().info(args.map)
-    return json.dumps(info, indent=2) if args.json else _jobs().info_lines(info)
+    from rhythmic_jax.app import jobs, render
+
+    info = jobs.info(args.map)
+    return json.dumps(info, indent=2) if args.json else render.info_lines(info)
 
 
 def _evaluate(args, job, progress: bool) -> str:
-    result = _jobs().evaluate(job, progress=progress)
-    if args.json:
-        return json.dumps(result, indent=2)
-    return _jobs().evaluate_summary(result)
+    from rhythmic_jax.app import jobs, render
+
+    result = jobs.evaluate(job, progress=progress)
+    return (
+        json.dumps(result, indent=2) if args.json else render.evaluate_summary(result)
+    )
 
 
 def _demo(args, job, progress: bool) -> None:
-    _jobs().demo(args.out, quick=args.quick, progress=progress)
+    from rhythmic_jax.app.demo import run_demo
+
+    run_demo(args.out, quick=args.quick, progress=progress)
 
 
 def _frontier(args, job, progress: bool) -> None:
@@ -497,16 +431,18 @@ def _checked_job(args, prog: str):
     """The command's job, made (so checked) from the options; a refused option
     or a path written over one read ends in one usage line (InputError)."""
     job = _job(args, frozenset(_given_options(args.argv, args)))
-    line = check_paths(args)
+    line = specs.check_paths(args)
     if line is not None:
-        raise _jobs().OptionRefused(line)
+        raise specs.OptionRefused(line)
     for warning in getattr(job, "warnings", ()):
         print(f"{prog}: warning: {InputError(warning).as_flag()}", file=sys.stderr)
     return job
 
 
 def _quiet_logs(verbose: bool) -> None:
-    _jobs().quiet_io_threads()
+    from rhythmic_jax.app.jobs import quiet_io_threads
+
+    quiet_io_threads()
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING,
@@ -520,7 +456,6 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``rhythmic-jax``; returns the exit status (2: bad input,
     one line on stderr; 0 after ``--help``; 141 when standard output is closed
     early, as by ``| head``: quietly, as a command killed by SIGPIPE)."""
-    jobs = _jobs()
     try:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed
@@ -529,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
     prog = f"rhythmic-jax {args.command}"
     try:
         job = _checked_job(args, prog)
-    except jobs.OptionRefused as err:
+    except specs.OptionRefused as err:
         print(f"{prog}: error: {err.as_flag()} (see {prog} --help)", file=sys.stderr)
         return 2
     except InputError as err:
@@ -550,7 +485,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prog}: error: {err.as_flag()}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
-        if isinstance(err, jobs.FitInterrupted):
+        if isinstance(err, specs.FitInterrupted):
             print(f"{prog}: {err.note}", file=sys.stderr)
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130

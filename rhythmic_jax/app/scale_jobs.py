@@ -2,46 +2,31 @@
 
 ``rhythmic-jax fit`` comes here (:func:`fit_scaled`) when the sources are
 descriptor files or shard folders and any of ``--processes``,
-``--coordinator``, ``--memory``, ``--stream`` or ``--shards`` is given; the fit
-itself is :func:`rhythmic_jax.fitting.scale_fit.fit_map_files`.
+``--coordinator``, ``--memory``, ``--stream`` or ``--shards`` is given (the
+job's :class:`rhythmic_jax.app.specs.ScaleJob`); the fit itself is
+:func:`rhythmic_jax.fitting.scale_fit.fit_map_files`.
 """
 
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import check_place, staged_folder, write_errors
 
-__all__ = ["ScaleJob", "fit_scaled", "wants_scale"]
-
-
-@dataclass(frozen=True)
-class ScaleJob:
-    """How a fit is spread and bounded (see ``rhythmic-jax fit --help``); its
-    settings are checked with the fit job's (:class:`rhythmic_jax.app.jobs.FitJob`)."""
-
-    processes: int = 1
-    coordinator: str | None = None
-    num_processes: int | None = None
-    process_id: int | None = None
-    memory: str | None = None
-    stream: bool = False
-    shards: str | None = None
+__all__ = ["fit_scaled", "wants_scale"]
 
 
 def wants_scale(job) -> bool:
-    """Whether ``job`` (a :class:`rhythmic_jax.app.jobs.FitJob`) fits from files
+    """Whether ``job`` (a :class:`rhythmic_jax.app.specs.FitJob`) fits from files
     here."""
     from rhythmic_jax.io.frame_files import is_frame_source
 
     scale = job.scale
     files = all(is_frame_source(s) for s in job.sources)
-    wanted = bool(
-        scale.processes != 1 or scale.coordinator or scale.memory or scale.stream
-    )
+    wanted = scale.asked
     dirs = any(Path(s).is_dir() for s in job.sources)
     if scale.shards is not None or (files and (wanted or dirs)):
         if job.augment or job.pca is not None:

@@ -247,7 +247,7 @@ def plot_cost(
 
     ``timings``: label -> ``{"fit": s, "total": s, "augment": s, "describe": s,
     "step": s, "frames_per_s": f}`` (a plain fit has ``fit`` only), as
-    :func:`rhythmic_jax.app.jobs.augmentation_ablation` returns them.
+    :func:`rhythmic_jax.eval.ablation.augmentation_ablation` returns them.
     """
     if not timings:
         raise InputError("plot_cost: no timings to plot")

@@ -268,18 +268,20 @@ def positions_of_sources(specs: Sequence[str], sources: Sequence[str]):
     source, or ``["names"]`` to read ``@easting@northing@`` from its folders."""
     from rhythmic_jax.io.images import list_images
 
-    if list(specs) == ["names"]:
-        files = [f for s in sources for f in list_images(Path(s), "reference")]
-        return positions_from_names(files), "metres"
-    if len(specs) != len(sources):
-        raise InputError(
-            f"{{opt:positions}}: {len(specs)} files for {len(sources)} sources; "
-            "give one per source, or 'names'"
-        )
-    read = [read_positions(s) for s in specs]
-    if len({unit for _, unit in read}) > 1:
-        raise InputError("{opt:positions} mix metres and latitude/longitude; use one")
-    return np.concatenate([a for a, _ in read]), read[0][1]
+    if list(specs) != ["names"]:
+        if len(specs) != len(sources):
+            raise InputError(
+                f"{{opt:positions}}: {len(specs)} files for {len(sources)} sources; "
+                "give one per source, or 'names'"
+            )
+        read = [read_positions(s) for s in specs]
+        if len({unit for _, unit in read}) > 1:
+            raise InputError(
+                "{opt:positions} mix metres and latitude/longitude; use one"
+            )
+        return np.concatenate([a for a, _ in read]), read[0][1]
+    files = [f for s in sources for f in list_images(Path(s), "reference")]
+    return positions_from_names(files), "metres"
 
 
 def load_ground_truth(

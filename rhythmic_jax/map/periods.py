@@ -15,11 +15,11 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+import numbers
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.validate import check_int
 
 if TYPE_CHECKING:
     import numpy as np
@@ -37,6 +37,13 @@ __all__ = [
     "place_columns",
     "storage_bytes",
 ]
+
+
+def _whole(value, low: int) -> bool:
+    """Whether ``value`` is a Python or numpy integer (not a bool) >= ``low``:
+    the arguments are checked here, in plain Python, before any maths."""
+    integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    return integral and value >= low
 
 
 def _iroot_ceil(n: int, r: int) -> int:
@@ -58,14 +65,14 @@ def candidate_periods(
     ``level`` c = 2, 3, 4 gives the longer periods of its "T = c sqrt N" runs
     (Table 2, Fig. 8). E.g. ``candidate_periods(7403)`` is 87 .. 93.
     """
-    check_int(n, "n", 2, msg=f"a map needs at least 2 frames, got n={n!r}")
-    check_int(
-        r, "r", 2, msg=f"r (number of periods) must be an integer >= 2, got r={r!r}"
-    )
-    check_int(level, "level", 1)
-    check_int(
-        count, "count", r, msg=f"count must be an integer >= r={r}, got count={count!r}"
-    )
+    if not _whole(n, 2):
+        raise InputError(f"a map needs at least 2 frames, got n={n!r}")
+    if not _whole(r, 2):
+        raise InputError(f"r (number of periods) must be an integer >= 2, got r={r!r}")
+    if not _whole(level, 1):
+        raise InputError(f"level must be an integer >= 1, got level={level!r}")
+    if not _whole(count, r):
+        raise InputError(f"count must be an integer >= r={r}, got count={count!r}")
     base = int(level) * _iroot_ceil(int(n), int(r))
     if base < 2:
         raise InputError(f"n={n} is too small for r={r} periods at level {level}")
@@ -117,9 +124,8 @@ def choose_periods(
             f"{len(candidates)} candidate periods but {len(errors)} training errors"
         )
     for name, value in (("n", n), ("r", r), *(("candidate", t) for t in candidates)):
-        check_int(
-            value, name, 1, msg=f"{name} must be a positive integer, got {value!r}"
-        )
+        if not _whole(value, 1):
+            raise InputError(f"{name} must be a positive integer, got {value!r}")
     if len(set(int(t) for t in candidates)) != len(candidates):
         raise InputError(f"candidate periods {tuple(candidates)} repeat a period")
     if not all(math.isfinite(float(e)) for e in errors):

@@ -10,6 +10,7 @@ Shapes: n frames, d input features, k output dimensions.
 from __future__ import annotations
 
 import functools
+import numbers
 from typing import NamedTuple
 
 import jax
@@ -18,7 +19,6 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
-from rhythmic_jax.validate import check_int
 
 __all__ = ["PCA", "fit_pca", "project"]
 
@@ -84,7 +84,9 @@ def fit_pca(x: jax.Array, k: int) -> PCA:
     x = _as_matrix(x, "pca input")
     n, d = x.shape
     top = min(n - 1, d)
-    check_int(k, "k", 1, top, msg=f"pca k={k!r}: need 1 <= k <= min(n - 1, d) = {top}")
+    whole = isinstance(k, numbers.Integral) and not isinstance(k, bool)
+    if not (whole and 1 <= k <= top):
+        raise InputError(f"pca k={k!r}: need 1 <= k <= min(n - 1, d) = {top}")
     return PCA(*_pca(x, k))
 
 

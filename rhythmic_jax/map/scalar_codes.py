@@ -45,12 +45,6 @@ def scalar_code_bytes(n: int, d: int) -> dict[str, int]:
     return {"fixed": fixed, "per_place": per_place, "total": fixed + per_place}
 
 
-def _encode(x: np.ndarray, vmin: np.ndarray, vdiff: np.ndarray) -> np.ndarray:
-    """(n, d) float -> (n, d) uint8, faiss's 8-bit codec."""
-    u = np.clip((x - vmin[None, :]) / vdiff[None, :], 0.0, 1.0)
-    return (LEVELS * u).astype(np.uint8)
-
-
 @jit
 def _cosine(q, codes, vmin, vdiff) -> jax.Array:
     """Cosine of queries (b, d) with the decoded codes (n, d) -> (b, n)."""
@@ -87,7 +81,8 @@ class ScalarCodeBook:
         vmin = f.min(axis=0)
         vdiff = f.max(axis=0) - vmin
         vdiff = np.where(vdiff > 0, vdiff, 1.0).astype(np.float32)
-        return cls(vmin, vdiff, _encode(x, vmin, vdiff))
+        u = np.clip((x - vmin[None, :]) / vdiff[None, :], 0.0, 1.0)
+        return cls(vmin, vdiff, (LEVELS * u).astype(np.uint8))  # faiss's 8-bit codec
 
     @property
     def d(self) -> int:

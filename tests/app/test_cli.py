@@ -249,7 +249,7 @@ def test_every_numeric_option_states_its_domain(capsys):
     import ast
     from pathlib import Path
 
-    from rhythmic_jax.app import cli, jobs
+    from rhythmic_jax.app import cli, specs
 
     tree = ast.parse(Path(cli.__file__).read_text())
     typed = [
@@ -263,27 +263,27 @@ def test_every_numeric_option_states_its_domain(capsys):
     used = set()
     for name, command in _commands().items():
         for action in command._actions:
-            if action.dest in jobs.DOMAINS and action.option_strings:
+            if action.dest in specs.DOMAINS and action.option_strings:
                 used.add(action.dest)
-                assert action.type is jobs.DOMAINS[action.dest]
+                assert action.type is specs.DOMAINS[action.dest]
                 assert main([name, "--help"]) == 0
                 text = " ".join(capsys.readouterr().out.split())
-                domain = jobs.DOMAINS[action.dest].text()
+                domain = specs.DOMAINS[action.dest].text()
                 assert f"[{domain}]" in text, (name, action.dest)
-    assert used == set(jobs.DOMAINS)
+    assert used == set(specs.DOMAINS)
 
 
 @pytest.mark.parametrize("value", ["nan", "-1e9", "1e400", "x", ""])
 def test_every_domain_refuses_in_one_line(value, capsys):
     """Each numeric option of each command refuses a value outside its domain
     where it is parsed: exit 2, one line naming the flag."""
-    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app import specs
 
     for name, command in _commands().items():
         required = {"fit": ["a.npy", "--out", "m.map"], "learn": ["a", "b", "--out",
                     "e.emb"], "query": ["m", "q"], "evaluate": ["m", "q"]}  # fmt: skip
         for action in command._actions:
-            if action.dest not in jobs.DOMAINS or not action.option_strings:
+            if action.dest not in specs.DOMAINS or not action.option_strings:
                 continue
             if value == "-1e9" and action.dest == "threshold":
                 continue  # any finite number
@@ -295,15 +295,15 @@ def test_every_domain_refuses_in_one_line(value, capsys):
 
 
 def test_every_rule_names_options_of_its_commands():
-    from rhythmic_jax.app import cli, jobs
+    from rhythmic_jax.app import specs
 
     commands = _commands()
-    made = {"fit": jobs.FitJob, "learn": jobs.LearnJob, "query": jobs.QueryJob}
-    for name, job in {**made, "evaluate": jobs.EvaluateJob}.items():
+    made = {"fit": specs.FitJob, "learn": specs.LearnJob, "query": specs.QueryJob}
+    for name, job in {**made, "evaluate": specs.EvaluateJob}.items():
         dests = {a.dest for a in commands[name]._actions}
         for rule in job.RULES:
             assert set(rule.options) <= dests, (name, rule.options)
-    for table in (cli.WRITES, cli.READS):
+    for table in (specs.WRITTEN, specs.READ):
         for name, dests in table.items():
             assert set(dests) <= {a.dest for a in commands[name]._actions}
 

@@ -11,15 +11,16 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap
-from rhythmic_jax.app import jobs
-from rhythmic_jax.app.jobs import (
+from rhythmic_jax.app import jobs, render
+from rhythmic_jax.app.jobs import _before_reading
+from rhythmic_jax.app.specs import (
     EvaluateJob,
     FitJob,
     OptionRefused,
     QueryJob,
     Reading,
-    _before_reading,
 )
+from rhythmic_jax.frames.compile_policy import CompilePolicy
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +49,7 @@ def test_fit_saves_the_map_with_its_provenance(route):
     }
     checked = {"checksums": "sha256 of every stored array, checked"}
     assert jobs.info(str(folder / "m.map")) == loaded.info() | checked
-    line = jobs.fit_summary("m.map", loaded.info())
+    line = render.fit_summary("m.map", loaded.info())
     assert line.startswith(f"map m.map: n=90 d=12 periods {loaded.periods}")
 
 
@@ -59,7 +60,7 @@ def test_query_writes_what_the_map_predicts(route, tmp_path):
     pred = jobs.query(job)
     np.testing.assert_array_equal(pred, model.predict(q))
     np.testing.assert_array_equal(np.load(out), pred)
-    assert jobs.query_summary(pred, "p.npy").endswith("no match) -> p.npy")
+    assert render.query_summary(pred, "p.npy").endswith("no match) -> p.npy")
 
 
 def test_evaluate_finds_the_reference_again_for_brute_force(route):
@@ -69,7 +70,7 @@ def test_evaluate_finds_the_reference_again_for_brute_force(route):
     brute = result["methods"]["brute force"]["accuracy"]
     assert brute == pytest.approx(float((want == np.arange(90)).mean()))
     assert str((folder / "ref.npy").absolute()) in result["reference_note"]
-    assert jobs.evaluate_summary(result).endswith(result["reference_note"])
+    assert render.evaluate_summary(result).endswith(result["reference_note"])
 
 
 def test_option_checks_name_parameters_and_run_before_any_work(route, tmp_path):
@@ -223,7 +224,7 @@ def test_a_job_checks_its_rules_when_made():
         EvaluateJob("m.map", "q.npy", tolerance_m=10.0)
     with pytest.raises(InputError, match="^places must be an integer >= 1, got 0"):
         FitJob(("a.npy",), "m.map", places=0, positions=("names",))
-    policy = jobs.CompilePolicy("never", 5)
+    policy = CompilePolicy("never", 5)
     job = QueryJob("m.map", "q.npy", reading=Reading(compile=policy))
     assert [InputError(w).as_flag() for w in job.warnings] == [
         "--compile-min-frames acts only with --compile auto; ignored",

@@ -79,13 +79,13 @@ def test_embedding_folder_round_trip_and_refusal(tmp_path):
 
 @pytest.mark.slow  # two fits, a save and a load: about 30 s on 2 cores
 def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
-    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app import jobs, render, specs
 
     a, b = two_conditions(n=300)
     emb = fit_invariant([a[:150], b[:150]], k=24, p=40)
     save_embedding(tmp_path / "e", emb, {"descriptor": "features"})
     np.save(tmp_path / "ref.npy", a[150:])
-    job = jobs.FitJob(
+    job = specs.FitJob(
         (str(tmp_path / "ref.npy"),), str(tmp_path / "m"),
         config=MapConfig(codes=16), embedding=str(tmp_path / "e"),
     )  # fmt: skip
@@ -107,10 +107,10 @@ def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
     on_disk = jobs.info(str(tmp_path / "m"))
     assert on_disk["storage_bytes"] == by_hand and on_disk["codes_bits"] == 16
     assert on_disk["embedding"] == {"kind": "linear", "k": 24}
-    text = jobs.info_lines(on_disk)
+    text = render.info_lines(on_disk)
     assert f"{n * 2:,} B (codes)" in text and "embedding_bytes" in text
     with pytest.raises(InputError, match="at most d=24"):
-        jobs.fit(jobs.FitJob(job.sources, str(tmp_path / "m2"),
+        jobs.fit(specs.FitJob(job.sources, str(tmp_path / "m2"),
                              config=MapConfig(codes=32),
                              embedding=job.embedding))  # fmt: skip
 
@@ -135,7 +135,7 @@ def test_invariant_embedding_is_finite_with_few_training_frames():
 def test_fusion_weight_of_an_option_an_embedding_or_the_default():
     """--fusion wins; else the weight the embedding learned for these codes; an
     embedding saved before (no weight) or for other codes: 0.5, said why."""
-    from rhythmic_jax.app.jobs import fusion_of
+    from rhythmic_jax.app.fusion import fusion_of
 
     learned = {"descriptor": "features", "fusion": {
         "weight": 0.15, "codes": "int8", "recall": 0.9, "places": 120}}  # fmt: skip
@@ -154,13 +154,10 @@ def test_fusion_weight_of_an_option_an_embedding_or_the_default():
 def test_an_embedding_saved_without_a_weight_loads_and_gives_its_descriptor(
     tmp_path,
 ):
-    from rhythmic_jax.app.jobs import (
-        Reading,
-        _reading_of_embedding,
-        fusion_of,
-        info,
-        info_lines,
-    )
+    from rhythmic_jax.app.fusion import fusion_of
+    from rhythmic_jax.app.jobs import _before_reading, info
+    from rhythmic_jax.app.render import info_lines
+    from rhythmic_jax.app.specs import FitJob, Reading
 
     a, b = two_conditions(n=120)
     emb = fit_invariant([a, b], k=8, p=16)
@@ -169,13 +166,18 @@ def test_an_embedding_saved_without_a_weight_loads_and_gives_its_descriptor(
     save_embedding(tmp_path / "e", emb, meta)  # as learn wrote them before
     back, meta = load_embedding(tmp_path / "e")
     assert "fusion" not in meta and fusion_of(None, "int8", meta)["weight"] == 0.5
-    folder = str(tmp_path)
-    taken = _reading_of_embedding(Reading(), (back, meta), [folder])
+    folder, out = str(tmp_path), str(tmp_path / "m.map")
+
+    def reading(sources, embedding=str(tmp_path / "e"), **kw):
+        """The reading a fit of ``sources`` settles before reading them."""
+        return _before_reading(FitJob(sources, out, embedding=embedding, **kw))[2]
+
+    taken = reading((folder,))
     assert taken.descriptor == "vgg16_fc7" and taken.weights == "/w/vgg.pth"
     given = Reading(descriptor="hog")
-    assert _reading_of_embedding(given, (back, meta), [folder]) is given
-    assert _reading_of_embedding(Reading(), (back, meta), ["x.npy"]) == Reading()
-    assert _reading_of_embedding(Reading(), None, [folder]) == Reading()
+    assert reading((folder,), reading=given) is given
+    assert reading((str(tmp_path / "x.npy"),)) == Reading()
+    assert reading((folder,), embedding=None) == Reading()
     described = info(str(tmp_path / "e"))  # info says it, without loading JAX arrays
     assert described["kind"] == "embedding" and described["fusion"] is None
     text = info_lines(described)
@@ -191,14 +193,14 @@ def test_an_embedding_saved_without_a_weight_loads_and_gives_its_descriptor(
 def test_learn_stores_the_fusion_weight_and_fit_uses_it(tmp_path):
     from test_learn import noisy_conditions
 
-    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app import jobs, render, specs
 
     a, b = noisy_conditions(n=300)
     for name, x in (("a", a[:150]), ("b", b[:150]), ("test", a[150:])):
         np.save(tmp_path / f"{name}.npy", x)
     src = lambda *names: tuple(str(tmp_path / f"{s}.npy") for s in names)  # noqa: E731
-    config = jobs.learn_config(method="invariant", k=24)
-    emb, info = jobs.learn(jobs.LearnJob(src("a", "b"), str(tmp_path / "e"), config))
+    config = specs.learn_config(method="invariant", k=24)
+    emb, info = jobs.learn(specs.LearnJob(src("a", "b"), str(tmp_path / "e"), config))
     _, meta = load_embedding(tmp_path / "e")
     stored, learned = meta["fusion"], info["fusion"]
     w = stored["weight"]
@@ -209,13 +211,13 @@ def test_learn_stores_the_fusion_weight_and_fit_uses_it(tmp_path):
     assert {k: stored[k] for k in flat} == pytest.approx({k: learned[k] for k in flat})
     np.testing.assert_allclose(stored["table"], learned["table"], rtol=1e-12)
     assert meta["descriptor"] == "features" and meta["fusion"]["codes"] == "int8"
-    assert f"fusion {w:g} for int8 codes" in jobs.learn_summary("e", emb, info)
+    assert f"fusion {w:g} for int8 codes" in render.learn_summary("e", emb, info)
 
     def fitted(name, **kw):
-        job = jobs.FitJob(
+        job = specs.FitJob(
             src("test"), str(tmp_path / name), config=MapConfig(codes="int8"), **kw
         )
-        return jobs.fit(job), jobs.info_lines(jobs.info(str(tmp_path / name)))
+        return jobs.fit(job), render.info_lines(jobs.info(str(tmp_path / name)))
 
     m, text = fitted("m", embedding=str(tmp_path / "e"))
     assert m.config.fusion == w and f"fusion: {w:g} (embedding: learned" in text

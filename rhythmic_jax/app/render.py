@@ -1,0 +1,136 @@
+"""What the command line prints: the text form of each job's result.
+
+Each function takes what a job of :mod:`rhythmic_jax.app.jobs` returns (a map's
+or an embedding's info dict, predictions, an evaluation) and returns the lines,
+without printing them; ``--json`` prints the dicts themselves instead.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from rhythmic_jax.jit_options import describe as compile_options
+
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = [
+    "evaluate_summary", "fit_summary", "info_lines", "learn_summary", "query_summary",
+]  # fmt: skip
+
+W = 18  # width of the names in info's lines
+
+
+def _fusion_learned(fusion: dict[str, Any]) -> str:
+    """A fusion weight an embedding learned, in words (its R@1 and codes)."""
+    return (
+        f"{fusion['weight']:g} for {fusion['codes']} codes (R@1 "
+        f"{fusion['recall']:.3f} on the training places"
+    )
+
+
+def learn_summary(out: str, emb, info: dict[str, Any]) -> str:
+    """One line about a saved embedding (and the fusion weight learned with it)."""
+    line = (
+        f"embedding {out}: {emb.kind} {emb.d} -> {emb.k} dims, "
+        f"{info['seconds']:.1f} s on {info['places']} places x "
+        f"{info['traversals']} traversals"
+    )
+    fusion = info.get("fusion")
+    if fusion:
+        line += f"; fusion {_fusion_learned(fusion)}, {fusion['seconds']:.1f} s)"
+    return line
+
+
+def fit_summary(out: str, info: dict[str, Any]) -> str:
+    """One line about a saved map: size, periods, storage and compression."""
+    codes = ""
+    if info.get("codes_bits"):
+        kind = info.get("codes_kind") or "itq"
+        bits = f"{info['codes_bits']}-bit"
+        codes = f" with {'int8' if kind == 'int8' else bits} codes"
+    return (
+        f"map {out}: n={info['n']} d={info['d']} {info['layout']}"
+        f"{codes} storage={info['storage_bytes']:,} B "
+        f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
+    )
+
+
+def query_summary(pred: np.ndarray, out: str) -> str:
+    """One line about predictions written to ``out``."""
+    return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
+
+
+def info_lines(info: dict[str, Any]) -> str:
+    """The text form of :func:`rhythmic_jax.app.jobs.info`, one setting a line.
+
+    An embedding: its shape and method, its descriptor and the fusion weight it
+    learned. A map: its settings, where its embedding, descriptor and fusion
+    weight came from (the fusion line only with codes; maps saved before say
+    only what they hold), its storage, each candidate period's training error
+    and the compile options.
+    """
+    fusion = info.get("fusion")
+    if info.get("kind") == "embedding":
+        learned = info.get("learn") or {}
+        method = (learned.get("config") or {}).get("method")
+        how = f", {method} on {learned.get('places')} places" if method else ""
+        uses = (
+            "(descriptor files: fit --embedding takes .npy)"
+            if info["descriptor"] == "features"
+            else "(fit --embedding describes images with it)"
+        )
+        weight = (
+            f"{_fusion_learned(fusion)}; fit --embedding --codes {fusion['codes']} "
+            "uses it)"
+            if fusion
+            else "none learned (saved before learn kept one): maps fuse at 0.5"
+        )
+        return "\n".join([
+            f"{'embedding':>{W}}: {info['head']} {info['d']} -> {info['k']} dims{how}",
+            f"{'descriptor':>{W}}: {info['descriptor']} {uses}",
+            f"{'fusion':>{W}}: {weight}",
+        ])  # fmt: skip
+    keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
+            "compression_ratio", "c")  # fmt: skip
+    lines = [f"{key:>{W}}: {info[key]}" for key in keys]
+    ref = info.get("reference") or {}
+    if ref.get("embedding"):
+        taken = (
+            f"; descriptor {info['descriptor']} taken from it"
+            if ref.get("descriptor_from_embedding")
+            else ""
+        )
+        lines.append(f"{'embedding from':>{W}}: {ref['embedding']}{taken}")
+    if info.get("codes_bits"):
+        w, fusion = (info.get("config") or {}).get("fusion"), ref.get("fusion")
+        how = f" ({fusion['from']}: {fusion['note']})" if fusion else ""
+        lines.append(f"{'fusion':>{W}}: {w:g}{how}")
+    st = info["storage"]
+    lines += [
+        f"{'storage fixed':>{W}}: {st['fixed']:,} B (code transform)",
+        f"{'per place':>{W}}: {st['per_place']:,} B (codes)",
+    ]
+    lines += [
+        f"{'period ' + t:>{W}}: {b:,} B (templates)"
+        for t, b in st["per_period"].items()
+    ]
+    lines.append(f"{'share':>{W}}: {st['share']:.4f} of the float32 database")
+    if info.get("checksums"):
+        lines.append(f"{'checksums':>{W}}: {info['checksums']}")
+    lines += [
+        f"{'period ' + str(t):>{W}}: training error {e:.4f}"
+        for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)
+    ]
+    return "\n".join(lines + [f"{'compile options':>{W}}: {compile_options()}"])
+
+
+def evaluate_summary(result: dict[str, Any]) -> str:
+    """The text form of :func:`rhythmic_jax.app.jobs.evaluate`: the table, then
+    the reference note (and where the plot went)."""
+    from rhythmic_jax.eval.report import format_evaluation
+
+    lines = format_evaluation(result) + "\n" + result["reference_note"]
+    if result.get("plot"):
+        lines += f"\nPR curves and recall@K -> {result['plot']}"
+    return lines
