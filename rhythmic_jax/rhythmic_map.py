@@ -1,6 +1,6 @@
 """The rhythmic map as a scikit-learn-style estimator: a :class:`Map` value held.
 
-``fit`` is :func:`rhythmic_jax.fitting.fit.fit`; ``predict``, ``decode``, ``scores``,
+``fit`` is :func:`rhythmic_jax.fitting.fit_map.fit`; ``predict``, ``decode``, ``scores``,
 ``locate``, ``save`` and ``load`` are pure functions of the map it holds
 (:mod:`rhythmic_jax.decoding.queries`, :mod:`rhythmic_jax.map.map_file`); the map's
 fields read and set as attributes (``m.periods``, ``m.n``, ``m.codebook``, ...).
@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from rhythmic_jax.decoding import queries
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.fitting.fit import fit as fit_map
+from rhythmic_jax.fitting.fit_map import fit as fit_map
 from rhythmic_jax.map import map_file, pytree
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.embedding import embedding_bytes
@@ -71,7 +71,7 @@ class RhythmicMap:
         return self.map
 
     def fit(self, x, labels=None, *, verbose=0, progress=None, refine=None, plan=None):
-        """Train on frames x (n_frames, d): :func:`rhythmic_jax.fitting.fit.fit`."""
+        """Train on frames x (n_frames, d): :func:`rhythmic_jax.fitting.fit_map.fit`."""
         progress = bool(verbose if progress is None else progress)
         got = fit_map(x, self.config, labels=labels, embedding=self.embedding,
                       progress=progress, refine=refine, plan=plan)  # fmt: skip

@@ -51,7 +51,7 @@ LAYERS = [
     ["decoding.fusion"],
     ["decoding.queries"],
     ["fitting.closed_form", "fitting.fit_plan"],
-    ["fitting.fit", "fitting.learn", "fitting.scale_fit"],
+    ["fitting.fit_map", "fitting.learn", "fitting.scale_fit"],
     ["rhythmic_map"],
     ["augment.kornia_ops"],
     ["augment.stream"],

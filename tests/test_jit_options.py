@@ -218,7 +218,7 @@ def test_a_fit_logs_its_compile_options(caplog):
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     x = np.random.default_rng(2).normal(size=(40, 16)).astype(np.float32)
-    with caplog.at_level(logging.INFO, logger="rhythmic_jax.fitting.fit"):
+    with caplog.at_level(logging.INFO, logger="rhythmic_jax.fitting.fit_map"):
         RhythmicMap(r=2, level=1).fit(x)
     lines = [r.getMessage() for r in caplog.records if "compile options" in (
         r.getMessage())]  # fmt: skip

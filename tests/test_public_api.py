@@ -10,21 +10,54 @@ import pytest
 import rhythmic_jax
 
 PUBLIC = [
-    "RhythmicMap", "MapConfig", "candidate_periods", "storage_bytes",
-    "compression_ratio", "choose_periods", "crt_tables", "total_objective", "targets",
-    "newton_fit", "fit_full_batch", "decode", "decode_scores", "soft_decode",
-    "topm_decode", "sequence_decode", "seqslam_decode", "InputError", "Decoded",
-    "GroundTruth", "from_lists", "from_positions", "read_vpr_bench",
-    "load_ground_truth",
-    "CodeBook", "fit_codes", "fused_decode", "fused_sequence_decode", "learn_weight",
-    "frontier_rows", "projected_bytes", "crossover_n",
-    "Groups", "parse_layout", "resolve_layout", "place_scores", "group_soft_decode",
+    "Map", "MapConfig", "fit", "scores", "place_scores", "decode", "decode_sequence",
+    "predict", "Decoded", "save", "load", "RhythmicMap",
+    "candidate_periods", "choose_periods", "compression_ratio", "database_bytes",
+    "pairwise_coprime", "storage_bytes",
+    "Embedding", "fit_invariant", "load_embedding", "save_embedding",
+    "learn_embedding", "LearnConfig", "CodeBook", "learn_weight",
+    "BruteForce", "ITQ", "OPQ", "seqslam_decode", "GroundTruth", "load_ground_truth",
+    "accuracy", "recall_at_100_precision", "recall_at_k", "route_split",
+    "enable_compile_cache", "InputError", "__version__",
 ]  # fmt: skip
 
 
 def test_public_names_exist():
     missing = [name for name in PUBLIC if not hasattr(rhythmic_jax, name)]
     assert not missing
+
+
+def test_the_face_is_short_and_every_name_documented():
+    """At most 40 names; solver internals stay under ``rhythmic_jax.solvers``;
+    each name but the version string says what it is."""
+    assert len(rhythmic_jax.__all__) <= 40
+    assert sorted(rhythmic_jax.__all__) == sorted(PUBLIC)
+    for name in rhythmic_jax.__all__:
+        if name != "__version__":
+            doc = getattr(rhythmic_jax, name).__doc__
+            assert doc and len(doc.strip()) > 20, name
+    internals = {"TrainState", "minibatch_step", "memmap_batches", "ridge_start",
+                 "DropLosers", "fit_bytes", "newton_fit", "NewtonConfig"}  # fmt: skip
+    assert not internals & set(rhythmic_jax.__all__)
+
+
+def test_the_pure_functions_and_the_face_agree(tmp_path):
+    """``fit`` -> ``Map`` -> ``predict`` / ``decode`` / ``save`` / ``load``, the
+    public face's way, gives the estimator's places."""
+    import numpy as np
+
+    import rhythmic_jax as rj
+
+    x = np.random.default_rng(0).normal(size=(120, 32)).astype(np.float32)
+    m = rj.fit(x, rj.MapConfig(r=2, level=1))
+    assert isinstance(m, rj.Map)
+    est = rj.RhythmicMap(r=2, level=1).fit(x)
+    np.testing.assert_array_equal(rj.predict(m, x), est.predict(x))
+    np.testing.assert_array_equal(np.asarray(rj.decode(m, x).index), est.predict(x))
+    rj.save(tmp_path / "m.map", m)
+    back = rj.load(tmp_path / "m.map")
+    np.testing.assert_array_equal(rj.predict(back, x), est.predict(x))
+    assert rj.RhythmicMap.load(tmp_path / "m.map").periods == m.periods
 
 
 def test_importing_the_package_does_not_import_torch():

@@ -13,7 +13,7 @@ static and hashable: the layout (``groups``), periods, n, d, the configuration
 a map can be an argument of ``jax.jit`` (a new layout or configuration compiles
 anew, new template values do not) and maps of one layout can be stacked and
 ``jax.vmap``-ed. The pure functions over it live along the pipeline:
-:func:`rhythmic_jax.fitting.fit.fit`, :mod:`rhythmic_jax.decoding.queries`
+:func:`rhythmic_jax.fitting.fit_map.fit`, :mod:`rhythmic_jax.decoding.queries`
 (scores, decode, sequences) and :mod:`rhythmic_jax.map.map_file` (save, load).
 
 Names: k the templates' dimension (the embedding's output, else d), p templates,

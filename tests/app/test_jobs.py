@@ -154,7 +154,7 @@ def test_a_fit_is_planned_once(kind, tmp_path, monkeypatch):
         for i in range(30):
             pixels = rng.integers(0, 256, (16, 32, 3), dtype=np.uint8)
             imsave(tmp_path / "frames" / f"f{i}.png", pixels, check_contrast=False)
-    from rhythmic_jax.fitting import fit as fit_module
+    from rhythmic_jax.fitting import fit_map as fit_module
 
     made = []
 

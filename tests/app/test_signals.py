@@ -20,6 +20,21 @@ from rhythmic_jax.solvers import distributed
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
 
+def _taken_over(pid: int, timeout: float = 60.0) -> None:
+    """Wait until the command has taken SIGTERM over (``signals.install``, its
+    first step): the moments below count from there, so a loaded machine's slow
+    interpreter start does not put the signal before the command began."""
+    until = time.monotonic() + timeout
+    while time.monotonic() < until:
+        status = Path(f"/proc/{pid}/status").read_text()
+        caught = int(next(ln for ln in status.splitlines() if ln.startswith("SigCgt:"))
+                     .split()[1], 16)  # fmt: skip
+        if caught >> (signal.SIGTERM - 1) & 1:
+            return
+        time.sleep(0.01)
+    raise AssertionError("the command never took its signals over")
+
+
 def _start(*argv: str, cwd: Path) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "rhythmic_jax.app.cli", *argv, "--no-progress"],
@@ -55,6 +70,7 @@ def test_a_stopped_fit_ends_at_once_in_one_line_and_writes_no_map(
 ):
     out = tmp_path / "route.map"
     proc = _start("fit", str(frames), "--out", str(out), cwd=tmp_path)
+    _taken_over(proc.pid)
     time.sleep(after)
     assert proc.poll() is None, "the fit ended before it could be stopped"
     proc.send_signal(sig)

@@ -14,7 +14,7 @@ import pytest
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding import hard, queries
 from rhythmic_jax.decoding.hard import hard_decode
-from rhythmic_jax.fitting.fit import fit
+from rhythmic_jax.fitting.fit_map import fit
 from rhythmic_jax.map import map_file
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.groups import Groups
