@@ -426,8 +426,8 @@ def scale_by_exact_linesearch(
     ``phi_j(t) = value_fn(params + t updates)_j`` is convex and piecewise
     quadratic for the squared hinge; ``phi'`` and ``phi''`` are the gradient
     and its ``jax.jvp`` along the step, dotted with the step per template (one
-    forward-over-reverse pass, 1.5x cheaper than differentiating ``phi`` twice
-    forward on 3576 frames x 441 templates). The minimiser is found by
+    forward-over-reverse pass, cheaper than differentiating ``phi`` twice
+    forward). The minimiser is found by
     :func:`_bracketed_root` from t = 1 (the Newton step); a step that does not
     decrease ``phi`` becomes 0.
 
