@@ -1,20 +1,18 @@
 """JAX's persistent compilation cache under the package's cache folder.
 
-A fresh process compiles every XLA program it runs: about a hundred for a
-default fit, 9-15 s of a 11-20 s first fit on the 2-core reference machine.
+A fresh process compiles every XLA program it runs, and compiling is a large
+part of a first fit's time (measured per job: ``reports/compile.md``).
 :func:`enable_compile_cache` turns on JAX's own persistent cache
 (``jax_compilation_cache_dir``) in ``<cache folder>/jax`` (``$RHYTHMIC_JAX_CACHE``,
 see :func:`rhythmic_jax.frames.cache_files.default_cache_dir`), so the next process
 loads each program instead of compiling it.
 
-Thresholds, by measurement (a 1000 x 256 default fit and its predictions, 97
-programs, every one cached, then loaded by a second process): the quickest
-program took 12 ms to compile and the median 56 ms, while loading one took
-2.6 ms at the median and 78 ms at most (the largest, which took 2.6 s to
-compile); no program compiled faster than it loaded. JAX's default of caching
-only programs that compile in >= 1 s kept 7 of the 97 and left 4.4 s of the
-14.5 s compiling. So every program is cached: minimum compile time 0 s and
-minimum entry size 0 bytes (entries were 3-107 KB, 0.8 MB for the fit).
+Thresholds: every program is cached (JAX's minimum compile time and minimum
+entry size both set to zero). Measured on a default fit and its predictions, no
+program compiled faster than it loaded from the cache, while JAX's default of
+caching only programs that compile in a second or more left most of the
+compile time uncached, since most programs are small; the entries are small
+too (kilobytes, under a megabyte for the fit).
 
 Damaged and foreign entries. JAX writes an entry in place (a killed process
 leaves it cut short, a concurrent one may read it half-written), never replaces

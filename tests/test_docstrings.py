@@ -1,9 +1,11 @@
-"""Docstrings point at things that exist.
+"""Docstrings point at things that exist and quote no timings.
 
 Every dotted ``rhythmic_jax....`` name in a docstring of the package resolves to a
 module or an attribute of one, and every repository path it names (``tests/…``,
 ``scripts/…``, ``docs/…``, ``reports/…``) is a file, so a renamed or removed
-piece cannot leave a stale pointer behind.
+piece cannot leave a stale pointer behind. No docstring quotes a timing
+(seconds, milliseconds, "3x faster"): timings live in ``reports/``, with the
+command and the machine that measured them, and a docstring points there.
 """
 
 from __future__ import annotations
@@ -69,3 +71,46 @@ def test_the_check_catches_a_stale_name(tmp_path):
     assert _resolves("rhythmic_jax.errors.InputError")
     assert not _resolves("rhythmic_jax.errors.NoSuchThing")
     assert not _resolves("rhythmic_jax.no_such_module")
+
+
+# Timings live in reports/ (measured, dated, with the command that made them); a
+# docstring says what a piece does and why, and points there.
+TIMING = re.compile(
+    r"(?<![\w.])\d+(?:\.\d+)?\s*(?:s|ms|µs|us|sec|secs|seconds?|minutes?)\b"
+    r"|\d+(?:\.\d+)?\s*x\s+(?:faster|slower|sooner|quicker)",
+    re.IGNORECASE,
+)
+# The two command-line modules still quote timings; they are rewritten once the
+# command line's pending change lands, and then leave this tuple.
+TIMINGS_NOT_YET_REMOVED = ("rhythmic_jax/app/cli.py", "rhythmic_jax/app/demo.py")
+# Matches that are not timings, with why: (file, the matched text).
+NOT_TIMINGS: tuple[tuple[str, str], ...] = ()
+
+
+def _timings(doc: str) -> list[str]:
+    return [m.group(0) for m in TIMING.finditer(doc)]
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(REPO)))
+def test_docstrings_quote_no_timings(path):
+    name = str(path.relative_to(REPO))
+    if name in TIMINGS_NOT_YET_REMOVED:
+        pytest.skip("quotes timings until the command line's change lands")
+    quoted = [
+        f"{where}: {hit!r}"
+        for where, doc in _docstrings(path)
+        for hit in _timings(doc)
+        if (name, hit) not in NOT_TIMINGS
+    ]
+    assert not quoted, quoted
+
+
+def test_the_timing_check_catches_timings():
+    caught = ["9.4 s against 7.8 s", "12 ms", "2.6 µs", "3 seconds", "~3x faster"]
+    assert all(_timings(text) for text in caught)
+    clean = ["(n, d) x (d, n)", "1e-6 relative", "3576 x 2048", "2 sums", "3 sets"]
+    assert not any(_timings(text) for text in clean)
+
+
+def test_the_skipped_modules_exist():
+    assert all((REPO / name).is_file() for name in TIMINGS_NOT_YET_REMOVED)

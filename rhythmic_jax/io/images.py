@@ -173,8 +173,9 @@ def read_rgb(
 
     ``at_least`` (width, height): a JPEG larger than twice that in both sides is
     decoded at a reduced scale (libjpeg's DCT scaling, 1/2 to 1/8) that is still
-    at least this size: 2.4x faster for 640x320 frames going to a 224x112
-    network, and once that network's resize follows, within 2 levels of the full
+    at least this size, so fewer pixels are decoded and then shrunk (the time
+    saved: ``docs/performance.md``, "Performance from images"). Once the
+    network's resize follows, the pixels are within 2 levels of the full
     decode's on Nordland frames (0.2 on average; a sharp saturated edge's
     chroma moves up to 7). Other files are read in full.
     """

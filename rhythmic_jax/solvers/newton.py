@@ -107,24 +107,24 @@ class NewtonConfig:
       span: when frames are much wider than they are many (d > 2n), solve in
         their n-dimensional span (:mod:`rhythmic_jax.solvers.span`): the same
         optimum with products of n instead of d per frame. Below 2n the
-        reduction's (n, d) x (d, n) product costs more than it saves (3705 x
-        4096: 9.4 s against 7.8 s).
+        reduction's (n, d) x (d, n) product costs more than the smaller
+        products save (measured: ``reports/span.md``).
       seed: PRNG seed of the subspace iteration's random start (the optimum
         does not depend on it, only the preconditioner's quality).
       exact_gradient: sum each step's gradient over frames in float64 (the
         optimum then does not move with the order of the sum, e.g. frames split
-        over processes); False sums in float32, ~3x faster a product, to
-        ~1e-6 relative: enough for ``FAST``'s 1e-3 gap.
+        over processes); False sums in float32, a cheaper product (no float64
+        accumulation) exact to ~1e-6 relative: enough for ``FAST``'s 1e-3
+        gap.
       hessian_dtype: the inputs of CG's products: ``"float32"``, ``"bfloat16"``
         (rounded to 8 bits of mantissa, summed in float32: half the time where
         the CPU multiplies bfloat16 natively, emulated and slower elsewhere) or
         ``"auto"`` (bfloat16 where native,
         :func:`rhythmic_jax.solvers.precision.native_bfloat16`). Only the
         Newton directions see it; gradients, margins and the line search keep
-        their dtypes. ``FAST`` takes ``"auto"``: on Nordland (3576 x 2048,
-        441 templates) bfloat16 took 9 steps against float32's 10, to a true
-        gap of 4.5e-4 against 4.0e-4, in 4.5 s against 5.9 s
-        (``reports/solver.md``).
+        their dtypes. ``FAST`` takes ``"auto"``: its 1e-3 gap does not see
+        CG's ~1e-3 error in the directions, which the exact line search
+        absorbs (its steps, true gap and time: ``reports/solver.md``).
     """
 
     gap_tol: float = 1e-7

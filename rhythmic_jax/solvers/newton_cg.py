@@ -308,8 +308,10 @@ def derivatives(
       params: the iterate, theta (q, p) and margins (n, p) (float64 or 32).
       design: ``Xa`` (n, q), the product's dtype (float32).
       exact_gradient: sum the gradient's product over frames in the iterate's
-        dtype (float64); False: in the design's (float32), ~3x faster, to
-        ~1e-6 relative, which a solve to a 1e-3 gap does not see.
+        dtype (float64), so the optimum does not move with the order of the
+        sum; False: in the design's (float32), a cheaper product exact to
+        ~1e-6 relative, which a solve to a 1e-3 gap does not see
+        (``reports/solver.md`` runs ``FAST`` so).
       rounded: None, or the design rounded for the Hessian's two products,
         ``(Xa, Xa^T)`` as (n, q) and (q, n) arrays of a narrower dtype
         (:func:`round_design`): the vectors are rounded to it too and the
@@ -320,7 +322,8 @@ def derivatives(
         directions off by ~1e-3, which the exact line search and a 1e-3 gap
         do not see; the gradient, the margins and the line search keep their
         dtypes. The transposed copy is stored because XLA's CPU bfloat16
-        product of a transposed operand is the slow one (3x).
+        product of a transposed operand takes a slower kernel than one of a
+        row-major operand.
 
     Returns:
       ``g`` (q, p): the gradient in theta, ``d/dtheta + Xa^T d/dm`` (the chain
@@ -423,8 +426,8 @@ def scale_by_exact_linesearch(
     ``phi_j(t) = value_fn(params + t updates)_j`` is convex and piecewise
     quadratic for the squared hinge; ``phi'`` and ``phi''`` are the gradient
     and its ``jax.jvp`` along the step, dotted with the step per template (one
-    forward-over-reverse pass, 1.5x cheaper than differentiating ``phi`` twice
-    forward on 3576 frames x 441 templates). The minimiser is found by
+    forward-over-reverse pass, cheaper than differentiating ``phi`` twice
+    forward). The minimiser is found by
     :func:`_bracketed_root` from t = 1 (the Newton step); a step that does not
     decrease ``phi`` becomes 0.
 
