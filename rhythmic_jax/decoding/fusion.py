@@ -39,7 +39,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.buckets import head, in_host_memory, pad_rows
 from rhythmic_jax.decoding.hard import Decoded, check_scores
-from rhythmic_jax.decoding.sequence import _accumulate, _shift_columns, frame_offsets
+from rhythmic_jax.decoding.sequence import _sequence_scores_jit, frame_offsets
 from rhythmic_jax.decoding.soft import _best_two
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
@@ -288,7 +288,8 @@ def fused_sequence_decode(
     )
     out = []
     for v in speeds:
-        acc = _accumulate(s, _shift_columns(per, int(length), float(v)))
+        # jitted (once per bucket): an eager loop traces a new body every call
+        acc = _sequence_scores_jit(s, per, int(length), float(v))
         out.append(
             fused_decode(
                 acc,
