@@ -18,6 +18,11 @@ has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
   built once per map) in ``predict`` and ``locate``;
 - soft and top-m decodes, jitted in padded buckets of rows
   (:mod:`rhythmic_jax.decoding.buckets`: one program per bucket);
+- a batch above :data:`~rhythmic_jax.decoding.buckets.CHUNK` rows, uploaded
+  once and decoded on the device chunk by chunk within that program
+  (:func:`~rhythmic_jax.decoding.buckets.over_chunks`: no host round trip per
+  chunk, one chunk's scores at a time; a sequence's chunks each see the
+  ``length - 1`` frames before them);
 
 and a sequence of queries in the phase domain, or fused with codes
 (:mod:`rhythmic_jax.decoding.sequence`). Results stay where they were computed
