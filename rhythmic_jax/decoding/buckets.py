@@ -6,6 +6,14 @@ shares its program with every batch of that bucket. :func:`pad_rows` pads a
 numpy batch on the host (no program) and :func:`head` cuts the (b,) results
 where they lie, so no shape-specific program runs around a bucketed one on a
 CPU.
+
+A batch larger than :data:`CHUNK` rows is decoded by :func:`over_chunks`, inside
+its one jitted program: a loop over chunks of :data:`CHUNK` rows of the
+uploaded (bucket, d) batch, each chunk's results written into (bucket, ...)
+outputs on the device. The loop runs only over the chunks that hold queries
+(their count is an argument, not a shape), there is no host round trip per
+chunk, and a bucket of chunks is one program. The buckets above
+:data:`CHUNK` are whole numbers of chunks, as both are powers of two.
 """
 
 from __future__ import annotations
@@ -18,10 +26,26 @@ import numpy as np
 
 from rhythmic_jax.jit_options import jit
 
-__all__ = ["MIN_BUCKET", "bucket", "head", "in_host_memory", "pad_rows"]
+__all__ = [
+    "CHUNK",
+    "MIN_BUCKET",
+    "bucket",
+    "chunk_count",
+    "head",
+    "in_host_memory",
+    "over_chunks",
+    "pad_rows",
+]
 
 MIN_BUCKET = 16
 """The smallest bucket: batches of 1-16 queries share one program."""
+
+
+CHUNK = 8192
+"""Rows a large batch is decoded by at a time (a power of two): a program holds
+one chunk's scores, CHUNK x p float32 (32 MiB for p = 1024 templates; the soft
+and top-m decodes score places in batches of 256 queries within it), never the
+(b, p) scores of the whole batch, and its queries."""
 
 
 def bucket(b: int) -> int:
@@ -79,3 +103,49 @@ def head(tree, b: int):
         return a if a.shape[0] == b else a[:b]
 
     return jax.tree.map(cut, tree)
+
+
+def chunk_count(b: int, chunk: int | None = None) -> int:
+    """Chunks of ``chunk`` rows (default :data:`CHUNK`) that hold ``b`` queries:
+    ``ceil(b / chunk)``, at least 1."""
+    chunk = CHUNK if chunk is None else chunk
+    return max(1, -(-int(b) // chunk))
+
+
+def over_chunks(body, params, x, count, chunk: int, history: int = 0):
+    """``body`` over the chunks of queries x (rows, d), inside a trace.
+
+    ``body(params, window, start)`` decodes the rows ``start : start + c`` of x
+    from ``window``, x's rows ``start - history : start + c`` (rows before row
+    0 are zero: a sequence decode masks them by ``start``), and returns a
+    pytree of (c, ...) arrays. With ``rows <= chunk`` that is one call on every
+    row (c = rows, start 0); above, ``rows`` is a whole number of chunks (c =
+    ``chunk``) and a loop over the first ``count`` of them (a traced int32:
+    the batch's :func:`chunk_count`, so a bucket compiles once) writes their
+    results into (rows, ...) outputs; the rows of chunks past ``count`` stay
+    zero, for :func:`head` to cut.
+    """
+    rows = x.shape[0]
+    if history:
+        x = jnp.pad(x, ((history, 0),) + ((0, 0),) * (x.ndim - 1))
+    if rows <= chunk:
+        return body(params, x, 0)
+    if rows % chunk:
+        raise ValueError(f"{rows} rows are not a whole number of {chunk}-row chunks")
+
+    def piece(i):
+        start = i * chunk
+        window = jax.lax.dynamic_slice_in_dim(x, start, chunk + history, axis=0)
+        return body(params, window, start)
+
+    shapes = jax.eval_shape(piece, jnp.int32(0))
+    init = jax.tree.map(lambda s: jnp.zeros((rows,) + s.shape[1:], s.dtype), shapes)
+
+    def step(i, acc):
+        return jax.tree.map(
+            lambda a, o: jax.lax.dynamic_update_slice_in_dim(a, o, i * chunk, 0),
+            acc,
+            piece(i),
+        )
+
+    return jax.lax.fori_loop(0, count, step, init)

@@ -37,8 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.decoding.buckets import head, in_host_memory, pad_rows
 from rhythmic_jax.decoding.hard import Decoded, check_scores
-from rhythmic_jax.decoding.sequence import _accumulate, _shift_columns, frame_offsets
+from rhythmic_jax.decoding.sequence import _sequence_scores_jit, frame_offsets
 from rhythmic_jax.decoding.soft import _best_two
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
@@ -141,7 +142,14 @@ def _fused_jit(s, sim, weight, periods, n, method, m, codes, exclude, batch):
 
 def _check(scores, sims, periods, n, method, m, weight, exclude):
     per, n = check_scores(scores, periods, n)
-    scores, sims = jnp.asarray(scores), jnp.asarray(sims, jnp.float32)
+    if in_host_memory(scores) is not None or not isinstance(scores, jax.Array):
+        scores = np.asarray(scores)  # kept on the host: padded there
+    else:
+        scores = jnp.asarray(scores)
+    if in_host_memory(sims) is not None or not isinstance(sims, jax.Array):
+        sims = np.asarray(sims, np.float32)
+    else:
+        sims = jnp.asarray(sims, jnp.float32)
     if scores.ndim != 2 or sims.shape != (scores.shape[0], n):
         raise InputError(
             f"fusion needs map scores (b, p) and code similarities (b, n={n}), got "
@@ -178,7 +186,11 @@ def fused_decode(
     ``method``: "soft" (every place), "topm" (the map's top-``m`` combinations and
     as many best-code places) or "hard" (top-m with m = 1). Returns
     :class:`~rhythmic_jax.decoding.hard.Decoded` whose scores are fused z-scores.
-    Jit-compiled once per (periods, n, method, m, weight, exclude) and shape.
+    Jit-compiled once per (periods, n, method, m, weight, exclude) and bucket
+    of rows (:func:`~rhythmic_jax.decoding.buckets.bucket`: the rows are padded
+    where they lie, host inputs on the host, and the results cut where they
+    were computed); ``batch_size`` queries are fused at a time, so the program
+    holds ``batch_size x n`` fused scores.
     """
     s, sim, per, n, method, m, weight, exclude = _check(
         scores, sims, periods, n, method, m, weight, exclude
@@ -188,7 +200,19 @@ def fused_decode(
         return Decoded(jnp.zeros((0,), jnp.int32), neg, neg)
     w = jnp.float32(weight)
     batch = int(batch_size)
-    return _fused_jit(s, sim, w, per, n, method, m, weight < 1, exclude, batch)
+    (s, sim), b = _bucketed(s, sim)
+    return head(_fused_jit(s, sim, w, per, n, method, m, weight < 1, exclude, batch), b)
+
+
+def _bucketed(*arrays):
+    """Arrays (b, ...) padded to :func:`~rhythmic_jax.decoding.buckets.bucket`
+    ``(b)`` rows (on the host where they lie there) as device arrays (a numpy
+    argument would key a program apart from a device array), and b."""
+    out = [pad_rows(a) for a in arrays]
+    b = out[0][1]
+    return [
+        a if isinstance(a, jax.core.Tracer) else jax.device_put(a) for a, _ in out
+    ], b
 
 
 @jit
@@ -264,7 +288,8 @@ def fused_sequence_decode(
     )
     out = []
     for v in speeds:
-        acc = _accumulate(s, _shift_columns(per, int(length), float(v)))
+        # jitted (once per bucket): an eager loop traces a new body every call
+        acc = _sequence_scores_jit(s, per, int(length), float(v))
         out.append(
             fused_decode(
                 acc,

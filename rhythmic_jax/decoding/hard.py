@@ -50,7 +50,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.decoding.buckets import bucket, head, in_host_memory, pad_rows
+from rhythmic_jax.decoding import buckets
+from rhythmic_jax.decoding.buckets import (
+    bucket,
+    chunk_count,
+    head,
+    in_host_memory,
+    over_chunks,
+    pad_rows,
+)
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.groups import Groups
@@ -246,9 +254,18 @@ def hard_decode(
     return out if len(lead) == 1 else Decoded(*(x.reshape(lead) for x in out))
 
 
-@functools.partial(jit, static_argnames=("groups", "n"))
-def _localise(params: Templates, queries: jax.Array, groups: Groups, n: int):
-    return _hard(decision_values(params, queries), groups, n)
+@functools.partial(jit, static_argnames=("groups", "n", "chunk"))
+def _localise(
+    params: Templates, queries: jax.Array, count, groups: Groups, n: int, chunk: int
+):
+    """Decoded (rows,) of queries (rows, d): ``count`` chunks of ``chunk`` rows
+    decoded one after another
+    (:func:`~rhythmic_jax.decoding.buckets.over_chunks`)."""
+
+    def body(p, x, _):
+        return _hard(decision_values(p, x), groups, n)
+
+    return over_chunks(body, params, queries, count, chunk)
 
 
 def decode(
@@ -262,10 +279,13 @@ def decode(
 
     The batch is padded to a power-of-two bucket
     (:func:`rhythmic_jax.decoding.buckets.pad_rows`), so a new batch size in a
-    bucket compiles nothing, and the results are cut where they were computed.
-    A float32 numpy batch on a CPU is multiplied where it lies, by numpy's BLAS
-    ``sgemm`` (handing a large unaligned batch to XLA copies it first, which
-    costs more than the product), and its small (b, p) scores go to the kernel.
+    bucket compiles nothing, uploaded once, and decoded on the device in chunks
+    of :data:`~rhythmic_jax.decoding.buckets.CHUNK` rows (at most CHUNK x p
+    float32 scores at a time); the results are cut where they were computed and
+    stay there until the caller reads them. A float32 numpy batch on a CPU is
+    multiplied where it lies, by numpy's BLAS ``sgemm`` (handing a large
+    unaligned batch to XLA copies it first, which costs more than the product),
+    and its small (b, p) scores go to the kernel.
     """
     if not isinstance(periods, Groups):
         periods = Groups("periods", tuple(int(t) for t in periods))
@@ -289,7 +309,9 @@ def decode(
     # a device array always: the jit cache keys a numpy argument apart from a
     # device array of the same shape, so a numpy batch compiled a second program
     padded = padded if isinstance(padded, jax.core.Tracer) else jax.device_put(padded)
-    return head(_localise(Templates(*params), padded, groups, n), b)
+    chunk = buckets.CHUNK
+    count = chunk_count(b, chunk)
+    return head(_localise(Templates(*params), padded, count, groups, n, chunk), b)
 
 
 def _check_group_scores(scores, groups: Groups) -> None:

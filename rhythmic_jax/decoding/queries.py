@@ -9,7 +9,8 @@ has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
 - with codes, the place scores are fused with the code similarities
   (:mod:`rhythmic_jax.decoding.fusion`; ``hard`` then scores every place, as
   ``soft``; the code similarities are computed on the host, so such a map is
-  decoded outside a trace);
+  decoded outside a trace), the queries padded to their bucket first, so the
+  scores, codes and fused decode compile once per bucket;
 - the hard decode of any layout: the one kernel
   (:func:`rhythmic_jax.decoding.hard.decode`), with up to
   :data:`~rhythmic_jax.decoding.hard.SMALL_BATCH` float32 queries of a periods
@@ -17,6 +18,11 @@ has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
   built once per map) in ``predict`` and ``locate``;
 - soft and top-m decodes, jitted in padded buckets of rows
   (:mod:`rhythmic_jax.decoding.buckets`: one program per bucket);
+- a batch above :data:`~rhythmic_jax.decoding.buckets.CHUNK` rows, uploaded
+  once and decoded on the device chunk by chunk within that program
+  (:func:`~rhythmic_jax.decoding.buckets.over_chunks`: no host round trip per
+  chunk, one chunk's scores at a time; a sequence's chunks each see the
+  ``length - 1`` frames before them);
 
 and a sequence of queries in the phase domain, or fused with codes
 (:mod:`rhythmic_jax.decoding.sequence`). Results stay where they were computed
@@ -36,11 +42,12 @@ import functools
 from collections.abc import Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from rhythmic_jax.decoding import hard
-from rhythmic_jax.decoding.buckets import head, pad_rows
+from rhythmic_jax.decoding import buckets, hard
+from rhythmic_jax.decoding.buckets import chunk_count, head, over_chunks, pad_rows
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.fusion import (
     fused_decode,
@@ -48,14 +55,19 @@ from rhythmic_jax.decoding.fusion import (
     fused_sequence_decode,
 )
 from rhythmic_jax.decoding.hard import SMALL_BATCH, Decoded, SmallDecoder
-from rhythmic_jax.decoding.sequence import sequence_decode
+from rhythmic_jax.decoding.sequence import METHODS, _check_speeds, sequence_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.map.embedding import embed
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.pytree import Map, Templates, decision_values
-from rhythmic_jax.validate import check_features, check_number, check_sequence
+from rhythmic_jax.validate import (
+    check_features,
+    check_int,
+    check_number,
+    check_sequence,
+)
 
 __all__ = [
     "decode",
@@ -105,11 +117,12 @@ def decode(m: Map, q, how: str | None = None, top: int | None = None) -> Decoded
     the phases top-m keeps (default: the map's)."""
     how, top = how or m.config.decode, top or m.config.m
     x = queries(m, q)
-    if m.codebook is not None:
-        return fused_decode(
+    if m.codebook is not None:  # padded first: every program once per bucket
+        x, b = pad_rows(x)
+        return head(fused_decode(
             _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
             m.config.fusion, "soft" if how == "hard" else how, top,
-        )  # fmt: skip
+        ), b)  # fmt: skip
     if how == "hard":
         return hard.decode(m.params, x, m.groups, m.n)
     return decode_queries(m.params, x, m.groups, m.n, how, top)
@@ -132,11 +145,12 @@ def decode_sequence(
 
 def _sequence(m: Map, x, length, speeds, how: str, top: int):
     """:func:`decode_sequence` of checked, embedded queries x (T, k)."""
-    if m.codebook is not None:
-        return fused_sequence_decode(
+    if m.codebook is not None:  # padded at the end: every program once per bucket
+        x, b = pad_rows(x)
+        return head(fused_sequence_decode(
             _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
             length, speeds, m.config.fusion, how, top,
-        )  # fmt: skip
+        ), b)  # fmt: skip
     return sequence_queries(m.params, x, m.groups, m.n, length, speeds, how, top)
 
 
@@ -274,9 +288,12 @@ def one_query(q, d: int):
 
 
 # ------------------------------------------- templates and queries, bucketed
-@functools.partial(jit, static_argnames=("groups", "n", "method", "m"))
-def _decode_jit(params, queries, groups, n, method, m):
-    return decode_scores(decision_values(params, queries), groups, n, method, m)
+@functools.partial(jit, static_argnames=("groups", "n", "method", "m", "chunk"))
+def _decode_jit(params, queries, count, groups, n, method, m, chunk):
+    def body(p, x, _):
+        return decode_scores(decision_values(p, x), groups, n, method, m)
+
+    return over_chunks(body, params, queries, count, chunk)
 
 
 def decode_queries(
@@ -291,10 +308,34 @@ def decode_queries(
 
     ``decode_scores(decision_values(params, queries), groups, n, method, m)``
     (:func:`rhythmic_jax.decoding.dispatch.decode_scores`) with the batch padded
-    to :func:`~rhythmic_jax.decoding.buckets.bucket` ``(b)`` rows.
+    to :func:`~rhythmic_jax.decoding.buckets.bucket` ``(b)`` rows, uploaded once
+    and decoded on the device in chunks of
+    :data:`~rhythmic_jax.decoding.buckets.CHUNK` rows
+    (:func:`~rhythmic_jax.decoding.buckets.over_chunks`).
     """
     padded, b = pad_rows(queries)
-    return head(_decode_jit(params, padded, groups, n, method, int(m)), b)
+    chunk = buckets.CHUNK
+    count = chunk_count(b, chunk)
+    out = _decode_jit(params, padded, count, groups, n, method, int(m), chunk)
+    return head(out, b)
+
+
+@functools.partial(
+    jit,
+    static_argnames=("groups", "n", "length", "speeds", "method", "m", "chunk"),
+)
+def _sequence_jit(params, queries, count, groups, n, length, speeds, method, m, chunk):
+    history = length - 1
+
+    def body(p, window, start):
+        # rows before the first frame are left out: zero scores, as the
+        # unchunked decode pads them
+        frame = start - history + jnp.arange(window.shape[0])
+        s = jnp.where((frame >= 0)[:, None], decision_values(p, window), 0.0)
+        idx, conf = sequence_decode(s, groups, n, length, speeds, method, m)
+        return idx[history:], conf[history:]
+
+    return over_chunks(body, params, queries, count, chunk, history)
 
 
 def sequence_queries(
@@ -307,13 +348,24 @@ def sequence_queries(
     method: str = "soft",
     m: int = 3,
 ) -> tuple[jax.Array, jax.Array]:
-    """Sequence decode of T consecutive query frames (T, d), every program
-    compiled once per bucket: index (T,), confidence (T,)
+    """Sequence decode of T consecutive query frames (T, d), one program per
+    bucket: index (T,), confidence (T,)
     (:func:`rhythmic_jax.decoding.sequence.sequence_decode` of their scores).
 
-    The frames are padded at the end; a frame's answer depends on the frames
-    before it only.
+    The frames are padded at the end (a frame's answer depends on the frames
+    before it only) and decoded on the device in chunks of
+    :data:`~rhythmic_jax.decoding.buckets.CHUNK` frames, each with the
+    ``length - 1`` frames before it.
     """
+    length = check_int(length, "length", 1)
+    speeds = _check_speeds(speeds)
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got method={method!r}")
+    m = check_int(m, "m", 1)
     padded, b = pad_rows(queries)
-    s = _scores_jit(params, padded)
-    return head(sequence_decode(s, groups, n, length, speeds, method, m), b)
+    chunk = buckets.CHUNK
+    count = chunk_count(b, chunk)
+    out = _sequence_jit(
+        params, padded, count, groups, n, length, speeds, method, m, chunk
+    )
+    return head(out, b)
