@@ -1,9 +1,10 @@
 """The rhythmic map as a scikit-learn-style estimator: a :class:`Map` value held.
 
-``fit`` is :func:`rhythmic_jax.fitting.fit_map.fit`; ``predict``, ``decode``, ``scores``,
-``locate``, ``save`` and ``load`` are pure functions of the map it holds
-(:mod:`rhythmic_jax.decoding.queries`, :mod:`rhythmic_jax.map.map_file`); the map's
-fields read and set as attributes (``m.periods``, ``m.n``, ``m.codebook``, ...).
+``fit`` is :func:`rhythmic_jax.fitting.fit_map.fit`; ``predict``, ``decode``,
+``scores``, ``locate``, ``save`` and ``load`` are pure functions of the map it
+holds (:mod:`rhythmic_jax.decoding.queries`, :mod:`rhythmic_jax.map.map_file`);
+the map's fields read and set as attributes (``m.periods``, ``m.n``,
+``m.codebook``, ...).
 """
 
 from __future__ import annotations
