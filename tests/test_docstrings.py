@@ -80,9 +80,6 @@ TIMING = re.compile(
     r"|\d+(?:\.\d+)?\s*x\s+(?:faster|slower|sooner|quicker)",
     re.IGNORECASE,
 )
-# The two command-line modules still quote timings; they are rewritten once the
-# command line's pending change lands, and then leave this tuple.
-TIMINGS_NOT_YET_REMOVED = ("rhythmic_jax/app/cli.py", "rhythmic_jax/app/demo.py")
 # Matches that are not timings, with why: (file, the matched text).
 NOT_TIMINGS: tuple[tuple[str, str], ...] = ()
 
@@ -94,8 +91,6 @@ def _timings(doc: str) -> list[str]:
 @pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(REPO)))
 def test_docstrings_quote_no_timings(path):
     name = str(path.relative_to(REPO))
-    if name in TIMINGS_NOT_YET_REMOVED:
-        pytest.skip("quotes timings until the command line's change lands")
     quoted = [
         f"{where}: {hit!r}"
         for where, doc in _docstrings(path)
@@ -110,7 +105,3 @@ def test_the_timing_check_catches_timings():
     assert all(_timings(text) for text in caught)
     clean = ["(n, d) x (d, n)", "1e-6 relative", "3576 x 2048", "2 sums", "3 sets"]
     assert not any(_timings(text) for text in clean)
-
-
-def test_the_skipped_modules_exist():
-    assert all((REPO / name).is_file() for name in TIMINGS_NOT_YET_REMOVED)

@@ -499,8 +499,9 @@ def run() -> None:
 
     Before the interpreter shuts down, every object still alive is moved out of
     the garbage collector's reach (``gc.freeze``): its last full collection would
-    otherwise walk torch's and JAX's objects one by one, about 0.6 s on the
-    reference machine, to free memory the process hands back on exit anyway.
+    otherwise walk torch's and JAX's objects one by one, a noticeable part of a
+    short command's wall time (``reports/compile.md``), to free memory the
+    process hands back on exit anyway.
 
     Ctrl-C and SIGTERM end the command at once, with one line and exit status
     130 (143), writing nothing more; a failed process of a multi-process fit

@@ -96,9 +96,9 @@ def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
     """Left: storage against N, map and brute force; right: the accuracies.
 
     Drawn on a bare Agg figure (no pyplot, no GUI backend) with fixed margins:
-    ``tight_layout`` measured every tick label of both log axes again and took
-    twice the drawing's time (0.85 of 1.2 s); the margins are those it chose for
-    this figure's labels."""
+    ``tight_layout`` measured every tick label of both log axes again, which cost
+    more than drawing the figure; the margins are those it chose for this
+    figure's labels."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
