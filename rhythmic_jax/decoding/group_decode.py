@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.decoding.hard import Decoded, hard_decode
+from rhythmic_jax.decoding.hard import check_group_scores as check_scores
 from rhythmic_jax.decoding.soft import _batched, _best_two, _empty
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
@@ -59,14 +60,7 @@ def check_group_scores(scores, groups: Groups, n: int | None = None) -> int:
     if not isinstance(groups, Groups):
         raise InputError(f"groups must be a Groups, got {groups!r}")
     n = groups.check(groups.capacity if n is None else n)
-    shape = getattr(scores, "shape", np.shape(scores))
-    if len(shape) < 1 or shape[-1] != groups.p:
-        raise InputError(
-            f"scores must have shape (..., {groups.p}) for {groups.describe()}, "
-            f"got shape {shape}"
-        )
-    if not jnp.issubdtype(getattr(scores, "dtype", np.float64), jnp.floating):
-        raise InputError(f"scores must be floating point, got dtype {scores.dtype}")
+    check_scores(scores, groups)
     return n
 
 

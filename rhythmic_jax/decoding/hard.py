@@ -240,7 +240,7 @@ def hard_decode(
             _, n = check_scores(scores, groups.sizes, n)
         else:
             n = groups.check(groups.capacity if n is None else n)
-            _check_group_scores(scores, groups)
+            check_group_scores(scores, groups)
     else:
         per, n = check_scores(scores, periods, n)
         groups = Groups("periods", per)
@@ -314,7 +314,8 @@ def decode(
     return head(_localise(Templates(*params), padded, count, groups, n, chunk), b)
 
 
-def _check_group_scores(scores, groups: Groups) -> None:
+def check_group_scores(scores, groups: Groups) -> None:
+    """Refuse scores that are not floating (..., p) for ``groups``."""
     shape = getattr(scores, "shape", np.shape(scores))
     if len(shape) < 1 or shape[-1] != groups.p:
         raise InputError(

@@ -30,6 +30,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
+from rhythmic_jax.io.descriptor_files import read_npy_header
 
 __all__ = [
     "SoftGroundTruth",
@@ -91,14 +92,7 @@ def safe_object_npy(path: str | Path) -> np.ndarray:
     path = Path(path)
     try:
         with path.open("rb") as f:
-            version = np.lib.format.read_magic(f)
-            read = {
-                (1, 0): np.lib.format.read_array_header_1_0,
-                (2, 0): np.lib.format.read_array_header_2_0,
-            }.get(version)
-            if read is None:
-                raise ValueError(f"format version {version}")
-            shape, _, dtype = read(f)
+            shape, _, dtype = read_npy_header(f)
             if not dtype.hasobject:
                 return np.load(path, allow_pickle=False)
             data = f.read()
@@ -356,13 +350,7 @@ def _object_npy(path: str) -> bool:
         return False
     try:
         with p.open("rb") as f:
-            version = np.lib.format.read_magic(f)
-            read = (
-                np.lib.format.read_array_header_1_0
-                if version == (1, 0)
-                else np.lib.format.read_array_header_2_0
-            )
-            return bool(read(f)[2].hasobject)
+            return bool(read_npy_header(f)[2].hasobject)
     except (OSError, ValueError):
         return False
 

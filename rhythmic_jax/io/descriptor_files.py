@@ -21,8 +21,26 @@ __all__ = [
     "check_descriptors",
     "descriptor_shape",
     "load_descriptors",
+    "read_npy_header",
     "save_descriptors",
 ]
+
+_HEADERS = {
+    (1, 0): np.lib.format.read_array_header_1_0,
+    (2, 0): np.lib.format.read_array_header_2_0,
+    (3, 0): np.lib.format.read_array_header_2_0,  # utf-8 field names, same layout
+}
+
+
+def read_npy_header(f) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """``(shape, fortran_order, dtype)`` a ``.npy`` file declares, read from the
+    open binary file ``f`` (left at the first data byte); ``ValueError`` for a
+    file that is not ``.npy`` or of a format version NumPy does not write."""
+    version = np.lib.format.read_magic(f)
+    read = _HEADERS.get(version)
+    if read is None:
+        raise ValueError(f"format version {version}")
+    return read(f)
 
 
 def check_descriptors(x: np.ndarray, where: str) -> np.ndarray:
@@ -56,11 +74,7 @@ def descriptor_shape(path: str | os.PathLike) -> tuple[int, ...]:
             raise InputError(f"{path} contains Python objects; refusing to unpickle")
         f.seek(0)
         try:
-            version = np.lib.format.read_magic(f)
-            if version == (1, 0):
-                header = np.lib.format.read_array_header_1_0(f)
-            else:
-                header = np.lib.format.read_array_header_2_0(f)
+            header = read_npy_header(f)
         except Exception as exc:
             raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
     if header[2].hasobject:

@@ -24,7 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.descriptor_files import check_descriptors, descriptor_shape
+from rhythmic_jax.io.descriptor_files import (
+    check_descriptors,
+    descriptor_shape,
+    read_npy_header,
+)
 
 __all__ = [
     "Frames",
@@ -88,13 +92,7 @@ def _part(path: Path) -> _Part:
     if len(shape) != 2 or 0 in shape:
         raise InputError(f"{path}: expected a non-empty (n, d) array, got {shape}")
     with open(path, "rb") as fh:
-        version = np.lib.format.read_magic(fh)
-        read = (
-            np.lib.format.read_array_header_1_0
-            if version == (1, 0)
-            else np.lib.format.read_array_header_2_0
-        )
-        _, fortran, dtype = read(fh)
+        _, fortran, dtype = read_npy_header(fh)
         offset = fh.tell()
     if fortran or dtype.kind not in "fiu":
         raise InputError(f"{path}: need a C-ordered real array, got {dtype}")

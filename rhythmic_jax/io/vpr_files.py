@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.descriptor_files import read_npy_header
 
 __all__ = [
     "HDF5_SUFFIXES",
@@ -55,15 +56,7 @@ def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype]:
         raise InputError(f"{path}: file not found")
     try:
         with path.open("rb") as f:
-            version = np.lib.format.read_magic(f)
-            read = {
-                (1, 0): np.lib.format.read_array_header_1_0,
-                (2, 0): np.lib.format.read_array_header_2_0,
-                (3, 0): np.lib.format.read_array_header_2_0,
-            }.get(version)
-            if read is None:
-                raise ValueError(f"format version {version}")
-            shape, _, dtype = read(f)
+            shape, _, dtype = read_npy_header(f)
     except OSError as err:
         raise InputError(f"{path}: cannot read ({err.strerror})") from None
     except ValueError as err:
