@@ -20,8 +20,6 @@
 from __future__ import annotations
 
 import csv
-import io
-import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +29,7 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
 from rhythmic_jax.io.descriptor_files import read_npy_header
+from rhythmic_jax.io.vpr_files import safe_object_npy
 
 __all__ = [
     "SoftGroundTruth",
@@ -48,67 +47,6 @@ __all__ = [
 ]
 
 EARTH_RADIUS_M = 6_371_008.8  # mean radius (IUGG)
-
-
-def _numpy_callables() -> dict[tuple[str, str], object]:
-    try:
-        from numpy._core.multiarray import _reconstruct, scalar
-    except ImportError:  # numpy < 2
-        from numpy.core.multiarray import _reconstruct, scalar
-
-    allowed = {"_reconstruct": _reconstruct, "scalar": scalar}
-    out: dict[tuple[str, str], object] = {
-        ("numpy", "ndarray"): np.ndarray,
-        ("numpy", "dtype"): np.dtype,
-    }
-    for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
-        out.update({(module, name): f for name, f in allowed.items()})
-    return out
-
-
-class _Restricted(pickle.Unpickler):
-    """Admits numpy arrays and scalars; ints, lists, tuples need no lookup."""
-
-    def __init__(self, file, where: str):
-        super().__init__(file)
-        self.where = where
-        self.allowed = _numpy_callables()
-
-    def find_class(self, module: str, name: str):
-        found = self.allowed.get((module, name))
-        if found is None:
-            raise InputError(
-                f"{self.where}: refused: the pickle names {module}.{name}; only "
-                "ints, lists, tuples and numpy arrays are read"
-            )
-        return found
-
-    def persistent_load(self, pid):
-        raise InputError(f"{self.where}: refused: the pickle holds external objects")
-
-
-def safe_object_npy(path: str | Path) -> np.ndarray:
-    """An object-dtype ``.npy`` unpickled through the allowlist (see the module)."""
-    path = Path(path)
-    try:
-        with path.open("rb") as f:
-            shape, _, dtype = read_npy_header(f)
-            if not dtype.hasobject:
-                return np.load(path, allow_pickle=False)
-            data = f.read()
-    except OSError as err:
-        raise InputError(f"{path}: cannot read ({err.strerror})") from None
-    except ValueError as err:
-        raise InputError(f"{path}: not a .npy file ({err})") from None
-    try:
-        arr = _Restricted(io.BytesIO(data), str(path)).load()
-    except InputError:
-        raise
-    except Exception as err:  # noqa: BLE001 - a broken pickle raises many kinds
-        raise InputError(f"{path}: unreadable object array ({err!r})"[:300]) from None
-    if not isinstance(arr, np.ndarray) or arr.shape != shape:
-        raise InputError(f"{path}: the pickle is not the {shape} array it announces")
-    return arr
 
 
 def _int(v, where: str) -> int:

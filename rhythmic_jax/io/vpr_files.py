@@ -45,6 +45,7 @@ __all__ = [
     "read_openvprlab_positives",
     "read_patchnetvlad",
     "read_vpr_tutorial",
+    "safe_object_npy",
 ]
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
@@ -97,34 +98,36 @@ def read_image_list(path: str | os.PathLike, root: str | os.PathLike | None = No
     return out
 
 
-def _reconstruct_names() -> dict[tuple[str, str], object]:
-    """The only callables an object ``.npy`` of integer arrays names."""
+def _numpy_callables() -> dict[tuple[str, str], object]:
     try:
-        from numpy._core.multiarray import _reconstruct
+        from numpy._core.multiarray import _reconstruct, scalar
     except ImportError:  # numpy < 2
-        from numpy.core.multiarray import _reconstruct
+        from numpy.core.multiarray import _reconstruct, scalar
+
+    allowed = {"_reconstruct": _reconstruct, "scalar": scalar}
     out: dict[tuple[str, str], object] = {
         ("numpy", "ndarray"): np.ndarray,
         ("numpy", "dtype"): np.dtype,
     }
     for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
-        out[module, "_reconstruct"] = _reconstruct
+        out.update({(module, name): f for name, f in allowed.items()})
     return out
 
 
-class _ArraysOnly(pickle.Unpickler):
-    """Unpickles numpy arrays and nothing that names another callable."""
+class _Restricted(pickle.Unpickler):
+    """Admits numpy arrays and scalars; ints, lists, tuples need no lookup."""
 
-    def __init__(self, data: bytes, where: Path):
-        super().__init__(io.BytesIO(data))
-        self.where, self.allowed = where, _reconstruct_names()
+    def __init__(self, file, where: str):
+        super().__init__(file)
+        self.where = where
+        self.allowed = _numpy_callables()
 
     def find_class(self, module: str, name: str):
         found = self.allowed.get((module, name))
         if found is None:
             raise InputError(
                 f"{self.where}: refused: the pickle names {module}.{name}; only "
-                "numpy integer arrays are read"
+                "ints, lists, tuples and numpy arrays are read"
             )
         return found
 
@@ -132,16 +135,28 @@ class _ArraysOnly(pickle.Unpickler):
         raise InputError(f"{self.where}: refused: the pickle holds external objects")
 
 
-def _object_payload(path: Path) -> bytes:
-    with path.open("rb") as f:
-        version = np.lib.format.read_magic(f)
-        read = (
-            np.lib.format.read_array_header_1_0
-            if version == (1, 0)
-            else np.lib.format.read_array_header_2_0
-        )
-        read(f)
-        return f.read()
+def safe_object_npy(path: str | Path) -> np.ndarray:
+    """An object-dtype ``.npy`` unpickled through the allowlist (see the module)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            shape, _, dtype = read_npy_header(f)
+            if not dtype.hasobject:
+                return np.load(path, allow_pickle=False)
+            data = f.read()
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror})") from None
+    except ValueError as err:
+        raise InputError(f"{path}: not a .npy file ({err})") from None
+    try:
+        arr = _Restricted(io.BytesIO(data), str(path)).load()
+    except InputError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a broken pickle raises many kinds
+        raise InputError(f"{path}: unreadable object array ({err!r})"[:300]) from None
+    if not isinstance(arr, np.ndarray) or arr.shape != shape:
+        raise InputError(f"{path}: the pickle is not the {shape} array it announces")
+    return arr
 
 
 def read_openvprlab_positives(
@@ -164,15 +179,8 @@ def read_openvprlab_positives(
             )
         rows = list(arr.astype(np.int64))
     else:
-        try:
-            arr = _ArraysOnly(_object_payload(path), path).load()
-        except InputError:
-            raise
-        except Exception as err:  # noqa: BLE001 - a broken pickle raises many kinds
-            raise InputError(
-                f"{path}: unreadable object array ({err!r})"[:300]
-            ) from None
-        if not isinstance(arr, np.ndarray) or arr.shape != shape or arr.ndim != 1:
+        arr = safe_object_npy(path)
+        if arr.ndim != 1:
             raise InputError(f"{path}: not the 1-d array of {shape} its header says")
         rows = []
         for i, v in enumerate(arr.tolist()):

@@ -3,12 +3,11 @@ pass over the whole batch, one program per bucket of chunks, no (b, p) scores.""
 
 from __future__ import annotations
 
-import contextlib
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_batch import compiles
 
 import rhythmic_jax as rj
 from rhythmic_jax.decoding import buckets, fusion, hard, queries
@@ -19,7 +18,6 @@ from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.solvers.objective import Templates, scores
 
-_EVENT = "/jax/core/compile/backend_compile_duration"
 SMALL = 32  # the chunk the tests decode by: batches of 33-64 rows take 2 chunks
 
 LAYOUTS = [
@@ -27,22 +25,6 @@ LAYOUTS = [
     (Groups("mixed", (5, 4, 5)), 83),
     (Groups("hierarchical", (7, 2, 3), 6), 40),
 ]
-
-
-@contextlib.contextmanager
-def compiles():
-    """A list that gets one entry per XLA program compiled in the block."""
-    seen: list[float] = []
-
-    def listen(event, secs, **_):
-        if event == _EVENT:
-            seen.append(secs)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield seen
-    finally:
-        jax._src.monitoring.unregister_event_duration_listener(listen)
 
 
 @pytest.fixture
