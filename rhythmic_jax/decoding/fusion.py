@@ -201,7 +201,8 @@ def fused_decode(
     w = jnp.float32(weight)
     batch = int(batch_size)
     (s, sim), b = _bucketed(s, sim)
-    return head(_fused_jit(s, sim, w, per, n, method, m, weight < 1, exclude, batch), b)
+    out = _fused_jit(s, sim, w, per, n, method, m, weight < 1, exclude, batch)
+    return head(out, b)
 
 
 def _bucketed(*arrays):
