@@ -144,14 +144,18 @@ def decode_sequence(
 
 
 def _sequence(m: Map, x, length, speeds, how: str, top: int):
-    """:func:`decode_sequence` of checked, embedded queries x (T, k)."""
-    if m.codebook is not None:  # padded at the end: every program once per bucket
-        x, b = pad_rows(x)
-        return head(fused_sequence_decode(
+    """:func:`decode_sequence` of checked, embedded queries x (T, k), padded at
+    the end first (a frame's answer depends on the frames before it only), so
+    every program compiles once per bucket."""
+    x, b = pad_rows(x)
+    if m.codebook is not None:
+        out = fused_sequence_decode(
             _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
             length, speeds, m.config.fusion, how, top,
-        ), b)  # fmt: skip
-    return sequence_queries(m.params, x, m.groups, m.n, length, speeds, how, top)
+        )  # fmt: skip
+    else:
+        out = _padded_sequence(m.params, x, b, m.groups, m.n, length, speeds, how, top)
+    return head(out, b)
 
 
 def predict(
@@ -182,18 +186,20 @@ def predict(
     if threshold is not None:
         thr = check_number(threshold, "{opt:threshold}")
     sequence = check_sequence(sequence)
-    if sequence is not None and sequence > 1:  # embedded once here
+    single = sequence is None or sequence <= 1
+    if single and thr is None:  # up to SMALL_BATCH plain queries: the numpy lane
+        few = places(m, q, how)
+        if few is not None:
+            return few
+    if not single:  # embedded once here
         q = queries(m, q)
     if sequence is not None:
         check_sequence(sequence, len(q))
-    if sequence is not None and sequence > 1:
-        idx, conf = _sequence(m, q, sequence, speeds, how, top or m.config.m)
-    else:
-        few = places(m, q, how) if thr is None else None
-        if few is not None:
-            return few
+    if single:
         out = decode(m, q, how, top)
         idx, conf = out.index, out.confidence
+    else:
+        idx, conf = _sequence(m, q, sequence, speeds, how, top or m.config.m)
     idx = np.asarray(idx).astype(np.int64)
     if thr is not None:
         idx = np.where(np.asarray(conf, np.float64) >= thr, idx, -1)
@@ -357,15 +363,21 @@ def sequence_queries(
     :data:`~rhythmic_jax.decoding.buckets.CHUNK` frames, each with the
     ``length - 1`` frames before it.
     """
+    padded, b = pad_rows(queries)
+    out = _padded_sequence(params, padded, b, groups, n, length, speeds, method, m)
+    return head(out, b)
+
+
+def _padded_sequence(params, padded, b, groups, n, length, speeds, method, m):
+    """:func:`sequence_queries` of queries already padded to their bucket,
+    ``b`` of them real: (bucket,) index and confidence."""
     length = check_int(length, "length", 1)
     speeds = _check_speeds(speeds)
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got method={method!r}")
     m = check_int(m, "m", 1)
-    padded, b = pad_rows(queries)
     chunk = buckets.CHUNK
     count = chunk_count(b, chunk)
-    out = _sequence_jit(
+    return _sequence_jit(
         params, padded, count, groups, n, length, speeds, method, m, chunk
     )
-    return head(out, b)
