@@ -343,6 +343,6 @@ def check_fit_scale(sums, largest: float, name: str = "reference features") -> N
     scale = "divide them by 255" if eight_bit else "scale them down"
     raise InputError(
         f"{name}: values up to {largest:.4g}{hint}, their mean frame "
-        f"{m:.3g} from the origin; the solvers expect features of order one: "
+        f"{m:.4g} from the origin; the solvers expect features of order one: "
         f"{scale} or L2-normalise each row"
     )
