@@ -1044,6 +1044,26 @@ CLI_CASES += [  # an output that is, holds or lies inside what the job reads
 ]
 
 
+def eight_bit(src: Path) -> str:
+    """60 frames of 16 unscaled 8-bit features (0-253) as float32."""
+    x = np.random.default_rng(0).integers(0, 254, (60, 16)).astype(np.float32)
+    return npy(src, "u8.npy", x)
+
+
+EIGHT_BIT_ADVICE = (
+    r"^reference features: values up to 253 \(8-bit scale\?\), their mean frame "
+    r"[\d.]+ from the origin; the solvers expect features of order one: divide "
+    r"them by 255 or L2-normalise each row$"
+)
+CLI_CASES += [  # a scale no solver fits: every solver refuses it alike
+    Case("fit-8-bit", fit(eight_bit), EIGHT_BIT_ADVICE),
+    Case(
+        "fit-8-bit-lbfgs", fit(eight_bit, extra=("--solver=lbfgs",)), EIGHT_BIT_ADVICE
+    ),
+    Case("fit-8-bit-stream", fit(eight_bit, extra=("--stream",)), EIGHT_BIT_ADVICE),
+]
+
+
 def _listing(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
 
@@ -1092,6 +1112,7 @@ def test_the_catalogue_is_broad():
 
 SUBPROCESS_CASES = [
     "nan-features",
+    "fit-8-bit",
     "query-wrong-dimension",
     "mixed-source-kinds",
     "query-sequence-0",
@@ -1611,8 +1632,9 @@ def test_fit_on_any_array(maps, x):
         if code != 0 or not _valid(x, 18, least=2):
             _refused(code, lines, "fit")
             assert _listing(tmp) == ["x.npy"]
-            if _valid(x, 18, least=2):  # only the solve may refuse a good array
-                assert "non-finite templates" in lines[0], lines
+            if _valid(x, 18, least=2):  # only its scale or the solve may refuse
+                scale = "the solvers expect features of order one"
+                assert "non-finite templates" in lines[0] or scale in lines[0], lines
             return
         info = json.loads(out)
         assert info["n"] == 40 and np.isfinite(info["candidate_errors"]).all()

@@ -250,3 +250,56 @@ def test_options_parse_text_or_say_why():
     ]:
         with pytest.raises(argparse.ArgumentError, match=match):
             parser.parse_args(argv)
+
+
+# -------------------------------------------------------------- check_fit_scale
+def _check_scale(x, name="reference features"):
+    from rhythmic_jax.validate import check_fit_scale, scale_sums
+
+    check_fit_scale(scale_sums(x), float(np.abs(x).max()), name)
+
+
+def test_scale_sums_add_over_blocks_of_rows():
+    from rhythmic_jax.validate import scale_sums
+
+    x = np.random.default_rng(0).normal(size=(9, 4))
+    np.testing.assert_allclose(
+        scale_sums(x[:4]) + scale_sums(x[4:]),
+        np.r_[x.sum(0), (x * x).sum(), 9.0],
+    )
+
+
+def test_8_bit_features_are_refused_with_advice():
+    x = np.random.default_rng(0).integers(0, 254, (60, 16)).astype(np.float32)
+    mean = np.linalg.norm(x.astype(np.float64).mean(0))
+    msg = (
+        f"^ref.npy: values up to 253 \\(8-bit scale\\?\\), their mean frame "
+        f"{mean:.4g} from the origin; the solvers expect features of order one: "
+        "divide them by 255 or L2-normalise each row$"
+    )
+    with pytest.raises(InputError, match=msg):
+        _check_scale(x, "ref.npy")
+    _check_scale(x / 255)  # the same values scaled fit
+
+
+def test_a_mean_frame_just_past_the_limit_is_refused():
+    with pytest.raises(InputError, match="mean frame 4.004 from the origin"):
+        _check_scale(np.full((6, 16), 1.001))
+
+
+def test_a_large_offset_off_the_8_bit_range_is_told_to_scale_down():
+    x = np.full((5, 4), 1000.0) + np.arange(4)
+    with pytest.raises(InputError, match="up to 1003, .* scale them down or L2-"):
+        _check_scale(x)
+
+
+@pytest.mark.parametrize(
+    ("x", "why"),
+    [
+        (np.full((6, 16), 0.999), "mean frame 3.996 from the origin, at the limit"),
+        (np.eye(50), "L2-normalised rows"),
+        (np.random.default_rng(0).normal(size=(20, 2048)), "noise: no shared offset"),
+    ],
+)
+def test_features_a_solver_fits_pass(x, why):
+    _check_scale(x)

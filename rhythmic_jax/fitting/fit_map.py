@@ -29,7 +29,12 @@ from rhythmic_jax.map.pytree import Map, host_templates
 from rhythmic_jax.map.scalar_codes import ScalarCodeBook
 from rhythmic_jax.solvers.objective import period_errors, targets
 from rhythmic_jax.solvers.protocol import solver_for
-from rhythmic_jax.validate import check_features, check_labels
+from rhythmic_jax.validate import (
+    check_features,
+    check_fit_scale,
+    check_labels,
+    scale_sums,
+)
 
 __all__ = ["fit"]
 
@@ -47,6 +52,9 @@ def fit(
     plan: FitPlan | None = None,
 ) -> Map:
     """A map of the reference frames (n_frames, d) built as ``config`` says.
+
+    Features on a scale no solver fits (unscaled 8-bit descriptors) are
+    refused before any compile (:func:`rhythmic_jax.validate.check_fit_scale`).
 
     Args:
       labels: (n_frames,) place of each frame (default: its row), so several
@@ -67,6 +75,8 @@ def fit(
     d_in = int(x.shape[1])
     if embedding is not None:
         x = apply_embedding(embedding, x)
+    name = "reference features" + (" (embedded)" if embedding is not None else "")
+    check_fit_scale(scale_sums(x), float(np.abs(x).max()), name)
     n, d = int(labels.max()) + 1, int(x.shape[1])
     if plan is None:  # else planned, and its memory checked, by the caller
         plan = plan_fit(cfg, n, d)

@@ -36,6 +36,7 @@ from rhythmic_jax.solvers.streamed import (
     stream_errors,
     streamed_newton_fit,
 )
+from rhythmic_jax.validate import check_fit_scale, scale_sums
 
 __all__ = ["block_rows_for", "fit_map_files", "parse_bytes", "resident_bytes"]
 
@@ -138,6 +139,7 @@ def fit_map_files(
     if in_memory and k == 1:  # the one-process fit of frames held whole
         model.fit(frames.read(0, frames.n), labels_all, progress=progress)
         return run
+    _check_scale(frames, start, stop)  # as the in-memory fit does, before the solve
     if in_memory:
         config = NewtonConfig(gap_tol=cfg.gap, span=False)
         params, errors, info = fit_newton(
@@ -186,6 +188,21 @@ def _check_layout(layout: str) -> None:
             f"{{opt:layout}} {layout!r} needs an in-memory fit of one "
             "process; streamed and multi-process fits take periods or periods:T1,.."
         )
+
+
+def _check_scale(frames, start: int, stop: int, block: int = 65536) -> None:
+    """:func:`rhythmic_jax.validate.check_fit_scale` of every frame: this
+    process's rows ``[start, stop)`` read once in blocks, their sums and largest
+    ``|feature|`` combined over the processes, so all refuse alike."""
+    sums, largest = np.zeros(frames.d + 2), 0.0
+    for lo in range(start, stop, block):
+        x = frames.read(lo, min(lo + block, stop))
+        sums += scale_sums(x)
+        largest = max(largest, float(np.abs(x).max(initial=0.0)))
+    k = jax.process_count()
+    onehot = np.zeros(k)
+    onehot[jax.process_index()] = largest
+    check_fit_scale(allreduce(sums), float(allreduce(onehot).max()))
 
 
 def _min_over_processes(value: int) -> int:
