@@ -484,6 +484,8 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as err:
         print(f"{prog}: error: {err.as_flag()}", file=sys.stderr)
         return 2
+    except specs.Reported as done:  # a worker process said why
+        return done.status
     except KeyboardInterrupt as err:
         if isinstance(err, specs.FitInterrupted):
             print(f"{prog}: {err.note}", file=sys.stderr)

@@ -13,6 +13,7 @@ import contextlib
 from dataclasses import replace
 from pathlib import Path
 
+from rhythmic_jax.app.specs import Reported
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import check_place, staged_folder, write_errors
 
@@ -136,8 +137,8 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     if scale.coordinator is None and scale.processes > 1:
         child = _child_argv(argv, list(job.sources), shard_sources)
         status = distributed.launch_local(child, scale.processes)
-        if status != 0:
-            raise InputError(f"a fit process failed (exit status {status})")
+        if status != 0:  # process 0 said why on the terminal
+            raise Reported(status)
         return None, None
     if scale.coordinator is not None:  # with both (the job's rules)
         cluster = distributed.Cluster(

@@ -27,7 +27,8 @@ from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 
 __all__ = [
     "DOMAINS", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob", "OptionRefused",
-    "QueryJob", "Reading", "Rule", "ScaleJob", "check_paths", "learn_config",
+    "QueryJob", "Reading", "Reported", "Rule", "ScaleJob", "check_paths",
+    "learn_config",
 ]  # fmt: skip
 
 
@@ -83,6 +84,15 @@ class FitInterrupted(KeyboardInterrupt):
     def __init__(self, note: str):
         super().__init__(note)
         self.note = note
+
+
+class Reported(Exception):
+    """A failure whose one line a process of the command has printed already:
+    the command ends with ``status`` and says nothing more."""
+
+    def __init__(self, status: int):
+        super().__init__(status)
+        self.status = status
 
 
 @dataclass(frozen=True)

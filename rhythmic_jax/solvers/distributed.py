@@ -28,9 +28,11 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import re
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -218,8 +220,13 @@ def free_port() -> int:
 def launch_local(argv: Sequence[str], k: int) -> int:
     """Run ``rhythmic-jax *argv`` as k processes of one cluster on this machine.
 
-    Process 0 prints; the others' output goes to their stderr only. When one
-    fails the others are stopped. Returns the first non-zero exit status, or 0.
+    Process 0's progress reaches the terminal as it runs; every process's error
+    output is kept apart (:class:`_Relay`), so a failure is said once, as one
+    line, whichever process saw it and however many did: raises InputError with
+    the line of a process that refused its input (exit status 2), else of the
+    one that failed first. A process that crashed (a traceback) has its output
+    written out whole and its status returned. When one fails the others are
+    stopped. Returns 0 when all succeeded.
 
     The workers run in a process group of their own, so a terminal's Ctrl-C
     reaches the launcher alone, and each learns the launcher's id
@@ -244,13 +251,18 @@ def launch_local(argv: Sequence[str], k: int) -> int:
                 "--process-id",
                 str(i),
             ],
-            stdout=None if i == 0 else subprocess.DEVNULL,
+            stdout=subprocess.PIPE if i == 0 else subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
             env=env,
             process_group=0,
         )  # fmt: skip
         for i in range(k)
     ]
-    status = 0
+    relays = [
+        _Relay(p.stderr, sys.stderr if i == 0 else None) for i, p in enumerate(procs)
+    ]
+    output = _Relay(procs[0].stdout, sys.stdout, hold=False)
+    first = None  # the rank that failed first
     try:
         pending = list(procs)
         while pending:
@@ -260,8 +272,8 @@ def launch_local(argv: Sequence[str], k: int) -> int:
                 except subprocess.TimeoutExpired:
                     continue
                 pending.remove(proc)
-                if rc != 0 and status == 0:
-                    status = rc
+                if rc != 0 and first is None:
+                    first = procs.index(proc)
                     for other in pending:
                         other.terminate()
     finally:
@@ -269,4 +281,73 @@ def launch_local(argv: Sequence[str], k: int) -> int:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-    return status
+        for relay in (output, *relays):
+            relay.join()
+    if first is None:
+        return 0
+    codes = [p.returncode for p in procs]
+    cause = next((i for i, rc in enumerate(codes) if rc == 2), first)
+    line = relays[cause].error_line()
+    if line is not None:
+        raise InputError(line)
+    rc = codes[cause]
+    if rc < 0:
+        raise InputError(f"fit process {cause} was killed (signal {-rc})")
+    sys.stderr.write(relays[cause].held())
+    return rc
+
+
+class _Relay:
+    """A worker's output, read by a thread and passed on to ``out`` as it comes
+    (process 0's results and progress; None: nothing passed on), gloo's
+    connection notes left out. With ``hold``, from its first error line or
+    traceback on it is held back instead, for the launcher to say once."""
+
+    def __init__(self, pipe, out, hold: bool = True):
+        self._pipe, self._out, self._hold = pipe, out, hold
+        self._held: list[str] = []
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        holding, rest = self._out is None, ""
+        for raw in iter(lambda: self._pipe.read1(65536), b""):
+            rest += raw.decode(errors="replace")
+            *pieces, rest = re.split(r"(?<=[\r\n])", rest)
+            for piece in pieces:
+                if piece.startswith("[Gloo] "):
+                    continue
+                if self._hold and (
+                    piece.startswith("Traceback (") or _ERROR.match(piece)
+                ):
+                    holding = True
+                if holding:
+                    self._held.append(piece)
+                else:
+                    self._out.write(piece)
+                    self._out.flush()
+        if holding or not rest:
+            self._held.append(rest)
+        else:
+            self._out.write(rest)
+            self._out.flush()
+        self._pipe.close()
+
+    def join(self) -> None:
+        self._thread.join()
+
+    def held(self) -> str:
+        """What was held back, whole."""
+        return "".join(self._held)
+
+    def error_line(self) -> str | None:
+        """The last ``rhythmic-jax ...: error: ...`` line held back, without
+        the command's name; None where there is none."""
+        for line in reversed(self.held().splitlines()):
+            found = _ERROR.match(line)
+            if found:
+                return found.group(1)
+        return None
+
+
+_ERROR = re.compile(r"rhythmic-jax [\w-]+: error: (.*?)\s*$")

@@ -34,8 +34,7 @@ def _fit(tmp_path, name, *extra):
            "--json", *extra]  # fmt: skip
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
-    text = done.stdout  # gloo's own "connected" line may come first
-    return RhythmicMap.load(out), json.loads(text[text.index("{") :])
+    return RhythmicMap.load(out), json.loads(done.stdout)  # the JSON alone
 
 
 @pytest.mark.slow
@@ -69,3 +68,29 @@ def test_two_local_processes_reach_the_one_process_map(tmp_path):
     np.testing.assert_allclose(s2.candidate_errors, s1.candidate_errors, atol=1e-6)
     w1, w2 = np.asarray(s1.params.w), np.asarray(s2.params.w)
     assert np.linalg.norm(w2 - w1) / np.linalg.norm(w1) < 1e-3
+
+
+@pytest.mark.parametrize(
+    "bad, said",
+    [
+        ("second", r"^rhythmic-jax fit: error: x\.npy rows 30\.\.60 row 0 holds NaN"),
+        ("both", r"^rhythmic-jax fit: error: reference features: values up to 253"),
+    ],
+)
+def test_a_refusal_of_two_processes_is_one_line(tmp_path, bad, said):
+    """A refusal made by one process (NaN in the second's rows; its partner
+    then loses the collective it waits in) or by both (unscaled 8-bit
+    features): the launcher says it once, exit status 2, no traceback, no map."""
+    rng = np.random.default_rng(0)
+    if bad == "second":
+        x = rng.normal(size=(60, 16)).astype(np.float32)
+        x[30:] = np.nan
+    else:
+        x = rng.integers(0, 254, (60, 16)).astype(np.float32)
+    np.save(tmp_path / "x.npy", x)
+    cmd = ["rhythmic-jax", "fit", "x.npy", "--out", "m.map", "--processes", "2"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True)
+    lines = done.stderr.splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr[-3000:]
+    assert re.match(said, lines[0]) and done.stdout == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.npy"]
