@@ -150,24 +150,25 @@ def frontier_lines(result: dict[str, Any]) -> str:
     lengths = result["config"]["lengths"]
     keys = ["recall@1 L=1", "recall@100p"] + [f"recall@1 L={k}" for k in lengths[1:]]
     heads = ["", "representation", "B/place", "share %", "R@1", "R@100P"]
-    heads += [f"R@1 L={k}" for k in lengths[1:]]
-    heads += ["sequence scorer"] * bool(lengths[1:]) + ["ms/query"]
+    heads += [f"R@1 L={k}" for k in lengths[1:]] + ["ms/query"]
+    heads += ["sequence scorer"] * bool(lengths[1:])
     body = []
     for r in sorted(result["rows"], key=lambda r: (r["storage_bytes"], r["name"])):
         lat = r.get("latency_s")
+        scorer = [_cell(r.get("sequence_scorer"))] if lengths[1:] else []
         body.append(["*" if r["pareto"] else "", r["name"],
                      f"{r['bytes_per_place']:,.0f}", f"{100 * r['share']:.2f}",
                      *(_cell(r.get(k)) for k in keys),
-                     *[_cell(r.get("sequence_scorer"))] * bool(lengths[1:]),
-                     "-" if lat is None else f"{1e3 * lat:.3f}"])  # fmt: skip
+                     "-" if lat is None else f"{1e3 * lat:.3f}", *scorer])  # fmt: skip
     widths = [max(len(str(x)) for x in col) for col in zip(heads, *body, strict=True)]
-    fmt = [f"{{:<{w}}}" if i < 2 else f"{{:>{w}}}" for i, w in enumerate(widths)]
+    text = {0, 1, len(heads) - 1} if lengths[1:] else {0, 1}  # left-aligned
+    fmt = [f"{{:<{w}}}" if i in text else f"{{:>{w}}}" for i, w in enumerate(widths)]
     lines = [
         f"{result['n']} places of {result['d']}-d, {result['n_queries']} queries; "
         f"ground truth: {g['source']}, tolerance {tol}; {result['seconds']:.0f} s",
-        "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)),
+        "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)).rstrip(),
     ]
-    lines += ["  ".join(f.format(c) for f, c in zip(fmt, row, strict=True))
+    lines += ["  ".join(f.format(c) for f, c in zip(fmt, row, strict=True)).rstrip()
               for row in body]  # fmt: skip
     lines.append("* Pareto front: no other row has at least its recall@1 (L=1) in "
                  "fewer bytes")  # fmt: skip
