@@ -84,11 +84,7 @@ def test_frontier_rows_against_faiss(tmp_path):
     # brute force and the codes against faiss on the same data
     _, top = faiss.knn(q, x, 1, faiss.METRIC_INNER_PRODUCT)
     assert rows["brute force"]["recall@1 L=1"] == np.mean(top[:, 0] == np.arange(150))
-    itq = faiss.IndexPreTransform(
-        faiss.ITQTransform(32, 16, True), faiss.IndexLSH(16, 16, False, False)
-    )
-    itq.train(x)
-    itq.add(x)
+    itq = _faiss_itq_one_thread(x, 16)  # the codes' fit runs on one thread
     dist, idx = itq.search(q, 150)  # Hamming distance to every place
     full = np.empty((150, 150))
     np.put_along_axis(full, idx, dist, axis=1)
