@@ -109,10 +109,11 @@ def markdown(rep: dict) -> str:
     ]
     lines += ["### Targets", ""] + _targets(rep) + [""]
     ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
-    heads += [f"R@1 L={k}" for k in ls] + ["weight"]
+    heads += [f"R@1 L={k}" for k in ls] + ["sequence scorer", "weight"]
     keys = [f"recall@1 L={k}" for k in ls]
     rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
-             *("-" if r[k] is None else r[k] for k in keys), r.get("weight", "-")]
+             *("-" if r[k] is None else r[k] for k in keys),
+             r.get("sequence_scorer") or "-", r.get("weight", "-")]
             for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
     lines.append(table(heads, rows))
     for length in ls:
@@ -179,8 +180,11 @@ def run(args) -> dict:
             f" template (rhythmic_jax.map.quantize). Codes: ITQ fitted on the summer"
             f" references, its mean and projection counted. Fusion weights:"
             f" learned per map + code pair on the training places' single frames"
-            f" and kept for sequences. Sequences (maps, codes, hybrids, brute"
-            f" force, SeqSLAM) summed along the diagonal at velocity 1."
+            f" and kept for sequences. Sequences at velocity 1, the scorer named"
+            f" per row: maps accumulate their scores in the phase domain; codes"
+            f" and brute force sum their per-frame z-scored similarities along"
+            f" the diagonal; hybrids fuse the two; SeqSLAM on the raw descriptors."
+            f" The ITQ fit runs on one thread (rhythmic_jax.map.codes.fit_codes)."
         ),
         "config": dataclasses.asdict(cfg),
         "lengths": list(cfg.lengths),

@@ -5,9 +5,11 @@ judged on the queries (:func:`rhythmic_jax.eval.frontier.frontier_rows`): maps a
 their levels and layouts stored as float32, float16 and int8, ITQ codes, int8
 per place, product quantisation (faiss), the map + code hybrids, exact brute
 force and, for sequences, SeqSLAM. Each row gives bytes per place, recall@1 (single
-frames and along sequences of L = 5 and 10), recall at 100 % precision and the
-query latency; the rows no other row beats at fewer bytes form the Pareto
-front, and ``--budget`` names the best representation within a byte budget.
+frames and along sequences of L = 5 and 10), the sequence scorer (a map's phase
+domain, the diagonal sum of codes' and brute force's similarities, both fused
+for a hybrid, SeqSLAM), recall at 100 % precision and the query latency; the
+rows no other row beats at fewer bytes form the Pareto front, and ``--budget``
+names the best representation within a byte budget.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ BITS = (32, 64, 128, 256, 512)
 PQ = (8, 16, 32, 64)
 COLUMNS = ("name", "kind", "bytes_per_place", "storage_bytes", "share",
            "recall@1 L=1", "recall@100p", "recall@1 L=5", "recall@1 L=10",
-           "latency_s", "pareto")  # fmt: skip
+           "sequence_scorer", "latency_s", "pareto")  # fmt: skip
 
 
 def _ints(text: str, what: str) -> tuple:
@@ -149,21 +151,24 @@ def frontier_lines(result: dict[str, Any]) -> str:
     keys = ["recall@1 L=1", "recall@100p"] + [f"recall@1 L={k}" for k in lengths[1:]]
     heads = ["", "representation", "B/place", "share %", "R@1", "R@100P"]
     heads += [f"R@1 L={k}" for k in lengths[1:]] + ["ms/query"]
+    heads += ["sequence scorer"] * bool(lengths[1:])
     body = []
     for r in sorted(result["rows"], key=lambda r: (r["storage_bytes"], r["name"])):
         lat = r.get("latency_s")
+        scorer = [_cell(r.get("sequence_scorer"))] if lengths[1:] else []
         body.append(["*" if r["pareto"] else "", r["name"],
                      f"{r['bytes_per_place']:,.0f}", f"{100 * r['share']:.2f}",
                      *(_cell(r.get(k)) for k in keys),
-                     "-" if lat is None else f"{1e3 * lat:.3f}"])  # fmt: skip
+                     "-" if lat is None else f"{1e3 * lat:.3f}", *scorer])  # fmt: skip
     widths = [max(len(str(x)) for x in col) for col in zip(heads, *body, strict=True)]
-    fmt = [f"{{:<{w}}}" if i < 2 else f"{{:>{w}}}" for i, w in enumerate(widths)]
+    text = {0, 1, len(heads) - 1} if lengths[1:] else {0, 1}  # left-aligned
+    fmt = [f"{{:<{w}}}" if i in text else f"{{:>{w}}}" for i, w in enumerate(widths)]
     lines = [
         f"{result['n']} places of {result['d']}-d, {result['n_queries']} queries; "
         f"ground truth: {g['source']}, tolerance {tol}; {result['seconds']:.0f} s",
-        "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)),
+        "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)).rstrip(),
     ]
-    lines += ["  ".join(f.format(c) for f, c in zip(fmt, row, strict=True))
+    lines += ["  ".join(f.format(c) for f, c in zip(fmt, row, strict=True)).rstrip()
               for row in body]  # fmt: skip
     lines.append("* Pareto front: no other row has at least its recall@1 (L=1) in "
                  "fewer bytes")  # fmt: skip

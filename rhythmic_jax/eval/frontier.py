@@ -5,8 +5,12 @@
 on the references) and every map + code pair (a hybrid,
 :mod:`rhythmic_jax.decoding.fusion`), and reports recall@1 within a tolerance
 against the bytes each needs (the codes' transform counted), for single frames
-and sequences summed along the diagonal
-(velocity 1), beside brute force on the raw descriptors. The hybrids' fusion
+and sequences at velocity 1, beside brute force on the raw descriptors. Each row
+names its sequence scorer (:data:`SEQUENCE_SCORERS`): a map accumulates its scores
+in the phase domain (:func:`rhythmic_jax.decoding.sequence.sequence_decode`);
+codes and brute force sum their per-frame z-scored similarities along the diagonal
+(:func:`rhythmic_jax.decoding.fusion.code_sequence_scores`); a hybrid fuses the
+two; the SeqSLAM row is SeqSLAM on the raw descriptors. The hybrids' fusion
 weights are learned on *training* places (their own maps, codes and queries),
 never on the scored queries; without training places a fixed 0.5 is used.
 
@@ -45,6 +49,7 @@ from rhythmic_jax.map.quantize import dequantize, quantize, template_bytes
 
 __all__ = [
     "FrontierConfig",
+    "SEQUENCE_SCORERS",
     "budget_table",
     "crossover_n",
     "fitted_codes",
@@ -59,6 +64,15 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: The sequence scorer of each kind of row (the rows' ``sequence_scorer``).
+SEQUENCE_SCORERS = {
+    "brute force": "diagonal sum",
+    "SeqSLAM": "SeqSLAM",
+    "map": "phase domain",
+    "codes": "diagonal sum",
+    "hybrid": "phase domain + diagonal sum, fused",
+}
 
 
 @dataclass(frozen=True)
@@ -271,7 +285,8 @@ def frontier_rows(
     codes | hybrid), ``name``, ``r``, ``level``, ``periods``, ``dtype``, ``bits``,
     ``weight``, ``storage_bytes``, ``bytes_per_place``, ``share`` (of the float32
     database), ``recall@1 L=<L>`` for every length of the config (None where not
-    measured), ``recall@100p`` (single frames, thresholded on the decode's
+    measured), ``sequence_scorer`` (:data:`SEQUENCE_SCORERS`; None without a
+    length above 1), ``recall@100p`` (single frames, thresholded on the decode's
     confidence) and ``latency_s`` (single-frame decode of every query, per query).
     """
     from rhythmic_jax.progress import bar
@@ -300,6 +315,9 @@ def frontier_rows(
     def row(kind, name, size, recalls, **extra):
         out = {"kind": kind, "name": name, "storage_bytes": int(size)}
         out.update(share=size / db, bytes_per_place=size / n, **extra)
+        out["sequence_scorer"] = (
+            SEQUENCE_SCORERS[kind] if any(k > 1 for k in lengths) else None
+        )
         out.update({f"recall@1 L={k}": recalls.get(k) for k in config.lengths})
         log.info("%s", out)
         ticks.update(1)

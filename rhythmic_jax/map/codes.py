@@ -141,16 +141,27 @@ def fit_codes(x, bits: int) -> CodeTransform:
     """Fit ITQ with ``bits`` bits on frames x (n, d) through faiss ``ITQTransform``.
 
     faiss centres the frames, keeps their ``bits`` leading principal directions and
-    runs 50 ITQ rotation iterations from a fixed seed, so a fit is reproducible.
+    runs 50 ITQ rotation iterations from a fixed seed. The fit runs on one thread
+    (faiss's OpenMP and its BLAS), whatever the caller set, and restores their
+    counts: the fit amplifies the rounding of a multi-threaded BLAS, so fits on
+    one and on two threads gave different codes, and a figure made under other
+    thread settings could not be reproduced.
     """
     import faiss  # deferred: queries of a fitted transform need only JAX
+    from threadpoolctl import threadpool_limits
 
     x = np.ascontiguousarray(check_features(x, "frames for the codes"), np.float32)
     bits = check_bits(bits, x.shape[1])
     if len(x) < 2:
         raise InputError(f"codes need at least 2 frames to fit ITQ, got {len(x)}")
     itq = faiss.ITQTransform(x.shape[1], bits, True)
-    itq.train(x)
+    threads = faiss.omp_get_max_threads()
+    try:
+        with threadpool_limits(limits=1):
+            faiss.omp_set_num_threads(1)
+            itq.train(x)
+    finally:
+        faiss.omp_set_num_threads(threads)
     mean = faiss.vector_to_array(itq.mean).astype(np.float32)
     proj = faiss.vector_to_array(itq.pca_then_itq.A).reshape(bits, x.shape[1])
     return CodeTransform(mean=mean, projection=proj.astype(np.float32))

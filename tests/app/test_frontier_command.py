@@ -67,11 +67,20 @@ def test_frontier_command_table_json_csv_plot(route, capsys):
     with csv_path.open() as f:
         lines = list(csv.DictReader(f))
     assert [x["name"] for x in lines] == [r["name"] for r in result["rows"]]
+    scorers = {r["kind"]: r["sequence_scorer"] for r in result["rows"]}
+    assert scorers == {"brute force": "diagonal sum", "SeqSLAM": "SeqSLAM",
+                       "map": "phase domain", "codes": "diagonal sum",
+                       "hybrid": "phase domain + diagonal sum, fused"}  # fmt: skip
+    assert [x["sequence_scorer"] for x in lines] == [
+        r["sequence_scorer"] for r in result["rows"]
+    ]
     assert png.stat().st_size > 10_000
     assert main(args) == 0
     text = capsys.readouterr().out
     assert f"within 40 bytes per place: {result['choice']}" in text
     assert "* Pareto front" in text and "tolerance ±1 frames" in text
+    head = text.splitlines()[1]
+    assert "sequence scorer" in head and "diagonal sum" in text
 
 
 def test_frontier_refuses_in_one_line(route, capsys):

@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 
 from rhythmic_jax.eval.frontier import (
+    SEQUENCE_SCORERS,
     FrontierConfig,
     budget_table,
     crossover_n,
+    fitted_codes,
     frontier_rows,
     projected_bytes,
     projection_rows,
@@ -82,11 +84,7 @@ def test_frontier_rows_against_faiss(tmp_path):
     # brute force and the codes against faiss on the same data
     _, top = faiss.knn(q, x, 1, faiss.METRIC_INNER_PRODUCT)
     assert rows["brute force"]["recall@1 L=1"] == np.mean(top[:, 0] == np.arange(150))
-    itq = faiss.IndexPreTransform(
-        faiss.ITQTransform(32, 16, True), faiss.IndexLSH(16, 16, False, False)
-    )
-    itq.train(x)
-    itq.add(x)
+    itq = _faiss_itq_one_thread(x, 16)  # the codes' fit runs on one thread
     dist, idx = itq.search(q, 150)  # Hamming distance to every place
     full = np.empty((150, 150))
     np.put_along_axis(full, idx, dist, axis=1)
@@ -114,3 +112,93 @@ def test_recall_at_full_precision_against_sklearn():
     p, r, _ = precision_recall_curve(ok, conf)
     want = r[p == 1.0].max() * ok.sum() / 50  # sklearn's recall is out of ok.sum()
     assert recall_at_full_precision(idx, conf, 0) == pytest.approx(want)
+
+
+def _faiss_itq_one_thread(x, bits):
+    """faiss's ITQ + LSH index fitted on x (n, d) on one thread, the reference."""
+    from threadpoolctl import threadpool_limits
+
+    itq = faiss.IndexPreTransform(
+        faiss.ITQTransform(x.shape[1], bits, True),
+        faiss.IndexLSH(bits, bits, False, False),
+    )
+    threads = faiss.omp_get_max_threads()
+    try:
+        with threadpool_limits(limits=1):
+            faiss.omp_set_num_threads(1)
+            itq.train(x)
+    finally:
+        faiss.omp_set_num_threads(threads)
+    itq.add(x)
+    return itq
+
+
+def test_fitted_codes_do_not_depend_on_the_callers_threads():
+    """A fit on one thread and one on two gave other codes on these frames; the
+    fit pins one thread and leaves the caller's count as it was."""
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.standard_normal((200, 300)), axis=0).astype(np.float32)
+    before = faiss.omp_get_max_threads()
+    books = []
+    try:
+        for threads in (1, 2):
+            with threadpool_limits(limits=threads):
+                faiss.omp_set_num_threads(threads)
+                books.append(fitted_codes(x, 16))
+                assert faiss.omp_get_max_threads() == threads
+    finally:
+        faiss.omp_set_num_threads(before)
+    one, two = books
+    np.testing.assert_array_equal(one.transform.projection, two.transform.projection)
+    np.testing.assert_array_equal(one.codes, two.codes)
+    # the same codes as faiss's own ITQ + LSH index fitted on one thread
+    itq = _faiss_itq_one_thread(x, 16)
+    want = itq.sa_encode(x)  # (200, 2) packed, least significant bit first
+    np.testing.assert_array_equal(np.packbits(one.codes, 1, "little"), want)
+
+
+def _diagonal_recall(sims, length):
+    """numpy float64: per-frame z-scored similarities (T, n) summed along the
+    diagonal over the last ``length`` frames; recall@1 (query t is place t) as
+    (place t the only best, place t among the best): codes' sums tie exactly."""
+    sims = np.asarray(sims, np.float64)
+    z = (sims - sims.mean(1, keepdims=True)) / sims.std(1, keepdims=True)
+    t, n = z.shape
+    acc = np.zeros_like(z)
+    for step in range(length):
+        acc[step:, step:] += z[: t - step, : n - step]
+    own = acc[np.arange(t), np.arange(t)]
+    best = np.sort(acc, axis=1)
+    near = 1e-6 * np.abs(best[:, -1]).max()
+    among = own >= best[:, -1] - near
+    alone = among & (best[:, -2] < best[:, -1] - near)
+    return np.mean(alone), np.mean(among)
+
+
+def test_frontier_sequence_rows_sum_along_the_diagonal_against_numpy():
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((120, 48)).astype(np.float32)
+    q = x + 3.0 * rng.standard_normal(x.shape).astype(np.float32)
+    cfg = FrontierConfig(maps=(), bits=(32,), lengths=(1, 4), tolerance=0)
+    rows = {r["kind"]: r for r in frontier_rows(x, q, cfg)}
+    for kind, row in rows.items():
+        assert row["sequence_scorer"] == SEQUENCE_SCORERS[kind]
+    assert rows["codes"]["sequence_scorer"] == "diagonal sum"
+    assert rows["SeqSLAM"]["sequence_scorer"] == "SeqSLAM"
+    # brute force: inner products in float64
+    brute = q.astype(np.float64) @ x.astype(np.float64).T
+    low, high = _diagonal_recall(brute, 4)
+    assert low == high == pytest.approx(rows["brute force"]["recall@1 L=4"])
+    # codes: bits shared with each place, from faiss's Hamming distances
+    itq = _faiss_itq_one_thread(x, 32)
+    dist, idx = itq.search(q, 120)
+    shared = np.empty((120, 120))
+    np.put_along_axis(shared, idx, 32 - dist, axis=1)
+    got = rows["codes"]["recall@1 L=4"]
+    low, high = _diagonal_recall(shared, 4)
+    assert low - 1e-12 <= got <= high + 1e-12 and high - low < 0.02
+    assert got > rows["codes"]["recall@1 L=1"]  # the sequence helps these queries
+    single = frontier_rows(x, q, FrontierConfig(maps=(), bits=(32,), lengths=(1,)))
+    assert all(r["sequence_scorer"] is None for r in single)
