@@ -20,6 +20,7 @@ Shapes: ``n`` places, ``b`` queries, ``d`` features, ``bits`` code length.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -43,6 +44,7 @@ __all__ = [
     "codebook_from_arrays",
     "fit_codebook",
     "fit_codes",
+    "one_thread",
     "pack_bits",
     "unpack_bits",
 ]
@@ -137,6 +139,22 @@ class CodeTransform:
         return np.asarray(_encode(self.mean, self.projection, jnp.asarray(x)))
 
 
+@contextlib.contextmanager
+def one_thread():
+    """faiss's OpenMP and the BLAS on one thread within the block; the caller's
+    thread counts are restored after it (:func:`fit_codes`)."""
+    import faiss
+    from threadpoolctl import threadpool_limits
+
+    threads = faiss.omp_get_max_threads()
+    try:
+        with threadpool_limits(limits=1):
+            faiss.omp_set_num_threads(1)
+            yield
+    finally:
+        faiss.omp_set_num_threads(threads)
+
+
 def fit_codes(x, bits: int) -> CodeTransform:
     """Fit ITQ with ``bits`` bits on frames x (n, d) through faiss ``ITQTransform``.
 
@@ -148,20 +166,14 @@ def fit_codes(x, bits: int) -> CodeTransform:
     thread settings could not be reproduced.
     """
     import faiss  # deferred: queries of a fitted transform need only JAX
-    from threadpoolctl import threadpool_limits
 
     x = np.ascontiguousarray(check_features(x, "frames for the codes"), np.float32)
     bits = check_bits(bits, x.shape[1])
     if len(x) < 2:
         raise InputError(f"codes need at least 2 frames to fit ITQ, got {len(x)}")
     itq = faiss.ITQTransform(x.shape[1], bits, True)
-    threads = faiss.omp_get_max_threads()
-    try:
-        with threadpool_limits(limits=1):
-            faiss.omp_set_num_threads(1)
-            itq.train(x)
-    finally:
-        faiss.omp_set_num_threads(threads)
+    with one_thread():
+        itq.train(x)
     mean = faiss.vector_to_array(itq.mean).astype(np.float32)
     proj = faiss.vector_to_array(itq.pca_then_itq.A).reshape(bits, x.shape[1])
     return CodeTransform(mean=mean, projection=proj.astype(np.float32))

@@ -16,7 +16,7 @@ from rhythmic_jax.eval.frontier import (
     recall_at_full_precision,
     similarity_recalls,
 )
-from rhythmic_jax.map.codes import code_bytes
+from rhythmic_jax.map.codes import code_bytes, one_thread
 
 
 def test_projected_bytes_by_hand():
@@ -116,19 +116,12 @@ def test_recall_at_full_precision_against_sklearn():
 
 def _faiss_itq_one_thread(x, bits):
     """faiss's ITQ + LSH index fitted on x (n, d) on one thread, the reference."""
-    from threadpoolctl import threadpool_limits
-
     itq = faiss.IndexPreTransform(
         faiss.ITQTransform(x.shape[1], bits, True),
         faiss.IndexLSH(bits, bits, False, False),
     )
-    threads = faiss.omp_get_max_threads()
-    try:
-        with threadpool_limits(limits=1):
-            faiss.omp_set_num_threads(1)
-            itq.train(x)
-    finally:
-        faiss.omp_set_num_threads(threads)
+    with one_thread():
+        itq.train(x)
     itq.add(x)
     return itq
 
