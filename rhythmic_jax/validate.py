@@ -287,8 +287,14 @@ def scale_sums(x) -> np.ndarray:
     sums (d,), the sum of squared row norms and the row count."""
     import numpy as np
 
-    x64 = np.asarray(x, np.float64)
-    return np.concatenate([x64.sum(axis=0), [np.square(x64).sum(), len(x64)]])
+    x = np.asarray(x)
+    out = np.zeros(x.shape[1] + 2)
+    for lo in range(0, len(x), 65536):  # float64 a block at a time, not a copy of x
+        block = np.asarray(x[lo : lo + 65536], np.float64)
+        out[:-2] += block.sum(axis=0)
+        out[-2] += np.einsum("ij,ij->", block, block)
+    out[-1] = len(x)
+    return out
 
 
 def check_fit_scale(sums, largest: float, name: str = "reference features") -> None:
@@ -324,6 +330,7 @@ def check_fit_scale(sums, largest: float, name: str = "reference features") -> N
 
     Every failure has ``m >= 8``; every ``m <= 4`` fits (also 0/0.5 features
     at n = 500, d = 256), hence the limit with a factor 2 to spare.
+
     Args:
       sums: :func:`scale_sums` of every frame (summed over blocks, processes).
       largest: the largest ``|feature|``, named in the message.

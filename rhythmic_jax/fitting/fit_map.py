@@ -76,7 +76,7 @@ def fit(
     if embedding is not None:
         x = apply_embedding(embedding, x)
     name = "reference features" + (" (embedded)" if embedding is not None else "")
-    check_fit_scale(scale_sums(x), float(np.abs(x).max()), name)
+    check_fit_scale(scale_sums(x), float(max(x.max(), -x.min())), name)
     n, d = int(labels.max()) + 1, int(x.shape[1])
     if plan is None:  # else planned, and its memory checked, by the caller
         plan = plan_fit(cfg, n, d)
