@@ -1,4 +1,4 @@
-"""The hard decode: one JAX kernel for every layout, one numpy lane for single queries.
+"""The hard decode: one JAX kernel for every layout, one numpy lane for host arrays.
 
 The paper's decode (Sec. III-C): for every period take the argmax phase
 ``j_k = argmax_j (w_j . x + b_j)`` (Eq. 3), then the unique index ``i < n`` with
@@ -32,7 +32,10 @@ when that costs at most :data:`PAD_AT_MOST` more bytes and there are cores to
 share it. Where the periods are near-equal every period's templates start a
 block of the same number of rows (:func:`block_rows`), its spare rows zero with
 a ``-inf`` bias: one ``argmax`` over the (k, block) view of the scores then finds
-every phase at once. The spare rows never win a phase.
+every phase at once. The spare rows never win a phase. A float32 batch in host
+memory on a CPU is multiplied by numpy's ``sgemm`` where it lies and its scores
+decoded by the lane's batch form, :func:`host_decode`; both forms are tested
+against the kernel.
 
 Shapes: b queries, d features, p = sum(periods) templates, k periods.
 """
@@ -52,7 +55,6 @@ import numpy as np
 
 from rhythmic_jax.decoding import buckets
 from rhythmic_jax.decoding.buckets import (
-    bucket,
     chunk_count,
     head,
     in_host_memory,
@@ -76,6 +78,7 @@ __all__ = [
     "decode",
     "gemv_rows",
     "hard_decode",
+    "host_decode",
 ]
 
 SMALL_BATCH = 8  # up to this many queries numpy beats a jitted call on 2 cores
@@ -285,7 +288,8 @@ def decode(
     stay there until the caller reads them. A float32 numpy batch on a CPU is
     multiplied where it lies, by numpy's BLAS ``sgemm`` (handing a large
     unaligned batch to XLA copies it first, which costs more than the product),
-    and its small (b, p) scores go to the kernel.
+    and its (b, p) scores are decoded there by the numpy lane
+    (:func:`host_decode`; a hierarchical layout's by the kernel).
     """
     if not isinstance(periods, Groups):
         periods = Groups("periods", tuple(int(t) for t in periods))
@@ -298,13 +302,12 @@ def decode(
         and not any(isinstance(v, jax.core.Tracer) for v in params)
         and jax.default_backend() == "cpu"
     ):
-        w, bias = np.asarray(params[0]), np.asarray(params[1])
-        b = len(queries)
-        s = np.empty((bucket(b), w.shape[1]), np.result_type(queries, w))
-        np.matmul(queries, w, out=s[:b])  # the product in the padded rows
-        s[:b] += bias
-        s[b:] = 0
-        return head(_hard_jit(s, groups, n), b)
+        s = queries @ np.asarray(params[0])
+        s += np.asarray(params[1], s.dtype)
+        if groups.kind != "hierarchical":
+            return host_decode(s, groups, n)
+        b = len(s)
+        return head(_hard_jit(pad_rows(s)[0], groups, n), b)
     padded, b = pad_rows(queries)
     # a device array always: the jit cache keys a numpy argument apart from a
     # device array of the same shape, so a numpy batch compiled a second program
@@ -312,6 +315,43 @@ def decode(
     chunk = buckets.CHUNK
     count = chunk_count(b, chunk)
     return head(_localise(Templates(*params), padded, count, groups, n, chunk), b)
+
+
+def host_decode(s: np.ndarray, groups: Groups, n: int) -> Decoded:
+    """The kernel's Decoded (b,) of a host batch's scores s (b, p) (a periods
+    or mixed-radix layout) in numpy, where they lie: the numpy lane's batch
+    form. ``s`` is the caller's scratch and is overwritten (each group's best
+    phase is masked to find the runner-up).
+
+    On a CPU the kernel's strided reductions over a group's columns cost as
+    much as a tenth of the product before them (``reports/decode.md``); numpy's
+    argmax and max over the same columns cost a fraction of that. An argmax
+    is the first maximal phase, as the kernel's. The scores are finite (the
+    queries are checked before): a row with a NaN is not answered as the
+    kernel answers it.
+    """
+    tables, big_m = _tables(groups)
+    b = len(s)
+    rows = np.arange(b)
+    index = np.zeros(b, np.int64)
+    total = np.zeros(b, s.dtype)
+    gap = np.full(b, np.inf, s.dtype)
+    for off, t, table in zip(groups.offsets, groups.sizes, tables, strict=True):
+        block = s[:, off : off + t]
+        phase = block.argmax(axis=1)
+        top = block[rows, phase]
+        if t > 1:
+            block[rows, phase] = -np.inf
+            np.minimum(gap, top - block.max(axis=1), out=gap)
+        index += table[phase]
+        total += top
+    index %= big_m
+    found = index < n
+    return Decoded(
+        np.where(found, index, -1).astype(np.int32),
+        np.where(found, total, np.asarray(-np.inf, s.dtype)),
+        total - gap,
+    )
 
 
 def check_group_scores(scores, groups: Groups) -> None:

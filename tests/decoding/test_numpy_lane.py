@@ -1,4 +1,5 @@
-"""The numpy lane's place of one query equals the hard-decode kernel's."""
+"""The numpy lane (one query's place, a host batch's decode) equals the hard-decode
+kernel's."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ from rhythmic_jax.decoding.hard import (
     block_rows,
     decode,
     gemv_rows,
+    hard_decode,
+    host_decode,
 )
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.groups import Groups
@@ -38,7 +41,7 @@ def test_random_queries_decode_as_the_batch(periods, n):
     params = _templates(64, periods)
     q = np.random.default_rng(1).standard_normal((500, 64), dtype=np.float32)
     small = SmallDecoder.build(params, periods, n)
-    want = np.asarray(decode(params, q, periods, n).index).tolist()
+    want = np.asarray(decode(params, jnp.asarray(q), periods, n).index).tolist()
     assert [small.place(x) for x in q] == want
     if n < np.prod(periods):
         assert -1 in want  # the no-match branch is exercised
@@ -51,8 +54,49 @@ def test_real_queries_decode_as_the_batch(nordland_patchnorm):
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)
     params = _templates(summer.shape[1], periods, seed=2)
     small = SmallDecoder.build(params, periods, n)
-    want = np.asarray(decode(params, winter, periods, n).index).tolist()
+    want = np.asarray(decode(params, jnp.asarray(winter), periods, n).index).tolist()
     assert [small.place(x) for x in winter] == want
+
+
+@pytest.mark.parametrize(
+    "groups,n",
+    [
+        (Groups("periods", (100, 101)), 10_000),
+        (Groups("periods", (7, 9, 11)), 600),
+        (Groups("periods", (1, 5)), 5),
+        (Groups("mixed", (7, 8, 4)), 200),
+    ],
+)
+def test_a_host_batch_decodes_as_the_kernel(groups, n):
+    """host_decode of scores equals the kernel's Decoded field by field, with
+    ties (rounded scores: the first maximal phase wins, the margin is 0) and
+    the no-match branch."""
+    rng = np.random.default_rng(4)
+    s = np.round(rng.standard_normal((300, groups.p)), 1).astype(np.float32)
+    want = hard_decode(jnp.asarray(s), groups, n)
+    got = host_decode(s.copy(), groups, n)
+    for g, w in zip(got, want, strict=True):
+        assert isinstance(g, np.ndarray) and g.dtype == np.asarray(w).dtype
+        np.testing.assert_array_equal(g, np.asarray(w))
+    if n < groups.capacity:
+        assert (got.index == -1).any()
+    assert (got.confidence == 0).any()  # ties were exercised
+
+
+def test_a_float32_host_batch_on_the_cpu_takes_the_lane():
+    """decode of a float32 numpy batch equals the kernel's on the same queries
+    uploaded (one program per bucket there)."""
+    periods, n = (45, 46), 2000
+    params = _templates(32, periods, seed=5)
+    q = np.random.default_rng(6).standard_normal((1000, 32), dtype=np.float32)
+    got = decode(params, q, periods, n)
+    want = decode(params, jnp.asarray(q), periods, n)
+    assert isinstance(got.index, np.ndarray)
+    np.testing.assert_array_equal(got.index, np.asarray(want.index))
+    np.testing.assert_allclose(got.score, np.asarray(want.score), rtol=1e-5)
+    np.testing.assert_allclose(
+        got.confidence, np.asarray(want.confidence), rtol=1e-4, atol=1e-5
+    )
 
 
 def test_predict_answers_few_queries_in_numpy():
@@ -89,7 +133,7 @@ def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
     assert not small.wt[spare].any() and np.isneginf(small.b[spare]).all()
     np.testing.assert_array_equal(small.wt[113:214], np.asarray(params.w)[:, 100:].T)
     q = np.random.default_rng(5).standard_normal((200, 2048), dtype=np.float32)
-    want = np.asarray(decode(params, q, periods, n).index).tolist()
+    want = np.asarray(decode(params, jnp.asarray(q), periods, n).index).tolist()
     assert [small.place(x) for x in q] == want
 
 
@@ -102,7 +146,7 @@ def test_blocks_only_for_near_equal_periods():
     small = SmallDecoder.build(params, periods, n)
     assert small.block is None and small.wt.shape[0] == 13
     q = np.random.default_rng(9).standard_normal((100, 32), dtype=np.float32)
-    want = np.asarray(decode(params, q, periods, n).index).tolist()
+    want = np.asarray(decode(params, jnp.asarray(q), periods, n).index).tolist()
     assert [small.place(x) for x in q] == want
 
 

@@ -75,14 +75,22 @@ def test_jit_takes_new_template_values_without_compiling(maps):
 
 
 def test_decode_compiles_once_per_bucket(maps):
+    """Device batches: one program per bucket of rows; a float32 numpy batch on
+    the CPU is answered by the numpy lane and compiles nothing."""
     (m, _), (x, _) = maps
-    hard._hard_jit.clear_cache()
+    hard._localise.clear_cache()
     for b in (3, 5, 7, 16):  # one bucket of rows
-        out = queries.decode(m, x[:b])
+        out = hard.decode(m.params, jnp.asarray(x[:b]), m.groups, m.n)
         assert out.index.shape == (b,)
-    assert hard._hard_jit._cache_size() == 1
-    queries.decode(m, x[:17])
-    assert hard._hard_jit._cache_size() == 2
+    assert hard._localise._cache_size() == 1
+    hard.decode(m.params, jnp.asarray(x[:17]), m.groups, m.n)
+    assert hard._localise._cache_size() == 2
+    hard._hard_jit.clear_cache()
+    for b in (3, 17, 40):
+        want = hard.decode(m.params, jnp.asarray(x[:b]), m.groups, m.n).index
+        got = queries.decode(m, x[:b])
+        np.testing.assert_array_equal(got.index, np.asarray(want))
+    assert hard._hard_jit._cache_size() == 0 and hard._localise._cache_size() == 3
 
 
 def test_vmap_over_two_maps_of_one_layout_equals_two_decodes(maps):
