@@ -329,7 +329,10 @@ def check_fit_scale(sums, largest: float, name: str = "reference features") -> N
         500  256  0.06%  6%    ..
 
     Every failure has ``m >= 8``; every ``m <= 4`` fits (also 0/0.5 features
-    at n = 500, d = 256), hence the limit with a factor 2 to spare.
+    at n = 500, d = 256), hence the limit with a factor 2 to spare. The check
+    is conservative: some frames past it fit (90 x 16 points of a random walk,
+    ``m`` 23 and ``s`` 16, reach liblinear's optimum; 1000 x 32, ``m`` 101,
+    give NaN), and nothing short of the solve tells them apart.
 
     Args:
       sums: :func:`scale_sums` of every frame (summed over blocks, processes).
