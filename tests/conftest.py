@@ -156,3 +156,23 @@ def small_vgg16():
         return path
 
     return make
+
+
+@pytest.fixture(scope="session")
+def liblinear_objectives():
+    """``f(x, y, c) -> (p,)``: liblinear's primal objective at LinearSVC's
+    optimum for every ±1 column of y (p,): the intercept regularised as the
+    weights and C unchanged, which is this package's objective."""
+    from sklearn.svm import LinearSVC
+
+    def objectives(x, y, c) -> np.ndarray:
+        out = []
+        for j in range(y.shape[1]):
+            svc = LinearSVC(C=c, loss="squared_hinge", tol=1e-10, max_iter=200_000)
+            svc.fit(x, y[:, j])
+            w, b = svc.coef_[0], svc.intercept_[0]
+            hinge = np.maximum(0.0, 1.0 - y[:, j] * (x @ w + b))
+            out.append(0.5 * (w @ w + b * b) + c * np.sum(hinge * hinge))
+        return np.array(out)
+
+    return objectives

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from sklearn.svm import LinearSVC
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.errors import InputError
@@ -85,20 +84,7 @@ def test_a_uint8_file_is_refused_as_its_float_values(tmp_path):
         fit_map_files(RhythmicMap(), [str(tmp_path / "u8.npy")], progress=False)
 
 
-def _liblinear(x, y, c) -> np.ndarray:
-    """(p,) liblinear's primal objective (intercept regularised as the weights,
-    C unchanged: our objective) at LinearSVC's optimum for every column of y."""
-    out = []
-    for j in range(y.shape[1]):
-        svc = LinearSVC(C=c, loss="squared_hinge", tol=1e-10, max_iter=200_000)
-        svc.fit(x, y[:, j])
-        w, b = svc.coef_[0], svc.intercept_[0]
-        hinge = np.maximum(0, 1 - y[:, j] * (x @ w + b))
-        out.append(0.5 * (w @ w + b * b) + c * np.sum(hinge**2))
-    return np.array(out)
-
-
-def test_features_just_inside_the_limit_reach_liblinears_optimum():
+def test_features_just_inside_the_limit_reach_liblinears_optimum(liblinear_objectives):
     """Integers 0..2 scaled so that the mean frame lies just inside the limit
     (and an offset the frames share: above half their spread); 10 % more is
     refused."""
@@ -112,7 +98,7 @@ def test_features_just_inside_the_limit_reach_liblinears_optimum():
     y = np.asarray(targets(np.arange(60), fp.trained))
     params, info = solver_for("newton").run(None, x, y, fp.c)
     x64 = x.astype(np.float64)
-    ref = _liblinear(x64, y, fp.c)
+    ref = liblinear_objectives(x64, y, fp.c)
     assert np.all(info.gap_estimate <= NewtonConfig().gap_tol)
     w, b = np.asarray(params.w, np.float64), np.asarray(params.b, np.float64)
     got = 0.5 * (np.sum(w * w, 0) + b * b)

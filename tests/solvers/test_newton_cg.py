@@ -8,7 +8,6 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from sklearn.svm import LinearSVC
 
 from rhythmic_jax.solvers.newton_cg import (
     Iterate,
@@ -82,25 +81,14 @@ def test_gradient_and_hvp_equal_jax_grad_of_the_objective_and_differences():
         assert float(lam) == 1.0
 
 
-def liblinear_optimum(x, y, c):
-    out = []
-    for j in range(y.shape[1]):
-        svc = LinearSVC(C=c, loss="squared_hinge", tol=1e-10, max_iter=100_000)
-        svc.fit(x, y[:, j])
-        w, b = svc.coef_[0], svc.intercept_[0]
-        h = np.maximum(0.0, 1.0 - y[:, j] * (x @ w + b))
-        out.append(0.5 * (w @ w + b * b) + c * np.sum(h * h))
-    return np.array(out)
-
-
 @pytest.mark.parametrize("search", ["exact", "zoom"])
-def test_optax_loop_reaches_the_linearsvc_optimum(search):
+def test_optax_loop_reaches_the_linearsvc_optimum(search, liblinear_objectives):
     """The transformation driven as any optax optimiser: init, update with
     ``value_fn``, apply_updates. Chained with the exact per-template search (the
     default) or with optax's zoom line search (one step size for all)."""
     x, y, c = problem(seed=3)
     xa = design(x)
-    ref = liblinear_optimum(x, y, c)
+    ref = liblinear_objectives(x, y, c)
     with jax.enable_x64(True):
         yj = jnp.asarray(y)
         xa32 = jnp.asarray(xa, jnp.float32)
