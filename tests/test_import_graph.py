@@ -20,7 +20,7 @@ LAYERS = [
     ["errors", "version"],
     ["jit_options", "progress"],
     ["validate"],
-    ["io.outputs"],
+    ["io.names", "io.outputs"],
     ["io.atomic", "io.checkpoint", "io.images"],
     ["io.descriptor_files", "io.tiles"],
     ["io.vpr_files"],

@@ -122,6 +122,7 @@ SOURCE = (  # how the frames of image sources are read (fit, learn, query, evalu
     _opt("--no-progress", "hide progress bars", **FLAG),
 )  # fmt: skip
 QUERIES = "query descriptors .npy, image folder or image"
+SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)"
 SCALE = "scale (descriptor files or shard folders)"
 CODES = {"metavar": "BITS|int8"}
 
@@ -130,6 +131,8 @@ CODES = {"metavar": "BITS|int8"}
 OPTIONS = {
     "fit": ("fit a map on reference frames (.npy, image folders, or --tile)", (
         _opt("sources", "descriptor .npy, image folder(s), image", nargs="+"),
+        _opt("--select", "only the images of hloc .h5 sources whose names start "
+             "with PREFIX (db/; the map keeps it for brute force)", metavar="PREFIX"),
         _opt("--out", "map folder to write", required=True),
         _opt("--r", f"number of periods (default {DEFAULTS.r})", default=DEFAULTS.r),
         _opt("--level", "period level c (c*N^(1/r))", default=DEFAULTS.level),
@@ -207,6 +210,7 @@ OPTIONS = {
     "query": ("localise queries against a map (-1 = no match)", (
         _opt("map", "map folder"),
         _opt("source", QUERIES),
+        _opt("--select", SELECT, metavar="PREFIX"),
         _opt("--out", "write predictions to this .npy"),
         _opt("--decode", choices=DECODERS),
         _opt("--sequence", "sequence length L (at most the number of queries)"),
@@ -222,6 +226,8 @@ OPTIONS = {
     "evaluate": ("accuracy, recall@K, storage and latency beside brute force", (
         _opt("map", "map folder"),
         _opt("source", QUERIES),
+        _opt("--select", SELECT + " (an .h5 reference: the map's prefix)",
+             metavar="PREFIX"),
         _opt("--reference", "reference source for the brute-force line (default: "
              "the sources the map was fitted on, when they are still there)"),
         _opt("--tolerance", "frame tolerance (default 0)", default=0),
@@ -246,6 +252,9 @@ OPTIONS = {
     "frontier": ("recall against bytes per place of every representation", (
         _opt("reference", "reference descriptors (.npy, .h5) or folder"),
         _opt("queries", "query descriptors (.npy, .h5) or folder"),
+        _opt("--select", "the images of hloc .h5 files whose names start with "
+             "REF_PREFIX, QUERY_PREFIX ('' takes all): one file split in two",
+             nargs=2, metavar=("REF_PREFIX", "QUERY_PREFIX")),
         _opt("--ground-truth", "as evaluate reads it (default: query i is place i)",
              nargs="+", metavar="FILE"),
         _opt("--tolerance", "frame tolerance (default 0)", default=0),
@@ -344,6 +353,7 @@ def _job(args, given: frozenset[str]):
     parts = {"reading": specs.Reading(
         compile=CompilePolicy(args.compile, args.compile_min_frames),
         **_take(args, "descriptor weights tile stride"),
+        select=getattr(args, "select", None),
     )}  # fmt: skip
     if args.command == "fit":
         parts["config"] = MapConfig(

@@ -59,6 +59,7 @@ def frontier(
     cache: str | None = None,
     descriptor: str | None = None,
     progress: bool = False,
+    select: tuple[str, str] = ("", ""),
 ) -> dict[str, Any]:
     """Recall against bytes for every representation of ``reference``'s places.
 
@@ -71,6 +72,8 @@ def frontier(
       lengths: sequence lengths (queries in route order); lengths longer than
         the queries are left out.
       budget: bytes per place; the result's ``choice`` is the best row within.
+      select: (reference's, queries') prefixes of the image names kept from
+        hloc ``.h5`` files (``""``: every row), so one file holds both.
 
     Returns ``{"rows", "pareto" (names), "choice", "ground_truth", "config",
     "n", "d", "n_queries", "seconds"}``.
@@ -79,8 +82,9 @@ def frontier(
     from rhythmic_jax.frames.sources import load_sources
 
     t0 = time.perf_counter()
-    ref = load_sources([reference], descriptor, progress=progress).x
-    qry = load_sources([queries], descriptor, progress=progress).x
+    ref_prefix, query_prefix = (p or None for p in select)
+    ref = load_sources([reference], descriptor, progress=progress, select=ref_prefix).x
+    qry = load_sources([queries], descriptor, progress=progress, select=query_prefix).x
     if ref.shape[1] != qry.shape[1]:
         raise InputError(
             f"{queries}: {qry.shape[1]}-d descriptors but {reference} has "
@@ -207,7 +211,7 @@ def main(args) -> int:
         pq=_ints(args.pq, "pq") if args.pq else (),
         lengths=_ints(args.lengths, "lengths"), budget=args.budget,
         cache=args.cache or None, descriptor=args.descriptor,
-        progress=not args.no_progress,
+        progress=not args.no_progress, select=tuple(args.select or ("", "")),
     )  # fmt: skip
     if args.csv:
         write_csv(result["rows"], args.csv)

@@ -171,6 +171,8 @@ def _after_reading(job: FitJob, learned, read: Reading, fit_plan, feats):
         "tile": read.tile,
         "stride": read.stride,
     }
+    if read.select is not None:
+        ref["select"] = read.select  # brute force reads the same rows
     if job.embedding is not None:
         ref["embedding"] = str(Path(job.embedding).expanduser().absolute())
         ref["descriptor_from_embedding"] = read != job.reading
@@ -198,7 +200,7 @@ def fit(job: FitJob, progress: bool = False):
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
-        compile=read.compile, keep_images=augmented is not None,
+        compile=read.compile, keep_images=augmented is not None, select=read.select,
     )  # fmt: skip
     config, emb, ref, feats, fit_plan = _after_reading(
         job, learned, read, fit_plan, feats
@@ -319,7 +321,7 @@ def _load_queries(job, progress: bool):
     model, read = RhythmicMap.load(job.map), job.reading
     feats = load_query_source(
         job.source, model, read.descriptor, read.tile, read.stride, progress,
-        weights=read.weights, compile=read.compile,
+        weights=read.weights, compile=read.compile, select=read.select,
     )  # fmt: skip
     return model, feats
 

@@ -174,7 +174,15 @@ READS = (
          lambda j: j.reading.tile is not None),
     Rule(("descriptor", "weights"), "applies to images; .npy files are descriptors",
          lambda j: j.images),
+    Rule(("select",), "picks the images of hloc .h5 files by name; give .h5 "
+         "files", lambda j: _named_rows(j)),
 )  # fmt: skip
+
+
+def _named_rows(job) -> bool:
+    """Whether every source ``select`` applies to is an hloc ``.h5`` file."""
+    sources = job.sources if hasattr(job, "sources") else (job.source,)
+    return all(Path(s).suffix.lower() in (".h5", ".hdf5") for s in sources)
 IGNORED = (
     Rule(("compile_min_frames",), "acts only with {opt:compile} auto; ignored",
          lambda j: j.reading.compile.mode == "auto", warn=True),
@@ -196,6 +204,9 @@ class Reading:
       compile: when a descriptor network runs compiled for this CPU
         (:class:`rhythmic_jax.frames.compiled.CompilePolicy`; by default when the job
         is large enough for compiling to pay).
+      select: the rows of hloc ``.h5`` sources whose image names start with it
+        (``"db/"``, ``"query/"``); a map remembers the prefix it was fitted
+        with, for brute force over its reference.
     """
 
     descriptor: str | None = None
@@ -203,6 +214,7 @@ class Reading:
     tile: int | None = None
     stride: int | None = None
     compile: CompilePolicy = AUTO
+    select: str | None = None
 
 
 @dataclass(frozen=True)

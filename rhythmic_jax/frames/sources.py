@@ -187,13 +187,20 @@ def _one(
     progress,
     compile: CompilePolicy = AUTO,
     keep: bool = True,
+    select: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """(descriptors, images or None) of one source, described with the resolved
-    ``desc`` (None for ``.npy``); a folder's frames are kept only with ``keep``."""
+    ``desc`` (None for ``.npy``); a folder's frames are kept only with ``keep``;
+    ``select``: an hloc ``.h5``'s rows whose image names start with it."""
     from rhythmic_jax.io.vpr_files import load_descriptor_file
 
     if kind == "npy":
-        return load_descriptor_file(path), None
+        return load_descriptor_file(path, select), None
+    if select is not None:
+        raise InputError(
+            f"{path}: {{opt:select}} picks images of an hloc .h5 file by name; "
+            "this is not one"
+        )
     key = source_key(path, tile, stride)
     if kind == "folder":
         return _describe_folder(path, desc, key, progress, compile, keep)
@@ -212,13 +219,15 @@ def load_sources(
     same_length: bool = True,
     compile: CompilePolicy = AUTO,
     keep_images: bool = True,
+    select: str | None = None,
 ) -> Features:
     """Reference features from one or several sources of the same kind.
 
     ``same_length``: traversals must match frame for frame (row i of each is
     place i); False when places come from elsewhere (positions). ``compile``:
     when a descriptor network runs compiled; ``keep_images``: False leaves a
-    folder's frames out of ``images`` (they are described as they are read).
+    folder's frames out of ``images`` (they are described as they are read);
+    ``select``: the rows of hloc ``.h5`` sources whose image names start with it.
 
     ``pca=k`` projects the descriptors on the k leading principal axes of the
     reference set (L2-normalised after); the projection is kept in ``extra`` so
@@ -244,7 +253,9 @@ def load_sources(
         settings = desc.settings()
     blocks, images = [], []
     for p in paths:
-        x, imgs = _one(p, kind, desc, tile, stride, progress, compile, keep_images)
+        x, imgs = _one(
+            p, kind, desc, tile, stride, progress, compile, keep_images, select
+        )
         blocks.append(x)
         images.append(imgs)
     n, d = blocks[0].shape
@@ -317,12 +328,13 @@ def load_query_source(
     progress: bool = False,
     weights: str | None = None,
     compile: CompilePolicy = AUTO,
+    select: str | None = None,
 ) -> Features:
     """Query features described the way ``model`` (a fitted map) was built.
 
     ``weights``: a copy of the descriptor's weights file at another path (checked
     against the sha256 the map recorded); ``compile``: when a descriptor network
-    runs compiled.
+    runs compiled; ``select``: an hloc ``.h5``'s rows whose names start with it.
     """
     path = Path(source)
     tile, stride = _map_tiling(path, model, tile, stride)
@@ -340,7 +352,7 @@ def load_query_source(
             f"{path}: the map was built from descriptor files; give queries as .npy"
         )
     desc = None if kind == "npy" else _resolve(name, settings)
-    x, _ = _one(path, kind, desc, tile, stride, progress, compile, False)
+    x, _ = _one(path, kind, desc, tile, stride, progress, compile, False, select)
     if kind != "npy" or "pca_components" in model.extra and x.shape[1] != model.d:
         x = apply_projection(x, model.extra)
     if x.shape[1] != model.d:
@@ -372,19 +384,25 @@ def reference_features(
     progress: bool = False,
     weights: str | None = None,
     compile: CompilePolicy = AUTO,
+    select: str | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """Brute force's reference for ``model``: ``(x (m, d), labels (m,), note)``.
 
     ``source`` when given; else the sources the map was fitted on (the command
     line records their paths and tiling in ``model.reference``), when they are
     all still there. Otherwise ``(None, None, note)``, the note saying why.
+    ``select``: the rows of an hloc ``.h5`` reference whose names start with it
+    (default: the prefix the map was fitted with).
     """
     if source:
         sources = [source]
+        if Path(source).suffix.lower() in HDF5_SUFFIXES:
+            select = select or model.reference.get("select")
         note = f"brute force over the reference {source}"
     else:
         sources = list(model.reference.get("sources") or [])
         tile, stride = model.reference.get("tile"), model.reference.get("stride")
+        select = select or model.reference.get("select")
         missing = [s for s in sources if not Path(s).exists()]
         if not sources or missing:
             why = f"{missing[0]} is gone" if missing else "the map names none"
@@ -396,7 +414,7 @@ def reference_features(
         note = "brute force over the map's reference " + ", ".join(sources)
     blocks = [
         load_query_source(
-            s, model, descriptor, tile, stride, progress, weights, compile
+            s, model, descriptor, tile, stride, progress, weights, compile, select
         ).x
         for s in sources
     ]

@@ -26,6 +26,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.names import natural_sorted
 from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
@@ -113,7 +114,7 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
                 "(names equal after ignoring case, zero padding and suffix)"
             )
         seen[key] = p
-    files.sort(key=lambda p: natural_key(p.name))
+    files = natural_sorted(files, lambda p: p.name)
     first = natural_key(files[0].name)[0]
     positioned = all(p.name.startswith("@") for p in files)  # @east@north@ names
     for p in files[1:] if one_pattern and not positioned else ():

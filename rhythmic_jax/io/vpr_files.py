@@ -36,6 +36,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.descriptor_files import read_npy_header
+from rhythmic_jax.io.names import natural_sorted
 
 __all__ = [
     "HDF5_SUFFIXES",
@@ -287,12 +288,20 @@ def read_patchnetvlad(
     return xy[0], xy[1], float(thr.reshape(-1)[0])
 
 
-def read_hloc_descriptors(path: str | os.PathLike) -> tuple[list[str], np.ndarray]:
+def read_hloc_descriptors(
+    path: str | os.PathLike, select: str | None = None
+) -> tuple[list[str], np.ndarray]:
     """hloc ``global-feats-*.h5``: ``(names, descriptors (n, d) float32)``.
 
     Every dataset called ``global_descriptor`` is one image, named by its
-    group's path (hloc writes the image name as the group name); rows are in
-    name order, which is the route's order for numbered frames.
+    group's path (hloc writes the image name as the group name, nested groups
+    where it has ``/``; float16 when written ``as_half``). Rows are in the
+    natural order of the names (:func:`rhythmic_jax.io.names.name_key`, the
+    order of an image folder's frames: ``frame2`` before ``frame10``).
+
+    ``select``: only the images whose names start with it (``"db/"``,
+    ``"query/"``: hloc's ``db_prefix`` and ``query_prefix``, one file holding
+    both); one that selects nothing is refused naming the prefixes present.
     """
     path = Path(path)
     if not path.is_file():
@@ -312,9 +321,10 @@ def read_hloc_descriptors(path: str | os.PathLike) -> tuple[list[str], np.ndarra
     try:
         with h5py.File(path, "r") as f:
             f.visititems(visit)
-            names = sorted(found)
+            names = natural_sorted(found)
             if not names:
                 raise InputError(f"{path}: no global_descriptor dataset (not hloc's)")
+            names = _selected(path, names, select)
             shapes = {found[k].shape for k in names}
             kinds = {found[k].dtype.kind for k in names}
             if len(shapes) != 1 or len(next(iter(shapes))) != 1 or kinds - set("fiu"):
@@ -333,10 +343,35 @@ def read_hloc_descriptors(path: str | os.PathLike) -> tuple[list[str], np.ndarra
     return names, x
 
 
-def load_descriptor_file(path: str | os.PathLike) -> np.ndarray:
-    """(n, d) float32 descriptors of a ``.npy`` or an hloc ``.h5`` file."""
+def _selected(path: Path, names: list[str], select: str | None) -> list[str]:
+    """The ``names`` starting with ``select`` (all without one); none is refused
+    in one line naming the prefixes the file holds (its top-level groups)."""
+    if select is None:
+        return names
+    kept = [n for n in names if n.startswith(select)]
+    if kept:
+        return kept
+    tops = natural_sorted({n.split("/")[0] + ("/" if "/" in n else "") for n in names})
+    more = f", ... ({len(tops)} in all)" if len(tops) > 8 else ""
+    shown = ", ".join(tops[:8]) + more
+    raise InputError(
+        f"{path}: no image name starts with {select!r}; the names start with "
+        f"{shown}"
+    )
+
+
+def load_descriptor_file(
+    path: str | os.PathLike, select: str | None = None
+) -> np.ndarray:
+    """(n, d) float32 descriptors of a ``.npy`` or an hloc ``.h5`` file;
+    ``select``: an ``.h5``'s rows whose names start with it."""
     if Path(path).suffix.lower() in HDF5_SUFFIXES:
-        return read_hloc_descriptors(path)[1]
+        return read_hloc_descriptors(path, select)[1]
+    if select is not None:
+        raise InputError(
+            f"{path}: {{opt:select}} picks images by name, and a .npy names none "
+            "(it applies to hloc .h5 files)"
+        )
     from rhythmic_jax.io.descriptor_files import load_descriptors
 
     return load_descriptors(path)
