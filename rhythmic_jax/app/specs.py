@@ -174,6 +174,8 @@ READS = (
          lambda j: j.reading.tile is not None),
     Rule(("descriptor", "weights"), "applies to images; .npy files are descriptors",
          lambda j: j.images),
+)  # fmt: skip
+SELECTS = (  # fit, query, evaluate
     Rule(("select",), "picks the images of hloc .h5 files by name; give .h5 "
          "files", lambda j: _named_rows(j)),
 )  # fmt: skip
@@ -298,6 +300,7 @@ class FitJob(Checked):
 
     RULES = (
         *READS,
+        *SELECTS,
         Rule(("epochs", "batch_size", "checkpoint_every"),
              "needs {opt:augment} (it shapes the augmented fit)",
              lambda j: bool(j.augment)),
@@ -404,7 +407,7 @@ class QueryJob(Checked):
     reading: Reading = Reading()
     given: frozenset[str] = frozenset()
 
-    RULES = (*READS, *IGNORED)
+    RULES = (*READS, *SELECTS, *IGNORED)
 
     @property
     def read_sources(self) -> tuple[str, ...]:
@@ -438,6 +441,7 @@ class EvaluateJob(Checked):
 
     RULES = (
         *READS,
+        *SELECTS,
         Rule(("tolerance",), "acts only without {opt:ground_truth} (which names the "
              "right places itself)", lambda j: j.ground_truth is None),
         Rule(("tolerance_m",), "needs {opt:ground_truth} (positions or names: it is "

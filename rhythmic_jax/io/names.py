@@ -57,8 +57,6 @@ def natural_order(names: Sequence[str]) -> list[int]:
     return sorted(range(len(names)), key=lambda i: name_key(names[i]))
 
 
-def natural_sorted(
-    items: Iterable[T], name: Callable[[T], str] = str
-) -> list[T]:
+def natural_sorted(items: Iterable[T], name: Callable[[T], str] = str) -> list[T]:
     """``items`` in the natural order of ``name(item)`` (default: the item)."""
     return sorted(items, key=lambda item: name_key(name(item)))

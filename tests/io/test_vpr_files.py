@@ -3,6 +3,7 @@ and refused in one line when malformed (truncated, wrong shapes, a pickle)."""
 
 from __future__ import annotations
 
+import json
 import pickle
 from fractions import Fraction
 from pathlib import Path
@@ -182,3 +183,130 @@ def test_hloc_file_is_a_descriptor_source(tmp_path):
         InputError, match="not a .npy descriptor file.*.h5 descriptor files are read"
     ):
         load_sources([str(tmp_path / "feats.txt")])
+
+
+# --------------------------------------------- hloc's own layout, hloc's order
+
+
+def _write_hloc_as_hloc(path: Path, names: list[str], x: np.ndarray) -> None:
+    """As hloc's ``extract_features`` writes a global descriptor: one group per
+    image name (nested where the name has ``/``), ``global_descriptor`` float16
+    (``as_half``) and ``image_size`` beside it, images in the alphabetical order
+    of its sorted glob."""
+    import h5py
+
+    order = sorted(range(len(names)), key=lambda i: names[i])
+    with h5py.File(path, "w", libver="latest") as f:
+        for i in order:
+            group = f.create_group(names[i])
+            group.create_dataset("global_descriptor", data=x[i].astype(np.float16))
+            group.create_dataset("image_size", data=np.array([64, 32]))
+
+
+def _frames(folder: Path, n: int, rng) -> None:
+    """``n`` smooth random frames ``frame1.png`` .. ``frame{n}.png``, unpadded."""
+    import skimage.io
+    from skimage.transform import resize
+
+    folder.mkdir(parents=True)
+    for i in range(n):
+        low = rng.uniform(0, 1, (4, 8, 3))
+        image = (resize(low, (32, 64), order=1) * 255).astype(np.uint8)
+        skimage.io.imsave(folder / f"frame{i + 1}.png", image, check_contrast=False)
+
+
+def test_hloc_names_are_read_in_the_order_of_an_image_folder(tmp_path):
+    """Unpadded names (frame1, frame2, ..., frame10, frame12): the .h5 of a folder's
+    frames has its rows in the folder's order, and a map fitted on either side
+    recognises every frame of the other (R@1 1.0 both ways)."""
+    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app.specs import FitJob, QueryJob
+    from rhythmic_jax.frames.sources import load_sources
+
+    n, rng = 12, np.random.default_rng(5)
+    _frames(tmp_path / "frames", n, rng)
+    folder = load_sources([str(tmp_path / "frames")], "patchnorm", progress=False)
+    names = [f"frame{i + 1}.png" for i in range(n)]
+    h5 = tmp_path / "global-feats.h5"
+    _write_hloc_as_hloc(h5, names, folder.x)
+    got_names, got = read_hloc_descriptors(h5)
+    assert got_names == names  # not frame1, frame10, frame11, frame12, frame2, ...
+    assert sorted(names) != names  # alphabetical order would shift the rows
+    np.testing.assert_allclose(got, folder.x, atol=2e-3)  # float16 as written
+    np.save(tmp_path / "folder.npy", folder.x)
+
+    jobs.fit(FitJob((str(tmp_path / "frames"),), str(tmp_path / "folder.map")))
+    pred = jobs.query(QueryJob(str(tmp_path / "folder.map"), str(h5)))
+    np.testing.assert_array_equal(pred, np.arange(n))
+    jobs.fit(FitJob((str(h5),), str(tmp_path / "h5.map")))
+    pred = jobs.query(QueryJob(str(tmp_path / "h5.map"), str(tmp_path / "folder.npy")))
+    np.testing.assert_array_equal(pred, np.arange(n))
+
+
+def test_select_splits_one_hloc_file_into_database_and_queries(tmp_path):
+    """hloc's single file (``db/`` and ``query/`` names, as ``pairs_from_retrieval``
+    picks them with ``db_prefix``/``query_prefix``): ``select`` fits the map on the
+    database rows only and queries with the query rows; brute force reads the
+    map's own prefix again."""
+    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app.specs import EvaluateJob, FitJob, QueryJob, Reading
+
+    n, d = 11, 24
+    db = RNG.standard_normal((n, d)).astype(np.float32)
+    q = db + 0.05 * RNG.standard_normal((n, d)).astype(np.float32)
+    names = [f"db/frame{i + 1}.jpg" for i in range(n)]
+    names += [f"query/night/frame{i + 1}.jpg" for i in range(n)]
+    path = tmp_path / "global-feats-netvlad.h5"
+    _write_hloc_as_hloc(path, names, np.concatenate([db, q]))
+    got_names, got = read_hloc_descriptors(path, "query/")
+    assert got_names == names[n:]
+    np.testing.assert_allclose(got, q, atol=2e-2)
+    assert read_hloc_descriptors(path)[1].shape == (2 * n, d)  # whole without one
+
+    out = str(tmp_path / "route.map")
+    model = jobs.fit(FitJob((str(path),), out, reading=Reading(select="db/")))
+    assert model.n == n and model.reference["select"] == "db/"
+    pred = jobs.query(QueryJob(out, str(path), reading=Reading(select="query/")))
+    np.testing.assert_array_equal(pred, np.arange(n))
+    result = jobs.evaluate(
+        EvaluateJob(out, str(path), reading=Reading(select="query/"))
+    )
+    assert result["n_queries"] == n
+    assert result["methods"]["brute force"]["recall@1"] == 1.0
+    assert result["reference_note"] == f"brute force over the map's reference {path}"
+    with pytest.raises(InputError, match="with 'q/'; the names start with db/, query/"):
+        read_hloc_descriptors(path, "q/")
+    with pytest.raises(InputError, match="select.*hloc .h5"):
+        FitJob(("a.npy",), out, reading=Reading(select="db/"))
+
+
+def test_select_on_the_command_line(tmp_path, capsys):
+    """``--select`` on fit, query and frontier; a prefix selecting nothing is one
+    line (exit 2) naming the prefixes present; a .npy source refuses it."""
+    from rhythmic_jax.app.cli import main
+
+    n, d = 10, 16
+    db = RNG.standard_normal((n, d)).astype(np.float32)
+    names = [f"{part}/{i + 1}.jpg" for part in ("db", "query") for i in range(n)]
+    path = tmp_path / "feats.h5"
+    _write_hloc_as_hloc(path, names, np.concatenate([db, db]))
+    out = str(tmp_path / "m.map")
+    assert main(["fit", str(path), "--select", "db/", "--out", out, "--json"]) == 0
+    assert main(["query", out, str(path), "--select", "query/", "--json"]) == 0
+    got = capsys.readouterr().out
+    assert got.rstrip().endswith('{"predictions": ' + str(list(range(n))) + "}")
+    assert main(["query", out, str(path), "--select", "night/"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no image name starts with 'night/'" in err[0]
+    assert "db/, query/" in err[0]
+    np.save(tmp_path / "q.npy", db)
+    assert main(["query", out, str(tmp_path / "q.npy"), "--select", "query/"]) == 2
+    assert "--select picks the images of hloc .h5 files" in capsys.readouterr().err
+    argv = ["frontier", str(path), str(path), "--select", "db/", "query/", "--maps",
+            "2:1", "--bits", "32", "--pq", "", "--lengths", "1", "--json",
+            "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert (result["n"], result["n_queries"]) == (n, n)
+    brute = next(r for r in result["rows"] if r["kind"] == "brute force")
+    assert brute["recall@1 L=1"] == 1.0
