@@ -123,6 +123,11 @@ SOURCE = (  # how the frames of image sources are read (fit, learn, query, evalu
 )  # fmt: skip
 QUERIES = "query descriptors .npy, image folder or image"
 SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)"
+GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds; "
+             "its name only breaks a tie)")  # fmt: skip
+RECALL_OVER = ("recall@K's denominator: the queries with a right place (matched, "
+               "VPR_Tutorial's; default) or every query (all, "
+               "VPR-methods-evaluation's); the table says which")  # fmt: skip
 SCALE = "scale (descriptor files or shard folders)"
 CODES = {"metavar": "BITS|int8"}
 
@@ -238,8 +243,11 @@ OPTIONS = {
              "(the map's from fit --positions); or REF_POSITIONS QUERY_POSITIONS; or "
              "'names' (@easting@northing@ file names). Default: query i is place i",
              nargs="+", metavar="FILE"),
+        _opt("--ground-truth-format", GT_FORMAT, choices=specs.GROUND_TRUTH_FORMATS),
         _opt("--tolerance-m", "radius of a right match for positions, metres "
              "(default 25)", default=25.0),
+        _opt("--recall-over", RECALL_OVER, default="matched",
+             choices=specs.RECALL_OVER),
         _opt("--plot", "write PR curves and recall@K (.png)"),
         _opt("--json", "print JSON", **FLAG),
         *SOURCE,
@@ -257,6 +265,9 @@ OPTIONS = {
              nargs=2, metavar=("REF_PREFIX", "QUERY_PREFIX")),
         _opt("--ground-truth", "as evaluate reads it (default: query i is place i)",
              nargs="+", metavar="FILE"),
+        _opt("--ground-truth-format", GT_FORMAT, choices=specs.GROUND_TRUTH_FORMATS),
+        _opt("--recall-over", RECALL_OVER, default="matched",
+             choices=specs.RECALL_OVER),
         _opt("--tolerance", "frame tolerance (default 0)", default=0),
         _opt("--tolerance-m", "radius for positions, m", default=25.0),
         _opt("--budget", "name the best representation within this many bytes",
@@ -364,6 +375,8 @@ def _job(args, given: frozenset[str]):
         ))  # fmt: skip
     elif args.command == "learn":
         parts["config"] = specs.learn_config(**_take(args, "method head k steps seed"))
+    elif args.command == "evaluate":  # how the ground truth is read and counted
+        parts.update(_take(args, "ground_truth_format recall_over"))
     return getattr(specs, kind)(**_take(args, own), **parts, given=given)
 
 

@@ -60,6 +60,8 @@ def frontier(
     descriptor: str | None = None,
     progress: bool = False,
     select: tuple[str, str] = ("", ""),
+    ground_truth_format: str | None = None,
+    recall_over: str = "matched",
 ) -> dict[str, Any]:
     """Recall against bytes for every representation of ``reference``'s places.
 
@@ -72,11 +74,16 @@ def frontier(
       lengths: sequence lengths (queries in route order); lengths longer than
         the queries are left out.
       budget: bytes per place; the result's ``choice`` is the best row within.
+      ground_truth_format: the ground truth file's format (None: read from
+        what it holds).
+      recall_over: recall@1's denominator, ``"matched"`` (the queries with a
+        right place) or ``"all"`` (every query: a query without one is a
+        miss); recall at 100 % precision is out of the matched ones either way.
       select: (reference's, queries') prefixes of the image names kept from
         hloc ``.h5`` files (``""``: every row), so one file holds both.
 
     Returns ``{"rows", "pareto" (names), "choice", "ground_truth", "config",
-    "n", "d", "n_queries", "seconds"}``.
+    "n", "d", "n_queries", "recall_over", "recall_queries", "seconds"}``.
     """
     from rhythmic_jax.eval import frontier as fr
     from rhythmic_jax.frames.sources import load_sources
@@ -97,7 +104,7 @@ def frontier(
         truth = load_ground_truth(
             ground_truth, n_queries=len(qry), n_places=len(ref),
             query_source=queries, reference_sources=[reference],
-            tolerance_m=tolerance_m,
+            tolerance_m=tolerance_m, fmt=ground_truth_format,
         )  # fmt: skip
     elif len(qry) > len(ref):
         raise InputError(
@@ -114,6 +121,14 @@ def frontier(
         ref, qry, cfg, cache=cache, truth=truth, progress=progress,
         seqslam=max(cfg.lengths) > 1,
     )  # fmt: skip
+    matched = len(qry) if truth is None else int(truth.in_map.sum())
+    if recall_over == "all":  # the unmatched queries are misses: hits / b
+        for row in rows:
+            for k in cfg.lengths:
+                if row.get(f"recall@1 L={k}") is not None:
+                    row[f"recall@1 L={k}"] *= matched / len(qry)
+    elif recall_over != "matched":
+        raise InputError(f"{{opt:recall_over}} {recall_over!r}: matched or all")
     for row, front in zip(rows, fr.pareto_front(rows), strict=True):
         row["pareto"] = front
     if truth is not None:
@@ -126,6 +141,8 @@ def frontier(
         "n": len(ref),
         "d": d,
         "n_queries": len(qry),
+        "recall_over": recall_over,
+        "recall_queries": matched if recall_over == "matched" else len(qry),
         "ground_truth": described,
         "config": dataclasses.asdict(cfg),
         "budget_bytes_per_place": budget,
@@ -169,7 +186,8 @@ def frontier_lines(result: dict[str, Any]) -> str:
     fmt = [f"{{:<{w}}}" if i in text else f"{{:>{w}}}" for i, w in enumerate(widths)]
     lines = [
         f"{result['n']} places of {result['d']}-d, {result['n_queries']} queries; "
-        f"ground truth: {g['source']}, tolerance {tol}; {result['seconds']:.0f} s",
+        f"ground truth: {g['source']}, tolerance {tol}; {_over_line(result)}; "
+        f"{result['seconds']:.0f} s",
         "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)).rstrip(),
     ]
     lines += ["  ".join(f.format(c) for f, c in zip(fmt, row, strict=True)).rstrip()
@@ -181,6 +199,14 @@ def frontier_lines(result: dict[str, Any]) -> str:
         pick = result["choice"] or f"nothing fits in {b:g} bytes per place"
         lines.append(f"within {b:g} bytes per place: {pick}")
     return "\n".join(lines)
+
+
+def _over_line(result: dict[str, Any]) -> str:
+    """Which queries recall@1 is out of."""
+    n, total = result.get("recall_queries", result["n_queries"]), result["n_queries"]
+    if result.get("recall_over") == "all":
+        return f"recall@1 over all {n} queries (one without a right place: a miss)"
+    return f"recall@1 over the {n} of {total} queries that have a right place"
 
 
 def write_csv(rows, path: str | Path) -> None:
@@ -212,6 +238,7 @@ def main(args) -> int:
         lengths=_ints(args.lengths, "lengths"), budget=args.budget,
         cache=args.cache or None, descriptor=args.descriptor,
         progress=not args.no_progress, select=tuple(args.select or ("", "")),
+        ground_truth_format=args.ground_truth_format, recall_over=args.recall_over,
     )  # fmt: skip
     if args.csv:
         write_csv(result["rows"], args.csv)

@@ -394,11 +394,12 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
         truth = load_ground_truth(
             job.ground_truth, n_queries=len(feats.x), n_places=model.n,
             query_source=job.source, reference_sources=refs, map_extra=model.extra,
-            tolerance_m=job.tolerance_m,
+            tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
         )  # fmt: skip
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,
         method=job.decode, sequence=job.sequence, ground_truth=truth, curves=bool(plot),
+        recall_over=job.recall_over,
     )  # fmt: skip
     result["reference_note"] = note
     if plot:

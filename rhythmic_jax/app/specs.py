@@ -28,7 +28,7 @@ from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 __all__ = [
     "DOMAINS", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob", "OptionRefused",
     "QueryJob", "Reading", "Reported", "Rule", "ScaleJob", "check_paths",
-    "learn_config",
+    "learn_config", "GROUND_TRUTH_FORMATS", "RECALL_OVER",
 ]  # fmt: skip
 
 
@@ -72,6 +72,14 @@ DOMAINS: dict[str, Domain] = {
     "tolerance_m": number_option(0),
     "budget": number_option(0),
 }
+
+
+# ground-truth formats (rhythmic_jax.eval.ground_truth_formats.FORMATS) and
+# recall@K's denominators (rhythmic_jax.eval.metrics.RECALL_OVER), named here
+# for the parser, which imports no numpy
+GROUND_TRUTH_FORMATS = ("vpr-bench", "openvprlab", "vpr-tutorial", "patch-netvlad",
+                        "positions")  # fmt: skip
+RECALL_OVER = ("matched", "all")
 
 
 class OptionRefused(InputError):
@@ -422,7 +430,10 @@ class EvaluateJob(Checked):
     fitted on when they are still there. ``ground_truth`` names the right places
     (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`; None: query
     i is place i, give or take ``tolerance`` frames; positions match within
-    ``tolerance_m`` metres); ``plot``: a .png of PR curves and recall@K bars.
+    ``tolerance_m`` metres); ``ground_truth_format`` names its format (one
+    of :data:`GROUND_TRUTH_FORMATS`; None: read from what the file holds);
+    ``recall_over``: recall@K's denominator (:data:`RECALL_OVER`: the queries
+    with a right place, or all); ``plot``: a .png of PR curves and recall@K bars.
     ``decode`` and ``sequence`` as :class:`QueryJob`'s; ``given``: see
     :class:`Checked`.
     """
@@ -438,6 +449,8 @@ class EvaluateJob(Checked):
     plot: str | None = None
     reading: Reading = Reading()
     given: frozenset[str] = frozenset()
+    ground_truth_format: str | None = None
+    recall_over: str = "matched"
 
     RULES = (
         *READS,
@@ -446,6 +459,8 @@ class EvaluateJob(Checked):
              "right places itself)", lambda j: j.ground_truth is None),
         Rule(("tolerance_m",), "needs {opt:ground_truth} (positions or names: it is "
              "their radius of a right match)", lambda j: j.ground_truth is not None),
+        Rule(("ground_truth_format",), "needs {opt:ground_truth} (it names that "
+             "file's format)", lambda j: j.ground_truth is not None),
         *IGNORED,
     )  # fmt: skip
 

@@ -183,14 +183,21 @@ def gt_accuracy(pred, gt: GroundTruth) -> float:
     return float(ok.mean())
 
 
-def gt_recall_at_k(ranked, gt: GroundTruth, ks: Sequence[int]) -> dict[str, float]:
-    """``{"recall@k": ...}``: in-map queries with a positive among the top k."""
+def gt_recall_at_k(
+    ranked, gt: GroundTruth, ks: Sequence[int], over: str = "matched"
+) -> dict[str, float]:
+    """``{"recall@k": ...}``: queries with a positive among the top k, out of
+    the in-map queries (``over="matched"``) or of every query (``"all"``;
+    :func:`rhythmic_jax.eval.metrics.recall_fractions`)."""
+    from rhythmic_jax.eval.metrics import recall_fractions
+
     ranked = np.asarray(ranked, np.int64)
     if not gt.in_map.any():
         raise InputError(f"{gt.source}: no query has a right place in the map")
-    hit = gt.hits(ranked)[gt.in_map]
+    hit = gt.hits(ranked)
     first = np.where(hit.any(1), hit.argmax(1), ranked.shape[1])
-    return {f"recall@{k}": float((first < k).mean()) for k in ks}
+    got = recall_fractions(first, gt.in_map, ks, over)
+    return {f"recall@{k}": v for k, v in got.items()}
 
 
 def gt_pr_curve(pred, score, gt: GroundTruth) -> tuple[np.ndarray, ...]:

@@ -15,6 +15,11 @@
   **Patch-NetVLAD** ``.npz`` (``utmQ``, ``utmDb``, ``posDistThr``), read by
   :mod:`rhythmic_jax.io.vpr_files` (:func:`read_openvprlab`,
   :func:`read_tutorial_gt`, :func:`read_patchnetvlad_gt`).
+
+Which format a file is in is read from what it holds
+(:func:`rhythmic_jax.eval.ground_truth_formats.detect_format`: the arrays'
+names, dtypes and shapes, an object array's rows), not from its name, which
+only breaks a tie; ``fmt`` of :func:`load_ground_truth` says it outright.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
-from rhythmic_jax.io.descriptor_files import read_npy_header
+from rhythmic_jax.eval.ground_truth_formats import FORMATS, detect_format
 from rhythmic_jax.io.vpr_files import safe_object_npy
 
 __all__ = [
@@ -225,11 +230,15 @@ def load_ground_truth(
     reference_sources: Sequence[str] = (),
     map_extra: dict | None = None,
     tolerance_m: float = 25.0,
+    fmt: str | None = None,
 ) -> GroundTruth:
     """What ``evaluate --ground-truth`` reads (see README "Datasets in the formats
     you have"):
 
-    * ``ground_truth_new.npy`` (object array): VPR-Bench lists;
+    * one file of a VPR tool (VPR-Bench's lists, OpenVPRLab's positives,
+      VPR_Tutorial's ``GT.npz``, Patch-NetVLAD's ``.npz``), its format read
+      from what it holds (:mod:`rhythmic_jax.eval.ground_truth_formats`) or
+      named by ``fmt`` (one of its ``FORMATS``);
     * ``names``: ``@easting@northing@`` names of the reference and query frames;
     * ``QUERY_POSITIONS``: positions of the queries, the reference's saved in the
       map by ``fit --positions``;
@@ -244,14 +253,21 @@ def load_ground_truth(
     if not 1 <= len(specs) <= 2:
         raise InputError("{opt:ground_truth} takes one or two files (or 'names')")
     labels = extra.get("reference_labels")
+    if fmt is not None and fmt not in FORMATS:
+        raise InputError(f"{{opt:ground_truth_format}} {fmt!r}: one of {FORMATS}")
+    if fmt not in (None, "positions") and len(specs) != 1:
+        raise InputError(
+            f"{{opt:ground_truth_format}} {fmt}: one file, not {len(specs)}"
+        )
+    if fmt is None and len(specs) == 1 and specs != ["names"]:
+        fmt = detect_format(specs[0])
     if specs == ["names"]:
         ref = positions_of_sources(["names"], reference_sources)
         qry = positions_from_names(list_images(Path(query_source), "query")), "metres"
         src = f"@easting@northing@ names of {query_source} and the reference"
-    elif len(specs) == 1 and (tool := _vpr_tool(specs[0])):
-        return tool(specs[0], n_queries=n_queries, n_places=n_places)
-    elif len(specs) == 1 and _object_npy(specs[0]):
-        return read_vpr_bench(specs[0], n_queries, n_places)
+    elif fmt not in (None, "positions"):
+        read = _READERS[fmt]
+        return read(specs[0], n_queries=n_queries, n_places=n_places)
     else:
         if len(specs) == 2:
             ref = read_positions(specs[0])
@@ -280,17 +296,6 @@ def load_ground_truth(
             )
         labels = np.arange(len(ref_m)) % n_places  # traversals: row i is place i
     return from_positions(ref_m, qry_m, tolerance_m, labels, src)
-
-
-def _object_npy(path: str) -> bool:
-    p = Path(path)
-    if p.suffix.lower() != ".npy" or not p.is_file():
-        return False
-    try:
-        with p.open("rb") as f:
-            return bool(read_npy_header(f)[2].hasobject)
-    except (OSError, ValueError):
-        return False
 
 
 @dataclass(frozen=True, eq=False)
@@ -371,28 +376,13 @@ def _sizes(path, n_db: int, n_q: int, n_places: int, n_queries: int) -> None:
         )
 
 
-def _vpr_tool(spec: str):
-    """The reader of a VPR tool's ground-truth file, or None (by name)."""
-    p = Path(spec)
-    if not p.is_file():
-        return None
-    if p.suffix.lower() == ".npy" and "_gt_" in p.name:
-        return read_openvprlab
-    return _read_npz if p.suffix.lower() == ".npz" else None
+def _read_vpr_bench(path, *, n_queries: int, n_places: int) -> GroundTruth:
+    return read_vpr_bench(path, n_queries, n_places)
 
 
-def _read_npz(path, *, n_queries: int, n_places: int) -> GroundTruth:
-    """A ground-truth ``.npz``: VPR_Tutorial's or Patch-NetVLAD's, by its keys."""
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            keys = set(f.files)
-    except Exception as err:  # noqa: BLE001 - zipfile errors on a truncated file
-        raise InputError(f"{path}: not a readable .npz ({err!r})"[:300]) from None
-    if {"GThard", "GTsoft"} & keys:
-        return read_tutorial_gt(path, n_queries=n_queries, n_places=n_places)
-    if {"utmQ", "utmDb"} & keys:
-        return read_patchnetvlad_gt(path, n_queries=n_queries, n_places=n_places)
-    raise InputError(
-        f"{path}: neither VPR_Tutorial's GThard/GTsoft nor Patch-NetVLAD's "
-        f"utmQ/utmDb (holds {sorted(keys)})"
-    )
+_READERS = {
+    "vpr-bench": _read_vpr_bench,
+    "openvprlab": read_openvprlab,
+    "vpr-tutorial": read_tutorial_gt,
+    "patch-netvlad": read_patchnetvlad_gt,
+}

@@ -10,6 +10,10 @@ Conventions (shared by every function here):
 - ``tolerance`` (int >= 0): a prediction is correct when ``|pred - gt| <=
   tolerance`` frames (0 is the paper's exact accuracy). Reports should always
   print it; :class:`RecallAtK` carries it with the numbers.
+- ``over`` (:data:`RECALL_OVER`): recall@K's denominator. ``"matched"``: the
+  queries that have a right place (VPR_Tutorial's ``recallAtK`` drops the
+  others); ``"all"``: every query (VPR-methods-evaluation divides by
+  ``num_queries``; a query without a right place then counts as a miss).
 
 The precision-recall curve follows the single-best-match convention of
 VPR_Tutorial (``evaluation/metrics.py::createPR``, Schubert et al. 2023) and
@@ -30,6 +34,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.validate import check_int
 
 __all__ = [
+    "RECALL_OVER",
     "RecallAtK",
     "accuracy",
     "pr_auc",
@@ -37,6 +42,7 @@ __all__ = [
     "pr_points",
     "recall_at_100_precision",
     "recall_at_k",
+    "recall_fractions",
     "recall_line",
     "time_batch",
     "time_single_queries",
@@ -54,6 +60,9 @@ def _indices(a, name: str, ndim: int) -> np.ndarray:
     if a.size and a.min() < -1:
         raise InputError(f"{name} has index {a.min()}; indices are >= 0, or -1")
     return a
+
+
+RECALL_OVER = ("matched", "all")
 
 
 def _tolerance(tolerance) -> int:
@@ -99,43 +108,75 @@ class RecallAtK:
     """Recall@K for several K, with the tolerance and query count it was taken at.
 
     ``r[k]`` is the recall at ``k``; ``str(r)`` prints the tolerance beside it.
+    ``n_queries`` is the denominator: the queries with a right place
+    (``over="matched"``) or every query (``over="all"``).
     """
 
     recall: Mapping[int, float]
     tolerance: int
     n_queries: int
+    over: str = "matched"
 
     def __getitem__(self, k: int) -> float:
         return self.recall[k]
 
     def as_dict(self) -> dict[str, float | int]:
         """Flat record for a report: ``{"tolerance", "n_queries", "recall@k"...}``."""
-        out: dict[str, float | int] = {
+        out: dict[str, float | int | str] = {
             "tolerance": self.tolerance,
             "n_queries": self.n_queries,
+            "recall_over": self.over,
         }
         out.update({f"recall@{k}": v for k, v in self.recall.items()})
         return out
 
     def __str__(self) -> str:
         rs = "  ".join(f"R@{k} {v:.4f}" for k, v in self.recall.items())
-        return f"{rs}  (tolerance ±{self.tolerance} frames, {self.n_queries} queries)"
+        which = "with a right place" if self.over == "matched" else "in all"
+        return (
+            f"{rs}  (tolerance ±{self.tolerance} frames, over {self.n_queries} "
+            f"queries {which})"
+        )
+
+
+def recall_fractions(
+    first, in_map, ks: Sequence[int], over: str = "matched"
+) -> dict[int, float]:
+    """Recall@k for each k from each query's first right rank.
+
+    ``first`` (b,) int: the rank of the first right candidate (K or more: none);
+    ``in_map`` (b,) bool: the query has a right place. ``over="matched"``
+    divides the queries with a right place found within k by ``in_map.sum()``,
+    ``over="all"`` by b (the queries without one are misses).
+    """
+    if over not in RECALL_OVER:
+        raise InputError(
+            f"{{opt:recall_over}} must be one of {RECALL_OVER}, got {over!r}"
+        )
+    first, in_map = np.asarray(first), np.asarray(in_map, bool)
+    if not in_map.any():
+        raise InputError("no query has a right place in the map")
+    hit = first[in_map]
+    total = int(in_map.sum()) if over == "matched" else len(first)
+    return {int(k): int((hit < k).sum()) / total for k in ks}
 
 
 def recall_at_k(
-    ranked, gt, ks: Sequence[int] = (1, 5, 10), *, tolerance: int
+    ranked, gt, ks: Sequence[int] = (1, 5, 10), *, tolerance: int, over="matched"
 ) -> RecallAtK:
     """Recall@K: fraction of in-map queries with a correct match among the top K.
 
     ``recall@k = #{i : gt[i] >= 0, exists j < k, |ranked[i, j] - gt[i]| <= tol}
     / #{i : gt[i] >= 0}``. Outlier queries (``gt == -1``) are left out, as in
-    VPR_Tutorial's ``recallAtK``; ``-1`` entries of ``ranked`` never count.
+    VPR_Tutorial's ``recallAtK``; with ``over="all"`` the denominator is every
+    query, as in VPR-methods-evaluation. ``-1`` entries of ``ranked`` never count.
 
     Args:
       ranked: (b, K) int candidate indices, best first.
       gt: (b,) int true indices, -1 for a place not in the map.
       ks: the K values, each in ``[1, K]``.
       tolerance: frames of slack, >= 0 (required, so that it is always stated).
+      over: ``"matched"`` or ``"all"`` (:data:`RECALL_OVER`).
     """
     ranked = _indices(ranked, "ranked", 2)
     gt = _indices(gt, "gt", 1)
@@ -150,23 +191,32 @@ def recall_at_k(
     inmap = gt >= 0
     if not inmap.any():
         raise InputError("gt has no query whose place is in the map (all -1)")
-    hit = _correct(ranked[inmap], gt[inmap, None], tol)  # (b_in, K)
-    first = np.where(hit.any(1), hit.argmax(1), ranked.shape[1])  # (b_in,)
-    recall = {k: float((first < k).mean()) for k in ks}
-    return RecallAtK(recall=recall, tolerance=tol, n_queries=int(inmap.sum()))
+    hit = _correct(ranked, gt[:, None], tol)  # (b, K), no hit where gt is -1
+    first = np.where(hit.any(1), hit.argmax(1), ranked.shape[1])  # (b,)
+    recall = recall_fractions(first, inmap, ks, over)
+    n = int(inmap.sum()) if over == "matched" else len(gt)
+    return RecallAtK(recall=recall, tolerance=tol, n_queries=n, over=over)
 
 
 def recall_line(row: Mapping[str, float | None], ks=(1, 5, 10, 20)) -> str:
     """Recall@K in the form VPR papers quote, in percent with one decimal:
     ``R@1: 47.3, R@5: 61.0, R@10: 66.2, R@20: 70.9`` (the line
     VPR-methods-evaluation prints). ``row`` holds ``"recall@k"`` fractions;
-    a K it lacks (or holds None for) is left out."""
+    a K it lacks (or holds None for) is left out. Where ``row`` names its
+    denominator (``"recall_over"`` and ``"recall_queries"``) the line says it:
+    ``(over 100 queries with a right place)`` or ``(over all 111 queries)``."""
     parts = [
         f"R@{k}: {100 * row[f'recall@{k}']:.1f}"
         for k in ks
         if row.get(f"recall@{k}") is not None
     ]
-    return ", ".join(parts)
+    line = ", ".join(parts)
+    over, n = row.get("recall_over"), row.get("recall_queries")
+    if parts and over is not None and n is not None:
+        matched = over == "matched"
+        line += f" (over {n} queries with a right place)" if matched else (
+            f" (over all {n} queries)")  # fmt: skip
+    return line
 
 
 def pr_curve(pred, score, gt, tolerance: int) -> tuple[np.ndarray, ...]:

@@ -113,15 +113,20 @@ def _map_decisions(model, queries, method, sequence):
     return pred, finite_confidence(conf), ranked, which
 
 
-def _scores_of(pred, conf, ranked, truth, exact, ks) -> dict[str, Any]:
-    """Accuracy, recall@K, PR-AUC and recall at 100 % precision of one method."""
+def _scores_of(
+    pred, conf, ranked, truth, exact, ks, over="matched"
+) -> dict[str, Any]:
+    """Accuracy, recall@K (out of the queries ``over`` names), PR-AUC and recall
+    at 100 % precision of one method."""
     from rhythmic_jax.eval.ground_truth import gt_accuracy, gt_pr_curve, gt_recall_at_k
 
     precision, recall, _ = gt_pr_curve(pred, conf, truth)
     row = {
         "accuracy": gt_accuracy(pred, exact if exact is not None else truth),
         "accuracy_tol": gt_accuracy(pred, truth) if exact is not None else None,
-        **gt_recall_at_k(ranked, truth, ks),
+        **gt_recall_at_k(ranked, truth, ks, over),
+        "recall_over": over,
+        "recall_queries": int(truth.in_map.sum()) if over == "matched" else len(truth),
         "tolerance": truth.tolerance_frames
         if truth.tolerance_m is None
         else truth.tolerance_m,
@@ -187,6 +192,7 @@ def evaluate_map(
     timing: bool = True,
     ground_truth=None,
     curves: bool = False,
+    recall_over: str = "matched",
 ) -> dict[str, Any]:
     """Score a fitted :class:`~rhythmic_jax.RhythmicMap` on (b, d) queries.
 
@@ -208,6 +214,11 @@ def evaluate_map(
       timing: measure latency and throughput.
       ground_truth: a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
       curves: keep each method's PR curve under ``"pr_curve"`` (for plots).
+      recall_over: recall@K's denominator, ``"matched"`` (the queries with a
+        right place, VPR_Tutorial's) or ``"all"`` (every query,
+        VPR-methods-evaluation's); said in the result (``"recall_over"``,
+        ``"recall_queries"``). The PR curve's recall is out of the matched
+        queries either way (VPR_Tutorial's ``createPR``).
     """
     from rhythmic_jax.eval.ground_truth import from_indices
 
@@ -228,7 +239,7 @@ def evaluate_map(
     ks = tuple(k for k in KS if k <= ranked.shape[1])
     rows: dict[str, Any] = {
         "map": {
-            **_scores_of(pred, conf, ranked, truth, exact, ks),
+            **_scores_of(pred, conf, ranked, truth, exact, ks, recall_over),
             "storage_bytes": model.storage_bytes,
             "storage_share": model.storage_bytes / database_bytes(model.n, model.d, 4),
             "codes_bits": model.codebook.bits if model.codebook is not None else None,
@@ -252,6 +263,7 @@ def evaluate_map(
                 exact,
                 ks,
                 timing,
+                recall_over,
             )  # fmt: skip
         )
     elif reference is not None:
@@ -263,7 +275,7 @@ def evaluate_map(
             top = np.asarray(reference_labels)[top]
         brute = top[:, 0]
         rows["brute force"] = {
-            **_scores_of(top[:, 0], sims[:, 0], top, truth, exact, ks),
+            **_scores_of(top[:, 0], sims[:, 0], top, truth, exact, ks, recall_over),
             "storage_bytes": flat.storage_bytes,
         }
         if timing:
@@ -287,6 +299,8 @@ def evaluate_map(
         "decode": method or model.config.decode,
         "sequence": sequence,
         "recall_ranks": which,
+        "recall_over": recall_over,
+        "recall_queries": rows["map"]["recall_queries"],
         "database_bytes": database_bytes(model.n, model.d, 4),
         "compression_ratio": model.compression_ratio,
         "methods": rows,
@@ -297,7 +311,8 @@ def evaluate_map(
 
 
 def sequence_peers(
-    reference, labels, queries, n: int, length: int, truth, exact, ks, timing=True
+    reference, labels, queries, n: int, length: int, truth, exact, ks, timing=True,
+    over="matched",
 ) -> dict[str, dict[str, Any]]:
     """Brute force and SeqSLAM at sequence length L, beside the map's L.
 
@@ -306,7 +321,8 @@ def sequence_peers(
     over L frames (:func:`rhythmic_jax.decoding.fusion.code_sequence_scores`, as
     :mod:`rhythmic_jax.eval.frontier` sums them); recall@K ranks those sums.
     SeqSLAM (:func:`rhythmic_jax.eval.seqslam.seqslam_decode`, velocity 1) gives
-    one match per query, so only its recall@1 is reported.
+    one match per query, so only its recall@1 is reported. ``over``: recall@K's
+    denominator, as :func:`evaluate_map` takes it.
     """
     from rhythmic_jax.decoding.fusion import code_sequence_scores
     from rhythmic_jax.eval.baselines import BruteForce
@@ -327,7 +343,7 @@ def sequence_peers(
     conf = acc[np.arange(len(acc)), best]
     rows = {
         "brute force": {
-            **_scores_of(best, conf, ranked, truth, exact, ks),
+            **_scores_of(best, conf, ranked, truth, exact, ks, over),
             "storage_bytes": flat.storage_bytes,
             "ranks": f"summed place similarities (L={length}, speed 1)",
         }
@@ -335,7 +351,7 @@ def sequence_peers(
     idx, score = seqslam_decode(queries, reference, length)
     idx = labels[np.asarray(idx)]
     rows["SeqSLAM"] = {
-        **_scores_of(idx, score, idx[:, None], truth, exact, (1,)),
+        **_scores_of(idx, score, idx[:, None], truth, exact, (1,), over),
         "storage_bytes": flat.storage_bytes,
         "ranks": f"SeqSLAM (L={length}, speed 1), one match per query",
     }
@@ -354,6 +370,31 @@ def _truth_line(result: dict[str, Any]) -> str:
     return f"ground truth: {src}, tolerance ±{result['tolerance']} frames"
 
 
+def _denominator_line(result: dict[str, Any]) -> str:
+    """Which queries recall@K is out of, and what the other convention divides by."""
+    over, n = result.get("recall_over"), result.get("recall_queries")
+    if over is None or n is None:
+        return ""
+    total = result["n_queries"]
+    matched = int((result.get("ground_truth") or {}).get("queries_in_map", total))
+    if matched == total:
+        return (
+            f"\nrecall@K over all {total} queries, each with a right place "
+            "(VPR_Tutorial's and VPR-methods-evaluation's conventions agree)"
+        )
+    if over == "matched":
+        return (
+            f"\nrecall@K over the {n} of {total} queries that have a right place "
+            f"(VPR_Tutorial's convention; VPR-methods-evaluation's divides by all "
+            f"{total})"
+        )
+    return (
+        f"\nrecall@K over all {n} queries, the {total - matched} without a right "
+        "place counted as misses (VPR-methods-evaluation's convention; "
+        f"VPR_Tutorial's divides by the {matched} with one)"
+    )
+
+
 def format_evaluation(result: dict[str, Any]) -> str:
     """A plain-text table of :func:`evaluate_map`'s result."""
     seq = result["sequence"]
@@ -365,6 +406,7 @@ def format_evaluation(result: dict[str, Any]) -> str:
         + (f"(peers at the same L={seq})" if seq and seq > 1 else "(single frames)")
         + "\n"
         + _truth_line(result)
+        + _denominator_line(result)
     )
     cols = ["accuracy", "accuracy_tol", "recall@1", "recall@5", "recall@10"]
     cols += ["recall@20"]

@@ -257,18 +257,20 @@ def test_format_evaluation_prints_every_row_and_column(case):
     res = evaluate_map(model, q, reference=x, tolerance=2, timing=False)
     text = format_evaluation(res)
     lines = text.split("\n")
-    assert len(lines) == 8
-    assert lines[:3] == [
+    assert len(lines) == 9
+    assert lines[:4] == [
         f"n={N} d={D} queries={N}; compression ratio {res['compression_ratio']:.4f}",
         "decode=hard sequence=off; recall@K ranks single-frame scores (single frames)",
         "ground truth: index-aligned (query i is place i), tolerance ±2 frames",
+        f"recall@K over all {N} queries, each with a right place (VPR_Tutorial's "
+        "and VPR-methods-evaluation's conventions agree)",
     ]
-    assert lines[3] == f"{'method':<12}" + "".join(f"{c:>{W}}" for c in HEAD)
-    for line, name in zip(lines[6:], ["map", "brute force"], strict=True):
+    assert lines[4] == f"{'method':<12}" + "".join(f"{c:>{W}}" for c in HEAD)
+    for line, name in zip(lines[7:], ["map", "brute force"], strict=True):
         r = res["methods"][name]
         want = ", ".join(f"R@{k}: {100 * r[f'recall@{k}']:.1f}" for k in (1, 5, 10, 20))
-        assert line == f"{name}: {want}"
-    for line, name in zip(lines[4:6], ["map", "brute force"], strict=True):
+        assert line == f"{name}: {want} (over {N} queries with a right place)"
+    for line, name in zip(lines[5:7], ["map", "brute force"], strict=True):
         row = res["methods"][name]
         assert line.startswith(f"{name:<12}")
         cells = line[12:]
