@@ -20,6 +20,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import from_lists, from_positions
 from rhythmic_jax.eval.ground_truth_files import (
     latlon_to_metres,
+    load_ground_truth,
     positions_from_names,
     read_positions,
     safe_object_npy,
@@ -251,3 +252,129 @@ def test_pickled_positions_are_refused_unread(tmp_path):
     with pytest.raises(InputError, match=r"junk\.npy: not a \.npy file"):
         read_positions(tmp_path / "junk.npy")
     assert not marker.exists()
+
+
+# ------------------------------------------ a format read from what a file holds
+
+
+def test_a_vpr_bench_file_under_any_name_gives_its_own_recall(vpr_bench, tmp_path):
+    """VPR-Bench's ground_truth_new.npy copied to an OpenVPRLab-like name (holding
+    ``_gt_``) or to no telling name at all is still read as VPR-Bench's, with
+    the same recall, both ways of counting it."""
+    import shutil
+
+    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app.specs import EvaluateJob, FitJob
+
+    out = str(tmp_path / "ds.map")
+    jobs.fit(FitJob((str(vpr_bench / "ref"),), out))
+    original = vpr_bench / "ground_truth_new.npy"
+    results = {}
+    for name in ("ground_truth_new.npy", "corridor_gt_25m.npy", "labels.npy"):
+        path = tmp_path / name
+        shutil.copy(original, path)
+        for over in ("matched", "all"):
+            job = EvaluateJob(out, str(vpr_bench / "query"), ground_truth=(str(path),),
+                              recall_over=over)  # fmt: skip
+            res = jobs.evaluate(job)
+            assert res["ground_truth"]["source"].startswith("VPR-Bench ground truth")
+            results[name, over] = res["methods"]["map"]
+    for key in ("recall@1", "recall@5", "accuracy", "pr_auc"):
+        for over in ("matched", "all"):
+            want = results["ground_truth_new.npy", over][key]
+            assert results["corridor_gt_25m.npy", over][key] == want, key
+            assert results["labels.npy", over][key] == want, key
+    matched = results["ground_truth_new.npy", "matched"]
+    every = results["ground_truth_new.npy", "all"]
+    assert (matched["recall_queries"], every["recall_queries"]) == (9, N_QRY)
+    assert every["recall@1"] == pytest.approx(matched["recall@1"] * 9 / N_QRY)
+
+
+def _ragged(rows) -> np.ndarray:
+    out = np.empty(len(rows), object)
+    out[:] = [np.asarray(r, np.int64) for r in rows]
+    return out
+
+
+def test_formats_are_read_from_contents_and_names_break_ties(tmp_path):
+    from rhythmic_jax.eval.ground_truth_formats import detect_format
+
+    def fmt(name, save):
+        save(tmp_path / name)
+        return detect_format(tmp_path / name)
+
+    def pickled(a):
+        def save(path):
+            with open(path, "wb") as f:  # under the name given, .npy or not
+                np.save(f, a, allow_pickle=True)
+
+        return save
+
+    bench = np.empty((3, 2), object)
+    bench[:] = [[0, [1, 2]], [1, np.array([0])], [2, []]]
+    for name in ("ground_truth_new.npy", "x_gt_25m.npy", "gt.dat"):
+        assert fmt(name, pickled(bench)) == "vpr-bench"
+    for name in ("nord_gt_25m.npy", "ground_truth_new.npy"):
+        assert fmt(name, pickled(_ragged([[0, 1], [4], []]))) == "openvprlab"
+    tutorial = {"GThard": np.eye(4, dtype=bool), "GTsoft": np.eye(4, dtype=bool)}
+    assert fmt("any.npz", lambda p: np.savez(p, **tutorial)) == "vpr-tutorial"
+    pnv = {"utmQ": np.zeros((3, 2)), "utmDb": np.ones((4, 2)), "posDistThr": 25.0}
+    assert fmt("GT.npz", lambda p: np.savez(p, **pnv)) == "patch-netvlad"
+    assert fmt("q_gt_25m.npy", lambda p: np.save(p, np.zeros((5, 2)))) == "positions"
+    three = np.arange(15).reshape(5, 3)
+    assert fmt("pos.npy", lambda p: np.save(p, three)) == "openvprlab"  # k = 3
+    # integer (b, 2): positions or two positives a query; the name decides
+    two = np.arange(10).reshape(5, 2)
+    assert fmt("pos.npy", lambda p: np.save(p, two)) == "positions"
+    assert fmt("nord_gt_25m.npy", lambda p: np.save(p, two)) == "openvprlab"
+    csv = "easting,northing\n1,2\n"
+    assert fmt("q.csv", lambda p: p.write_text(csv)) == "positions"
+
+
+def test_a_file_of_no_format_is_refused_naming_what_it_holds(tmp_path):
+    from rhythmic_jax.eval.ground_truth_formats import detect_format
+
+    np.savez(tmp_path / "GT.npz", hard=np.zeros((3, 4), bool), thr=np.float32(25))
+    with pytest.raises(InputError) as err:
+        detect_format(tmp_path / "GT.npz")
+    line = str(err.value)
+    assert "hard: bool (3, 4), thr: float32 ()" in line and "GThard" in line
+    assert "\n" not in line
+    np.save(tmp_path / "x_gt_25m.npy", np.zeros((2, 3, 4), np.float32))
+    with pytest.raises(InputError, match=r"holds a \.npy of float32 \(2, 3, 4\)"):
+        detect_format(tmp_path / "x_gt_25m.npy")
+    rows = np.empty(2, object)
+    rows[:] = [["a", "b"], ["c"]]
+    np.save(tmp_path / "ground_truth_new.npy", rows, allow_pickle=True)
+    with pytest.raises(InputError, match=r"row 0 a list of 2: str, str"):
+        detect_format(tmp_path / "ground_truth_new.npy")
+
+
+def test_the_format_said_outright(tmp_path, capsys):
+    """``fmt`` (``--ground-truth-format``) reads a file as that format: an integer
+    (b, 2) file under a plain name is positions unless said to be positives."""
+    two = np.array([[0, 1], [2, 3], [1, 4]])
+    np.save(tmp_path / "pairs.npy", two)
+    truth = load_ground_truth([str(tmp_path / "pairs.npy")], n_queries=3,
+                              n_places=5, query_source="q",
+                              fmt="openvprlab")  # fmt: skip
+    assert [p.tolist() for p in truth.positives] == two.tolist()
+    with pytest.raises(InputError, match="holds no reference positions"):
+        load_ground_truth([str(tmp_path / "pairs.npy")], n_queries=3, n_places=5,
+                          query_source="q")  # fmt: skip
+    with pytest.raises(InputError, match="ground_truth_format vpr-bench: one file"):
+        load_ground_truth([str(tmp_path / "pairs.npy")] * 2, n_queries=3,
+                          n_places=5, query_source="q", fmt="vpr-bench")  # fmt: skip
+    argv = ["evaluate", "m.map", "q.npy", "--ground-truth-format", "vpr-bench"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--ground-truth-format needs --ground-truth" in err
+
+
+def test_the_command_line_offers_every_format_and_denominator():
+    from rhythmic_jax.app import specs
+    from rhythmic_jax.eval.ground_truth_formats import FORMATS
+    from rhythmic_jax.eval.metrics import RECALL_OVER
+
+    assert specs.GROUND_TRUTH_FORMATS == FORMATS
+    assert specs.RECALL_OVER == RECALL_OVER

@@ -187,3 +187,115 @@ def test_bad_input_raises_input_error():
         pr_curve([0, 1], [np.nan, 0.2], [0, 1], tolerance=0)
     with pytest.raises(TypeError):
         recall_at_k(np.zeros((3, 2), int), [0, 1, 2], (1,))  # tolerance required
+
+
+# ------------------------------------------- recall's denominator, as the peers
+
+
+def _vpr_methods_evaluation_recalls(predictions, positives, values):
+    """VPR-methods-evaluation's main.py, as written there: a query counts from
+    the first N of ``values`` whose predictions hold a positive, and the counts
+    are divided by ``num_queries``, every query (in percent there)."""
+    recalls = np.zeros(len(values))
+    for query_index, preds in enumerate(predictions):
+        for i, n in enumerate(values):
+            if np.any(np.isin(preds[:n], positives[query_index])):
+                recalls[i:] += 1
+                break
+    return recalls / len(predictions)
+
+
+def _vpr_tutorial_recall_at_k(S, GT, K):
+    """VPR_Tutorial's evaluation/metrics.py recallAtK, as written there: the
+    columns (queries) without a match are dropped, then the top K of each."""
+    GT = GT.astype("bool")
+    j = GT.sum(0) > 0
+    S = S[:, j]
+    GT = GT[:, j]
+    i = S.argsort(0)[-K:, :]
+    j = np.tile(np.arange(i.shape[1]), [K, 1])
+    GT = GT[i, j]
+    return np.sum(GT.sum(0) > 0) / GT.shape[1]
+
+
+def _corridor_like():
+    """111 queries of 100 places, 11 with no right place (the VPR-Bench corridor's
+    counts), 35 of the other 100 closest to a right place: R@1 35/111 = 0.3153
+    over all, 35/100 = 0.350 over the matched."""
+    rng = np.random.default_rng(11)
+    n, d, b = 100, 64, 111
+    ref = rng.standard_normal((n, d))
+    ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+    place = rng.integers(0, n, b)
+    lists = [sorted({p, min(p + 1, n - 1)}) for p in place]
+    for j in rng.choice(b, 11, replace=False):
+        lists[j] = []
+    matched = [j for j in range(b) if lists[j]]
+    right = set(matched[:35])
+    seen = np.empty((b, d))
+    for j in range(b):
+        p = place[j] if j in right else (place[j] + 50) % n  # far from its place
+        seen[j] = ref[p] + 0.3 * rng.standard_normal(d) / np.sqrt(d)
+    seen /= np.linalg.norm(seen, axis=1, keepdims=True)
+    return ref.astype(np.float32), seen.astype(np.float32), lists
+
+
+def test_recall_over_all_and_matched_equal_each_peers_formula():
+    """``over="all"`` is VPR-methods-evaluation's recall, ``"matched"``
+    VPR_Tutorial's, to 4 decimals (here exactly), on the same ranking."""
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.eval.ground_truth import from_lists
+    from rhythmic_jax.eval.report import evaluate_map, format_evaluation
+
+    ref, qry, lists = _corridor_like()
+    ks = (1, 5, 10, 20)
+    sims = qry.astype(np.float64) @ ref.T.astype(np.float64)  # (b, n)
+    # the L2 ranking VPR-methods-evaluation's faiss IndexFlatL2 gives (unit rows)
+    dist = ((qry[:, None, :] - ref[None]) ** 2).sum(-1)
+    predictions = np.argsort(dist, axis=1, kind="stable")[:, :20]
+    want_all = _vpr_methods_evaluation_recalls(predictions, lists, ks)
+    GT = np.zeros((len(ref), len(qry)), bool)
+    for j, row in enumerate(lists):
+        GT[row, j] = True
+    want_matched = [_vpr_tutorial_recall_at_k(sims.T, GT, k) for k in ks]
+    assert want_all[0] == pytest.approx(35 / 111) and want_matched[0] == 0.35
+
+    truth = from_lists(lists, len(ref), "corridor-like lists")
+    model = RhythmicMap().fit(ref, progress=False)
+    rows = {}
+    for over, want in (("all", want_all), ("matched", want_matched)):
+        res = evaluate_map(model, qry, reference=ref, ground_truth=truth,
+                           timing=False, recall_over=over)  # fmt: skip
+        brute, rows[over] = res["methods"]["brute force"], res["methods"]["map"]
+        for k, w in zip(ks, want, strict=True):
+            assert brute[f"recall@{k}"] == pytest.approx(w, abs=5e-5), (over, k)
+        n = 111 if over == "all" else 100
+        assert res["recall_over"] == brute["recall_over"] == over
+        assert res["recall_queries"] == brute["recall_queries"] == n
+        text = format_evaluation(res)
+        line = text.splitlines()[-1]
+        assert line.startswith(f"brute force: R@1: {100 * want[0]:.1f}, ")
+        if over == "all":
+            assert line.endswith("(over all 111 queries)")
+            assert "over all 111 queries, the 11 without a right place" in text
+        else:
+            assert line.endswith("(over 100 queries with a right place)")
+            assert "over the 100 of 111 queries that have a right place" in text
+    # the map's own recall follows the same denominators: all = matched * 100/111
+    for k in ks:
+        assert rows["all"][f"recall@{k}"] == pytest.approx(
+            rows["matched"][f"recall@{k}"] * 100 / 111
+        )
+
+
+def test_recall_at_k_over_all_counts_outliers_as_misses():
+    gt = np.array([0, 1, -1, 3])
+    ranked = np.array([[0, 9], [5, 1], [2, 3], [7, 8]])
+    matched = recall_at_k(ranked, gt, (1, 2), tolerance=0)
+    every = recall_at_k(ranked, gt, (1, 2), tolerance=0, over="all")
+    assert (matched[1], matched[2]) == (1 / 3, 2 / 3) and matched.n_queries == 3
+    assert (every[1], every[2]) == (1 / 4, 2 / 4) and every.n_queries == 4
+    assert "over 4 queries in all" in str(every)
+    assert every.as_dict()["recall_over"] == "all"
+    with pytest.raises(InputError, match="recall_over must be one of"):
+        recall_at_k(ranked, gt, (1,), tolerance=0, over="some")
