@@ -227,6 +227,8 @@ def main(args) -> int:
         if out and not Path(out).absolute().parent.is_dir():
             where = Path(out).parent
             raise InputError(f"{{opt:{opt}}} {out}: folder {where} not found")
+    if args.ground_truth_format and not args.ground_truth:
+        raise InputError("{opt:ground_truth_format} needs {opt:ground_truth}")
     if args.plot and not str(args.plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {args.plot}: give a .png file name")
     result = frontier(

@@ -255,9 +255,9 @@ def load_ground_truth(
     labels = extra.get("reference_labels")
     if fmt is not None and fmt not in FORMATS:
         raise InputError(f"{{opt:ground_truth_format}} {fmt!r}: one of {FORMATS}")
-    if fmt not in (None, "positions") and len(specs) != 1:
+    if fmt not in (None, "positions") and (len(specs) != 1 or specs == ["names"]):
         raise InputError(
-            f"{{opt:ground_truth_format}} {fmt}: one file, not {len(specs)}"
+            f"{{opt:ground_truth_format}} {fmt}: one file, not {' '.join(specs)}"
         )
     if fmt is None and len(specs) == 1 and specs != ["names"]:
         fmt = detect_format(specs[0])

@@ -369,6 +369,9 @@ def test_the_format_said_outright(tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "--ground-truth-format needs --ground-truth" in err
+    argv = ["frontier", "r.npy", "q.npy", "--ground-truth-format", "positions"]
+    assert main(argv) == 2
+    assert "--ground-truth-format needs --ground-truth" in capsys.readouterr().err
 
 
 def test_the_command_line_offers_every_format_and_denominator():
