@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.outputs import check_place
 
 __all__ = ["frontier", "frontier_lines", "main", "write_csv"]
 
@@ -197,6 +198,8 @@ def main(args) -> int:
         if out and not Path(out).absolute().parent.is_dir():
             where = Path(out).parent
             raise InputError(f"{{opt:{opt}}} {out}: folder {where} not found")
+        if out:
+            check_place(opt, out, file=True)  # a folder there: refused before work
     if args.plot and not str(args.plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {args.plot}: give a .png file name")
     result = frontier(

@@ -413,8 +413,12 @@ def _clean(target: Path, *kinds: str) -> None:
 def check_target(path: str | os.PathLike) -> Path:
     """The absolute path a map may be saved to, or :class:`InputError` (checked
     before a long fit): an existing path must be a map folder, and no parent of it
-    may be a file."""
+    may be a file. A link is followed: the map it names is the one replaced (as a
+    write through a link to a file replaces the file), the link itself is kept and
+    nothing is left beside it."""
     target = Path(path).expanduser().absolute()
+    if target.is_symlink():
+        target = Path(os.path.realpath(target))
     if target.exists() and not (target / _META).is_file():
         raise InputError(
             f"{target}: exists and is not a map folder; refusing to replace it"
