@@ -499,6 +499,17 @@ def _standard_streams() -> bool:
     return was_open
 
 
+def _library_folders() -> None:
+    """Keep libraries' own folders out of the user's home: imageio (under
+    skimage, reading an image PIL cannot) makes ``~/.imageio`` when it looks for
+    plugins; it goes to the package's cache folder instead (``$RHYTHMIC_JAX_CACHE``,
+    default ``~/.cache/rhythmic_jax``), unless ``$IMAGEIO_USERDIR`` says where."""
+    cache = os.environ.get("RHYTHMIC_JAX_CACHE") or os.path.join(
+        os.path.expanduser("~"), ".cache", "rhythmic_jax"
+    )
+    os.environ.setdefault("IMAGEIO_USERDIR", cache)
+
+
 def _memory_limit() -> int | None:
     """The address-space limit (``ulimit -v``) in bytes, or None when there is
     none. Under one, glibc's malloc keeps one arena: the arenas of JAX's and
@@ -552,6 +563,7 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"{prog}: error: standard output is closed; give it a place "
              "(> FILE, or > /dev/null to drop what is printed)")  # fmt: skip
         return 2
+    _library_folders()
     limit = _memory_limit()
     if limit is not None and limit < MIN_ADDRESS_SPACE:
         least = _gib(MIN_ADDRESS_SPACE)

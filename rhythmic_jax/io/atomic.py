@@ -144,6 +144,9 @@ def save_npy(path: str | os.PathLike, x: np.ndarray) -> None:
 
 
 def write_file(path: str | os.PathLike, data: str | bytes) -> None:
-    """Write ``data`` (text is UTF-8 encoded) to ``path``, atomically."""
+    """Write ``data`` to ``path``, atomically; text is UTF-8 encoded, the bytes
+    of file names that are not UTF-8 written as the OS gave them."""
+    if isinstance(data, str):
+        data = data.encode("utf-8", "surrogateescape")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(data.encode() if isinstance(data, str) else data)
+        fh.write(data)

@@ -246,12 +246,31 @@ def _quiet_orbax_failures():
         sys.unraisablehook = hook
 
 
+@contextlib.contextmanager
+def _orbax_path(folder: Path) -> Iterator[Path]:
+    """``folder`` as orbax's file system layer (tensorstore) can take it: a path
+    whose bytes are not UTF-8 (file names carried as the OS gives them, any
+    non-ASCII name in the C locale) is reached through an open descriptor of the
+    folder, ``/proc/self/fd/N``, which both Python and tensorstore resolve."""
+    try:
+        str(folder).encode("utf-8")
+        alias = None
+    except UnicodeEncodeError:
+        alias = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        yield folder if alias is None else Path(f"/proc/self/fd/{alias}")
+    finally:
+        if alias is not None:
+            os.close(alias)
+
+
 def _write_arrays(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
     """The new map's arrays in the hidden folder ``tmp``."""
     ckpt = _checkpointer()
-    with _quiet_orbax_failures():
+    tmp.mkdir(exist_ok=True)  # to be opened where orbax cannot take its name
+    with _quiet_orbax_failures(), _orbax_path(tmp) as folder:
         try:
-            ckpt.save(tmp / _ARRAYS, arrays)
+            ckpt.save(folder / _ARRAYS, arrays)
             ckpt.wait_until_finished()
         finally:
             ckpt.close()
@@ -491,7 +510,8 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
         ckpt = _checkpointer()
         with _quiet_orbax_failures():
             try:
-                raw = ckpt.restore(folder / _ARRAYS)
+                with _orbax_path(folder) as place:
+                    raw = ckpt.restore(place / _ARRAYS)
             except Exception as err:  # noqa: BLE001 - orbax raises many kinds
                 msg = str(err).splitlines()[0] if str(err) else type(err).__name__
                 msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's spec
