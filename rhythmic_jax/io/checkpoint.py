@@ -59,6 +59,7 @@ __all__ = [
     "checksums_of",
     "load_map",
     "locked",
+    "orbax_folder",
     "save_map",
     "verify_files",
     "without_closed_loop",
@@ -246,28 +247,37 @@ def _quiet_orbax_failures():
         sys.unraisablehook = hook
 
 
-@contextlib.contextmanager
-def _orbax_path(folder: Path) -> Iterator[Path]:
-    """``folder`` as orbax's file system layer (tensorstore) can take it: a path
-    whose bytes are not UTF-8 (file names carried as the OS gives them, any
-    non-ASCII name in the C locale) is reached through an open descriptor of the
-    folder, ``/proc/self/fd/N``, which both Python and tensorstore resolve."""
+def orbax_folder(folder: Path) -> tuple[Path, int | None]:
+    """``folder`` as orbax's file system layer (tensorstore) can take it, and the
+    descriptor to close once orbax is done (None: nothing opened).
+
+    A path whose bytes are not UTF-8 (file names carried as the OS gives them,
+    any non-ASCII name in the C locale) cannot be handed to tensorstore; the
+    folder (made if missing) is then reached through an open descriptor,
+    ``/proc/self/fd/N``, which both Python and tensorstore resolve."""
     try:
         str(folder).encode("utf-8")
-        alias = None
+        return folder, None
     except UnicodeEncodeError:
-        alias = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        return Path(f"/proc/self/fd/{fd}"), fd
+
+
+@contextlib.contextmanager
+def _orbax_path(folder: Path) -> Iterator[Path]:
+    """:func:`orbax_folder` for the time of a save or a restore."""
+    place, fd = orbax_folder(folder)
     try:
-        yield folder if alias is None else Path(f"/proc/self/fd/{alias}")
+        yield place
     finally:
-        if alias is not None:
-            os.close(alias)
+        if fd is not None:
+            os.close(fd)
 
 
 def _write_arrays(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
     """The new map's arrays in the hidden folder ``tmp``."""
     ckpt = _checkpointer()
-    tmp.mkdir(exist_ok=True)  # to be opened where orbax cannot take its name
     with _quiet_orbax_failures(), _orbax_path(tmp) as folder:
         try:
             ckpt.save(folder / _ARRAYS, arrays)

@@ -261,3 +261,20 @@ def test_a_killed_fit_shards_is_rerun_by_the_same_command(tmp_path, when):
     assert (tmp_path / "r.map" / "map.json").is_file()
     assert sorted(os.listdir(tmp_path / "r.shards")) == ["00-route", "shards.json"]
     assert _hidden(tmp_path) == []
+
+
+def test_a_map_in_a_folder_named_in_bytes_that_are_not_utf8(tmp_path):
+    """orbax's tensorstore takes no such name: the map is saved and read
+    through an open descriptor of its folder, and nothing is left open."""
+    from rhythmic_jax.io import checkpoint
+
+    folder = Path(os.fsdecode(os.path.join(os.fsencode(tmp_path), b"r\xffoute")))
+    target = folder / "m\xe9.map"
+    w = np.arange(6, dtype=np.float32).reshape(3, 2)
+    fds = len(os.listdir("/proc/self/fd"))
+    checkpoint.save_map(target, {"w": w}, {"kind": "test"})
+    arrays, meta = checkpoint.load_map(target)
+    np.testing.assert_array_equal(arrays["w"], w)
+    assert meta["kind"] == "test"
+    assert os.listdir(os.fsencode(folder)) == [os.fsencode("m\xe9.map")]
+    assert len(os.listdir("/proc/self/fd")) <= fds
