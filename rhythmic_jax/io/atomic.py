@@ -7,8 +7,9 @@ which asks :func:`rhythmic_jax.io.outputs.output_target` what the path names:
 
 - a regular file or a new name (or a link to one: the file it names, the link
   kept): the content is written to a hidden temporary file in the target's
-  folder, flushed to disk, given the permissions a plain ``open`` would give, and
-  renamed over the target (``os.replace``, atomic on POSIX);
+  folder (``.<name>.<pid>-*.tmp``; those of killed writers are removed by the
+  next write), flushed to disk, given the permissions a plain ``open`` would
+  give, and renamed over the target (``os.replace``, atomic on POSIX);
 - a character device or a FIFO (``/dev/null``, ``/dev/full``, a named pipe, or a
   link to one): the content is written to a temporary file elsewhere, then
   copied into the device, opened for writing as it is; a FIFO is opened without
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import os
 import sys
 import tempfile
@@ -39,7 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rhythmic_jax.io.outputs import OutputError, Target, committing, output_target
+from rhythmic_jax.io.outputs import (
+    OutputError,
+    Target,
+    committing,
+    output_target,
+    process_alive,
+)
 
 __all__ = ["atomic_path", "save_npy", "write_file"]
 
@@ -63,7 +71,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         return
     path = target.path
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    _remove_stale(path)
+    prefix = f".{path.name}.{os.getpid()}-"
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix=".tmp")
     os.close(fd)
     tmp = Path(name)
     try:
@@ -79,6 +89,16 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _remove_stale(path: Path) -> None:
+    """Remove the temporaries beside ``path`` of writers whose process is gone
+    (killed before they could): ``.<name>.<pid>-*.tmp``."""
+    start = len(path.name) + 2
+    for stale in path.parent.glob(f".{glob.escape(path.name)}.*-*.tmp"):
+        pid = stale.name[start:].split("-", 1)[0]
+        if pid.isdigit() and not process_alive(int(pid)):
+            stale.unlink(missing_ok=True)
 
 
 @contextmanager

@@ -51,6 +51,7 @@ __all__ = [
     "check_place",
     "committing",
     "output_target",
+    "process_alive",
     "staged_folder",
     "write_errors",
 ]
@@ -291,7 +292,8 @@ def write_errors(option: str, path: str | os.PathLike) -> Iterator[None]:
         absl.setLevel(level)
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether the process ``pid`` is running (someone else's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -305,7 +307,7 @@ def _remove_stale(target: Path) -> None:
     """Remove the staged folders beside ``target`` whose process is gone."""
     for stale in target.parent.glob(f".{target.name}.tmp-*"):
         pid = stale.name.rsplit(".tmp-", 1)[1].split("-")[0]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not process_alive(int(pid)):
             shutil.rmtree(stale, ignore_errors=True)
 
 

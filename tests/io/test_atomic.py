@@ -204,3 +204,17 @@ def test_a_cancelled_job_writes_nothing_through(tmp_path, monkeypatch):
         write_file(os.devnull, "x")
     assert set(Path(tempfile.gettempdir()).glob(".rhythmic-jax-out-*")) == before
     _null_still_a_device()
+
+
+def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    dead = tmp_path / f".p.npy.{gone.stdout.strip()}-a1b2c3.tmp"
+    live = tmp_path / f".p.npy.{os.getppid()}-a1b2c3.tmp"  # a writer still going
+    other = tmp_path / f".q.npy.{gone.stdout.strip()}-a1b2c3.tmp"
+    for path in (dead, live, other):
+        path.write_bytes(b"half")
+    save_npy(tmp_path / "p.npy", np.arange(2))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["p.npy", live.name, other.name]
+    )
