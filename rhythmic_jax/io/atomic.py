@@ -105,7 +105,10 @@ def _remove_stale(path: Path) -> None:
 def _through(target: Target) -> Iterator[Path]:
     """Yield a temporary file (in the temporary folder); on a clean exit its
     bytes are written through ``target``'s device or stream, and it is removed."""
-    fd, name = tempfile.mkstemp(prefix=".rhythmic-jax-out-", suffix=".tmp")
+    folder = Path(tempfile.gettempdir())
+    _remove_stale(folder / "rhythmic-jax-out")
+    prefix = f".rhythmic-jax-out.{os.getpid()}-"
+    fd, name = tempfile.mkstemp(dir=folder, prefix=prefix, suffix=".tmp")
     os.close(fd)
     tmp = Path(name)
     try:

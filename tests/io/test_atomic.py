@@ -196,13 +196,13 @@ def test_a_socket_is_refused(tmp_path):
 def test_a_cancelled_job_writes_nothing_through(tmp_path, monkeypatch):
     """A device is written under the same commit lock as a rename: once the
     job is cancelled, nothing is written and no temporary is left."""
-    before = set(Path(tempfile.gettempdir()).glob(".rhythmic-jax-out-*"))
+    before = set(Path(tempfile.gettempdir()).glob(".rhythmic-jax-out.*"))
     cancelled = threading.Event()
     cancelled.set()
     monkeypatch.setattr(outputs, "_CANCELLED", cancelled)
     with pytest.raises(outputs.Cancelled):
         write_file(os.devnull, "x")
-    assert set(Path(tempfile.gettempdir()).glob(".rhythmic-jax-out-*")) == before
+    assert set(Path(tempfile.gettempdir()).glob(".rhythmic-jax-out.*")) == before
     _null_still_a_device()
 
 
