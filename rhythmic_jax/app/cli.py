@@ -527,11 +527,13 @@ def _memory_limit() -> int | None:
 
 
 def _out_of_memory(err: BaseException) -> bool:
-    """Whether ``err`` says memory ran out (Python's, XLA's or a library's
-    failed mapping), not a disk or a bad input."""
+    """Whether ``err`` says memory ran out (Python's, XLA's, a library's failed
+    mapping, a thread's stack), not a disk or a bad input."""
     if isinstance(err, MemoryError):
         return True
     text = str(err)
+    if isinstance(err, RuntimeError) and "can't start new thread" in text:
+        return True
     if "RESOURCE_EXHAUSTED" in text:
         return "No space left" not in text and "allocat" in text.lower()
     return isinstance(err, ImportError) and "failed to map segment" in text

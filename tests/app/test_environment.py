@@ -206,8 +206,9 @@ def test_a_memory_limit_the_command_fits_in_gives_the_answer(route, tmp_path):
         MemoryError(),
         RuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to allocate "
                      "80000000000 bytes."),  # fmt: skip
+        RuntimeError("can't start new thread"),
     ],
-    ids=["MemoryError", "XLA"],
+    ids=["MemoryError", "XLA", "thread"],
 )
 def test_memory_running_out_anywhere_is_one_line(route, monkeypatch, capsys, err):
     def runs_out(*args, **kwargs):
