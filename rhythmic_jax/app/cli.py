@@ -14,7 +14,6 @@ numpy, JAX or torch. What a job needs is imported when it runs.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import gc
 import json
 import logging
@@ -453,90 +452,10 @@ def _quiet_logs(verbose: bool) -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
-# the least address space (``ulimit -v``) a command starts JAX and torch in, with
-# glibc's malloc kept to one arena (measured: 1.4 GiB runs the fit of an image
-# folder and an evaluation; 1 GiB fails inside XLA or torch, beyond a clean line)
-MIN_ADDRESS_SPACE = 3 << 29  # 1.5 GiB
-_M_ARENA_MAX = -8  # mallopt's parameter
-_STDOUT_OPEN: dict[str, bool] = {}  # as the process found it (run, then main)
-
-
-def _readable(text: str) -> str:
-    """``text`` with the bytes of file names that are not UTF-8 (carried as
-    surrogate escapes) shown as ``\\xNN``, printable on any stream."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-
-
 def _say(line: str) -> None:
-    print(_readable(line), file=sys.stderr)
+    from rhythmic_jax.app.signals import readable
 
-
-def _standard_streams() -> bool:
-    """Make the standard streams safe to use; returns whether standard output
-    is open.
-
-    A closed descriptor 0, 1 or 2 (``>&-``) is opened on ``/dev/null``, so no
-    file the command opens takes its number (a map written where a library
-    prints); a closed standard error stays silent. What the streams cannot
-    encode (non-ASCII paths in the C locale, ``PYTHONIOENCODING=ascii``) is
-    written as backslash escapes instead of failing after the work is done."""
-    was_open = _STDOUT_OPEN.get("open", True)
-    for fd in (0, 1, 2):
-        try:
-            os.fstat(fd)
-        except OSError:
-            null = os.open(os.devnull, os.O_RDWR)
-            if null != fd:  # the lowest free number: fd itself, or a lower one
-                os.dup2(null, fd)
-                os.close(null)
-            was_open = was_open and fd != 1
-    if sys.stderr is None:
-        sys.stderr = open(2, "w", errors="backslashreplace", closefd=False)  # noqa: SIM115
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(AttributeError, ValueError, OSError):
-            stream.reconfigure(errors="backslashreplace")
-    _STDOUT_OPEN["open"] = was_open = was_open and sys.stdout is not None
-    return was_open
-
-
-def _library_folders() -> None:
-    """Keep libraries' own folders out of the user's home: imageio (under
-    skimage, reading an image PIL cannot) makes ``~/.imageio`` when it looks for
-    plugins; it goes to the package's cache folder instead (``$RHYTHMIC_JAX_CACHE``,
-    default ``~/.cache/rhythmic_jax``), unless ``$IMAGEIO_USERDIR`` says where."""
-    cache = os.environ.get("RHYTHMIC_JAX_CACHE") or os.path.join(
-        os.path.expanduser("~"), ".cache", "rhythmic_jax"
-    )
-    os.environ.setdefault("IMAGEIO_USERDIR", cache)
-
-
-def _memory_limit() -> int | None:
-    """The address-space limit (``ulimit -v``) in bytes, or None when there is
-    none. Under one, glibc's malloc keeps one arena: the arenas of JAX's and
-    torch's threads would otherwise take it whole before any array does."""
-    import resource
-
-    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
-    if soft == resource.RLIM_INFINITY:
-        return None
-    with contextlib.suppress(OSError, AttributeError):
-        import ctypes
-
-        ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1)
-    return soft
-
-
-def _out_of_memory(err: BaseException) -> bool:
-    """Whether ``err`` says memory ran out (Python's, XLA's, a library's failed
-    mapping, a thread's stack), not a disk or a bad input."""
-    if isinstance(err, MemoryError):
-        return True
-    text = str(err)
-    if isinstance(err, RuntimeError) and "can't start new thread" in text:
-        return True
-    if "RESOURCE_EXHAUSTED" in text:
-        return "No space left" not in text and "allocat" in text.lower()
-    return isinstance(err, ImportError) and "failed to map segment" in text
+    print(readable(line), file=sys.stderr)
 
 
 def _gib(nbytes: int) -> str:
@@ -552,9 +471,11 @@ def main(argv: list[str] | None = None) -> int:
     closed standard output is refused before any work (what the command prints
     would be lost), a closed standard error is silent, non-ASCII and non-UTF-8
     paths print on any stream, and memory running out (``ulimit -v`` below
-    :data:`MIN_ADDRESS_SPACE`, a ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``)
+    ``signals.MIN_ADDRESS_SPACE``, a ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``)
     says so."""
-    stdout_open = _standard_streams()
+    from rhythmic_jax.app import signals
+
+    stdout_open = signals.standard_streams()
     try:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed
@@ -565,17 +486,17 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"{prog}: error: standard output is closed; give it a place "
              "(> FILE, or > /dev/null to drop what is printed)")  # fmt: skip
         return 2
-    _library_folders()
-    limit = _memory_limit()
-    if limit is not None and limit < MIN_ADDRESS_SPACE:
-        least = _gib(MIN_ADDRESS_SPACE)
+    signals.library_folders()
+    limit = signals.memory_limit()
+    if limit is not None and limit < signals.MIN_ADDRESS_SPACE:
+        least = _gib(signals.MIN_ADDRESS_SPACE)
         _say(f"{prog}: error: memory ran out: the address-space limit (ulimit -v) "
              f"is {_gib(limit)}; the command needs at least {least}")  # fmt: skip
         return 2
     try:
         return _main(args, prog)
     except Exception as err:  # noqa: BLE001 - only memory's failures are said here
-        if not _out_of_memory(err):
+        if not signals.out_of_memory(err):
             raise
         where = "" if limit is None else f" (ulimit -v: {_gib(limit)})"
         _say(f"{prog}: error: memory ran out{where}; free some or give the "
@@ -601,7 +522,9 @@ def _main(args, prog: str) -> int:
     try:
         text = COMMANDS[args.command](args, job, not getattr(args, "no_progress", 0))
         if text is not None:
-            print(_readable(text))
+            from rhythmic_jax.app.signals import readable
+
+            print(readable(text))
         sys.stdout.flush()  # a closed pipe is found here, not at exit
         return 0
     except InputError as err:
@@ -634,7 +557,7 @@ def run() -> None:
     """
     from rhythmic_jax.app import signals
 
-    _standard_streams()  # before the signals' pipe could take a closed 0, 1 or 2
+    signals.standard_streams()  # before the signals' pipe takes a closed 0, 1 or 2
     signals.install(next((a for a in sys.argv[1:] if a in COMMANDS), None))
     status = main()
     if any(a.split("=")[0] == "--coordinator" for a in sys.argv[1:]):
