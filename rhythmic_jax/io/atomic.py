@@ -154,7 +154,12 @@ def _copy(tmp: Path, target: Target) -> None:
                 view = memoryview(block)
                 while view:
                     view = view[os.write(out, view) :]
-    except OSError as err:  # a full device, a reader gone
+    except BrokenPipeError:
+        if target.kind == "stream":
+            raise  # the reader of a standard stream left (| head): as any print
+        what = "could not write it (its reader left)"
+        raise OutputError(target.given, what) from None
+    except OSError as err:  # a full device
         raise OutputError(target.given, _failed(err)) from None
     finally:
         os.close(out)

@@ -279,3 +279,18 @@ def test_a_map_in_a_folder_named_in_bytes_that_are_not_utf8(tmp_path):
     assert meta["kind"] == "test"
     assert os.listdir(os.fsencode(folder)) == [os.fsencode("m\xe9.map")]
     assert len(os.listdir("/proc/self/fd")) <= fds
+
+
+def test_out_dev_stdout_into_a_reader_that_leaves_is_quiet(route, tmp_path):
+    """As any print into ``| head``: status 141, nothing on stderr."""
+    rows = np.random.default_rng(0).normal(size=(20_000, 16)).astype(np.float32)
+    np.save(tmp_path / "many.npy", rows / np.linalg.norm(rows, axis=1, keepdims=True))
+    cmd = [sys.executable, "-m", "rhythmic_jax.app.cli", "query",
+           str(route / "m.map"), str(tmp_path / "many.npy"), "--out", "/dev/stdout",
+           "--no-progress"]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)  # fmt: skip
+    assert proc.stdout.read(100)[:6] == b"\x93NUMPY"
+    proc.stdout.close()  # the reader leaves
+    err = proc.stderr.read()
+    assert proc.wait(60) == 141 and err == b"", err
