@@ -445,12 +445,12 @@ def check_target(path: str | os.PathLike) -> Path:
     may be a file. A link is followed: the map it names is the one replaced (as a
     write through a link to a file replaces the file), the link itself is kept and
     nothing is left beside it."""
-    target = Path(path).expanduser().absolute()
+    given = target = Path(path).expanduser().absolute()
     if target.is_symlink():
         target = Path(os.path.realpath(target))
     if target.exists() and not (target / _META).is_file():
         raise InputError(
-            f"{target}: exists and is not a map folder; refusing to replace it"
+            f"{given}: exists and is not a map folder; refusing to replace it"
         )
     for parent in target.parents:
         if parent.exists():
