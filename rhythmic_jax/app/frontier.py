@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.outputs import check_place
 
 __all__ = ["frontier", "frontier_lines", "main", "write_csv"]
 
@@ -227,6 +228,8 @@ def main(args) -> int:
         if out and not Path(out).absolute().parent.is_dir():
             where = Path(out).parent
             raise InputError(f"{{opt:{opt}}} {out}: folder {where} not found")
+        if out:
+            check_place(opt, out, file=True)  # a folder there: refused before work
     if args.ground_truth_format and not args.ground_truth:
         raise InputError("{opt:ground_truth_format} needs {opt:ground_truth}")
     if args.plot and not str(args.plot).lower().endswith(".png"):

@@ -334,7 +334,7 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
     if out and not Path(out).parent.is_dir():
         raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
     if out:
-        check_place("out", out)
+        check_place("out", out, file=True)
     model, feats = _load_queries(job, progress)
     pred = model.predict(
         feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
@@ -378,7 +378,7 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     if plot and not str(plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
     if plot:
-        check_place("plot", plot)
+        check_place("plot", plot, file=True)
     model, feats = _load_queries(job, progress)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,

@@ -42,6 +42,7 @@ from rhythmic_jax.decoding.fusion import (
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.eval.metrics import pr_points
+from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.map.codes import CodeBook, code_bytes
 from rhythmic_jax.map.periods import candidate_periods, choose_periods, database_bytes
 from rhythmic_jax.map.periods import storage_bytes as map_bytes
@@ -182,10 +183,8 @@ def _cached(cache, key: str, make):
         with np.load(path, allow_pickle=False) as f:
             return dict(f)
     out = make()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **out)
-    tmp.replace(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # no temporary left
+        np.savez(fh, **out)
     return out
 
 

@@ -222,7 +222,7 @@ def files_cache_path(
     h.update(json.dumps(ident, sort_keys=True, default=str).encode())
     for f in files:
         data = Path(f).read_bytes()
-        h.update(f"{Path(f).name}|{len(data)}|".encode())
+        h.update(f"{Path(f).name}|{len(data)}|".encode("utf-8", "surrogateescape"))
         h.update(data)
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     return folder / f"{key}-{descriptor.name}-files-{h.hexdigest()[:16]}.npy"

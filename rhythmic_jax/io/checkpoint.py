@@ -59,6 +59,7 @@ __all__ = [
     "checksums_of",
     "load_map",
     "locked",
+    "orbax_folder",
     "save_map",
     "verify_files",
     "without_closed_loop",
@@ -246,12 +247,40 @@ def _quiet_orbax_failures():
         sys.unraisablehook = hook
 
 
+def orbax_folder(folder: Path) -> tuple[Path, int | None]:
+    """``folder`` as orbax's file system layer (tensorstore) can take it, and the
+    descriptor to close once orbax is done (None: nothing opened).
+
+    A path whose bytes are not UTF-8 (file names carried as the OS gives them,
+    any non-ASCII name in the C locale) cannot be handed to tensorstore; the
+    folder (made if missing) is then reached through an open descriptor,
+    ``/proc/self/fd/N``, which both Python and tensorstore resolve."""
+    try:
+        str(folder).encode("utf-8")
+        return folder, None
+    except UnicodeEncodeError:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        return Path(f"/proc/self/fd/{fd}"), fd
+
+
+@contextlib.contextmanager
+def _orbax_path(folder: Path) -> Iterator[Path]:
+    """:func:`orbax_folder` for the time of a save or a restore."""
+    place, fd = orbax_folder(folder)
+    try:
+        yield place
+    finally:
+        if fd is not None:
+            os.close(fd)
+
+
 def _write_arrays(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
     """The new map's arrays in the hidden folder ``tmp``."""
     ckpt = _checkpointer()
-    with _quiet_orbax_failures():
+    with _quiet_orbax_failures(), _orbax_path(tmp) as folder:
         try:
-            ckpt.save(tmp / _ARRAYS, arrays)
+            ckpt.save(folder / _ARRAYS, arrays)
             ckpt.wait_until_finished()
         finally:
             ckpt.close()
@@ -413,11 +442,15 @@ def _clean(target: Path, *kinds: str) -> None:
 def check_target(path: str | os.PathLike) -> Path:
     """The absolute path a map may be saved to, or :class:`InputError` (checked
     before a long fit): an existing path must be a map folder, and no parent of it
-    may be a file."""
-    target = Path(path).expanduser().absolute()
+    may be a file. A link is followed: the map it names is the one replaced (as a
+    write through a link to a file replaces the file), the link itself is kept and
+    nothing is left beside it."""
+    given = target = Path(path).expanduser().absolute()
+    if target.is_symlink():
+        target = Path(os.path.realpath(target))
     if target.exists() and not (target / _META).is_file():
         raise InputError(
-            f"{target}: exists and is not a map folder; refusing to replace it"
+            f"{given}: exists and is not a map folder; refusing to replace it"
         )
     for parent in target.parents:
         if parent.exists():
@@ -487,7 +520,8 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
         ckpt = _checkpointer()
         with _quiet_orbax_failures():
             try:
-                raw = ckpt.restore(folder / _ARRAYS)
+                with _orbax_path(folder) as place:
+                    raw = ckpt.restore(place / _ARRAYS)
             except Exception as err:  # noqa: BLE001 - orbax raises many kinds
                 msg = str(err).splitlines()[0] if str(err) else type(err).__name__
                 msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's spec

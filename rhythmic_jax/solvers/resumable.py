@@ -87,6 +87,10 @@ class RunConfig:
 # ------------------------------------------------------------------ checkpoints
 
 
+# a manager's folder opened where tensorstore could not take its name: id -> fd
+_ALIASES: dict[int, int] = {}
+
+
 def _manager(ckpt_dir: Path):
     import orbax.checkpoint as ocp  # deferred: orbax is slow to import
 
@@ -100,7 +104,13 @@ def _manager(ckpt_dir: Path):
         "state": ocp.StandardCheckpointHandler(),
         "config": ocp.JsonCheckpointHandler(),
     }
-    return ocp.CheckpointManager(ckpt_dir, options=options, item_handlers=handlers)
+    from rhythmic_jax.io.checkpoint import orbax_folder
+
+    folder, fd = orbax_folder(ckpt_dir)  # a name tensorstore takes
+    manager = ocp.CheckpointManager(folder, options=options, item_handlers=handlers)
+    if fd is not None:
+        _ALIASES[id(manager)] = fd
+    return manager
 
 
 def _save(manager, state: TrainState, config: RunConfig) -> int:
@@ -286,6 +296,9 @@ def _close(manager) -> None:
         manager.close()
     except Exception as err:  # noqa: BLE001 - orbax raises many kinds
         log.warning("could not close the checkpoint manager cleanly: %s", err)
+    fd = _ALIASES.pop(id(manager), None)
+    if fd is not None:
+        os.close(fd)
 
 
 # -------------------------------------------------------------- streamed batches
