@@ -20,6 +20,7 @@ LAYERS = [
     ["errors", "version"],
     ["jit_options", "progress"],
     ["validate"],
+    ["io.reader"],
     ["io.outputs"],
     ["io.atomic", "io.checkpoint", "io.images"],
     ["io.descriptor_files", "io.tiles"],
