@@ -28,7 +28,13 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
-from rhythmic_jax.io.descriptor_files import read_npy_header
+from rhythmic_jax.io.reader import (
+    load_npy,
+    memory_budget,
+    npy_header,
+    npz_headers,
+    read_text,
+)
 from rhythmic_jax.io.vpr_files import safe_object_npy
 
 __all__ = [
@@ -105,17 +111,12 @@ _DEGREES = (("latitude", "longitude"), ("lat", "lon"), ("lat", "lng"))
 def _plain_npy(path: Path) -> np.ndarray:
     """A numeric ``.npy``; one holding pickled objects is refused unread (nothing
     is unpickled), as is a file that is not a ``.npy``."""
-    try:
-        return np.load(path, allow_pickle=False)
-    except OSError as err:
-        raise InputError(f"{path}: cannot read ({err.strerror or err})") from None
-    except ValueError as err:
-        if "allow_pickle" in str(err):
-            raise InputError(
-                f"{path}: holds pickled objects, not numbers; refusing to unpickle "
-                "it (save the positions as a numeric (n, 2) array or a CSV)"
-            ) from None
-        raise InputError(f"{path}: not a .npy file ({err})") from None
+    if npy_header(path).dtype.hasobject:
+        raise InputError(
+            f"{path}: holds pickled objects, not numbers; refusing to unpickle "
+            "it (save the positions as a numeric (n, 2) array or a CSV)"
+        )
+    return load_npy(path)
 
 
 def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
@@ -125,14 +126,13 @@ def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
     be projected with :func:`in_metres` together with the files they meet.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: positions file not found")
     if path.suffix.lower() == ".npy":
         return _checked(_plain_npy(path), path), "metres"
-    try:
-        rows = list(csv.reader(path.read_text().splitlines()))
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: cannot read positions ({err})") from None
+    # as a spreadsheet saves it too: a byte-order mark, CRLF ends, blank lines
+    text = read_text(path, limit=memory_budget() // 8, encoding="utf-8-sig")
+    rows = list(csv.reader(text.splitlines()))
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
         raise InputError(f"{path}: no positions")
@@ -284,13 +284,9 @@ def load_ground_truth(
 
 def _object_npy(path: str) -> bool:
     p = Path(path)
-    if p.suffix.lower() != ".npy" or not p.is_file():
+    if p.suffix.lower() != ".npy" or not p.exists():
         return False
-    try:
-        with p.open("rb") as f:
-            return bool(read_npy_header(f)[2].hasobject)
-    except (OSError, ValueError):
-        return False
+    return bool(npy_header(p).dtype.hasobject)  # a FIFO or device: refused
 
 
 @dataclass(frozen=True, eq=False)
@@ -323,6 +319,9 @@ def read_tutorial_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
     """VPR_Tutorial ``GT.npz``: hard positives, soft-only places not counted wrong."""
     from rhythmic_jax.io.vpr_files import read_vpr_tutorial
 
+    for key, head in npz_headers(path).items():  # sizes before inflating
+        if key in ("GThard", "GTsoft") and len(head.shape) == 2:
+            _sizes(path, *head.shape, n_places, n_queries)
     hard, soft = read_vpr_tutorial(path)
     _sizes(path, hard.shape[0], hard.shape[1], n_places, n_queries)
     src = f"VPR_Tutorial GT.npz {Path(path).absolute()} (GThard; GTsoft not wrong)"
@@ -356,6 +355,10 @@ def read_patchnetvlad_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
     """Patch-NetVLAD ``.npz``: database places within ``posDistThr`` metres."""
     from rhythmic_jax.io.vpr_files import read_patchnetvlad
 
+    heads = npz_headers(path)  # sizes before inflating
+    shapes = [heads[k].shape for k in ("utmDb", "utmQ") if k in heads]
+    if len(shapes) == 2 and all(shapes):
+        _sizes(path, shapes[0][0], shapes[1][0], n_places, n_queries)
     db, q, thr = read_patchnetvlad(path)
     _sizes(path, len(db), len(q), n_places, n_queries)
     src = f"Patch-NetVLAD utmDb/utmQ {Path(path).absolute()}"
@@ -374,7 +377,7 @@ def _sizes(path, n_db: int, n_q: int, n_places: int, n_queries: int) -> None:
 def _vpr_tool(spec: str):
     """The reader of a VPR tool's ground-truth file, or None (by name)."""
     p = Path(spec)
-    if not p.is_file():
+    if not p.exists():
         return None
     if p.suffix.lower() == ".npy" and "_gt_" in p.name:
         return read_openvprlab
@@ -383,11 +386,7 @@ def _vpr_tool(spec: str):
 
 def _read_npz(path, *, n_queries: int, n_places: int) -> GroundTruth:
     """A ground-truth ``.npz``: VPR_Tutorial's or Patch-NetVLAD's, by its keys."""
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            keys = set(f.files)
-    except Exception as err:  # noqa: BLE001 - zipfile errors on a truncated file
-        raise InputError(f"{path}: not a readable .npz ({err!r})"[:300]) from None
+    keys = set(npz_headers(path))  # the members' headers alone
     if {"GThard", "GTsoft"} & keys:
         return read_tutorial_gt(path, n_queries=n_queries, n_places=n_places)
     if {"utmQ", "utmDb"} & keys:

@@ -250,22 +250,21 @@ def _header(fh, path) -> NpyHeader:
     """The header at the position of ``fh`` (binary, read forward only)."""
     try:
         start = fh.tell()
-        magic = fh.read(6)
-        if magic[:1] == b"\x80":
+        if fh.read(1) == b"\x80":
             raise InputError(
                 f"{path}: contains Python objects; refusing to unpickle (a raw "
                 "pickle, not .npy)"
             )
-        version = tuple(fh.read(2))
-        read = _HEADERS.get(version) if magic == b"\x93NUMPY" else None
-        if read is None:
-            raise ValueError("no .npy magic" if magic != b"\x93NUMPY" else version)
-        shape, fortran, dtype = read(fh)
+        fh.seek(start)
+        version = np.lib.format.read_magic(fh)
+        if version not in _HEADERS:
+            raise ValueError(f"format version {version}")
+        shape, fortran, dtype = _HEADERS[version](fh)
         offset = fh.tell() - start
     except InputError:
         raise
     except Exception as err:  # noqa: BLE001 - numpy raises several kinds
-        raise InputError(f"{path}: not a valid .npy file ({err})"[:300]) from None
+        raise InputError(f"{path} is not a valid .npy file: {err}"[:300]) from None
     return NpyHeader(tuple(int(k) for k in shape), bool(fortran), dtype, offset)
 
 
@@ -305,7 +304,7 @@ def load_npy(path: str | os.PathLike, mmap: bool = False) -> np.ndarray:
     except InputError:
         raise
     except Exception as err:  # noqa: BLE001 - changed since the header was read
-        raise InputError(f"{path}: not a valid .npy file ({err})"[:300]) from None
+        raise InputError(f"{path} is not a valid .npy file: {err}"[:300]) from None
 
 
 @contextlib.contextmanager
