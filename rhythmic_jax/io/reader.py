@@ -141,7 +141,9 @@ def open_regular(path: str | os.PathLike) -> BinaryIO:
         os.close(fd)
         raise _not_regular(path, st.st_mode)
     os.set_blocking(fd, True)
-    return os.fdopen(fd, "rb")
+    fh = os.fdopen(fd, "rb")
+    fh.raw.name = os.fspath(path)  # as open() names it (image readers read it)
+    return fh
 
 
 def inside(folder: str | os.PathLike, name: str, what: str = "file") -> Path:
@@ -252,7 +254,7 @@ def _header(fh, path) -> NpyHeader:
         start = fh.tell()
         if fh.read(1) == b"\x80":
             raise InputError(
-                f"{path}: contains Python objects; refusing to unpickle (a raw "
+                f"{path} contains Python objects; refusing to unpickle (a raw "
                 "pickle, not .npy)"
             )
         fh.seek(start)
@@ -293,7 +295,7 @@ def load_npy(path: str | os.PathLike, mmap: bool = False) -> np.ndarray:
     ``mmap``: memory-mapped read-only (nothing allocated)."""
     head = npy_header(path)
     if head.dtype.hasobject:
-        raise InputError(f"{path}: contains Python objects; refusing to unpickle")
+        raise InputError(f"{path} contains Python objects; refusing to unpickle")
     if not mmap:
         _within_budget(path, head.nbytes, f"a {head.dtype} array of {head.shape}")
     try:

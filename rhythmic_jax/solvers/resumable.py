@@ -340,7 +340,10 @@ def memmap_batches(
     path = Path(path)
     if not path.exists():
         raise InputError(f"descriptor file not found: {path}")
-    x = load_npy(path, mmap=True)  # regular file; the header's rows in the file
+    try:
+        x = load_npy(path, mmap=True)  # regular file; the header's rows in the file
+    except InputError as err:
+        raise InputError(f"{path}: not a readable .npy array ({err})") from None
     if x.dtype.kind not in "fiu" or x.ndim != 2 or 0 in x.shape:
         raise InputError(
             f"{path}: expected a non-empty (n, d) real array, got {x.dtype} {x.shape}"
