@@ -240,10 +240,10 @@ def test_an_npz_bomb_is_refused_before_inflating(tmp_path, monkeypatch):
 
 def test_a_refused_bomb_takes_little_memory(tmp_path):
     """Peak resident memory of a process refusing the 3.2 GB bomb (its shape
-    would fit the map) with a budget below it, measured by the process itself."""
+    would fit the map) with a budget below it, measured by the process itself
+    (``VmHWM``: ``ru_maxrss`` would carry this test process's peak over exec)."""
     bomb = npz_bomb(tmp_path / "GT.npz")
     script = (
-        "import resource\n"
         "from rhythmic_jax.eval.ground_truth_files import load_ground_truth\n"
         "from rhythmic_jax.errors import InputError\n"
         "try:\n"
@@ -251,7 +251,8 @@ def test_a_refused_bomb_takes_little_memory(tmp_path):
         " query_source='q')\n"
         "except InputError as err:\n"
         "    print(err)\n"
-        "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)\n"
+        "peak = open('/proc/self/status').read().split('VmHWM:')[1].split()[0]\n"
+        "print(int(peak) * 1024)\n"
     )
     env = {**os.environ, "RHYTHMIC_JAX_MEMORY": "2G", "PYTHONPATH": str(REPO)}
     out = subprocess.run(
@@ -260,7 +261,7 @@ def test_a_refused_bomb_takes_little_memory(tmp_path):
     )  # fmt: skip
     lines = out.stdout.splitlines()
     assert "3,200,000,000 bytes" in lines[0], out
-    assert int(lines[1]) < 2**30  # well under a GiB (about 150 MB of imports)
+    assert int(lines[1]) < 2**30, lines  # well under: about 250 MB of imports
 
 
 # ------------------------------------------------------------------------- HDF5
