@@ -513,3 +513,35 @@ def test_real_processes_end_at_once_on_pipes_and_devices(saved_map, tmp_path):
         lines = err.decode().splitlines()
         assert proc.returncode == 2, (argv, lines)
         assert len(lines) == 1 and "not a regular file" in lines[0], lines
+
+
+def test_a_map_without_digests_is_still_checked_before_orbax_reads_it(
+    saved_map, tmp_path, capsys
+):
+    """A map saved before digests existed has no sha256 to check its files
+    against: what orbax would read must still be regular files inside it."""
+    folder = _meta(_copy(saved_map, tmp_path), lambda m: m.pop("digests"))
+    q, out = str(saved_map.parent / "q.npy"), str(tmp_path / "p.npy")
+    argv = ["query", str(folder), q, "--out", out, "--no-progress"]
+    assert main(argv) == 0  # the old map loads
+    _swap(folder, "arrays/manifest.ocdbt", os.mkfifo)
+    _one_line(argv, capsys, "arrays are missing or corrupt", "not a regular file")
+    _swap(folder, "arrays/manifest.ocdbt", lambda p: p.symlink_to("/dev/zero"))
+    _one_line(argv, capsys, "'manifest.ocdbt' leads outside")
+
+
+def test_a_tiled_pair_stays_inside_its_folders(tmp_path):
+    from rhythmic_jax.io.tiles import load_aerial_route
+
+    pixels = np.random.default_rng(2).integers(0, 256, (32, 32, 3), dtype=np.uint8)
+    for side in ("A", "B"):
+        (tmp_path / "pair" / side).mkdir(parents=True)
+    imsave(tmp_path / "pair" / "A" / "x.png", pixels, check_contrast=False)
+    imsave(tmp_path / "elsewhere.png", pixels, check_contrast=False)
+    (tmp_path / "pair" / "B" / "x.png").symlink_to(tmp_path / "elsewhere.png")
+    refused(lambda: load_aerial_route(tmp_path / "pair", 16, 16), "'x.png' leads out")
+    (tmp_path / "pair" / "B" / "x.png").unlink()
+    imsave(tmp_path / "pair" / "B" / "x.png", pixels, check_contrast=False)
+    route = load_aerial_route(tmp_path / "pair", 16, 16)
+    assert len(route) == 4
+    np.testing.assert_array_equal(route.map_tiles, route.query_tiles)
