@@ -106,10 +106,11 @@ def _gib(v: int) -> str:
 def _within_budget(path, nbytes: int, what: str) -> None:
     budget = memory_budget()
     if nbytes > budget:
+        why = "half the available memory; RHYTHMIC_JAX_MEMORY sets it"
+        why = "RHYTHMIC_JAX_MEMORY" if os.environ.get("RHYTHMIC_JAX_MEMORY") else why
         raise InputError(
             f"{path}: {what} declares {nbytes:,} bytes ({_gib(nbytes)}), more than "
-            f"the {_gib(budget)} allowed (half the available memory; set "
-            "RHYTHMIC_JAX_MEMORY to allow more)"
+            f"the {_gib(budget)} allowed ({why})"
         )
 
 
@@ -118,7 +119,7 @@ def _kind(mode: int) -> str | None:
 
 
 def _not_regular(path, mode: int) -> InputError:
-    kind = _kind(mode) or "not a regular file"
+    kind = _kind(mode) or "an unknown kind of file"
     return InputError(f"{path}: {kind}, not a regular file; refusing to read it")
 
 
