@@ -87,6 +87,8 @@ def file_record(what: str, path: str | Path) -> dict:
 
 
 def _existing(what: str, path: Path, recorded: str | None) -> Path:
+    if path.exists() and not path.is_file():
+        open_regular(path)  # a pipe, device or folder: refused in the reader's words
     if not path.is_file():
         hint = "; give {opt:weights} PATH of the file or a copy" if recorded else ""
         raise InputError(f"{what} weights file not found: {path}{hint}")

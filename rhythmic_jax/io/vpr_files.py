@@ -36,6 +36,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.reader import (
+    inside,
     load_npy,
     load_npz,
     memory_budget,
@@ -76,7 +77,7 @@ def read_image_list(path: str | os.PathLike, root: str | os.PathLike | None = No
     """An OpenVPRLab ``*_dbImages.npy`` / ``*_qImages.npy``: (n,) image paths.
 
     Paths are resolved against ``root`` (the dataset folder) when given, and
-    must then exist. Returns a list of n :class:`~pathlib.Path`.
+    must then exist inside it. Returns a list of n :class:`~pathlib.Path`.
     """
     path = Path(path)
     shape, dtype = _npy_header(path)
@@ -87,6 +88,8 @@ def read_image_list(path: str | os.PathLike, root: str | os.PathLike | None = No
     names = [str(v) for v in _plain_npy(path).tolist()]
     if root is None:
         return [Path(v) for v in names]
+    for v in names:
+        inside(root, v, "image")  # none leaves the dataset, links followed
     out = [Path(root) / v for v in names]
     missing = [p for p in out if not p.is_file()]
     if missing:

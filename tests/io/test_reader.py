@@ -545,3 +545,11 @@ def test_a_tiled_pair_stays_inside_its_folders(tmp_path):
     route = load_aerial_route(tmp_path / "pair", 16, 16)
     assert len(route) == 4
     np.testing.assert_array_equal(route.map_tiles, route.query_tiles)
+
+
+def test_a_weights_file_that_is_a_pipe_is_named_so(odd):
+    from rhythmic_jax.frames.weights import resolve_weights
+
+    for path, kind in odd.values():
+        if kind != "folder":
+            refused(lambda p=path: resolve_weights("VGG16", str(p)), str(path), kind)
