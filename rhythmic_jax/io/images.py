@@ -126,14 +126,14 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
     return files
 
 
-def _read_jpeg_reduced(path, at_least: tuple[int, int]) -> np.ndarray | None:
-    """A JPEG decoded at the smallest of libjpeg's DCT scales (1/2, 1/4, 1/8)
-    that is still at least ``at_least`` = (width, height), as uint8 RGB; None
-    for a file that is not a readable JPEG (:func:`read_rgb` then reads it)."""
+def _read_jpeg_reduced(fh, at_least: tuple[int, int]) -> np.ndarray | None:
+    """The JPEG open as ``fh`` decoded at the smallest of libjpeg's DCT scales
+    (1/2, 1/4, 1/8) still at least ``at_least`` = (width, height), as uint8 RGB;
+    None for a file that is not a readable JPEG (:func:`read_rgb` then reads it)."""
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
+        with Image.open(fh) as im:
             if im.format != "JPEG":
                 return None
             im.draft("RGB", at_least)
@@ -147,14 +147,14 @@ def _read_jpeg_reduced(path, at_least: tuple[int, int]) -> np.ndarray | None:
 _COLOUR_SPACES = frozenset({"CMYK", "YCbCr", "LAB", "HSV"})
 
 
-def _read_other_colour_space(path) -> np.ndarray | None:
-    """A CMYK, YCbCr, LAB or HSV image as PIL converts it to uint8 (H, W, 3) RGB;
-    None for any other image (or a file PIL cannot open: skimage then reads it and
-    names what is wrong)."""
+def _read_other_colour_space(fh) -> np.ndarray | None:
+    """A CMYK, YCbCr, LAB or HSV image (open as ``fh``) as PIL converts it to
+    uint8 (H, W, 3) RGB; None for any other image (or a file PIL cannot open:
+    skimage then reads it and names what is wrong)."""
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
+        with Image.open(fh) as im:
             if im.mode not in _COLOUR_SPACES:
                 return None
             return np.asarray(im.convert("RGB"))
