@@ -52,7 +52,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import committing
-from rhythmic_jax.io.reader import inside, open_regular, read_json
+from rhythmic_jax.io.reader import check_budget, inside, open_regular, read_json
 
 __all__ = [
     "FORMAT_VERSION",
@@ -383,6 +383,16 @@ def _check_tree(root: Path) -> None:
                 )
 
 
+def _check_declared(folder: Path, metadata) -> None:
+    """Refuse a map whose arrays declare more bytes than the memory budget
+    (:func:`rhythmic_jax.io.reader.check_budget`), before orbax allocates them."""
+    tree = getattr(metadata, "item_metadata", metadata) or {}
+    shapes = [(v.shape, v.dtype) for v in tree.values() if hasattr(v, "shape")]
+    nbytes = sum(int(np.prod(s, dtype=object)) * np.dtype(t).itemsize
+                 for s, t in shapes)  # fmt: skip
+    check_budget(folder, nbytes, f"its {len(shapes)} arrays")
+
+
 def _free_bytes(folder: Path) -> int:
     """Bytes free to this user on the file system of ``folder`` (or its first
     existing parent)."""
@@ -509,7 +519,10 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
         ckpt = _checkpointer()
         with _quiet_orbax_failures():
             try:
+                _check_declared(folder, ckpt.metadata(folder / _ARRAYS))
                 raw = ckpt.restore(folder / _ARRAYS)
+            except InputError:
+                raise
             except Exception as err:  # noqa: BLE001 - orbax raises many kinds
                 msg = str(err).splitlines()[0] if str(err) else type(err).__name__
                 msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's spec

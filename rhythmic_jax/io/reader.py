@@ -46,6 +46,7 @@ __all__ = [
     "TEXT_LIMIT",
     "NpyHeader",
     "available_memory",
+    "check_budget",
     "inside",
     "load_npy",
     "load_npz",
@@ -100,17 +101,19 @@ def memory_budget() -> int:
 
 
 def _gib(v: int) -> str:
-    return f"{v / 2**30:.2f} GiB" if v >= 2**30 else f"{v / 2**20:.1f} MiB"
+    return f"{v / 2**30:.2f} GiB" if v >= 2**30 else f"{v / 2**20:.3g} MiB"
 
 
-def _within_budget(path, nbytes: int, what: str) -> None:
+def check_budget(path: str | os.PathLike, nbytes: int, what: str) -> None:
+    """Refuse (:class:`InputError`, naming ``path``) ``what``, declaring
+    ``nbytes``, when they exceed :func:`memory_budget`."""
     budget = memory_budget()
     if nbytes > budget:
         why = "half the available memory; RHYTHMIC_JAX_MEMORY sets it"
         why = "RHYTHMIC_JAX_MEMORY" if os.environ.get("RHYTHMIC_JAX_MEMORY") else why
         raise InputError(
-            f"{path}: {what} declares {nbytes:,} bytes ({_gib(nbytes)}), more than "
-            f"the {_gib(budget)} allowed ({why})"
+            f"{path}: {what} would take {nbytes:,} bytes ({_gib(nbytes)}), more "
+            f"than the {budget:,} bytes ({_gib(budget)}) allowed ({why})"
         )
 
 
@@ -298,7 +301,7 @@ def load_npy(path: str | os.PathLike, mmap: bool = False) -> np.ndarray:
     if head.dtype.hasobject:
         raise InputError(f"{path} contains Python objects; refusing to unpickle")
     if not mmap:
-        _within_budget(path, head.nbytes, f"a {head.dtype} array of {head.shape}")
+        check_budget(path, head.nbytes, f"a {head.dtype} array of {head.shape}")
     try:
         if mmap:
             return np.load(path, mmap_mode="r", allow_pickle=False)
@@ -357,7 +360,7 @@ def load_npz(path: str | os.PathLike, keys=None) -> dict[str, np.ndarray]:
     if any(heads[k].dtype.hasobject for k in keys):
         raise InputError(f"{path}: refused: holds Python objects (a pickle)")
     total = sum(heads[k].nbytes for k in keys)
-    _within_budget(path, total, ", ".join(f"{k} {heads[k].shape}" for k in keys))
+    check_budget(path, total, ", ".join(f"{k} {heads[k].shape}" for k in keys))
     out = {}
     with _zip(path) as zf:
         names = {i.filename.removesuffix(".npy"): i for i in zf.infolist()}
@@ -413,5 +416,5 @@ def read_h5(dataset, path: str | os.PathLike) -> np.ndarray:
             "is read"
         )
     nbytes = int(np.prod(dataset.shape, dtype=object)) * dataset.dtype.itemsize
-    _within_budget(path, nbytes, f"dataset {dataset.name}")
+    check_budget(path, nbytes, f"dataset {dataset.name}")
     return dataset[()]

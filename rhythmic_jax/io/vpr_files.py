@@ -36,6 +36,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.reader import (
+    check_budget,
     inside,
     load_npy,
     load_npz,
@@ -299,13 +300,9 @@ def read_hloc_descriptors(path: str | os.PathLike) -> tuple[list[str], np.ndarra
                     f"{path}: global_descriptor datasets must all be (d,) numbers, "
                     f"got shapes {sorted(shapes)[:3]} of kinds {sorted(kinds)}"
                 )
-            need = len(names) * int(np.prod(next(iter(shapes)))) * 4
-            if need > memory_budget():
-                raise InputError(
-                    f"{path}: {len(names)} descriptors of {next(iter(shapes))} take "
-                    f"{need:,} bytes, more than the memory allowed "
-                    "(RHYTHMIC_JAX_MEMORY)"
-                )
+            shape = next(iter(shapes))
+            need = len(names) * int(np.prod(shape, dtype=object)) * 4
+            check_budget(path, need, f"{len(names)} float32 descriptors of {shape}")
             x = np.stack([read_h5(found[k], path) for k in names])
             x = x.astype(np.float32)
     except InputError:

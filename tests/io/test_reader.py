@@ -553,3 +553,16 @@ def test_a_weights_file_that_is_a_pipe_is_named_so(odd):
     for path, kind in odd.values():
         if kind != "folder":
             refused(lambda p=path: resolve_weights("VGG16", str(p)), str(path), kind)
+
+
+def test_a_map_is_refused_before_orbax_allocates_more_than_the_budget(
+    saved_map, monkeypatch
+):
+    from rhythmic_jax.io.checkpoint import load_map
+
+    arrays, _ = load_map(saved_map)
+    need = sum(a.nbytes for a in arrays.values())
+    monkeypatch.setenv("RHYTHMIC_JAX_MEMORY", str(need - 1))
+    refused(lambda: load_map(saved_map), f"arrays would take {need:,} bytes")
+    monkeypatch.setenv("RHYTHMIC_JAX_MEMORY", str(need))
+    assert sorted(load_map(saved_map)[0]) == sorted(arrays)
