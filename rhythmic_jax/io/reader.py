@@ -13,10 +13,11 @@ and safetensors checks every offset against the file's size before allocating):
   the folder it is relative to (:func:`inside`);
 * **sizes before allocation**: text and JSON are read up to a cap checked against
   the file's size first, JSON nested at most :data:`JSON_DEPTH` deep
-  (:func:`read_json`); a ``.npy`` header's declared bytes must fit in the file and
-  in :func:`memory_budget` (:func:`npy_header`), and so must every ``.npz``
-  member's declared size and header, read before anything is inflated
-  (:func:`npz_headers`, :func:`load_npz`);
+  (:func:`read_json`); a ``.npy`` header's declared bytes must fit in the file
+  (:func:`npy_header`), an ``.npz`` member's in its declared size, read from the
+  few bytes inflated of its header (:func:`npz_headers`), and what is read into
+  memory in :func:`memory_budget` (:func:`check_budget`: :func:`load_npy`,
+  :func:`load_npz`, :func:`read_h5`; the map's arrays before orbax restores them);
 * **``.h5`` data from the same file**: external links, external storage and
   virtual datasets are refused (:func:`open_h5`, :func:`read_h5`).
 
@@ -253,7 +254,8 @@ _HEADERS = {
 
 
 def _header(fh, path) -> NpyHeader:
-    """The header at the position of ``fh`` (binary, read forward only)."""
+    """The ``.npy`` header at the position of ``fh`` (binary, seekable), with
+    ``offset`` counted from that position."""
     try:
         start = fh.tell()
         if fh.read(1) == b"\x80":
