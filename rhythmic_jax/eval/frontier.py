@@ -43,6 +43,7 @@ from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.eval.metrics import pr_points
 from rhythmic_jax.io.atomic import atomic_path
+from rhythmic_jax.io.reader import load_npz
 from rhythmic_jax.map.codes import CodeBook, code_bytes
 from rhythmic_jax.map.periods import candidate_periods, choose_periods, database_bytes
 from rhythmic_jax.map.periods import storage_bytes as map_bytes
@@ -180,8 +181,7 @@ def _cached(cache, key: str, make):
         return make()
     path = Path(cache) / f"{key}.npz"
     if path.exists():
-        with np.load(path, allow_pickle=False) as f:
-            return dict(f)
+        return load_npz(path)
     out = make()
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # no temporary left
         np.savez(fh, **out)

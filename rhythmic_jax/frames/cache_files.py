@@ -20,6 +20,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import save_npy
+from rhythmic_jax.io.reader import load_npy, npy_header
 
 __all__ = [
     "cache_key_check",
@@ -51,10 +52,10 @@ def load_cached(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
     try:
         if not path.is_file():
             return None
-        x = np.load(path, allow_pickle=False)
-        if x.shape == tuple(shape) and x.dtype == np.float32:
-            return x
-    except (OSError, ValueError, EOFError) as err:
+        head = npy_header(path)
+        if head.shape == tuple(shape) and head.dtype == np.float32:
+            return load_npy(path)
+    except InputError as err:
         log.warning("recomputing unreadable cache file %s (%s)", path, err)
     return None
 

@@ -220,8 +220,11 @@ def files_cache_path(
         ident.append("shrunk in uint8")  # values differ from the float resize's
         ident.append("JPEG decoded at a reduced scale")  # and from the full decode's
     h.update(json.dumps(ident, sort_keys=True, default=str).encode())
+    from rhythmic_jax.io.reader import memory_budget, read_bytes
+
+    limit = memory_budget()
     for f in files:
-        data = Path(f).read_bytes()
+        data = read_bytes(f, limit)  # a regular file, of at most the budget
         h.update(f"{Path(f).name}|{len(data)}|".encode("utf-8", "surrogateescape"))
         h.update(data)
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()

@@ -22,6 +22,7 @@ import importlib.metadata
 from pathlib import Path
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.reader import open_regular
 
 __all__ = [
     "LITE0_PACKAGE",
@@ -39,7 +40,7 @@ PROVENANCE = ("weights_package", "weights_version", "weights_sha256")
 @functools.lru_cache(maxsize=16)
 def _sha256(path: str, size: int, mtime_ns: int) -> str:
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
@@ -86,6 +87,8 @@ def file_record(what: str, path: str | Path) -> dict:
 
 
 def _existing(what: str, path: Path, recorded: str | None) -> Path:
+    if path.exists() and not path.is_file():
+        open_regular(path)  # a pipe, device or folder: refused in the reader's words
     if not path.is_file():
         hint = "; give {opt:weights} PATH of the file or a copy" if recorded else ""
         raise InputError(f"{what} weights file not found: {path}{hint}")

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.reader import load_npy
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.objective import Templates, targets
 from rhythmic_jax.solvers.optax_loops import TrainState, adam, minibatch_step
@@ -350,11 +351,11 @@ def memmap_batches(
       ``epoch -> sequence of (x (m, d) float32, y (m, p) float32)``.
     """
     path = Path(path)
+    if not path.exists():
+        raise InputError(f"descriptor file not found: {path}")
     try:
-        x = np.load(path, mmap_mode="r", allow_pickle=False)
-    except FileNotFoundError:
-        raise InputError(f"descriptor file not found: {path}") from None
-    except Exception as err:  # noqa: BLE001 - pickles, text, truncation, bad headers
+        x = load_npy(path, mmap=True)  # regular file; the header's rows in the file
+    except InputError as err:
         raise InputError(f"{path}: not a readable .npy array ({err})") from None
     if x.dtype.kind not in "fiu" or x.ndim != 2 or 0 in x.shape:
         raise InputError(
