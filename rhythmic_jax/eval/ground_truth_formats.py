@@ -46,7 +46,7 @@ def detect_format(path: str | Path) -> str:
     """The format (one of :data:`FORMATS`) the file ``path`` holds, by its
     contents; :class:`InputError` naming what it holds when it fits none."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():  # a FIFO or device exists: open_regular names it
         raise InputError(f"{{opt:ground_truth}} {path}: file not found")
     try:
         with open_regular(path) as f:  # a FIFO or device: refused, never opened
