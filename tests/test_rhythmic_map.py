@@ -90,8 +90,8 @@ def test_gap_setting_stops_near_the_optimum():
     loose = RhythmicMap(gap=5e-4).fit(x, progress=False)
     assert loose.periods == exact.periods
     y = targets(np.arange(len(x)), exact.periods)
-    f_exact = np.asarray(objective(exact.params, x, y, exact.c), np.float64)
-    f_loose = np.asarray(objective(loose.params, x, y, loose.c), np.float64)
+    f_exact = np.asarray(objective(exact.params, x, y, exact.map_.c), np.float64)
+    f_loose = np.asarray(objective(loose.params, x, y, loose.map_.c), np.float64)
     rel = (f_loose - f_exact) / f_exact
     assert rel.max() <= 1e-3  # within 0.1 % of the optimum, template by template
     assert rel.max() > 1e-7  # and it did stop early
@@ -216,6 +216,6 @@ def test_maps_saved_without_a_layout_still_load(fitted, tmp_path):
 
 def test_bad_layouts_are_refused_before_fitting():
     with pytest.raises(InputError, match="layout 'mixed:1,2'"):
-        RhythmicMap(layout="mixed:1,2")
+        RhythmicMap(layout="mixed:1,2").fit(np.zeros((0, 3)), progress=False)
     with pytest.raises(InputError, match="tells apart 100 places"):
         RhythmicMap(layout="mixed:10,10").fit(wide(), progress=False)
