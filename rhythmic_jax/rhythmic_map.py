@@ -27,33 +27,28 @@ from sklearn.exceptions import NotFittedError
 
 from rhythmic_jax.decoding import queries
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.estimator_inputs import (
+    SCALE_KEYS,
+    SCALES,
+    place_labels,
+    shape_checked,
+    standardize,
+    standardized,
+)
 from rhythmic_jax.fitting.fit_map import fit as fit_map
 from rhythmic_jax.map import map_file, pytree
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.embedding import embedding_bytes
-from rhythmic_jax.validate import check_features, is_sparse
+from rhythmic_jax.validate import check_features
 
-__all__ = [
-    "SCALES",
-    "MapConfig",
-    "NotFittedMapError",
-    "NotNumbersError",
-    "RhythmicMap",
-]
+__all__ = ["MapConfig", "NotFittedMapError", "RhythmicMap"]
 
-SCALES = ("refuse", "standardize")
-_SCALE_KEYS = ("scale_mean", "scale_std")  # the arrays of scale="standardize"
-_FIT_KEYS = (*_SCALE_KEYS, "place_labels")  # extra arrays each fit makes anew
+_FIT_KEYS = (*SCALE_KEYS, "place_labels")  # extra arrays each fit makes anew
 
 
 class NotFittedMapError(InputError, NotFittedError):
     """A fitted map's value asked of an estimator before ``fit`` or ``load``:
     scikit-learn's ``NotFittedError`` and this package's one-line error."""
-
-
-class NotNumbersError(InputError, TypeError):
-    """An object array holding something that is not a number (a TypeError,
-    as numpy's conversion raises it, and this package's one-line error)."""
 
 
 def _map_field(name: str, doc: str) -> property:
@@ -173,7 +168,7 @@ class RhythmicMap(BaseEstimator):
         label of ``y`` (n_frames,) (places 0 .. n-1, each with a frame)
         (:func:`rhythmic_jax.fitting.fit_map.fit`). Returns self."""
         cfg, name = self._settings(), "reference features"
-        x = check_features(_shape_checked(X, name), name)
+        x = check_features(shape_checked(X, name), name)
         if self.scale not in SCALES:
             raise InputError(f"scale must be one of {SCALES}, got {self.scale!r}")
         extra = {k: v for k, v in self.extra.items() if k not in _FIT_KEYS}
@@ -183,18 +178,11 @@ class RhythmicMap(BaseEstimator):
                     "scale='standardize' with an embedding: the embedding takes "
                     "the descriptors as they are; use scale='refuse'"
                 )
-            mean, std = (
-                x.mean(axis=0, dtype=np.float64),
-                x.std(axis=0, dtype=np.float64),
-            )
-            std = np.where(std > 0, std, 1.0)
-            extra.update(
-                scale_mean=mean.astype(np.float32), scale_std=std.astype(np.float32)
-            )
-            x = _standardized(x, extra)
+            extra.update(standardize(x))
+            x = standardized(x, extra)
         labels = None
         if y is not None:  # places numbered in the order of their labels
-            places, labels = np.unique(_place_labels(y, len(x)), return_inverse=True)
+            places, labels = np.unique(place_labels(y, len(x)), return_inverse=True)
             if not np.array_equal(places, np.arange(len(places))):
                 extra["place_labels"] = places
         n = len(x) if labels is None else int(labels.max()) + 1
@@ -292,10 +280,10 @@ class RhythmicMap(BaseEstimator):
         """Queries X (b, d) for the map: shape and values checked, standardized
         where the fit standardized its frames."""
         m = self._fitted()
-        X = _shape_checked(X, name, m.d)
+        X = shape_checked(X, name, m.d)
         if "scale_mean" not in m.extra:
             return X
-        return _standardized(check_features(X, name, d=m.d), m.extra)
+        return standardized(check_features(X, name, d=m.d), m.extra)
 
     def scores(self, X):
         """Decision values of queries X (b, d) -> (b, p)."""
@@ -398,58 +386,3 @@ def _params_of(config: MapConfig) -> dict:
     got["method"] = got.pop("decode")
     got["descriptor_settings"] = dict(got["descriptor_settings"]) or None
     return got
-
-
-def _standardized(x: np.ndarray, extra: dict) -> np.ndarray:
-    """Frames x (b, d) standardized by ``extra``'s ``scale_mean`` and ``scale_std``."""
-    mean, std = (np.asarray(extra[k], np.float32) for k in _SCALE_KEYS)
-    return (x - mean[None, :]) / std[None, :]
-
-
-def _place_labels(y, n_frames: int) -> np.ndarray:
-    """Place labels ``y`` (n_frames,) as int64 >= 0 (whole floats taken), else
-    one line."""
-    lab = np.asarray(y)
-    if lab.shape != (n_frames,):
-        raise InputError(f"y: expected {n_frames} place labels, got shape {lab.shape}")
-    whole = np.issubdtype(lab.dtype, np.integer)
-    if not whole and np.issubdtype(lab.dtype, np.floating):
-        whole = bool(np.isfinite(lab).all() and (lab == np.round(lab)).all())
-    if not whole or (lab.size and lab.min() < 0):
-        raise InputError(
-            f"y: place labels must be integers >= 0, got dtype {lab.dtype} "
-            "(Unknown label type otherwise)"
-        )
-    return lab.astype(np.int64)
-
-
-def _shape_checked(X, name: str, d: int | None = None):
-    """X as it is, refused in scikit-learn's words where its shape (when it has
-    one) is 1-d, has no features or not ``d`` of them; numbers held as Python
-    objects become float64."""
-    if isinstance(X, np.ndarray) and X.dtype == object:
-        try:
-            X = X.astype(np.float64)
-        except (TypeError, ValueError) as err:
-            raise NotNumbersError(
-                f"{name}: expected numbers, got an object array ({err})"
-            ) from None
-    shape = getattr(X, "shape", None)
-    if shape is None or is_sparse(X):
-        return X
-    if len(shape) == 1:
-        raise InputError(
-            f"{name}: expected a 2-D array (frames x features), got shape {shape}; "
-            "Reshape your data: X.reshape(1, -1) for one frame"
-        )
-    if len(shape) == 2 and shape[1] == 0:
-        raise InputError(
-            f"{name}: 0 feature(s) (shape={shape}) while a minimum of 1 is required: "
-            "an empty array"
-        )
-    if d is not None and len(shape) == 2 and shape[1] != d:
-        raise InputError(
-            f"{name}: {shape[1]}-d features but the map was built for {d}-d (X has "
-            f"{shape[1]} features, but RhythmicMap is expecting {d} features as input)"
-        )
-    return X
