@@ -1,15 +1,21 @@
 """RhythmicMap as scikit-learn's own checks see it, and in its tools.
 
-``parametrize_with_checks`` runs every check ``check_estimator`` runs on the
-estimator (about 40 s in all on 2 cores: each fit compiles for its shape). The
+Every check ``check_estimator`` runs (``estimator_checks_generator``, as
+``parametrize_with_checks`` makes them) runs on the estimator, each fit
+compiling for its shape (about 40 s in all from a cold compile cache on 2
+cores, 11 s warm); four checks that are not about the API (idempotence, one
+feature, dtypes, the positive-only tag) run under the ``slow`` marker. The
 checks feed features near 100 (``check_fit_idempotent``, ``check_n_features_in``,
 ``check_fit_check_is_fitted``), which the default ``scale="refuse"`` refuses as
-unscaled; the estimator checked standardizes them (``scale="standardize"``), and
-the refusal is tested apart. No check is expected to fail.
+unscaled; the estimator checked standardizes them (``scale="standardize"``),
+and the refusal is tested apart. No check is expected to fail
+(``EXPECTED_FAILED`` is empty, and a check listed there that passed would fail
+the run).
 """
 
 from __future__ import annotations
 
+import functools
 import pickle
 
 import numpy as np
@@ -19,15 +25,61 @@ from sklearn.exceptions import NotFittedError
 from sklearn.model_selection import GridSearchCV, KFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import Normalizer
-from sklearn.utils.estimator_checks import parametrize_with_checks
+from sklearn.utils.estimator_checks import estimator_checks_generator
 
 import rhythmic_jax as rj
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
 
+EXPECTED_FAILED: dict[str, str] = {}  # check name -> why it cannot apply
+SLOW = {
+    "check_fit_idempotent",
+    "check_fit2d_1feature",
+    "check_estimators_dtypes",
+    "check_positive_only_tag_during_fit",
+}
 
-@parametrize_with_checks([RhythmicMap(scale="standardize")], expected_failed_checks={})
+
+def _name(check) -> str:
+    return (check.func if isinstance(check, functools.partial) else check).__name__
+
+
+CHECKS = [
+    pytest.param(
+        estimator,
+        check,
+        id=_name(check),
+        marks=[pytest.mark.slow] if _name(check) in SLOW else [],
+    )
+    for estimator, check in estimator_checks_generator(
+        RhythmicMap(scale="standardize"),
+        legacy=True,
+        expected_failed_checks=EXPECTED_FAILED,
+        mark="xfail",
+        xfail_strict=True,
+    )
+]
+
+
+@pytest.mark.parametrize("estimator, check", CHECKS)
 def test_scikit_learn_checks(estimator, check):
     check(estimator)
+
+
+def test_the_checks_cover_the_api():
+    """The core API checks are among those run by default."""
+    core = {
+        "check_estimator_cloneable", "check_estimator_repr",
+        "check_get_params_invariance", "check_set_params",
+        "check_no_attributes_set_in_init",
+        "check_fit_check_is_fitted", "check_estimators_unfitted",
+        "check_n_features_in", "check_n_features_in_after_fitting",
+        "check_estimators_pickle", "check_estimators_nan_inf", "check_complex_data",
+        "check_estimator_sparse_matrix", "check_estimator_sparse_array", "check_fit1d",
+        "check_fit2d_predict1d", "check_dict_unchanged",
+        "check_estimators_overwrite_params", "check_dont_overwrite_parameters",
+    }  # fmt: skip
+    default = {p.id for p in CHECKS if not p.marks}
+    assert core <= default, core - default
 
 
 def route(n=120, d=48, seed=0):
