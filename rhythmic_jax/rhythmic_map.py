@@ -78,6 +78,13 @@ class RhythmicMap(BaseEstimator):
     it; applied by this estimator's methods, not by the pure functions of
     ``map_``).
 
+    ``fit(X, y=None)``: y, when given, are the place labels of the frames
+    (integers >= 0; frames of one label share a place), and ``predict`` answers
+    with them; ``score(X, y=None)`` is recall@1 against y, or with y None the
+    self-recall of reference frames X (row i is place i). To cross-validate
+    (``GridSearchCV``), give y and folds that each hold every place, e.g. one
+    traversal of the route per fold.
+
     Fitted: ``map_`` (the :class:`~rhythmic_jax.map.pytree.Map`),
     ``n_features_in_`` (d). ``RhythmicMap.from_config(config)`` builds one
     from a :class:`MapConfig`.
@@ -296,7 +303,8 @@ class RhythmicMap(BaseEstimator):
     def decode(self, X, method: str | None = None, m: int | None = None):
         """Decode queries X (b, d): :class:`~rhythmic_jax.decoding.hard.Decoded`
         (index -1 for no match, score, runner-up, confidence); ``method`` "hard",
-        "soft" or "topm" and ``m`` (top-m) default to the map's."""
+        "soft" or "topm" and ``m`` (top-m) default to the map's. The index is the
+        map's place row 0 .. n-1 (``predict`` names it by the labels ``fit`` had)."""
         return queries.decode(self._fitted(), self._queries(X), method, m)
 
     def predict(self, X, method=None, *, m=None, sequence=None, speeds=(1.0,),
@@ -324,6 +332,8 @@ class RhythmicMap(BaseEstimator):
         Table 2 protocol)."""
         pred = self.predict(X)
         truth = np.arange(len(pred)) if y is None else np.asarray(y)
+        if truth.dtype.kind == "f" and np.array_equal(truth, np.round(truth)):
+            truth = truth.astype(np.int64)  # whole numbers, as fit takes them
         if truth.shape != pred.shape or not np.issubdtype(truth.dtype, np.integer):
             raise InputError(
                 f"y: expected {len(pred)} integer places (one per query), got "
