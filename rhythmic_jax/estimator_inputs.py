@@ -12,9 +12,9 @@ words, before :func:`rhythmic_jax.validate.check_features` checks the values.
 
 Place labels ``y`` (:func:`place_labels`) may be any integers >= 0 (whole
 floats too); the estimator numbers its places in their order. Features not of
-order one are refused by the fit, or standardized per feature
-(:func:`standardize`, :func:`standardized`) where the estimator's ``scale``
-says so.
+order one (:func:`not_of_order_one`) are refused by the fit, or standardized
+per feature (:func:`standardize`, :func:`standardized`) where the estimator's
+``scale`` says so.
 
 Shapes: n frames, b queries, d features.
 """
@@ -24,19 +24,20 @@ from __future__ import annotations
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.validate import is_sparse
+from rhythmic_jax.validate import check_fit_scale, is_sparse, scale_sums
 
 __all__ = [
     "SCALES",
     "SCALE_KEYS",
     "NotNumbersError",
+    "not_of_order_one",
     "place_labels",
     "shape_checked",
     "standardize",
     "standardized",
 ]
 
-SCALES = ("refuse", "standardize")  # what a fit does with features not of order one
+SCALES = ("refuse", "standardize", "auto")  # what a fit does with unscaled features
 SCALE_KEYS = ("scale_mean", "scale_std")  # kept in the map's extra arrays
 
 
@@ -91,6 +92,17 @@ def place_labels(y, n: int) -> np.ndarray:
             "(Unknown label type otherwise)"
         )
     return lab.astype(np.int64)
+
+
+def not_of_order_one(x: np.ndarray) -> bool:
+    """True for frames x (n, d) that a fit refuses as not of order one
+    (:func:`rhythmic_jax.validate.check_fit_scale`: a mean frame far from the
+    origin, as unscaled 8-bit descriptors have)."""
+    try:
+        check_fit_scale(scale_sums(x), float(np.abs(x).max()))
+    except InputError:
+        return True
+    return False
 
 
 def standardize(x: np.ndarray) -> dict[str, np.ndarray]:

@@ -30,6 +30,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.estimator_inputs import (
     SCALE_KEYS,
     SCALES,
+    not_of_order_one,
     place_labels,
     shape_checked,
     standardize,
@@ -71,12 +72,14 @@ class RhythmicMap(BaseEstimator):
     does unless told); ``embedding``: an
     :class:`~rhythmic_jax.map.embedding.Embedding` applied to frames and queries
     first; ``scale``: what ``fit`` does with features that are not of order one
-    (a mean frame far from the origin, as unscaled 8-bit descriptors have):
-    "refuse" them in one line (the default), or "standardize" every feature to
-    zero mean and unit variance over the reference frames, the queries alike
-    (kept as ``scale_mean`` / ``scale_std`` in the map's ``extra``, saved with
-    it; applied by this estimator's methods, not by the pure functions of
-    ``map_``).
+    (a mean frame far from the origin, as unscaled 8-bit descriptors have,
+    :func:`rhythmic_jax.validate.check_fit_scale`): "refuse" them in one line
+    (the default), "standardize" every feature to zero mean and unit variance
+    over the reference frames, the queries alike, or "auto": standardize the
+    frames ``fit`` would refuse and take the others as they are. The scaling is
+    kept as ``scale_mean`` / ``scale_std`` in the map's ``extra`` (saved with
+    it) and applied by this estimator's methods, not by the pure functions of
+    ``map_``.
 
     ``fit(X, y=None)``: y, when given, are the place labels of the frames
     (integers >= 0; frames of one label share a place), and ``predict`` answers
@@ -172,19 +175,22 @@ class RhythmicMap(BaseEstimator):
     # ------------------------------------------------------------ the fit
     def fit(self, X, y=None, *, verbose=0, progress=None, refine=None, plan=None):
         """Train on reference frames X (n_frames, d): one place per row, or per
-        label of ``y`` (n_frames,) (places 0 .. n-1, each with a frame)
+        label of ``y`` (n_frames,) (integers >= 0)
         (:func:`rhythmic_jax.fitting.fit_map.fit`). Returns self."""
         cfg, name = self._settings(), "reference features"
         x = check_features(shape_checked(X, name), name)
         if self.scale not in SCALES:
             raise InputError(f"scale must be one of {SCALES}, got {self.scale!r}")
         extra = {k: v for k, v in self.extra.items() if k not in _FIT_KEYS}
-        if self.scale == "standardize":
-            if self.embedding is not None:
-                raise InputError(
-                    "scale='standardize' with an embedding: the embedding takes "
-                    "the descriptors as they are; use scale='refuse'"
-                )
+        if self.scale == "standardize" and self.embedding is not None:
+            raise InputError(
+                "scale='standardize' with an embedding: the embedding takes "
+                "the descriptors as they are; use scale='refuse' or 'auto'"
+            )
+        unscaled = (
+            self.scale == "auto" and self.embedding is None and not_of_order_one(x)
+        )
+        if self.scale == "standardize" or unscaled:
             extra.update(standardize(x))
             x = standardized(x, extra)
         labels = None

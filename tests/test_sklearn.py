@@ -162,6 +162,16 @@ def test_scale_refuses_unscaled_features_or_standardizes_them():
     assert est.score(x) == want.score(z) > 0.5
     with pytest.raises(InputError, match="scale must be one of"):
         RhythmicMap(scale="minmax").fit(x, progress=False)
+    auto = RhythmicMap(scale="auto")  # standardizes what refuse refuses, only
+    np.testing.assert_array_equal(
+        auto.fit(x, progress=False).predict(x), est.predict(x)
+    )
+    assert "scale_mean" in auto.extra
+    z = route(80, 16, seed=3)
+    np.testing.assert_array_equal(
+        auto.fit(z, progress=False).map_.w, RhythmicMap().fit(z, progress=False).map_.w
+    )
+    assert "scale_mean" not in auto.extra
 
 
 def test_standardized_map_survives_save_and_load(tmp_path):
