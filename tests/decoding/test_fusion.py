@@ -122,7 +122,8 @@ def test_bad_shapes():
 @pytest.mark.parametrize("codes", [16, "int8"])
 def test_a_map_with_codes_decodes_under_jit_as_eager(codes):
     """``jax.jit(decode)``, ``place_scores`` and ``decode_sequence`` on a map
-    with codes trace (the queries encoded in JAX) and give the eager answer."""
+    with codes trace (the queries encoded in JAX) and give the eager answer;
+    ``jax.vmap`` over two stacked maps too."""
     import jax
 
     import rhythmic_jax as rj
@@ -139,6 +140,11 @@ def test_a_map_with_codes_decodes_under_jit_as_eager(codes):
             np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-6)
     np.testing.assert_allclose(
         jax.jit(rj.place_scores)(m, q), rj.place_scores(m, q), rtol=1e-6, atol=1e-6
+    )
+    two = jax.tree.map(lambda a, b: jax.numpy.stack([a, b]), m, m)
+    both = jax.vmap(rj.decode, in_axes=(0, None))(two, q).index
+    np.testing.assert_array_equal(
+        np.asarray(both[1]), np.asarray(rj.decode(m, q).index)
     )
     if codes != 16:
         return
