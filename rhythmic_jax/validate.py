@@ -224,7 +224,8 @@ def is_sparse(x) -> bool:
     """True for a sparse matrix or array (scipy.sparse, pydata sparse, JAX's
     BCOO): what ``np.asarray`` would wrap as one object, not convert."""
     module = type(x).__module__ or ""
-    return module.startswith(("scipy.sparse", "sparse", "jax.experimental.sparse"))
+    top = ("scipy.sparse", "sparse", "jax.experimental.sparse")
+    return any(module == m or module.startswith(m + ".") for m in top)
 
 
 def check_features(x, name: str = "features", d: int | None = None) -> np.ndarray:
@@ -252,7 +253,7 @@ def check_features(x, name: str = "features", d: int | None = None) -> np.ndarra
     if np.iscomplexobj(arr):
         raise InputError(
             f"{name}: Complex data not supported (dtype {arr.dtype}); the map "
-            "takes real features (x.real or abs(x), as they mean)"
+            "takes real features: pass x.real or abs(x), whichever they mean"
         )
     if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
         raise InputError(f"{name}: expected numbers, got dtype {arr.dtype}")

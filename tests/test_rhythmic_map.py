@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from jax.experimental.sparse import BCOO
 from scipy import sparse
 
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
@@ -228,6 +229,7 @@ def test_bad_layouts_are_refused_before_fitting():
         (lambda x: x + 0.5j, r"Complex data not supported \(dtype complex64\)"),
         (sparse.csr_matrix, "sparse matrix"),
         (sparse.coo_array, "sparse matrix"),
+        (lambda x: BCOO.fromdense(x), "sparse matrix"),
     ],
 )
 def test_complex_and_sparse_features_are_refused_naming_them(fitted, make, match):
