@@ -16,6 +16,7 @@ the run).
 from __future__ import annotations
 
 import functools
+import inspect
 import pickle
 
 import numpy as np
@@ -109,6 +110,14 @@ def test_positional_arguments_are_refused_in_one_line():
     assert "\n" not in str(err.value)
     with pytest.raises(TypeError, match="from_config"):
         RhythmicMap(MapConfig())
+    params = inspect.signature(RhythmicMap).parameters  # what help() shows
+    assert all(p.kind is p.KEYWORD_ONLY for p in params.values())
+    assert set(params) == set(RhythmicMap().get_params())
+    assert list(inspect.signature(RhythmicMap.predict).parameters)[:3] == [
+        "self",
+        "X",
+        "method",
+    ]
 
 
 def test_before_a_fit_every_query_raises_not_fitted():
