@@ -244,3 +244,15 @@ def test_pipeline_with_a_normalizer_fits_and_predicts():
         pipe.predict(x), want.predict(Normalizer().transform(x))
     )
     assert pipe.score(x) == pytest.approx(want.score(Normalizer().transform(x)))
+
+
+@pytest.mark.slow
+def test_grid_search_as_written_fits_every_setting():
+    """``GridSearchCV(RhythmicMap(), grid).fit(X)`` with its default 5 folds and
+    no labels: every setting fits (the held-out frames are no places of the
+    map, so the scores say nothing; give y to compare settings)."""
+    grid = GridSearchCV(
+        RhythmicMap(), {"level": [1, 2], "r": [2, 3]}, error_score="raise"
+    ).fit(route(200, 64, seed=8))
+    assert len(grid.cv_results_["mean_test_score"]) == 4
+    assert grid.best_estimator_.n == 200
