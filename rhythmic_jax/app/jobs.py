@@ -205,7 +205,7 @@ def fit(job: FitJob, progress: bool = False):
     config, emb, ref, feats, fit_plan = _after_reading(
         job, learned, read, fit_plan, feats
     )
-    model = RhythmicMap(config, embedding=emb)
+    model = RhythmicMap.from_config(config, embedding=emb)
     model.extra.update(feats.extra)
     model.reference = ref
     if augmented is None:

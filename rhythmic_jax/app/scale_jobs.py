@@ -207,7 +207,7 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     name, settings = shard_descriptor(sources[0])
-    model = RhythmicMap(
+    model = RhythmicMap.from_config(
         replace(job.config, descriptor=name, descriptor_settings=settings)
     )
     ckpt = job.checkpoint_folder

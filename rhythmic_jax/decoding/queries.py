@@ -8,9 +8,9 @@ has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
 
 - with codes, the place scores are fused with the code similarities
   (:mod:`rhythmic_jax.decoding.fusion`; ``hard`` then scores every place, as
-  ``soft``; the code similarities are computed on the host, so such a map is
-  decoded outside a trace), the queries padded to their bucket first, so the
-  scores, codes and fused decode compile once per bucket;
+  ``soft``; inside a trace the queries are encoded in JAX, so such a map
+  decodes under ``jax.jit`` too), the queries padded to their bucket first, so
+  the scores, codes and fused decode compile once per bucket;
 - the hard decode of any layout: the one kernel
   (:func:`rhythmic_jax.decoding.hard.decode`), with up to
   :data:`~rhythmic_jax.decoding.hard.SMALL_BATCH` float32 queries of a periods

@@ -167,7 +167,7 @@ def _fit_map(x, r, level, gap):
     """The (w (d, p), b (p,)) templates and periods of a soft-decode map of x."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
-    m = RhythmicMap(r=r, level=level, gap=gap, decode="soft").fit(x, progress=False)
+    m = RhythmicMap(r=r, level=level, gap=gap, method="soft").fit(x, progress=False)
     return np.asarray(m.params.w), np.asarray(m.params.b), tuple(m.periods)
 
 

@@ -133,8 +133,14 @@ class CodeTransform:
     def d(self) -> int:
         return int(self.projection.shape[1])
 
-    def encode(self, x) -> np.ndarray:
-        """(b, d) descriptors -> (b, bits) bool codes (a jitted matrix product)."""
+    def encode(self, x) -> np.ndarray | jax.Array:
+        """(b, d) descriptors -> (b, bits) bool codes (a jitted matrix product).
+
+        Inside a trace (``jax.jit``, ``jax.vmap``) x is taken as it is and the
+        codes stay traced, so a map with codes decodes under ``jax.jit`` with
+        the eager answer; else x is checked and the codes come to the host."""
+        if isinstance(x, jax.core.Tracer) or isinstance(self.mean, jax.core.Tracer):
+            return _encode(self.mean, self.projection, x)
         x = check_features(x, "descriptors to encode", d=self.d)
         return np.asarray(_encode(self.mean, self.projection, jnp.asarray(x)))
 
