@@ -74,9 +74,11 @@ class RhythmicMap(BaseEstimator):
     first; ``scale``: what ``fit`` does with features that are not of order one
     (a mean frame far from the origin, as unscaled 8-bit descriptors have,
     :func:`rhythmic_jax.validate.check_fit_scale`): "refuse" them in one line
-    (the default), "standardize" every feature to zero mean and unit variance
-    over the reference frames, the queries alike, or "auto": standardize the
-    frames ``fit`` would refuse and take the others as they are. The scaling is
+    (what the command line and :meth:`from_config` do), "standardize" every
+    feature to zero mean and unit variance over the reference frames, the
+    queries alike, or "auto" (the default, so scikit-learn's own checks, which
+    feed features near 100, fit): standardize the frames "refuse" would refuse
+    and take the others as they are, unchanged. The scaling is
     kept as ``scale_mean`` / ``scale_std`` in the map's ``extra`` (saved with
     it) and applied by this estimator's methods, not by the pure functions of
     ``map_``.
@@ -121,7 +123,7 @@ class RhythmicMap(BaseEstimator):
         fusion=0.5,
         layout="periods",
         embedding=None,
-        scale="refuse",
+        scale="auto",
     ):
         self.r, self.level, self.count, self.c = r, level, count, c
         self.solver, self.gap, self.method, self.m = solver, gap, method, m

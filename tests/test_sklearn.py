@@ -6,9 +6,10 @@ compiling for its shape (about 40 s in all from a cold compile cache on 2
 cores, 11 s warm); four checks that are not about the API (idempotence, one
 feature, dtypes, the positive-only tag) run under the ``slow`` marker. The
 checks feed features near 100 (``check_fit_idempotent``, ``check_n_features_in``,
-``check_fit_check_is_fitted``), which the default ``scale="refuse"`` refuses as
-unscaled; the estimator checked standardizes them (``scale="standardize"``),
-and the refusal is tested apart. No check is expected to fail
+``check_fit_check_is_fitted``), which ``scale="refuse"`` (the command line's
+choice) refuses as unscaled; the estimator checked is the default
+``RhythmicMap()``, whose ``scale="auto"`` standardizes them, and the refusal is
+tested apart. No check is expected to fail
 (``EXPECTED_FAILED`` is empty, and a check listed there that passed would fail
 the run).
 """
@@ -52,7 +53,7 @@ CHECKS = [
         marks=[pytest.mark.slow] if _name(check) in SLOW else [],
     )
     for estimator, check in estimator_checks_generator(
-        RhythmicMap(scale="standardize"),
+        RhythmicMap(),
         legacy=True,
         expected_failed_checks=EXPECTED_FAILED,
         mark="xfail",
@@ -101,7 +102,8 @@ def test_parameters_are_kept_as_given_and_clone_repr_work():
         est.fit(route(), progress=False)
     assert est.set_params(layout="periods", c=None) is est
     assert est.config == MapConfig(r=3, level=2, decode="soft")
-    assert RhythmicMap.from_config(est.config).get_params() == est.get_params()
+    twin = RhythmicMap.from_config(est.config, scale="auto")  # the default
+    assert twin.get_params() == est.get_params()
 
 
 def test_positional_arguments_are_refused_in_one_line():
@@ -163,7 +165,7 @@ def test_labels_with_gaps_name_their_places():
 def test_scale_refuses_unscaled_features_or_standardizes_them():
     x = 100 + route(80, 16, seed=3)
     with pytest.raises(InputError, match="features of order one"):
-        RhythmicMap().fit(x, progress=False)
+        RhythmicMap(scale="refuse").fit(x, progress=False)
     est = RhythmicMap(scale="standardize").fit(x, progress=False)
     z = (x - x.mean(0)) / x.std(0)
     want = RhythmicMap().fit(z, progress=False)
@@ -178,7 +180,8 @@ def test_scale_refuses_unscaled_features_or_standardizes_them():
     assert "scale_mean" in auto.extra
     z = route(80, 16, seed=3)
     np.testing.assert_array_equal(
-        auto.fit(z, progress=False).map_.w, RhythmicMap().fit(z, progress=False).map_.w
+        auto.fit(z, progress=False).map_.w,
+        RhythmicMap(scale="refuse").fit(z, progress=False).map_.w,
     )
     assert "scale_mean" not in auto.extra
 

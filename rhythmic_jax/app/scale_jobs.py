@@ -20,6 +20,7 @@ from pathlib import Path
 from rhythmic_jax.app.specs import Reported
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import check_place, staged_folder, write_errors
+from rhythmic_jax.io.reader import read_json
 
 __all__ = ["MANIFEST", "fit_scaled", "wants_scale"]
 
@@ -137,11 +138,11 @@ def _check_reusable(root: Path, manifest: dict) -> None:
     shards ``manifest`` describes: not written by this command (or unfinished),
     or written from other images or with another descriptor."""
     try:
-        got = json.loads((root / MANIFEST).read_text())
-    except (OSError, ValueError):
+        got = read_json(root / MANIFEST, "shards manifest")
+    except (OSError, InputError):
         raise InputError(
-            f"{{opt:shards}} {root}: exists and holds no shards a finished "
-            "fit --shards wrote; give a new folder"
+            f"{{opt:shards}} {root}: exists and holds no shards that a finished "
+            "fit wrote there; give a new folder"
         ) from None
     if got != manifest:
         raise InputError(
