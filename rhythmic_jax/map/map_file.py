@@ -152,6 +152,7 @@ def load(
     (default :class:`~rhythmic_jax.map.config.MapConfig`) builds its
     configuration. A map built for another descriptor, other settings or another
     d is refused (:class:`InputError`), as is a corrupt one."""
+    from rhythmic_jax.map.checks import check_map
     from rhythmic_jax.map.codes import codebook_from_arrays
     from rhythmic_jax.map.config import MapConfig
     from rhythmic_jax.map.embedding import embedding_from_arrays
@@ -211,11 +212,11 @@ def load(
         groups=groups, group_errors=group_errors, c=c, candidates=cands,
         candidate_errors=errors,
     )  # fmt: skip
-    return Map.build(
+    return check_map(Map.build(
         kept, dim, cfg, codebook=codebook, embedding=emb,
         extra={k[6:]: v for k, v in arrays.items() if k.startswith("extra_")},
         reference=reference if isinstance(reference, dict) else {},
-    )  # fmt: skip
+    ), path)  # fmt: skip
 
 
 def _check_queries(path, cfg, dim, descriptor, descriptor_settings, d) -> None:
