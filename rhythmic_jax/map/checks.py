@@ -10,6 +10,8 @@ decode whose largest allocation would not fit in memory, before it is made:
 
 - every floating-point leaf is finite (templates and their scale, the fit's
   record, the codes' transform, the embedding, arrays kept beside the map);
+- the configuration names a descriptor, its settings (a mapping) and the
+  phases top-m keeps (an integer >= 1);
 - shapes agree with the layout and n: ``w`` (k, p), ``b`` and ``scale`` (p,)
   for the ``p = sum(sizes)`` classes of the groups, a periods map's periods
   equal to its groups' sizes, the codes (n, ...) over k, the embedding (d, k)
@@ -74,6 +76,7 @@ def check_map(m: Map, where: str | os.PathLike = "map") -> Map:
     (the map's folder) and the first thing wrong (module docstring)."""
     try:
         _check_layout(m)
+        _check_config(m.config)
         _check_shapes(m)
         _check_finite(m)
         _check_labels(m)
@@ -92,6 +95,21 @@ def _check_layout(m: Map) -> None:
             f"indexes fewer than {MAX_PLACES:,}"
         )
     groups.check(m.n)
+
+
+def _check_config(cfg) -> None:
+    """What a query reads of the configuration that its own checks leave: the
+    descriptor's name and settings, and the phases top-m keeps."""
+    if not isinstance(cfg.descriptor, str) or not cfg.descriptor:
+        raise InputError(f"descriptor must be a name, got {cfg.descriptor!r}")
+    if not isinstance(cfg.descriptor_settings, dict):
+        raise InputError(
+            f"descriptor_settings must be a mapping, got {cfg.descriptor_settings!r}"
+        )
+    if type(cfg.m) is not int or cfg.m < 1:
+        raise InputError(
+            f"m (phases top-m keeps) must be an integer >= 1, got {cfg.m!r}"
+        )
 
 
 def _check_shapes(m: Map) -> None:
