@@ -269,3 +269,28 @@ def test_an_infinite_ground_truth_radius_is_refused(tmp_path):
         ).n_places
         == 5
     )
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("descriptor_settings", "x", "descriptor_settings must be a mapping"),
+        ("descriptor_settings", None, "descriptor_settings must be a mapping"),
+        ("descriptor", 3, "descriptor must be a name"),
+        ("m", 0, r"m \(phases top-m keeps\) must be an integer >= 1"),
+        ("m", 2.5, "must be an integer"),
+    ],
+)
+def test_the_configuration_a_query_reads_is_checked(
+    fitted, tmp_path, field, value, match
+):
+    """map.json is not digested: its configuration is checked for what a
+    query reads of it (these ended in a TypeError or ValueError before)."""
+    folder, _, _ = fitted
+
+    def meta(info):
+        info["config"][field] = value
+
+    bad = _planted(folder, tmp_path / "config.map", meta=meta)
+    with pytest.raises(InputError, match=match):
+        map_file.load(bad)
