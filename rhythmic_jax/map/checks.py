@@ -69,6 +69,9 @@ DECODE_BATCH = 256
 # mixed layout 4,808 at 256), rounded up
 _PER_PLACE = 128
 _PER_QUERY = {"soft": 10, "topm": 20}
+# a decode below this is not checked against the budget (reading it costs more
+# than a small decode's scores): any machine that runs JAX has it to spare
+_SMALL = 64 * 2**20
 
 
 def check_map(m: Map, where: str | os.PathLike = "map") -> Map:
@@ -250,11 +253,12 @@ def check_decode(
     budget: int | None = None,
 ) -> int:
     """Refuse (:class:`InputError`) a decode of ``rows`` queries whose
-    :func:`decode_bytes` exceed ``budget`` (default :func:`memory_budget`),
-    before anything is allocated; else return those bytes."""
+    :func:`decode_bytes` exceed ``budget`` (default :func:`memory_budget`,
+    read only for a decode above 64 MiB), before anything is allocated; else
+    return those bytes."""
     need = decode_bytes(m, how, rows, top, sequence)
-    if need == 0:
-        return 0
+    if need <= _SMALL and budget is None:
+        return need
     budget = memory_budget() if budget is None else int(budget)
     if need > budget:
         raise InputError(
