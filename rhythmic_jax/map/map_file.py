@@ -178,7 +178,7 @@ def load(
             else Groups.from_dict(meta["groups"])
         )
         emb = embedding_from_arrays(arrays)
-    except (KeyError, TypeError, ValueError, AttributeError, InputError) as err:
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError) as err:
         raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
     tdim = dim if emb is None else emb.k
     if emb is not None and emb.d != dim:
@@ -250,7 +250,7 @@ def consistent(meta: dict[str, Any], listed: set[str]) -> bool:
         ok = ok and meta["database_bytes"] == n * d * 4
         kind = meta.get("codes_kind") or "itq"
         arrays = {"w", "b"} | (CODE_ARRAYS[kind] if meta["codes_bits"] else set())
-    except (KeyError, TypeError, ValueError, AttributeError):
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError):
         return False
     return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
 
