@@ -273,9 +273,7 @@ ARRAY_VALUES = st.sampled_from(
 )
 
 
-@FAST
-@given(data=st.data())
-def test_array_values_with_digests_recomputed(route, data):
+def _array_values_with_digests_recomputed(route, data) -> None:
     """An array's value changed and the digests recomputed: only the checks of
     what a map means stand between it and a decode."""
     arrays, meta = load_map(route["map"])
@@ -390,9 +388,7 @@ def _text_mutation(draw, text: str) -> str:
     return ""
 
 
-@FAST
-@given(data=st.data())
-def test_positions_csv(route, data):
+def _positions_csv(route, data) -> None:
     root = route["root"]
     which = data.draw(st.sampled_from(["ref.csv", "qry.csv"]), label="file")
     tmp = Path(tempfile.mkdtemp(dir=root))
@@ -423,9 +419,7 @@ GT_VALUES = st.sampled_from(
 )  # fmt: skip
 
 
-@FAST
-@given(data=st.data())
-def test_patchnetvlad_ground_truth(route, data):
+def _patchnetvlad_ground_truth(route, data) -> None:
     root = route["root"]
     tmp = Path(tempfile.mkdtemp(dir=root))
     try:
@@ -452,9 +446,7 @@ def test_patchnetvlad_ground_truth(route, data):
 H5_OPS = ("byte", "nan", "shape", "dtype", "extra", "delete", "attr", "vds")
 
 
-@FAST
-@given(data=st.data())
-def test_hloc_h5(route, data):
+def _hloc_h5(route, data) -> None:
     import h5py
 
     root = route["root"]
@@ -603,3 +595,55 @@ def test_array_file_bytes_many(route, data):
 @given(data=st.data())
 def test_names_links_and_file_types_many(route, data):
     _file_case(route, data, FILE_OPS)
+
+
+@FAST
+@given(data=st.data())
+def test_array_values_with_digests_recomputed(route, data):
+    _array_values_with_digests_recomputed(route, data)
+
+
+@pytest.mark.slow
+@SLOW
+@given(data=st.data())
+def test_array_values_with_digests_recomputed_many(route, data):
+    _array_values_with_digests_recomputed(route, data)
+
+
+@FAST
+@given(data=st.data())
+def test_positions_csv(route, data):
+    _positions_csv(route, data)
+
+
+@pytest.mark.slow
+@SLOW
+@given(data=st.data())
+def test_positions_csv_many(route, data):
+    _positions_csv(route, data)
+
+
+@FAST
+@given(data=st.data())
+def test_patchnetvlad_ground_truth(route, data):
+    _patchnetvlad_ground_truth(route, data)
+
+
+@pytest.mark.slow
+@SLOW
+@given(data=st.data())
+def test_patchnetvlad_ground_truth_many(route, data):
+    _patchnetvlad_ground_truth(route, data)
+
+
+@FAST
+@given(data=st.data())
+def test_hloc_h5(route, data):
+    _hloc_h5(route, data)
+
+
+@pytest.mark.slow
+@SLOW
+@given(data=st.data())
+def test_hloc_h5_many(route, data):
+    _hloc_h5(route, data)

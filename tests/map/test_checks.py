@@ -295,3 +295,15 @@ def test_the_configuration_a_query_reads_is_checked(
     bad = _planted(folder, tmp_path / "config.map", meta=meta)
     with pytest.raises(InputError, match=match):
         map_file.load(bad)
+
+
+@pytest.mark.parametrize("field", ["n", "candidates"])
+def test_an_infinite_count_in_map_json_is_corrupt_metadata(fitted, tmp_path, field):
+    folder, _, _ = fitted
+
+    def meta(info):
+        info[field] = float("inf") if field == "n" else [float("inf")]
+
+    bad = _planted(folder, tmp_path / "inf.map", meta=meta)
+    with pytest.raises(InputError, match="corrupt map metadata"):
+        map_file.load(bad)
