@@ -263,7 +263,7 @@ def check_decode(
     if need > budget:
         raise InputError(
             f"a {how} decode of {m.n:,} places needs about {need / 2**30:.1f} GiB "
-            f"but {budget / 2**30:.1f} GiB are available; decode hard, or on a "
+            f"but {budget / 2**30:.1f} GiB are available; {{opt:decode}} hard, or on a "
             "machine with more memory"
         )
     return need

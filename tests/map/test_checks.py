@@ -216,7 +216,7 @@ def test_decode_memory_is_bounded_before_the_decode(fitted, monkeypatch):
     assert check_decode(m, "soft", len(x), budget=soft) == soft
     monkeypatch.setattr(checks, "_SMALL", 0)  # small decodes are not checked
     monkeypatch.setattr(checks, "memory_budget", lambda: 1000)
-    with pytest.raises(InputError, match="decode hard"):
+    with pytest.raises(InputError, match="available; decode hard"):
         queries.decode(m, x, "soft")
     with pytest.raises(InputError, match="a soft decode"):
         queries.predict(m, x, "soft", sequence=3)
