@@ -199,24 +199,33 @@ def _check_labels(m: Map) -> None:
 
 # -------------------------------------------------------------------- decodes
 def decode_bytes(
-    m: Map, how: str, rows: int = DECODE_BATCH, top: int = 3, sequence: bool = False
+    m: Map,
+    how: str,
+    rows: int = DECODE_BATCH,
+    top: int = 3,
+    sequence: bool = False,
+    at_once: bool = False,
 ) -> int:
     """Bytes of the allocations of decoding ``rows`` queries of ``m`` with ``how``
     ("hard", "soft" or "topm"; ``top`` phases; ``sequence``: frames of a sequence)
-    that grow with n: a score per place for ``min(rows, DECODE_BATCH)`` queries,
-    and with codes a similarity per place for every query. 0 for a hard decode
-    that the map's layout makes without place scores (a map without codes; a
-    sequence of a mixed or hierarchical map sums place scores whatever ``how``):
-    its memory follows p, not n."""
-    batch = max(1, min(int(rows), DECODE_BATCH))
+    that grow with n: a score per place for ``min(rows, DECODE_BATCH)`` queries
+    (``at_once``: for every query, as a ranking of all places holds each group's
+    gathered scores and their sum, ``4 (r + 1)`` bytes a place and query), and
+    with codes a similarity per place for every query. 0 for a hard decode that
+    the map's layout makes without place scores (a map without codes; a sequence
+    of a mixed or hierarchical map sums place scores whatever ``how``): its
+    memory follows p, not n."""
+    batch = max(1, int(rows) if at_once else min(int(rows), DECODE_BATCH))
     codes = m.codebook is not None
-    places = codes or (sequence and m.groups.kind != "periods")
+    places = codes or at_once or (sequence and m.groups.kind != "periods")
     if how == "hard" and not places:
         return 0
     if how == "topm" and m.groups.kind == "periods" and not places:
         combos = math.prod(min(int(top), t) for t in m.groups.sizes)
         return batch * combos * 12
     per_query = _PER_QUERY["topm" if how == "topm" else "soft"]
+    if at_once:
+        per_query = max(per_query, 4 * (len(m.groups.sizes) + 1))
     need = m.n * (_PER_PLACE + batch * per_query)
     return need + (m.n * int(rows) * 4 if codes else 0)
 
@@ -251,19 +260,25 @@ def check_decode(
     top: int = 3,
     sequence: bool = False,
     budget: int | None = None,
+    at_once: bool = False,
 ) -> int:
     """Refuse (:class:`InputError`) a decode of ``rows`` queries whose
     :func:`decode_bytes` exceed ``budget`` (default :func:`memory_budget`,
     read only for a decode above 64 MiB), before anything is allocated; else
     return those bytes."""
-    need = decode_bytes(m, how, rows, top, sequence)
+    need = decode_bytes(m, how, rows, top, sequence, at_once)
     if need <= _SMALL and budget is None:
         return need
     budget = memory_budget() if budget is None else int(budget)
     if need > budget:
+        gib = f"about {need / 2**30:.1f} GiB but {budget / 2**30:.1f} GiB are available"
+        if at_once:
+            raise InputError(
+                f"ranking {m.n:,} places for {rows:,} queries needs {gib}; use "
+                "fewer queries, a smaller map or a machine with more memory"
+            )
         raise InputError(
-            f"a {how} decode of {m.n:,} places needs about {need / 2**30:.1f} GiB "
-            f"but {budget / 2**30:.1f} GiB are available; {{opt:decode}} hard, or on a "
-            "machine with more memory"
+            f"a {how} decode of {m.n:,} places needs {gib}; {{opt:decode}} hard, "
+            "or on a machine with more memory"
         )
     return need

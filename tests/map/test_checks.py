@@ -224,6 +224,25 @@ def test_decode_memory_is_bounded_before_the_decode(fitted, monkeypatch):
     assert hard.shape == (N,)
 
 
+def test_an_evaluation_ranking_every_place_is_bounded(fitted, monkeypatch):
+    """evaluate ranks every place for every query at once (recall@K): its
+    (b, n) scores are checked before they are made."""
+    from rhythmic_jax.eval.report import evaluate_map
+
+    _, m, x = fitted
+    model = rj.RhythmicMap()
+    model.map = m
+    ranking = decode_bytes(m, "soft", len(x), at_once=True)
+    assert ranking == m.n * (128 + len(x) * 12)  # two groups: 4 (2 + 1) a place
+    monkeypatch.setattr(checks, "_SMALL", 0)
+    monkeypatch.setattr(checks, "memory_budget", lambda: ranking - 1)
+    with pytest.raises(InputError, match="ranking 40 places for 40 queries"):
+        evaluate_map(model, x, timing=False)
+    monkeypatch.setattr(checks, "memory_budget", lambda: ranking)
+    got = evaluate_map(model, x, timing=False)["methods"]["map"]["accuracy"]
+    assert got == pytest.approx(np.mean(queries.predict(m, x) == np.arange(N)))
+
+
 def test_memory_budget_follows_the_address_space_limit():
     import resource
 
