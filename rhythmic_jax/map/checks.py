@@ -26,7 +26,9 @@ decode whose largest allocation would not fit in memory, before it is made:
 A place-domain decode (soft or top-m of a mixed or hierarchical layout, soft of
 periods, any decode fused with codes) holds a score per place for up to
 :data:`DECODE_BATCH` queries at a time, so its memory grows as ``n`` times the
-batch (:func:`decode_bytes`); the hard decode's does not grow with n.
+batch (:func:`decode_bytes`), and ``evaluate``'s ranking of every place
+(recall@K) holds one for every query at once; the hard decode's memory does
+not grow with n.
 
 Shapes: n places, d input features, k the templates' dimension, p templates.
 """
