@@ -65,15 +65,17 @@ DECODE_BATCH = 256
 """Queries a place-domain decode scores at a time (the ``batch_size`` of
 :func:`rhythmic_jax.decoding.soft.soft_decode` and its kin)."""
 
-# bytes per place of a place-domain decode: its columns and compiling, and per
-# query of a batch (measured with rhythmic_jax.solvers.memory.peak_growth at
-# n = 10**6, r = 2: soft 249 B a place at 16 queries, 2,205 at 256; top-m of a
-# mixed layout 4,808 at 256), rounded up
+# a place-domain decode's bytes: compiling its program, then per place (its
+# columns) and per place and query of a batch (measured with
+# rhythmic_jax.solvers.memory.peak_growth, r = 2: at n = 10**6 soft 249 B a
+# place at 16 queries, 2,205 at 256, top-m of a mixed layout 4,808 at 256; at
+# n = 250,000 soft 103 MiB at 16 queries, 522 MiB at 256), rounded up
+_COMPILE = 64 * 2**20
 _PER_PLACE = 128
 _PER_QUERY = {"soft": 10, "topm": 20}
 # a decode below this is not checked against the budget (reading it costs more
 # than a small decode's scores): any machine that runs JAX has it to spare
-_SMALL = 64 * 2**20
+_SMALL = 128 * 2**20
 
 
 def check_map(m: Map, where: str | os.PathLike = "map") -> Map:
@@ -228,7 +230,7 @@ def decode_bytes(
     per_query = _PER_QUERY["topm" if how == "topm" else "soft"]
     if at_once:
         per_query = max(per_query, 4 * (len(m.groups.sizes) + 1))
-    need = m.n * (_PER_PLACE + batch * per_query)
+    need = _COMPILE + m.n * (_PER_PLACE + batch * per_query)
     return need + (m.n * int(rows) * 4 if codes else 0)
 
 
@@ -266,7 +268,7 @@ def check_decode(
 ) -> int:
     """Refuse (:class:`InputError`) a decode of ``rows`` queries whose
     :func:`decode_bytes` exceed ``budget`` (default :func:`memory_budget`,
-    read only for a decode above 64 MiB), before anything is allocated; else
+    read only for a decode above 128 MiB), before anything is allocated; else
     return those bytes."""
     need = decode_bytes(m, how, rows, top, sequence, at_once)
     if need <= _SMALL and budget is None:
