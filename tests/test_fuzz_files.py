@@ -502,23 +502,36 @@ LIMIT_KIB = 16 * 2**20  # the children's address space: 16 GiB (JAX reserves muc
 
 
 def _subprocess(args: list[str]) -> subprocess.CompletedProcess:
-    """The installed command on ``args`` under ``ulimit -v`` (a shell sets it,
-    so no fork of this threaded process runs Python): it ends within the
-    timeout, and the children's peak resident memory stays below 1 GiB."""
+    """The installed command on ``args`` under ``ulimit -v`` (a shell sets it
+    and execs the command, so no fork of this threaded process runs Python): it
+    ends within the timeout, and its own peak resident memory (``wait4``) stays
+    below 1 GiB."""
     env = dict(
         os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=str(Path(__file__).parents[1])
     )
     limited = ["/bin/sh", "-c", f'ulimit -v {LIMIT_KIB} && exec "$@"', "sh"]
-    try:
-        done = subprocess.run(
-            limited + _command() + args, capture_output=True, text=True,
-            timeout=TIMEOUT_S, env=env, stdin=subprocess.DEVNULL,
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(
+            limited + _command() + args, stdout=out, stderr=err, env=env,
+            stdin=subprocess.DEVNULL,
         )  # fmt: skip
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"{args}: still running after {TIMEOUT_S} s")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
-    assert peak < GIB, f"a child reached {peak / GIB:.1f} GiB"
-    return done
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.monotonic() > deadline:
+                proc.kill()
+                os.wait4(proc.pid, 0)
+                proc.returncode = -9
+                pytest.fail(f"{args}: still running after {TIMEOUT_S} s")
+            time.sleep(0.05)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0), err.seek(0)
+        text = out.read().decode(errors="replace"), err.read().decode(errors="replace")
+    peak = usage.ru_maxrss * 1024
+    assert peak < GIB, f"the command reached {peak / GIB:.1f} GiB"
+    return subprocess.CompletedProcess(args, proc.returncode, *text)
 
 
 def _one_line_exit_2(done: subprocess.CompletedProcess) -> None:
