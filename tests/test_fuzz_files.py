@@ -352,6 +352,17 @@ def test_names_links_and_file_types(route, data):
     _file_case(route, data, FILE_OPS)
 
 
+@pytest.mark.parametrize("name", ["arrays", "arrays/_METADATA"])
+def test_a_link_loop_in_the_map_folder(route, name):
+    """A link to itself where the arrays (or a file of them) should be: one
+    line (a loop found while resolving names must not escape as an error)."""
+    with _copy(route) as folder:
+        path = folder / name
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+        path.symlink_to(path)
+        _judged(lambda: _query(folder, route["q"]), route["predictions"])
+
+
 @READER
 @settings(EXPECTED, max_examples=6)
 @given(data=st.data())
