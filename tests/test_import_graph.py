@@ -31,6 +31,7 @@ LAYERS = [
     ["map.config"],
     ["map.codes"],
     ["map.pytree"],
+    ["map.checks"],
     ["map.map_file"],
     ["frames.cache_files", "frames.compile_policy", "frames.nets"],
     ["frames.compiled", "frames.weights"],

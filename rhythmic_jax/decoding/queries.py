@@ -58,6 +58,7 @@ from rhythmic_jax.decoding.hard import SMALL_BATCH, Decoded, SmallDecoder
 from rhythmic_jax.decoding.sequence import METHODS, _check_speeds, sequence_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
+from rhythmic_jax.map.checks import check_decode
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.map.embedding import embed
 from rhythmic_jax.map.groups import Groups
@@ -117,6 +118,7 @@ def decode(m: Map, q, how: str | None = None, top: int | None = None) -> Decoded
     the phases top-m keeps (default: the map's)."""
     how, top = how or m.config.decode, top or m.config.m
     x = queries(m, q)
+    check_decode(m, how, x.shape[0], top)  # its largest allocation, before it
     if m.codebook is not None:  # padded first: every program once per bucket
         x, b = pad_rows(x)
         return head(fused_decode(
@@ -147,6 +149,7 @@ def _sequence(m: Map, x, length, speeds, how: str, top: int):
     """:func:`decode_sequence` of checked, embedded queries x (T, k), padded at
     the end first (a frame's answer depends on the frames before it only), so
     every program compiles once per bucket."""
+    check_decode(m, how, x.shape[0], top, sequence=True)  # before it allocates
     x, b = pad_rows(x)
     if m.codebook is not None:
         out = fused_sequence_decode(

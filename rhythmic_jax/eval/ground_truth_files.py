@@ -370,6 +370,8 @@ def read_patchnetvlad_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
     if len(shapes) == 2 and all(shapes):
         _sizes(path, shapes[0][0], shapes[1][0], n_places, n_queries)
     db, q, thr = read_patchnetvlad(path)
+    if not np.isfinite(thr):  # an infinite radius counts every place as right
+        raise InputError(f"{path}: posDistThr must be a finite radius, got {thr}")
     _sizes(path, len(db), len(q), n_places, n_queries)
     src = f"Patch-NetVLAD utmDb/utmQ {Path(path).absolute()}"
     gt = from_positions(db, q, thr, None, src)

@@ -21,6 +21,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import recall_line, time_batch, time_single_queries
 from rhythmic_jax.eval.outliers import finite_confidence
 from rhythmic_jax.jit_options import jit
+from rhythmic_jax.map.checks import check_decode
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import database_bytes, place_columns
 
@@ -235,6 +236,7 @@ def evaluate_map(
             f"{len(queries)} queries but the ground truth ({truth.source}) has "
             f"{len(truth)}"
         )
+    check_decode(model.value, "soft", len(queries), at_once=True)  # the ranking
     pred, conf, ranked, which = _map_decisions(model, queries, method, sequence)
     ks = tuple(k for k in KS if k <= ranked.shape[1])
     rows: dict[str, Any] = {

@@ -31,6 +31,7 @@ import contextlib
 import json
 import os
 import re
+import resource
 import stat
 import zipfile
 from collections.abc import Iterator
@@ -75,15 +76,27 @@ _SIZE = re.compile(r"\s*(\d+(?:\.\d*)?)\s*([kmgt]?)(?:i?b)?\s*", re.IGNORECASE)
 
 
 def available_memory() -> int:
-    """Bytes available now: ``MemAvailable`` of /proc/meminfo, else physical RAM."""
+    """Bytes this process may still allocate: ``MemAvailable`` of /proc/meminfo
+    (else physical RAM), within what an address-space limit (``ulimit -v``)
+    leaves it."""
+    budget = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    budget = int(line.split()[1]) * 1024
+                    break
     except OSError:
         pass
-    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit != resource.RLIM_INFINITY:
+        try:
+            with open("/proc/self/statm") as fh:
+                used = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        except OSError:
+            used = 0
+        budget = min(budget, max(0, limit - used))
+    return budget
 
 
 def memory_budget() -> int:
@@ -155,7 +168,10 @@ def inside(folder: str | os.PathLike, name: str, what: str = "file") -> Path:
     """The path of ``name`` (a relative name a file gave) under ``folder``,
     resolved, links followed; refused when it is absolute, climbs out of the
     folder or is a link leaving it."""
-    root = Path(folder).resolve()
+    try:
+        root = Path(folder).resolve()
+    except (OSError, RuntimeError) as err:  # the folder itself a loop of links
+        raise InputError(f"{folder}: cannot be resolved ({err})") from None
     if not isinstance(name, str) or not name or "\x00" in name:
         raise InputError(f"{folder}: {what} name {name!r} is not a file name")
     if Path(name).is_absolute():
