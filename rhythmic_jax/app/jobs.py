@@ -93,12 +93,11 @@ def _before_reading(job: FitJob):
             checkpoint_every=job.checkpoint_every or 50,
         ), job.checkpoint_folder  # fmt: skip
     if job.embedding is not None:
-        from rhythmic_jax.map.embedding import load_embedding
+        from rhythmic_jax.map.embedding import embedding_descriptor, load_embedding
 
         learned = load_embedding(job.embedding)
-        name = learned[1].get("descriptor")
-        if read.descriptor is None and name not in (None, "features") and job.images:
-            weights = (learned[1].get("descriptor_settings") or {}).get("weights")
+        name, weights = embedding_descriptor(learned[1])
+        if read.descriptor is None and name is not None and job.images:
             read = replace(read, descriptor=name, weights=read.weights or weights)
     check_target(job.out)  # before the fit, not after it
     files = (
