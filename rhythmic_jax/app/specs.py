@@ -27,8 +27,8 @@ from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 
 __all__ = [
     "DOMAINS", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob",
-    "OptionRefused", "QueryJob", "Reading", "Reported", "Rule", "ScaleJob", "check_paths",
-    "learn_config",
+    "OptionRefused", "QueryJob", "Reading", "Reported", "Rule", "ScaleJob",
+    "check_paths", "learn_config",
 ]  # fmt: skip
 
 
