@@ -5,9 +5,10 @@ is :func:`describe_frames`: the frames of one image folder (in natural name
 order), or the tiles of one large image, described the way ``fit`` describes
 them (the same descriptor, weights and cache:
 :func:`rhythmic_jax.frames.sources.load_sources`) and written as one float32
-``.npy`` of shape (n, d), row i = frame i. ``fit``, ``query``, ``evaluate``, ``learn`` and ``frontier`` then read the file instead of
-the images: a map fitted on it is the map the folder gives (same periods, same
-predictions), and nothing is described again.
+``.npy`` of shape (n, d), row i = frame i. ``fit``, ``query``, ``evaluate``,
+``learn`` and ``frontier`` then read the file instead of the images: a map
+fitted on it is the map the folder gives (same periods, same predictions), and
+nothing is described again.
 """
 
 from __future__ import annotations
