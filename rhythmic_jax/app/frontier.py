@@ -73,7 +73,10 @@ def frontier(
       budget: bytes per place; the result's ``choice`` is the best row within.
 
     Returns ``{"rows", "pareto" (names), "choice", "ground_truth", "config",
-    "n", "d", "n_queries", "seconds"}``.
+    "n", "d", "n_queries", "skipped", "seconds"}``; ``skipped`` holds a line per
+    kind of representation the route cannot train, left out before any is
+    fitted (:func:`rhythmic_jax.eval.frontier.trainable`: ITQ bits above the
+    places or the dimensions, PQ that does not divide d).
     """
     from rhythmic_jax.eval import frontier as fr
     from rhythmic_jax.frames.sources import load_sources
@@ -101,11 +104,11 @@ def frontier(
             "{opt:ground_truth} query i is place i"
         )
     d = ref.shape[1]
-    cfg = fr.FrontierConfig(
-        maps=tuple(maps), bits=tuple(b for b in bits if b <= d),
+    cfg, skipped = fr.trainable(fr.FrontierConfig(
+        maps=tuple(maps), bits=tuple(bits),
         lengths=tuple(k for k in lengths if k <= len(qry)), tolerance=int(tolerance),
         dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
-    )  # fmt: skip
+    ), len(ref), d)  # fmt: skip
     rows = fr.frontier_rows(
         ref, qry, cfg, cache=cache, truth=truth, progress=progress,
         seqslam=max(cfg.lengths) > 1,
@@ -128,6 +131,7 @@ def frontier(
         "choice": choice["name"] if choice else None,
         "pareto": [r["name"] for r in rows if r["pareto"]],
         "rows": rows,
+        "skipped": skipped,
         "seconds": time.perf_counter() - t0,
     }
 
@@ -172,6 +176,7 @@ def frontier_lines(result: dict[str, Any]) -> str:
               for row in body]  # fmt: skip
     lines.append("* Pareto front: no other row has at least its recall@1 (L=1) in "
                  "fewer bytes")  # fmt: skip
+    lines += result.get("skipped", [])
     if result["budget_bytes_per_place"] is not None:
         b = result["budget_bytes_per_place"]
         pick = result["choice"] or f"nothing fits in {b:g} bytes per place"
