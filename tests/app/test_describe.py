@@ -92,3 +92,24 @@ def test_describe_refuses_in_one_line(folders, capsys):
         assert code == 2 and len(err.strip().splitlines()) == 1, (argv, err)
         assert says in err, (argv, err)
     assert not (folders / "y.npy").exists() and not (folders / "a.txt").exists()
+
+
+def test_evaluate_reads_the_references_from_the_cache(folders, capsys, monkeypatch):
+    """The brute-force line of evaluate takes the reference rows the fit left in
+    the descriptor cache: only the queries are described (one new entry), and
+    the reference's entry is read, not written again."""
+    cache = folders / "cache"
+    monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(cache))
+    code, _, err = run(capsys, "fit", str(folders / "a"), "--out",
+                       str(folders / "m.map"), "--no-progress")  # fmt: skip
+    assert code == 0, err
+    before = {p.name: p.stat().st_mtime_ns for p in cache.glob("*.npy")}
+    assert len(before) == 1 and next(iter(before)).startswith("a-")
+    code, out, err = run(capsys, "evaluate", str(folders / "m.map"),
+                         str(folders / "b"), "--json", "--no-progress")  # fmt: skip
+    assert code == 0, err
+    after = {p.name: p.stat().st_mtime_ns for p in cache.glob("*.npy")}
+    assert set(after) - set(before) == {n for n in after if n.startswith("b-")}
+    assert len(after) == 2
+    assert all(after[n] == t for n, t in before.items())  # read, not rewritten
+    assert json.loads(out)["methods"]["brute force"]["storage_bytes"] == 72 * 2048 * 4
