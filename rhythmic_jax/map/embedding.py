@@ -164,7 +164,11 @@ def fit_invariant(
     total = len(xs) * n
     p = min(p, total - 1, d)
     if not 1 <= k <= p:
-        raise InputError(f"embedding: k={k} must lie in [1, {p}]")
+        raise InputError(
+            f"embedding: {{opt:k}} {k} must lie in [1, {p}] ({len(xs)} traversals "
+            f"of {n} places give at most {p} principal axes); give {{opt:k}} {p} or "
+            "fewer, or more training places"
+        )
     pca = fit_pca(np.concatenate(xs), p)
     # axes with (numerically) no variance would be whitened by ~1e6: drop them
     var = np.asarray(pca.explained_variance)
