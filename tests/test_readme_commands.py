@@ -144,12 +144,15 @@ def is_fast(cmd: str) -> bool:
     )
 
 
+FILES = (".map", ".emb", ".npy", ".h5", ".npz", ".csv")
+
+
 def inputs_present(cmd: str, cwd: Path) -> bool:
-    """Whether the maps and embeddings a command reads are there (written by
-    the set-up or a command before it)."""
+    """Whether the files a command reads are there (written by the set-up or a
+    command before it: a file only an image command writes is not, by default)."""
     words = shlex.split(cmd, comments=True)
     reads = [w for i, w in enumerate(words) if i == 0 or words[i - 1] != "--out"]
-    return all((cwd / w).exists() for w in reads if w.endswith((".map", ".emb")))
+    return all((cwd / w).exists() for w in reads if w.endswith(FILES))
 
 
 # ------------------------------------------------------------- the files named
