@@ -38,6 +38,7 @@ LAYERS = [
     ["frames.pipeline"],
     ["frames.features"],
     ["frames.describe_shards", "frames.network_build", "frames.sources"],
+    ["frames.route_descriptors"],
     ["jit_cache"],
     ["solvers.objective", "solvers.precision", "solvers.precondition", "solvers.span"],
     ["solvers.candidates", "solvers.memory", "solvers.newton_cg", "solvers.optax_loops",

@@ -84,6 +84,13 @@ EXAMPLES = {
       rhythmic-jax demo
       rhythmic-jax demo --out demo_report --quick
     """,
+    "describe": """
+      rhythmic-jax describe summer/ --descriptor efficientnet_lite0 --out summer.npy
+      rhythmic-jax describe winter/ --descriptor efficientnet_lite0 --out winter.npy
+      rhythmic-jax fit summer.npy --out route.map    (no image described again)
+      rhythmic-jax frontier summer.npy winter.npy --tolerance 1
+      rhythmic-jax describe city.png --tile 224 --stride 112 --out city.npy
+    """,
     "frontier": """
       rhythmic-jax frontier summer.npy winter.npy --tolerance 1 --budget 2000
       rhythmic-jax frontier db.h5 q.h5 --ground-truth GT.npz --lengths 1 \\
@@ -257,6 +264,14 @@ OPTIONS = {
         _opt("--quick", "a smaller route (CI)", **FLAG),
         _opt("--no-progress", "hide progress bars", **FLAG),
     )),
+    "describe": ("describe a route's frames once into a .npy that fit, query, "
+                 "evaluate, learn and frontier read", (
+        _opt("source", "image folder (frames sorted by name), or one large image "
+             "with --tile"),
+        _opt("--out", "descriptor file to write (.npy, float32, one row per frame)",
+             required=True),
+        *SOURCE,
+    )),
     "frontier": ("recall against bytes per place of every representation", (
         _opt("reference", "reference descriptors (.npy, .h5) or folder"),
         _opt("queries", "query descriptors (.npy, .h5) or folder"),
@@ -352,6 +367,7 @@ JOBS = {
     "query": ("QueryJob", "map source decode sequence threshold out"),
     "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
                  "ground_truth tolerance_m plot"),
+    "describe": ("DescribeJob", "source out"),
 }  # fmt: skip
 
 
@@ -433,6 +449,12 @@ def _evaluate(args, job, progress: bool) -> str:
     )
 
 
+def _describe(args, job, progress: bool) -> str:
+    from rhythmic_jax.app import jobs, render
+
+    return render.describe_summary(job, jobs.describe(job, progress=progress))
+
+
 def _demo(args, job, progress: bool) -> None:
     from rhythmic_jax.app.demo import run_demo
 
@@ -447,7 +469,8 @@ def _frontier(args, job, progress: bool) -> None:
 
 # command -> what runs its job and returns the text it prints (None: nothing)
 COMMANDS = {"fit": _fit, "learn": _learn, "query": _query, "info": _info,
-            "evaluate": _evaluate, "demo": _demo, "frontier": _frontier}  # fmt: skip
+            "evaluate": _evaluate, "demo": _demo, "frontier": _frontier,
+            "describe": _describe}  # fmt: skip
 
 
 def _checked_job(args, prog: str):

@@ -27,7 +27,7 @@ import hashlib
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
@@ -53,6 +53,7 @@ __all__ = [
     "FrontierConfig",
     "SEQUENCE_SCORERS",
     "budget_table",
+    "trainable",
     "crossover_n",
     "fitted_codes",
     "fitted_map",
@@ -98,6 +99,50 @@ class FrontierConfig:
     dtypes: tuple[str, ...] = ("float32", "int8")
     pq: tuple[int, ...] = ()  # faiss product quantisers: sub-vectors of 8 bits
     scalar: bool = False  # int8 per place (rhythmic_jax.map.scalar_codes)
+
+
+def pq_bits(n: int) -> int:
+    """Bits of each PQ sub-quantiser on ``n`` places: 8, or fewer where the route
+    has fewer than 256 frames to train the k-means of ``2**bits`` centroids."""
+    return min(8, int(np.log2(n))) if n >= 2 else 0
+
+
+def _listed(what: str, values, why: str) -> str:
+    return f"{what} {', '.join(str(v) for v in values)}: skipped ({why})"
+
+
+def trainable(
+    config: FrontierConfig, n: int, d: int
+) -> tuple[FrontierConfig, list[str]]:
+    """The part of ``config`` that can be trained on ``n`` places of ``d``
+    features, and one note per kind of representation left out.
+
+    Checked before faiss sees them: ITQ of more bits than ``min(n, d)`` (its PCA
+    has one axis per frame and per dimension; faiss would stop in
+    ``PCAMatrix::prepare_Ab``), PQ whose sub-quantisers do not divide ``d``, and
+    PQ on fewer than 2 places (no centroid to learn). PQ on fewer than 256
+    places keeps ``pq_bits(n)``-bit sub-quantisers, and says so.
+    """
+    notes: list[str] = []
+    most = min(n, d)
+    bits = tuple(b for b in config.bits if b <= most)
+    if len(bits) < len(config.bits):
+        left = [b for b in config.bits if b > most]
+        why = (f"ITQ keeps at most {most} bits on {n} places of {d}-d: its PCA "
+               f"has {most} axes")  # fmt: skip
+        notes.append(_listed("ITQ bits", left, why))
+    pq = tuple(m for m in config.pq if d % m == 0 and n >= 2)
+    if n < 2 and config.pq:
+        notes.append(_listed("PQ", config.pq, "one place: nothing to cluster"))
+    elif len(pq) < len(config.pq):
+        left = [m for m in config.pq if d % m]
+        notes.append(_listed("PQ", left, f"sub-quantisers must divide d = {d}"))
+    if pq and pq_bits(n) < 8:
+        notes.append(
+            f"PQ: {pq_bits(n)}-bit sub-quantisers (the {n} places cannot train "
+            "256 centroids each)"
+        )
+    return replace(config, bits=bits, pq=pq), notes
 
 
 def _recall(idx, tol: int, truth=None) -> float:
@@ -389,7 +434,7 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
             continue
         import faiss
 
-        nbits = min(8, int(np.log2(n)))  # k-means needs 2^nbits training points
+        nbits = pq_bits(n)  # k-means needs 2^nbits training points
         index = faiss.IndexPQ(d, m, nbits, faiss.METRIC_INNER_PRODUCT)
         index.train(ref)
         index.add(ref)

