@@ -18,7 +18,7 @@ def test_evaluate_a_hybrid_on_an_embedding_along_sequences(codes):
     accuracy is that of the map's own sequence decode."""
     a, b = two_conditions(n=200, strength=4.0, seed=5)
     emb = rj.fit_invariant([a[:100], b[:100]], k=24)
-    model = rj.RhythmicMap(rj.MapConfig(r=2, level=1, codes=codes), embedding=emb)
+    model = rj.RhythmicMap(r=2, level=1, codes=codes, embedding=emb)
     model.fit(a[100:])
     queries = b[100:]
     result = evaluate_map(model, queries, sequence=5, timing=False)
