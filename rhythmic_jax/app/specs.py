@@ -26,7 +26,8 @@ from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 
 __all__ = [
-    "DOMAINS", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob", "OptionRefused",
+    "DOMAINS", "EvaluateJob", "FitInterrupted", "FitJob", "GRIDS", "LearnJob",
+    "OptionRefused",
     "QueryJob", "Reading", "Reported", "Rule", "ScaleJob", "check_paths",
     "learn_config",
 ]  # fmt: skip
@@ -72,6 +73,24 @@ DOMAINS: dict[str, Domain] = {
     "tolerance_m": number_option(0),
     "budget": number_option(0),
 }
+
+
+MAPS = tuple((r, level) for r in (2, 3) for level in (1, 2, 3, 4))
+#: What each ``frontier --grid`` fits: maps as (r, level), ITQ bits, PQ
+#: sub-quantisers; ``--maps``, ``--bits`` and ``--pq`` replace a grid's own.
+#: ``small`` runs in a couple of minutes on a few thousand places.
+GRIDS = {
+    "small": {"maps": ((2, 1), (2, 2), (3, 1)), "bits": (64, 128, 256), "pq": (16, 32)},
+    "full": {"maps": MAPS, "bits": (32, 64, 128, 256, 512), "pq": (8, 16, 32, 64)},
+}
+
+
+def grid_text(name: str) -> str:
+    """A grid in the options' words: ``maps 2:1,2:2,3:1; bits 64,..; pq 16,32``."""
+    g = GRIDS[name]
+    maps = ",".join(f"{r}:{level}" for r, level in g["maps"])
+    return (f"maps {maps}; bits {','.join(map(str, g['bits']))}; "
+            f"pq {','.join(map(str, g['pq']))}")  # fmt: skip
 
 
 class OptionRefused(InputError):

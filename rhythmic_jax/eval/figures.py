@@ -377,12 +377,48 @@ _KIND_STYLE = {
 }
 
 
+def _short(name: str) -> str:
+    """A row's name without its periods: ``map r=2 level 2 int8 + ITQ 64``."""
+    import re
+
+    return re.sub(r" \([\d, ]+\)", "", name)
+
+
+def fitted_recall_axis(ax, values: Sequence[float]) -> None:
+    """Recall from 0 to a little above the largest value: 0-1 when it passes
+    0.6, else a tenth (0.05 below 0.3) rounded up past it."""
+    top = max(values, default=1.0)
+    if top > 0.6:
+        ax.set_ylim(0, 1.02)
+        return
+    step = 0.05 if top < 0.3 else 0.1
+    ax.set_ylim(0, step * (int(top / step) + 1))
+
+
+def fitted_log_axis(axis, lo: float, hi: float) -> None:
+    """A log axis whose labels do not run into each other: decades with no
+    minor labels over two decades or more, else 1-2-5 steps written out."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_minor_formatter(NullFormatter())
+    if hi / max(lo, 1e-12) < 100:
+        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:,.6g}"))
+
+
 def frontier_panel(
-    ax, rows: Sequence[Mapping[str, Any]], length: int = 1, per_place: bool = False
+    ax,
+    rows: Sequence[Mapping[str, Any]],
+    length: int = 1,
+    per_place: bool = False,
+    budget: float | None = None,
 ) -> None:
     """Draw recall@1 at sequence ``length`` against storage on ``ax``: one marker
-    per kind, and the upper frontier of the points as a step line. Storage is the
-    share of the float32 database in %, or bytes per place (``per_place``)."""
+    per kind, the upper frontier of the points as a step line and its points
+    labelled with their names. Storage is the share of the float32 database in
+    %, or bytes per place (``per_place``); ``budget`` (bytes per place, with
+    ``per_place``) is drawn as a dashed line. The recall axis spans 0 to a
+    little above the best value, the storage axis the points."""
     key = f"recall@1 L={length}"
 
     def size(r):
@@ -401,20 +437,34 @@ def frontier_panel(
                 s=28,
             )
     best, front = -1.0, []
-    for r in sorted(pts, key=lambda r: r["share"]):
+    for r in sorted(pts, key=lambda r: (r["share"], -r[key])):
         if r[key] > best:
             best = r[key]
-            front.append((size(r), best))
+            front.append(r)
     if front:
-        xs, ys = zip(*front, strict=True)
+        xs, ys = [size(r) for r in front], [r[key] for r in front]
         ax.step(xs, ys, where="post", color="grey", lw=1.5, alpha=0.8,
                 label="best within the bytes")  # fmt: skip
+        for i, r in enumerate(front):  # alternate sides: neighbours stay apart
+            ax.annotate(_short(r.get("name", r["kind"])), (size(r), r[key]),
+                        fontsize=5.5,
+                        xytext=(4, -9 if i % 2 else 4), textcoords="offset points",
+                        color="dimgrey")  # fmt: skip
+    if budget is not None and per_place:
+        ax.axvline(float(budget), ls="--", lw=1, color="tab:red",
+                   label=f"budget {float(budget):,.6g} B/place")  # fmt: skip
     ax.set_xscale("log")
+    if pts:
+        sizes = [size(r) for r in pts] + ([float(budget)] if budget and per_place
+                                          else [])  # fmt: skip
+        lo, hi = min(sizes), max(sizes)
+        ax.set_xlim(lo / 1.4, hi * 1.6)  # room for the labels
+        fitted_log_axis(ax.xaxis, lo, hi)
+    fitted_recall_axis(ax, [r[key] for r in pts])
     ax.set_xlabel(
         "bytes per place (log)" if per_place else "storage, % of the float32 database"
     )
     ax.set_ylabel(f"recall@1, L = {length}")
-    ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
 
@@ -425,10 +475,12 @@ def plot_frontier(
     lengths: Sequence[int] = (1,),
     title: str = "",
     per_place: bool = False,
+    budget: float | None = None,
 ):
     """Recall@1 against storage (share of the float32 database, log scale), one
     panel per sequence length, one marker per kind (map, codes, hybrid, brute force)
-    and the upper frontier of every point drawn as a step line.
+    and the upper frontier of every point drawn as a step line, its points
+    labelled (:func:`frontier_panel`; ``budget``: bytes per place, drawn).
 
     Args:
       rows: ``{"kind", "share", "recall@1 L=<L>"}`` per representation (as
@@ -440,6 +492,6 @@ def plot_frontier(
         raise InputError("plot_frontier: no rows to plot")
     fig, axes = new_figure(len(lengths), width=4.4)
     for ax, length in zip(axes, lengths, strict=True):
-        frontier_panel(ax, rows, length, per_place)
+        frontier_panel(ax, rows, length, per_place, budget)
     fig.suptitle(title or "recall per byte")
     return _finish(fig, path)

@@ -342,6 +342,37 @@ def test_plot_frontier_writes_a_png(tmp_path):
         plot_frontier([], tmp_path / "g.png")
 
 
+def test_frontier_axes_fit_the_data_label_the_front_and_draw_the_budget(tmp_path):
+    """Recall under 0.15 is not drawn on 0-1; a route spanning less than two
+    decades of bytes gets written-out 1-2-5 ticks, no minor labels; each point
+    of the front carries its name (periods left out); the budget is a line."""
+    from rhythmic_jax.eval.figures import plot_frontier
+
+    rows = [
+        {"kind": "map", "name": "map r=2 level 1 (11, 13) int8", "share": 0.1,
+         "bytes_per_place": 60.0, "recall@1 L=1": 0.02},
+        {"kind": "codes", "name": "ITQ 64 bits", "share": 0.2,
+         "bytes_per_place": 120.0, "recall@1 L=1": 0.09},
+        {"kind": "codes", "name": "PQ 8x6 bits", "share": 0.3,
+         "bytes_per_place": 200.0, "recall@1 L=1": 0.05},
+        {"kind": "brute force", "name": "brute force", "share": 1.0,
+         "bytes_per_place": 512.0, "recall@1 L=1": 0.12},
+    ]  # fmt: skip
+    fig = plot_frontier(rows, tmp_path / "f.png", (1,), per_place=True, budget=150)
+    (ax,) = fig.axes
+    assert ax.get_ylim() == pytest.approx((0, 0.15))
+    labels = {t.get_text() for t in ax.texts}
+    assert labels == {"map r=2 level 1 int8", "ITQ 64 bits", "brute force"}
+    assert [line.get_xdata()[0] for line in ax.lines[1:]] == [150.0]  # the budget
+    fig.canvas.draw()
+    ticks = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+    assert "100" in ticks and "200" in ticks
+    assert not [t for t in ax.xaxis.get_minorticklabels() if t.get_text()]
+    assert 60 / 1.4 == pytest.approx(ax.get_xlim()[0])
+    rows[0]["recall@1 L=1"] = 0.9
+    assert plot_frontier(rows, per_place=True).axes[0].get_ylim()[1] > 1
+
+
 def test_plot_storage_growth_returns_the_figure_and_saves_it(keep, tmp_path):
     from rhythmic_jax.eval.figures import plot_storage_growth
 
