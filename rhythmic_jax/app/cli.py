@@ -68,6 +68,9 @@ EXAMPLES = {
     "query": """
       rhythmic-jax query route.map queries.npy --out pred.npy
       rhythmic-jax query route.map winter/ --decode soft --sequence 10 --json
+      rhythmic-jax query route.map winter/ --top 5 --csv results.csv
+        (per query: its file name, the place chosen and its name, score,
+        confidence, and the 5 best places with their scores)
     """,
     "info": """
       rhythmic-jax info route.map --json
@@ -228,7 +231,13 @@ OPTIONS = {
              "default off: single frames)"),
         _opt("--threshold", "reject queries whose confidence is below this "
              "(default none: every query gets a place)"),
-        _opt("--json", "print predictions as JSON", **FLAG),
+        _opt("--json", "print JSON: the predictions, and per query its name (file "
+             "name, else row), the place chosen (and its name where the map's "
+             "reference names it), its score and confidence, and the --top best "
+             "places with their scores", **FLAG),
+        _opt("--top", "best places listed per query (--json, --csv)", default=5),
+        _opt("--csv", "write the results per query as CSV (query, place, "
+             "place_name, score, confidence, top1, top1_name, top1_score, ...)"),
         *SOURCE,
     )),
     "info": ("describe a map (n, d, periods, storage, candidate errors) or an "
@@ -367,7 +376,7 @@ JOBS = {
     "fit": ("FitJob", "sources out pca augment epochs batch_size checkpoint "
             "checkpoint_every fusion positions places embedding"),
     "learn": ("LearnJob", "sources out codes"),
-    "query": ("QueryJob", "map source decode sequence threshold out"),
+    "query": ("QueryJob", "map source decode sequence threshold out top csv json"),
     "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
                  "ground_truth tolerance_m plot"),
 }  # fmt: skip
@@ -416,11 +425,17 @@ def _fit(args, job, progress: bool) -> str | None:
 
 
 def _query(args, job, progress: bool) -> str:
+    import numpy as np
+
     from rhythmic_jax.app import jobs, render
 
+    if args.json or args.csv:
+        result = jobs.query_results(job, progress=progress)
+        if args.json:
+            return json.dumps(result, indent=1)
+        pred = np.asarray(result["predictions"])
+        return render.query_summary(pred, args.out, args.csv)
     pred = jobs.query(job, progress=progress)
-    if args.json:
-        return json.dumps({"predictions": pred.tolist()})
     if not args.out:
         return "\n".join(str(int(v)) for v in pred)
     return render.query_summary(pred, args.out)

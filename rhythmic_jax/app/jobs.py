@@ -45,7 +45,8 @@ from rhythmic_jax.map.config import MapConfig
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["evaluate", "fit", "info", "learn", "query", "quiet_io_threads"]
+__all__ = ["evaluate", "fit", "info", "learn", "query", "query_results",
+           "quiet_io_threads"]  # fmt: skip
 
 
 def quiet_io_threads() -> None:
@@ -326,13 +327,43 @@ def _load_queries(job, progress: bool):
 
 def query(job: QueryJob, progress: bool = False) -> np.ndarray:
     """The predicted places of ``job``'s queries: (b,) int64, ``-1`` no match."""
+    return _queried(job, progress)[2]
+
+
+def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
+    """``job``'s queries one by one (:mod:`rhythmic_jax.app.query_results`):
+    ``{"predictions" (b,), "queries": [{"query", "place", "place_name",
+    "score", "confidence", "top": [{"place", "name", "score"}] * top}],
+    "ranks", "decode", "sequence"}``; with ``job.csv`` the records are also
+    written there as CSV (atomically)."""
+    from rhythmic_jax.app import query_results as qr
+
+    model, feats, pred = _queried(job, progress)
+    result = qr.per_query(model, feats.x, pred, decode=job.decode,
+                          sequence=job.sequence, top=job.top)  # fmt: skip
+    rows = qr.records(result, qr.source_names(job.source), qr.place_names(model))
+    if job.csv:
+        from rhythmic_jax.io.atomic import write_file
+
+        with write_errors("csv", job.csv):
+            write_file(job.csv, qr.csv_text(rows))
+    return {"predictions": pred.tolist(), "queries": rows, "ranks": result["ranks"],
+            "decode": job.decode or model.config.decode, "sequence": job.sequence}
+
+
+def _queried(job: QueryJob, progress: bool):
+    """``(map, query features, predictions (b,) int64)`` of ``job``, the
+    predictions written to ``job.out`` (``.npy``) when given."""
     import numpy as np
 
+    for opt in ("out", "csv"):
+        path = getattr(job, opt)
+        if path and not Path(path).absolute().parent.is_dir():
+            where = Path(path).parent
+            raise InputError(f"{{opt:{opt}}} {path}: folder {where} not found")
+        if path:
+            check_place(opt, path)
     out = job.out
-    if out and not Path(out).parent.is_dir():
-        raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
-    if out:
-        check_place("out", out)
     model, feats = _load_queries(job, progress)
     pred = model.predict(
         feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
@@ -343,7 +374,7 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
 
         with write_errors("out", out):
             save_npy(out, pred)
-    return pred
+    return model, feats, pred
 
 
 def info(map_path: str) -> dict[str, Any]:

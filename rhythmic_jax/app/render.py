@@ -56,9 +56,10 @@ def fit_summary(out: str, info: dict[str, Any]) -> str:
     )
 
 
-def query_summary(pred: np.ndarray, out: str) -> str:
-    """One line about predictions written to ``out``."""
-    return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
+def query_summary(pred: np.ndarray, out: str | None, csv: str | None = None) -> str:
+    """One line about predictions written to ``out`` (and results to ``csv``)."""
+    where = " and ".join(x for x in (out, csv and f"{csv} (per query)") if x)
+    return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {where}"
 
 
 def info_lines(info: dict[str, Any]) -> str:

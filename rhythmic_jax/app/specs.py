@@ -68,6 +68,7 @@ DOMAINS: dict[str, Domain] = {
     "steps": int_option(1),
     "seed": int_option(0, 2**32 - 1),
     "sequence": int_option(1),
+    "top": int_option(1),
     "threshold": number_option(),
     "tolerance": int_option(0),
     "tolerance_m": number_option(0),
@@ -399,7 +400,10 @@ class QueryJob(Checked):
     ``query(QueryJob("route.map", "q.npy", out="pred.npy"))``: ``decode``,
     ``sequence`` and ``threshold`` as :meth:`rhythmic_jax.RhythmicMap.predict`
     takes them; with ``out`` the predictions are also written there (``.npy``,
-    atomically; its folder must exist). ``given``: see :class:`Checked`.
+    atomically; its folder must exist). ``top`` best places per query, with
+    their scores, go to ``csv`` (a file, atomically) and, with ``json``, to the
+    printed JSON (:func:`rhythmic_jax.app.jobs.query_results`). ``given``: see
+    :class:`Checked`.
     """
 
     map: str
@@ -408,10 +412,18 @@ class QueryJob(Checked):
     sequence: int | None = None
     threshold: float | None = None
     out: str | None = None
+    top: int = 5
+    csv: str | None = None
+    json: bool = False
     reading: Reading = Reading()
     given: frozenset[str] = frozenset()
 
-    RULES = (*READS, *IGNORED)
+    RULES = (
+        *READS,
+        Rule(("top",), "needs {opt:json} or {opt:csv} (the results per query it "
+             "sizes)", lambda j: j.json or j.csv is not None),
+        *IGNORED,
+    )  # fmt: skip
 
     @property
     def read_sources(self) -> tuple[str, ...]:
@@ -462,7 +474,7 @@ class EvaluateJob(Checked):
 WRITTEN = {
     "fit": ("out", "checkpoint", "shards"),
     "learn": ("out",),
-    "query": ("out",),
+    "query": ("out", "csv"),
     "evaluate": ("plot",),
     "frontier": ("csv", "plot"),
 }
