@@ -15,7 +15,8 @@ if TYPE_CHECKING:
     import numpy as np
 
 __all__ = [
-    "evaluate_summary", "fit_summary", "info_lines", "learn_summary", "query_summary",
+    "evaluate_summary", "fit_summary", "fusion_words", "info_lines", "learn_summary",
+    "query_summary",
 ]  # fmt: skip
 
 W = 18  # width of the names in info's lines
@@ -49,11 +50,22 @@ def fit_summary(out: str, info: dict[str, Any]) -> str:
         kind = info.get("codes_kind") or "itq"
         bits = f"{info['codes_bits']}-bit"
         codes = f" with {'int8' if kind == 'int8' else bits} codes"
+    emb = info.get("embedding_bytes") or 0
+    counted = ", the embedding counted" if emb else ""
     return (
         f"map {out}: n={info['n']} d={info['d']} {info['layout']}"
-        f"{codes} storage={info['storage_bytes']:,} B "
-        f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
+        f"{codes} storage={info['storage_bytes']:,} B"
+        + (f" + embedding {emb:,} B" if emb else "")
+        + f" (ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B"
+        f"{counted})"
     )
+
+
+def fusion_words(weight: float) -> str:
+    """A fusion weight and what it leaves deciding: 0, the codes alone; 1, the
+    map's templates alone; else both."""
+    alone = {0.0: " (the codes alone)", 1.0: " (the map's templates alone)"}
+    return f"{weight:g}{alone.get(float(weight), '')}"
 
 
 def query_summary(pred: np.ndarray, out: str | None, csv: str | None = None) -> str:
@@ -95,6 +107,8 @@ def info_lines(info: dict[str, Any]) -> str:
     keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
             "compression_ratio", "c")  # fmt: skip
     lines = [f"{key:>{W}}: {info[key]}" for key in keys]
+    if info.get("descriptor"):
+        lines.insert(3, f"{'descriptor':>{W}}: {info['descriptor']}")
     ref = info.get("reference") or {}
     if ref.get("embedding"):
         taken = (
@@ -106,7 +120,7 @@ def info_lines(info: dict[str, Any]) -> str:
     if info.get("codes_bits"):
         w, fusion = (info.get("config") or {}).get("fusion"), ref.get("fusion")
         how = f" ({fusion['from']}: {fusion['note']})" if fusion else ""
-        lines.append(f"{'fusion':>{W}}: {w:g}{how}")
+        lines.append(f"{'fusion':>{W}}: {fusion_words(w)}{how}")
     st = info["storage"]
     lines += [
         f"{'storage fixed':>{W}}: {st['fixed']:,} B (code transform)",
