@@ -60,8 +60,8 @@ LAYERS = [
     ["eval.ground_truth_files", "eval.report"],
     ["eval.ablation"],
     ["app.native_stderr", "app.signals", "app.specs"],
-    ["app.demo", "app.frontier", "app.fusion", "app.query_results", "app.render",
-     "app.scale_jobs"],
+    ["app.demo", "app.frontier", "app.fusion", "app.matches", "app.query_results",
+     "app.render", "app.scale_jobs"],
     ["app.jobs"],
     ["app.cli"],
     [""],  # the public face, rhythmic_jax/__init__.py: nothing imports it

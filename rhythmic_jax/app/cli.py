@@ -83,6 +83,7 @@ EXAMPLES = {
           DATASET/ground_truth_new.npy --plot pr.png
       rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
       rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot frontier.png
+      rhythmic-jax evaluate route.map winter/ --tolerance 1 --matches matches.png
     """,
     "demo": """
       rhythmic-jax demo
@@ -260,7 +261,11 @@ OPTIONS = {
              nargs="+", metavar="FILE"),
         _opt("--tolerance-m", "radius of a right match for positions, metres "
              "(default %(default)g)", default=25.0),
-        _opt("--plot", "write PR curves and recall@K (.png)"),
+        _opt("--plot", "write PR curves, recall@N (N = 1..20) and the predicted "
+             "place against query index along the route (.png)"),
+        _opt("--matches", "draw queries beside the place chosen and the right "
+             "place, 4 successes and the 4 most confident failures (.png; the "
+             "queries and the reference as image folders)"),
         _opt("--json", "print JSON", **FLAG),
         *SOURCE,
     )),
@@ -378,7 +383,7 @@ JOBS = {
     "learn": ("LearnJob", "sources out codes"),
     "query": ("QueryJob", "map source decode sequence threshold out top csv json"),
     "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
-                 "ground_truth tolerance_m plot"),
+                 "ground_truth tolerance_m plot matches"),
 }  # fmt: skip
 
 

@@ -404,11 +404,24 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     from rhythmic_jax.frames.sources import reference_features
 
     plot, reference, read = job.plot, job.reference, job.reading
-    if plot and not str(plot).lower().endswith(".png"):
-        raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
-    if plot:
-        check_place("plot", plot)
+    for opt in ("plot", "matches"):
+        path = getattr(job, opt)
+        if path and not str(path).lower().endswith(".png"):
+            raise InputError(f"{{opt:{opt}}} {path}: give a .png file name")
+        if path:
+            check_place(opt, path)
+    drawn = None
+    if job.matches:
+        from rhythmic_jax.app import matches
+
+        drawn = matches.image_files(job.source)
+        if drawn is None:
+            raise InputError(
+                f"{{opt:matches}} draws the query frames: give the queries as an "
+                f"image folder ({job.source} holds descriptors)"
+            )
     model, feats = _load_queries(job, progress)
+    places = None if drawn is None else matches.reference_folder(model, reference)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile,
@@ -427,7 +440,8 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
         )  # fmt: skip
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,
-        method=job.decode, sequence=job.sequence, ground_truth=truth, curves=bool(plot),
+        method=job.decode, sequence=job.sequence, ground_truth=truth,
+        curves=bool(plot or drawn),
     )  # fmt: skip
     result["reference_note"] = note
     if plot:
@@ -435,7 +449,16 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
 
         with write_errors("plot", plot):
             plot_evaluation(result, path=plot)
-        for row in result["methods"].values():
-            row.pop("pr_curve", None)
         result["plot"] = str(plot)
+    if drawn is not None:
+        from rhythmic_jax.eval.figures import plot_matches
+
+        rows = matches.match_rows(result, drawn, places)
+        with write_errors("matches", job.matches):
+            plot_matches(rows, path=job.matches)
+        result["matches"] = str(job.matches)
+    for row in result["methods"].values():  # the figures' data, not the summary's
+        for key in ("pr_curve", "recall_curve", "predictions", "confidence", "correct"):
+            row.pop(key, None)
+    result.pop("right_places", None)
     return result

@@ -147,5 +147,8 @@ def evaluate_summary(result: dict[str, Any]) -> str:
 
     lines = format_evaluation(result) + "\n" + result["reference_note"]
     if result.get("plot"):
-        lines += f"\nPR curves and recall@K -> {result['plot']}"
+        lines += f"\nPR curves, recall@N and the route -> {result['plot']}"
+    if result.get("matches"):
+        lines += f"\nqueries beside the places chosen and the right ones -> " \
+            f"{result['matches']}"
     return lines

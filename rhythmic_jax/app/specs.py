@@ -438,7 +438,9 @@ class EvaluateJob(Checked):
     fitted on when they are still there. ``ground_truth`` names the right places
     (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`; None: query
     i is place i, give or take ``tolerance`` frames; positions match within
-    ``tolerance_m`` metres); ``plot``: a .png of PR curves and recall@K bars.
+    ``tolerance_m`` metres); ``plot``: a .png of PR curves, recall at N = 1..20
+    and the predicted place along the route; ``matches``: a .png of queries
+    beside the place chosen and the right place (image folders).
     ``decode`` and ``sequence`` as :class:`QueryJob`'s; ``given``: see
     :class:`Checked`.
     """
@@ -452,6 +454,7 @@ class EvaluateJob(Checked):
     ground_truth: tuple[str, ...] | None = None
     tolerance_m: float = 25.0
     plot: str | None = None
+    matches: str | None = None
     reading: Reading = Reading()
     given: frozenset[str] = frozenset()
 
@@ -475,7 +478,7 @@ WRITTEN = {
     "fit": ("out", "checkpoint", "shards"),
     "learn": ("out",),
     "query": ("out", "csv"),
-    "evaluate": ("plot",),
+    "evaluate": ("plot", "matches"),
     "frontier": ("csv", "plot"),
 }
 READ = {

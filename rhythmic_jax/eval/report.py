@@ -27,6 +27,7 @@ from rhythmic_jax.map.periods import database_bytes, place_columns
 __all__ = ["evaluate_map", "format_evaluation", "ranked_places"]
 
 KS = (1, 5, 10, 20)
+CURVE = 20  # recall at every N = 1 .. CURVE, for the figures (curves=True)
 
 
 @functools.partial(jit, static_argnames=("periods", "n", "k"))
@@ -147,6 +148,18 @@ def _scores_of(pred, conf, ranked, truth, exact, ks) -> dict[str, Any]:
         "recall@100p": float(recall[precision == 1.0].max()),
     }
     row["_pr"] = (precision, recall)
+    ranked = np.asarray(ranked)
+    if ranked.ndim == 1:
+        ranked = ranked[:, None]
+    curve = gt_recall_at_k(ranked, truth, range(1, min(CURVE, ranked.shape[1]) + 1))
+    row["_route"] = {  # for the figures of a route: kept with curves=True
+        "recall_curve": list(curve.values()),
+        "predictions": np.asarray(pred).astype(int).tolist(),
+        "confidence": [float(c) if np.isfinite(c) else None
+                       for c in np.asarray(conf, np.float64)],
+        "correct": np.where(truth.in_map, truth.hits(np.asarray(pred, np.int64)),
+                            np.asarray(pred) == -1).tolist(),
+    }  # fmt: skip
     return row
 
 
@@ -229,7 +242,10 @@ def evaluate_map(
       method, sequence: decode options passed to ``predict``.
       timing: measure latency and throughput.
       ground_truth: a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
-      curves: keep each method's PR curve under ``"pr_curve"`` (for plots).
+      curves: keep, for the figures, each method's PR curve (``"pr_curve"``),
+        recall at every N = 1..20 (``"recall_curve"``), ``"predictions"``,
+        ``"confidence"`` and ``"correct"`` per query, and the right places of
+        each query (``result["right_places"]``).
     """
     from rhythmic_jax.eval.ground_truth import from_indices
 
@@ -298,11 +314,13 @@ def evaluate_map(
     for row in rows.values():
         row["recall_line"] = recall_line(row, ks)
         precision, recall = row.pop("_pr")
+        route = row.pop("_route")
         if curves:
             row["pr_curve"] = {
                 "precision": precision.tolist(),
                 "recall": recall.tolist(),
             }
+            row.update(route)
     out = {
         "n": model.n,
         "d": model.d,
@@ -316,6 +334,9 @@ def evaluate_map(
         "compression_ratio": model.compression_ratio,
         "methods": rows,
     }
+    if curves:  # the right places of each query, for the route's figures
+        out["right_places"] = [np.asarray(p).astype(int).tolist()
+                               for p in truth.positives]  # fmt: skip
     if curves and model.codebook is not None:  # recall per byte, for the plot
         out["frontier"] = model_frontier(model, queries, pred, truth, sequence, brute)
     return out
