@@ -514,7 +514,8 @@ def frontier_panel(
 ) -> None:
     """Draw recall@1 at sequence ``length`` against storage on ``ax``: one marker
     per kind, the upper frontier of the points as a step line and its points
-    labelled with their names. Storage is the share of the float32 database in
+    labelled with their names (where neighbours crowd, the first of them).
+    Storage is the share of the float32 database in
     %, or bytes per place (``per_place``); ``budget`` (bytes per place, with
     ``per_place``) is drawn as a dashed line. The recall axis spans 0 to a
     little above the best value, the storage axis the points."""
@@ -544,9 +545,14 @@ def frontier_panel(
         xs, ys = [size(r) for r in front], [r[key] for r in front]
         ax.step(xs, ys, where="post", color="grey", lw=1.5, alpha=0.8,
                 label="best within the bytes")  # fmt: skip
-        for i, r in enumerate(front):  # alternate sides: neighbours stay apart
-            ax.annotate(_short(r.get("name", r["kind"])), (size(r), r[key]),
-                        fontsize=5.5,
+        span = max(ys) - min(ys) or 1.0
+        last = None
+        for i, r in enumerate(front):  # crowded neighbours keep one label
+            x, y = size(r), r[key]
+            if last is not None and x < 1.35 * last[0] and y - last[1] < 0.07 * span:
+                continue
+            last = (x, y)
+            ax.annotate(_short(r.get("name", r["kind"])), (x, y), fontsize=5.5,
                         xytext=(4, -9 if i % 2 else 4), textcoords="offset points",
                         color="dimgrey")  # fmt: skip
     if budget is not None and per_place:
@@ -589,7 +595,7 @@ def plot_frontier(
     """
     if not rows:
         raise InputError("plot_frontier: no rows to plot")
-    fig, axes = new_figure(len(lengths), width=4.4)
+    fig, axes = new_figure(len(lengths), width=5.2 if per_place else 4.4)
     for ax, length in zip(axes, lengths, strict=True):
         frontier_panel(ax, rows, length, per_place, budget)
     fig.suptitle(title or "recall per byte")
