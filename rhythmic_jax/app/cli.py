@@ -213,8 +213,9 @@ OPTIONS = {
         _opt("--method", "invariant: closed form, pca: principal axes only, map: "
              "learned through the map, infonce: InfoNCE", default="invariant",
              choices=("invariant", "pca", "map", "infonce")),
-        _opt("--head", "the learned head of --method map or infonce (mlp: one hidden "
-             "layer)", default="linear", choices=("linear", "mlp")),
+        _opt("--head", "the learned head of --method map or infonce: linear (k x k) "
+             "or mlp (plus a residual ReLU layer)", default="linear",
+             choices=("linear", "mlp")),
         _opt("--k", "output dimensions", default=256),
         _opt("--steps", "gradient steps", default=300),
         _opt("--seed", "PRNG seed", default=0),
