@@ -549,7 +549,7 @@ def frontier_panel(
         last = None
         for i, r in enumerate(front):  # crowded neighbours keep one label
             x, y = size(r), r[key]
-            if last is not None and x < 1.35 * last[0] and y - last[1] < 0.07 * span:
+            if last is not None and x < 2 * last[0] and y - last[1] < 0.1 * span:
                 continue
             last = (x, y)
             ax.annotate(_short(r.get("name", r["kind"])), (x, y), fontsize=5.5,
