@@ -123,3 +123,32 @@ def test_top_without_json_or_csv_is_refused(folders, capsys, tmp_path):
     code, _, err = run(capsys, "query", str(root / "m.map"), str(root / "qry"),
                        "--csv", str(tmp_path / "none" / "r.csv"))  # fmt: skip
     assert code == 2 and "--csv" in err and "not found" in err
+
+
+def test_hloc_files_name_queries_and_places(capsys, tmp_path):
+    """A map fitted on an hloc .h5 names its places by the file's image names,
+    and queries from one are named by theirs."""
+    import h5py
+
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(rng.normal(size=(30, 12)), axis=0).astype(np.float32)
+    walk -= walk.mean(axis=0)
+    for name, rows in (("db", walk), ("q", walk + 0.1 * rng.normal(size=walk.shape))):
+        with h5py.File(tmp_path / f"{name}.h5", "w") as f:  # hloc: a group per image
+            for i, v in enumerate(rows):
+                f.create_group(f"{name}/{i:02d}.jpg").create_dataset(
+                    "global_descriptor", data=v.astype(np.float32)
+                )
+    assert main(["fit", str(tmp_path / "db.h5"), "--out", str(tmp_path / "m.map"),
+                 "--no-progress"]) == 0  # fmt: skip
+    capsys.readouterr()
+    code, out, err = run(capsys, "query", str(tmp_path / "m.map"),
+                         str(tmp_path / "q.h5"), "--json", "--top", "2")  # fmt: skip
+    assert code == 0, err
+    rows = json.loads(out)["queries"]
+    assert [r["query"] for r in rows] == [f"q/{i:02d}.jpg" for i in range(30)]
+    for r in rows:
+        assert [t["name"] for t in r["top"]] == [f"db/{t['place']:02d}.jpg"
+                                                 for t in r["top"]]  # fmt: skip
+        assert r["place_name"] == (f"db/{r['place']:02d}.jpg" if r["place"] >= 0
+                                   else None)  # fmt: skip
