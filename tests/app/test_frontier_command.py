@@ -97,7 +97,8 @@ def test_the_default_grid_and_faiss_warnings_in_one_line(route, capfd):
     out, err = capfd.readouterr()
     result = json.loads(out)
     assert [tuple(m) for m in result["config"]["maps"]] == list(GRIDS["small"]["maps"])
-    assert result["config"]["bits"] == [] and result["config"]["pq"] == [16, 32]
+    assert result["config"]["bits"] == [] and result["config"]["pq"] == [16]
+    assert any(line.startswith("PQ 32") for line in result["skipped"])  # 32 ∤ d
     assert "PQ 16x6 bits" in {r["name"] for r in result["rows"]}
     assert "WARNING clustering" not in err
     assert len(result["notes"]) == 1 and "faiss warned" in result["notes"][0]

@@ -372,7 +372,7 @@ def test_the_embedding_is_counted_and_a_fusion_of_zero_is_the_codes_alone(case):
     assert res["compression_ratio"] == pytest.approx(row["storage_share"])
     assert row["label"] == "codes alone"
     table = format_evaluation(res).split("\n")
-    assert table[4].startswith(f"{'codes alone':<12}") and f"{total:,}" in table[4]
+    assert table[5].startswith(f"{'codes alone':<12}") and f"{total:,}" in table[5]
     assert any(line.startswith("bytes: what a query needs") for line in table)
     parts = {r["kind"]: r for r in res["frontier"]}
     assert parts["hybrid"]["name"] == "codes alone (fusion 0) + embedding"
