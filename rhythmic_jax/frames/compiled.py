@@ -77,7 +77,6 @@ __all__ = [
     "stages",
     "start_build",
     "take_lock",
-    "wants_compiled",
 ]
 
 log = logging.getLogger(__name__)
@@ -147,12 +146,6 @@ def plan(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> str:
         return compiled
     off = os.environ.get(BUILD_ENV, "").strip().lower() in ("0", "off", "no", "false")
     return "eager" if off else "background"
-
-
-def wants_compiled(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> bool:
-    """Whether a job of ``frames`` frames runs ``descriptor`` compiled
-    (:func:`plan` says load or build)."""
-    return plan(descriptor, frames, policy, ready) in ("load", "build")
 
 
 def package_ready(path: Path) -> bool:
