@@ -18,7 +18,7 @@ from pathlib import Path
 import _harness as h
 import jax
 import numpy as np
-from _harness import header, log, main, nordland_features, table, timed
+from _harness import log, main, nordland_features, table, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
@@ -100,7 +100,7 @@ def run_on(device, summer, winter, args) -> dict:
 def markdown(report: dict) -> str:
     gpu, cpu = report["gpu"], report["cpu"]
     name = gpu["kind"] if gpu else "no GPU"
-    lines = header("JAX on a GPU against the same machine's CPU", report)
+    lines = []
     synthetic = "walk_f16" in report["features"]  # --quick without --features
     source = "Synthetic route frames" if synthetic else "Nordland summer patchnorm"
     if not gpu:
@@ -161,7 +161,8 @@ def markdown(report: dict) -> str:
         )
     else:
         lines.append(f"CPU self-query recall@1 {cpu['self_recall']:.3f}.")
-    return "\n".join(lines)
+    title = "JAX on a GPU against the same machine's CPU"
+    return h.render(title, report, "\n".join(lines))
 
 
 def options(ap) -> None:
@@ -211,5 +212,7 @@ def run(args) -> dict | None:
     return report | results
 
 
+PARTS = {"": h.Part(run, markdown, options, "gpu", QUICK)}  # one part: no subcommand
+
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="gpu", quick=QUICK)
+    main(__doc__, PARTS)

@@ -86,7 +86,7 @@ if TYPE_CHECKING:
 
 # Frames per network call, compiled and eager. Small batches keep each layer's
 # activations in the CPU's caches: on the 2-core reference machine
-# (scripts/bench_network.py, reports/network.md, two runs) EfficientNet-Lite0 at
+# (scripts/bench_frames.py network, reports/network.md, two runs) EfficientNet-Lite0 at
 # 224x112 compiled ran at 447-535 frames/s in batches of 8 (507-518 at 4, within
 # the runs' noise) against 276-279 in batches of 32 and 231-240 at 64, and
 # eagerly at 298-300 frames/s in batches of 4 against 175-185 at 8 and 90-97 at 64.
