@@ -416,10 +416,11 @@ def parser(doc: str, parts: dict[str, Part] | None = None):
             part.options and part.options(ap)
         return _common(ap)
     sub = ap.add_subparsers(dest="part", required=True, metavar="PART")
+    ap.parts = {}  # each part's parser, for its defaults
     for name, part in parts.items():
         text = (part.run.__doc__ or name).strip().splitlines()[0]
-        one = _common(sub.add_parser(name, help=text, description=text))
-        part.options and part.options(one)
+        ap.parts[name] = _common(sub.add_parser(name, help=text, description=text))
+        part.options and part.options(ap.parts[name])
     return ap
 
 
@@ -435,11 +436,12 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     ap = parser(doc, parts)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    part = parts[getattr(args, "part", "")]
+    part, own = parts[getattr(args, "part", "")], getattr(ap, "parts", {})
+    own = own.get(getattr(args, "part", ""), ap)
     args.stem = f"{part.stem}_quick" if args.quick else part.stem
     md_stem = part.md_stem and part.md_stem + ("_quick" if args.quick else "")
     for key, value in (part.quick or {}).items() if args.quick else ():
-        if getattr(args, key) == part_default(ap, args, key):
+        if getattr(args, key) == own.get_default(key):
             setattr(args, key, value)
     if args.render is not None:
         if not args.render.name:
@@ -464,14 +466,6 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     report = plain(report | out)
     write_report(args.out, args.stem, report, part.markdown(report), md_stem)
     return report
-
-
-def part_default(ap: argparse.ArgumentParser, args, key: str):
-    """The default of option ``key`` in the (sub)parser of ``args.part``."""
-    for action in ap._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return action.choices[args.part].get_default(key)
-    return ap.get_default(key)
 
 
 if __name__ == "__main__":  # call(): python _harness.py SCRIPT FUNCTION JSON_ARGS

@@ -100,6 +100,7 @@ def options_jobs(ap) -> None:
 
 
 def run_jobs(args) -> dict:
+    """XLA programs, compile and wall seconds per job (compile)."""
     from bench_frames import make_folders
 
     args.small = args.small or args.quick
@@ -303,6 +304,7 @@ def options_startup(ap) -> None:
 
 
 def run_startup(args) -> dict:
+    """Start-up time: import, --help, info (startup)."""
     checkouts = {"this": h.REPO}
     if args.before is not None:
         checkouts = {"before": args.before.resolve(), "after": h.REPO}

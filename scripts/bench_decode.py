@@ -157,6 +157,7 @@ def options_batch(ap) -> None:
 
 
 def run_batch(args) -> dict:
+    """Batch and single-query decoding against exact search (decode)."""
     kw = dict(repeats=args.repeats, singles=args.singles)
     refs, qry, src = random_features(10713, 4096, BATCH, seed=0)
     cases = [
@@ -458,6 +459,7 @@ def markdown_decoders(report: dict) -> str:
 
 
 def run_decoders(args: argparse.Namespace) -> dict:
+    """Decoders beyond the paper: soft, top-m, sequences, outliers (decoding)."""
     blocks, outliers = [], []
     repeats = 3 if args.quick else 5
     kw = dict(cache_dir=args.cache_dir, progress=args.progress)
@@ -535,6 +537,7 @@ def options_single(ap) -> None:
 
 
 def run_single(args) -> dict:
+    """One descriptor to its place: numpy lane, jitted decode, faiss (single_query)."""
     n, d = args.n, args.d
     cands = candidate_periods(n, 2, 1, 7)
     periods = choose_periods(cands, [0.0] * len(cands), n, 2)

@@ -98,6 +98,7 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
 
 
 def run_frames(args) -> dict:
+    """Frames/s from images end to end against a baseline (frames)."""
     paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
     h.bytecode(*paths.values())
     jobs = ["fit", "query", "fit100"]
@@ -259,6 +260,7 @@ def options_pipeline(ap) -> None:
 
 
 def run_pipeline(args) -> dict:
+    """Frames/s of the augmented training pipeline (pipeline)."""
     import torch
 
     from rhythmic_jax.augment.kornia_ops import NAMES
@@ -328,6 +330,7 @@ def options_network(ap) -> None:
 
 
 def run_network(args) -> dict:
+    """The descriptor network's frames/s by batch size (network)."""
     import torch
 
     from rhythmic_jax.frames import compiled
@@ -412,6 +415,7 @@ def recall_at_1(queries: np.ndarray, reference: np.ndarray) -> tuple[float, floa
 
 
 def run_descriptors(args) -> dict:
+    """Descriptors on Nordland, winter against summer (descriptors)."""
     import torch
 
     from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
@@ -525,6 +529,7 @@ def options_augment(ap) -> None:
 
 
 def run_augment(args) -> dict:
+    """Frames/s of each augmentation and of all seven (augment)."""
     import torch
 
     generator, rows = torch.Generator().manual_seed(0), []

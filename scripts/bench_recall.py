@@ -196,6 +196,7 @@ def options_bytes(ap) -> None:
 
 
 def run_bytes(args) -> dict:
+    """Recall per byte: maps, ITQ codes, hybrids (recall_per_byte)."""
     logging.getLogger("rhythmic_jax.eval.frontier").setLevel(logging.INFO)
     s, w = h.nordland_features(args.root, "efficientnet_lite0", key="nordland_",
                              progress=args.progress)  # fmt: skip
@@ -494,6 +495,7 @@ def options_cross(ap) -> None:
 
 
 def run_cross(args) -> dict:
+    """Recognition under appearance change, split by place (cross_condition)."""
     t0 = time.perf_counter()
     datasets, words = {}, args.only.split(",") if args.only else None
     saved = args.out / f"{args.stem}.partial.json"
@@ -778,6 +780,7 @@ def options_digits(ap) -> None:
 
 
 def run_digits(args) -> dict:
+    """Map layouts (digits) across seasons on Nordland (digits)."""
     test = NORDLAND_SPLIT.test
     path = str(args.cache / f"nordland_%s_{args.descriptor}.npy")  # per season
     summer, winter = (np.ascontiguousarray(np.load(path % s, mmap_mode="r")[test])

@@ -246,20 +246,11 @@ def markdown_grid(report: dict) -> str:
         lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
-              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the summed"
-              " periods, and the bytes, lie between the least and the largest valid"
-              " set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). Over a short"
-              " range of N, or from N where 6 is a large share of N^(1/r) (10 at N ="
-              " 1,000, r = 3), the errors' choice moves the fitted slope further than"
-              " 0.05 either way; the column 'the rule allows' gives the least and the"
-              " largest fitted slope that the rule permits over the series' N (any"
-              " choice of periods at each N). The slope tends to 1/r as N grows, where"
-              " 6 becomes a small share of N^(1/r). Rule 'least' fixes the"
-              " least-storage co-prime set of the same candidates before training (no"
-              " search): its bytes follow r N^(1/r) to within the rounding up to"
-              " co-prime integers, and the column gives that set's slope; the accuracy"
-              " columns say what the errors' choice buys over it."]  # fmt: skip
+    lines += ["", "The candidate rule lets the training errors choose r co-prime"
+              " periods among ceil(N^(1/r)) + {0..6}: 'the rule allows' gives the"
+              " least and largest fitted slope any such choice gives over the series'"
+              " N; rule 'least' fixes the least-storage set before training, and the"
+              " column its slope (docs/SCALE.md)."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
@@ -518,6 +509,7 @@ def options_grid(ap) -> None:
 
 
 def run_grid(args) -> dict:
+    """Growth from real fits against N, d, r, processes (scale)."""
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
@@ -664,6 +656,7 @@ def options_streamed(ap) -> None:
 
 
 def run_streamed(args) -> dict:
+    """Streamed Newton-CG: preconditioner, compacted passes (streamed)."""
     cases = []
     with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
         if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
@@ -743,6 +736,7 @@ def options_memory(ap) -> None:
 
 
 def run_memory(args) -> dict:
+    """A full-batch fit's memory estimate against its peak (memory)."""
     rows = h.call(measure, args.repeats, args.shapes)["result"]
     for r in rows:
         n, d = r["n"], r["d"]

@@ -292,6 +292,7 @@ def options_joint(ap) -> None:
 
 
 def run_joint(args) -> dict:
+    """Joint solve: Newton-CG, L-BFGS against LinearSVC (solver)."""
     cases, samples = [], args.samples
     if (args.root / "nordland_64x32").is_dir():
         (x,) = h.nordland_features(
@@ -330,6 +331,7 @@ def options_work(ap) -> None:
 
 
 def run_work(args) -> dict:
+    """Where the 0.1 % solve's work could be cut (solver_work)."""
     if args.frames:
         x = np.load(args.frames).astype(np.float32)
     else:
@@ -443,6 +445,7 @@ def options_span(ap) -> None:
 
 
 def run_span(args) -> dict:
+    """Wide frames: the solve in the frames' span against direct (span)."""
     desc = get_descriptor(args.descriptor)
     (x,) = h.nordland_features(args.root, desc, ("summer",), progress=args.progress)
     x = x[: args.frames]

@@ -230,6 +230,8 @@ def test_cached_fit_fits_once(tmp_path):
     assert other["map_path"] != rec["map_path"]
 
 
+# keys of committed reports from options a quick run leaves off
+OPTIONAL = {"probe", "full", "wall_seconds_by_process"}
 # one quick run of every part: (script, part, extra arguments)
 QUICK = [
     ("bench_decode", "batch", []),
@@ -260,9 +262,12 @@ def test_every_part_runs_quick_and_keeps_the_report_keys(
     script, part, extra, tmp_path, nordland_root
 ):
     """Each part's ``--quick`` run writes a report with the top-level keys of the
-    committed one (those the harness records aside)."""
+    committed one (but those of options a quick run leaves off)."""
     import _harness
 
+    if part == "digits" and not Path("/work/cache/nordland_summer_"
+                                     "efficientnet_lite0.npy").is_file():  # fmt: skip
+        pytest.skip("the digits part reads cached Lite0 features (--cache)")
     module = _module(script)
     argv = [part, "--quick", "--no-progress", "--out", str(tmp_path)]
     argv += ["--root", str(nordland_root.parent), *extra]
@@ -271,7 +276,7 @@ def test_every_part_runs_quick_and_keeps_the_report_keys(
     committed = REPO / "reports" / f"{stem}.json"
     assert report is not None and list(tmp_path.glob("*.md"))
     if committed.is_file():
-        keys = set(json.loads(committed.read_text()))
+        keys = set(json.loads(committed.read_text())) - OPTIONAL
         assert keys <= set(report), sorted(keys - set(report))
 
 
