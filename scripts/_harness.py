@@ -413,14 +413,16 @@ def parser(doc: str, parts: dict[str, Part] | None = None):
     ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
     if not parts or len(parts) == 1:
         for part in (parts or {}).values():
-            part.options and part.options(ap)
+            if part.options:
+                part.options(ap)
         return _common(ap)
     sub = ap.add_subparsers(dest="part", required=True, metavar="PART")
     ap.parts = {}  # each part's parser, for its defaults
     for name, part in parts.items():
         text = (part.run.__doc__ or name).strip().splitlines()[0]
         ap.parts[name] = _common(sub.add_parser(name, help=text, description=text))
-        part.options and part.options(ap.parts[name])
+        if part.options:
+            part.options(ap.parts[name])
     return ap
 
 
@@ -436,8 +438,8 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     ap = parser(doc, parts)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    part, own = parts[getattr(args, "part", "")], getattr(ap, "parts", {})
-    own = own.get(getattr(args, "part", ""), ap)
+    name = getattr(args, "part", None) or next(iter(parts))
+    part, own = parts[name], getattr(ap, "parts", {}).get(name, ap)
     args.stem = f"{part.stem}_quick" if args.quick else part.stem
     md_stem = part.md_stem and part.md_stem + ("_quick" if args.quick else "")
     for key, value in (part.quick or {}).items() if args.quick else ():
