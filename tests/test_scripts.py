@@ -230,8 +230,9 @@ def test_cached_fit_fits_once(tmp_path):
     assert other["map_path"] != rec["map_path"]
 
 
-# keys of committed reports from options a quick run leaves off
-OPTIONAL = {"probe", "full", "wall_seconds_by_process"}
+# keys of committed reports from options a quick run leaves off, or from before the
+# harness recorded the machine under "environment"
+OPTIONAL = {"probe", "full", "wall_seconds_by_process", "cpu_count", "python", "torch"}
 # one quick run of every part: (script, part, extra arguments)
 QUICK = [
     ("bench_decode", "batch", []),
