@@ -92,7 +92,7 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
 
 
 def options_jobs(ap) -> None:
-    ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
+    ap.add_argument("--base", type=Path, help="baseline checkout (to measure)")
     ap.add_argument("--jobs", default="imports,fit,nordland,demo,jpeg")
     ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
     ap.add_argument("--rounds", type=int, default=1, help="base, cold, warm, repeated:"
@@ -101,6 +101,8 @@ def options_jobs(ap) -> None:
 
 def run_jobs(args) -> dict:
     """XLA programs, compile and wall seconds per job (compile)."""
+    if args.base is None:
+        raise SystemExit("--base (a baseline checkout) is needed to measure")
     from bench_frames import make_folders
 
     args.small = args.small or args.quick

@@ -68,7 +68,7 @@ def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
 
 
 def options_frames(ap) -> None:
-    ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
+    ap.add_argument("--base", type=Path, help="baseline checkout (to measure)")
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--aug-frames", type=int, default=256)
@@ -99,6 +99,8 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
 
 def run_frames(args) -> dict:
     """Frames/s from images end to end against a baseline (frames)."""
+    if args.base is None:
+        raise SystemExit("--base (a baseline checkout) is needed to measure")
     paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
     h.bytecode(*paths.values())
     jobs = ["fit", "query", "fit100"]

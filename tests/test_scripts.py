@@ -106,7 +106,6 @@ def test_each_report_renders_again_from_its_json(stem, tmp_path):
     shutil.copy(source, tmp_path / source.name)
     module = _module(script)
     argv = [part] if part else []
-    argv += ["--base", str(tmp_path)] if part in ("jobs", "end-to-end") else []
     argv += ["--render", str(tmp_path / source.name)]
     _harness.main(module.__doc__, _parts(module), argv=argv)
     md = (tmp_path / f"{stem}.md").read_text()
