@@ -42,7 +42,7 @@ LAYERS = [
     ["jit_cache"],
     ["solvers.objective", "solvers.precision", "solvers.precondition", "solvers.span"],
     ["solvers.candidates", "solvers.memory", "solvers.newton_cg", "solvers.optax_loops",
-     "solvers.passes", "solvers.sharding"],
+     "solvers.passes"],
     ["solvers.newton", "solvers.resumable"],
     ["solvers.distributed", "solvers.streamed"],
     ["solvers.protocol"],
