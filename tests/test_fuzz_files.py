@@ -30,6 +30,7 @@ import json
 import os
 import resource
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -509,37 +510,51 @@ def _command() -> list[str]:
 LIMIT_KIB = 16 * 2**20  # the children's address space: 16 GiB (JAX reserves much)
 
 
+# Run by a small Python of its own: it forks the command (so the command starts
+# from that small process, not from this test's large one, whose resident pages a
+# forked child would count as its own peak), sets the address-space limit, waits
+# for it and writes its exit status and peak resident memory to the file named.
+_LAUNCHER = """
+import os, resource, sys
+limit, report, *cmd = sys.argv[1:]
+pid = os.fork()
+if pid == 0:
+    resource.setrlimit(resource.RLIMIT_AS, (int(limit), int(limit)))
+    os.execvp(cmd[0], cmd)
+_, status, usage = os.wait4(pid, 0)
+with open(report, "w") as fh:
+    fh.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
+"""
+
+
 def _subprocess(args: list[str]) -> subprocess.CompletedProcess:
-    """The installed command on ``args`` under ``ulimit -v`` (a shell sets it
-    and execs the command, so no fork of this threaded process runs Python): it
-    ends within the timeout, and its own peak resident memory (``wait4``) stays
-    below 1 GiB."""
+    """The installed command on ``args`` under an address-space limit, started
+    by a small launcher process (:data:`_LAUNCHER`): it ends within the timeout,
+    and its own peak resident memory (``wait4``) stays below 1 GiB."""
     env = dict(
         os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=str(Path(__file__).parents[1])
     )
-    limited = ["/bin/sh", "-c", f'ulimit -v {LIMIT_KIB} && exec "$@"', "sh"]
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen(
-            limited + _command() + args, stdout=out, stderr=err, env=env,
-            stdin=subprocess.DEVNULL,
-        )  # fmt: skip
-        deadline = time.monotonic() + TIMEOUT_S
-        while True:
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.monotonic() > deadline:
-                proc.kill()
-                os.wait4(proc.pid, 0)
-                proc.returncode = -9
+    with tempfile.TemporaryDirectory() as tmp:
+        report = Path(tmp) / "status"
+        launcher = [sys.executable, "-c", _LAUNCHER, str(LIMIT_KIB * 1024), str(report)]
+        out, err = open(Path(tmp) / "out", "w+b"), open(Path(tmp) / "err", "w+b")
+        with out, err:
+            proc = subprocess.Popen(
+                launcher + _command() + args, stdout=out, stderr=err, env=env,
+                stdin=subprocess.DEVNULL, start_new_session=True,
+            )  # fmt: skip
+            try:
+                proc.wait(timeout=TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)  # the launcher and the command
+                proc.wait()
                 pytest.fail(f"{args}: still running after {TIMEOUT_S} s")
-            time.sleep(0.05)
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        out.seek(0), err.seek(0)
-        text = out.read().decode(errors="replace"), err.read().decode(errors="replace")
-    peak = usage.ru_maxrss * 1024
+            out.seek(0), err.seek(0)
+            text = tuple(f.read().decode(errors="replace") for f in (out, err))
+        code, maxrss = (int(v) for v in report.read_text().split())
+    peak = maxrss * 1024
     assert peak < GIB, f"the command reached {peak / GIB:.1f} GiB"
-    return subprocess.CompletedProcess(args, proc.returncode, *text)
+    return subprocess.CompletedProcess(args, code, *text)
 
 
 def _one_line_exit_2(done: subprocess.CompletedProcess) -> None:

@@ -369,7 +369,7 @@ def test_shards_that_fail_to_write_leave_nothing_that_blocks_a_rerun(
     _one_line(capsys, f"--shards {shards}: holds the shards of other images")
     (shards / "shards.json").unlink()
     assert main(argv) == 2
-    _one_line(capsys, f"--shards {shards}: exists and holds no shards a finished")
+    _one_line(capsys, f"--shards {shards}: exists and holds no shards that a finished")
 
 
 CANCEL_MAP = """
