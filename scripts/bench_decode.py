@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.decoding.hard import decode
+from rhythmic_jax.decoding.queries import decode_queries as decode
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch, time_single_queries
 from rhythmic_jax.map.periods import database_bytes, nominal_periods, storage_bytes

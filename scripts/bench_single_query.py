@@ -11,7 +11,8 @@ from _harness import cores, header, log, main, table
 from bench_decode import random_features, random_map
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decoding.hard import SmallDecoder, decode
+from rhythmic_jax.decoding.host import SmallDecoder
+from rhythmic_jax.decoding.queries import decode_queries as decode
 from rhythmic_jax.eval.baselines import BruteForce
 from rhythmic_jax.eval.metrics import time_batch
 from rhythmic_jax.map.groups import Groups

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
-from rhythmic_jax.decoding.hard import _hard_jit
+from rhythmic_jax.decoding.hard import hard_kernel
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.periods import period_offsets
 
@@ -87,6 +87,6 @@ def test_leading_dims_and_empty_batch():
 def test_hard_decode_does_not_recompile():
     periods, n = (5, 7), 33
     decode_scores(encode(np.arange(35), periods, 0.1, seed=5), periods, n)
-    size = _hard_jit._cache_size()
+    size = hard_kernel._cache_size()
     decode_scores(encode(np.arange(35), periods, 0.2, seed=6), list(periods), n)
-    assert _hard_jit._cache_size() == size
+    assert hard_kernel._cache_size() == size

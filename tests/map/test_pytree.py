@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decoding import hard, queries
+from rhythmic_jax.decoding import hard, host, queries
 from rhythmic_jax.decoding.hard import hard_decode
 from rhythmic_jax.fitting.fit_map import fit
 from rhythmic_jax.map import map_file
@@ -85,12 +85,12 @@ def test_decode_compiles_once_per_bucket(maps):
     assert hard._localise._cache_size() == 1
     hard.decode(m.params, jnp.asarray(x[:17]), m.groups, m.n)
     assert hard._localise._cache_size() == 2
-    hard._hard_jit.clear_cache()
+    hard.hard_kernel.clear_cache()
     for b in (3, 17, 40):
         want = hard.decode(m.params, jnp.asarray(x[:b]), m.groups, m.n).index
         got = queries.decode(m, x[:b])
         np.testing.assert_array_equal(got.index, np.asarray(want))
-    assert hard._hard_jit._cache_size() == 0 and hard._localise._cache_size() == 3
+    assert hard.hard_kernel._cache_size() == 0 and hard._localise._cache_size() == 3
 
 
 def test_vmap_over_two_maps_of_one_layout_equals_two_decodes(maps):
@@ -167,7 +167,7 @@ def test_the_kernel_equals_a_brute_force_loop_over_every_place(groups, n):
 def test_the_numpy_lane_equals_the_kernel(maps):
     (m, _), (x, _) = maps
     q = _queries(x, seed=9)
-    lane = queries.lane(m)
+    lane = host.lane(m)
     want = np.asarray(hard.decode(m.params, q, m.groups, m.n).index).tolist()
     assert [lane.place(row) for row in q] == want
     assert [queries.locate(m, row) for row in q] == want
