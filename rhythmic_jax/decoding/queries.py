@@ -61,6 +61,7 @@ from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.sequence import METHODS, _check_speeds, sequence_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
+from rhythmic_jax.map.config import DECODERS
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.map.embedding import embed
 from rhythmic_jax.map.groups import Groups
@@ -119,7 +120,19 @@ def decode(m: Map, q, how: str | None = None, top: int | None = None) -> Decoded
     confidence; ``how`` "hard", "soft" or "topm" (default: the map's), ``top``
     the phases top-m keeps (default: the map's)."""
     how, top = how or m.config.decode, top or m.config.m
-    return _decoded(m, queries(m, q), how, top)
+    x = queries(m, q)
+    return by_method(how, lambda how: _decoded(m, x, how, top))
+
+
+def by_method(how, answer):
+    """``answer(how)`` for a method's name. Inside a trace of the map, its
+    stored method (:data:`rhythmic_jax.map.pytree.DECODE_SETTINGS`) is an
+    index into :data:`~rhythmic_jax.map.config.DECODERS` traced with the map:
+    every method is a branch of the one program and ``jax.lax.switch`` picks
+    one, so a map with another stored method compiles nothing new."""
+    if isinstance(how, Tracer):
+        return jax.lax.switch(how, [lambda h=h: answer(h) for h in DECODERS])
+    return answer(how)
 
 
 def _decoded(m: Map, x, how: str, top: int) -> Decoded:
@@ -147,7 +160,8 @@ def decode_sequence(
     decoded with the ``length - 1`` before it at ``speeds``
     (:mod:`rhythmic_jax.decoding.sequence`)."""
     how, top = how or m.config.decode, top or m.config.m
-    return _sequence(m, queries(m, q), length, speeds, how, top)
+    x = queries(m, q)
+    return by_method(how, lambda how: _sequence(m, x, length, speeds, how, top))
 
 
 def _sequence(m: Map, x, length, speeds, how: str, top: int):

@@ -99,6 +99,10 @@ class MapConfig:
         co-prime fine periods). Sizes left out are chosen for the storage of a
         periods map of the same ``r`` and ``level``.
 
+    ``decode``, ``threshold`` and ``fusion`` are the defaults of a decode,
+    which takes each as an argument; a fitted map carries them as leaves, not
+    in its compiled key (:data:`rhythmic_jax.map.pytree.DECODE_SETTINGS`).
+
     ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
     summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a
     self-query accuracy of about 0.93.

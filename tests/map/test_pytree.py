@@ -74,6 +74,37 @@ def test_jit_takes_new_template_values_without_compiling(maps):
     assert not np.array_equal(np.asarray(first.index), np.asarray(second.index))
 
 
+def test_a_new_threshold_method_or_fusion_weight_compiles_nothing(maps):
+    """The decode settings a map stores are leaves, not the compiled key: a map
+    with another threshold, method or fusion weight reuses the program, and its
+    stored method still decides its answer; an explicit method overrides it."""
+    (m, _), (x, _) = maps
+    q = jnp.asarray(_queries(x))
+    decode = jax.jit(queries.decode)
+    decode(m, q)
+    programs = decode._cache_size()
+    named = jax.jit(queries.decode, static_argnames="how")
+    named(m, q, how="hard")
+    named_programs = named._cache_size()
+    for change in (dict(threshold=0.25), dict(fusion=0.8), dict(decode="soft"),
+                   dict(decode="topm", threshold=-1.0)):  # fmt: skip
+        other = replace(m, config=replace(m.config, **change))
+        got = decode(other, q)
+        want = queries.decode(other, np.asarray(q))
+        np.testing.assert_array_equal(np.asarray(got.index), want.index)
+        np.testing.assert_allclose(np.asarray(got.score), want.score, rtol=1e-5)
+        hard = named(other, q, how="hard")
+        np.testing.assert_array_equal(np.asarray(hard.index), np.asarray(named(
+            m, q, how="hard").index))  # fmt: skip
+    assert decode._cache_size() == programs
+    assert named._cache_size() == named_programs
+    leaves = jax.tree_util.tree_leaves(replace(m, config=other.config))
+    assert len(leaves) == len(jax.tree_util.tree_leaves(m))  # settings: leaves
+    moved = jax.device_put(other)  # the settings read back as Python values
+    assert moved.config == other.config and moved.config.decode == "topm"
+    assert replace(m, config=replace(m.config, m=5)).config != m.config
+
+
 def test_decode_compiles_once_per_bucket(maps):
     """Device batches: one program per bucket of rows; a float32 numpy batch on
     the CPU is answered by the numpy lane and compiles nothing."""
