@@ -1,6 +1,6 @@
 """Queries of a map: pure functions of a :class:`~rhythmic_jax.map.pytree.Map`.
 
-``scores(map, q)``, ``place_scores(map, q)``, ``decode(map, q, how)``,
+``scores(map, q)``, ``place_scores(map, q)``, ``decode(map, q, method)``,
 ``decode_sequence(map, q, length)``, ``predict(map, q)`` and ``locate(map, q)``
 take the map as a value. Queries (b, d) are checked and embedded (when the map
 has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
@@ -115,36 +115,36 @@ def place_scores(m: Map, q) -> jax.Array:
     )
 
 
-def decode(m: Map, q, how: str | None = None, top: int | None = None) -> Decoded:
+def decode(m: Map, q, method: str | None = None, top: int | None = None) -> Decoded:
     """Decode queries (b, d): index (b,) (-1 no match), score, runner-up,
-    confidence; ``how`` "hard", "soft" or "topm" (default: the map's), ``top``
+    confidence; ``method`` "hard", "soft" or "topm" (default: the map's), ``top``
     the phases top-m keeps (default: the map's)."""
-    how, top = how or m.config.decode, top or m.config.m
+    method, top = method or m.config.decode, top or m.config.m
     x = queries(m, q)
-    return by_method(how, lambda how: _decoded(m, x, how, top))
+    return by_method(method, lambda h: _decoded(m, x, h, top))
 
 
-def by_method(how, answer):
-    """``answer(how)`` for a method's name. Inside a trace of the map, its
+def by_method(method, answer):
+    """``answer(method)`` for a method's name. Inside a trace of the map, its
     stored method (:data:`rhythmic_jax.map.pytree.DECODE_SETTINGS`) is an
     index into :data:`~rhythmic_jax.map.config.DECODERS` traced with the map:
     every method is a branch of the one program and ``jax.lax.switch`` picks
     one, so a map with another stored method compiles nothing new."""
-    if isinstance(how, Tracer):
-        return jax.lax.switch(how, [lambda h=h: answer(h) for h in DECODERS])
-    return answer(how)
+    if isinstance(method, Tracer):
+        return jax.lax.switch(method, [lambda h=h: answer(h) for h in DECODERS])
+    return answer(method)
 
 
-def _decoded(m: Map, x, how: str, top: int) -> Decoded:
+def _decoded(m: Map, x, method: str, top: int) -> Decoded:
     """Decoded (b,) of checked, embedded queries x (b, k): with codes fused
     (padded first: every program once per bucket), else by
     :func:`decode_queries`."""
     if m.codebook is None:
-        return decode_queries(m.params, x, m.groups, m.n, how, top)
+        return decode_queries(m.params, x, m.groups, m.n, method, top)
     x, b = pad_rows(x)
     return head(fused_decode(
         _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
-        m.config.fusion, "soft" if how == "hard" else how, top,
+        m.config.fusion, "soft" if method == "hard" else method, top,
     ), b)  # fmt: skip
 
 
@@ -153,18 +153,18 @@ def decode_sequence(
     q,
     length: int,
     speeds: Sequence[float] = (1.0,),
-    how: str | None = None,
+    method: str | None = None,
     top: int | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """``(index, confidence)`` (T,) of consecutive query frames q (T, d), each
     decoded with the ``length - 1`` before it at ``speeds``
     (:mod:`rhythmic_jax.decoding.sequence`)."""
-    how, top = how or m.config.decode, top or m.config.m
+    method, top = method or m.config.decode, top or m.config.m
     x = queries(m, q)
-    return by_method(how, lambda how: _sequence(m, x, length, speeds, how, top))
+    return by_method(method, lambda h: _sequence(m, x, length, speeds, h, top))
 
 
-def _sequence(m: Map, x, length, speeds, how: str, top: int):
+def _sequence(m: Map, x, length, speeds, method: str, top: int):
     """:func:`decode_sequence` of checked, embedded queries x (T, k), padded at
     the end first (a frame's answer depends on the frames before it only), so
     every program compiles once per bucket."""
@@ -172,17 +172,19 @@ def _sequence(m: Map, x, length, speeds, how: str, top: int):
     if m.codebook is not None:
         out = fused_sequence_decode(
             _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
-            length, speeds, m.config.fusion, how, top,
+            length, speeds, m.config.fusion, method, top,
         )  # fmt: skip
     else:
-        out = _padded_sequence(m.params, x, b, m.groups, m.n, length, speeds, how, top)
+        out = _padded_sequence(
+            m.params, x, b, m.groups, m.n, length, speeds, method, top
+        )
     return head(out, b)
 
 
 def predict(
     m: Map,
     q,
-    how: str | None = None,
+    method: str | None = None,
     *,
     top: int | None = None,
     sequence: int | None = None,
@@ -194,7 +196,7 @@ def predict(
 
     Args:
       q: (b, d) queries (consecutive frames of a traversal when ``sequence``).
-      how: "hard" (paper), "soft" or "topm"; default from the map's config.
+      method: "hard" (paper), "soft" or "topm"; default from the map's config.
       sequence: decode each frame with the L previous ones in the phase
         domain (:mod:`rhythmic_jax.decoding.sequence`; mixed-radix and
         hierarchical maps sum place scores instead); None (or 1) for single
@@ -203,25 +205,25 @@ def predict(
       threshold: reject queries whose confidence is below it (finite; default
         the map's).
     """
-    how, top = how or m.config.decode, top or m.config.m
+    method, top = method or m.config.decode, top or m.config.m
     thr = m.config.threshold
     if threshold is not None:
         thr = check_number(threshold, "{opt:threshold}")
     sequence = check_sequence(sequence)
-    idx, conf = way(m, how, thr, sequence)(m, q, how, top, sequence, speeds)
-    idx = np.asarray(idx).astype(np.int64)
+    idx, conf = way(m, method, thr, sequence)(m, q, method, top, sequence, speeds)
+    idx = np.asarray(idx, np.int64)  # no copy of the single-query lane's places
     if thr is not None:
         idx = np.where(np.asarray(conf, np.float64) >= thr, idx, -1)
     return idx
 
 
 Lane = Callable[..., tuple[Any, Any]]
-"""A way from queries to places: ``lane(m, q, how, top, sequence, speeds)`` ->
+"""A way from queries to places: ``lane(m, q, method, top, sequence, speeds)`` ->
 (index, confidence) (b,), where q are the caller's (b, d) queries."""
 
 
 def way(
-    m: Map, how: str, threshold: float | None = None, sequence: int | None = None
+    m: Map, method: str, threshold: float | None = None, sequence: int | None = None
 ) -> Lane:
     """The one chooser of ``predict`` and ``locate``: the lane that answers
     queries of ``m``. Frames in a sequence (L > 1): :func:`_in_sequence`; the
@@ -231,35 +233,35 @@ def way(
     batch decodes)."""
     if sequence is not None and sequence > 1:
         return _in_sequence
-    if how == "hard" and threshold is None and host.lane(m) is not None:
+    if method == "hard" and threshold is None and host.lane(m) is not None:
         return _small
     return _one_by_one
 
 
-def _small(m: Map, q, how, top, sequence, speeds):
+def _small(m: Map, q, method, top, sequence, speeds):
     """Up to :data:`~rhythmic_jax.decoding.host.SMALL_BATCH` float32 queries
     by the map's single-query lane (one matrix-vector product each, the
     scores' finiteness checking the values; no confidence: no threshold
     reads it); anything else by :func:`_one_by_one`."""
     few = host.lane(m).places(q)
     if few is None:
-        return _one_by_one(m, q, how, top, sequence, speeds)
+        return _one_by_one(m, q, method, top, sequence, speeds)
     return few, None
 
 
-def _one_by_one(m: Map, q, how, top, sequence, speeds):
+def _one_by_one(m: Map, q, method, top, sequence, speeds):
     """Single frames (``sequence`` None or 1): the decode of every query."""
     if sequence is not None:
         check_sequence(sequence, len(q))
-    out = _decoded(m, queries(m, q), how, top)
+    out = _decoded(m, queries(m, q), method, top)
     return out.index, out.confidence
 
 
-def _in_sequence(m: Map, q, how, top, sequence, speeds):
+def _in_sequence(m: Map, q, method, top, sequence, speeds):
     """Frames in a sequence of L = ``sequence``, embedded once here."""
     x = queries(m, q)
     check_sequence(sequence, len(x))
-    return _sequence(m, x, sequence, speeds, how, top)
+    return _sequence(m, x, sequence, speeds, method, top)
 
 
 def locate(m: Map, q) -> int:

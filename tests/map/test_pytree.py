@@ -54,9 +54,10 @@ def test_jitted_decode_of_the_map_equals_predict(maps):
     q = _queries(x)
     model = RhythmicMap()
     model.map = m
-    for how in ("hard", "soft", "topm"):
-        got = jax.jit(queries.decode, static_argnames="how")(m, jnp.asarray(q), how=how)
-        np.testing.assert_array_equal(np.asarray(got.index), model.predict(q, how))
+    decode = jax.jit(queries.decode, static_argnames="method")
+    for method in ("hard", "soft", "topm"):
+        got = decode(m, jnp.asarray(q), method=method)
+        np.testing.assert_array_equal(np.asarray(got.index), model.predict(q, method))
     assert (model.predict(x) == np.arange(80)).mean() > 0.9  # a real answer
 
 
@@ -83,8 +84,8 @@ def test_a_new_threshold_method_or_fusion_weight_compiles_nothing(maps):
     decode = jax.jit(queries.decode)
     decode(m, q)
     programs = decode._cache_size()
-    named = jax.jit(queries.decode, static_argnames="how")
-    named(m, q, how="hard")
+    named = jax.jit(queries.decode, static_argnames="method")
+    named(m, q, method="hard")
     named_programs = named._cache_size()
     for change in (dict(threshold=0.25), dict(fusion=0.8), dict(decode="soft"),
                    dict(decode="topm", threshold=-1.0)):  # fmt: skip
@@ -93,9 +94,9 @@ def test_a_new_threshold_method_or_fusion_weight_compiles_nothing(maps):
         want = queries.decode(other, np.asarray(q))
         np.testing.assert_array_equal(np.asarray(got.index), want.index)
         np.testing.assert_allclose(np.asarray(got.score), want.score, rtol=1e-5)
-        hard = named(other, q, how="hard")
+        hard = named(other, q, method="hard")
         np.testing.assert_array_equal(np.asarray(hard.index), np.asarray(named(
-            m, q, how="hard").index))  # fmt: skip
+            m, q, method="hard").index))  # fmt: skip
     assert decode._cache_size() == programs
     assert named._cache_size() == named_programs
     leaves = jax.tree_util.tree_leaves(replace(m, config=other.config))
@@ -129,7 +130,7 @@ def test_vmap_over_two_maps_of_one_layout_equals_two_decodes(maps):
     assert m1.periods == m2.periods == (9, 11)
     q = jnp.asarray(_queries(np.concatenate([x1[:20], x2[:20]])))
     stacked = jax.tree.map(lambda *a: jnp.stack(a), m1, m2)
-    out = jax.vmap(functools.partial(queries.decode, q=q, how="hard"))(stacked)
+    out = jax.vmap(functools.partial(queries.decode, q=q, method="hard"))(stacked)
     for i, m in enumerate((m1, m2)):
         want = queries.decode(m, np.asarray(q))
         np.testing.assert_array_equal(np.asarray(out.index[i]), want.index)
