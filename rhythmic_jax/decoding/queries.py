@@ -298,10 +298,10 @@ def one_query(q, d: int):
 
 
 # ------------------------------------------- templates and queries, bucketed
-@functools.partial(jit, static_argnames=("groups", "n", "method", "m", "chunk"))
-def _decode_jit(params, queries, count, groups, n, method, m, chunk):
+@functools.partial(jit, static_argnames=("groups", "n", "method", "top", "chunk"))
+def _decode_jit(params, queries, count, groups, n, method, top, chunk):
     def body(p, x, _):
-        return decode_scores(decision_values(p, x), groups, n, method, m)
+        return decode_scores(decision_values(p, x), groups, n, method, top)
 
     return over_chunks(body, params, queries, count, chunk)
 
@@ -312,7 +312,7 @@ def decode_queries(
     groups: Groups | Sequence[int],
     n: int,
     method: str = "hard",
-    m: int = 3,
+    top: int = 3,
 ) -> Decoded:
     """Scores and decode of queries (b, d) by templates ``params``: Decoded (b,).
 
@@ -320,7 +320,7 @@ def decode_queries(
     or the host batch lane where it takes the queries
     (:func:`rhythmic_jax.decoding.host.takes`: a float32 numpy batch on a CPU);
     soft and top-m by ``decode_scores(decision_values(params, queries), groups,
-    n, method, m)`` (:func:`rhythmic_jax.decoding.dispatch.decode_scores`) in
+    n, method, top)`` (:func:`rhythmic_jax.decoding.dispatch.decode_scores`) in
     one program per bucket: the batch padded to
     :func:`~rhythmic_jax.decoding.buckets.bucket` ``(b)`` rows, uploaded once
     and decoded on the device in chunks of
@@ -336,15 +336,17 @@ def decode_queries(
     padded, b = pad_rows(queries)
     chunk = buckets.CHUNK
     count = chunk_count(b, chunk)
-    out = _decode_jit(params, padded, count, groups, n, method, int(m), chunk)
+    out = _decode_jit(params, padded, count, groups, n, method, int(top), chunk)
     return head(out, b)
 
 
 @functools.partial(
     jit,
-    static_argnames=("groups", "n", "length", "speeds", "method", "m", "chunk"),
+    static_argnames=("groups", "n", "length", "speeds", "method", "top", "chunk"),
 )
-def _sequence_jit(params, queries, count, groups, n, length, speeds, method, m, chunk):
+def _sequence_jit(
+    params, queries, count, groups, n, length, speeds, method, top, chunk
+):
     history = length - 1
 
     def body(p, window, start):
@@ -352,7 +354,7 @@ def _sequence_jit(params, queries, count, groups, n, length, speeds, method, m, 
         # unchunked decode pads them
         frame = start - history + jnp.arange(window.shape[0])
         s = jnp.where((frame >= 0)[:, None], decision_values(p, window), 0.0)
-        idx, conf = sequence_decode(s, groups, n, length, speeds, method, m)
+        idx, conf = sequence_decode(s, groups, n, length, speeds, method, top)
         return idx[history:], conf[history:]
 
     return over_chunks(body, params, queries, count, chunk, history)
@@ -366,7 +368,7 @@ def sequence_queries(
     length: int,
     speeds: Sequence[float] = (1.0,),
     method: str = "soft",
-    m: int = 3,
+    top: int = 3,
 ) -> tuple[jax.Array, jax.Array]:
     """Sequence decode of T consecutive query frames (T, d), one program per
     bucket: index (T,), confidence (T,)
@@ -378,20 +380,20 @@ def sequence_queries(
     ``length - 1`` frames before it.
     """
     padded, b = pad_rows(queries)
-    out = _padded_sequence(params, padded, b, groups, n, length, speeds, method, m)
+    out = _padded_sequence(params, padded, b, groups, n, length, speeds, method, top)
     return head(out, b)
 
 
-def _padded_sequence(params, padded, b, groups, n, length, speeds, method, m):
+def _padded_sequence(params, padded, b, groups, n, length, speeds, method, top):
     """:func:`sequence_queries` of queries already padded to their bucket,
     ``b`` of them real: (bucket,) index and confidence."""
     length = check_int(length, "length", 1)
     speeds = _check_speeds(speeds)
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got method={method!r}")
-    m = check_int(m, "m", 1)
+    top = check_int(top, "top", 1)
     chunk = buckets.CHUNK
     count = chunk_count(b, chunk)
     return _sequence_jit(
-        params, padded, count, groups, n, length, speeds, method, m, chunk
+        params, padded, count, groups, n, length, speeds, method, top, chunk
     )

@@ -53,7 +53,7 @@ def test_soft_and_topm_agree_with_hard_on_clean_scores(periods, n):
     hard = np.asarray(decode_scores(s, periods, n).index)
     np.testing.assert_array_equal(hard, every)
     for method, m in [("soft", 3), ("topm", 1), ("topm", 3)]:
-        got = np.asarray(decode_scores(s, periods, n, method=method, m=m).index)
+        got = np.asarray(decode_scores(s, periods, n, method=method, top=m).index)
         np.testing.assert_array_equal(got, hard, err_msg=f"{method} m={m}")
 
 
@@ -62,7 +62,7 @@ def test_soft_and_topm_below_product():
     every = np.arange(35)
     s = encode(every, periods, 0.0, seed=0)
     hard = np.asarray(decode_scores(s, periods, n, "hard").index)
-    top1 = np.asarray(decode_scores(s, periods, n, "topm", m=1).index)
+    top1 = np.asarray(decode_scores(s, periods, n, "topm", top=1).index)
     soft = np.asarray(decode_scores(s, periods, n, "soft").index)
     np.testing.assert_array_equal(hard, np.where(every < n, every, -1))
     np.testing.assert_array_equal(top1, hard)  # m = 1 is the paper's decode
