@@ -20,7 +20,8 @@ and a threshold on it rejects queries (the paper's "lower bound of decision valu
 Soft and top-m decodes (:mod:`rhythmic_jax.decoding.soft`) share the :class:`Decoded`
 result and its confidence.
 
-Shapes: b queries, d features, p = sum(periods) templates, k periods.
+Shapes: b queries, d features, p = sum(periods) templates, r periods (or
+groups), indexed by k in ``tau_k``, ``j_k``, ``off_k``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The host lanes of the hard decode: numpy where the queries lie, as the kernel.
 
 A jitted call pays a dispatch however small its work, and one query's work is
-only a (p, d) matrix-vector product, k argmaxes and k look-ups; a large float32
+only a (p, d) matrix-vector product, r argmaxes and r look-ups; a large float32
 batch in host memory on a CPU is copied before XLA multiplies it, which costs
 more than the product. Two lanes answer such queries in numpy, each tested
 against the kernel (:func:`rhythmic_jax.decoding.hard.hard_decode`):
@@ -22,10 +22,10 @@ single-query matrix gets zero rows up to that size when that costs at most
 :data:`PAD_AT_MOST` more bytes and there are cores to share it. Where the
 periods are near-equal every period's templates start a block of the same
 number of rows (:func:`block_rows`), its spare rows zero with a ``-inf`` bias:
-one ``argmax`` over the (k, block) view of the scores then finds every phase at
+one ``argmax`` over the (r, block) view of the scores then finds every phase at
 once. The spare rows never win a phase.
 
-Shapes: b queries, d features, p = sum(periods) templates, k periods.
+Shapes: b queries, d features, p = sum(periods) templates, r periods.
 """
 
 from __future__ import annotations
@@ -137,21 +137,21 @@ def gemv_rows(p: int, d: int, cores: int | None = None) -> int:
 
 def block_rows(periods: Sequence[int], d: int, cores: int | None = None) -> int | None:
     """Rows of every period's block in :class:`SmallDecoder`: the longest period,
-    or more where k blocks reach :func:`gemv_rows` of the templates; None where k
+    or more where r blocks reach :func:`gemv_rows` of the templates; None where r
     blocks of the longest period would hold more than :data:`PAD_AT_MOST` x the
     templates (very unequal periods keep one contiguous run of rows)."""
-    k, p = len(periods), sum(periods)
+    r, p = len(periods), sum(periods)
     block = max(periods)
-    if k * block > PAD_AT_MOST * p:
+    if r * block > PAD_AT_MOST * p:
         return None
-    return max(block, -(-gemv_rows(p, d, cores) // k))
+    return max(block, -(-gemv_rows(p, d, cores) // r))
 
 
 @dataclass(frozen=True, eq=False)
 class SmallDecoder:
     """The hard decode's index of one query in numpy: ``wt`` (rows, d) and ``b``
     (rows,) float32 (rows >= p: :func:`gemv_rows`' zero padding), the periods'
-    column ``slices``, CRT ``tables`` (k tuples of ints), their modulus ``big_m``,
+    column ``slices``, CRT ``tables`` (r tuples of ints), their modulus ``big_m``,
     the place count ``n`` (an index >= n is no match, -1), for two periods
     ``pairs``: the place of every phase pair (lists of ints, -1 no match), or
     None, and ``block``: the rows of every period's block (:func:`block_rows`),
@@ -202,9 +202,9 @@ class SmallDecoder:
         s = self.wt @ q
         s += self.b
         if self.pairs is not None and self.block is not None:  # the fast lane
-            j, k = s.reshape(2, self.block).argmax(1).tolist()
-            if math.isfinite(s[j]) and math.isfinite(s[self.block + k]):
-                return self.pairs[j][k]
+            j0, j1 = s.reshape(2, self.block).argmax(1).tolist()
+            if math.isfinite(s[j0]) and math.isfinite(s[self.block + j1]):
+                return self.pairs[j0][j1]
             return None
         if self.block is not None:
             phases = s.reshape(len(self.slices), self.block).argmax(1).tolist()

@@ -117,7 +117,7 @@ def _value(name: str, leaf):
 
 
 def _flatten_config(cfg: MapConfig):
-    leaves = tuple(_leaf(getattr(cfg, k)) for k in DECODE_SETTINGS)
+    leaves = tuple(_leaf(getattr(cfg, name)) for name in DECODE_SETTINGS)
     rest = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | _NONE
     aux = object.__new__(MapConfig)  # the values are checked already
     aux.__dict__.update(rest)
@@ -127,9 +127,8 @@ def _flatten_config(cfg: MapConfig):
 def _unflatten_config(aux: MapConfig, leaves) -> MapConfig:
     cfg = object.__new__(MapConfig)  # a leaf may be a tracer: nothing to check
     cfg.__dict__.update(vars(aux))
-    cfg.__dict__.update(
-        {k: _value(k, v) for k, v in zip(DECODE_SETTINGS, leaves, strict=True)}
-    )
+    for name, leaf in zip(DECODE_SETTINGS, leaves, strict=True):
+        cfg.__dict__[name] = _value(name, leaf)
     return cfg
 
 
@@ -151,7 +150,7 @@ class Map:
     ``codebook``: codes per place or None; ``embedding``: applied to frames and
     queries first, or None; and the fit's record, float64: the penalty ``c`` (a
     0-d array), the training error of every candidate period
-    (``candidate_errors`` (k,)) and of every kept group (``group_errors``
+    (``candidate_errors`` (count,)) and of every kept group (``group_errors``
     (r,)); ``config`` (:class:`~rhythmic_jax.map.config.MapConfig`): its
     decode settings (:data:`DECODE_SETTINGS`) as leaves, the rest static.
     Leaves that are numpy arrays are copied to the device by every jitted call
@@ -237,7 +236,8 @@ def storage(m: Map) -> dict[str, Any]:
 def with_dtype(m: Map, dtype: str) -> Map:
     """``m`` storing its templates as ``dtype``, from the values it stores now
     (requantize a float32 map, not a float16 one)."""
-    stored, (w, b) = requantize({k: np.asarray(v) for k, v in m.stored.items()}, dtype)
+    stored = {key: np.asarray(v) for key, v in m.stored.items()}
+    stored, (w, b) = requantize(stored, dtype)
     return replace(
         m, w=jax.device_put(w), b=jax.device_put(b), stored=stored,
         config=replace(m.config, dtype=dtype),
