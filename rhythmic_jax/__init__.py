@@ -35,6 +35,8 @@ _API: dict[str, str] = {
         "candidate_periods choose_periods compression_ratio database_bytes "
         "pairwise_coprime storage_bytes"
     ),
+    # a route's frames described once into a descriptor file
+    "frames.route_descriptors": "describe_frames",
     # appearance change: embeddings, codes beside the map, their fusion weight
     "fitting.learn": "learn_embedding LearnConfig",
     "map.embedding": "Embedding fit_invariant load_embedding save_embedding",

@@ -104,6 +104,9 @@ def unpack_entry(key: str, data: bytes) -> bytes | None:
 def _checked_cache_class():
     from jax._src.compilation_cache_interface import CacheInterface
 
+    from rhythmic_jax.errors import InputError
+    from rhythmic_jax.io.reader import memory_budget, read_bytes
+
     class CheckedCache(CacheInterface):
         """JAX's cache interface over a folder of checked, atomically written
         entries (:func:`pack_entry`); a bad entry is deleted and missed."""
@@ -114,9 +117,9 @@ def _checked_cache_class():
 
         def get(self, key: str) -> bytes | None:
             path = self._path / f"{key}{_SUFFIX}"
-            try:
-                data = path.read_bytes()
-            except FileNotFoundError:
+            try:  # a regular file; a pipe or device there is a miss
+                data = read_bytes(path, memory_budget())
+            except InputError:
                 return None
             value = unpack_entry(key, data)
             if value is None:  # one warning a process, the rest at info

@@ -1,126 +1,406 @@
-"""The rhythmic map as a scikit-learn-style estimator: a :class:`Map` value held.
+"""The rhythmic map as a scikit-learn estimator: a :class:`Map` value held.
 
-``fit`` is :func:`rhythmic_jax.fitting.fit_map.fit`; ``predict``, ``decode``,
-``scores``, ``locate``, ``save`` and ``load`` are pure functions of the map it
-holds (:mod:`rhythmic_jax.decoding.queries`, :mod:`rhythmic_jax.map.map_file`);
-the map's fields read and set as attributes (``m.periods``, ``m.n``,
-``m.codebook``, ...).
+:class:`RhythmicMap` is an unsupervised place index: ``fit(X, y=None)`` trains
+on reference frames X (n_frames, d), one place per row, or per label of ``y``
+(several traversals of one route sharing templates); ``predict(X)`` gives the
+place of every query (-1 for no match) and ``score(X, y=None)`` its recall@1.
+Its parameters are those of :class:`~rhythmic_jax.map.config.MapConfig` (the
+default decode named ``method``), the ``embedding`` and ``scale``, given by
+name and kept as given (``get_params``, ``set_params``, ``sklearn.clone``,
+``GridSearchCV``); they are checked by ``fit``. The fit is
+:func:`rhythmic_jax.fitting.fit_map.fit`, its map ``map_``; the queries are the
+pure functions of :mod:`rhythmic_jax.decoding.queries` on it, and ``save`` /
+``load`` those of :mod:`rhythmic_jax.map.map_file`. The map's fields read as
+attributes of a fitted estimator (``m.periods``, ``m.n``, ``m.codebook``, ...);
+before a fit they raise :class:`NotFittedMapError`.
 """
 
 from __future__ import annotations
 
+import inspect
 import json
-from dataclasses import replace
+from dataclasses import fields, replace
+
+import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.exceptions import NotFittedError
 
 from rhythmic_jax.decoding import queries
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.estimator_inputs import (
+    SCALE_KEYS,
+    SCALES,
+    not_of_order_one,
+    place_labels,
+    shape_checked,
+    standardize,
+    standardized,
+)
 from rhythmic_jax.fitting.fit_map import fit as fit_map
 from rhythmic_jax.map import map_file, pytree
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.embedding import embedding_bytes
+from rhythmic_jax.validate import check_features
 
-__all__ = ["MapConfig", "RhythmicMap"]
-UNFITTED = dict(n=None, d=None, periods=(), groups=None, c=None, candidates=(),
-                candidate_errors=(), group_errors=(), codebook=None, extra={},
-                embedding=None, config=None, reference="{}")  # fmt: skip
+__all__ = ["MapConfig", "NotFittedMapError", "RhythmicMap"]
+
+_FIT_KEYS = (*SCALE_KEYS, "place_labels")  # extra arrays each fit makes anew
 
 
-def _field(name: str, get=lambda v: v, put=lambda v: v) -> property:
-    """The map's field ``name``; before a fit, as set on the estimator."""
+class NotFittedMapError(InputError, NotFittedError):
+    """A fitted map's value asked of an estimator before ``fit`` or ``load``:
+    scikit-learn's ``NotFittedError`` and this package's one-line error."""
+
+
+def _map_field(name: str, doc: str) -> property:
+    """The fitted map's field ``name``; set, the map is replaced (not changed)."""
 
     def set_(self, value):
-        self._pre[name] = put(value)
-        if self.map is not None:  # a new value: the map is not changed in place
-            self.map = replace(self.map, **{name: put(value)})
+        self.map_ = replace(self._fitted(), **{name: value})
 
-    return property(lambda s: get(_fields(s)[name]), set_, doc=f"The map's {name}.")
+    return property(lambda self: getattr(self._fitted(), name), set_, doc=doc)
 
 
-def _fields(model) -> dict:
-    return model._pre if model.map is None else vars(model.map)
+class RhythmicMap(BaseEstimator):
+    """A place-recognition map stored as r groups of periodic linear templates.
 
+    Parameters (by name only; checked by ``fit``): ``r``, ``level``, ``count``,
+    ``c``, ``solver``, ``gap``, ``m``, ``threshold``, ``descriptor``,
+    ``descriptor_settings`` (None: none), ``dtype``, ``codes``, ``fusion`` and
+    ``layout`` as in :class:`~rhythmic_jax.map.config.MapConfig`, whose
+    ``decode`` is ``method`` here ("hard", "soft" or "topm": what ``predict``
+    does unless told); ``embedding``: an
+    :class:`~rhythmic_jax.map.embedding.Embedding` applied to frames and queries
+    first; ``scale``: what ``fit`` does with features that are not of order one
+    (a mean frame far from the origin, as unscaled 8-bit descriptors have,
+    :func:`rhythmic_jax.validate.check_fit_scale`): "refuse" them in one line
+    (what the command line and :meth:`from_config` do), "standardize" every
+    feature to zero mean and unit variance over the reference frames, the
+    queries alike, or "auto" (the default, so scikit-learn's own checks, which
+    feed features near 100, fit): standardize the frames "refuse" would refuse
+    and take the others as they are, unchanged. The scaling is
+    kept as ``scale_mean`` / ``scale_std`` in the map's ``extra`` (saved with
+    it) and applied by this estimator's methods, not by the pure functions of
+    ``map_``.
 
-def _pure(fn, doc: str):
-    """A method calling ``fn(the fitted map, *args)``."""
-    method = lambda self, *args: fn(self.value, *args)  # noqa: E731
-    method.__doc__ = doc
-    return method
+    ``fit(X, y=None)``: y, when given, are the place labels of the frames
+    (integers >= 0; frames of one label share a place), and ``predict`` answers
+    with them; ``score(X, y=None)`` is recall@1 against y, or with y None the
+    self-recall of reference frames X (row i is place i). To cross-validate
+    (``GridSearchCV``), give y and folds that each hold every place, e.g. one
+    traversal of the route per fold.
 
+    Fitted: ``map_`` (the :class:`~rhythmic_jax.map.pytree.Map`),
+    ``n_features_in_`` (d). ``RhythmicMap.from_config(config)`` builds one
+    from a :class:`MapConfig`.
+    """
 
-class RhythmicMap:
-    """A place-recognition map stored as r groups of periodic linear templates."""
+    def __new__(cls, *args, **kwargs):
+        if args:
+            raise TypeError(
+                f"RhythmicMap takes its settings by name, got {len(args)} positional "
+                "argument(s): write RhythmicMap(r=2, level=1, ...) or "
+                "RhythmicMap.from_config(config)"
+            )
+        return super().__new__(cls)
 
-    def __init__(self, config: MapConfig | None = None, *, embedding=None, **kw):
-        self.map: pytree.Map | None = None  # the fitted value
-        cfg = replace(config or MapConfig(), **kw)
-        self._pre = dict(UNFITTED, extra={}, embedding=embedding, config=cfg)
+    def __init__(
+        self,
+        *,
+        r=2,
+        level=1,
+        count=7,
+        c=None,
+        solver="newton",
+        gap=1e-7,
+        method="hard",
+        m=3,
+        threshold=None,
+        descriptor="features",
+        descriptor_settings=None,
+        dtype="float32",
+        codes=None,
+        fusion=0.5,
+        layout="periods",
+        embedding=None,
+        scale="auto",
+    ):
+        self.r, self.level, self.count, self.c = r, level, count, c
+        self.solver, self.gap, self.method, self.m = solver, gap, method, m
+        self.threshold, self.descriptor = threshold, descriptor
+        self.descriptor_settings, self.dtype = descriptor_settings, dtype
+        self.codes, self.fusion, self.layout = codes, fusion, layout
+        self.embedding, self.scale = embedding, scale
 
-    reference = _field("reference", json.loads, lambda v: json.dumps(v, sort_keys=True))
-    params = property(lambda s: s.value.params, doc="Templates (w, b) queries use.")
-    storage_bytes = property(lambda s: s.storage()["total"], doc="Bytes stored.")
-    compression_ratio = property(lambda s: s.storage()["share"], doc="Of float32.")
-    embedding_bytes = property(
-        lambda s: 0 if s.embedding is None else embedding_bytes(s.embedding),
-        doc="Bytes of the embedding's parameters (0 without one).",
-    )
+    # ------------------------------------------------------------ settings
+    @classmethod
+    def from_config(cls, config: MapConfig, *, embedding=None, scale="refuse"):
+        """An unfitted estimator whose parameters are ``config``'s fields."""
+        return cls(**_params_of(config), embedding=embedding, scale=scale)
+
+    @property
+    def config(self) -> MapConfig:
+        """The fitted map's :class:`MapConfig`, before a fit the parameters' (checked
+        then: a bad one raises :class:`InputError`). Set, the parameters follow it
+        (and a fitted map takes it: its decode settings, not its templates)."""
+        if self.__sklearn_is_fitted__():
+            return self.map_.config
+        return self._settings()
+
+    def _settings(self) -> MapConfig:
+        """The parameters as a :class:`MapConfig` (checked there)."""
+        settings = dict(self.descriptor_settings or {})
+        names = {f.name for f in fields(MapConfig)} - {"decode", "descriptor_settings"}
+        given = {k: getattr(self, k) for k in names}
+        return MapConfig(**given, decode=self.method, descriptor_settings=settings)
+
+    @config.setter
+    def config(self, value: MapConfig) -> None:
+        self.set_params(**_params_of(value))
+        if self.__sklearn_is_fitted__():
+            self.map_ = replace(self.map_, config=value)
+
+    def __sklearn_tags__(self):
+        """An unsupervised place index: dense finite real features, y optional
+        (place labels), deterministic."""
+        tags = super().__sklearn_tags__()
+        tags.estimator_type = None
+        tags.target_tags.required = False
+        tags.input_tags.sparse = False
+        tags.input_tags.allow_nan = False
+        tags.non_deterministic = False
+        return tags
+
+    def __sklearn_is_fitted__(self) -> bool:
+        return "map_" in vars(self)
+
+    # ------------------------------------------------------------ the fit
+    def fit(self, X, y=None, *, verbose=0, progress=None, refine=None, plan=None):
+        """Train on reference frames X (n_frames, d): one place per row, or per
+        label of ``y`` (n_frames,) (integers >= 0)
+        (:func:`rhythmic_jax.fitting.fit_map.fit`). Returns self."""
+        cfg, name = self._settings(), "reference features"
+        x = check_features(shape_checked(X, name), name)
+        if self.scale not in SCALES:
+            raise InputError(f"scale must be one of {SCALES}, got {self.scale!r}")
+        extra = {k: v for k, v in self.extra.items() if k not in _FIT_KEYS}
+        if self.scale == "standardize" and self.embedding is not None:
+            raise InputError(
+                "scale='standardize' with an embedding: the embedding takes "
+                "the descriptors as they are; use scale='refuse' or 'auto'"
+            )
+        unscaled = (
+            self.scale == "auto" and self.embedding is None and not_of_order_one(x)
+        )
+        if self.scale == "standardize" or unscaled:
+            extra.update(standardize(x))
+            x = standardized(x, extra)
+        labels = None
+        if y is not None:  # places numbered in the order of their labels
+            places, labels = np.unique(place_labels(y, len(x)), return_inverse=True)
+            if not np.array_equal(places, np.arange(len(places))):
+                extra["place_labels"] = places
+        n = len(x) if labels is None else int(labels.max()) + 1
+        if n < 2:
+            raise InputError(
+                f"{name}: {n} place (n_samples = {len(x)}); a map needs at least 2"
+            )
+        progress = bool(verbose if progress is None else progress)
+        got = fit_map(x, cfg, labels=labels, embedding=self.embedding,
+                      progress=progress, refine=refine, plan=plan)  # fmt: skip
+        return self._take(got, extra=extra)
+
+    def _take(self, kept, d: int | None = None, extra=None) -> RhythmicMap:
+        """Hold a fitted map, or a fit's ``kept`` templates of d-dim frames (a fit
+        from files), with this estimator's extra arrays and reference."""
+        extra = dict(self.extra if extra is None else extra)
+        ref = self._reference_text()
+        if d is not None:
+            kept = pytree.Map.build(kept, d, self._settings(), embedding=self.embedding)
+        self.map = replace(kept, extra=extra, reference=ref)
+        return self
+
+    # ------------------------------------------------------------ the map held
+    @property
+    def map(self) -> pytree.Map | None:
+        """The fitted :class:`~rhythmic_jax.map.pytree.Map` (``map_``), None before
+        a fit; set, the estimator holds that map (and its d)."""
+        return vars(self).get("map_")
+
+    @map.setter
+    def map(self, value: pytree.Map | None) -> None:
+        if value is None:
+            vars(self).pop("map_", None)
+            vars(self).pop("n_features_in_", None)
+        else:
+            self.map_, self.n_features_in_ = value, int(value.d)
 
     @property
     def value(self) -> pytree.Map:
         """The fitted :class:`~rhythmic_jax.map.pytree.Map` (refused before a fit)."""
-        if self.map is None:
-            raise InputError("this map is not fitted yet: call fit() or load() first")
-        return self.map
+        return self._fitted()
 
-    def fit(self, x, labels=None, *, verbose=0, progress=None, refine=None, plan=None):
-        """Train on frames x (n_frames, d): :func:`rhythmic_jax.fitting.fit_map.fit`."""
-        progress = bool(verbose if progress is None else progress)
-        got = fit_map(x, self.config, labels=labels, embedding=self.embedding,
-                      progress=progress, refine=refine, plan=plan)  # fmt: skip
-        return self._take(got)
+    def _fitted(self) -> pytree.Map:
+        got = vars(self).get("map_")
+        if got is None:
+            raise NotFittedMapError(
+                "this map is not fitted yet: call fit() or load() first"
+            )
+        return got
 
-    def _take(self, kept, d: int | None = None) -> RhythmicMap:
-        """Hold a fitted map, or a fit's ``kept`` templates of d-dim frames (a fit
-        from files), with this estimator's extra arrays and reference."""
-        extra, ref = self.extra, _fields(self)["reference"]
-        if d is not None:
-            kept = pytree.Map.build(kept, d, self.config, embedding=self.embedding)
-        self.map = replace(kept, extra=extra, reference=ref)
-        return self
+    n = _map_field("n", "Number of places.")
+    d = _map_field("d", "Features of a frame (the map's input).")
+    periods = _map_field("periods", "The co-prime periods kept (a periods layout).")
+    groups = _map_field("groups", "The layout's groups of templates.")
+    candidates = _map_field("candidates", "The candidate periods trained.")
+    candidate_errors = _map_field("candidate_errors", "Training error per candidate.")
+    group_errors = _map_field("group_errors", "Training error per kept group.")
+    codebook = _map_field("codebook", "Codes per place, or None.")
+    params = property(lambda s: s._fitted().params, doc="Templates (w, b) queries use.")
+    storage_bytes = property(lambda s: s.storage()["total"], doc="Bytes stored.")
+    compression_ratio = property(lambda s: s.storage()["share"], doc="Of float32.")
 
-    def with_dtype(self, dtype: str) -> RhythmicMap:
-        """A copy storing its templates as ``dtype`` (from the values stored now)."""
-        other = RhythmicMap()
-        other.map = pytree.with_dtype(self.value, dtype)
-        return other
+    @property
+    def embedding_bytes(self) -> int:
+        """Bytes of the embedding's parameters (0 without one)."""
+        return 0 if self.embedding is None else embedding_bytes(self.embedding)
 
-    scores = _pure(queries.scores, "Decision values of queries (b, d) -> (b, p).")
-    place_scores = _pure(queries.place_scores, "Place scores (b, n) of queries.")
-    decode = _pure(queries.decode, "Decode queries (b, d) (method, m): Decoded.")
-    storage = _pure(pytree.storage, "Bytes of templates, codes and embedding.")
-    info = _pure(map_file.describe, "What ``rhythmic-jax info --json`` prints.")
+    @property
+    def extra(self) -> dict:
+        """Arrays kept with the map (a projection, reference labels, the scale);
+        before a fit, those the fit will keep."""
+        if self.__sklearn_is_fitted__():
+            return self.map_.extra
+        return vars(self).setdefault("_extra", {})
+
+    @property
+    def reference(self) -> dict:
+        """Where the reference frames came from (a fresh dict each read)."""
+        return json.loads(self._reference_text())
+
+    @reference.setter
+    def reference(self, value: dict) -> None:
+        text = json.dumps(value, sort_keys=True)
+        self._reference = text
+        if self.__sklearn_is_fitted__():
+            self.map_ = replace(self.map_, reference=text)
+
+    def _reference_text(self) -> str:
+        if self.__sklearn_is_fitted__():
+            return self.map_.reference
+        return vars(self).get("_reference", "{}")
+
+    # ------------------------------------------------------------ queries
+    def _queries(self, X, name: str = "queries"):
+        """Queries X (b, d) for the map: shape and values checked, standardized
+        where the fit standardized its frames."""
+        m = self._fitted()
+        X = shape_checked(X, name, m.d)
+        if "scale_mean" not in m.extra:
+            return X
+        return standardized(check_features(X, name, d=m.d), m.extra)
+
+    def scores(self, X):
+        """Decision values of queries X (b, d) -> (b, p)."""
+        return queries.scores(self._fitted(), self._queries(X))
+
+    def place_scores(self, X):
+        """Score of every place (b, n) for queries X (b, d); fused with codes."""
+        return queries.place_scores(self._fitted(), self._queries(X))
+
+    def decode(self, X, method: str | None = None, m: int | None = None):
+        """Decode queries X (b, d): :class:`~rhythmic_jax.decoding.hard.Decoded`
+        (index -1 for no match, score, runner-up, confidence); ``method`` "hard",
+        "soft" or "topm" and ``m`` (top-m) default to the map's. The index is the
+        map's place row 0 .. n-1 (``predict`` names it by the labels ``fit`` had)."""
+        return queries.decode(self._fitted(), self._queries(X), method, m)
+
+    def predict(self, X, method=None, *, m=None, sequence=None, speeds=(1.0,),
+                threshold=None):  # fmt: skip
+        """Place of every query X (b, d): (b,) int64, -1 for no match
+        (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, top-``m``,
+        ``sequence`` length, ``speeds``, ``threshold``)."""
+        how = dict(top=m, sequence=sequence, speeds=speeds, threshold=threshold)
+        return self._labelled(
+            queries.predict(self._fitted(), self._queries(X), method, **how)
+        )
+
+    def _labelled(self, index):
+        """Places (b,) of the map as the labels ``fit`` was given (-1 kept)."""
+        labels = self._fitted().extra.get("place_labels")
+        if labels is None:
+            return index
+        labels = np.asarray(labels)
+        return np.where(index >= 0, labels[np.maximum(index, 0)], -1)
+
+    def score(self, X, y=None) -> float:
+        """Recall@1 of queries X (b, d) against their places ``y`` (b,) (-1: a
+        place not in the map, right when rejected); ``y`` None: X are the
+        reference frames, one per place in order (self-recall, the paper's
+        Table 2 protocol)."""
+        pred = self.predict(X)
+        truth = np.arange(len(pred)) if y is None else np.asarray(y)
+        if truth.dtype.kind == "f" and np.array_equal(truth, np.round(truth)):
+            truth = truth.astype(np.int64)  # whole numbers, as fit takes them
+        if truth.shape != pred.shape or not np.issubdtype(truth.dtype, np.integer):
+            raise InputError(
+                f"y: expected {len(pred)} integer places (one per query), got "
+                f"shape {truth.shape} of dtype {truth.dtype}"
+            )
+        right = np.where(truth >= 0, pred == truth, pred == -1)
+        return float(np.mean(right))
 
     def locate(self, q) -> int:
         """Place of one descriptor q (d,), -1 for no match."""
-        return queries.locate(self.map or self.value, q)  # the map, or a refusal
+        m = self._fitted()
+        if "scale_mean" in m.extra:
+            q = self._queries(queries.one_query(q, m.d), "query")[0]
+        got = queries.locate(m, q)
+        return got if "place_labels" not in m.extra else int(self._labelled(got))
+
+    def storage(self) -> dict:
+        """Bytes of templates, codes and embedding (:func:`pytree.storage`)."""
+        return pytree.storage(self._fitted())
+
+    def info(self) -> dict:
+        """What ``rhythmic-jax info --json`` prints."""
+        return map_file.describe(self._fitted())
+
+    # ------------------------------------------------------------ files
+    def with_dtype(self, dtype: str) -> RhythmicMap:
+        """A copy storing its templates as ``dtype`` (from the values stored now)."""
+        return type(self)._holding(pytree.with_dtype(self._fitted(), dtype))
 
     def save(self, path) -> None:
         """Save to the folder ``path`` (atomic; :mod:`rhythmic_jax.map.map_file`)."""
-        map_file.save(path, self.value)
-
-    def predict(self, q, method=None, *, m=None, sequence=None, speeds=(1.0,),
-                threshold=None):  # fmt: skip
-        """Place of every query (b,), -1 for no match (:func:`queries.predict`)."""
-        how = dict(top=m, sequence=sequence, speeds=speeds, threshold=threshold)
-        return queries.predict(self.map or self.value, q, method, **how)
+        map_file.save(path, self._fitted())
 
     @classmethod
     def load(cls, path, *, descriptor=None, descriptor_settings=None, d=None):
         """Load a map; refuse it when it was built for another descriptor or d."""
-        self, settings = cls(), descriptor_settings
-        self.map = map_file.load(path, MapConfig, descriptor=descriptor,
-                                 descriptor_settings=settings, d=d)  # fmt: skip
+        got = map_file.load(path, MapConfig, descriptor=descriptor,
+                            descriptor_settings=descriptor_settings, d=d)  # fmt: skip
+        return cls._holding(got)
+
+    @classmethod
+    def _holding(cls, m: pytree.Map) -> RhythmicMap:
+        """A fitted estimator holding ``m``, with the parameters it was built with."""
+        scale = "standardize" if "scale_mean" in m.extra else "refuse"
+        self = cls.from_config(m.config, embedding=m.embedding, scale=scale)
+        self.map = m
         return self
 
 
-for _name in UNFITTED.keys() - {"reference"}:
-    setattr(RhythmicMap, _name, _field(_name))
+# what inspect.signature(RhythmicMap) shows (else __new__'s *args, **kwargs)
+_INIT = inspect.signature(RhythmicMap.__init__)
+RhythmicMap.__signature__ = _INIT.replace(
+    parameters=list(_INIT.parameters.values())[1:]
+)
+
+
+def _params_of(config: MapConfig) -> dict:
+    """The estimator's parameters of a :class:`MapConfig`."""
+    got = {f.name: getattr(config, f.name) for f in fields(MapConfig)}
+    got["method"] = got.pop("decode")
+    got["descriptor_settings"] = dict(got["descriptor_settings"]) or None
+    return got

@@ -36,6 +36,7 @@ __all__ = [
     "int_option",
     "is_int",
     "is_number",
+    "is_sparse",
     "number_option",
     "scale_sums",
 ]
@@ -219,8 +220,19 @@ def number_option(
     return Domain(False, low, high, not closed, not closed)
 
 
+def is_sparse(x) -> bool:
+    """True for a sparse matrix or array (scipy.sparse, pydata sparse, JAX's
+    BCOO): what ``np.asarray`` would wrap as one object, not convert."""
+    module = type(x).__module__ or ""
+    top = ("scipy.sparse", "sparse", "jax.experimental.sparse")
+    return any(module == m or module.startswith(m + ".") for m in top)
+
+
 def check_features(x, name: str = "features", d: int | None = None) -> np.ndarray:
     """Return ``x`` as a finite float32 (n, d) array, or raise :class:`InputError`.
+
+    Complex values and sparse matrices are refused (one line naming them), not
+    cut to their real part or read as one object.
 
     Args:
       x: array-like of shape (n, d).
@@ -229,10 +241,20 @@ def check_features(x, name: str = "features", d: int | None = None) -> np.ndarra
     """
     import numpy as np
 
+    if is_sparse(x):
+        raise InputError(
+            f"{name}: a sparse matrix ({type(x).__name__} of shape {x.shape}); "
+            "sparse input is not supported: pass a dense array (x.toarray())"
+        )
     try:
         arr = np.asarray(x)
     except Exception as err:  # noqa: BLE001 - ragged or exotic input
         raise InputError(f"{name}: not an array ({err})") from None
+    if np.iscomplexobj(arr):
+        raise InputError(
+            f"{name}: Complex data not supported (dtype {arr.dtype}); the map "
+            "takes real features: pass x.real or abs(x), whichever they mean"
+        )
     if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
         raise InputError(f"{name}: expected numbers, got dtype {arr.dtype}")
     if arr.ndim != 2:

@@ -23,7 +23,7 @@ def _route(n=120, d=40, seed=0):
 @pytest.fixture(scope="module")
 def hybrid():
     x, q = _route()
-    return RhythmicMap(r=2, level=1, codes=16, decode="soft").fit(x, progress=False), q
+    return RhythmicMap(r=2, level=1, codes=16, method="soft").fit(x, progress=False), q
 
 
 def test_storage_split_by_hand(hybrid):
@@ -45,7 +45,7 @@ def test_predict_is_the_fused_decode(hybrid):
     ref = fused_decode(model.scores(q), sims, model.periods, model.n, 0.5, "soft")
     assert np.array_equal(model.predict(q), np.asarray(ref.index))
     # the hybrid beats its map alone on these noisy queries
-    alone = RhythmicMap(r=2, level=1, decode="soft").fit(_route()[0], progress=False)
+    alone = RhythmicMap(r=2, level=1, method="soft").fit(_route()[0], progress=False)
     gt = np.arange(len(q))
     assert (model.predict(q) == gt).mean() > (alone.predict(q) == gt).mean()
 
@@ -210,7 +210,7 @@ def test_int8_codes_in_a_map_save_load_and_cli(tmp_path):
     """codes="int8": a byte per dimension, fused the same way, kept on disk, and
     ``fit --codes int8`` through the command line with its info line."""
     x, q = _route()
-    model = RhythmicMap(r=2, level=1, codes="int8", decode="soft").fit(x)
+    model = RhythmicMap(r=2, level=1, codes="int8", method="soft").fit(x)
     st = model.storage()
     assert st["fixed"] == 2 * 40 * 4 and st["per_place"] == 120 * 40
     assert model.info()["codes_kind"] == "int8"

@@ -11,7 +11,7 @@ import rhythmic_jax
 
 PUBLIC = [
     "Map", "MapConfig", "fit", "scores", "place_scores", "decode", "decode_sequence",
-    "predict", "Decoded", "save", "load", "RhythmicMap",
+    "predict", "Decoded", "save", "load", "RhythmicMap", "describe_frames",
     "candidate_periods", "choose_periods", "compression_ratio", "database_bytes",
     "pairwise_coprime", "storage_bytes",
     "Embedding", "fit_invariant", "load_embedding", "save_embedding",

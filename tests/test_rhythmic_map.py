@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from jax.experimental.sparse import BCOO
+from scipy import sparse
 
 from rhythmic_jax import InputError, MapConfig, RhythmicMap
 from rhythmic_jax.decoding.dispatch import decode_scores
@@ -90,8 +92,8 @@ def test_gap_setting_stops_near_the_optimum():
     loose = RhythmicMap(gap=5e-4).fit(x, progress=False)
     assert loose.periods == exact.periods
     y = targets(np.arange(len(x)), exact.periods)
-    f_exact = np.asarray(objective(exact.params, x, y, exact.c), np.float64)
-    f_loose = np.asarray(objective(loose.params, x, y, loose.c), np.float64)
+    f_exact = np.asarray(objective(exact.params, x, y, exact.map_.c), np.float64)
+    f_loose = np.asarray(objective(loose.params, x, y, loose.map_.c), np.float64)
     rel = (f_loose - f_exact) / f_exact
     assert rel.max() <= 1e-3  # within 0.1 % of the optimum, template by template
     assert rel.max() > 1e-7  # and it did stop early
@@ -216,6 +218,37 @@ def test_maps_saved_without_a_layout_still_load(fitted, tmp_path):
 
 def test_bad_layouts_are_refused_before_fitting():
     with pytest.raises(InputError, match="layout 'mixed:1,2'"):
-        RhythmicMap(layout="mixed:1,2")
+        RhythmicMap(layout="mixed:1,2").fit(np.zeros((0, 3)), progress=False)
     with pytest.raises(InputError, match="tells apart 100 places"):
         RhythmicMap(layout="mixed:10,10").fit(wide(), progress=False)
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda x: x + 0.5j, r"Complex data not supported \(dtype complex64\)"),
+        (sparse.csr_matrix, "sparse matrix"),
+        (sparse.coo_array, "sparse matrix"),
+        (lambda x: BCOO.fromdense(x), "sparse matrix"),
+    ],
+)
+def test_complex_and_sparse_features_are_refused_naming_them(fitted, make, match):
+    """Not cut to their real part, not read as one object: fit, predict, locate
+    and the pure functions refuse them in one line."""
+    import rhythmic_jax as rj
+
+    model, x = fitted
+    bad = make(x[:20])
+    calls = [
+        lambda: RhythmicMap().fit(bad, progress=False),
+        lambda: rj.fit(bad),
+        lambda: model.predict(bad),
+        lambda: rj.predict(model.map_, bad),
+        lambda: rj.decode(model.map_, bad),
+    ]
+    if match.startswith("Complex"):
+        calls.append(lambda: model.locate(bad[0]))
+    for call in calls:
+        with pytest.raises(InputError, match=match) as err:
+            call()
+        assert "\n" not in str(err.value)

@@ -84,6 +84,13 @@ EXAMPLES = {
       rhythmic-jax demo
       rhythmic-jax demo --out demo_report --quick
     """,
+    "describe": """
+      rhythmic-jax describe summer/ --descriptor efficientnet_lite0 --out summer.npy
+      rhythmic-jax describe winter/ --descriptor efficientnet_lite0 --out winter.npy
+      rhythmic-jax fit summer.npy --out route.map    (no image described again)
+      rhythmic-jax frontier summer.npy winter.npy --tolerance 1
+      rhythmic-jax describe city.png --tile 224 --stride 112 --out city.npy
+    """,
     "frontier": """
       rhythmic-jax frontier summer.npy winter.npy --tolerance 1 --budget 2000
       rhythmic-jax frontier db.h5 q.h5 --ground-truth GT.npz --lengths 1 \\
@@ -257,6 +264,14 @@ OPTIONS = {
         _opt("--quick", "a smaller route (CI)", **FLAG),
         _opt("--no-progress", "hide progress bars", **FLAG),
     )),
+    "describe": ("describe a route's frames once into a .npy that fit, query, "
+                 "evaluate, learn and frontier read", (
+        _opt("source", "image folder (frames sorted by name), or one large image "
+             "with --tile"),
+        _opt("--out", "descriptor file to write (.npy, float32, one row per frame)",
+             required=True),
+        *SOURCE,
+    )),
     "frontier": ("recall against bytes per place of every representation", (
         _opt("reference", "reference descriptors (.npy, .h5) or folder"),
         _opt("queries", "query descriptors (.npy, .h5) or folder"),
@@ -352,6 +367,7 @@ JOBS = {
     "query": ("QueryJob", "map source decode sequence threshold out"),
     "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
                  "ground_truth tolerance_m plot"),
+    "describe": ("DescribeJob", "source out"),
 }  # fmt: skip
 
 
@@ -433,6 +449,12 @@ def _evaluate(args, job, progress: bool) -> str:
     )
 
 
+def _describe(args, job, progress: bool) -> str:
+    from rhythmic_jax.app import jobs, render
+
+    return render.describe_summary(job, jobs.describe(job, progress=progress))
+
+
 def _demo(args, job, progress: bool) -> None:
     from rhythmic_jax.app.demo import run_demo
 
@@ -447,7 +469,8 @@ def _frontier(args, job, progress: bool) -> None:
 
 # command -> what runs its job and returns the text it prints (None: nothing)
 COMMANDS = {"fit": _fit, "learn": _learn, "query": _query, "info": _info,
-            "evaluate": _evaluate, "demo": _demo, "frontier": _frontier}  # fmt: skip
+            "evaluate": _evaluate, "demo": _demo, "frontier": _frontier,
+            "describe": _describe}  # fmt: skip
 
 
 def _checked_job(args, prog: str):
@@ -475,23 +498,67 @@ def _quiet_logs(verbose: bool) -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
+def _say(line: str) -> None:
+    from rhythmic_jax.app.signals import readable
+
+    print(readable(line), file=sys.stderr)
+
+
+def _gib(nbytes: int) -> str:
+    return f"{nbytes / 2**30:.2f} GiB"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``rhythmic-jax``; returns the exit status (2: bad input,
     one line on stderr; 0 after ``--help``; 141 when standard output is closed
-    early, as by ``| head``: quietly, as a command killed by SIGPIPE)."""
+    early, as by ``| head``: quietly, as a command killed by SIGPIPE).
+
+    The process's environment ends in a result or one line with status 2: a
+    closed standard output is refused before any work (what the command prints
+    would be lost), a closed standard error is silent, non-ASCII and non-UTF-8
+    paths print on any stream, and memory running out (``ulimit -v`` below
+    ``signals.MIN_ADDRESS_SPACE``, a ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``)
+    says so."""
+    from rhythmic_jax.app import signals
+
+    stdout_open = signals.standard_streams()
     try:
         args = _parser().parse_args(argv)
     except SystemExit as done:  # --help, or a usage error already printed
         return int(done.code or 0)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     prog = f"rhythmic-jax {args.command}"
+    if not stdout_open:
+        _say(f"{prog}: error: standard output is closed; give it a place "
+             "(> FILE, or > /dev/null to drop what is printed)")  # fmt: skip
+        return 2
+    signals.library_folders()
+    limit = signals.memory_limit()
+    if limit is not None and limit < signals.MIN_ADDRESS_SPACE:
+        least = _gib(signals.MIN_ADDRESS_SPACE)
+        _say(f"{prog}: error: memory ran out: the address-space limit (ulimit -v) "
+             f"is {_gib(limit)}; the command needs at least {least}")  # fmt: skip
+        return 2
+    try:
+        return _main(args, prog)
+    except Exception as err:  # noqa: BLE001 - only memory's failures are said here
+        if not signals.out_of_memory(err):
+            raise
+        where = "" if limit is None else f" (ulimit -v: {_gib(limit)})"
+        _say(f"{prog}: error: memory ran out{where}; free some or give the "
+             "command less to hold (see --memory where it is offered)")  # fmt: skip
+        return 2
+
+
+def _main(args, prog: str) -> int:
+    """The command of the parsed ``args``: its job made, run and printed."""
     try:
         job = _checked_job(args, prog)
     except specs.OptionRefused as err:
-        print(f"{prog}: error: {err.as_flag()} (see {prog} --help)", file=sys.stderr)
+        _say(f"{prog}: error: {err.as_flag()} (see {prog} --help)")
         return 2
     except InputError as err:
-        print(f"{prog}: error: {err.as_flag()}", file=sys.stderr)
+        _say(f"{prog}: error: {err.as_flag()}")
         return 2
     _quiet_logs(args.verbose)
     if args.command != "info":
@@ -501,18 +568,20 @@ def main(argv: list[str] | None = None) -> int:
     try:
         text = COMMANDS[args.command](args, job, not getattr(args, "no_progress", 0))
         if text is not None:
-            print(text)
+            from rhythmic_jax.app.signals import readable
+
+            print(readable(text))
         sys.stdout.flush()  # a closed pipe is found here, not at exit
         return 0
     except InputError as err:
-        print(f"{prog}: error: {err.as_flag()}", file=sys.stderr)
+        _say(f"{prog}: error: {err.as_flag()}")
         return 2
     except specs.Reported as done:  # a worker process said why
         return done.status
     except KeyboardInterrupt as err:
         if isinstance(err, specs.FitInterrupted):
-            print(f"{prog}: {err.note}", file=sys.stderr)
-        print(f"{prog}: interrupted", file=sys.stderr)
+            _say(f"{prog}: {err.note}")
+        _say(f"{prog}: interrupted")
         return 130
     except BrokenPipeError:  # the reader left (| head): nothing more to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -534,6 +603,7 @@ def run() -> None:
     """
     from rhythmic_jax.app import signals
 
+    signals.standard_streams()  # before the signals' pipe takes a closed 0, 1 or 2
     signals.install(next((a for a in sys.argv[1:] if a in COMMANDS), None))
     status = main()
     if any(a.split("=")[0] == "--coordinator" for a in sys.argv[1:]):

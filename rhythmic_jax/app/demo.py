@@ -19,6 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rhythmic_jax.io.atomic import atomic_path, write_file
+from rhythmic_jax.io.outputs import check_place
+
 __all__ = ["DemoConfig", "changed_appearance", "demo_mosaic", "run_demo"]
 
 log = logging.getLogger(__name__)
@@ -131,7 +134,8 @@ def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
     right.set_xlim(0, 1.1)
     right.set_xlabel("accuracy (within the tolerance)")
     right.set_title("localisation on this route")
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
 
 
 def run_demo(
@@ -154,7 +158,7 @@ def run_demo(
     enable_compile_cache()
 
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
-    out = Path(out)
+    out = check_place("out", Path(out) / "report.md").parent  # a file there: refused
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     mosaic = demo_mosaic(cfg.grid, cfg.photo)
@@ -198,7 +202,7 @@ def run_demo(
         "changed_appearance": changed,
         "changed_appearance_decodes": decodes,
     }
-    (out / "report.json").write_text(json.dumps(result, indent=2))
+    write_file(out / "report.json", json.dumps(result, indent=2))
     bars = {
         "same appearance: map": same["methods"]["map"]["accuracy_tol"],
         "same appearance: brute force": same["methods"]["brute force"]["accuracy_tol"],
@@ -221,10 +225,11 @@ def run_demo(
         "sequences run along the raster order):",
         *(f"  {k:<18} {v:.4f}" for k, v in decodes.items()),
     ]
-    (out / "report.md").write_text(
+    write_file(
+        out / "report.md",
         "# rhythmic-jax demo\n\n```\n"
         + "\n".join(text)
-        + "\n```\n\n![storage growth and accuracy](report.png)\n"
+        + "\n```\n\n![storage growth and accuracy](report.png)\n",
     )
     print("\n".join(text))
     print(

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.outputs import check_place
 
 __all__ = ["frontier", "frontier_lines", "main", "write_csv"]
 
@@ -83,7 +84,11 @@ def frontier(
         hloc ``.h5`` files (``""``: every row), so one file holds both.
 
     Returns ``{"rows", "pareto" (names), "choice", "ground_truth", "config",
-    "n", "d", "n_queries", "recall_over", "recall_queries", "seconds"}``.
+    "n", "d", "n_queries", "recall_over", "recall_queries", "skipped",
+    "seconds"}``; ``skipped`` holds a line per kind of representation the route
+    cannot train, left out before any is fitted
+    (:func:`rhythmic_jax.eval.frontier.trainable`: ITQ bits above the places or
+    the dimensions, PQ that does not divide d).
     """
     from rhythmic_jax.eval import frontier as fr
     from rhythmic_jax.frames.sources import load_sources
@@ -112,11 +117,11 @@ def frontier(
             "{opt:ground_truth} query i is place i"
         )
     d = ref.shape[1]
-    cfg = fr.FrontierConfig(
-        maps=tuple(maps), bits=tuple(b for b in bits if b <= d),
+    cfg, skipped = fr.trainable(fr.FrontierConfig(
+        maps=tuple(maps), bits=tuple(bits),
         lengths=tuple(k for k in lengths if k <= len(qry)), tolerance=int(tolerance),
         dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
-    )  # fmt: skip
+    ), len(ref), d)  # fmt: skip
     rows = fr.frontier_rows(
         ref, qry, cfg, cache=cache, truth=truth, progress=progress,
         seqslam=max(cfg.lengths) > 1,
@@ -149,6 +154,7 @@ def frontier(
         "choice": choice["name"] if choice else None,
         "pareto": [r["name"] for r in rows if r["pareto"]],
         "rows": rows,
+        "skipped": skipped,
         "seconds": time.perf_counter() - t0,
     }
 
@@ -194,6 +200,7 @@ def frontier_lines(result: dict[str, Any]) -> str:
               for row in body]  # fmt: skip
     lines.append("* Pareto front: no other row has at least its recall@1 (L=1) in "
                  "fewer bytes")  # fmt: skip
+    lines += result.get("skipped", [])
     if result["budget_bytes_per_place"] is not None:
         b = result["budget_bytes_per_place"]
         pick = result["choice"] or f"nothing fits in {b:g} bytes per place"
@@ -227,6 +234,8 @@ def main(args) -> int:
         if out and not Path(out).absolute().parent.is_dir():
             where = Path(out).parent
             raise InputError(f"{{opt:{opt}}} {out}: folder {where} not found")
+        if out:
+            check_place(opt, out, file=True)  # a folder there: refused before work
     if args.ground_truth_format and not args.ground_truth:
         raise InputError("{opt:ground_truth_format} needs {opt:ground_truth}")
     if args.plot and not str(args.plot).lower().endswith(".png"):

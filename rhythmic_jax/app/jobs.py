@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from rhythmic_jax.app.fusion import fusion_of, learn_fusion
 from rhythmic_jax.app.specs import (
+    DescribeJob,
     EvaluateJob,
     FitInterrupted,
     FitJob,
@@ -45,7 +46,9 @@ from rhythmic_jax.map.config import MapConfig
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["evaluate", "fit", "info", "learn", "query", "quiet_io_threads"]
+__all__ = [
+    "describe", "evaluate", "fit", "info", "learn", "query", "quiet_io_threads",
+]  # fmt: skip
 
 
 def quiet_io_threads() -> None:
@@ -93,12 +96,11 @@ def _before_reading(job: FitJob):
             checkpoint_every=job.checkpoint_every or 50,
         ), job.checkpoint_folder  # fmt: skip
     if job.embedding is not None:
-        from rhythmic_jax.map.embedding import load_embedding
+        from rhythmic_jax.map.embedding import embedding_descriptor, load_embedding
 
         learned = load_embedding(job.embedding)
-        name = learned[1].get("descriptor")
-        if read.descriptor is None and name not in (None, "features") and job.images:
-            weights = (learned[1].get("descriptor_settings") or {}).get("weights")
+        name, weights = embedding_descriptor(learned[1])
+        if read.descriptor is None and name is not None and job.images:
             read = replace(read, descriptor=name, weights=read.weights or weights)
     check_target(job.out)  # before the fit, not after it
     files = (
@@ -205,7 +207,7 @@ def fit(job: FitJob, progress: bool = False):
     config, emb, ref, feats, fit_plan = _after_reading(
         job, learned, read, fit_plan, feats
     )
-    model = RhythmicMap(config, embedding=emb)
+    model = RhythmicMap.from_config(config, embedding=emb)
     model.extra.update(feats.extra)
     model.reference = ref
     if augmented is None:
@@ -314,6 +316,18 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     return emb, info
 
 
+def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
+    """The descriptors (n, d) float32 of ``job``'s frames, written to ``job.out``
+    (:func:`rhythmic_jax.frames.route_descriptors.describe_frames`)."""
+    from rhythmic_jax.frames.route_descriptors import describe_frames
+
+    read = job.reading
+    return describe_frames(
+        job.source, read.descriptor, weights=read.weights, tile=read.tile,
+        stride=read.stride, out=job.out, progress=progress, compile=read.compile,
+    )  # fmt: skip
+
+
 def _load_queries(job, progress: bool):
     from rhythmic_jax.frames.sources import load_query_source
     from rhythmic_jax.rhythmic_map import RhythmicMap
@@ -334,7 +348,7 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
     if out and not Path(out).parent.is_dir():
         raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
     if out:
-        check_place("out", out)
+        check_place("out", out, file=True)
     model, feats = _load_queries(job, progress)
     pred = model.predict(
         feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
@@ -378,7 +392,7 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     if plot and not str(plot).lower().endswith(".png"):
         raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
     if plot:
-        check_place("plot", plot)
+        check_place("plot", plot, file=True)
     model, feats = _load_queries(job, progress)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,

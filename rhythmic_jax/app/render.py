@@ -61,6 +61,15 @@ def query_summary(pred: np.ndarray, out: str) -> str:
     return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
 
 
+def describe_summary(job, x: np.ndarray) -> str:
+    """One line about descriptors written by ``describe``: rows, dimension, source."""
+    name = job.reading.descriptor or "patchnorm"
+    return (
+        f"{job.out}: {x.shape[0]} frames of {job.source} described with {name}, "
+        f"{x.shape[1]}-d float32 ({x.nbytes:,} B)"
+    )
+
+
 def info_lines(info: dict[str, Any]) -> str:
     """The text form of :func:`rhythmic_jax.app.jobs.info`, one setting a line.
 

@@ -10,14 +10,22 @@ job's :class:`rhythmic_jax.app.specs.ScaleJob`); the fit itself is
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
+import logging
+import os
 from dataclasses import replace
 from pathlib import Path
 
 from rhythmic_jax.app.specs import Reported
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import check_place, staged_folder, write_errors
+from rhythmic_jax.io.reader import read_json
 
-__all__ = ["fit_scaled", "wants_scale"]
+__all__ = ["MANIFEST", "fit_scaled", "wants_scale"]
+
+MANIFEST = "shards.json"  # written last into a --shards folder: it is complete
+log = logging.getLogger(__name__)
 
 
 def wants_scale(job) -> bool:
@@ -76,9 +84,6 @@ def _describe_to_shards(job, progress: bool) -> list[str]:
         raise InputError("{opt:shards} describes image folders; these are descriptors")
     if job.reading.tile is not None:
         raise InputError("{opt:shards} takes image folders, not {opt:tile}")
-    if root.exists():
-        raise InputError(f"{{opt:shards}} {root}: exists; give a new folder")
-    check_place("shards", root)
     name = job.reading.descriptor or "patchnorm"
     settings = {}
     if job.reading.weights is not None:
@@ -87,11 +92,63 @@ def _describe_to_shards(job, progress: bool) -> list[str]:
         if not Path(src).is_dir():
             raise InputError(f"{src}: {{opt:shards}} needs image folders")
     names = [f"{i:02d}-{Path(src).name}" for i, src in enumerate(job.sources)]
+    manifest = _manifest(job.sources, names, name, settings)
+    if root.exists() or root.is_symlink():
+        _check_reusable(root, manifest)
+        log.info("%s: the shards of these images are described already", root)
+        return [str(root / folder) for folder in names]
+    check_place("shards", root)
     # staged whole: a failed or killed run leaves no folder that blocks the next
     with write_errors("shards", root), staged_folder(root) as staged:
         for src, folder in zip(job.sources, names, strict=True):
             describe_to_shards(src, staged / folder, name, settings, progress=progress)
+        (staged / MANIFEST).write_text(json.dumps(manifest, indent=2))
     return [str(root / folder) for folder in names]
+
+
+def _listing(folder: str) -> str:
+    """The sha256 of a folder's entries: names (as the OS gives them), sizes
+    and modification times, so changed images are not taken for described."""
+    digest = hashlib.sha256()
+    with os.scandir(os.fsencode(Path(folder).expanduser().absolute())) as entries:
+        for entry in sorted(entries, key=lambda e: e.name):
+            with contextlib.suppress(OSError):
+                st = entry.stat()
+                line = b"%s\0%d\0%d\n" % (entry.name, st.st_size, st.st_mtime_ns)
+                digest.update(line)
+    return digest.hexdigest()
+
+
+def _manifest(sources, names, descriptor: str, settings: dict) -> dict:
+    """What a ``--shards`` folder holds: the descriptor and each source."""
+    return json.loads(json.dumps({
+        "written_by": "rhythmic-jax fit --shards",
+        "descriptor": descriptor,
+        "settings": settings,
+        "sources": [
+            {"path": os.fsdecode(Path(src).expanduser().absolute()), "folder": folder,
+             "listing": _listing(src)}
+            for src, folder in zip(sources, names, strict=True)
+        ],
+    }))  # fmt: skip
+
+
+def _check_reusable(root: Path, manifest: dict) -> None:
+    """Refuse (one line) an existing ``--shards`` folder that does not hold the
+    shards ``manifest`` describes: not written by this command (or unfinished),
+    or written from other images or with another descriptor."""
+    try:
+        got = read_json(root / MANIFEST, "shards manifest")
+    except (OSError, InputError):
+        raise InputError(
+            f"{{opt:shards}} {root}: exists and holds no shards that a finished "
+            "fit wrote there; give a new folder"
+        ) from None
+    if got != manifest:
+        raise InputError(
+            f"{{opt:shards}} {root}: holds the shards of other images or of another "
+            "descriptor; give a new folder (or remove it)"
+        )
 
 
 def _child_argv(argv: list[str], sources: list[str], shard_sources) -> list[str]:
@@ -151,7 +208,7 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     name, settings = shard_descriptor(sources[0])
-    model = RhythmicMap(
+    model = RhythmicMap.from_config(
         replace(job.config, descriptor=name, descriptor_settings=settings)
     )
     ckpt = job.checkpoint_folder

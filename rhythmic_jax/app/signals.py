@@ -1,5 +1,7 @@
-"""Ctrl-C and SIGTERM end a command at once: one line, exit status 128 + signal
-(130 for Ctrl-C), and no output put in place.
+"""The process the command runs in: Ctrl-C and SIGTERM end it at once (one line,
+exit status 128 + signal, 130 for Ctrl-C, and no output put in place); closed
+standard streams, stdio that cannot encode a path, and a memory limit end in a
+result or one line (:func:`standard_streams`, :func:`memory_limit`).
 
 Raising ``KeyboardInterrupt`` wherever the main thread happens to be does not end
 a job cleanly: it lands inside JAX's garbage-collection callback (reported as
@@ -37,7 +39,18 @@ import time
 
 from rhythmic_jax.io.outputs import cancel
 
-__all__ = ["LAUNCHER_ENV", "finish", "install", "set_note"]
+__all__ = [
+    "LAUNCHER_ENV",
+    "MIN_ADDRESS_SPACE",
+    "finish",
+    "install",
+    "library_folders",
+    "memory_limit",
+    "out_of_memory",
+    "readable",
+    "set_note",
+    "standard_streams",
+]
 
 # the launcher's process id, set in a worker's environment by launch_local
 LAUNCHER_ENV = "RHYTHMIC_JAX_LAUNCHER"
@@ -141,3 +154,85 @@ def finish(status: int) -> None:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(status)
+
+
+# ------------------------------------------------ the process's environment
+
+# the least address space (``ulimit -v``) a command starts JAX and torch in, with
+# glibc's malloc kept to one arena (measured: 1.4 GiB runs the fit of an image
+# folder and an evaluation; 1 GiB fails inside XLA or torch, beyond a clean line)
+MIN_ADDRESS_SPACE = 3 << 29  # 1.5 GiB
+_M_ARENA_MAX = -8  # mallopt's parameter
+_STDOUT_OPEN: dict[str, bool] = {}  # as the process found it (run, then main)
+
+
+def readable(text: str) -> str:
+    """``text`` with the bytes of file names that are not UTF-8 (carried as
+    surrogate escapes) shown as ``\\xNN``, printable on any stream."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def standard_streams() -> bool:
+    """Make the standard streams safe to use; returns whether standard output
+    is open.
+
+    A closed descriptor 0, 1 or 2 (``>&-``) is opened on ``/dev/null``, so no
+    file the command opens takes its number (a map written where a library
+    prints); a closed standard error stays silent. What the streams cannot
+    encode (non-ASCII paths in the C locale, ``PYTHONIOENCODING=ascii``) is
+    written as backslash escapes instead of failing after the work is done."""
+    was_open = _STDOUT_OPEN.get("open", True)
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:  # the lowest free number: fd itself, or a lower one
+                os.dup2(null, fd)
+                os.close(null)
+            was_open = was_open and fd != 1
+    if sys.stderr is None:
+        sys.stderr = open(2, "w", errors="backslashreplace", closefd=False)  # noqa: SIM115
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            stream.reconfigure(errors="backslashreplace")
+    _STDOUT_OPEN["open"] = was_open = was_open and sys.stdout is not None
+    return was_open
+
+
+def library_folders() -> None:
+    """Keep libraries' own folders out of the user's home: imageio (under
+    skimage, reading an image PIL cannot) makes ``~/.imageio`` when it looks for
+    plugins; it goes to the package's cache folder instead (``$RHYTHMIC_JAX_CACHE``,
+    default ``~/.cache/rhythmic_jax``), unless ``$IMAGEIO_USERDIR`` says where."""
+    cache = os.environ.get("RHYTHMIC_JAX_CACHE") or os.path.join(
+        os.path.expanduser("~"), ".cache", "rhythmic_jax"
+    )
+    os.environ.setdefault("IMAGEIO_USERDIR", cache)
+
+
+def memory_limit() -> int | None:
+    """The address-space limit (``ulimit -v``) in bytes, or None when there is
+    none. Under one, glibc's malloc keeps one arena: the arenas of JAX's and
+    torch's threads would otherwise take it whole before any array does."""
+    import resource
+
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft == resource.RLIM_INFINITY:
+        return None
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).mallopt(_M_ARENA_MAX, 1)
+    return soft
+
+
+def out_of_memory(err: BaseException) -> bool:
+    """Whether ``err`` says memory ran out (Python's, XLA's, a library's failed
+    mapping, a thread's stack), not a disk or a bad input."""
+    if isinstance(err, MemoryError):
+        return True
+    text = str(err)
+    if isinstance(err, RuntimeError) and "can't start new thread" in text:
+        return True
+    if "RESOURCE_EXHAUSTED" in text:
+        return "No space left" not in text and "allocat" in text.lower()
+    return isinstance(err, ImportError) and "failed to map segment" in text

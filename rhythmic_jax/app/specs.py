@@ -26,9 +26,9 @@ from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 
 __all__ = [
-    "DOMAINS", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob", "OptionRefused",
-    "QueryJob", "Reading", "Reported", "Rule", "ScaleJob", "check_paths",
-    "learn_config", "GROUND_TRUTH_FORMATS", "RECALL_OVER",
+    "DOMAINS", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob",
+    "OptionRefused", "QueryJob", "Reading", "Reported", "Rule", "ScaleJob",
+    "check_paths", "learn_config", "GROUND_TRUTH_FORMATS", "RECALL_OVER",
 ]  # fmt: skip
 
 
@@ -469,6 +469,34 @@ class EvaluateJob(Checked):
         return (self.source,) + ((self.reference,) if self.reference else ())
 
 
+@dataclass(frozen=True)
+class DescribeJob(Checked):
+    """The frames of ``source`` described once and written to ``out`` (.npy).
+
+    ``rhythmic-jax describe summer/ --descriptor efficientnet_lite0 --out
+    summer.npy`` is ``describe(DescribeJob("summer/", "summer.npy",
+    Reading(descriptor="efficientnet_lite0")))``
+    (:func:`rhythmic_jax.frames.route_descriptors.describe_frames`); ``fit``,
+    ``query``, ``evaluate`` and ``frontier`` then read the file. ``given``: see
+    :class:`Checked`.
+    """
+
+    source: str
+    out: str
+    reading: Reading = Reading()
+    given: frozenset[str] = frozenset()
+
+    RULES = (
+        Rule(("stride",), "needs {opt:tile} (it is the step between tiles)",
+             lambda j: j.reading.tile is not None),
+        *IGNORED[:1],
+    )  # fmt: skip
+
+    @property
+    def read_sources(self) -> tuple[str, ...]:
+        return (self.source,)
+
+
 # What each command writes and reads, by destination: no path written may be,
 # hold or lie inside another the job reads or writes.
 WRITTEN = {
@@ -477,6 +505,7 @@ WRITTEN = {
     "query": ("out",),
     "evaluate": ("plot",),
     "frontier": ("csv", "plot"),
+    "describe": ("out",),
 }
 READ = {
     "fit": ("sources", "embedding", "positions", "weights"),
@@ -484,6 +513,7 @@ READ = {
     "query": ("map", "source", "weights"),
     "evaluate": ("map", "source", "reference", "ground_truth", "weights"),
     "frontier": ("reference", "queries", "ground_truth"),
+    "describe": ("source", "weights"),
 }
 ROLES = {
     "map": "the map",

@@ -8,9 +8,9 @@ has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
 
 - with codes, the place scores are fused with the code similarities
   (:mod:`rhythmic_jax.decoding.fusion`; ``hard`` then scores every place, as
-  ``soft``; the code similarities are computed on the host, so such a map is
-  decoded outside a trace), the queries padded to their bucket first, so the
-  scores, codes and fused decode compile once per bucket;
+  ``soft``; inside a trace the queries are encoded in JAX, so such a map
+  decodes under ``jax.jit`` too), the queries padded to their bucket first, so
+  the scores, codes and fused decode compile once per bucket;
 - the hard decode of any layout: the one kernel
   (:func:`rhythmic_jax.decoding.hard.decode`), or a host lane
   (:mod:`rhythmic_jax.decoding.host`) where the queries lie in host memory: a
@@ -61,6 +61,7 @@ from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.sequence import METHODS, _check_speeds, sequence_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
+from rhythmic_jax.map.checks import check_decode
 from rhythmic_jax.map.config import DECODERS
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.map.embedding import embed
@@ -138,7 +139,9 @@ def by_method(method, answer):
 def _decoded(m: Map, x, method: str, top: int) -> Decoded:
     """Decoded (b,) of checked, embedded queries x (b, k): with codes fused
     (padded first: every program once per bucket), else by
-    :func:`decode_queries`."""
+    :func:`decode_queries`; refused first where its largest allocation would
+    not fit (:func:`rhythmic_jax.map.checks.check_decode`)."""
+    check_decode(m, method, x.shape[0], top)
     if m.codebook is None:
         return decode_queries(m.params, x, m.groups, m.n, method, top)
     x, b = pad_rows(x)
@@ -168,6 +171,7 @@ def _sequence(m: Map, x, length, speeds, method: str, top: int):
     """:func:`decode_sequence` of checked, embedded queries x (T, k), padded at
     the end first (a frame's answer depends on the frames before it only), so
     every program compiles once per bucket."""
+    check_decode(m, method, x.shape[0], top, sequence=True)  # before it allocates
     x, b = pad_rows(x)
     if m.codebook is not None:
         out = fused_sequence_decode(

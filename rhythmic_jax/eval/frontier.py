@@ -27,7 +27,7 @@ import hashlib
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import jax
@@ -42,6 +42,8 @@ from rhythmic_jax.decoding.fusion import (
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.eval.metrics import pr_points
+from rhythmic_jax.io.atomic import atomic_path
+from rhythmic_jax.io.reader import load_npz
 from rhythmic_jax.map.codes import CodeBook, code_bytes
 from rhythmic_jax.map.periods import candidate_periods, choose_periods, database_bytes
 from rhythmic_jax.map.periods import storage_bytes as map_bytes
@@ -51,6 +53,7 @@ __all__ = [
     "FrontierConfig",
     "SEQUENCE_SCORERS",
     "budget_table",
+    "trainable",
     "crossover_n",
     "fitted_codes",
     "fitted_map",
@@ -96,6 +99,50 @@ class FrontierConfig:
     dtypes: tuple[str, ...] = ("float32", "int8")
     pq: tuple[int, ...] = ()  # faiss product quantisers: sub-vectors of 8 bits
     scalar: bool = False  # int8 per place (rhythmic_jax.map.scalar_codes)
+
+
+def pq_bits(n: int) -> int:
+    """Bits of each PQ sub-quantiser on ``n`` places: 8, or fewer where the route
+    has fewer than 256 frames to train the k-means of ``2**bits`` centroids."""
+    return min(8, int(np.log2(n))) if n >= 2 else 0
+
+
+def _listed(what: str, values, why: str) -> str:
+    return f"{what} {', '.join(str(v) for v in values)}: skipped ({why})"
+
+
+def trainable(
+    config: FrontierConfig, n: int, d: int
+) -> tuple[FrontierConfig, list[str]]:
+    """The part of ``config`` that can be trained on ``n`` places of ``d``
+    features, and one note per kind of representation left out.
+
+    Checked before faiss sees them: ITQ of more bits than ``min(n, d)`` (its PCA
+    has one axis per frame and per dimension; faiss would stop in
+    ``PCAMatrix::prepare_Ab``), PQ whose sub-quantisers do not divide ``d``, and
+    PQ on fewer than 2 places (no centroid to learn). PQ on fewer than 256
+    places keeps ``pq_bits(n)``-bit sub-quantisers, and says so.
+    """
+    notes: list[str] = []
+    most = min(n, d)
+    bits = tuple(b for b in config.bits if b <= most)
+    if len(bits) < len(config.bits):
+        left = [b for b in config.bits if b > most]
+        why = (f"ITQ keeps at most {most} bits on {n} places of {d}-d: its PCA "
+               f"has {most} axes")  # fmt: skip
+        notes.append(_listed("ITQ bits", left, why))
+    pq = tuple(m for m in config.pq if d % m == 0 and n >= 2)
+    if n < 2 and config.pq:
+        notes.append(_listed("PQ", config.pq, "one place: nothing to cluster"))
+    elif len(pq) < len(config.pq):
+        left = [m for m in config.pq if d % m]
+        notes.append(_listed("PQ", left, f"sub-quantisers must divide d = {d}"))
+    if pq and pq_bits(n) < 8:
+        notes.append(
+            f"PQ: {pq_bits(n)}-bit sub-quantisers (the {n} places cannot train "
+            "256 centroids each)"
+        )
+    return replace(config, bits=bits, pq=pq), notes
 
 
 def _recall(idx, tol: int, truth=None) -> float:
@@ -165,7 +212,7 @@ def _fit_map(x, r, level, gap):
     """The (w (d, p), b (p,)) templates and periods of a soft-decode map of x."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
-    m = RhythmicMap(r=r, level=level, gap=gap, decode="soft").fit(x, progress=False)
+    m = RhythmicMap(r=r, level=level, gap=gap, method="soft").fit(x, progress=False)
     return np.asarray(m.params.w), np.asarray(m.params.b), tuple(m.periods)
 
 
@@ -179,13 +226,10 @@ def _cached(cache, key: str, make):
         return make()
     path = Path(cache) / f"{key}.npz"
     if path.exists():
-        with np.load(path, allow_pickle=False) as f:
-            return dict(f)
+        return load_npz(path)
     out = make()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **out)
-    tmp.replace(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # no temporary left
+        np.savez(fh, **out)
     return out
 
 
@@ -390,7 +434,7 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
             continue
         import faiss
 
-        nbits = min(8, int(np.log2(n)))  # k-means needs 2^nbits training points
+        nbits = pq_bits(n)  # k-means needs 2^nbits training points
         index = faiss.IndexPQ(d, m, nbits, faiss.METRIC_INNER_PRODUCT)
         index.train(ref)
         index.add(ref)

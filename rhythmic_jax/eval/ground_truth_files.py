@@ -34,6 +34,13 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
 from rhythmic_jax.eval.ground_truth_formats import FORMATS, detect_format
+from rhythmic_jax.io.reader import (
+    load_npy,
+    memory_budget,
+    npy_header,
+    npz_headers,
+    read_text,
+)
 from rhythmic_jax.io.vpr_files import safe_object_npy
 
 __all__ = [
@@ -110,17 +117,12 @@ _DEGREES = (("latitude", "longitude"), ("lat", "lon"), ("lat", "lng"))
 def _plain_npy(path: Path) -> np.ndarray:
     """A numeric ``.npy``; one holding pickled objects is refused unread (nothing
     is unpickled), as is a file that is not a ``.npy``."""
-    try:
-        return np.load(path, allow_pickle=False)
-    except OSError as err:
-        raise InputError(f"{path}: cannot read ({err.strerror or err})") from None
-    except ValueError as err:
-        if "allow_pickle" in str(err):
-            raise InputError(
-                f"{path}: holds pickled objects, not numbers; refusing to unpickle "
-                "it (save the positions as a numeric (n, 2) array or a CSV)"
-            ) from None
-        raise InputError(f"{path}: not a .npy file ({err})") from None
+    if npy_header(path).dtype.hasobject:
+        raise InputError(
+            f"{path}: holds pickled objects, not numbers; refusing to unpickle "
+            "it (save the positions as a numeric (n, 2) array or a CSV)"
+        )
+    return load_npy(path)
 
 
 def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
@@ -130,14 +132,13 @@ def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
     be projected with :func:`in_metres` together with the files they meet.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: positions file not found")
     if path.suffix.lower() == ".npy":
         return _checked(_plain_npy(path), path), "metres"
-    try:
-        rows = list(csv.reader(path.read_text().splitlines()))
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: cannot read positions ({err})") from None
+    # as a spreadsheet saves it too: a byte-order mark, CRLF ends, blank lines
+    text = read_text(path, limit=memory_budget() // 8, encoding="utf-8-sig")
+    rows = list(csv.reader(text.splitlines()))
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
         raise InputError(f"{path}: no positions")
@@ -328,6 +329,9 @@ def read_tutorial_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
     """VPR_Tutorial ``GT.npz``: hard positives, soft-only places not counted wrong."""
     from rhythmic_jax.io.vpr_files import read_vpr_tutorial
 
+    for key, head in npz_headers(path).items():  # sizes before inflating
+        if key in ("GThard", "GTsoft") and len(head.shape) == 2:
+            _sizes(path, *head.shape, n_places, n_queries)
     hard, soft = read_vpr_tutorial(path)
     _sizes(path, hard.shape[0], hard.shape[1], n_places, n_queries)
     src = f"VPR_Tutorial GT.npz {Path(path).absolute()} (GThard; GTsoft not wrong)"
@@ -361,7 +365,13 @@ def read_patchnetvlad_gt(path, *, n_queries: int, n_places: int) -> GroundTruth:
     """Patch-NetVLAD ``.npz``: database places within ``posDistThr`` metres."""
     from rhythmic_jax.io.vpr_files import read_patchnetvlad
 
+    heads = npz_headers(path)  # sizes before inflating
+    shapes = [heads[k].shape for k in ("utmDb", "utmQ") if k in heads]
+    if len(shapes) == 2 and all(shapes):
+        _sizes(path, shapes[0][0], shapes[1][0], n_places, n_queries)
     db, q, thr = read_patchnetvlad(path)
+    if not np.isfinite(thr):  # an infinite radius counts every place as right
+        raise InputError(f"{path}: posDistThr must be a finite radius, got {thr}")
     _sizes(path, len(db), len(q), n_places, n_queries)
     src = f"Patch-NetVLAD utmDb/utmQ {Path(path).absolute()}"
     gt = from_positions(db, q, thr, None, src)

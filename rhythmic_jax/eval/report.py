@@ -21,6 +21,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.metrics import recall_line, time_batch, time_single_queries
 from rhythmic_jax.eval.outliers import finite_confidence
 from rhythmic_jax.jit_options import jit
+from rhythmic_jax.map.checks import check_decode
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import database_bytes, place_columns
 
@@ -62,6 +63,14 @@ def _latency(fn, queries) -> dict[str, float]:
     }
 
 
+def _code_similarity(model, queries) -> np.ndarray:
+    """The codes' similarities (b, n) of raw queries (b, d): embedded first where
+    the map has an embedding, as its own decode does (its codes live there)."""
+    from rhythmic_jax.decoding.queries import queries as map_queries
+
+    return model.codebook.similarity(map_queries(model.value, queries))
+
+
 def _hybrid_decisions(model, queries, method, sequence):
     """A map with codes: confidence and places ranked by the fused scores, over
     the sequence when one is asked for (as its decode fuses them)."""
@@ -75,7 +84,7 @@ def _hybrid_decisions(model, queries, method, sequence):
     if sequence is None or sequence <= 1:
         conf = model.decode(queries, method).confidence
         return conf, np.asarray(model.place_scores(queries)), "fused place scores"
-    s, sims = model.scores(queries), model.codebook.similarity(queries)
+    s, sims = model.scores(queries), _code_similarity(model, queries)
     w, per = model.config.fusion, model.periods
     _, conf = fused_sequence_decode(
         s, sims, per, model.n, sequence, (1.0,), w, method, model.config.m
@@ -157,7 +166,7 @@ def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
     length = int(sequence) if sequence else 1
     key, n, d = f"recall@1 L={length}", model.n, model.d
     s = model.scores(queries)
-    sims = model.codebook.similarity(queries)
+    sims = _code_similarity(model, queries)
     if length > 1:
         alone = sequence_decode(s, model.periods, n, length, (1.0,), "soft")[0]
         coded = code_sequence_scores(sims, length)
@@ -235,6 +244,7 @@ def evaluate_map(
             f"{len(queries)} queries but the ground truth ({truth.source}) has "
             f"{len(truth)}"
         )
+    check_decode(model.value, "soft", len(queries), at_once=True)  # the ranking
     pred, conf, ranked, which = _map_decisions(model, queries, method, sequence)
     ks = tuple(k for k in KS if k <= ranked.shape[1])
     rows: dict[str, Any] = {

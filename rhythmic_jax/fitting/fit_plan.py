@@ -167,7 +167,7 @@ def plan(config: MapConfig, n: int, d: int, frames: int | None = None) -> FitPla
     (:meth:`FitPlan.check_memory`).
     """
     if config.codes not in (None, INT8):  # a setting the config checked
-        check_bits(config.codes, d)
+        check_bits(config.codes, d, n=n)  # ITQ is fitted on one frame a place
     spec = parse_layout(config.layout)
     if config.codes is not None and spec.kind != "periods":
         raise InputError(

@@ -183,8 +183,10 @@ def failed_path(package: Path) -> Path:
 def lock_held(lock: Path) -> bool:
     """Whether ``lock`` belongs to a running builder (its process is alive and
     the lock younger than :data:`LOCK_STALE_SECONDS`)."""
-    try:
-        pid = int(lock.read_text().strip() or 0)
+    from rhythmic_jax.io.reader import read_text
+
+    try:  # a pipe or device there: InputError, a ValueError
+        pid = int(read_text(lock, 4096).strip() or 0)
         age = time.time() - lock.stat().st_mtime
     except (OSError, ValueError):
         return False

@@ -21,14 +21,16 @@ import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
-import torch
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compiled import AUTO, CompilePolicy, network_runner
 from rhythmic_jax.progress import bar as progress_bar
+
+if TYPE_CHECKING:  # torch loads when frames are described, not on a cache hit
+    import torch
 
 __all__ = [
     "ahead",
@@ -136,6 +138,8 @@ def _to_batch(
     uint8 kernel is several times faster than its float one, which took as long
     as reading the JPEGs for 640x320 frames going to a 224x112 network.
     """
+    import torch
+
     t = torch.from_numpy(np.ascontiguousarray(chunk)).permute(0, 3, 1, 2)
     if shrink_to is not None:
         h, w = t.shape[-2:]
@@ -170,6 +174,8 @@ def describe_chunks(
     ``depth`` chunks ahead; this thread runs the network. ``keep(start, chunk)``,
     when given, sees every chunk (e.g. to keep the frames).
     """
+    import torch
+
     prepare = getattr(descriptor, "prepare", None)
     size = _network_size(descriptor)
 
@@ -220,9 +226,12 @@ def files_cache_path(
         ident.append("shrunk in uint8")  # values differ from the float resize's
         ident.append("JPEG decoded at a reduced scale")  # and from the full decode's
     h.update(json.dumps(ident, sort_keys=True, default=str).encode())
+    from rhythmic_jax.io.reader import memory_budget, read_bytes
+
+    limit = memory_budget()
     for f in files:
-        data = Path(f).read_bytes()
-        h.update(f"{Path(f).name}|{len(data)}|".encode())
+        data = read_bytes(f, limit)  # a regular file, of at most the budget
+        h.update(f"{Path(f).name}|{len(data)}|".encode("utf-8", "surrogateescape"))
         h.update(data)
     folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     return folder / f"{key}-{descriptor.name}-files-{h.hexdigest()[:16]}.npy"
@@ -250,7 +259,7 @@ def describe_files(
 
     files = [Path(f) for f in files]
     path = files_cache_path(files, descriptor, key, cache_dir)
-    x = load_cached(path, (len(files), descriptor.dim))
+    x = load_cached(path, (len(files), None))  # the name digests the settings
     if x is not None:
         if not keep_images:
             return x, None

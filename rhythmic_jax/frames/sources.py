@@ -167,7 +167,8 @@ def source_key(path: Path, tile=None, stride=None) -> str:
     modification time and the cut, so a changed source is described afresh."""
     stat = path.stat()
     raw = f"{path.resolve()}|{stat.st_mtime_ns}|{tile}|{stride}"
-    return f"{path.name}-{hashlib.sha1(raw.encode()).hexdigest()[:12]}"
+    digest = hashlib.sha1(raw.encode("utf-8", "surrogateescape")).hexdigest()
+    return f"{path.name}-{digest[:12]}"
 
 
 def _resolve(name: str, settings: dict) -> Descriptor:

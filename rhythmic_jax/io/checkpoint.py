@@ -40,6 +40,7 @@ import json
 import logging
 import os
 import shutil
+import stat
 import sys
 import time
 import uuid
@@ -51,6 +52,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import committing
+from rhythmic_jax.io.reader import check_budget, inside, open_regular, read_json
 
 __all__ = [
     "FORMAT_VERSION",
@@ -59,6 +61,7 @@ __all__ = [
     "checksums_of",
     "load_map",
     "locked",
+    "orbax_folder",
     "save_map",
     "verify_files",
     "without_closed_loop",
@@ -246,12 +249,40 @@ def _quiet_orbax_failures():
         sys.unraisablehook = hook
 
 
+def orbax_folder(folder: Path) -> tuple[Path, int | None]:
+    """``folder`` as orbax's file system layer (tensorstore) can take it, and the
+    descriptor to close once orbax is done (None: nothing opened).
+
+    A path whose bytes are not UTF-8 (file names carried as the OS gives them,
+    any non-ASCII name in the C locale) cannot be handed to tensorstore; the
+    folder (made if missing) is then reached through an open descriptor,
+    ``/proc/self/fd/N``, which both Python and tensorstore resolve."""
+    try:
+        str(folder).encode("utf-8")
+        return folder, None
+    except UnicodeEncodeError:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        return Path(f"/proc/self/fd/{fd}"), fd
+
+
+@contextlib.contextmanager
+def _orbax_path(folder: Path) -> Iterator[Path]:
+    """:func:`orbax_folder` for the time of a save or a restore."""
+    place, fd = orbax_folder(folder)
+    try:
+        yield place
+    finally:
+        if fd is not None:
+            os.close(fd)
+
+
 def _write_arrays(tmp: Path, arrays: dict[str, np.ndarray]) -> None:
     """The new map's arrays in the hidden folder ``tmp``."""
     ckpt = _checkpointer()
-    with _quiet_orbax_failures():
+    with _quiet_orbax_failures(), _orbax_path(tmp) as folder:
         try:
-            ckpt.save(tmp / _ARRAYS, arrays)
+            ckpt.save(folder / _ARRAYS, arrays)
             ckpt.wait_until_finished()
         finally:
             ckpt.close()
@@ -273,7 +304,7 @@ def _write(tmp: Path, arrays: dict[str, np.ndarray], body: dict) -> None:
 
 def _sha256_file(path: Path) -> str:
     digest = hashlib.sha256()
-    with open(path, "rb") as fh:
+    with open_regular(path) as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
@@ -328,15 +359,14 @@ def verify_files(folder: Path, meta: dict[str, Any], missing: bool = True) -> No
         return
     root = folder / _ARRAYS
     for name, expected in digests["files"].items():
-        path = root / name
-        if not missing and not path.exists():
+        path = inside(root, name, "digest path")  # no name leaves the map
+        if not missing and not os.path.lexists(path):
             continue
         try:
             actual = _sha256_file(path)
-        except OSError as err:
+        except InputError as err:
             raise InputError(
-                f"{folder}: arrays are missing or corrupt ({path}: "
-                f"{(err.strerror or str(err)).lower()})"
+                f"{folder}: arrays are missing or corrupt ({err})"
             ) from None
         if actual != expected:
             raise InputError(
@@ -359,6 +389,37 @@ def _verify_arrays(folder: Path, meta: dict, arrays: dict[str, np.ndarray]) -> N
                 f"{folder}: arrays are missing or corrupt (array {name!r} changed "
                 "since the map was saved: its sha256 differs)"
             )
+
+
+def _check_tree(root: Path) -> None:
+    """Refuse (:class:`InputError`) a map whose ``arrays/`` holds anything but
+    folders and regular files inside it (a link may name a file inside)."""
+    for where, folders, files in os.walk(root):
+        for name in folders + files:
+            rel = (Path(where) / name).relative_to(root).as_posix()
+            target = inside(root, rel, "array file")
+            try:
+                mode = os.stat(target).st_mode
+            except OSError as err:
+                reason = (err.strerror or str(err)).lower()
+                raise InputError(f"{root / rel}: cannot read ({reason})") from None
+            if stat.S_ISDIR(mode) and os.path.islink(Path(where) / name):
+                raise InputError(f"{root / rel}: a link to a folder; refusing it")
+            if not (stat.S_ISDIR(mode) or stat.S_ISREG(mode)):
+                raise InputError(
+                    f"{root.parent}: arrays are missing or corrupt ({rel} is not "
+                    "a regular file)"
+                )
+
+
+def _check_declared(folder: Path, metadata) -> None:
+    """Refuse a map whose arrays declare more bytes than the memory budget
+    (:func:`rhythmic_jax.io.reader.check_budget`), before orbax allocates them."""
+    tree = getattr(metadata, "item_metadata", metadata) or {}
+    shapes = [(v.shape, v.dtype) for v in tree.values() if hasattr(v, "shape")]
+    nbytes = sum(int(np.prod(s, dtype=object)) * np.dtype(t).itemsize
+                 for s, t in shapes)  # fmt: skip
+    check_budget(folder, nbytes, f"its {len(shapes)} arrays")
 
 
 def _free_bytes(folder: Path) -> int:
@@ -413,11 +474,15 @@ def _clean(target: Path, *kinds: str) -> None:
 def check_target(path: str | os.PathLike) -> Path:
     """The absolute path a map may be saved to, or :class:`InputError` (checked
     before a long fit): an existing path must be a map folder, and no parent of it
-    may be a file."""
-    target = Path(path).expanduser().absolute()
+    may be a file. A link is followed: the map it names is the one replaced (as a
+    write through a link to a file replaces the file), the link itself is kept and
+    nothing is left beside it."""
+    given = target = Path(path).expanduser().absolute()
+    if target.is_symlink():
+        target = Path(os.path.realpath(target))
     if target.exists() and not (target / _META).is_file():
         raise InputError(
-            f"{target}: exists and is not a map folder; refusing to replace it"
+            f"{given}: exists and is not a map folder; refusing to replace it"
         )
     for parent in target.parents:
         if parent.exists():
@@ -443,12 +508,10 @@ def read_metadata(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
     """A map folder's checked metadata, without its arrays: (folder, metadata)."""
     folder = _resolve(Path(path).expanduser().absolute())
     meta_file = folder / _META
-    try:
-        meta = json.loads(meta_file.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{folder}: not a map folder ({_META} is missing)") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"{meta_file}: corrupt metadata ({err})") from None
+    if not os.path.lexists(meta_file):
+        raise InputError(f"{folder}: not a map folder ({_META} is missing)")
+    inside(folder, _META, "metadata file")  # a link leaving the map is refused
+    meta = read_json(meta_file, "metadata")  # regular, bounded, not too deep
     if not isinstance(meta, dict) or not isinstance(meta.get("format_version"), int):
         raise InputError(f"{meta_file}: corrupt metadata (no format_version)")
     if meta["format_version"] > FORMAT_VERSION:
@@ -467,9 +530,10 @@ def arrays_listed(folder: Path) -> set[str]:
     """
     arrays = Path(folder) / _ARRAYS
     try:
-        tree = json.loads((arrays / "_METADATA").read_text())["tree_metadata"]
+        listing = inside(arrays, "_METADATA", "array listing")
+        tree = read_json(listing, "array listing")["tree_metadata"]
         done = (arrays / "commit_success.txt").is_file()
-    except (OSError, ValueError, KeyError, TypeError):
+    except (InputError, KeyError, TypeError):
         return set()
     if not done or not isinstance(tree, dict):
         return set()
@@ -484,10 +548,15 @@ def load_map(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
     with locked(path, exclusive=False):
         folder, meta = read_metadata(path)
         verify_files(folder, meta, missing=False)
+        _check_tree(folder / _ARRAYS)  # what orbax reads: files inside, regular
         ckpt = _checkpointer()
         with _quiet_orbax_failures():
             try:
-                raw = ckpt.restore(folder / _ARRAYS)
+                with _orbax_path(folder) as place:
+                    _check_declared(folder, ckpt.metadata(place / _ARRAYS))
+                    raw = ckpt.restore(place / _ARRAYS)
+            except InputError:
+                raise
             except Exception as err:  # noqa: BLE001 - orbax raises many kinds
                 msg = str(err).splitlines()[0] if str(err) else type(err).__name__
                 msg = msg.split(" [tensorstore_spec=")[0]  # drop the driver's spec

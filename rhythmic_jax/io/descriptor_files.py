@@ -16,6 +16,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import save_npy
+from rhythmic_jax.io.reader import load_npy, npy_header
 
 __all__ = [
     "check_descriptors",
@@ -66,20 +67,12 @@ def descriptor_shape(path: str | os.PathLike) -> tuple[int, ...]:
     path = Path(path)
     if path.suffix.lower() != ".npy":
         raise InputError(f"descriptor file must be .npy, got {path}")
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"descriptor file not found: {path}")
-    with open(path, "rb") as f:
-        head = f.read(6)
-        if head[:1] == b"\x80":
-            raise InputError(f"{path} contains Python objects; refusing to unpickle")
-        f.seek(0)
-        try:
-            header = read_npy_header(f)
-        except Exception as exc:
-            raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
-    if header[2].hasobject:
+    header = npy_header(path, sizes=False)  # regular files only; no data read
+    if header.dtype.hasobject:
         raise InputError(f"{path} contains Python objects; refusing to unpickle")
-    return tuple(int(k) for k in header[0])
+    return header.shape
 
 
 def load_descriptors(path: str | os.PathLike) -> np.ndarray:
@@ -89,11 +82,7 @@ def load_descriptors(path: str | os.PathLike) -> np.ndarray:
     non-empty, numeric and finite.
     """
     descriptor_shape(path)  # the header's checks, before any data is read
-    try:
-        x = np.load(path, allow_pickle=False)
-    except Exception as exc:  # truncated data after a valid header
-        raise InputError(f"{path} is not a valid .npy file: {exc}") from exc
-    return check_descriptors(x, str(path))
+    return check_descriptors(load_npy(path), str(path))
 
 
 def save_descriptors(path: str | os.PathLike, x: np.ndarray) -> None:

@@ -24,11 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.descriptor_files import (
-    check_descriptors,
-    descriptor_shape,
-    read_npy_header,
-)
+from rhythmic_jax.io.descriptor_files import check_descriptors, descriptor_shape
+from rhythmic_jax.io.reader import npy_header, open_regular, read_json
 
 __all__ = [
     "Frames",
@@ -72,7 +69,7 @@ class Frames:
             lo, hi = max(start, first), min(stop, first + part.rows)
             if lo < hi:
                 raw = np.empty((hi - lo, self.d), part.dtype)
-                with open(part.path, "rb") as fh:
+                with open_regular(part.path) as fh:
                     fh.seek(part.offset + (lo - first) * self.d * part.dtype.itemsize)
                     if fh.readinto(memoryview(raw).cast("B")) != raw.nbytes:
                         raise InputError(f"{part.path}: truncated (rows {lo}..{hi})")
@@ -91,15 +88,10 @@ def _part(path: Path) -> _Part:
     shape = descriptor_shape(path)  # header only; refuses pickles
     if len(shape) != 2 or 0 in shape:
         raise InputError(f"{path}: expected a non-empty (n, d) array, got {shape}")
-    with open(path, "rb") as fh:
-        _, fortran, dtype = read_npy_header(fh)
-        offset = fh.tell()
-    if fortran or dtype.kind not in "fiu":
-        raise InputError(f"{path}: need a C-ordered real array, got {dtype}")
-    need = offset + shape[0] * shape[1] * dtype.itemsize
-    if path.stat().st_size < need:
-        raise InputError(f"{path}: truncated ({path.stat().st_size} of {need} bytes)")
-    return _Part(path, offset, int(shape[0]), int(shape[1]), np.dtype(dtype))
+    head = npy_header(path)  # regular files only; the data is in the file
+    if head.fortran or head.dtype.kind not in "fiu":
+        raise InputError(f"{path}: need a C-ordered real array, got {head.dtype}")
+    return _Part(path, head.offset, int(shape[0]), int(shape[1]), head.dtype)
 
 
 def is_frame_source(path: str | os.PathLike) -> bool:
@@ -133,10 +125,10 @@ def shard_descriptor(path: str | os.PathLike) -> tuple[str, dict]:
     """(descriptor name, settings) of a shard folder written from images, or
     ``("features", {})`` for descriptor files."""
     meta = Path(path) / _META
-    if not meta.is_file():
+    if not os.path.lexists(meta):
         return "features", {}
     try:
-        got = json.loads(meta.read_text())
+        got = read_json(meta, "shard metadata")
         return str(got["descriptor"]), dict(got["settings"])
     except (ValueError, KeyError, TypeError) as err:
         raise InputError(f"{meta}: corrupt ({err!r})") from None

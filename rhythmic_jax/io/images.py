@@ -27,6 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.names import natural_sorted
+from rhythmic_jax.io.reader import open_regular
 from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
@@ -126,14 +127,14 @@ def list_images(folder: Path, what: str, one_pattern: bool = True) -> list[Path]
     return files
 
 
-def _read_jpeg_reduced(path: Path, at_least: tuple[int, int]) -> np.ndarray | None:
-    """A JPEG decoded at the smallest of libjpeg's DCT scales (1/2, 1/4, 1/8)
-    that is still at least ``at_least`` = (width, height), as uint8 RGB; None
-    for a file that is not a readable JPEG (:func:`read_rgb` then reads it)."""
+def _read_jpeg_reduced(fh, at_least: tuple[int, int]) -> np.ndarray | None:
+    """The JPEG open as ``fh`` decoded at the smallest of libjpeg's DCT scales
+    (1/2, 1/4, 1/8) still at least ``at_least`` = (width, height), as uint8 RGB;
+    None for a file that is not a readable JPEG (:func:`read_rgb` then reads it)."""
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
+        with Image.open(fh) as im:
             if im.format != "JPEG":
                 return None
             im.draft("RGB", at_least)
@@ -147,14 +148,14 @@ def _read_jpeg_reduced(path: Path, at_least: tuple[int, int]) -> np.ndarray | No
 _COLOUR_SPACES = frozenset({"CMYK", "YCbCr", "LAB", "HSV"})
 
 
-def _read_other_colour_space(path: Path) -> np.ndarray | None:
-    """A CMYK, YCbCr, LAB or HSV image as PIL converts it to uint8 (H, W, 3) RGB;
-    None for any other image (or a file PIL cannot open: skimage then reads it and
-    names what is wrong)."""
+def _read_other_colour_space(fh) -> np.ndarray | None:
+    """A CMYK, YCbCr, LAB or HSV image (open as ``fh``) as PIL converts it to
+    uint8 (H, W, 3) RGB; None for any other image (or a file PIL cannot open:
+    skimage then reads it and names what is wrong)."""
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
+        with Image.open(fh) as im:
             if im.mode not in _COLOUR_SPACES:
                 return None
             return np.asarray(im.convert("RGB"))
@@ -181,17 +182,29 @@ def read_rgb(
     chroma moves up to 7). Other files are read in full.
     """
     path = Path(path)
+    try:
+        fh = open_regular(path)  # a pipe or device is refused, never read
+    except InputError as err:
+        raise InputError(f"cannot read image {err}") from None
+    with fh:
+        return _read_rgb(fh, path, at_least)
+
+
+def _read_rgb(fh, path: Path, at_least: tuple[int, int] | None) -> np.ndarray:
+    """:func:`read_rgb` of the open file ``fh``."""
     if at_least is not None:
-        image = _read_jpeg_reduced(path, at_least)
+        image = _read_jpeg_reduced(fh, at_least)
         if image is not None:
             return image
+        fh.seek(0)
     import skimage.io  # here, not at import: 0.3 s a job of JPEGs skips
     import skimage.util
 
     try:
-        image = _read_other_colour_space(path)
+        image = _read_other_colour_space(fh)
         if image is None:
-            image = np.asarray(skimage.io.imread(path))
+            fh.seek(0)
+            image = np.asarray(skimage.io.imread(fh))
     except Exception as exc:  # truncated, corrupt or not an image at all
         reason = str(exc)
         if isinstance(exc, OSError) and exc.strerror:  # missing, permission denied

@@ -14,16 +14,26 @@ put in place any more, and a rename already under way finishes first. A folder
 filled over many steps (the shard folders of ``fit --shards``) is staged whole
 (:func:`staged_folder`), so a failed or killed run leaves only a hidden folder
 that the next run removes, never one that blocks it.
+
+What an output path names decides how it is written (:func:`output_target`): a
+regular file or a new name is replaced atomically (a link to a file: the file it
+names, the link kept); a character device or a FIFO (``/dev/null``, ``/dev/full``,
+a named pipe, or a link to one) is opened and written through, never replaced; a
+stream of this process (``/dev/stdout``, ``/dev/fd/N``, ``/proc/self/fd/N``) is
+written to its open descriptor; a folder where a file is wanted, a socket or a
+block device is refused, before any work (:func:`check_place` with ``file``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import logging
 import os
 import re
 import shutil
+import stat
 import tempfile
 import threading
 import uuid
@@ -34,10 +44,14 @@ from rhythmic_jax.errors import InputError
 
 __all__ = [
     "Cancelled",
+    "OutputError",
+    "Target",
     "cancel",
     "cancelled",
     "check_place",
     "committing",
+    "output_target",
+    "process_alive",
     "staged_folder",
     "write_errors",
 ]
@@ -49,11 +63,84 @@ _WORDS = ("No space left on device", "Disk quota exceeded", "Read-only file syst
 # numpy's tofile on a full disk: an OSError with no errno
 _SHORT = re.compile(r"^\d+ requested and \d+ written$")
 _COMMIT = threading.Lock()
+# a stream of a process named as a path: /proc/self/fd/1, /proc/<pid>/fd/1, /dev/fd/1
+_FD_PATH = re.compile(r"^/(?:proc/(self|\d+)/fd|dev/fd)/(\d+)$")
+_MAX_LINKS = 40  # as the kernel's ELOOP limit
 _CANCELLED = threading.Event()
 
 
 class Cancelled(KeyboardInterrupt):
     """An output was about to be put in place after the job was cancelled."""
+
+
+class OutputError(InputError):
+    """An output that cannot be written where it was asked for: ``path`` and
+    ``what`` went wrong; :func:`write_errors` names the option in the line."""
+
+    def __init__(self, path: str | os.PathLike, what: str):
+        self.path, self.what = str(path), what
+        super().__init__(f"{path}: {what}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Target:
+    """Where a file output goes.
+
+    Attributes:
+      given: the path as asked for, absolute.
+      path: where it is written: the file a chain of links ends at (or a new
+        name), the device or FIFO to open.
+      kind: ``"file"`` (replaced atomically at ``path``), ``"device"`` (a
+        character device or FIFO, opened and written through) or ``"stream"``
+        (this process's open descriptor ``fd``, written through).
+      fd: the descriptor of a ``"stream"``.
+    """
+
+    given: Path
+    path: Path
+    kind: str
+    fd: int | None = None
+
+
+def _what(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "is a folder; give a file name"
+    if stat.S_ISSOCK(mode):
+        return "is a socket; give a file, a device or a pipe"
+    if stat.S_ISBLK(mode):
+        return "is a block device; give a file, a character device or a pipe"
+    return "is not a file, a device or a pipe"
+
+
+def output_target(path: str | os.PathLike) -> Target:
+    """What the file output ``path`` names, following its links one by one
+    (:class:`Target`); a folder, a socket, a block device or a link loop is
+    refused (:class:`OutputError`). Nothing is opened or created."""
+    given = Path(path).expanduser().absolute()
+    here = given
+    for _ in range(_MAX_LINKS):
+        stream = _FD_PATH.match(str(here))
+        if stream and stream.group(1) in (None, "self", str(os.getpid())):
+            return Target(given, here, "stream", int(stream.group(2)))
+        if stream:  # another process's stream: opened through its path
+            return Target(given, here, "device")
+        if not here.is_symlink():
+            break
+        here = here.parent.resolve() / os.readlink(here)
+    else:
+        raise OutputError(given, "too many levels of links")
+    try:
+        mode = os.stat(here).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return Target(given, here, "file")  # a new name (check_place looks above)
+    except OSError as err:
+        what = f"cannot reach it ({os.strerror(err.errno)})"
+        raise OutputError(given, what) from None
+    if stat.S_ISREG(mode):
+        return Target(given, here, "file")
+    if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):
+        return Target(given, here, "device")
+    raise OutputError(given, _what(mode))
 
 
 def cancel(timeout: float = 5.0) -> None:
@@ -88,7 +175,25 @@ def _reason(err: BaseException) -> str:
     return next((w for w in _WORDS if w in text), text.splitlines()[0] if text else "")
 
 
-def check_place(option: str, path: str | os.PathLike, inside: bool = False) -> Path:
+def _check_through(option: str, path, target: Target) -> None:
+    """A device or stream output: it must be open (a stream) or writable (a
+    device). A FIFO is not opened here: a reader would see its end at once."""
+    if target.kind == "stream":
+        try:
+            os.fstat(target.fd)
+        except OSError:
+            raise InputError(
+                f"{{opt:{option}}} {path}: descriptor {target.fd} is closed"
+            ) from None
+    elif not os.access(target.path, os.W_OK):
+        raise InputError(
+            f"{{opt:{option}}} {path}: cannot write it ({os.strerror(errno.EACCES)})"
+        )
+
+
+def check_place(
+    option: str, path: str | os.PathLike, inside: bool = False, file: bool = False
+) -> Path:
     """Refuse (:class:`InputError`, one line) an output ``path`` that cannot be
     written; returns it absolute.
 
@@ -101,8 +206,21 @@ def check_place(option: str, path: str | os.PathLike, inside: bool = False) -> P
     Args:
       option: the setting that names the output (``out``, ``plot``, ...).
       path: where the output goes (a file or a folder).
+      inside: probe an existing folder at ``path`` too.
+      file: the output is one file (:func:`output_target`): a folder there is
+        refused, a device or a pipe checked for writing instead of its folder,
+        and the folder probed is that of the file a link names.
     """
     target = Path(path).expanduser().absolute()
+    if file:
+        try:
+            named = output_target(target)
+        except OutputError as err:
+            raise InputError(f"{{opt:{option}}} {path}: {err.what}") from None
+        if named.kind != "file":
+            _check_through(option, path, named)
+            return target
+        target = named.path
     folder = target.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
@@ -158,6 +276,10 @@ def write_errors(option: str, path: str | os.PathLike) -> Iterator[None]:
     absl.setLevel(logging.CRITICAL)
     try:
         yield
+    except OutputError as err:
+        if Path(err.path) != target:
+            raise
+        raise InputError(f"{{opt:{option}}} {path}: {err.what}") from None
     except InputError:
         raise
     except Exception as err:
@@ -170,7 +292,8 @@ def write_errors(option: str, path: str | os.PathLike) -> Iterator[None]:
         absl.setLevel(level)
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether the process ``pid`` is running (someone else's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -184,7 +307,7 @@ def _remove_stale(target: Path) -> None:
     """Remove the staged folders beside ``target`` whose process is gone."""
     for stale in target.parent.glob(f".{target.name}.tmp-*"):
         pid = stale.name.rsplit(".tmp-", 1)[1].split("-")[0]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not process_alive(int(pid)):
             shutil.rmtree(stale, ignore_errors=True)
 
 

@@ -19,6 +19,7 @@ import skimage.util
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.images import list_images, read_rgb
+from rhythmic_jax.io.reader import inside
 from rhythmic_jax.progress import bar
 from rhythmic_jax.validate import check_int
 
@@ -143,8 +144,14 @@ def load_aerial_route(
     missing = [p.name for p in files_a if p.name not in names_b]
     if missing:
         raise InputError(f"{folder / 'B' / missing[0]} is missing (it is in A)")
-    pairs = [
-        _pair_tiles(path, folder / "B" / path.name, size, stride, crop)
+    pairs = [  # A/<name> and B/<name> lie inside their folders, links followed
+        _pair_tiles(
+            inside(folder / "A", path.name, "image"),
+            inside(folder / "B", path.name, "image"),
+            size,
+            stride,
+            crop,
+        )
         for path in bar(files_a, show=progress, desc=folder.name)
     ]
     index = [np.full(len(a.tiles), i, np.int64) for i, (a, _) in enumerate(pairs)]

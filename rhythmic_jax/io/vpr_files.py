@@ -35,8 +35,18 @@ from pathlib import Path
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.descriptor_files import read_npy_header
 from rhythmic_jax.io.names import natural_sorted
+from rhythmic_jax.io.reader import (
+    check_budget,
+    inside,
+    load_npy,
+    load_npz,
+    memory_budget,
+    npy_header,
+    open_h5,
+    open_regular,
+    read_h5,
+)
 
 __all__ = [
     "HDF5_SUFFIXES",
@@ -54,31 +64,22 @@ HDF5_SUFFIXES = (".h5", ".hdf5")
 
 def _npy_header(path: Path) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype a ``.npy`` file declares, from its header alone."""
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: file not found")
-    try:
-        with path.open("rb") as f:
-            shape, _, dtype = read_npy_header(f)
-    except OSError as err:
-        raise InputError(f"{path}: cannot read ({err.strerror})") from None
-    except ValueError as err:
-        raise InputError(f"{path}: not a .npy file ({err})") from None
-    return tuple(int(k) for k in shape), dtype
+    head = npy_header(path)  # regular files only; sizes checked
+    return head.shape, head.dtype
 
 
 def _plain_npy(path: Path) -> np.ndarray:
     """A ``.npy`` without Python objects, loaded with ``allow_pickle=False``."""
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as err:
-        raise InputError(f"{path}: unreadable .npy ({err})"[:300]) from None
+    return load_npy(path)
 
 
 def read_image_list(path: str | os.PathLike, root: str | os.PathLike | None = None):
     """An OpenVPRLab ``*_dbImages.npy`` / ``*_qImages.npy``: (n,) image paths.
 
     Paths are resolved against ``root`` (the dataset folder) when given, and
-    must then exist. Returns a list of n :class:`~pathlib.Path`.
+    must then exist inside it. Returns a list of n :class:`~pathlib.Path`.
     """
     path = Path(path)
     shape, dtype = _npy_header(path)
@@ -89,6 +90,8 @@ def read_image_list(path: str | os.PathLike, root: str | os.PathLike | None = No
     names = [str(v) for v in _plain_npy(path).tolist()]
     if root is None:
         return [Path(v) for v in names]
+    for v in names:
+        inside(root, v, "image")  # none leaves the dataset, links followed
     out = [Path(root) / v for v in names]
     missing = [p for p in out if not p.is_file()]
     if missing:
@@ -139,16 +142,15 @@ class _Restricted(pickle.Unpickler):
 def safe_object_npy(path: str | Path) -> np.ndarray:
     """An object-dtype ``.npy`` unpickled through the allowlist (see the module)."""
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            shape, _, dtype = read_npy_header(f)
-            if not dtype.hasobject:
-                return np.load(path, allow_pickle=False)
-            data = f.read()
-    except OSError as err:
-        raise InputError(f"{path}: cannot read ({err.strerror})") from None
-    except ValueError as err:
-        raise InputError(f"{path}: not a .npy file ({err})") from None
+    head = npy_header(path)  # regular files only
+    if not head.dtype.hasobject:
+        return load_npy(path)
+    shape = head.shape
+    with open_regular(path) as f:
+        f.seek(head.offset)
+        data = f.read(memory_budget() + 1)
+    if len(data) > memory_budget():
+        raise InputError(f"{path}: an object array larger than the memory allowed")
     try:
         arr = _Restricted(io.BytesIO(data), str(path)).load()
     except InputError:
@@ -207,29 +209,11 @@ def read_openvprlab_positives(
 
 
 def _npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The named arrays of an ``.npz``, none of them a pickle."""
-    if not path.is_file():
+    """The named arrays of an ``.npz``, none of them a pickle, their sizes
+    checked before any is inflated (:func:`rhythmic_jax.io.reader.load_npz`)."""
+    if not path.exists():
         raise InputError(f"{path}: file not found")
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            missing = [k for k in keys if k not in f.files]
-            if missing:
-                raise InputError(
-                    f"{path}: no array {missing[0]!r} (holds {sorted(f.files)})"
-                )
-            return {k: f[k] for k in keys}
-    except InputError:
-        raise
-    except ValueError as err:
-        if "allow_pickle" in str(err):
-            raise InputError(
-                f"{path}: refused: holds Python objects (a pickle)"
-            ) from None
-        raise InputError(f"{path}: not a readable .npz ({err})"[:300]) from None
-    except (OSError, EOFError, KeyError) as err:
-        raise InputError(f"{path}: not a readable .npz ({err})"[:300]) from None
-    except Exception as err:  # noqa: BLE001 - zipfile errors on a truncated file
-        raise InputError(f"{path}: not a readable .npz ({err!r})"[:300]) from None
+    return load_npz(path, keys)
 
 
 def read_vpr_tutorial(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -304,22 +288,16 @@ def read_hloc_descriptors(
     both); one that selects nothing is refused naming the prefixes present.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: file not found")
-    try:
-        import h5py
-    except ImportError:
-        raise InputError(
-            f"{path}: reading .h5 needs h5py (pip install 'rhythmic-jax[hdf5]')"
-        ) from None
     found: dict[str, np.ndarray] = {}
 
     def visit(name, obj):
-        if isinstance(obj, h5py.Dataset) and name.split("/")[-1] == "global_descriptor":
+        if hasattr(obj, "shape") and name.split("/")[-1] == "global_descriptor":
             found[name.rpartition("/")[0]] = obj
 
     try:
-        with h5py.File(path, "r") as f:
+        with open_h5(path) as f:  # regular file; no link into another file
             f.visititems(visit)
             names = natural_sorted(found)
             if not names:
@@ -332,7 +310,11 @@ def read_hloc_descriptors(
                     f"{path}: global_descriptor datasets must all be (d,) numbers, "
                     f"got shapes {sorted(shapes)[:3]} of kinds {sorted(kinds)}"
                 )
-            x = np.stack([found[k][()] for k in names]).astype(np.float32)
+            shape = next(iter(shapes))
+            need = len(names) * int(np.prod(shape, dtype=object)) * 4
+            check_budget(path, need, f"{len(names)} float32 descriptors of {shape}")
+            x = np.stack([read_h5(found[k], path) for k in names])
+            x = x.astype(np.float32)
     except InputError:
         raise
     except Exception as err:  # noqa: BLE001 - h5py raises OSError, KeyError, ...

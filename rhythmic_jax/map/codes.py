@@ -63,13 +63,20 @@ def code_bytes(n: int, d: int, bits: int) -> dict[str, int]:
     return {"fixed": fixed, "per_place": per_place, "total": fixed + per_place}
 
 
-def check_bits(bits, d: int, name: str = "codes") -> int:
-    """``bits`` as an int in ``[1, d]`` (PCA cannot add dimensions), else one line."""
+def check_bits(bits, d: int, name: str = "codes", n: int | None = None) -> int:
+    """``bits`` as an int in ``[1, d]`` (PCA cannot add dimensions) and, with the
+    ``n`` frames ITQ is fitted on, at most ``n`` (their PCA has no more axes:
+    faiss would stop in ``PCAMatrix::prepare_Ab``); else one line."""
     ok = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
     if not ok or not 1 <= bits <= d:
         raise InputError(
             f"{name} must be a number of bits in [1, d={d}] (ITQ projects the "
             f"{d}-d descriptors to that many dimensions), got {bits!r}"
+        )
+    if n is not None and bits > n:
+        raise InputError(
+            f"{{opt:{name}}} {bits}: at most {n} bits on {n} places (ITQ's PCA "
+            f"of {n} frames has {n} axes); give {n} bits or fewer, or int8"
         )
     return int(bits)
 
@@ -133,8 +140,14 @@ class CodeTransform:
     def d(self) -> int:
         return int(self.projection.shape[1])
 
-    def encode(self, x) -> np.ndarray:
-        """(b, d) descriptors -> (b, bits) bool codes (a jitted matrix product)."""
+    def encode(self, x) -> np.ndarray | jax.Array:
+        """(b, d) descriptors -> (b, bits) bool codes (a jitted matrix product).
+
+        Inside a trace (``jax.jit``, ``jax.vmap``) x is taken as it is and the
+        codes stay traced, so a map with codes decodes under ``jax.jit`` with
+        the eager answer; else x is checked and the codes come to the host."""
+        if isinstance(x, jax.core.Tracer) or isinstance(self.mean, jax.core.Tracer):
+            return _encode(self.mean, self.projection, x)
         x = check_features(x, "descriptors to encode", d=self.d)
         return np.asarray(_encode(self.mean, self.projection, jnp.asarray(x)))
 
@@ -168,9 +181,9 @@ def fit_codes(x, bits: int) -> CodeTransform:
     import faiss  # deferred: queries of a fitted transform need only JAX
 
     x = np.ascontiguousarray(check_features(x, "frames for the codes"), np.float32)
-    bits = check_bits(bits, x.shape[1])
     if len(x) < 2:
         raise InputError(f"codes need at least 2 frames to fit ITQ, got {len(x)}")
+    bits = check_bits(bits, x.shape[1], n=len(x))  # before faiss, which aborts
     itq = faiss.ITQTransform(x.shape[1], bits, True)
     with one_thread():
         itq.train(x)

@@ -34,6 +34,7 @@ __all__ = [
     "embed",
     "embedding_arrays",
     "embedding_bytes",
+    "embedding_descriptor",
     "embedding_from_arrays",
     "fit_invariant",
     "load_embedding",
@@ -163,7 +164,11 @@ def fit_invariant(
     total = len(xs) * n
     p = min(p, total - 1, d)
     if not 1 <= k <= p:
-        raise InputError(f"embedding: k={k} must lie in [1, {p}]")
+        raise InputError(
+            f"embedding: {{opt:k}} {k} must lie in [1, {p}] ({len(xs)} traversals "
+            f"of {n} places give at most {p} principal axes); give {{opt:k}} {p} or "
+            "fewer, or more training places"
+        )
     pca = fit_pca(np.concatenate(xs), p)
     # axes with (numerically) no variance would be whitened by ~1e6: drop them
     var = np.asarray(pca.explained_variance)
@@ -203,6 +208,26 @@ def save_embedding(path, emb: Embedding, meta: dict) -> None:
 
     info = {"kind": "embedding", "head": emb.kind, "d": emb.d, "k": emb.k}
     checkpoint.save_map(path, embedding_arrays(emb), {**meta, **info})
+
+
+def embedding_descriptor(meta: dict) -> tuple[str | None, str | None]:
+    """``(descriptor, weights)`` that frames need to be read the way the
+    embedding's training frames were (from the metadata of :func:`load_embedding`).
+
+    ``descriptor`` is None for an embedding learned on descriptor files
+    (``features``); ``weights`` is None for none or for packaged weights, which
+    the descriptor finds through their package wherever it is installed (the
+    recorded file name is only a name, never a path from the current folder),
+    else the absolute path of the user's file it was learned with.
+    """
+    name = meta.get("descriptor")
+    if name in (None, "features"):
+        return None, None
+    settings = meta.get("descriptor_settings") or {}
+    weights = settings.get("weights")
+    if settings.get("weights_package") or weights is None:
+        return name, None
+    return name, str(weights)
 
 
 def load_embedding(path) -> tuple[Embedding, dict]:

@@ -152,6 +152,7 @@ def load(
     (default :class:`~rhythmic_jax.map.config.MapConfig`) builds its
     configuration. A map built for another descriptor, other settings or another
     d is refused (:class:`InputError`), as is a corrupt one."""
+    from rhythmic_jax.map.checks import check_map
     from rhythmic_jax.map.codes import codebook_from_arrays
     from rhythmic_jax.map.config import MapConfig
     from rhythmic_jax.map.embedding import embedding_from_arrays
@@ -177,7 +178,7 @@ def load(
             else Groups.from_dict(meta["groups"])
         )
         emb = embedding_from_arrays(arrays)
-    except (KeyError, TypeError, ValueError, AttributeError, InputError) as err:
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError) as err:
         raise InputError(f"{path}: corrupt map metadata ({err!r})") from None
     tdim = dim if emb is None else emb.k
     if emb is not None and emb.d != dim:
@@ -211,11 +212,11 @@ def load(
         groups=groups, group_errors=group_errors, c=c, candidates=cands,
         candidate_errors=errors,
     )  # fmt: skip
-    return Map.build(
+    return check_map(Map.build(
         kept, dim, cfg, codebook=codebook, embedding=emb,
         extra={k[6:]: v for k, v in arrays.items() if k.startswith("extra_")},
         reference=reference if isinstance(reference, dict) else {},
-    )  # fmt: skip
+    ), path)  # fmt: skip
 
 
 def _check_queries(path, cfg, dim, descriptor, descriptor_settings, d) -> None:
@@ -249,7 +250,7 @@ def consistent(meta: dict[str, Any], listed: set[str]) -> bool:
         ok = ok and meta["database_bytes"] == n * d * 4
         kind = meta.get("codes_kind") or "itq"
         arrays = {"w", "b"} | (CODE_ARRAYS[kind] if meta["codes_bits"] else set())
-    except (KeyError, TypeError, ValueError, AttributeError):
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError):
         return False
     return ok and all(k in meta for k in INFO_KEYS) and arrays <= listed
 

@@ -117,7 +117,10 @@ def _value(name: str, leaf):
 
 
 def _flatten_config(cfg: MapConfig):
-    leaves = tuple(_leaf(getattr(cfg, name)) for name in DECODE_SETTINGS)
+    leaves = tuple(
+        (jax.tree_util.GetAttrKey(name), _leaf(getattr(cfg, name)))
+        for name in DECODE_SETTINGS
+    )
     rest = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | _NONE
     aux = object.__new__(MapConfig)  # the values are checked already
     aux.__dict__.update(rest)
@@ -133,7 +136,9 @@ def _unflatten_config(aux: MapConfig, leaves) -> MapConfig:
 
 
 # the decode settings are leaves, the fit's configuration and provenance static
-jax.tree_util.register_pytree_node(MapConfig, _flatten_config, _unflatten_config)
+jax.tree_util.register_pytree_with_keys(
+    MapConfig, _flatten_config, _unflatten_config
+)
 
 _STATIC = dict(metadata=dict(static=True))
 

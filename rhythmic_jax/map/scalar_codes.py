@@ -101,8 +101,10 @@ class ScalarCodeBook:
         )
 
     def similarity(self, q) -> jax.Array:
-        """Cosine of each query (b, d) with each decoded place: (b, n) float32."""
-        q = check_features(q, "queries for the codes", d=self.d)
+        """Cosine of each query (b, d) with each decoded place: (b, n) float32
+        (inside a trace, q is taken as it is)."""
+        if not isinstance(q, jax.core.Tracer):
+            q = check_features(q, "queries for the codes", d=self.d)
         return _cosine(
             jnp.asarray(q, jnp.float32),
             jnp.asarray(self.codes),

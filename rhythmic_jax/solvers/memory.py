@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.reader import available_memory
 from rhythmic_jax.solvers.span import in_span
 
 __all__ = [
@@ -108,18 +109,6 @@ def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
     parts["allocator"] = sum(parts.values()) // 4 + SCRATCH_BYTES
     parts["compile"] = COMPILE_BYTES
     return parts
-
-
-def available_memory() -> int:
-    """Bytes available now: ``MemAvailable`` of /proc/meminfo, else physical RAM."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
 def _resident() -> int:

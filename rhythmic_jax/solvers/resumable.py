@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.io.reader import load_npy
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.objective import Templates, targets
 from rhythmic_jax.solvers.optax_loops import TrainState, adam, minibatch_step
@@ -87,6 +88,10 @@ class RunConfig:
 # ------------------------------------------------------------------ checkpoints
 
 
+# a manager's folder opened where tensorstore could not take its name: id -> fd
+_ALIASES: dict[int, int] = {}
+
+
 def _manager(ckpt_dir: Path):
     import orbax.checkpoint as ocp  # deferred: orbax is slow to import
 
@@ -100,7 +105,13 @@ def _manager(ckpt_dir: Path):
         "state": ocp.StandardCheckpointHandler(),
         "config": ocp.JsonCheckpointHandler(),
     }
-    return ocp.CheckpointManager(ckpt_dir, options=options, item_handlers=handlers)
+    from rhythmic_jax.io.checkpoint import orbax_folder
+
+    folder, fd = orbax_folder(ckpt_dir)  # a name tensorstore takes
+    manager = ocp.CheckpointManager(folder, options=options, item_handlers=handlers)
+    if fd is not None:
+        _ALIASES[id(manager)] = fd
+    return manager
 
 
 def _save(manager, state: TrainState, config: RunConfig) -> int:
@@ -286,6 +297,9 @@ def _close(manager) -> None:
         manager.close()
     except Exception as err:  # noqa: BLE001 - orbax raises many kinds
         log.warning("could not close the checkpoint manager cleanly: %s", err)
+    fd = _ALIASES.pop(id(manager), None)
+    if fd is not None:
+        os.close(fd)
 
 
 # -------------------------------------------------------------- streamed batches
@@ -337,11 +351,11 @@ def memmap_batches(
       ``epoch -> sequence of (x (m, d) float32, y (m, p) float32)``.
     """
     path = Path(path)
+    if not path.exists():
+        raise InputError(f"descriptor file not found: {path}")
     try:
-        x = np.load(path, mmap_mode="r", allow_pickle=False)
-    except FileNotFoundError:
-        raise InputError(f"descriptor file not found: {path}") from None
-    except Exception as err:  # noqa: BLE001 - pickles, text, truncation, bad headers
+        x = load_npy(path, mmap=True)  # regular file; the header's rows in the file
+    except InputError as err:
         raise InputError(f"{path}: not a readable .npy array ({err})") from None
     if x.dtype.kind not in "fiu" or x.ndim != 2 or 0 in x.shape:
         raise InputError(

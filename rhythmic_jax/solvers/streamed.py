@@ -54,6 +54,7 @@ import numpy as np
 
 from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.io.frame_files import Frames
+from rhythmic_jax.io.reader import load_npz, npz_headers
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.progress import bar as progress_bar
 from rhythmic_jax.solvers.newton import chunk_width
@@ -271,16 +272,18 @@ def _resume(path, key, theta, done, info, stream, reduce) -> int:
     must hold the same step, or all start afresh."""
     steps = 0
     if path is not None and Path(path).is_file():
-        with np.load(path, allow_pickle=False) as z:
-            if str(z["key"]) == key and z["theta"].shape == theta.shape:
-                theta[...], done[...] = z["theta"], z["done"]
-                info.cg_iterations = [int(v) for v in z["cg"]]
-                info.columns = [int(v) for v in z.get("columns", [])]
-                info.line_passes = [int(v) for v in z.get("line", [])]
-                stream.seconds = [float(v) for v in z["seconds"]]
-                steps = len(info.cg_iterations)
-            else:
-                log.warning("%s: a checkpoint of another fit; starting afresh", path)
+        heads = npz_headers(path)  # the shapes before anything is inflated
+        same = "theta" in heads and heads["theta"].shape == theta.shape
+        z = load_npz(path) if same else {}
+        if same and str(z["key"]) == key:
+            theta[...], done[...] = z["theta"], z["done"]
+            info.cg_iterations = [int(v) for v in z["cg"]]
+            info.columns = [int(v) for v in z.get("columns", [])]
+            info.line_passes = [int(v) for v in z.get("line", [])]
+            stream.seconds = [float(v) for v in z["seconds"]]
+            steps = len(info.cg_iterations)
+        else:
+            log.warning("%s: a checkpoint of another fit; starting afresh", path)
     both = reduce(np.array([steps, steps * steps], np.float64))
     k = reduce(np.ones(1))[0]
     if both[0] * both[0] != k * both[1]:  # not the same step everywhere

@@ -46,10 +46,19 @@ def test_shards_are_described_from_an_image_folder_and_fitted(tmp_path, nordland
     np.testing.assert_allclose(a.candidate_errors, b.candidate_errors, atol=1e-6)
     w1, w2 = np.asarray(b.params.w), np.asarray(a.params.w)
     assert np.linalg.norm(w2 - w1) / np.linalg.norm(w1) < 1e-5
+    # the same images again: the shards described are taken, not refused
     again = _run(work, "fit", "../route", "--out", "again.map", "--shards",
+                 "../route.shards", "--memory", "2GiB")  # fmt: skip
+    assert again.returncode == 0, again.stderr[-3000:]
+    c = RhythmicMap.load(work / "again.map")
+    np.testing.assert_array_equal(np.asarray(c.params.w), w2)
+    # other images into the same folder: one line
+    extra = list_images(nordland_root / "summer", "traversal")[300]
+    (route / extra.name).symlink_to(extra)
+    other = _run(work, "fit", "../route", "--out", "other.map", "--shards",
                  "../route.shards")  # fmt: skip
-    assert again.returncode == 2 and "exists" in again.stderr
-    assert len(again.stderr.strip().splitlines()) == 1
+    assert other.returncode == 2 and "other images" in other.stderr
+    assert len(other.stderr.strip().splitlines()) == 1
 
 
 @pytest.mark.slow

@@ -168,7 +168,7 @@ def hybrid():
     rng = np.random.default_rng(12)
     x = np.cumsum(rng.normal(size=(120, 16)), axis=0).astype(np.float32)
     x /= np.linalg.norm(x, axis=1, keepdims=True)
-    model = rj.RhythmicMap(r=2, level=1, codes=16, decode="soft").fit(x, progress=False)
+    model = rj.RhythmicMap(r=2, level=1, codes=16, method="soft").fit(x, progress=False)
     q = (x + rng.normal(scale=0.05, size=x.shape)).astype(np.float32)
     return model, q
 

@@ -117,3 +117,38 @@ def test_bad_shapes():
     scores, sims = _parts()
     with pytest.raises(InputError, match="code similarities"):
         fused_decode(scores, sims[:, :-1], PERIODS, N)
+
+
+@pytest.mark.parametrize("codes", [16, "int8"])
+def test_a_map_with_codes_decodes_under_jit_as_eager(codes):
+    """``jax.jit(decode)``, ``place_scores`` and ``decode_sequence`` on a map
+    with codes trace (the queries encoded in JAX) and give the eager answer;
+    ``jax.vmap`` over two stacked maps too."""
+    import jax
+
+    import rhythmic_jax as rj
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(120, 32)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    m = rj.fit(x, rj.MapConfig(codes=codes, decode="soft"))
+    q = x[:20] + 0.3 * rng.normal(size=(20, 32)).astype(np.float32) / 6
+    for how in ("soft", "topm") if codes == 16 else ("hard",):  # hard: soft here
+        eager = rj.decode(m, q, how)
+        traced = jax.jit(rj.decode, static_argnums=2)(m, q, how)
+        for a, b in zip(eager, traced, strict=True):
+            np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-6)
+    np.testing.assert_allclose(
+        jax.jit(rj.place_scores)(m, q), rj.place_scores(m, q), rtol=1e-6, atol=1e-6
+    )
+    two = jax.tree.map(lambda a, b: jax.numpy.stack([a, b]), m, m)
+    both = jax.vmap(rj.decode, in_axes=(0, None))(two, q).index
+    np.testing.assert_array_equal(
+        np.asarray(both[1]), np.asarray(rj.decode(m, q).index)
+    )
+    if codes != 16:
+        return
+    eager = rj.decode_sequence(m, q, 5)
+    traced = jax.jit(rj.decode_sequence, static_argnums=2)(m, q, 5)
+    for a, b in zip(eager, traced, strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-6)

@@ -249,7 +249,7 @@ def test_pickled_positions_are_refused_unread(tmp_path):
         with pytest.raises(InputError, match=r"pos\.npy: holds pickled objects"):
             load_ground_truth(specs, n_queries=3, n_places=3, query_source="q")
     (tmp_path / "junk.npy").write_bytes(b"\x93NUMPY not really")
-    with pytest.raises(InputError, match=r"junk\.npy: not a \.npy file"):
+    with pytest.raises(InputError, match=r"junk\.npy is not a valid \.npy file"):
         read_positions(tmp_path / "junk.npy")
     assert not marker.exists()
 

@@ -142,3 +142,35 @@ def test_weights_for_a_map_without_weights_is_refused(tmp_path, frames, capsys):
     path = _map(tmp_path, "patchnorm", settings, 16)
     code, _, err = _run(capsys, "query", path, frames, "--weights", "x.pth")
     assert code == 2 and "--weights: the map's descriptor 'patchnorm' takes no" in err
+
+
+def test_the_packaged_file_is_found_without_torch():
+    """Where the package put the file, by the package's own path function: no
+    network module (nor torch) is imported to find it, from any folder."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from rhythmic_jax.frames.weights import packaged_path; "
+        "p = packaged_path(); print(p.is_file(), p.name, 'torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True,
+                         text=True, cwd="/")  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", packaged_path().name, "False"]
+
+
+def test_an_embedding_names_its_descriptor_and_packaged_weights_by_package():
+    """fit --embedding reads images with the embedding's descriptor: packaged
+    weights by their package (never the recorded file name as a path in the
+    current folder), a user's file by its recorded absolute path."""
+    from rhythmic_jax.map.embedding import embedding_descriptor
+
+    packaged = {"descriptor": "efficientnet_lite0",
+                "descriptor_settings": {**packaged_record(), "block": 10}}  # fmt: skip
+    assert embedding_descriptor(packaged) == ("efficientnet_lite0", None)
+    own = {"descriptor": "vgg16_fc7",
+           "descriptor_settings": {"weights": "/data/vgg.pth", "weights_sha256": "0"}}
+    assert embedding_descriptor(own) == ("vgg16_fc7", "/data/vgg.pth")
+    assert embedding_descriptor({"descriptor": "features"}) == (None, None)
+    assert embedding_descriptor({"descriptor": "patchnorm"}) == ("patchnorm", None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -350,8 +351,25 @@ def test_shards_that_fail_to_write_leave_nothing_that_blocks_a_rerun(
 
     monkeypatch.setattr(describe_shards, "describe_to_shards", real)
     assert main(argv) == 0  # the rerun is not refused
-    assert sorted(p.name for p in shards.iterdir()) == ["00-frames"]
+    assert sorted(p.name for p in shards.iterdir()) == ["00-frames", "shards.json"]
     assert out.is_dir()
+    capsys.readouterr()
+
+    # a fit that failed after describing: the same command takes the shards
+    _fail(monkeypatch, "rhythmic_jax.frames.describe_shards.describe_to_shards",
+          AssertionError("described again"))  # fmt: skip
+    assert main(argv) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["route.shards", "x.map"]
+
+    # other images, or a folder this command did not finish: refused
+    other = tmp_path / "other" / "frames"
+    shutil.copytree(route / "frames", other)
+    (other / "11.png").unlink()
+    assert main([argv[0], str(other), *argv[2:]]) == 2
+    _one_line(capsys, f"--shards {shards}: holds the shards of other images")
+    (shards / "shards.json").unlink()
+    assert main(argv) == 2
+    _one_line(capsys, f"--shards {shards}: exists and holds no shards a finished")
 
 
 CANCEL_MAP = """
@@ -382,3 +400,110 @@ def test_a_cancelled_job_puts_no_map_in_place(tmp_path):
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert got.stdout.split() == ["refused", "first", "6.0"], got.stderr
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".m.map")] == []
+
+
+# ------------------------------------------------ what a file output's path names
+def test_output_target_names_files_devices_streams_and_links(tmp_path):
+    (tmp_path / "f.txt").write_text("x")
+    (tmp_path / "to-f").symlink_to("f.txt")
+    (tmp_path / "to-null").symlink_to(os.devnull)
+    (tmp_path / "loop").symlink_to("loop")
+    target = outputs.output_target
+    assert target(tmp_path / "new.npy").kind == "file"
+    assert target(tmp_path / "to-f").path == tmp_path / "f.txt"
+    assert target(tmp_path / "to-null").kind == "device"
+    assert target("/dev/stdout") == outputs.Target(
+        Path("/dev/stdout"), Path("/proc/self/fd/1"), "stream", 1
+    )
+    assert target("/dev/fd/2").fd == 2
+    with pytest.raises(outputs.OutputError, match="too many levels of links"):
+        target(tmp_path / "loop")
+    with pytest.raises(outputs.OutputError, match="is a folder"):
+        target(tmp_path)
+
+
+def test_check_place_of_a_file_refuses_a_folder_and_checks_a_device(tmp_path):
+    (tmp_path / "pr.png").mkdir()
+    with pytest.raises(InputError) as err:
+        outputs.check_place("plot", tmp_path / "pr.png", file=True)
+    assert err.value.as_flag() == (
+        f"--plot {tmp_path / 'pr.png'}: is a folder; give a file name"
+    )
+    outputs.check_place("plot", tmp_path / "pr.png")  # a folder output: taken
+    assert outputs.check_place("out", os.devnull, file=True) == Path(os.devnull)
+    assert list((tmp_path / "pr.png").iterdir()) == []
+
+
+def test_a_closed_stream_is_refused_before_work():
+    read, write = os.pipe()
+    os.close(write)
+    try:
+        with pytest.raises(InputError, match=f"descriptor {write} is closed"):
+            outputs.check_place("out", f"/dev/fd/{write}", file=True)
+    finally:
+        os.close(read)
+
+
+def test_a_failed_write_through_names_the_option(tmp_path):
+    with pytest.raises(InputError) as err:
+        with outputs.write_errors("out", "/dev/full"):
+            raise outputs.OutputError(
+                Path("/dev/full"), "could not write it (No space left on device)"
+            )
+    assert err.value.as_flag() == (
+        "--out /dev/full: could not write it (No space left on device)"
+    )
+
+
+def test_file_outputs_go_through_devices_and_folders_are_refused_before_work(
+    route, tmp_path, monkeypatch, capsys
+):
+    """query --out /dev/null writes through (the device stays one); evaluate
+    --plot and frontier --csv naming a folder are refused before any map or
+    frame is read."""
+    null = os.stat(os.devnull)
+    m, ref = str(route / "m.map"), str(route / "ref.npy")
+    assert main(["query", m, ref, "--out", os.devnull, "--no-progress"]) == 0
+    assert os.stat(os.devnull).st_mode == null.st_mode
+    assert os.stat(os.devnull).st_rdev == null.st_rdev
+    capsys.readouterr()
+    folder = tmp_path / "pr.png"
+    folder.mkdir()
+    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.RhythmicMap.load", AssertionError())
+    _fail(monkeypatch, "rhythmic_jax.app.frontier.frontier", AssertionError())
+    assert main(["evaluate", m, ref, "--plot", str(folder), "--no-progress"]) == 2
+    _one_line(capsys, f"--plot {folder}: is a folder; give a file name")
+    assert main(["query", m, ref, "--out", str(folder), "--no-progress"]) == 2
+    _one_line(capsys, f"--out {folder}: is a folder")
+    argv = ["frontier", ref, ref, "--csv", str(folder), "--no-progress"]
+    assert main(argv) == 2
+    _one_line(capsys, f"--csv {folder}: is a folder; give a file name")
+    assert list(folder.iterdir()) == []
+
+
+def test_a_full_device_is_one_line_after_the_work(route, capsys):
+    if not Path("/dev/full").exists():
+        pytest.skip("needs /dev/full")
+    argv = ["query", str(route / "m.map"), str(route / "ref.npy"), "--out",
+            "/dev/full", "--no-progress"]  # fmt: skip
+    assert main(argv) == 2
+    _one_line(capsys, "--out /dev/full: could not write it (No space left on device)")
+
+
+def test_fit_out_a_link_to_a_map_replaces_that_map_and_leaves_nothing(
+    route, tmp_path, capsys
+):
+    """The map the link names is replaced (the link kept, as a write through a
+    link to a file), with no hidden backup left beside either."""
+    from rhythmic_jax.io.checkpoint import read_metadata
+
+    shutil.copytree(route / "m.map", tmp_path / "other.map")
+    (tmp_path / "link.map").symlink_to("other.map")
+    before = read_metadata(tmp_path / "other.map")[1]
+    argv = ["fit", str(route / "other.npy"), "--out", str(tmp_path / "link.map"),
+            "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    assert (tmp_path / "link.map").is_symlink()
+    after = read_metadata(tmp_path / "other.map")[1]
+    assert after["digests"] != before["digests"]  # the new map, in the old place
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.map", "other.map"]

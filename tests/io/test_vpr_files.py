@@ -50,6 +50,9 @@ def test_openvprlab_image_lists_resolve_against_the_root(tmp_path):
         (tmp_path / n).write_bytes(b"")
     got = read_image_list(tmp_path / "nord_dbImages.npy", tmp_path)
     assert got == [tmp_path / n for n in names]
+    np.save(tmp_path / "out_dbImages.npy", np.array(["images/db/a.jpg", "../x.jpg"]))
+    with pytest.raises(InputError, match="'../x.jpg' leads outside"):
+        read_image_list(tmp_path / "out_dbImages.npy", tmp_path)
     np.save(tmp_path / "bad_qImages.npy", np.zeros((2, 2)))
     with pytest.raises(InputError, match="1-d array of image paths"):
         read_image_list(tmp_path / "bad_qImages.npy")

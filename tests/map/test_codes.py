@@ -7,6 +7,7 @@ import pytest
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.baselines import itq_storage_bytes
 from rhythmic_jax.map.codes import (
+    CodeBook,
     check_bits,
     code_bytes,
     code_similarity,
@@ -67,3 +68,17 @@ def test_bad_bits_one_line(bad):
     with pytest.raises(InputError) as err:
         check_bits(bad, 48)
     assert "\n" not in str(err.value) and "[1, d=48]" in str(err.value)
+
+
+def test_encode_traces_and_equals_the_eager_codes():
+    """Under ``jax.jit`` the queries are encoded in JAX (projection and sign):
+    the traced codes are the eager ones bit for bit."""
+    import jax
+
+    x = _data(200, 32)
+    book = CodeBook.fit(x, 16)
+    eager = book.transform.encode(x[:50])
+    traced = jax.jit(lambda b, q: b.transform.encode(q))(book, x[:50])
+    np.testing.assert_array_equal(np.asarray(traced), eager)
+    sims = jax.jit(lambda b, q: b.similarity(q))(book, x[:50])
+    np.testing.assert_array_equal(np.asarray(sims), np.asarray(book.similarity(x[:50])))

@@ -57,7 +57,7 @@ def test_maps_keep_their_dtype_on_disk_and_most_of_their_accuracy(route, tmp_pat
         assert back.info()["storage_bytes"] == m.storage_bytes
         np.testing.assert_array_equal(back.predict(route), m.predict(route))
     with pytest.raises(InputError, match="dtype"):
-        RhythmicMap(dtype="float64")
+        RhythmicMap(dtype="float64").fit(route[:100], progress=False)
     direct = RhythmicMap(r=2, gap=1e-3, dtype="int8").fit(route[:100], progress=False)
     assert direct.info()["config"]["dtype"] == "int8"
     assert direct.storage_bytes == template_bytes(sum(direct.periods), 32, "int8")

@@ -1,0 +1,121 @@
+"""What :class:`~rhythmic_jax.rhythmic_map.RhythmicMap` takes as scikit-learn's
+estimator contract asks: frames refused in its words, place labels, scaling.
+
+scikit-learn's checks (``sklearn.utils.estimator_checks``) expect an
+estimator's refusals to say certain things: a 1-d array "Reshape your data", no
+features "0 feature(s) (shape=...) while a minimum of 1 is required", a query of
+another width "X has k features, but RhythmicMap is expecting d features as
+input", an object array holding a non-number a ``TypeError`` ("argument must be
+a string or a real number"). :func:`shape_checked` says them, in one
+:class:`~rhythmic_jax.errors.InputError` line that also keeps this package's
+words, before :func:`rhythmic_jax.validate.check_features` checks the values.
+
+Place labels ``y`` (:func:`place_labels`) may be any integers >= 0 (whole
+floats too); the estimator numbers its places in their order. Features not of
+order one (:func:`not_of_order_one`) are refused by the fit, or standardized
+per feature (:func:`standardize`, :func:`standardized`) where the estimator's
+``scale`` says so.
+
+Shapes: n frames, b queries, d features.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import check_fit_scale, is_sparse, scale_sums
+
+__all__ = [
+    "SCALES",
+    "SCALE_KEYS",
+    "NotNumbersError",
+    "not_of_order_one",
+    "place_labels",
+    "shape_checked",
+    "standardize",
+    "standardized",
+]
+
+SCALES = ("refuse", "standardize", "auto")  # what a fit does with unscaled features
+SCALE_KEYS = ("scale_mean", "scale_std")  # kept in the map's extra arrays
+
+
+class NotNumbersError(InputError, TypeError):
+    """An object array holding something that is not a number (a TypeError,
+    as numpy's conversion raises it, and this package's one-line error)."""
+
+
+def shape_checked(X, name: str, d: int | None = None):
+    """X as it is, refused in scikit-learn's words where its shape (when it has
+    one) is 1-d, has no features or not ``d`` of them; numbers held as Python
+    objects become float64."""
+    if isinstance(X, np.ndarray) and X.dtype == object:
+        try:
+            X = X.astype(np.float64)
+        except (TypeError, ValueError) as err:
+            raise NotNumbersError(
+                f"{name}: expected numbers, got an object array ({err})"
+            ) from None
+    shape = getattr(X, "shape", None)
+    if shape is None or is_sparse(X):
+        return X
+    if len(shape) == 1:
+        raise InputError(
+            f"{name}: expected a 2-D array (frames x features), got shape {shape}; "
+            "Reshape your data: X.reshape(1, -1) for one frame"
+        )
+    if len(shape) == 2 and shape[1] == 0:
+        raise InputError(
+            f"{name}: 0 feature(s) (shape={shape}) while a minimum of 1 is required: "
+            "an empty array"
+        )
+    if d is not None and len(shape) == 2 and shape[1] != d:
+        raise InputError(
+            f"{name}: {shape[1]}-d features but the map was built for {d}-d (X has "
+            f"{shape[1]} features, but RhythmicMap is expecting {d} features as input)"
+        )
+    return X
+
+
+def place_labels(y, n: int) -> np.ndarray:
+    """Place labels ``y`` (n,) as int64 >= 0 (whole floats taken), else one line."""
+    lab = np.asarray(y)
+    if lab.shape != (n,):
+        raise InputError(f"y: expected {n} place labels, got shape {lab.shape}")
+    whole = np.issubdtype(lab.dtype, np.integer)
+    if not whole and np.issubdtype(lab.dtype, np.floating):
+        whole = bool(np.isfinite(lab).all() and (lab == np.round(lab)).all())
+    if not whole or (lab.size and lab.min() < 0):
+        raise InputError(
+            f"y: place labels must be integers >= 0, got dtype {lab.dtype} "
+            "(Unknown label type otherwise)"
+        )
+    return lab.astype(np.int64)
+
+
+def not_of_order_one(x: np.ndarray) -> bool:
+    """True for frames x (n, d) that a fit refuses as not of order one
+    (:func:`rhythmic_jax.validate.check_fit_scale`: a mean frame far from the
+    origin, as unscaled 8-bit descriptors have)."""
+    try:
+        check_fit_scale(scale_sums(x), float(np.abs(x).max()))
+    except InputError:
+        return True
+    return False
+
+
+def standardize(x: np.ndarray) -> dict[str, np.ndarray]:
+    """``scale_mean`` and ``scale_std`` (d,) float32 of frames x (n, d): each
+    feature's mean and standard deviation (1 where it is constant), computed in
+    float64."""
+    mean, std = x.mean(axis=0, dtype=np.float64), x.std(axis=0, dtype=np.float64)
+    std = np.where(std > 0, std, 1.0)
+    return dict(scale_mean=mean.astype(np.float32), scale_std=std.astype(np.float32))
+
+
+def standardized(x: np.ndarray, extra: dict) -> np.ndarray:
+    """Frames x (b, d) standardized by ``extra``'s ``scale_mean`` and ``scale_std``:
+    ``(x - mean) / std``, float32."""
+    mean, std = (np.asarray(extra[k], np.float32) for k in SCALE_KEYS)
+    return (x - mean[None, :]) / std[None, :]
