@@ -1,10 +1,11 @@
 """The one harness of the benchmark scripts.
 
-A script defines ``options(ap)``, ``run(args) -> dict`` (the measurements) and
-``markdown(report) -> str``, and ends with ``main(__doc__, run, markdown, options,
-stem="...")``: common options, threads pinned to one per core, the machine and load
-recorded, then ``<stem>.json`` and ``<stem>.md`` written (``--render [JSON]``: the
-Markdown again from a report). Also: the timer, a command in a fresh process, the
+A script groups the reports of one theme as :class:`Part` s (``run(args) -> dict``,
+the measurements; ``markdown(report) -> str`` through the one renderer,
+:func:`render`; ``options(ap)``), and ends with ``main(__doc__, PARTS)``: a
+subcommand a part, common options, threads pinned to one per core, the machine and
+load recorded, then ``<stem>.json`` and ``<stem>.md`` written (``--render [JSON]``:
+the Markdown again from a report). Also: the timer, a command in a fresh process, the
 Nordland and aerial features and the cache of fitted maps.
 """
 
@@ -309,35 +310,6 @@ def plain(obj):
     return float(obj) if isinstance(obj, np.floating) else obj
 
 
-def header(title: str, report: dict) -> list[str]:
-    """A report's title and its paragraph on the command, machine and load; a
-    report older than the harness's record of these says which it lacks."""
-    env, load = report.get("environment") or {}, report.get("load_average")
-    text, lacks = [], []
-    if report.get("command"):
-        text.append(f"Command: `{report['command']}`.")
-    else:
-        lacks.append("the command")
-    if "devices" in env:
-        text.append(f"Devices {env['devices']}, {env['cores']} cores; threads"
-                    f" {env['threads']} (XLA: one per core).")  # fmt: skip
-    else:
-        lacks.append("the devices, cores and threads")
-    if isinstance(load, dict):
-        text.append(f"Load average (1, 5, 15 min) at start {load['start']}, at end"
-                    f" {load['end']}: the machine is shared, so the times are"
-                    " pessimistic.")  # fmt: skip
-    else:
-        lacks.append("the load average at start and end")
-    if env.get("commit"):
-        text.append(f"Commit {env['commit']}.")
-    if lacks:
-        text.append("Not recorded (the report predates the harness's record of"
-                    f" them): {'; '.join(lacks)}; its JSON holds what it"
-                    " kept.")  # fmt: skip
-    return [f"# {title}", "", " ".join(text), ""]
-
-
 def table(headers: Sequence[str], rows: Sequence[Sequence[object]], align=None) -> str:
     """A Markdown table; numbers right-aligned, text left-aligned, unless ``align``
     says: ``l`` or ``r`` per column, ``l`` where it stops."""
@@ -357,6 +329,43 @@ def _cell(v: object) -> str:
     return str(v)
 
 
+def header(title: str, report: dict) -> list[str]:
+    """A report's title and its paragraph on the command, machine and load; a
+    report older than the harness's record of these says which it lacks."""
+    env, load = report.get("environment") or {}, report.get("load_average")
+    text, lacks = [], []
+    if report.get("command"):
+        text.append(f"Command: `{report['command']}`.")
+    else:
+        lacks.append("the command")
+    if "devices" in env:
+        text.append(f"Devices {env['devices']}, {env.get('cores', env.get('cpus'))}"
+                    f" cores; threads {env.get('threads')} (XLA: one per core).")
+    else:
+        lacks.append("the devices, cores and threads")
+    if isinstance(load, dict):
+        text.append(f"Load average (1, 5, 15 min) at start {load['start']}, at end"
+                    f" {load['end']}: the machine is shared, so the times are"
+                    " pessimistic.")  # fmt: skip
+    else:
+        lacks.append("the load average at start and end")
+    if env.get("commit"):
+        text.append(f"Commit {env['commit']}.")
+    if lacks:
+        text.append("Not recorded (the report predates the harness's record of"
+                    f" them): {'; '.join(lacks)}; its JSON holds what it"
+                    " kept.")  # fmt: skip
+    return [f"# {title}", "", " ".join(text), ""]
+
+
+def render(title: str, report: dict, *blocks) -> str:
+    """The one renderer of a report's JSON to Markdown: the title, the paragraph
+    of :func:`header`, then each block, a paragraph (str), a table ``(headers,
+    rows[, align])`` (:func:`table`) or nothing (None, ""), a blank line apart."""
+    parts = [b if isinstance(b, str) else table(*b) for b in blocks if b]
+    return "\n".join(header(title, report)) + "\n" + "\n\n".join(parts)
+
+
 def _write(path: Path, text: str) -> None:
     from rhythmic_jax.io.atomic import write_file
 
@@ -371,9 +380,23 @@ def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> N
     print(md)
 
 
-def parser(doc: str) -> argparse.ArgumentParser:
-    """The options every script takes."""
-    ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
+@dataclasses.dataclass(frozen=True)
+class Part:
+    """One report a script measures: ``run(args) -> dict`` (the measurements),
+    ``markdown(report) -> str`` (by :func:`render`), ``options(ap)``, the report's
+    ``stem``, the options ``--quick`` sets, ``refresh(report, args)`` (brings a
+    report read by ``--render`` up to date) and the Markdown's own stem."""
+
+    run: Callable
+    markdown: Callable
+    options: Callable | None = None
+    stem: str = "report"
+    quick: dict | None = None
+    refresh: Callable | None = None
+    md_stem: str | None = None
+
+
+def _common(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
     ap.add_argument("--root", type=Path, default=DATA, help="shared data folder")
     ap.add_argument("--out", type=Path, default=REPO / "reports", help="reports")
     ap.add_argument("--quick", action="store_true", help="the smallest settings")
@@ -384,45 +407,66 @@ def parser(doc: str) -> argparse.ArgumentParser:
     return ap
 
 
-def main(doc: str, run: Callable, markdown: Callable, options=None, stem="report",
-         argv=None, refresh=None, md_stem=None, quick=None):  # fmt: skip
-    """Parse, record the machine, ``run(args)``, write and print the report; return
-    it. ``--quick`` sets the options in ``quick`` left at their defaults and names
-    the report ``<stem>_quick``. ``run`` may set ``args.stem`` (the report's name)
-    and return None (nothing to write). ``refresh(report, args)`` updates the report
-    ``--render`` read from ``args.render`` before it is rendered."""
-    ap = parser(doc)
-    if options:
-        options(ap)
+def parser(doc: str, parts: dict[str, Part] | None = None):
+    """The options every script takes; with several ``parts``, one subcommand
+    each (``script.py PART [options]``), with its own options too."""
+    ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
+    if not parts or len(parts) == 1:
+        for part in (parts or {}).values():
+            if part.options:
+                part.options(ap)
+        return _common(ap)
+    sub = ap.add_subparsers(dest="part", required=True, metavar="PART")
+    ap.parts = {}  # each part's parser, for its defaults
+    for name, part in parts.items():
+        text = (part.run.__doc__ or name).strip().splitlines()[0]
+        ap.parts[name] = _common(sub.add_parser(name, help=text, description=text))
+        if part.options:
+            part.options(ap.parts[name])
+    return ap
+
+
+def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
+         refresh=None, md_stem=None, quick=None):  # fmt: skip
+    """Parse, record the machine, run the part, write and print its report; return
+    it. ``run``: a dict of :class:`Part` by subcommand, or one part's ``run`` (the
+    other arguments: its fields). ``--quick`` sets the options in ``quick`` left at
+    their defaults and names the report ``<stem>_quick``. ``run`` may set
+    ``args.stem`` (the report's name) and return None (nothing to write)."""
+    parts = run if isinstance(run, dict) else {
+        "": Part(run, markdown, options, stem, quick, refresh, md_stem)}  # fmt: skip
+    ap = parser(doc, parts)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
-    args.stem = f"{stem}_quick" if args.quick else stem
-    md_stem = md_stem and md_stem + ("_quick" if args.quick else "")
-    for key, value in (quick or {}).items() if args.quick else ():
-        if getattr(args, key) == ap.get_default(key):
+    name = getattr(args, "part", None) or next(iter(parts))
+    part, own = parts[name], getattr(ap, "parts", {}).get(name, ap)
+    args.stem = f"{part.stem}_quick" if args.quick else part.stem
+    md_stem = part.md_stem and part.md_stem + ("_quick" if args.quick else "")
+    for key, value in (part.quick or {}).items() if args.quick else ():
+        if getattr(args, key) == own.get_default(key):
             setattr(args, key, value)
     if args.render is not None:
         if not args.render.name:
             args.render = args.out / f"{args.stem}.json"
         report = json.loads(args.render.read_text())
-        if refresh:
-            refresh(report, args)
-        md = markdown(report)
+        if part.refresh:
+            part.refresh(report, args)
+        md = part.markdown(report)
         write_report(args.render.parent, args.render.stem, report, md, md_stem)
         return report
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
     env, load0, t0 = machine(set_threads(cores())), load_average(), time.time()
     log.info("environment %s", env)
-    script = Path(sys.modules[run.__module__].__file__ or "script").name
-    out = run(args)
+    script = Path(sys.modules[part.run.__module__].__file__ or "script").name
+    out = part.run(args)
     if out is None:
         return None
     report = dict(command=" ".join(["python", f"scripts/{script}", *argv]),
                   environment=env, load_average=dict(start=load0, end=load_average()),
                   wall_seconds=time.time() - t0)  # fmt: skip
     report = plain(report | out)
-    write_report(args.out, args.stem, report, markdown(report), md_stem)
+    write_report(args.out, args.stem, report, part.markdown(report), md_stem)
     return report
 
 

@@ -1,14 +1,20 @@
-"""Compiling against solving: XLA programs, compile seconds and wall per job, cold and
-warm compile cache, this checkout against a baseline one.
+"""Compiling and starting, by part: XLA programs, compile seconds and wall per job,
+cold and warm compile cache, this checkout against a baseline one; start-up time of
+``import rhythmic_jax``, ``rhythmic-jax --help`` and ``info``.
 
-    python scripts/bench_compile.py --base DIR [--jobs fit,nordland,demo,jpeg]
-    python scripts/bench_compile.py --base DIR --small   (a quick check)
+    python scripts/bench_compile.py jobs --base DIR [--jobs fit,nordland,demo,jpeg]
+    python scripts/bench_compile.py jobs --base DIR --small   (a quick check)
     python scripts/_harness.py bench_compile count_fit '[1000, 256]'   (one fit)
+    python scripts/bench_compile.py startup --before /tmp/before --repeats 7
+
+The package is imported inside the functions: a job's process imports this module,
+and its imports count in its wall time.
 """
 
 import json
 import runpy
 import shutil
+import statistics
 import sys
 import tempfile
 import time
@@ -17,7 +23,8 @@ from pathlib import Path
 import _harness as h
 import numpy as np
 
-HEAD = ["job", "variant", "programs", "compiled", "hits", "compile s", "wall s", "load"]
+HEAD_JOBS = ["job", "variant", "programs", "compiled", "hits", "compile s", "wall s",
+             "load"]  # fmt: skip
 
 
 def route(n: int, d: int, seed: int = 0) -> np.ndarray:
@@ -84,15 +91,18 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     return time.perf_counter() - t
 
 
-def options(ap) -> None:
-    ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
+def options_jobs(ap) -> None:
+    ap.add_argument("--base", type=Path, help="baseline checkout (to measure)")
     ap.add_argument("--jobs", default="imports,fit,nordland,demo,jpeg")
     ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
     ap.add_argument("--rounds", type=int, default=1, help="base, cold, warm, repeated:"
                     " each target then takes the median of the rounds")  # fmt: skip
 
 
-def run(args) -> dict:
+def run_jobs(args) -> dict:
+    """XLA programs, compile and wall seconds per job (compile)."""
+    if args.base is None:
+        raise SystemExit("--base (a baseline checkout) is needed to measure")
     from bench_frames import make_folders
 
     args.small = args.small or args.quick
@@ -209,15 +219,15 @@ def targets(report: dict) -> list[list]:
     return out
 
 
-def markdown(report: dict) -> str:
+def markdown_jobs(report: dict) -> str:
     keys = "job variant programs compiled hits compile_s wall load".split()
     agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
              for k, v in report["agreement"].items()]  # fmt: skip
     s = report["sizes"]
     rows = [r | {"variant": f"{r['variant']}, round {r['round'] + 1}"} if "round" in r
             else r for r in report["rows"]]  # fmt: skip
-    title = "Compiling: XLA programs, compile seconds and wall per job"
-    return "\n".join(h.header(title, report)) + "\n" + "\n\n".join([
+    return h.render(
+        "Compiling: XLA programs, compile seconds and wall per job", report,
         f"Baseline checkout {report['base']} (no compile cache) against this one, cold"
         " (empty compile cache) and warm (the cache the cold run left). Each job is a"
         " fresh process, both checkouts' Python bytecode compiled before the first."
@@ -225,14 +235,107 @@ def markdown(report: dict) -> str:
         " persistent cache; compile s: their seconds (loads included); load: 1-minute"
         f" load average after the job. Sizes: fit {s['fit'][0]} x {s['fit'][1]},"
         f" Nordland patchnorm {s['nordland']} x 2048, {s['jpegs']} JPEGs (Lite0).",
-        h.table(HEAD, [[r[k] for k in keys] for r in rows]),
+        (HEAD_JOBS, [[r[k] for k in keys] for r in rows]),
         "Targets (the imports row is the floor under any fit's wall: a process that"
         " imports what a fit needs and exits, doing no work):",
-        h.table(["target", "at most", "measured", ""], targets(report)),
+        (["target", "at most", "measured", ""], targets(report)),
         "Maps against the baseline's (same periods; share of equal predictions):",
-        h.table(["fit", "periods equal", "predictions equal"], agree),
-    ])  # fmt: skip
+        (["fit", "periods equal", "predictions equal"], agree),
+    )  # fmt: skip
 
+
+HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
+QUICK_STARTUP = dict(repeats=1)  # --quick
+SCRIPT = shutil.which("rhythmic-jax") or "rhythmic-jax"
+
+
+# Run in a bare interpreter (no harness, so no numpy of its own): the heavy
+# packages that ``import rhythmic_jax`` or the command line with argv loads.
+PROBE = """import contextlib, runpy, sys
+argv = {argv!r}
+if argv == ["import"]:
+    import rhythmic_jax
+else:
+    sys.argv = ["rhythmic-jax", *argv]
+    with contextlib.suppress(SystemExit):
+        runpy.run_module({cli}, run_name="__main__")
+print("LOADED", *(m for m in {heavy!r} if m in sys.modules))"""
+
+
+def loaded(checkout: Path, cmd: list[str]) -> list[str]:
+    """The heavy packages a command loads (run once with the probe)."""
+    argv = ["import"] if cmd[0] == sys.executable else cmd[1:]
+    code = PROBE.format(argv=argv, heavy=HEAVY, cli=h.CLI_MODULE)
+    out = h.child([sys.executable, "-c", code], checkout, check=False)["stdout"]
+    last = [line for line in out.splitlines() if line.startswith("LOADED")]
+    return last[-1].split()[1:] if last else ["(probe failed)"]
+
+
+def fit_map(folder: Path) -> Path:
+    """A 600-frame, 64-d map fitted with this checkout's command line."""
+    x = np.random.default_rng(0).standard_normal((600, 64)).astype(np.float32)
+    np.save(folder / "ref.npy", x / np.linalg.norm(x, axis=1, keepdims=True))
+    cmd = [SCRIPT, "fit", str(folder / "ref.npy"), "--out", str(folder / "route.map")]
+    h.child([*cmd, "--no-progress"], h.REPO)
+    return folder / "route.map"
+
+
+def markdown_startup(report: dict) -> str:
+    versions, rows = report["versions"], []
+    text = (
+        f"Each command in a fresh process (each checkout compiled to bytecode first),"
+        f" wall seconds, median of "
+        f"{report['repeats']} runs taken in turns ({', '.join(versions)}). Targets "
+        "on an idle machine: `--help` under 1 s, `info` under 2 s."
+    )
+    for name, by_version in report["seconds"].items():
+        med = [statistics.median(by_version[v]) for v in versions]
+        ratio = [f"{med[0] / med[1]:.2f}x"] if len(versions) == 2 else []
+        heavy = [", ".join(report["loaded"][name][v]) or "-" for v in versions]
+        rows.append([name, *med, *ratio, *heavy])
+    heads = ["command", *(f"{v} (s)" for v in versions)]
+    if len(versions) == 2:
+        heads.append(f"{versions[0]} / {versions[1]}")
+    heads += [f"heavy packages loaded, {v}" for v in versions]
+    return h.render("Start-up time: import, --help, info", report, text, (heads, rows))
+
+
+def options_startup(ap) -> None:
+    ap.add_argument("--before", type=Path, default=None, help="checkout to compare")
+    ap.add_argument("--repeats", type=int, default=5)
+
+
+def run_startup(args) -> dict:
+    """Start-up time: import, --help, info (startup)."""
+    checkouts = {"this": h.REPO}
+    if args.before is not None:
+        checkouts = {"before": args.before.resolve(), "after": h.REPO}
+    h.bytecode(*checkouts.values())
+    with tempfile.TemporaryDirectory() as tmp:
+        route = fit_map(Path(tmp))
+        cmds = {
+            "import rhythmic_jax": [sys.executable, "-c", "import rhythmic_jax"],
+            "rhythmic-jax --help": [SCRIPT, "--help"],
+            "rhythmic-jax info MAP": [SCRIPT, "info", str(route)],
+        }
+        seconds = {name: {v: [] for v in checkouts} for name in cmds}
+        loads = {name: {v: loaded(path, cmd) for v, path in checkouts.items()}
+                 for name, cmd in cmds.items()}  # fmt: skip
+        for i in range(args.repeats):
+            for name, cmd in cmds.items():
+                for v, path in checkouts.items():
+                    seconds[name][v].append(h.child(cmd, path)["wall"])
+            h.log.info("turn %d of %d done", i + 1, args.repeats)
+    return dict(versions=list(checkouts), repeats=args.repeats, seconds=seconds,
+                checkouts={v: str(p) for v, p in checkouts.items()},
+                loaded=loads)  # fmt: skip
+
+
+PARTS = {
+    "jobs": h.Part(run_jobs, markdown_jobs, options_jobs, "compile"),
+    "startup": h.Part(run_startup, markdown_startup, options_startup, "startup",
+                      QUICK_STARTUP),  # fmt: skip
+}
 
 if __name__ == "__main__":
-    h.main(__doc__, run, markdown, options, stem="compile")
+    h.main(__doc__, PARTS)

@@ -1,25 +1,35 @@
-"""Frames per second from images, end to end: this checkout against a baseline one.
+"""Frames, by part: frames per second from images end to end against a baseline
+checkout, the augmented training pipeline, the descriptor network by batch size,
+the descriptors on Nordland, and the augmentations alone.
 
-python scripts/bench_frames.py --base /tmp/base [--repeats 2]
+python scripts/bench_frames.py end-to-end --base /tmp/base [--repeats 2]  # frames
+python scripts/bench_frames.py pipeline [--frames 1024] [--descriptor patchnorm]
+python scripts/bench_frames.py network [--batches 1 2 4 8 16 32 64] [--frames 512]
+python scripts/bench_frames.py descriptors      # reports/descriptors.*
+python scripts/bench_frames.py augment          # reports/augment.*
+
+The package is imported inside the functions: ``end-to-end`` runs this module's
+:func:`augmented` in a baseline checkout too, whose layout may differ.
 """
 
 import json
+import os
 import shutil
+import statistics
 import tempfile
+import time
 from pathlib import Path
 
 import _harness as h
 import numpy as np
 
 PARTIAL = Path(tempfile.gettempdir()) / "bench_frames_partial.json"
-QUICK = dict(frames=100, repeats=1, aug_frames=130)  # --quick
+QUICK_FRAMES = dict(frames=100, repeats=1, aug_frames=130)  # --quick
 
 
 def augmented(root: str, frames: int, names: str) -> dict:
     """An augmented job's process, in either checkout: one epoch over ``frames``
     Nordland frames with Lite0 (``none``: no augmentation) and its frames/s."""
-    from bench_pipeline import epochs, library
-
     _, features, images, _ = library()
     x = images.nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
     desc = features.get_descriptor("efficientnet_lite0")
@@ -57,8 +67,8 @@ def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
     return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
-def options(ap) -> None:
-    ap.add_argument("--base", type=Path, required=True, help="baseline checkout")
+def options_frames(ap) -> None:
+    ap.add_argument("--base", type=Path, help="baseline checkout (to measure)")
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--aug-frames", type=int, default=256)
@@ -87,7 +97,10 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
             "efficientnet_lite0", "--no-progress"]  # fmt: skip
 
 
-def run(args) -> dict:
+def run_frames(args) -> dict:
+    """Frames/s from images end to end against a baseline (frames)."""
+    if args.base is None:
+        raise SystemExit("--base (a baseline checkout) is needed to measure")
     paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
     h.bytecode(*paths.values())
     jobs = ["fit", "query", "fit100"]
@@ -128,7 +141,7 @@ def run(args) -> dict:
         repeats=args.repeats, build_compiled=dict(wall=built["wall"], cpu=built["cpu"]),
         prediction_agreement=agree, prediction_within_2=within, runs=runs,
     )  # fmt: skip
-    report["summary"] = summary(report)
+    report["summary"] = summary_frames(report)
     return report
 
 
@@ -142,7 +155,7 @@ TARGETS = {
 }
 
 
-def summary(report: dict) -> dict:
+def summary_frames(report: dict) -> dict:
     """Per job: each checkout's median wall, CPU and frames/s; speedup, target."""
     out = {}
     for job, by in report["runs"].items():
@@ -158,7 +171,7 @@ def summary(report: dict) -> dict:
     return out
 
 
-def markdown(report: dict) -> str:
+def markdown_frames(report: dict) -> str:
     s = report["summary"]
     rows = [
         [job, s[job]["base"]["wall"], s[job]["new"]["wall"],
@@ -171,8 +184,8 @@ def markdown(report: dict) -> str:
     loads = [r["load"] for by in report["runs"].values() for rs in by.values()
              for r in rs]  # fmt: skip
     within = report["prediction_within_2"]  # query within 2 frames of the true place
-    return "\n".join([
-        *h.header("Frames per second from images, end to end", report),
+    return h.render(
+        "Frames per second from images, end to end", report,
         f"Baseline checkout {report['base']} run interleaved with this one in"
         " the same process tree (CPU seconds count the work). Medians of"
         f" {report['repeats']} runs; every job starts with an empty descriptor"
@@ -180,12 +193,9 @@ def markdown(report: dict) -> str:
         f" built before (it took {report['build_compiled']['wall']:.0f} s wall in"
         " this run, in a 100-frame `--compile always` fit) and a first 1000-frame"
         " fit and query filled the compile cache; each job starts from a copy.",
-        "",
-        h.table(["job", "base wall s", "new wall s", "base frames/s",
-               "new frames/s", "base CPU s", "new CPU s", "new / base frames/s",
-               "base / new CPU s", "target (on frames/s)"],
-              rows),  # fmt: skip
-        "",
+        (["job", "base wall s", "new wall s", "base frames/s", "new frames/s",
+          "base CPU s", "new CPU s", "new / base frames/s", "base / new CPU s",
+          "target (on frames/s)"], rows),
         "Jobs: a fresh `python -m rhythmic_jax.app.cli` of each checkout; `fit` and "
         "`query`"
         f" on {report['frames']} 640x320 JPEG frames (efficientnet_lite0); `fit100` on"
@@ -198,8 +208,377 @@ def markdown(report: dict) -> str:
         " other periods; winter queries on a summer map are the appearance change"
         " reports/cross_condition.md is about). 1-minute load average at the end of"
         f" each job: {min(loads):.1f} to {max(loads):.1f} (2 cores).",
-    ])  # fmt: skip
+    )  # fmt: skip
 
+
+def library() -> tuple:
+    """The augmented fit's modules (stream, features, images, newton) here, or in a
+    baseline checkout's flat layout (``bench_frames.py`` runs them in either)."""
+    try:
+        from rhythmic_jax.augment import stream
+        from rhythmic_jax.frames import features
+        from rhythmic_jax.io import images
+        from rhythmic_jax.solvers import newton
+    except ImportError:
+        from rhythmic_jax import augmented as stream
+        from rhythmic_jax import data as images
+        from rhythmic_jax import features, newton
+    return stream, features, images, newton
+
+
+def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
+    """One augmented epoch over ``images`` per variant (augmentation names; ``none``:
+    describe and step only) from the clean fit, after a warm-up epoch (it compiles
+    the optax step): each epoch's seconds by part, and its wall."""
+    from rhythmic_jax.map.periods import candidate_periods
+    from rhythmic_jax.solvers.objective import default_c, targets
+
+    (stream, features, _, newton), n = library(), len(images)
+    clean = features.cached_describe(images, desc, key=key, progress=False)
+    periods, c, labels = candidate_periods(n, 2, 1, 7), default_c(n), np.arange(n)
+    init, _ = newton.newton_fit(clean, targets(labels, periods), c, progress=False)
+    plain = stream.AugmentedFit(names=("hflip",), p=0.0, epochs=1)
+
+    def fit(x, cfg):
+        m = len(x)
+        args = x, clean[:m], labels[:m], periods, init, c, desc, cfg
+        return stream.fit_augmented(*args, progress=False)[1]
+
+    fit(images[:128], plain)
+    out = []
+    for names in variants:
+        settings = {"elastic_impl": elastic}
+        cfg = stream.AugmentedFit(names=names, epochs=1, augment_settings=settings)
+        tm, wall, _ = h.timed(fit, images, plain if names == ("none",) else cfg)
+        out.append(dict(tm, wall=wall))
+    return out
+
+
+def options_pipeline(ap) -> None:
+    ap.add_argument("--frames", type=int, default=1024)
+    ap.add_argument("--descriptor", default="patchnorm")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--elastic", default="coarse", choices=("kornia", "coarse"))
+
+
+def run_pipeline(args) -> dict:
+    """Frames/s of the augmented training pipeline (pipeline)."""
+    import torch
+
+    from rhythmic_jax.augment.kornia_ops import NAMES
+    from rhythmic_jax.frames.features import get_descriptor
+    from rhythmic_jax.map.periods import candidate_periods
+
+    torch.set_num_threads(args.threads)
+    variants = [("none",), *((k,) for k in NAMES), ("all",)]
+    if args.quick:
+        args.frames, variants = min(args.frames, 160), [("none",), ("hflip",)]
+    own = "" if args.descriptor == "patchnorm" else "_" + args.descriptor
+    args.stem = "pipeline" + own + ("_quick" if args.quick else "")
+    (summer,) = h.nordland_images(args.root, ("summer",))
+    images, desc = summer.images[: args.frames], get_descriptor(args.descriptor)
+    n, load0, rows = len(images), h.load_average(), []
+    times = epochs(images, desc, f"nordland-summer-{n}", variants, args.elastic)
+    for names, tm in zip(variants, times, strict=True):
+        # n augmented frames: half the epoch's frames, so half its step time
+        fps = n / (tm["augment"] + tm["describe"] + tm["step"] / 2)
+        rows.append(dict(augmentation=names[0], frames_per_s=fps,
+                         augment_s=tm["augment"], describe_s=tm["describe"],
+                         step_s=tm["step"], wall_s=tm["wall"]))  # fmt: skip
+    for r in rows:
+        r["ratio_to_plain"] = r["frames_per_s"] / rows[0]["frames_per_s"]
+    return dict(descriptor=desc.settings() | {"name": args.descriptor}, frames=n,
+                templates=sum(candidate_periods(n, 2, 1, 7)),
+                torch_threads=torch.get_num_threads(), loadavg_start=load0,
+                loadavg_end=h.load_average(), rows=rows)  # fmt: skip
+
+
+def markdown_pipeline(r: dict) -> str:
+    rows = [[x["augmentation"], round(x["frames_per_s"]), f"{x['ratio_to_plain']:.2f}",
+             f"{x['augment_s']:.2f}", f"{x['describe_s']:.2f}", f"{x['step_s']:.2f}"]
+            for x in r["rows"]]  # fmt: skip
+    return h.render(
+        "Augmented training pipeline", r,
+        f"{r['frames']} Nordland frames, {r['descriptor']['name']} at its native"
+        f" size, {r['templates']} templates, {r['torch_threads']} torch threads."
+        " Frames/s counts augmented frames through augmentation, descriptor, DLPack"
+        " and the optax step (the step time of the augmented half of each epoch"
+        " taken as half the epoch's step time).",
+        (["augmentation", "frames/s", "x plain", "augment s", "describe s",
+          "JAX step s"], rows),
+    )  # fmt: skip
+
+
+HEAD_NETWORK = ["batch", "eager best f/s", "eager median f/s", "compiled best f/s",
+        "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
+        "max rel diff"]  # fmt: skip
+QUICK_NETWORK = dict(batches=[8], frames=64, repeats=1)  # --quick
+
+
+def frames_per_s(run, x, repeats: int) -> dict:
+    """Best and median frames/s of ``run`` over ``x`` (m, 3, h, w), and CPU/wall."""
+    run(x[: 2 * max(1, len(x) // 64)])  # warm-up
+    walls, cpus = zip(*(h.timed(run, x)[1:] for _ in range(repeats)), strict=True)
+    best = int(np.argmin(walls))
+    return dict(best=len(x) / walls[best], median=len(x) / float(np.median(walls)),
+                cpu_per_wall=cpus[best] / walls[best])  # fmt: skip
+
+
+def options_network(ap) -> None:
+    ap.add_argument("--batches", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
+    ap.add_argument("--frames", type=int, default=512)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--block", type=int, default=10)
+
+
+def run_network(args) -> dict:
+    """The descriptor network's frames/s by batch size (network)."""
+    import torch
+
+    from rhythmic_jax.frames import compiled
+    from rhythmic_jax.frames.features import get_descriptor
+    from rhythmic_jax.frames.pipeline import _to_batch
+
+    desc = get_descriptor("efficientnet_lite0", block=args.block)
+    images = h.nordland_images(args.root, ("summer",))[0].images[: args.frames]
+    with torch.inference_mode():
+        x, net = desc.prepare(_to_batch(images)), desc.network().eval()
+        reference, rows = net(x[:64]).numpy(), []
+        with tempfile.TemporaryDirectory(prefix="bench_network") as cache:
+            for b in args.batches:
+                eager = frames_per_s(compiled.Sliced(net, b), x, args.repeats)
+                shape = (b, 3, desc.height, desc.width)
+                fn, build, _ = h.timed(compiled._compiled, desc, shape, cache)
+                if fn is None:
+                    raise RuntimeError("the network could not be compiled here")
+                run = compiled._chunked(fn, b)
+                fast = frames_per_s(run, x, args.repeats)
+                diff = np.linalg.norm(run(x[:64]).numpy() - reference, axis=1).max()
+                row = dict(batch=b, eager=eager, compiled=fast, build_s=build,
+                           max_rel_diff=float(diff))  # fmt: skip
+                h.log.info("%s", row)
+                rows.append(row)
+    return dict(descriptor=desc.name,
+                settings=dict(block=args.block, width=desc.width, height=desc.height),
+                frames=len(x), repeats=args.repeats, job_batch=compiled.COMPILE_BATCH,
+                job_eager_batch=compiled.EAGER_BATCH, rows=rows)  # fmt: skip
+
+
+def markdown_network(report: dict) -> str:
+    s = report["settings"]
+    rows = [
+        [r["batch"], r["eager"]["best"], r["eager"]["median"],
+         r["compiled"]["best"], r["compiled"]["median"],
+         f"{r['compiled']['best'] / r['eager']['best']:.2f}x",
+         r["compiled"]["cpu_per_wall"], r["build_s"], f"{r['max_rel_diff']:.1e}"]
+        for r in report["rows"]
+    ]  # fmt: skip
+    best = max(report["rows"], key=lambda r: r["compiled"]["best"])
+    eager = max(report["rows"], key=lambda r: r["eager"]["best"])
+    by = {r["batch"]: r for r in report["rows"]}
+    job, job_eager = report["job_batch"], report.get("job_eager_batch")
+    jobs = job in by and (
+        f"Jobs run the compiled network in batches of {job}"
+        f" (`rhythmic_jax.frames.compiled.COMPILE_BATCH`,"
+        f" {by[job]['compiled']['best']:.0f} frames/s here)"
+        + (f" and the eager one in batches of {job_eager} (`EAGER_BATCH`,"
+           f" {by[job_eager]['eager']['best']:.0f} frames/s)" if job_eager in by
+           else "") + ".")  # fmt: skip
+    return h.render(
+        "The descriptor network's frames/s by batch size", report,
+        f"{report['descriptor']} block {s['block']} at {s['width']}x{s['height']},"
+        f" {report['frames']} Nordland frames prepared once (channels-last), each"
+        f" figure the best (and median) of {report['repeats']} passes after a"
+        " warm-up call. Compiled: an AOTInductor package built for that batch"
+        " (weights frozen), the last chunk padded; eager: the module called on"
+        " slices of that many frames. The rows are unit vectors, so the last"
+        " column is the largest relative difference of compiled against eager.",
+        (HEAD_NETWORK, rows),
+        f"Fastest compiled: batch {best['batch']} at"
+        f" {best['compiled']['best']:.0f} frames/s; fastest eager: batch"
+        f" {eager['batch']} at {eager['eager']['best']:.0f} frames/s.", jobs,
+    )  # fmt: skip
+
+
+# (row label, registry name, settings)
+DESCRIPTORS = (
+    ("patchnorm 64x32", "patchnorm", {}),
+    ("hog 64x32", "hog", {}),
+    ("efficientnet_lite0 b10 224x112", "efficientnet_lite0", {}),
+    ("efficientnet_lite0 b10 224x224", "efficientnet_lite0", {"height": 224}),
+)
+PCA_OF = "efficientnet_lite0 b10 224x112"
+
+
+def recall_at_1(queries: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    """Unit-norm rows; ground truth is the same index. (exact, within +-1)."""
+    err = np.abs(np.argmax(queries @ reference.T, axis=1) - np.arange(len(queries)))
+    return float(np.mean(err == 0)), float(np.mean(err <= 1))
+
+
+def run_descriptors(args) -> dict:
+    """Descriptors on Nordland, winter against summer (descriptors)."""
+    import torch
+
+    from rhythmic_jax.frames.features import cached_describe, describe, get_descriptor
+    from rhythmic_jax.map.projection import fit_pca, project
+
+    torch.set_num_threads(args.threads)
+    trav = h.nordland_images(args.root, progress=args.progress)
+    summer, winter = (t.images for t in trav)
+    if args.quick:
+        summer, winter = summer[:300], winter[:300]
+        args.timing_frames = min(args.timing_frames, 32)
+    timing = np.concatenate([summer[::20], winter[::20]])[: args.timing_frames]
+    h.log.info("summer %s, winter %s, timing on %d frames", summer.shape, winter.shape,
+             len(timing))  # fmt: skip
+    rows, kept = [], {}
+    kw = dict(cache_dir=args.cache_dir, batch_size=args.batch_size)
+    for label, name, settings in DESCRIPTORS[:1] if args.quick else DESCRIPTORS:
+        d = get_descriptor(name, **settings)
+        key = "nordland64x32-" + (f"first{len(summer)}-" if args.quick else "")
+        ref = cached_describe(summer, d, key + "summer", progress=args.progress, **kw)
+        qry = cached_describe(winter, d, key + "winter", progress=args.progress, **kw)
+        exact, tol1 = recall_at_1(qry, ref)
+        describe(timing[: args.batch_size], d, args.batch_size)  # warm-up
+        fps = len(timing) / h.timed(describe, timing, d, args.batch_size)[1]
+        rows.append(dict(descriptor=label, name=name, settings=d.settings(), dim=d.dim,
+                         recall_at_1=exact, recall_at_1_tol1=tol1,
+                         frames_per_s=fps))  # fmt: skip
+        h.log.info("%s: recall@1 %.4f (+-1: %.4f), %.1f frames/s", label, exact, tol1,
+                 fps)  # fmt: skip
+        kept[label] = (ref, qry, fps)
+    ref, qry, fps = kept.get(PCA_OF) or next(iter(kept.values()))
+    args.pca_dim = min(args.pca_dim, ref.shape[1] // 2, len(ref) - 1)
+    pca, fit_s, _ = h.timed(fit_pca, ref, args.pca_dim)
+    qp, rp = (np.asarray(project(pca, x, normalize=True)) for x in (qry, ref))
+    exact, tol1 = recall_at_1(qp, rp)
+    of = PCA_OF if PCA_OF in kept else next(iter(kept))
+    settings = dict(of=of, k=args.pca_dim, fit_on="summer", fit_s=round(fit_s, 2))
+    rows.append(dict(descriptor=f"PCA-{args.pca_dim} of {of}", name="pca",
+                     settings=settings, dim=args.pca_dim, recall_at_1=exact,
+                     recall_at_1_tol1=tol1, frames_per_s=fps))  # fmt: skip
+    h.log.info("PCA-%d: recall@1 %.4f (+-1: %.4f), fit %.1f s", args.pca_dim, exact,
+             tol1, fit_s)  # fmt: skip
+    return dict(dataset="nordland_64x32: winter queries vs summer map",
+                n_reference=len(summer), n_queries=len(winter),
+                metric="cosine, brute force", timing_frames=len(timing),
+                torch_threads=args.threads, results=rows)  # fmt: skip
+
+
+def markdown_descriptors(report: dict) -> str:
+    rows = [[r["descriptor"], r["dim"], f"{r['recall_at_1']:.4f}",
+             f"{r['recall_at_1_tol1']:.4f}", f"{r['frames_per_s']:.1f}"]
+            for r in report["results"]]  # fmt: skip
+    title = "Descriptors on Nordland 64x32 (winter queries vs summer map)"
+    # a report older than the harness kept its torch threads in "environment"
+    threads = report.get("torch_threads") or report["environment"]["threads"]
+    frames = report.get("timing_frames")
+    timed = f" on {frames} frames" if frames else " (frames timed: not recorded)"
+    return h.render(
+        title, report,
+        "Brute-force cosine nearest neighbour; recall@1 counts the exact index,"
+        f" (±1) a neighbour within one index. Frames/s{timed}, {threads} torch"
+        " threads (other work on the machine slows these).",
+        (["descriptor", "dim", "recall@1", "recall@1 (±1)", "frames/s"], rows),
+    )  # fmt: skip
+
+
+def options_descriptors(ap) -> None:
+    ap.add_argument("--cache-dir", type=Path, default=None)
+    ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--batch-size", type=int, default=64)
+    ap.add_argument("--timing-frames", type=int, default=256)
+    ap.add_argument("--pca-dim", type=int, default=512)
+
+
+SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
+QUICK_AUGMENT = dict(batch=8, repeats=1)  # --quick
+
+
+def augment_cases() -> list[tuple]:
+    """(label, config) of every timed pipeline."""
+    from rhythmic_jax.augment.kornia_ops import NAMES, AugmentConfig
+
+    coarse = dict(elastic_impl="coarse")
+    return [(name, AugmentConfig((name,), p=1.0)) for name in NAMES] + [
+        ("elastic (coarse)", AugmentConfig(("elastic",), 1.0, **coarse)),
+        ("all seven (kornia elastic)", AugmentConfig(("all",), p=1.0)),
+        ("all seven (coarse elastic)", AugmentConfig(("all",), 1.0, **coarse)),
+    ]
+
+
+def time_augment(batch, config, repeats: int, min_s=0.2) -> list[float]:
+    """Seconds per call of ``augment`` on ``batch``, one per repeat."""
+    from rhythmic_jax.augment.kornia_ops import augment
+
+    start = time.perf_counter()
+    augment(batch, config, seed=0)  # warm-up, also sizes the inner loop
+    calls = max(1, round(min_s / (time.perf_counter() - start)))
+    times = []
+    for r in range(repeats):
+        start = time.perf_counter()
+        for i in range(calls):
+            augment(batch, config, seed=1 + r * calls + i)
+        times.append((time.perf_counter() - start) / calls)
+    return times
+
+
+def options_augment(ap) -> None:
+    ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--threads", type=int, nargs="+", default=[2])
+
+
+def run_augment(args) -> dict:
+    """Frames/s of each augmentation and of all seven (augment)."""
+    import torch
+
+    generator, rows = torch.Generator().manual_seed(0), []
+    for threads in args.threads:
+        torch.set_num_threads(threads)
+        for height, w in SIZES[:1] if args.quick else SIZES:
+            batch = torch.rand(args.batch, 3, height, w, generator=generator)
+            for label, config in augment_cases():
+                times = time_augment(batch, config, args.repeats)
+                fps, median = args.batch / min(times), statistics.median(times)
+                row = dict(op=label, size=f"{w}x{height}", threads=threads,
+                           fps_best=fps)  # fmt: skip
+                rows.append(row | dict(fps_median=args.batch / median))
+                print(f"{threads}t {w}x{height:<4} {label:<28} {fps:9.0f} frames/s")
+    return dict(batch=args.batch, repeats=args.repeats, torch_threads=args.threads,
+                rows=rows)  # fmt: skip
+
+
+def markdown_augment(report: dict) -> str:
+    """One table per thread count: a row per operation, a column per size."""
+    sizes = list(dict.fromkeys(r["size"] for r in report["rows"]))
+    ops = list(dict.fromkeys(r["op"] for r in report["rows"]))
+    cell = "{fps_best:.0f} ({fps_median:.0f})"
+    fps = {(r["threads"], r["op"], r["size"]): cell.format(**r) for r in report["rows"]}
+    blocks = [
+        block for threads in report["torch_threads"] for block in (
+            f"## {threads} torch thread{'s' if threads > 1 else ''}",
+            (["operation", *sizes], [[op, *(fps[threads, op, s] for s in sizes)]
+                                     for op in ops], ""))]  # fmt: skip
+    return h.render(
+        "Augmentation throughput (frames/s, CPU)", report,
+        f"Batch {report['batch']}, p = 1, best (median) of {report['repeats']} runs"
+        " of >= 0.2 s.", *blocks,
+    )  # fmt: skip
+
+
+PARTS = {
+    "end-to-end": h.Part(run_frames, markdown_frames, options_frames, "frames",
+                         QUICK_FRAMES),  # fmt: skip
+    "pipeline": h.Part(run_pipeline, markdown_pipeline, options_pipeline, "pipeline"),
+    "network": h.Part(run_network, markdown_network, options_network, "network",
+                      QUICK_NETWORK),  # fmt: skip
+    "descriptors": h.Part(run_descriptors, markdown_descriptors, options_descriptors,
+                          "descriptors"),  # fmt: skip
+    "augment": h.Part(run_augment, markdown_augment, options_augment, "augment",
+                      QUICK_AUGMENT),  # fmt: skip
+}
 
 if __name__ == "__main__":
-    h.main(__doc__, run, markdown, options, stem="frames", quick=QUICK)
+    h.main(__doc__, PARTS)

@@ -18,7 +18,7 @@ from pathlib import Path
 import _harness as h
 import jax
 import numpy as np
-from _harness import header, log, main, nordland_features, table, timed
+from _harness import log, main, nordland_features, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
@@ -99,69 +99,47 @@ def run_on(device, summer, winter, args) -> dict:
 
 def markdown(report: dict) -> str:
     gpu, cpu = report["gpu"], report["cpu"]
-    name = gpu["kind"] if gpu else "no GPU"
-    lines = header("JAX on a GPU against the same machine's CPU", report)
+    name, n, d = gpu["kind"] if gpu else "no GPU", report["n"], report["d"]
     synthetic = "walk_f16" in report["features"]  # --quick without --features
-    source = "Synthetic route frames" if synthetic else "Nordland summer patchnorm"
-    if not gpu:
-        lines += ["**No GPU was found: a CPU rehearsal, not the GPU report.**", ""]
 
-    def pick(side, key, sub):
-        value = side[key]
-        for part in sub if isinstance(sub, tuple) else () if sub is None else (sub,):
-            value = value[str(part)]
-        return value
-
-    def row(label, key, sub=None):
-        g, c = ("-" if not s else pick(s, key, sub) for s in (gpu, cpu))
+    def row(label, key, *sub):
+        g, c = ("-" if not s else s[key] for s in (gpu, cpu))
+        for part in sub:
+            g, c = (v if v == "-" else v[str(part)] for v in (g, c))
         return [label, g, c, c / g if gpu and isinstance(g, float) and g > 0 else "-"]
 
     rows = [row("first fit, compile included (s)", "fit_first_s"),
-            row("second fit, same shapes (s)", "fit_second_s")]  # fmt: skip
-    rows += [row(f"predict {b} queries, first call (s)", "predict_s", b)
-             for b in report["batches"]]  # fmt: skip
-    rows += [row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
-             row(f"soft sequence decode L = {report['length']}, warm (s)",
-                 "sequence_s")]  # fmt: skip
-    for n in report["fit_sizes"]:
-        rows += [row(f"fit {n:,} x {report['d']}, 3 candidates, first (s)",
-                     "fits_first_s", n),
-                 row(f"fit {n:,} x {report['d']}, 3 candidates, warm (s)",
-                     "fits_s", n)]  # fmt: skip
+            row("second fit, same shapes (s)", "fit_second_s"),
+            *(row(f"predict {b} queries, first call (s)", "predict_s", b)
+              for b in report["batches"]),
+            row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
+            row(f"soft sequence decode L = {report['length']}, warm (s)",
+                "sequence_s")]  # fmt: skip
+    for k in report["fit_sizes"]:
+        rows += [row(f"fit {k:,} x {d}, 3 candidates, {when} (s)", key, k)
+                 for when, key in (("first", "fits_first_s"), ("warm", "fits_s"))]
     for run in ("cold", "warm"):
-        cache = "empty compile cache" if run == "cold" else "compile cache warm"
-        rows += [row(f"fresh process, {cache}: first fit (s)", "fresh",
-                     (run, "fit_first_s"))]  # fmt: skip
-        rows += [
-            row(
-                f"fresh process, {cache}: first predict {b} (s)",
-                "fresh",
-                (run, "predict_first_s", str(b)),
-            )
-            for b in report["batches"]
-        ]
-        rows += [row(f"fresh process, {cache}: `rhythmic-jax demo{report['demo']}`"
-                     " (s)", "fresh", (run, "demo_s"))]  # fmt: skip
-    lines += [
-        f"{source} {report['n']} x {report['d']}"
-        f" (`{report['features']}`); GPU: {name}; CPU: {cpu['device']}.",
-        "",
+        fresh = "fresh process, " + ("empty compile cache" if run == "cold" else
+                                     "compile cache warm")  # fmt: skip
+        rows += [row(f"{fresh}: first fit (s)", "fresh", run, "fit_first_s"),
+                 *(row(f"{fresh}: first predict {b} (s)", "fresh", run,
+                       "predict_first_s", b) for b in report["batches"]),
+                 row(f"{fresh}: `rhythmic-jax demo{report['demo']}` (s)", "fresh",
+                     run, "demo_s")]  # fmt: skip
+    return h.render(
+        "JAX on a GPU against the same machine's CPU", report,
+        not gpu and "**No GPU was found: a CPU rehearsal, not the GPU report.**",
+        f"{'Synthetic route frames' if synthetic else 'Nordland summer patchnorm'}"
+        f" {n} x {d} (`{report['features']}`); GPU: {name}; CPU: {cpu['device']}.",
         f"Compile options: {report['compile_options']}. Fresh processes: one per"
         " row group, JAX's persistent compile cache empty (cold) or filled by the"
         " cold process (warm).",
-        "",
-        table(["step", f"GPU ({name})", "CPU", "CPU / GPU"], rows),
-        "",
-    ]
-    if gpu:
-        lines.append(
-            f"Predictions equal to the CPU's: self-query {report['equal_self']:.4f},"
-            f" winter {report['equal_winter']:.4f} (self-query recall@1 "
-            f"{gpu['self_recall']:.3f} GPU, {cpu['self_recall']:.3f} CPU)."
-        )
-    else:
-        lines.append(f"CPU self-query recall@1 {cpu['self_recall']:.3f}.")
-    return "\n".join(lines)
+        (["step", f"GPU ({name})", "CPU", "CPU / GPU"], rows),
+        f"Predictions equal to the CPU's: self-query {report['equal_self']:.4f},"
+        f" winter {report['equal_winter']:.4f} (self-query recall@1"
+        f" {gpu['self_recall']:.3f} GPU, {cpu['self_recall']:.3f} CPU)." if gpu else
+        f"CPU self-query recall@1 {cpu['self_recall']:.3f}.",
+    )  # fmt: skip
 
 
 def options(ap) -> None:
@@ -211,5 +189,7 @@ def run(args) -> dict | None:
     return report | results
 
 
+PARTS = {"": h.Part(run, markdown, options, "gpu", QUICK)}  # one part: no subcommand
+
 if __name__ == "__main__":
-    main(__doc__, run, markdown, options, stem="gpu", quick=QUICK)
+    main(__doc__, PARTS)

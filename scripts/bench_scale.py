@@ -1,8 +1,12 @@
-"""Growth from real fits: storage, time, passes and memory against N, d, r, processes.
+"""Scale, by part: growth from real fits (storage, time, passes and memory against N,
+d, r, processes), the streamed Newton-CG's preconditioner and compacted passes, and
+the memory estimate of a full-batch fit against its measured peak.
 
-python scripts/bench_scale.py --quick          # a small grid (minutes)
-python scripts/bench_scale.py --budget 3000 --probe 1000000   # at nice 19
-python scripts/bench_scale.py --budget 0 --full 1000000 --full-work /tmp/f
+python scripts/bench_scale.py grid --quick          # a small grid (minutes)
+python scripts/bench_scale.py grid --budget 3000 --probe 1000000   # at nice 19
+python scripts/bench_scale.py grid --budget 0 --full 1000000 --full-work /tmp/f
+python scripts/bench_scale.py streamed [--repeats 2] [--walk-frames 100000]
+python scripts/bench_scale.py memory [--shapes 1000x64 3000x128 ...] [--repeats 2]
 """
 
 import itertools
@@ -10,10 +14,12 @@ import json
 import math
 import os
 import resource
+import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
-import _harness as bc
+import _harness as h
 import numpy as np
 
 from rhythmic_jax import RhythmicMap
@@ -25,6 +31,10 @@ from rhythmic_jax.map.periods import (
     nominal_periods,
     pairwise_coprime,
 )
+from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
+from rhythmic_jax.solvers.newton import newton_fit
+from rhythmic_jax.solvers.objective import default_c, targets
+from rhythmic_jax.solvers.streamed import FAST_STREAM, streamed_newton_fit
 
 NICE = 19  # the machine is shared: every fit runs at this niceness (idle CPU only)
 CELLS = Path("~/.cache/rhythmic_jax/bench_scale").expanduser()
@@ -80,7 +90,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         options = ["--r", str(r)]
     options += ["--processes", str(procs)] if procs > 1 else []
     options += ["--stream", "--memory", memory] if mode == "stream" else []
-    fit = bc.child(fit_command(x_path, out, *options), cwd=Path.cwd())
+    fit = h.child(fit_command(x_path, out, *options), cwd=Path.cwd())
     models, frames = dtypes(RhythmicMap.load(out)), open_frames(x_path)
     info = fitted(fit["stdout"])
     run = info.get("fit") or {}
@@ -95,7 +105,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         block_rows=run.get("block_rows"), nice=os.nice(0),
         accuracy={t: accuracy(m, frames, n) for t, m in models.items()},
     )  # fmt: skip
-    bc.log.info("%s", row)
+    h.log.info("%s", row)
     return row
 
 
@@ -192,9 +202,8 @@ def _allows(s: dict) -> str:
     return f"{s['rule_low']:.3f} .. {s['rule_high']:.3f}"
 
 
-def markdown(report: dict) -> str:
-    lines = bc.header("Growth from real fits (--gap 1e-3)", report)
-    lines += [
+def markdown_grid(report: dict) -> str:
+    lines = [
         "Every fit ran niced beside other jobs (load above): the times are pessimistic."
         f" Niceness {report['nices']} (each cell's in the JSON; at 19 a fit takes only"
         f" CPU no one else wants). Cells were measured between {report['cells_from']}"
@@ -217,7 +226,7 @@ def markdown(report: dict) -> str:
         for r in report["rows"]
     ]  # fmt: skip
     lines += [
-        bc.table(head, rows),
+        h.table(head, rows),
         "",
         "Storage slopes (log bytes on log N; one process, in memory, or"
         " streamed at an N the memory guard refuses in memory):",
@@ -229,7 +238,7 @@ def markdown(report: dict) -> str:
          _num(s.get("slope_from_10k"), 4), _allows(s)]
         for s in report["slopes"]
     ]  # fmt: skip
-    lines.append(bc.table(SLOPES, slopes))
+    lines.append(h.table(SLOPES, slopes))
     for sl in report["slopes"]:
         pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
         pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
@@ -237,20 +246,11 @@ def markdown(report: dict) -> str:
         lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule (paper, Sec. III-B) lets the training errors "
-              "choose r co-prime periods among ceil(N^(1/r)) + {0..6}, so the summed"
-              " periods, and the bytes, lie between the least and the largest valid"
-              " set's sum at every N: r N^(1/r) up to r (N^(1/r) + 6). Over a short"
-              " range of N, or from N where 6 is a large share of N^(1/r) (10 at N ="
-              " 1,000, r = 3), the errors' choice moves the fitted slope further than"
-              " 0.05 either way; the column 'the rule allows' gives the least and the"
-              " largest fitted slope that the rule permits over the series' N (any"
-              " choice of periods at each N). The slope tends to 1/r as N grows, where"
-              " 6 becomes a small share of N^(1/r). Rule 'least' fixes the"
-              " least-storage co-prime set of the same candidates before training (no"
-              " search): its bytes follow r N^(1/r) to within the rounding up to"
-              " co-prime integers, and the column gives that set's slope; the accuracy"
-              " columns say what the errors' choice buys over it."]  # fmt: skip
+    lines += ["", "The candidate rule lets the training errors choose r co-prime"
+              " periods among ceil(N^(1/r)) + {0..6}: 'the rule allows' gives the"
+              " least and largest fitted slope any such choice gives over the series'"
+              " N; rule 'least' fixes the least-storage set before training, and the"
+              " column its slope (docs/SCALE.md)."]  # fmt: skip
     acc = [r["accuracy"] for r in report["rows"]]
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
@@ -265,7 +265,7 @@ def markdown(report: dict) -> str:
         lines += ["", "Not measured (time budget or --skip, or failed as said): "
                   + ", ".join(report["missing"])]  # fmt: skip
     lines += ["", "Figures: " + ", ".join(report["figures"])]
-    return "\n".join(lines)
+    return h.render("Growth from real fits (--gap 1e-3)", report, "\n".join(lines))
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -308,7 +308,7 @@ def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> P
             part = np.lib.format.open_memmap(partial, "w+", np.float32, (n, d))
             walk(n, d, out=part).flush()
         else:
-            np.save(partial, bc.nordland_features(root, seasons=("summer",))[0][:n])
+            np.save(partial, h.nordland_features(root, seasons=("summer",))[0][:n])
         os.replace(partial, path)
     return path
 
@@ -344,9 +344,9 @@ def full(args) -> dict:
     cmd = fit_command(path, out, *options)
     if not out.exists():
         start = time.strftime("%H:%M UTC", time.gmtime())
-        r = bc.child(cmd, cwd=Path.cwd(), check=False)
+        r = h.child(cmd, cwd=Path.cwd(), check=False)
         res = dict(rc=r["rc"], seconds=r["wall"], peak=r["peak"], out=r["stdout"],
-                   start=start, load=bc.load_average())  # fmt: skip
+                   start=start, load=h.load_average())  # fmt: skip
         with open(attempts, "a") as fh:
             fh.write(json.dumps(res) + "\n")
         if res["rc"] != 0:
@@ -372,8 +372,8 @@ def full(args) -> dict:
                kinds={k: float(np.median(v)) for k, v in kinds.items() if v},
                group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
                candidates=list(plan(MapConfig(r=3), n, 1).candidates),
-               code=bc.git_commit())  # fmt: skip
-    saved.write_text(json.dumps(bc.plain(row)))
+               code=h.git_commit())  # fmt: skip
+    saved.write_text(json.dumps(h.plain(row)))
     return row
 
 
@@ -429,10 +429,10 @@ def probe(args) -> dict:
     if saved.exists():
         return json.loads(saved.read_text())
     path = frames_file(args.full_work / f"walk-{n}-256.npy", n)
-    res = bc.call(passes, str(path), memory, periods)
+    res = h.call(passes, str(path), memory, periods)
     out = res["result"] | dict(
         peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
-        load=bc.load_average(), nice=NICE,
+        load=h.load_average(), nice=NICE,
         measured=time.strftime("%H:%M UTC", time.gmtime()),
     )  # fmt: skip
     saved.write_text(json.dumps(out))
@@ -491,11 +491,11 @@ def probe_lines(p: dict) -> list[str]:
         " each includes its kernel's compilation). A CG pass from the kept"
         " curvature makes one product with the frames instead of two:",
         "",
-        bc.table(["periods", "templates", "rows / block", *kinds], rows),
+        h.table(["periods", "templates", "rows / block", *kinds], rows),
     ]
 
 
-def options(ap) -> None:
+def options_grid(ap) -> None:
     ap.add_argument("--budget", type=float, default=1200.0, help="seconds in all")
     ap.add_argument("--memory", default="1GiB", help="memory bound of stream cells")
     ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
@@ -508,7 +508,8 @@ def options(ap) -> None:
                     help="scratch folder of the full fit (features, map)")  # fmt: skip
 
 
-def run(args) -> dict:
+def run_grid(args) -> dict:
+    """Growth from real fits against N, d, r, processes (scale)."""
     os.nice(max(0, NICE - os.nice(0)))  # this process and every fit it starts
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
@@ -531,14 +532,14 @@ def run(args) -> dict:
         try:
             row = one(cell, x_path, args.cells, args.memory)
         except RuntimeError as err:
-            bc.log.warning("%s failed: %s", name, err)
+            h.log.warning("%s failed: %s", name, err)
             reason = str(err).strip().splitlines()[-1][-300:]
             failed.write_text(reason)
             missing.append(f"{name} (failed: {reason})")
             continue
         row.update(measured=time.strftime("%H:%M UTC", time.gmtime()),
-                   load=bc.load_average())  # fmt: skip
-        saved.write_text(json.dumps(bc.plain(row)))
+                   load=h.load_average())  # fmt: skip
+        saved.write_text(json.dumps(h.plain(row)))
         rows.append(row)
     report, stamps = {}, [r["measured"] for r in rows]
     for what, n, measure in (
@@ -549,7 +550,7 @@ def run(args) -> dict:
             if n:
                 report[what.split()[0]] = measure(args)
         except RuntimeError as err:
-            bc.log.warning("%s failed: %s", what, err)
+            h.log.warning("%s failed: %s", what, err)
             missing.append(f"{what} N={n} (failed)")
     loads = [r["load"][0] for r in rows] or [0]
     nices = [r.get("nice", 10) for r in rows]
@@ -565,5 +566,195 @@ def run(args) -> dict:
     return report
 
 
+BLOCK_ROWS = 4096
+SETTINGS = (
+    ("Jacobi, every template", dict(spectral_rank=0, compact=False)),
+    ("spectral, every template", dict(compact=False)),
+    ("spectral, compacted", dict(compact=True)),
+)
+QUICK_STREAMED = dict(repeats=1, walk_frames=5000, walk_periods="17,18,19")  # --quick
+
+
+def run_case(name, path: Path, periods, repeats: int) -> dict:
+    """Every setting in turns on the frames in ``path``; the case's record."""
+    frames = open_frames(path)
+    labels, c = np.arange(frames.n), default_c(frames.n)
+    y = targets(labels, periods)
+    (_, ref), ref_s, _ = h.timed(lambda: newton_fit(frames.read(0, frames.n), y, c))
+    runs: dict[str, list[dict]] = {label: [] for label, _ in SETTINGS}
+    for rep in range(repeats):
+        for label, settings in SETTINGS:
+            config = replace(FAST_STREAM, block_rows=BLOCK_ROWS, **settings)
+            fit = frames, labels, periods, c, config
+            (_, info), wall, _ = h.timed(streamed_newton_fit, *fit, progress=False)
+            h.log.info("%s %s run %d: %.1f s, %d steps, columns %s", name, label,
+                     rep, wall, info.steps, info.columns)  # fmt: skip
+            gap = (info.objective - ref.objective) / np.abs(ref.objective)
+            runs[label].append(dict(
+                wall_s=wall, steps=info.steps, passes=len(info.pass_seconds),
+                cg_iterations=list(info.cg_iterations), columns=list(info.columns),
+                column_passes=int(np.dot(info.columns, np.add(
+                    np.add(info.cg_iterations, 1), info.line_passes))),
+                reached=int(np.sum(info.gap_estimate <= config.gap_tol)),
+                true_gap_max=float(np.max(gap)), true_gap_median=float(np.median(gap)),
+            ))  # fmt: skip
+    med = {k: float(np.median([r["wall_s"] for r in v])) for k, v in runs.items()}
+    return dict(name=name, n=frames.n, d=frames.d, periods=list(periods),
+                templates=int(sum(periods)), reference_s=ref_s, runs=runs,
+                median_wall_s=med)  # fmt: skip
+
+
+def markdown_streamed(report: dict) -> str:
+    lines = [
+        "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
+        " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
+        f" steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped `.npy`) in"
+        " three settings, in turns. Reached: templates whose estimated gap met 1e-3."
+        " True gap: (f - f*) / f* of the final objectives against the in-memory Newton"
+        " optimum (tight) of the same frames. Column-passes: templates carried, summed"
+        " over every pass (gradient, CG and line-search passes of every step).",
+        "",
+    ]
+    rows = []
+    for case in report["cases"]:
+        for label, runs in case["runs"].items():
+            first = runs[-1]
+            rows.append([case["name"], f"{case['n']} x {case['d']}",
+                         ", ".join(map(str, case["periods"])), label,
+                         case["median_wall_s"][label],
+                         ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
+                         first["passes"], f"{first['reached']} / {case['templates']}",
+                         f"{first['true_gap_max']:.1e}",
+                         f"{first['true_gap_median']:.1e}", _widths(first["columns"]),
+                         first["column_passes"]])  # fmt: skip
+    heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
+             "steps", "passes", "reached", "true gap max", "true gap median",
+             "templates per step", "column-passes"]  # fmt: skip
+    lines += [h.table(heads, rows), ""]
+    for case in report["cases"]:
+        old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
+        lines.append(
+            f"- {case['name']}: the spectral preconditioner {old / spec:.2f}x"
+            f" ({spec:.1f} s against {old:.1f} s with Jacobi); compacted passes"
+            f" {spec / comp:.2f}x on top ({comp:.1f} s); the in-memory reference"
+            f" took {case['reference_s']:.1f} s."
+        )
+    title = "Streamed Newton-CG: preconditioner and compacted passes"
+    return h.render(title, report, "\n".join(lines))
+
+
+def _widths(columns: list[int]) -> str:
+    """Templates per step, runs of equal widths shortened: '126 x 12, 8 x 2'."""
+    runs = [(w, len(list(same))) for w, same in itertools.groupby(columns)]
+    return ", ".join(f"{w} x {k}" if k > 1 else str(w) for w, k in runs)
+
+
+def options_streamed(ap) -> None:
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--walk-frames", type=int, default=100_000)
+    ap.add_argument("--walk-periods", default="46,47,49")
+
+
+def run_streamed(args) -> dict:
+    """Streamed Newton-CG: preconditioner, compacted passes (streamed)."""
+    cases = []
+    with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
+        if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
+            path = Path(tmp) / "nordland.npy"
+            np.save(path, h.nordland_features(args.root, seasons=("summer",))[0])
+            cases.append(run_case("nordland", path, (61, 65), args.repeats))
+        else:
+            h.log.warning("the Nordland case is left out (--quick or no frames)")
+        path = Path(tmp) / "walk.npy"
+        np.save(path, walk(args.walk_frames, 256))
+        periods = tuple(int(t) for t in args.walk_periods.split(","))
+        cases.append(run_case("walk", path, periods, args.repeats))
+    return dict(cases=cases)
+
+
+SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
+QUICK_MEMORY = dict(shapes=["600x32"], repeats=1)  # --quick
+MB = 1e6
+
+HEAD_MEMORY = ["n x d", "shape", "p", "estimate MB", "cold MB", "est / cold",
+               "arrays MB", "warm MB", "arrays / warm", "limit kept"]  # fmt: skip
+
+
+def fit_peak(x: np.ndarray) -> int:
+    """Bytes a fit of x (n, d) adds to this process at its peak (x included)."""
+    return peak_growth(lambda: RhythmicMap().fit(x, progress=False)) + x.nbytes
+
+
+def measure(repeats: int, shapes: list[str]) -> list[dict]:
+    """The fresh process: a record per shape."""
+    rng, rows = np.random.default_rng(0), []
+    RhythmicMap().fit(rng.normal(size=(48, 8)).astype(np.float32), progress=False)
+    for shape in shapes:
+        n, d = map(int, shape.split("x"))
+        p, x = sum(candidate_periods(n)), rng.normal(size=(n, d)).astype(np.float32)
+        estimate = sum(fit_bytes(n, d, p).values())
+        admitted = check_memory(n, d, p, limit_bytes=estimate) == estimate
+        t0 = time.perf_counter()
+        cold = fit_peak(x)
+        t1 = time.perf_counter()
+        RhythmicMap().fit(x, progress=False)  # the first run of compiled code
+        warm = [fit_peak(x) for _ in range(repeats)]
+        warm_s = (time.perf_counter() - t1) / max(repeats, 1)
+        rows.append(dict(n=n, d=d, p=p, admitted=admitted, cold=cold, warm=warm,
+                         cold_s=t1 - t0, warm_s=warm_s))  # fmt: skip
+    return rows
+
+
+def markdown_memory(report: dict) -> str:
+    rows = [[f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
+             r["cold"] / MB, r["estimate"] / r["cold"],
+             r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
+             "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO"]
+            for r in report["rows"]]  # fmt: skip
+    kept = all(r["cold"] <= r["estimate"] for r in report["rows"])
+    return h.render(
+            "Memory of a full-batch fit: estimate against measured peak", report,
+            "Random float32 frames, the default map (r = 2, 7 candidate periods: p"
+            " templates). Peaks are the growth of the process's resident memory during"
+            " the fit, sampled every ms, over a baseline taken after `malloc_trim(0)`"
+            " (glibc otherwise serves the fit from memory an earlier one freed, and the"
+            " growth undercounts). *Cold*: the shape's first fit in a process whose"
+            " runtime is loaded (its functions compile); *warm*: the largest of"
+            f" {report['repeats']} refits of the same frames after one unmeasured"
+            " (nothing compiles). *Estimate*: the sum of `fit_bytes`; *arrays*: the"
+            f" same without its `compile` part ({report['compile_bytes'] / MB:.0f} MB)."
+            " *Limit kept*: the guard with its limit set to the estimate (`--memory X`,"
+            " X = the estimate) admits the fit and the cold peak stays under X.",
+            (HEAD_MEMORY, rows),
+            f"The limit held on every shape: {'yes' if kept else 'NO'}.",
+    )  # fmt: skip
+
+
+def options_memory(ap) -> None:
+    ap.add_argument("--shapes", nargs="+", default=SHAPES, help="NxD ...")
+    ap.add_argument("--repeats", type=int, default=2, help="warm refits a shape")
+
+
+def run_memory(args) -> dict:
+    """A full-batch fit's memory estimate against its peak (memory)."""
+    rows = h.call(measure, args.repeats, args.shapes)["result"]
+    for r in rows:
+        n, d = r["n"], r["d"]
+        parts = fit_bytes(n, d, r["p"])
+        kind = "wide (span)" if d > 2 * n else ("tall" if n > 2 * d else "square")
+        est = sum(parts.values())
+        r.update(kind=kind, parts=parts, estimate=est, arrays=est - parts["compile"])
+    compile_bytes = rows[0]["parts"]["compile"] if rows else 0
+    return dict(repeats=args.repeats, compile_bytes=compile_bytes, rows=rows)
+
+
+PARTS = {
+    "grid": h.Part(run_grid, markdown_grid, options_grid, "scale"),
+    "streamed": h.Part(run_streamed, markdown_streamed, options_streamed, "streamed",
+                       QUICK_STREAMED),  # fmt: skip
+    "memory": h.Part(run_memory, markdown_memory, options_memory, "memory",
+                     QUICK_MEMORY),  # fmt: skip
+}
+
 if __name__ == "__main__":
-    bc.main(__doc__, run, markdown, options, stem="scale")
+    h.main(__doc__, PARTS)

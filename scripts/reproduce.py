@@ -169,7 +169,7 @@ class Run:
         self.preds: dict[str, np.ndarray] = {}
 
     def fit(self, x, *, level=1, r=2, count=7, images=None, aug=None):
-        """(map, record), from ``cache_dir`` (bench_decoding's) when fitted before."""
+        """(map, record), from ``cache_dir`` (bench_decode.py's) when fitted before."""
         model = RhythmicMap(r=r, level=level, count=count, descriptor=DESCRIPTOR,
                             descriptor_settings=self.desc.settings())  # fmt: skip
         if aug is None:
@@ -513,14 +513,14 @@ accuracy (ratio 0.131 at T = 4 sqrt N on Aerial Brisbane).
 Soft, top-m and phase-domain sequence decoding and outlier rejection on Nordland
 and the LEVIR pairs, against brute force and SeqSLAM, with patchnorm and
 EfficientNet-Lite0 descriptors at levels 1 and 4: [decoding.md](decoding.md),
-written by `python scripts/bench_decoding.py`.
+written by `python scripts/bench_decode.py decoders`.
 
 ## Beyond the paper: recognition under appearance change, split by place
 
 Maps fitted on one condition of held-out places and queried with the other,
 embeddings learned on the training places only, against brute force and SeqSLAM,
 with the targets they are judged by: [cross_condition.md](cross_condition.md),
-written by `python scripts/bench_cross_condition.py`.
+written by `python scripts/bench_recall.py cross-condition`.
 
 ## Deviations from the paper, and why
 

@@ -97,7 +97,7 @@ def test_evaluate_frontier_rows_and_plot(hybrid, tmp_path):
         np.mean(np.abs(alone - np.arange(len(q))) <= 1)
     )
     fig = plot_evaluation(res, path=tmp_path / "e.png")
-    assert len(fig.axes) == 3 and (tmp_path / "e.png").stat().st_size > 0
+    assert len(fig.axes) == 4 and (tmp_path / "e.png").stat().st_size > 0  # + route
 
 
 @pytest.mark.parametrize("bits", [0, -3, 41])

@@ -42,7 +42,7 @@ LAYERS = [
     ["jit_cache"],
     ["solvers.objective", "solvers.precision", "solvers.precondition", "solvers.span"],
     ["solvers.candidates", "solvers.memory", "solvers.newton_cg", "solvers.optax_loops",
-     "solvers.passes", "solvers.sharding"],
+     "solvers.passes"],
     ["solvers.newton", "solvers.resumable"],
     ["solvers.distributed", "solvers.streamed"],
     ["solvers.protocol"],
@@ -64,8 +64,9 @@ LAYERS = [
      "eval.outliers"],
     ["eval.ground_truth_files", "eval.report"],
     ["eval.ablation"],
-    ["app.signals", "app.specs"],
-    ["app.demo", "app.frontier", "app.fusion", "app.render", "app.scale_jobs"],
+    ["app.native_stderr", "app.signals", "app.specs"],
+    ["app.demo", "app.frontier", "app.fusion", "app.matches", "app.query_results",
+     "app.render", "app.scale_jobs"],
     ["app.jobs"],
     ["app.cli"],
     [""],  # the public face, rhythmic_jax/__init__.py: nothing imports it
@@ -133,7 +134,8 @@ def test_imports_point_down(path):
 
 
 # no numpy, JAX, torch at load (jit_cache is imported inside a function)
-PARSER = {"app.specs", "errors", "map.config", "validate", "frames.compile_policy"}
+PARSER = {"app.specs", "errors", "map.config", "validate", "frames.compile_policy",
+          "version"}  # fmt: skip
 
 
 def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():

@@ -204,6 +204,20 @@ def _figures(notebook: Path) -> list[Path]:
     return sorted(notebook.parents[1].joinpath("reports").glob("nb_*.png"))
 
 
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_writes_figures_outside_the_checkout_unless_asked(path):
+    """No path into the checkout's reports/ is written in a notebook's code; a
+    notebook that saves figures takes its folder from RHYTHMIC_NB_FIGURES
+    (default: a temporary folder; ../reports is the opt-in)."""
+    tree = _tree(path)
+    texts = [n.value for n in ast.walk(tree)
+             if isinstance(n, ast.Constant) and isinstance(n.value, str)]  # fmt: skip
+    assert not [t for t in texts if "reports" in t], path.name
+    code = "\n".join(_code(path))
+    if "save_figure(" in code or "path=" in code:
+        assert "RHYTHMIC_NB_FIGURES" in texts and "gettempdir" in code, path.name
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("data", ["shared", "absent"])
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
@@ -217,6 +231,8 @@ def test_notebook_runs_in_reduced_size(path, data, monkeypatch, tmp_path):
     monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(tmp_path / "cache"))
     empty = tmp_path / "no-data"
     monkeypatch.setenv("RHYTHMIC_DATA", str(SHARED_DATA if data == "shared" else empty))
+    figures = tmp_path / "figures"
+    monkeypatch.setenv("RHYTHMIC_NB_FIGURES", str(figures))
     nb = nbformat.read(path, as_version=4)
     before = {p: p.stat().st_mtime_ns for p in _figures(path)}
     client = NotebookClient(
@@ -234,4 +250,6 @@ def test_notebook_runs_in_reduced_size(path, data, monkeypatch, tmp_path):
     text = "".join(o.get("text", "") for o in outputs)
     assert ("scikit-image's photographs" in text) == (data == "absent")
     after = {p: p.stat().st_mtime_ns for p in _figures(path)}
-    assert after == before, "a reduced-size run must not write reports/nb_*.png"
+    assert after == before, "a run must not write reports/nb_*.png unless asked"
+    if "RHYTHMIC_NB_FIGURES" in "".join(_code(path)):
+        assert len(list(figures.glob("nb_*.png"))) >= least, path.name

@@ -183,7 +183,7 @@ def test_quick_reproduction_agrees_with_the_library(
     for row in res["table3"]["rows"]:
         for label in res["table3"]["query_sets"]:
             assert f"{row[label]['batch_queries_per_s']:,.0f}" in md
-    assert "scripts/bench_decoding.py" in md
+    assert "scripts/bench_decode.py decoders" in md
     assert res["settings"]["frames"] == 600 and res["meta"]["frames"] == 600
 
 

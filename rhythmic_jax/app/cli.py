@@ -30,6 +30,7 @@ from rhythmic_jax.frames.compile_policy import (
     CompilePolicy,
 )
 from rhythmic_jax.map.config import DECODERS, DTYPES, SOLVERS, MapConfig
+from rhythmic_jax.version import __version__
 
 __all__ = ["main"]
 
@@ -67,6 +68,9 @@ EXAMPLES = {
     "query": """
       rhythmic-jax query route.map queries.npy --out pred.npy
       rhythmic-jax query route.map winter/ --decode soft --sequence 10 --json
+      rhythmic-jax query route.map winter/ --top 5 --csv results.csv
+        (per query: its file name, the place chosen and its name, score,
+        confidence, and the 5 best places with their scores)
     """,
     "info": """
       rhythmic-jax info route.map --json
@@ -79,6 +83,7 @@ EXAMPLES = {
           DATASET/ground_truth_new.npy --plot pr.png
       rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
       rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot frontier.png
+      rhythmic-jax evaluate route.map winter/ --tolerance 1 --matches matches.png
     """,
     "demo": """
       rhythmic-jax demo
@@ -108,24 +113,17 @@ def _opt(flags: str, help_: str | None = None, **settings) -> tuple[list[str], d
 FLAG = {"action": "store_true"}
 SOURCE = (  # how the frames of image sources are read (fit, learn, query, evaluate)
     _opt("--descriptor", "descriptor for image sources (patchnorm, hog, "
-         "efficientnet_lite0, vgg16_fc7); a map remembers its own"),
+         "efficientnet_lite0, vgg16_fc7; default patchnorm, or an --embedding's); a "
+         "map remembers its own"),
     _opt("--weights", "weights file of vgg16_fc7 (a state dict); when querying a "
          "map, a moved copy of the file it was fitted with (its sha256 is checked)"),
     _opt("--tile", "tile a large image: size (queries of a tiled map: the map's own)"),
     _opt("--stride", "tile stride, with --tile (default size/2)"),
-    _opt("--compile", "run a network descriptor (efficientnet_lite0, vgg16_fc7) "
-         "compiled for this CPU: about 1.5-1.8x the frames/s of the eager network, but "
-         "building it costs up to a minute once per machine and settings (kept in the "
-         "cache folder) and loading it about 0.2 s per job. auto (default): a job of "
-         f">= {LOAD_MIN_FRAMES} frames loads the compiled network; the first such "
-         "job on a machine runs eagerly and pays only for a background build "
-         "(a niced process, about a minute of CPU beside it), so the next job "
-         f"runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
-         "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; "
-         "never (the eager reference). Without a C++ compiler the job runs eagerly "
-         "and says so", default="auto", choices=COMPILE_MODES),
+    _opt("--compile", "when a network descriptor (efficientnet_lite0, vgg16_fc7) "
+         "runs compiled for this CPU (see the main --help)", default="auto",
+         choices=COMPILE_MODES),
     _opt("--compile-min-frames", "with --compile auto, compile from N frames on "
-         "(built or not)", metavar="N"),
+         f"(built or not; default {LOAD_MIN_FRAMES})", metavar="N"),
     _opt("--no-progress", "hide progress bars", **FLAG),
 )  # fmt: skip
 QUERIES = "query descriptors .npy, image folder or image"
@@ -135,6 +133,24 @@ GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds
 RECALL_OVER = ("recall@K's denominator: the queries with a right place (matched, "
                "VPR_Tutorial's; default) or every query (all, "
                "VPR-methods-evaluation's); the table says which")  # fmt: skip
+DECODE = ("how a query's place is read from the map's scores: hard (the best "
+          "phase of each period, joined by the Chinese remainder; -1, no match, "
+          "when they name no place of the route), soft (the place of the highest "
+          "summed phase scores), topm (soft among the m best phases of each "
+          "period); default the map's own (fit: hard)")
+COMPILE_NOTE = textwrap.fill(
+    "--compile (fit, learn, query, evaluate): a network descriptor "
+    "(efficientnet_lite0, vgg16_fc7) compiled for this CPU gives about 1.5-1.8x the "
+    "frames/s of the eager network, but building it costs up to a minute once per "
+    "machine and settings (kept in the cache folder) and loading it about 0.2 s per "
+    f"job. auto (default): a job of >= {LOAD_MIN_FRAMES} frames loads the compiled "
+    "network; the first such job on a machine runs eagerly and pays only for a "
+    "background build (a niced process, about a minute of CPU beside it), so the "
+    f"next job runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
+    "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; never (the eager "
+    "reference). Without a C++ compiler the job runs eagerly and says so.",
+    79,
+)
 SCALE = "scale (descriptor files or shard folders)"
 CODES = {"metavar": "BITS|int8"}
 
@@ -151,9 +167,11 @@ OPTIONS = {
         _opt("--count", f"candidate periods (default {DEFAULTS.count})",
              default=DEFAULTS.count),
         _opt("--c", "SVM penalty (default log N)", default=DEFAULTS.c),
-        _opt("--solver", default=DEFAULTS.solver, choices=SOLVERS),
+        _opt("--solver", "how the SVMs are solved (newton: Newton-CG to --gap)",
+             default=DEFAULTS.solver, choices=SOLVERS),
         _opt("--gap", "stop the solver at this estimated relative objective gap "
-             "(default 1e-7: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
+             "(default %(default)g: the optimum; 1e-3 stops within about 0.1 %%, "
+             "sooner)",
              default=DEFAULTS.gap),
         _opt("--layout", "how frames are labelled: periods (default, chosen by "
              "training error), periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix "
@@ -165,13 +183,13 @@ OPTIONS = {
         _opt("--augment", "train over frames augmented on the fly (image sources): "
              "comma-separated names from gaussian_blur, hflip, random_crop, elastic, "
              "contrast, invert, grayscale, or 'all'"),
-        _opt("--epochs", "augmented epochs (3)"),
-        _opt("--batch-size", "augmented frames per step (128)"),
+        _opt("--epochs", "augmented epochs (default 3)"),
+        _opt("--batch-size", "augmented frames per step (default 128)"),
         _opt("--checkpoint", "checkpoint folder of an augmented fit (default "
              "OUT.ckpt, removed once the map is saved); a killed or interrupted fit "
              "resumes from it when the same command runs again"),
         _opt("--checkpoint-every", "steps between checkpoints of an augmented fit "
-             "(50)"),
+             "(default 50)"),
         _opt("--pca", "project descriptors to K dims (saved)"),
         _opt("--dtype", "how the map stores its templates (int8: a scale per "
              "template)", default=DEFAULTS.dtype, choices=DTYPES),
@@ -207,15 +225,17 @@ OPTIONS = {
     "learn": ("learn an embedding from two or more traversals of a training route", (
         _opt("sources", "one source per traversal (same places)", nargs="+"),
         _opt("--out", "embedding folder to write", required=True),
-        _opt("--method", "closed form (default), principal axes only, learned "
-             "through the map, or InfoNCE", default="invariant",
+        _opt("--method", "invariant: closed form, pca: principal axes only, map: "
+             "learned through the map, infonce: InfoNCE", default="invariant",
              choices=("invariant", "pca", "map", "infonce")),
-        _opt("--head", default="linear", choices=("linear", "mlp")),
-        _opt("--k", "output dimensions (256)", default=256),
-        _opt("--steps", "gradient steps (300)", default=300),
-        _opt("--seed", "PRNG seed (0)", default=0),
+        _opt("--head", "the learned head of --method map or infonce: linear (k x k) "
+             "or mlp (plus a residual ReLU layer)", default="linear",
+             choices=("linear", "mlp")),
+        _opt("--k", "output dimensions", default=256),
+        _opt("--steps", "gradient steps", default=300),
+        _opt("--seed", "PRNG seed", default=0),
         _opt("--codes", "codes a map's fusion weight is learned for on these "
-             "traversals and saved with the embedding for fit --embedding (int8)",
+             "traversals and saved with the embedding for fit --embedding",
              default="int8", **CODES),
         *SOURCE,
     )),
@@ -224,10 +244,18 @@ OPTIONS = {
         _opt("source", QUERIES),
         _opt("--select", SELECT, metavar="PREFIX"),
         _opt("--out", "write predictions to this .npy"),
-        _opt("--decode", choices=DECODERS),
-        _opt("--sequence", "sequence length L (at most the number of queries)"),
-        _opt("--threshold", "reject queries whose confidence is below this"),
-        _opt("--json", "print predictions as JSON", **FLAG),
+        _opt("--decode", DECODE, choices=DECODERS),
+        _opt("--sequence", "sequence length L (at most the number of queries; "
+             "default off: single frames)"),
+        _opt("--threshold", "reject queries whose confidence is below this "
+             "(default none: every query gets a place)"),
+        _opt("--json", "print JSON: the predictions, and per query its name (file "
+             "name, else row), the place chosen (and its name where the map's "
+             "reference names it), its score and confidence, and the --top best "
+             "places with their scores", **FLAG),
+        _opt("--top", "best places listed per query (--json, --csv)", default=5),
+        _opt("--csv", "write the results per query as CSV (query, place, "
+             "place_name, score, confidence, top1, top1_name, top1_score, ...)"),
         *SOURCE,
     )),
     "info": ("describe a map (n, d, periods, storage, candidate errors) or an "
@@ -243,19 +271,23 @@ OPTIONS = {
         _opt("--reference", "reference source for the brute-force line (default: "
              "the sources the map was fitted on, when they are still there)"),
         _opt("--tolerance", "frame tolerance (default 0)", default=0),
-        _opt("--decode", choices=DECODERS),
+        _opt("--decode", DECODE, choices=DECODERS),
         _opt("--sequence", "sequence length L, at most the number of queries "
-             "(accuracy, PR and recall@K use the sequence scores)"),
+             "(accuracy, PR and recall@K use the sequence scores; default off)"),
         _opt("--ground-truth", "VPR-Bench ground_truth_new.npy; or QUERY_POSITIONS "
              "(the map's from fit --positions); or REF_POSITIONS QUERY_POSITIONS; or "
              "'names' (@easting@northing@ file names). Default: query i is place i",
              nargs="+", metavar="FILE"),
         _opt("--ground-truth-format", GT_FORMAT, choices=specs.GROUND_TRUTH_FORMATS),
         _opt("--tolerance-m", "radius of a right match for positions, metres "
-             "(default 25)", default=25.0),
+             "(default %(default)g)", default=25.0),
         _opt("--recall-over", RECALL_OVER, default="matched",
              choices=specs.RECALL_OVER),
-        _opt("--plot", "write PR curves and recall@K (.png)"),
+        _opt("--plot", "write PR curves, recall@N (N = 1..20) and the predicted "
+             "place against query index along the route (.png)"),
+        _opt("--matches", "draw queries beside the place chosen and the right "
+             "place, 4 successes and the 4 most confident failures (.png; the "
+             "queries and the reference as image folders)"),
         _opt("--json", "print JSON", **FLAG),
         *SOURCE,
     )),
@@ -284,16 +316,21 @@ OPTIONS = {
         _opt("--recall-over", RECALL_OVER, default="matched",
              choices=specs.RECALL_OVER),
         _opt("--tolerance", "frame tolerance (default 0)", default=0),
-        _opt("--tolerance-m", "radius for positions, m", default=25.0),
+        _opt("--tolerance-m", "radius for positions, m (default %(default)g)",
+             default=25.0),
         _opt("--budget", "name the best representation within this many bytes",
              metavar="BYTES_PER_PLACE"),
-        _opt("--maps", "maps as r:level,... (default every r=2,3 at levels 1-4)",
-             default="2:1,2:2,2:3,2:4,3:1,3:2,3:3,3:4"),
-        _opt("--bits", "ITQ code sizes", default="32,64,128,256,512"),
-        _opt("--pq", "PQ sub-quantisers ('': none)", default="8,16,32,64"),
+        _opt("--grid", "the representations fitted unless --maps, --bits or --pq "
+             f"say otherwise: small ({specs.grid_text('small')}: a couple of "
+             f"minutes on a few thousand places), full ({specs.grid_text('full')})",
+             default="small", choices=tuple(specs.GRIDS)),
+        _opt("--maps", "maps as r:level,... (default: the --grid's)"),
+        _opt("--bits", "ITQ code sizes, comma-separated (default: the --grid's)"),
+        _opt("--pq", "PQ sub-quantisers ('': none; default: the --grid's)"),
         _opt("--lengths", "sequence lengths L", default="1,5,10"),
-        _opt("--descriptor", "descriptor for image folders"),
-        _opt("--cache", "folder keeping fitted maps and codes", default=""),
+        _opt("--descriptor", "descriptor for image folders (default patchnorm)"),
+        _opt("--cache", "folder keeping fitted maps and codes (default none)",
+             default=""),
         _opt("--csv", "write the rows as CSV"),
         _opt("--plot", "draw the frontier (.png)"),
         _opt("--json", "print JSON", **FLAG),
@@ -318,6 +355,18 @@ def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
     return set(vars(seen))
 
 
+def _state_default(action: argparse.Action) -> None:
+    """An option's help ends with its default, unless it says it already: a
+    declared default (not None, False or '') is stated from the declaration."""
+    default = action.default
+    if not action.option_strings or default is None or default is False:
+        return
+    if default == "":
+        return
+    if "default" not in (action.help or ""):
+        action.help = f"{action.help or ''} (default %(default)s)".lstrip()
+
+
 def _parser() -> argparse.ArgumentParser:
     """The parser rendered from :data:`OPTIONS`; every numeric option parsed
     with its domain (:data:`rhythmic_jax.app.specs.DOMAINS`), stated in --help."""
@@ -328,9 +377,12 @@ def _parser() -> argparse.ArgumentParser:
         epilog="run 'rhythmic-jax COMMAND --help' for examples\n\n"
         "compiled programs are kept in $RHYTHMIC_JAX_CACHE/jax (default\n"
         "~/.cache/rhythmic_jax/jax): later runs load them instead of compiling;\n"
-        "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it",
+        "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it\n\n"
+        + COMPILE_NOTE,
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("--version", action="version",
+                        version=f"%(prog)s {__version__}")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     parser.commands = {}
     for name, (help_, options) in OPTIONS.items():
@@ -346,6 +398,7 @@ def _parser() -> argparse.ArgumentParser:
             if title is not None and title not in groups:
                 groups[title] = p.add_argument_group(title)
             action = groups.get(title, p).add_argument(*flags, **settings)
+            _state_default(action)
             domain = specs.DOMAINS.get(action.dest)
             if domain is not None and action.option_strings:
                 action.type = domain
@@ -364,9 +417,9 @@ JOBS = {
     "fit": ("FitJob", "sources out pca augment epochs batch_size checkpoint "
             "checkpoint_every fusion positions places embedding"),
     "learn": ("LearnJob", "sources out codes"),
-    "query": ("QueryJob", "map source decode sequence threshold out"),
+    "query": ("QueryJob", "map source decode sequence threshold out top csv json"),
     "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
-                 "ground_truth tolerance_m plot"),
+                 "ground_truth tolerance_m plot matches"),
     "describe": ("DescribeJob", "source out"),
 }  # fmt: skip
 
@@ -417,11 +470,17 @@ def _fit(args, job, progress: bool) -> str | None:
 
 
 def _query(args, job, progress: bool) -> str:
+    import numpy as np
+
     from rhythmic_jax.app import jobs, render
 
+    if args.json or args.csv:
+        result = jobs.query_results(job, progress=progress)
+        if args.json:
+            return json.dumps(result, indent=1)
+        pred = np.asarray(result["predictions"])
+        return render.query_summary(pred, args.out, args.csv)
     pred = jobs.query(job, progress=progress)
-    if args.json:
-        return json.dumps({"predictions": pred.tolist()})
     if not args.out:
         return "\n".join(str(int(v)) for v in pred)
     return render.query_summary(pred, args.out)

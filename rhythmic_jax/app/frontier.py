@@ -10,6 +10,13 @@ domain, the diagonal sum of codes' and brute force's similarities, both fused
 for a hybrid, SeqSLAM), recall at 100 % precision and the query latency; the
 rows no other row beats at fewer bytes form the Pareto front, and ``--budget``
 names the best representation within a byte budget.
+
+The default grid (:data:`rhythmic_jax.app.specs.GRIDS` ``small``: three maps,
+three code sizes, two product quantisers) runs in a couple of minutes on a few
+thousand places; ``full`` is every map of r = 2, 3 at levels 1-4 and every code
+size. faiss's k-means
+warnings (product quantisers trained on fewer points than it asks for) are
+gathered into one line of the result's ``notes``.
 """
 
 from __future__ import annotations
@@ -21,14 +28,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rhythmic_jax.app.specs import GRIDS
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import check_place
 
 __all__ = ["frontier", "frontier_lines", "main", "write_csv"]
 
-MAPS = tuple((r, level) for r in (2, 3) for level in (1, 2, 3, 4))
-BITS = (32, 64, 128, 256, 512)
-PQ = (8, 16, 32, 64)
 COLUMNS = ("name", "kind", "bytes_per_place", "storage_bytes", "share",
            "recall@1 L=1", "recall@100p", "recall@1 L=5", "recall@1 L=10",
            "sequence_scorer", "latency_s", "pareto")  # fmt: skip
@@ -51,9 +56,10 @@ def frontier(
     ground_truth: tuple[str, ...] | None = None,
     tolerance: int = 0,
     tolerance_m: float = 25.0,
-    maps=MAPS,
-    bits=BITS,
-    pq=PQ,
+    maps=None,
+    bits=None,
+    pq=None,
+    grid: str = "small",
     dtypes=("float32", "float16", "int8"),
     lengths=(1, 5, 10),
     budget: float | None = None,
@@ -72,6 +78,8 @@ def frontier(
       ground_truth, tolerance_m: as ``evaluate`` reads them
         (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`);
         default: query i is place i within ``tolerance`` frames.
+      maps, bits, pq: maps as (r, level), ITQ code sizes, PQ sub-quantisers;
+        None: those of ``grid`` (:data:`rhythmic_jax.app.specs.GRIDS`).
       lengths: sequence lengths (queries in route order); lengths longer than
         the queries are left out.
       budget: bytes per place; the result's ``choice`` is the best row within.
@@ -84,14 +92,21 @@ def frontier(
         hloc ``.h5`` files (``""``: every row), so one file holds both.
 
     Returns ``{"rows", "pareto" (names), "choice", "ground_truth", "config",
-    "n", "d", "n_queries", "recall_over", "recall_queries", "skipped",
+    "n", "d", "n_queries", "recall_over", "recall_queries", "skipped", "notes",
     "seconds"}``; ``skipped`` holds a line per kind of representation the route
     cannot train, left out before any is fitted
     (:func:`rhythmic_jax.eval.frontier.trainable`: ITQ bits above the places or
     the dimensions, PQ that does not divide d).
     """
+    from rhythmic_jax.app.native_stderr import gathered_stderr
     from rhythmic_jax.eval import frontier as fr
     from rhythmic_jax.frames.sources import load_sources
+
+    if grid not in GRIDS:
+        raise InputError(f"{{opt:grid}} {grid!r}: one of {', '.join(GRIDS)}")
+    maps = GRIDS[grid]["maps"] if maps is None else maps
+    bits = GRIDS[grid]["bits"] if bits is None else bits
+    pq = GRIDS[grid]["pq"] if pq is None else pq
 
     t0 = time.perf_counter()
     ref_prefix, query_prefix = (p or None for p in select)
@@ -122,10 +137,11 @@ def frontier(
         lengths=tuple(k for k in lengths if k <= len(qry)), tolerance=int(tolerance),
         dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
     ), len(ref), d)  # fmt: skip
-    rows = fr.frontier_rows(
-        ref, qry, cfg, cache=cache, truth=truth, progress=progress,
-        seqslam=max(cfg.lengths) > 1,
-    )  # fmt: skip
+    with gathered_stderr(KMEANS_WARNING) as warned:
+        rows = fr.frontier_rows(
+            ref, qry, cfg, cache=cache, truth=truth, progress=progress,
+            seqslam=max(cfg.lengths) > 1,
+        )  # fmt: skip
     matched = len(qry) if truth is None else int(truth.in_map.sum())
     if recall_over == "all":  # the unmatched queries are misses: hits / b
         for row in rows:
@@ -155,8 +171,24 @@ def frontier(
         "pareto": [r["name"] for r in rows if r["pareto"]],
         "rows": rows,
         "skipped": skipped,
+        "notes": [kmeans_note(warned)] if warned else [],
         "seconds": time.perf_counter() - t0,
     }
+
+
+KMEANS_WARNING = r"WARNING clustering (\d+) points to (\d+) centroids"
+
+
+def kmeans_note(lines: list[str]) -> str:
+    """faiss's k-means warnings (one per sub-quantiser trained) in one line."""
+    import re
+
+    found = [re.search(KMEANS_WARNING + r".*at least (\d+)", line) for line in lines]
+    sizes = sorted({m.groups() for m in found if m}, key=lambda g: int(g[1]))
+    what = "; ".join(f"{k} centroids from {n} points (it asks for {least})"
+                     for n, k, least in sizes)  # fmt: skip
+    return (f"note: faiss warned {len(lines)} times while training product "
+            f"quantisers on few points: {what or lines[0]}")  # fmt: skip
 
 
 def _cell(v) -> str:
@@ -205,7 +237,7 @@ def frontier_lines(result: dict[str, Any]) -> str:
         b = result["budget_bytes_per_place"]
         pick = result["choice"] or f"nothing fits in {b:g} bytes per place"
         lines.append(f"within {b:g} bytes per place: {pick}")
-    return "\n".join(lines)
+    return "\n".join(lines + list(result.get("notes", ())))
 
 
 def _over_line(result: dict[str, Any]) -> str:
@@ -244,8 +276,10 @@ def main(args) -> int:
         args.reference, args.queries,
         ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
         tolerance=args.tolerance, tolerance_m=args.tolerance_m,
-        maps=_ints(args.maps, "maps"), bits=_ints(args.bits, "bits"),
-        pq=_ints(args.pq, "pq") if args.pq else (),
+        maps=None if args.maps is None else _ints(args.maps, "maps"),
+        bits=None if args.bits is None else _ints(args.bits, "bits"),
+        pq=None if args.pq is None else _ints(args.pq, "pq") if args.pq else (),
+        grid=args.grid,
         lengths=_ints(args.lengths, "lengths"), budget=args.budget,
         cache=args.cache or None, descriptor=args.descriptor,
         progress=not args.no_progress, select=tuple(args.select or ("", "")),
@@ -258,6 +292,6 @@ def main(args) -> int:
 
         plot_frontier(result["rows"], args.plot, result["config"]["lengths"],
                       title=f"recall per byte, {result['n']} places",
-                      per_place=True)  # fmt: skip
+                      per_place=True, budget=args.budget)  # fmt: skip
     print(json.dumps(result, indent=2) if args.json else frontier_lines(result))
     return 0

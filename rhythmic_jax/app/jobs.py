@@ -47,7 +47,8 @@ if TYPE_CHECKING:
     import numpy as np
 
 __all__ = [
-    "describe", "evaluate", "fit", "info", "learn", "query", "quiet_io_threads",
+    "describe", "evaluate", "fit", "info", "learn", "query", "query_results",
+    "quiet_io_threads",
 ]  # fmt: skip
 
 
@@ -342,13 +343,43 @@ def _load_queries(job, progress: bool):
 
 def query(job: QueryJob, progress: bool = False) -> np.ndarray:
     """The predicted places of ``job``'s queries: (b,) int64, ``-1`` no match."""
+    return _queried(job, progress)[2]
+
+
+def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
+    """``job``'s queries one by one (:mod:`rhythmic_jax.app.query_results`):
+    ``{"predictions" (b,), "queries": [{"query", "place", "place_name",
+    "score", "confidence", "top": [{"place", "name", "score"}] * top}],
+    "ranks", "decode", "sequence"}``; with ``job.csv`` the records are also
+    written there as CSV (atomically)."""
+    from rhythmic_jax.app import query_results as qr
+
+    model, feats, pred = _queried(job, progress)
+    result = qr.per_query(model, feats.x, pred, decode=job.decode,
+                          sequence=job.sequence, top=job.top)  # fmt: skip
+    rows = qr.records(result, qr.source_names(job.source), qr.place_names(model))
+    if job.csv:
+        from rhythmic_jax.io.atomic import write_file
+
+        with write_errors("csv", job.csv):
+            write_file(job.csv, qr.csv_text(rows))
+    return {"predictions": pred.tolist(), "queries": rows, "ranks": result["ranks"],
+            "decode": job.decode or model.config.decode, "sequence": job.sequence}
+
+
+def _queried(job: QueryJob, progress: bool):
+    """``(map, query features, predictions (b,) int64)`` of ``job``, the
+    predictions written to ``job.out`` (``.npy``) when given."""
     import numpy as np
 
+    for opt in ("out", "csv"):
+        path = getattr(job, opt)
+        if path and not Path(path).absolute().parent.is_dir():
+            where = Path(path).parent
+            raise InputError(f"{{opt:{opt}}} {path}: folder {where} not found")
+        if path:
+            check_place(opt, path, file=True)  # a folder there: refused before work
     out = job.out
-    if out and not Path(out).parent.is_dir():
-        raise InputError(f"{{opt:out}} {out}: folder {Path(out).parent} not found")
-    if out:
-        check_place("out", out, file=True)
     model, feats = _load_queries(job, progress)
     pred = model.predict(
         feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
@@ -359,7 +390,7 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
 
         with write_errors("out", out):
             save_npy(out, pred)
-    return pred
+    return model, feats, pred
 
 
 def info(map_path: str) -> dict[str, Any]:
@@ -389,11 +420,24 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     from rhythmic_jax.frames.sources import reference_features
 
     plot, reference, read = job.plot, job.reference, job.reading
-    if plot and not str(plot).lower().endswith(".png"):
-        raise InputError(f"{{opt:plot}} {plot}: give a .png file name")
-    if plot:
-        check_place("plot", plot, file=True)
+    for opt in ("plot", "matches"):
+        path = getattr(job, opt)
+        if path and not str(path).lower().endswith(".png"):
+            raise InputError(f"{{opt:{opt}}} {path}: give a .png file name")
+        if path:
+            check_place(opt, path, file=True)
+    drawn = None
+    if job.matches:
+        from rhythmic_jax.app import matches
+
+        drawn = matches.image_files(job.source)
+        if drawn is None:
+            raise InputError(
+                f"{{opt:matches}} draws the query frames: give the queries as an "
+                f"image folder ({job.source} holds descriptors)"
+            )
     model, feats = _load_queries(job, progress)
+    places = None if drawn is None else matches.reference_folder(model, reference)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile,
@@ -412,8 +456,8 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
         )  # fmt: skip
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,
-        method=job.decode, sequence=job.sequence, ground_truth=truth, curves=bool(plot),
-        recall_over=job.recall_over,
+        method=job.decode, sequence=job.sequence, ground_truth=truth,
+        curves=bool(plot or drawn), recall_over=job.recall_over,
     )  # fmt: skip
     result["reference_note"] = note
     if plot:
@@ -421,7 +465,16 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
 
         with write_errors("plot", plot):
             plot_evaluation(result, path=plot)
-        for row in result["methods"].values():
-            row.pop("pr_curve", None)
         result["plot"] = str(plot)
+    if drawn is not None:
+        from rhythmic_jax.eval.figures import plot_matches
+
+        rows = matches.match_rows(result, drawn, places)
+        with write_errors("matches", job.matches):
+            plot_matches(rows, path=job.matches)
+        result["matches"] = str(job.matches)
+    for row in result["methods"].values():  # the figures' data, not the summary's
+        for key in ("pr_curve", "recall_curve", "predictions", "confidence", "correct"):
+            row.pop(key, None)
+    result.pop("right_places", None)
     return result

@@ -15,7 +15,8 @@ if TYPE_CHECKING:
     import numpy as np
 
 __all__ = [
-    "evaluate_summary", "fit_summary", "info_lines", "learn_summary", "query_summary",
+    "evaluate_summary", "fit_summary", "fusion_words", "info_lines", "learn_summary",
+    "query_summary",
 ]  # fmt: skip
 
 W = 18  # width of the names in info's lines
@@ -49,16 +50,28 @@ def fit_summary(out: str, info: dict[str, Any]) -> str:
         kind = info.get("codes_kind") or "itq"
         bits = f"{info['codes_bits']}-bit"
         codes = f" with {'int8' if kind == 'int8' else bits} codes"
+    emb = info.get("embedding_bytes") or 0
+    counted = ", the embedding counted" if emb else ""
     return (
         f"map {out}: n={info['n']} d={info['d']} {info['layout']}"
-        f"{codes} storage={info['storage_bytes']:,} B "
-        f"(ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B)"
+        f"{codes} storage={info['storage_bytes']:,} B"
+        + (f" + embedding {emb:,} B" if emb else "")
+        + f" (ratio {info['compression_ratio']:.4f} of {info['database_bytes']:,} B"
+        f"{counted})"
     )
 
 
-def query_summary(pred: np.ndarray, out: str) -> str:
-    """One line about predictions written to ``out``."""
-    return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {out}"
+def fusion_words(weight: float) -> str:
+    """A fusion weight and what it leaves deciding: 0, the codes alone; 1, the
+    map's templates alone; else both."""
+    alone = {0.0: " (the codes alone)", 1.0: " (the map's templates alone)"}
+    return f"{weight:g}{alone.get(float(weight), '')}"
+
+
+def query_summary(pred: np.ndarray, out: str | None, csv: str | None = None) -> str:
+    """One line about predictions written to ``out`` (and results to ``csv``)."""
+    where = " and ".join(x for x in (out, csv and f"{csv} (per query)") if x)
+    return f"{len(pred)} predictions ({int((pred < 0).sum())} no match) -> {where}"
 
 
 def describe_summary(job, x: np.ndarray) -> str:
@@ -103,6 +116,8 @@ def info_lines(info: dict[str, Any]) -> str:
     keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
             "compression_ratio", "c")  # fmt: skip
     lines = [f"{key:>{W}}: {info[key]}" for key in keys]
+    if info.get("descriptor"):
+        lines.insert(3, f"{'descriptor':>{W}}: {info['descriptor']}")
     ref = info.get("reference") or {}
     if ref.get("embedding"):
         taken = (
@@ -114,7 +129,7 @@ def info_lines(info: dict[str, Any]) -> str:
     if info.get("codes_bits"):
         w, fusion = (info.get("config") or {}).get("fusion"), ref.get("fusion")
         how = f" ({fusion['from']}: {fusion['note']})" if fusion else ""
-        lines.append(f"{'fusion':>{W}}: {w:g}{how}")
+        lines.append(f"{'fusion':>{W}}: {fusion_words(w)}{how}")
     st = info["storage"]
     lines += [
         f"{'storage fixed':>{W}}: {st['fixed']:,} B (code transform)",
@@ -141,5 +156,8 @@ def evaluate_summary(result: dict[str, Any]) -> str:
 
     lines = format_evaluation(result) + "\n" + result["reference_note"]
     if result.get("plot"):
-        lines += f"\nPR curves and recall@K -> {result['plot']}"
+        lines += f"\nPR curves, recall@N and the route -> {result['plot']}"
+    if result.get("matches"):
+        lines += f"\nqueries beside the places chosen and the right ones -> " \
+            f"{result['matches']}"
     return lines

@@ -26,9 +26,9 @@ from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 
 __all__ = [
-    "DOMAINS", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob", "LearnJob",
-    "OptionRefused", "QueryJob", "Reading", "Reported", "Rule", "ScaleJob",
-    "check_paths", "learn_config", "GROUND_TRUTH_FORMATS", "RECALL_OVER",
+    "DOMAINS", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob", "GRIDS",
+    "LearnJob", "OptionRefused", "QueryJob", "Reading", "Reported", "Rule",
+    "ScaleJob", "check_paths", "learn_config", "GROUND_TRUTH_FORMATS", "RECALL_OVER",
 ]  # fmt: skip
 
 
@@ -67,6 +67,7 @@ DOMAINS: dict[str, Domain] = {
     "steps": int_option(1),
     "seed": int_option(0, 2**32 - 1),
     "sequence": int_option(1),
+    "top": int_option(1),
     "threshold": number_option(),
     "tolerance": int_option(0),
     "tolerance_m": number_option(0),
@@ -80,6 +81,23 @@ DOMAINS: dict[str, Domain] = {
 GROUND_TRUTH_FORMATS = ("vpr-bench", "openvprlab", "vpr-tutorial", "patch-netvlad",
                         "positions")  # fmt: skip
 RECALL_OVER = ("matched", "all")
+
+MAPS = tuple((r, level) for r in (2, 3) for level in (1, 2, 3, 4))
+#: What each ``frontier --grid`` fits: maps as (r, level), ITQ bits, PQ
+#: sub-quantisers; ``--maps``, ``--bits`` and ``--pq`` replace a grid's own.
+#: ``small`` runs in a couple of minutes on a few thousand places.
+GRIDS = {
+    "small": {"maps": ((2, 1), (2, 2), (3, 1)), "bits": (64, 128, 256), "pq": (16, 32)},
+    "full": {"maps": MAPS, "bits": (32, 64, 128, 256, 512), "pq": (8, 16, 32, 64)},
+}
+
+
+def grid_text(name: str) -> str:
+    """A grid in the options' words: ``maps 2:1,2:2,3:1; bits 64,..; pq 16,32``."""
+    g = GRIDS[name]
+    maps = ",".join(f"{r}:{level}" for r, level in g["maps"])
+    return (f"maps {maps}; bits {','.join(map(str, g['bits']))}; "
+            f"pq {','.join(map(str, g['pq']))}")  # fmt: skip
 
 
 class OptionRefused(InputError):
@@ -403,7 +421,10 @@ class QueryJob(Checked):
     ``query(QueryJob("route.map", "q.npy", out="pred.npy"))``: ``decode``,
     ``sequence`` and ``threshold`` as :meth:`rhythmic_jax.RhythmicMap.predict`
     takes them; with ``out`` the predictions are also written there (``.npy``,
-    atomically; its folder must exist). ``given``: see :class:`Checked`.
+    atomically; its folder must exist). ``top`` best places per query, with
+    their scores, go to ``csv`` (a file, atomically) and, with ``json``, to the
+    printed JSON (:func:`rhythmic_jax.app.jobs.query_results`). ``given``: see
+    :class:`Checked`.
     """
 
     map: str
@@ -412,10 +433,19 @@ class QueryJob(Checked):
     sequence: int | None = None
     threshold: float | None = None
     out: str | None = None
+    top: int = 5
+    csv: str | None = None
+    json: bool = False
     reading: Reading = Reading()
     given: frozenset[str] = frozenset()
 
-    RULES = (*READS, *SELECTS, *IGNORED)
+    RULES = (
+        *READS,
+        *SELECTS,
+        Rule(("top",), "needs {opt:json} or {opt:csv} (the results per query it "
+             "sizes)", lambda j: j.json or j.csv is not None),
+        *IGNORED,
+    )  # fmt: skip
 
     @property
     def read_sources(self) -> tuple[str, ...]:
@@ -433,7 +463,9 @@ class EvaluateJob(Checked):
     ``tolerance_m`` metres); ``ground_truth_format`` names its format (one
     of :data:`GROUND_TRUTH_FORMATS`; None: read from what the file holds);
     ``recall_over``: recall@K's denominator (:data:`RECALL_OVER`: the queries
-    with a right place, or all); ``plot``: a .png of PR curves and recall@K bars.
+    with a right place, or all); ``plot``: a .png of PR curves, recall at
+    N = 1..20 and the predicted place along the route; ``matches``: a .png of
+    queries beside the place chosen and the right place (image folders).
     ``decode`` and ``sequence`` as :class:`QueryJob`'s; ``given``: see
     :class:`Checked`.
     """
@@ -447,6 +479,7 @@ class EvaluateJob(Checked):
     ground_truth: tuple[str, ...] | None = None
     tolerance_m: float = 25.0
     plot: str | None = None
+    matches: str | None = None
     reading: Reading = Reading()
     given: frozenset[str] = frozenset()
     ground_truth_format: str | None = None
@@ -502,8 +535,8 @@ class DescribeJob(Checked):
 WRITTEN = {
     "fit": ("out", "checkpoint", "shards"),
     "learn": ("out",),
-    "query": ("out",),
-    "evaluate": ("plot",),
+    "query": ("out", "csv"),
+    "evaluate": ("plot", "matches"),
     "frontier": ("csv", "plot"),
     "describe": ("out",),
 }

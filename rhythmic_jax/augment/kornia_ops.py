@@ -80,7 +80,7 @@ class AugmentConfig:
         noise smoothed by a large kernel) or ``"coarse"`` (the same field drawn
         on a grid coarser by about sigma/2 pixels, smoothed by a small kernel and
         upsampled bilinearly; several times faster, see
-        ``scripts/bench_augment.py``).
+        ``scripts/bench_frames.py augment``).
       contrast: range of the contrast factor ``a`` in ``0.5 + a * (x - 0.5)``
         (imgaug's ``ContrastNormalization`` / ``LinearContrast`` about mid-grey).
 

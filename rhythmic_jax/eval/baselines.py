@@ -38,7 +38,6 @@ __all__ = [
     "OPQ",
     "BruteForce",
     "KDTreeSearch",
-    "default_baselines",
     "flat_storage_bytes",
     "itq_storage_bytes",
     "kdtree_storage_bytes",
@@ -295,13 +294,3 @@ class OPQ(Baseline):
 
     def _storage_bytes(self) -> int:
         return opq_storage_bytes(self.n, self.d, self.m, self.nbits)
-
-
-def default_baselines(n_threads: int = 1) -> list[Baseline]:
-    """The paper's comparison set: brute force, KD-tree, ITQ 256-bit, OPQ 256x8."""
-    return [
-        BruteForce(n_threads),
-        KDTreeSearch(),
-        ITQ(256, n_threads),
-        OPQ(256, 8, n_threads=n_threads),
-    ]

@@ -34,9 +34,12 @@ __all__ = [
     "frontier_panel",
     "plot_frontier",
     "plot_levels",
+    "plot_matches",
     "plot_r",
     "plot_storage_growth",
     "plot_training_error",
+    "recall_curve_panel",
+    "route_panel",
     "save_figure",
 ]
 
@@ -239,6 +242,37 @@ def plot_examples(
     return _finish(fig, path)
 
 
+def plot_matches(
+    rows: Sequence[Mapping[str, Any]],
+    title: str = "",
+    path: str | os.PathLike | None = None,
+):
+    """Matches side by side, one row per query: the query, the place chosen
+    and the right place (``evaluate --matches``).
+
+    ``rows``: ``{"query", "chosen", "right"}`` uint8 (H, W, 3) images (None:
+    no match, or no right place in the map) and ``"titles"``, the three
+    captions (query name, chosen place and its score, right place).
+    """
+    if not rows:
+        raise InputError("plot_matches: no matches to draw")
+    fig, _ = new_figure(1, width=7.0, height=1.6 * len(rows) + 0.4)
+    fig.clear()
+    axes = fig.subplots(len(rows), 3, squeeze=False)
+    for ax_row, row in zip(axes, rows, strict=True):
+        for ax, key, caption in zip(ax_row, ("query", "chosen", "right"),
+                                    row["titles"], strict=True):  # fmt: skip
+            image = row.get(key)
+            if image is None:
+                ax.text(0.5, 0.5, "none", ha="center", va="center", fontsize=8)
+            else:
+                ax.imshow(image)
+            ax.set_title(caption, fontsize=6.5)
+            ax.set_xticks([]), ax.set_yticks([])
+    fig.suptitle(title or "query | place chosen | right place", fontsize=9)
+    return _finish(fig, path)
+
+
 def plot_cost(
     timings: Mapping[str, Mapping[str, float]],
     path: str | os.PathLike | None = None,
@@ -309,54 +343,98 @@ def plot_storage_growth(
     return _finish(fig, path)
 
 
+def recall_curve_panel(ax, methods: Mapping[str, Mapping[str, Any]]) -> None:
+    """Recall at every N = 1..20 (``row["recall_curve"]``) of each method as a
+    curve, its values at N = 1, 5, 10, 20 written beside the points."""
+    for name, row in methods.items():
+        curve = row["recall_curve"]
+        ns = list(range(1, len(curve) + 1))
+        marker = "o" if len(curve) == 1 else None  # SeqSLAM: one match per query
+        (line,) = ax.plot(ns, curve, marker=marker, ms=3, label=name)
+        for n in (1, 5, 10, 20):
+            if n <= len(curve):
+                ax.annotate(f"{curve[n - 1]:.2f}", (n, curve[n - 1]), fontsize=6,
+                            xytext=(0, 4), textcoords="offset points",
+                            ha="center", color=line.get_color())  # fmt: skip
+    ax.set_xlim(0.5, 20.5)
+    ax.set_xticks([1, 5, 10, 15, 20])
+    ax.set_xlabel("N (places retrieved)")
+    ax.set_ylabel("recall@N")
+    ax.set_ylim(0, 1.08)
+    ax.legend(fontsize=7)
+
+
+def route_panel(ax, result: Mapping[str, Any], method: str = "map") -> None:
+    """Predicted place against query index along the route: the right places
+    as a grey band, the method's predictions green where right and red where
+    wrong; no match (-1) drawn as crosses below the route."""
+    right = result["right_places"]
+    row = result["methods"][method]
+    xs = [i for i, places in enumerate(right) for _ in places]
+    ys = [p for places in right for p in places]
+    ax.scatter(xs, ys, s=6, color="lightgrey", label="right places", rasterized=True)
+    pred, ok = row["predictions"], row["correct"]
+    for good, colour, what in ((True, "tab:green", "right"),
+                               (False, "tab:red", "wrong")):  # fmt: skip
+        sel = [i for i, p in enumerate(pred) if ok[i] == good and p >= 0]
+        if sel:
+            ax.scatter(sel, [pred[i] for i in sel], s=5, color=colour,
+                       label=f"{row.get('label', method)}: {what}",
+                       rasterized=True)  # fmt: skip
+    missed = [i for i, p in enumerate(pred) if p < 0]
+    if missed:
+        ax.scatter(missed, [-0.03 * result.get("n", 1)] * len(missed), s=8,
+                   marker="x", color="tab:red", lw=0.6,
+                   label=f"no match ({len(missed)})")  # fmt: skip
+    ax.set_xlabel("query index (along the route)")
+    ax.set_ylabel("predicted place")
+    ax.legend(fontsize=7, markerscale=2)
+
+
 def plot_evaluation(
     result: Mapping[str, Any],
     title: str = "",
     path: str | os.PathLike | None = None,
 ):
-    """PR curves (left) and recall@K bars (right) of each method of
-    :func:`rhythmic_jax.eval.report.evaluate_map` (run with ``curves=True``): the
-    map beside brute force, as ``rhythmic-jax evaluate --plot`` draws them; for a
-    map with codes a third panel, recall against storage of the templates alone,
-    the codes alone, both fused and brute force (``result["frontier"]``).
+    """PR curves (left) and recall@N (N = 1..20 as curves, or recall@K bars
+    for results without ``recall_curve``) of each method of
+    :func:`rhythmic_jax.eval.report.evaluate_map` (run with ``curves=True``),
+    the map beside brute force, as ``rhythmic-jax evaluate --plot`` draws
+    them; then the map's predicted place against query index along the route
+    (results with ``right_places``); for a map with codes a last panel, recall
+    against storage of the templates alone, the codes alone, both fused and
+    brute force (``result["frontier"]``).
     """
     methods = {k: v for k, v in result["methods"].items() if "pr_curve" in v}
     if not methods:
         raise InputError("plot_evaluation: no PR curves (evaluate with curves=True)")
     frontier = result.get("frontier")
-    fig, axes = new_figure(3 if frontier else 2, width=4.6)
+    route = "right_places" in result and "predictions" in methods.get("map", {})
+    fig, axes = new_figure(2 + route + bool(frontier), width=4.6)
     left, right = axes[:2]
+    if route:
+        route_panel(axes[2], result)
     if frontier:  # a map with codes: recall per byte of its parts and of both
-        frontier_panel(axes[2], frontier, result.get("sequence") or 1)
-    ks = sorted(
-        int(c.split("@")[1])
-        for c in next(iter(methods.values()))
-        if c.startswith("recall@") and c[7:].isdigit()
-    )
-    width = 0.8 / len(methods)
-    for i, (name, row) in enumerate(methods.items()):
+        frontier_panel(axes[-1], frontier, result.get("sequence") or 1)
+    for name, row in methods.items():
         pr = row["pr_curve"]
         left.plot(
             pr["recall"],
             pr["precision"],
-            label=f"{name} (AUC {row['pr_auc']:.3f}, R@100P {row['recall@100p']:.3f})",
+            label=f"{row.get('label', name)} (AUC {row['pr_auc']:.3f}, "
+            f"R@100P {row['recall@100p']:.3f})",
         )
-        xs = [j + (i - (len(methods) - 1) / 2) * width for j in range(len(ks))]
-        # SeqSLAM gives one match per query: no bar beyond its recall@1
-        vals = [row.get(f"recall@{k}", float("nan")) for k in ks]
-        bars = right.bar(xs, vals, width, label=name)
-        text = ["" if v != v else f"{v:.2f}" for v in vals]  # NaN: no bar
-        right.bar_label(bars, labels=text, fontsize=7)
+    if all("recall_curve" in row for row in methods.values()):
+        recall_curve_panel(right, {row.get("label", k): row
+                                   for k, row in methods.items()})  # fmt: skip
+    else:
+        _recall_bars(right, methods)
     left.set_xlabel("recall")
     left.set_ylabel("precision")
     left.set_xlim(0, 1.02)
     left.set_ylim(0, 1.02)
     left.legend(fontsize=7)
-    right.set_xticks(range(len(ks)), [f"R@{k}" for k in ks])
-    right.set_ylim(0, 1.1)
-    right.set_ylabel("recall@K")
-    right.legend(fontsize=7)
-    for ax in (left, right):
+    for ax in axes:
         ax.grid(alpha=0.3)
     seq = result.get("sequence")
     fig.suptitle(
@@ -368,6 +446,27 @@ def plot_evaluation(
     return _finish(fig, path)
 
 
+def _recall_bars(ax, methods: Mapping[str, Mapping[str, Any]]) -> None:
+    """recall@K bars of each method, for results that keep no curve."""
+    ks = sorted(
+        int(c.split("@")[1])
+        for c in next(iter(methods.values()))
+        if c.startswith("recall@") and c[7:].isdigit()
+    )
+    width = 0.8 / len(methods)
+    for i, (name, row) in enumerate(methods.items()):
+        xs = [j + (i - (len(methods) - 1) / 2) * width for j in range(len(ks))]
+        # SeqSLAM gives one match per query: no bar beyond its recall@1
+        vals = [row.get(f"recall@{k}", float("nan")) for k in ks]
+        bars = ax.bar(xs, vals, width, label=name)
+        text = ["" if v != v else f"{v:.2f}" for v in vals]  # NaN: no bar
+        ax.bar_label(bars, labels=text, fontsize=7)
+    ax.set_xticks(range(len(ks)), [f"R@{k}" for k in ks])
+    ax.set_ylim(0, 1.1)
+    ax.set_ylabel("recall@K")
+    ax.legend(fontsize=7)
+
+
 _KIND_STYLE = {
     "map": ("o", "tab:blue"),
     "codes": ("s", "tab:orange"),
@@ -377,12 +476,49 @@ _KIND_STYLE = {
 }
 
 
+def _short(name: str) -> str:
+    """A row's name without its periods: ``map r=2 level 2 int8 + ITQ 64``."""
+    import re
+
+    return re.sub(r" \([\d, ]+\)", "", name)
+
+
+def fitted_recall_axis(ax, values: Sequence[float]) -> None:
+    """Recall from 0 to a little above the largest value: 0-1 when it passes
+    0.6, else a tenth (0.05 below 0.3) rounded up past it."""
+    top = max(values, default=1.0)
+    if top > 0.6:
+        ax.set_ylim(0, 1.02)
+        return
+    step = 0.05 if top < 0.3 else 0.1
+    ax.set_ylim(0, step * (int(top / step) + 1))
+
+
+def fitted_log_axis(axis, lo: float, hi: float) -> None:
+    """A log axis whose labels do not run into each other: decades with no
+    minor labels over two decades or more, else 1-2-5 steps written out."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_minor_formatter(NullFormatter())
+    if hi / max(lo, 1e-12) < 100:
+        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:,.6g}"))
+
+
 def frontier_panel(
-    ax, rows: Sequence[Mapping[str, Any]], length: int = 1, per_place: bool = False
+    ax,
+    rows: Sequence[Mapping[str, Any]],
+    length: int = 1,
+    per_place: bool = False,
+    budget: float | None = None,
 ) -> None:
     """Draw recall@1 at sequence ``length`` against storage on ``ax``: one marker
-    per kind, and the upper frontier of the points as a step line. Storage is the
-    share of the float32 database in %, or bytes per place (``per_place``)."""
+    per kind, the upper frontier of the points as a step line and its points
+    labelled with their names (where neighbours crowd, the first of them).
+    Storage is the share of the float32 database in
+    %, or bytes per place (``per_place``); ``budget`` (bytes per place, with
+    ``per_place``) is drawn as a dashed line. The recall axis spans 0 to a
+    little above the best value, the storage axis the points."""
     key = f"recall@1 L={length}"
 
     def size(r):
@@ -401,20 +537,39 @@ def frontier_panel(
                 s=28,
             )
     best, front = -1.0, []
-    for r in sorted(pts, key=lambda r: r["share"]):
+    for r in sorted(pts, key=lambda r: (r["share"], -r[key])):
         if r[key] > best:
             best = r[key]
-            front.append((size(r), best))
+            front.append(r)
     if front:
-        xs, ys = zip(*front, strict=True)
+        xs, ys = [size(r) for r in front], [r[key] for r in front]
         ax.step(xs, ys, where="post", color="grey", lw=1.5, alpha=0.8,
                 label="best within the bytes")  # fmt: skip
+        span = max(ys) - min(ys) or 1.0
+        last = None
+        for i, r in enumerate(front):  # crowded neighbours keep one label
+            x, y = size(r), r[key]
+            if last is not None and x < 2 * last[0] and y - last[1] < 0.1 * span:
+                continue
+            last = (x, y)
+            ax.annotate(_short(r.get("name", r["kind"])), (x, y), fontsize=5.5,
+                        xytext=(4, -9 if i % 2 else 4), textcoords="offset points",
+                        color="dimgrey")  # fmt: skip
+    if budget is not None and per_place:
+        ax.axvline(float(budget), ls="--", lw=1, color="tab:red",
+                   label=f"budget {float(budget):,.6g} B/place")  # fmt: skip
     ax.set_xscale("log")
+    if pts:
+        sizes = [size(r) for r in pts] + ([float(budget)] if budget and per_place
+                                          else [])  # fmt: skip
+        lo, hi = min(sizes), max(sizes)
+        ax.set_xlim(lo / 1.4, hi * 1.6)  # room for the labels
+        fitted_log_axis(ax.xaxis, lo, hi)
+    fitted_recall_axis(ax, [r[key] for r in pts])
     ax.set_xlabel(
         "bytes per place (log)" if per_place else "storage, % of the float32 database"
     )
     ax.set_ylabel(f"recall@1, L = {length}")
-    ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
 
@@ -425,10 +580,12 @@ def plot_frontier(
     lengths: Sequence[int] = (1,),
     title: str = "",
     per_place: bool = False,
+    budget: float | None = None,
 ):
     """Recall@1 against storage (share of the float32 database, log scale), one
     panel per sequence length, one marker per kind (map, codes, hybrid, brute force)
-    and the upper frontier of every point drawn as a step line.
+    and the upper frontier of every point drawn as a step line, its points
+    labelled (:func:`frontier_panel`; ``budget``: bytes per place, drawn).
 
     Args:
       rows: ``{"kind", "share", "recall@1 L=<L>"}`` per representation (as
@@ -438,8 +595,8 @@ def plot_frontier(
     """
     if not rows:
         raise InputError("plot_frontier: no rows to plot")
-    fig, axes = new_figure(len(lengths), width=4.4)
+    fig, axes = new_figure(len(lengths), width=5.2 if per_place else 4.4)
     for ax, length in zip(axes, lengths, strict=True):
-        frontier_panel(ax, rows, length, per_place)
+        frontier_panel(ax, rows, length, per_place, budget)
     fig.suptitle(title or "recall per byte")
     return _finish(fig, path)

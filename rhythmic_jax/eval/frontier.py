@@ -82,7 +82,7 @@ SEQUENCE_SCORERS = {
 class FrontierConfig:
     """What :func:`frontier_rows` measures.
 
-    ``python scripts/bench_recall_per_byte.py`` uses the defaults on the Nordland
+    ``python scripts/bench_recall.py per-byte`` uses the defaults on the Nordland
     split (summer references, winter queries, EfficientNet-Lite0);
     ``rhythmic-jax frontier`` adds float16 maps, product quantisation
     (``pq``: numbers of 8-bit sub-quantisers) and int8 per place (``scalar``).

@@ -5,7 +5,7 @@ count as a correct answer (several for VPR-Bench lists or positions within a
 radius; none when the query's place is not in the map). It comes from
 
 * the index alignment "query i is place i", with a frame tolerance
-  (:func:`index_aligned`, what ``evaluate`` uses when given nothing else);
+  (:func:`from_indices`, what ``evaluate`` uses when given nothing else);
 * per-query lists (:func:`from_lists`, e.g. VPR-Bench's ``ground_truth_new.npy``);
 * positions in metres within ``tolerance_m`` (:func:`from_positions`, the
   Pittsburgh / Tokyo 24/7 convention of 25 m).
@@ -33,7 +33,6 @@ __all__ = [
     "gt_accuracy",
     "gt_pr_curve",
     "gt_recall_at_k",
-    "index_aligned",
 ]
 
 
@@ -111,12 +110,6 @@ def from_lists(
             )
         out.append(p)
     return GroundTruth(tuple(out), int(n_places), source)
-
-
-def index_aligned(b: int, n_places: int, tolerance: int = 0) -> GroundTruth:
-    """Query i is place i, give or take ``tolerance`` frames (i >= n: not in map)."""
-    gt = np.arange(b)
-    return from_indices(np.where(gt < n_places, gt, -1), n_places, tolerance)
 
 
 def from_indices(gt, n_places: int, tolerance: int = 0) -> GroundTruth:

@@ -28,6 +28,7 @@ from rhythmic_jax.map.periods import database_bytes, place_columns
 __all__ = ["evaluate_map", "format_evaluation", "ranked_places"]
 
 KS = (1, 5, 10, 20)
+CURVE = 20  # recall at every N = 1 .. CURVE, for the figures (curves=True)
 
 
 @functools.partial(jit, static_argnames=("periods", "n", "k"))
@@ -53,13 +54,21 @@ def ranked_places(scores, periods, n: int, k: int = 10) -> np.ndarray:
     return np.asarray(_ranked(scores, periods, int(n), min(k, n)))
 
 
+WARMUP = 20  # untimed calls of one query before the latency is timed
+
+
 def _latency(fn, queries) -> dict[str, float]:
-    single = time_single_queries(fn, queries[: min(len(queries), 200)], warmup=5)
+    """One query alone (the median of up to 200 calls, after :data:`WARMUP`
+    untimed ones) and the whole batch in one call (its throughput), timed on
+    a warm program: both shapes are compiled before any clock starts."""
+    fn(queries[:1]), fn(queries)  # compiled (or loaded) here, not while timed
+    single = time_single_queries(fn, queries[: min(len(queries), 200)], WARMUP)
     batch = time_batch(fn, queries, repeats=3)
     return {
         "latency_median_s": single["median_s"],
         "latency_p95_s": single["p95_s"],
         "queries_per_s": batch["queries_per_s"],
+        "batch_s": batch["median_s"],
     }
 
 
@@ -69,6 +78,15 @@ def _code_similarity(model, queries) -> np.ndarray:
     from rhythmic_jax.decoding.queries import queries as map_queries
 
     return model.codebook.similarity(map_queries(model.value, queries))
+
+
+def map_label(model) -> str:
+    """What a map's row measures: the map, the map and its codes fused, or, at
+    a fusion weight of 0, its codes alone (at 1, its templates alone)."""
+    if model.codebook is None:
+        return "map"
+    w = float(model.config.fusion)
+    return "codes alone" if w == 0 else "map" if w == 1 else "map + codes"
 
 
 def _hybrid_decisions(model, queries, method, sequence):
@@ -144,6 +162,18 @@ def _scores_of(
         "recall@100p": float(recall[precision == 1.0].max()),
     }
     row["_pr"] = (precision, recall)
+    ranked = np.asarray(ranked)
+    if ranked.ndim == 1:
+        ranked = ranked[:, None]
+    curve = gt_recall_at_k(ranked, truth, range(1, min(CURVE, ranked.shape[1]) + 1))
+    row["_route"] = {  # for the figures of a route: kept with curves=True
+        "recall_curve": list(curve.values()),
+        "predictions": np.asarray(pred).astype(int).tolist(),
+        "confidence": [float(c) if np.isfinite(c) else None
+                       for c in np.asarray(conf, np.float64)],
+        "correct": np.where(truth.in_map, truth.hits(np.asarray(pred, np.int64)),
+                            np.asarray(pred) == -1).tolist(),
+    }  # fmt: skip
     return row
 
 
@@ -161,10 +191,10 @@ def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
     from rhythmic_jax.decoding.sequence import sequence_decode
     from rhythmic_jax.decoding.soft import soft_decode
     from rhythmic_jax.eval.ground_truth import gt_accuracy
-    from rhythmic_jax.map.codes import code_bytes
-
     length = int(sequence) if sequence else 1
     key, n, d = f"recall@1 L={length}", model.n, model.d
+    emb = model.embedding_bytes  # every part but brute force embeds its queries
+    plus = " + embedding" if emb else ""
     s = model.scores(queries)
     sims = _code_similarity(model, queries)
     if length > 1:
@@ -173,11 +203,14 @@ def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
     else:
         alone, coded = soft_decode(s, model.periods, n).index, sims
     st, db = model.storage(), database_bytes(n, d, 4)
+    w = float(model.config.fusion)
+    fused = "codes alone (fusion 0)" if w == 0 else f"map + codes (fused, w={w:g})"
     parts = [
-        ("map", "templates alone", sum(st["per_period"].values()), alone),
-        ("codes", f"ITQ {model.codebook.bits} bits alone",
-         code_bytes(n, d, model.codebook.bits)["total"], np.argmax(coded, axis=1)),
-        ("hybrid", "map + codes (fused)", model.storage_bytes, pred),
+        ("map", "templates alone" + plus, sum(st["per_period"].values()) + emb, alone),
+        ("codes", f"ITQ {model.codebook.bits} bits alone" + plus,
+         model.codebook.storage()["total"] + emb,
+         np.argmax(coded, axis=1)),
+        ("hybrid", fused + plus, model.storage_bytes + emb, pred),
     ]  # fmt: skip
     if brute is not None and length == 1:
         parts.append(("brute force", "brute force", db, brute))
@@ -222,7 +255,10 @@ def evaluate_map(
       method, sequence: decode options passed to ``predict``.
       timing: measure latency and throughput.
       ground_truth: a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
-      curves: keep each method's PR curve under ``"pr_curve"`` (for plots).
+      curves: keep, for the figures, each method's PR curve (``"pr_curve"``),
+        recall at every N = 1..20 (``"recall_curve"``), ``"predictions"``,
+        ``"confidence"`` and ``"correct"`` per query, and the right places of
+        each query (``result["right_places"]``).
       recall_over: recall@K's denominator, ``"matched"`` (the queries with a
         right place, VPR_Tutorial's) or ``"all"`` (every query,
         VPR-methods-evaluation's); said in the result (``"recall_over"``,
@@ -250,8 +286,11 @@ def evaluate_map(
     rows: dict[str, Any] = {
         "map": {
             **_scores_of(pred, conf, ranked, truth, exact, ks, recall_over),
+            "label": map_label(model),
             "storage_bytes": model.storage_bytes,
-            "storage_share": model.storage_bytes / database_bytes(model.n, model.d, 4),
+            # what a query needs: the templates, the codes and the embedding
+            "storage_share": (model.storage_bytes + model.embedding_bytes)
+            / database_bytes(model.n, model.d, 4),
             "codes_bits": model.codebook.bits if model.codebook is not None else None,
             "embedding_bytes": model.embedding_bytes,
             "periods": list(model.periods),
@@ -259,7 +298,7 @@ def evaluate_map(
         }
     }
     if timing:
-        rows["map"].update(_latency(lambda q: model.decode(q).index, queries))
+        rows["map"].update(_latency(lambda q: model.predict(q, method), queries))
     brute = None
     if reference is not None and sequence is not None and sequence > 1:
         rows.update(
@@ -295,11 +334,13 @@ def evaluate_map(
     for row in rows.values():
         row["recall_line"] = recall_line(row, ks)
         precision, recall = row.pop("_pr")
+        route = row.pop("_route")
         if curves:
             row["pr_curve"] = {
                 "precision": precision.tolist(),
                 "recall": recall.tolist(),
             }
+            row.update(route)
     out = {
         "n": model.n,
         "d": model.d,
@@ -315,6 +356,9 @@ def evaluate_map(
         "compression_ratio": model.compression_ratio,
         "methods": rows,
     }
+    if curves:  # the right places of each query, for the route's figures
+        out["right_places"] = [np.asarray(p).astype(int).tolist()
+                               for p in truth.positives]  # fmt: skip
     if curves and model.codebook is not None:  # recall per byte, for the plot
         out["frontier"] = model_frontier(model, queries, pred, truth, sequence, brute)
     return out
@@ -430,6 +474,8 @@ def format_evaluation(result: dict[str, Any]) -> str:
         cells = []
         for c in cols:
             v = row.get(c)
+            if c == "storage_bytes" and v is not None:
+                v += row.get("embedding_bytes") or 0  # what a query needs
             if v is None:
                 cells.append(f"{'-':>{w}}")
             elif isinstance(v, int):
@@ -438,7 +484,33 @@ def format_evaluation(result: dict[str, Any]) -> str:
                 cells.append(f"{v * 1e3:>{w - 3}.3f} ms")
             else:
                 cells.append(f"{v:>{w}.4f}" if v < 100 else f"{v:>{w},.0f}")
-        lines.append(f"{name:<12}" + "".join(cells))
+        lines.append(f"{row.get('label', name):<12}" + "".join(cells))
     for name, row in result["methods"].items():  # the line papers quote
-        lines.append(f"{name}: {row.get('recall_line') or recall_line(row)}")
-    return "\n".join(lines)
+        label = row.get("label", name)
+        lines.append(f"{label}: {row.get('recall_line') or recall_line(row)}")
+    return "\n".join(lines + legend(result))
+
+
+def legend(result: dict[str, Any]) -> list[str]:
+    """What the table's columns mean, for the result printed above them."""
+    decode = result.get("decode")
+    ranks = result.get("recall_ranks", "single-frame scores")
+    if (result.get("methods", {}).get("map") or {}).get("codes_bits"):
+        decode = "fused" if decode == "hard" else f"fused {decode}"  # no -1 there
+    nomatch = " (a -1, no match, counts as wrong)" if decode == "hard" else ""
+    lines = [
+        f"accuracy: the {decode} decode's place{nomatch} is the right place exactly;"
+        " acc_tol: within the tolerance",
+        f"recall@K: a right place (within the tolerance) among the K best by the "
+        f"{ranks}; they rank every place, so the map's recall@1 can exceed a "
+        "hard decode's acc_tol",
+    ]
+    rows = result.get("methods", {}).values()
+    if any(r.get("embedding_bytes") for r in rows):
+        lines.append("bytes: what a query needs, the embedding included (the "
+                     "compression ratio counts it too)")  # fmt: skip
+    if any("latency_median_s" in r for r in rows):
+        lines.append(f"latency: one query alone, median after {WARMUP} warm calls; "
+                     f"queries/s: all {result.get('n_queries')} queries in one "
+                     "call (batched: not 1/latency)")  # fmt: skip
+    return lines

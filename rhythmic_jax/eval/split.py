@@ -10,7 +10,6 @@ image pair.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +17,7 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.validate import check_int
 
-__all__ = ["NORDLAND_SPLIT", "PlaceSplit", "pair_split", "route_split"]
+__all__ = ["NORDLAND_SPLIT", "PlaceSplit", "route_split"]
 
 
 @dataclass(frozen=True)
@@ -79,22 +78,6 @@ def route_split(n: int, train_end: int, gap: int) -> PlaceSplit:
         test=np.arange(train_end + gap, n, dtype=np.int64),
         gap=int(gap),
     )
-
-
-def pair_split(names: Sequence[str], test: Sequence[str]) -> tuple[list, list]:
-    """Hold out whole image pairs (the aerial protocol): ``(train names, test names)``.
-
-    Every name in ``test`` must be one of ``names``; the rest train. Tiles of one
-    pair never fall on both sides.
-    """
-    names, test = list(names), list(test)
-    unknown = sorted(set(test) - set(names))
-    if unknown:
-        raise InputError(f"split: test pairs not found: {unknown}")
-    if not test or len(set(test)) == len(set(names)):
-        raise InputError("split: both sides need at least one image pair")
-    held = set(test)
-    return [n for n in names if n not in held], [n for n in names if n in held]
 
 
 #: Nordland (3576 places a season): places 0-1199 train, 1220-3575 test.

@@ -25,8 +25,8 @@ __all__ = [
 ]
 
 COMPILE_MODES = ("auto", "always", "never")
-# Measured on the 2-core reference machine (scripts/bench_frames.py): loading a
-# ready package and its first call cost about LOAD_SECONDS, building one about
+# Measured on the 2-core reference machine (scripts/bench_frames.py end-to-end):
+# loading a ready package and its first call cost about LOAD_SECONDS, building one about
 # BUILD_SECONDS; EfficientNet-Lite0 (224x112) saves about 6 ms a frame compiled.
 LOAD_SECONDS = 0.2
 BUILD_SECONDS = 60.0

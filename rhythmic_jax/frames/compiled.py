@@ -77,7 +77,6 @@ __all__ = [
     "stages",
     "start_build",
     "take_lock",
-    "wants_compiled",
 ]
 
 log = logging.getLogger(__name__)
@@ -87,7 +86,7 @@ if TYPE_CHECKING:
 
 # Frames per network call, compiled and eager. Small batches keep each layer's
 # activations in the CPU's caches: on the 2-core reference machine
-# (scripts/bench_network.py, reports/network.md, two runs) EfficientNet-Lite0 at
+# (scripts/bench_frames.py network, reports/network.md, two runs) EfficientNet-Lite0 at
 # 224x112 compiled ran at 447-535 frames/s in batches of 8 (507-518 at 4, within
 # the runs' noise) against 276-279 in batches of 32 and 231-240 at 64, and
 # eagerly at 298-300 frames/s in batches of 4 against 175-185 at 8 and 90-97 at 64.
@@ -147,12 +146,6 @@ def plan(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> str:
         return compiled
     off = os.environ.get(BUILD_ENV, "").strip().lower() in ("0", "off", "no", "false")
     return "eager" if off else "background"
-
-
-def wants_compiled(descriptor, frames: int, policy: CompilePolicy, ready: bool) -> bool:
-    """Whether a job of ``frames`` frames runs ``descriptor`` compiled
-    (:func:`plan` says load or build)."""
-    return plan(descriptor, frames, policy, ready) in ("load", "build")
 
 
 def package_ready(path: Path) -> bool:

@@ -15,7 +15,7 @@ size and returns L2-normalised float32 rows. Registered names:
 * ``patchnorm``: SeqSLAM's patch-normalised grey thumbnail (64x32, 8x8 patches).
 * ``hog``: scikit-image HOG of the grey thumbnail.
 
-``python scripts/bench_descriptors.py`` measures them all on Nordland.
+``python scripts/bench_frames.py descriptors`` measures them all on Nordland.
 
 torch (seconds to import) and scikit-image's HOG load when a descriptor first
 computes rows: naming a descriptor, its settings and a cache hit need neither.

@@ -53,7 +53,6 @@ __all__ = [
     "KINDS",
     "Groups",
     "LayoutSpec",
-    "as_groups",
     "choose_radices",
     "choose_segment",
     "fine_periods",
@@ -216,13 +215,6 @@ class Groups:
     def from_dict(cls, meta: dict[str, Any]) -> Groups:
         """Inverse of :meth:`to_dict`."""
         return cls(str(meta["kind"]), tuple(meta["sizes"]), int(meta.get("segment", 0)))
-
-
-def as_groups(groups: Groups | tuple[int, ...] | list[int]) -> Groups:
-    """A :class:`Groups`; a plain sequence of ints is read as co-prime periods."""
-    if isinstance(groups, Groups):
-        return groups
-    return Groups("periods", tuple(groups))
 
 
 # ------------------------------------------------------------------ choices

@@ -87,7 +87,7 @@ class NewtonConfig:
     tolerance and the same training errors (``tests/solvers/test_newton.py``).
     ``FAST`` (estimated gap <= 1e-3 before a template's last step, 3 CG
     iterations in the first step after the ridge start, one more each step up
-    to 8) is for a 0.1 % gap: ``scripts/bench_solver.py`` times it against
+    to 8) is for a 0.1 % gap: ``scripts/bench_solver.py joint`` times it against
     LinearSVC and measures its true gap (``reports/solver.md``).
 
     Attributes:

@@ -87,7 +87,7 @@ def test_evaluate_finds_the_maps_reference_or_says_why_not(npy_route, capsys):
     code, out, err = run(capsys, "evaluate", str(out_map), query)
     assert code == 0, err
     rows = out.splitlines()[5:-1]  # below the heading and header, above the note
-    rows = [row for row in rows if "R@1:" not in row]  # the papers' recall line
+    rows = [row for row in rows if ":" not in row]  # recall lines, the legend
     assert [row.split()[0] for row in rows] == ["map"]
     assert out.strip().endswith("is gone); give --reference SOURCE")
 
@@ -186,6 +186,59 @@ def test_help_has_examples(capsys):
     for cmd in ("fit", "query", "info", "evaluate", "demo"):
         assert main([cmd, "--help"]) == 0
         assert "examples:" in capsys.readouterr().out
+
+
+def test_version_is_the_packages(capsys):
+    from rhythmic_jax import __version__
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"rhythmic-jax {__version__}"
+
+
+def _stated(value) -> set[str]:
+    """How a help line may state a default: as written, or %g for numbers."""
+    forms = {str(value)}
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        forms.add(f"{value:g}")
+    return forms
+
+
+def test_every_option_has_help_and_states_its_default():
+    """Each option of each command (those added later too) has help text, and
+    one declared with a default (not None, False or '') states it in that text;
+    choices are listed in the option's line."""
+    import argparse
+
+    from rhythmic_jax.app.cli import _parser
+
+    for name, command in _parser().commands.items():
+        formatter = command._get_formatter()
+        for action in command._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            where = (name, action.dest)
+            assert action.help, where
+            text = " ".join(formatter._expand_help(action).split())
+            default = action.default
+            if action.option_strings and not (default is None or default is False
+                                              or default == ""):
+                assert "default" in text, where
+                assert any(form in text for form in _stated(default)), where
+            if action.choices:
+                line = formatter._format_action_invocation(action)
+                assert all(str(c) in line for c in action.choices), where
+
+
+def test_the_compile_note_is_said_once_at_the_top(capsys):
+    """The long --compile paragraph is in the top-level epilog only; each
+    command's --compile points there."""
+    note = "pays only for a background build"
+    assert main(["--help"]) == 0
+    assert note in " ".join(capsys.readouterr().out.split())
+    for cmd in ("fit", "learn", "query", "evaluate"):
+        assert main([cmd, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        assert note not in text and "see the main --help" in text, cmd
 
 
 HEAVY = ("numpy", "jax", "torch", "faiss", "sklearn", "optax", "orbax")

@@ -84,6 +84,33 @@ def test_frontier_command_table_json_csv_plot(route, capsys):
     assert "sequence scorer" in head and "diagonal sum" in text
 
 
+def test_the_default_grid_and_faiss_warnings_in_one_line(route, capfd):
+    """Without --maps/--bits/--pq the small grid is fitted (codes wider than d
+    left out); faiss's k-means warnings (PQ trained on 90 points) reach stderr
+    as one note line of the table, never one line each."""
+    from rhythmic_jax.app.specs import GRIDS
+
+    folder, _, _ = route
+    base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--lengths", "1", "--no-progress"]  # fmt: skip
+    assert main([*base, "--json"]) == 0
+    out, err = capfd.readouterr()
+    result = json.loads(out)
+    assert [tuple(m) for m in result["config"]["maps"]] == list(GRIDS["small"]["maps"])
+    assert result["config"]["bits"] == [] and result["config"]["pq"] == [16]
+    assert any(line.startswith("PQ 32") for line in result["skipped"])  # 32 ∤ d
+    assert "PQ 16x6 bits" in {r["name"] for r in result["rows"]}
+    assert "WARNING clustering" not in err
+    assert len(result["notes"]) == 1 and "faiss warned" in result["notes"][0]
+    assert "64 centroids from 90 points" in result["notes"][0]
+    assert main([*base, "--grid", "full", "--bits", "8", "--pq", "", "--json"]) == 0
+    out, err = capfd.readouterr()
+    result = json.loads(out)
+    assert [tuple(m) for m in result["config"]["maps"]] == list(GRIDS["full"]["maps"])
+    assert result["config"]["bits"] == [8] and result["config"]["pq"] == []
+    assert "WARNING clustering" not in err and result["notes"] == []
+
+
 def test_frontier_refuses_in_one_line(route, capsys):
     folder, _, _ = route
     base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy")]

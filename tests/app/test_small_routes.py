@@ -82,7 +82,7 @@ def test_fit_codes_on_small_routes_is_a_map_or_one_line(tmp_path, capsys, n, d):
 def _frontier(capsys, tmp_path, n, d):
     ref, qry = _route(tmp_path, n, d)
     code, out, err = run(capsys, "frontier", ref, qry, "--maps", "2:1",
-                         "--json", "--no-progress")  # fmt: skip
+                         "--grid", "full", "--json", "--no-progress")  # fmt: skip
     assert code == 0, err
     assert "Traceback" not in err
     result = json.loads(out)

@@ -342,6 +342,37 @@ def test_plot_frontier_writes_a_png(tmp_path):
         plot_frontier([], tmp_path / "g.png")
 
 
+def test_frontier_axes_fit_the_data_label_the_front_and_draw_the_budget(tmp_path):
+    """Recall under 0.15 is not drawn on 0-1; a route spanning less than two
+    decades of bytes gets written-out 1-2-5 ticks, no minor labels; each point
+    of the front carries its name (periods left out); the budget is a line."""
+    from rhythmic_jax.eval.figures import plot_frontier
+
+    rows = [
+        {"kind": "map", "name": "map r=2 level 1 (11, 13) int8", "share": 0.1,
+         "bytes_per_place": 60.0, "recall@1 L=1": 0.02},
+        {"kind": "codes", "name": "ITQ 64 bits", "share": 0.2,
+         "bytes_per_place": 120.0, "recall@1 L=1": 0.09},
+        {"kind": "codes", "name": "PQ 8x6 bits", "share": 0.3,
+         "bytes_per_place": 200.0, "recall@1 L=1": 0.05},
+        {"kind": "brute force", "name": "brute force", "share": 1.0,
+         "bytes_per_place": 512.0, "recall@1 L=1": 0.12},
+    ]  # fmt: skip
+    fig = plot_frontier(rows, tmp_path / "f.png", (1,), per_place=True, budget=150)
+    (ax,) = fig.axes
+    assert ax.get_ylim() == pytest.approx((0, 0.15))
+    labels = {t.get_text() for t in ax.texts}
+    assert labels == {"map r=2 level 1 int8", "ITQ 64 bits", "brute force"}
+    assert [line.get_xdata()[0] for line in ax.lines[1:]] == [150.0]  # the budget
+    fig.canvas.draw()
+    ticks = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+    assert "100" in ticks and "200" in ticks
+    assert not [t for t in ax.xaxis.get_minorticklabels() if t.get_text()]
+    assert 60 / 1.4 == pytest.approx(ax.get_xlim()[0])
+    rows[0]["recall@1 L=1"] = 0.9
+    assert plot_frontier(rows, per_place=True).axes[0].get_ylim()[1] > 1
+
+
 def test_plot_storage_growth_returns_the_figure_and_saves_it(keep, tmp_path):
     from rhythmic_jax.eval.figures import plot_storage_growth
 
@@ -361,3 +392,49 @@ def test_plot_storage_growth_returns_the_figure_and_saves_it(keep, tmp_path):
     np.testing.assert_allclose(np.log10(guide[-1] / guide[0]), 1.0)
     with pytest.raises(InputError, match="no curves"):
         plot_storage_growth(ns, {}, 1024)
+
+
+def test_plot_evaluation_draws_recall_at_every_n_and_the_route(tmp_path):
+    """With the curves evaluate keeps: recall@N for N = 1..20 as lines, and the
+    predicted place against query index (right green, wrong red, no match as
+    crosses) over the right places."""
+    rows = {
+        name: {
+            "pr_auc": 0.5, "recall@100p": 0.1, "recall@1": curve[0],
+            "pr_curve": {"precision": [1.0, 0.5], "recall": [0.0, 0.5]},
+            "recall_curve": curve, "predictions": pred,
+            "correct": [p == i for i, p in enumerate(pred)],
+        }
+        for name, curve, pred in (
+            ("map", [0.25, 0.5, 0.75, 1.0], [0, 3, -1, 3]),
+            ("brute force", [0.5] * 20, [0, 1, 2, 0]),
+        )
+    }  # fmt: skip
+    result = {"n": 4, "methods": rows, "right_places": [[0], [1], [2], [3]]}
+    fig = plot_evaluation(result, path=tmp_path / "e.png")
+    assert len(fig.axes) == 3
+    middle, route = fig.axes[1], fig.axes[2]
+    curves = [list(line.get_ydata()) for line in middle.get_lines()]
+    assert curves == [[0.25, 0.5, 0.75, 1.0], [0.5] * 20]
+    assert list(middle.get_lines()[1].get_xdata()) == list(range(1, 21))
+    grey, green, red, crosses = route.collections
+    assert grey.get_offsets().tolist() == [[0, 0], [1, 1], [2, 2], [3, 3]]
+    assert green.get_offsets().tolist() == [[0, 0], [3, 3]]
+    assert red.get_offsets().tolist() == [[1, 3]]
+    assert crosses.get_offsets()[:, 0].tolist() == [2]
+
+
+def test_plot_matches_draws_three_frames_a_query(tmp_path):
+    from rhythmic_jax.eval.figures import plot_matches
+
+    frame = np.zeros((8, 16, 3), np.uint8)
+    rows = [{"query": frame, "chosen": frame, "right": frame,
+             "titles": ("query 0: right", "chosen: place 0", "right: place 0")},
+            {"query": frame, "chosen": None, "right": frame,
+             "titles": ("query 1: wrong", "chosen: no match", "right: place 1")}]
+    fig = plot_matches(rows, path=tmp_path / "m.png")
+    assert len(fig.axes) == 6 and (tmp_path / "m.png").stat().st_size > 1000
+    assert [ax.get_title() for ax in fig.axes[3:]] == list(rows[1]["titles"])
+    assert len(fig.axes[4].images) == 0 and fig.axes[4].texts[0].get_text() == "none"
+    with pytest.raises(InputError):
+        plot_matches([])

@@ -257,7 +257,9 @@ def test_format_evaluation_prints_every_row_and_column(case):
     res = evaluate_map(model, q, reference=x, tolerance=2, timing=False)
     text = format_evaluation(res)
     lines = text.split("\n")
-    assert len(lines) == 9
+    assert len(lines) == 11  # and the legend: accuracy, recall@K
+    assert lines[9].startswith("accuracy: the hard decode's place (a -1, no match,")
+    assert lines[10].startswith("recall@K: a right place (within the tolerance) among")
     assert lines[:4] == [
         f"n={N} d={D} queries={N}; compression ratio {res['compression_ratio']:.4f}",
         "decode=hard sequence=off; recall@K ranks single-frame scores (single frames)",
@@ -266,7 +268,7 @@ def test_format_evaluation_prints_every_row_and_column(case):
         "and VPR-methods-evaluation's conventions agree)",
     ]
     assert lines[4] == f"{'method':<12}" + "".join(f"{c:>{W}}" for c in HEAD)
-    for line, name in zip(lines[7:], ["map", "brute force"], strict=True):
+    for line, name in zip(lines[7:9], ["map", "brute force"], strict=True):
         r = res["methods"][name]
         want = ", ".join(f"R@{k}: {100 * r[f'recall@{k}']:.1f}" for k in (1, 5, 10, 20))
         assert line == f"{name}: {want} (over {N} queries with a right place)"
@@ -320,7 +322,11 @@ def test_format_evaluation_hand_case():
         + f"{'1,234,567':>{W}}{'2.500 ms':>{W}}{'12,346':>{W}}"
     )
     assert lines[5] == f"{'kd':<12}{'0.3333':>{W}}" + dash * 9 + f"{'55.5000':>{W}}"
-    assert lines[6:] == ["map: R@1: 50.0, R@5: 100.0", "kd: "]
+    assert lines[6:8] == ["map: R@1: 50.0, R@5: 100.0", "kd: "]
+    assert lines[8].startswith("accuracy: the topm decode's place is the right")
+    assert lines[10] == ("latency: one query alone, median after 20 warm calls; "
+                         "queries/s: all 3 queries in one call (batched: not "
+                         "1/latency)")  # fmt: skip
 
 
 def test_sequence_peers_sum_brute_force_along_the_diagonal(case):
@@ -347,3 +353,32 @@ def test_sequence_peers_sum_brute_force_along_the_diagonal(case):
     assert "recall@5" not in got and got["recall_line"].startswith("R@1: ")
     text = format_evaluation(res)
     assert "(peers at the same L=4)" in text and "single frames" not in text
+
+
+def test_the_embedding_is_counted_and_a_fusion_of_zero_is_the_codes_alone(case):
+    """A map with an embedding: its share, its bytes in the table and every
+    part of its recall-per-byte rows count the embedding's bytes; at a fusion
+    weight of 0 the row is named for what decides, the codes alone."""
+    from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
+
+    _, x, q = case
+    emb, _ = learn_embedding([x, q], LearnConfig(method="pca", k=8))
+    model = RhythmicMap(codes=8, fusion=0.0, embedding=emb).fit(x)
+    res = evaluate_map(model, q, reference=x, timing=False, curves=True)
+    row, extra = res["methods"]["map"], model.embedding_bytes
+    assert extra > 0
+    total = model.storage_bytes + extra
+    assert row["storage_share"] == pytest.approx(total / (N * D * 4))
+    assert res["compression_ratio"] == pytest.approx(row["storage_share"])
+    assert row["label"] == "codes alone"
+    table = format_evaluation(res).split("\n")
+    assert table[5].startswith(f"{'codes alone':<12}") and f"{total:,}" in table[5]
+    assert any(line.startswith("bytes: what a query needs") for line in table)
+    parts = {r["kind"]: r for r in res["frontier"]}
+    assert parts["hybrid"]["name"] == "codes alone (fusion 0) + embedding"
+    assert parts["hybrid"]["storage_bytes"] == total
+    assert min(parts[k]["storage_bytes"] for k in ("codes", "map")) > extra
+    plain = RhythmicMap(codes=8, fusion=0.5).fit(x)
+    assert evaluate_map(plain, q, timing=False)["methods"]["map"]["label"] == (
+        "map + codes"
+    )

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval.split import NORDLAND_SPLIT, PlaceSplit, pair_split, route_split
+from rhythmic_jax.eval.split import NORDLAND_SPLIT, PlaceSplit, route_split
 
 
 def test_nordland_split_is_disjoint_with_its_gap():
@@ -29,13 +29,3 @@ def test_shared_places_are_refused():
 def test_bad_route_splits(args):
     with pytest.raises(InputError):
         route_split(*args)
-
-
-def test_pair_split_holds_out_whole_pairs():
-    train, test = pair_split(["a", "b", "c", "d"], ["c", "a"])
-    assert train == ["b", "d"] and test == ["a", "c"]
-    assert not set(train) & set(test)
-    with pytest.raises(InputError, match="not found"):
-        pair_split(["a", "b"], ["z"])
-    with pytest.raises(InputError, match="both sides"):
-        pair_split(["a", "b"], ["a", "b"])

@@ -10,7 +10,6 @@ import pytest
 from rhythmic_jax import InputError
 from rhythmic_jax.map.groups import (
     Groups,
-    as_groups,
     choose_radices,
     choose_segment,
     fine_periods,
@@ -116,7 +115,6 @@ def test_specs_parse_and_resolve():
     assert resolve_layout(parse_layout("periods:49,50"), 2356).sizes == (49, 50)
     g = Groups("hierarchical", (48, 8, 9), 50)
     assert Groups.from_dict(g.to_dict()) == g
-    assert as_groups((4, 5)) == Groups("periods", (4, 5))
 
 
 @pytest.mark.parametrize(

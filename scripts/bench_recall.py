@@ -1,13 +1,21 @@
-"""Recognition under appearance change, on a split by place: maps, hybrids and
-baselines fitted on one condition of the test places, queried with the other
-(Nordland summer/winter, aerial A/B; docs/appearance.md).
+"""Storage and recall, by part: recall per byte of maps, ITQ codes and map + code
+hybrids at equal storage; recognition under appearance change on a split by place
+(maps, hybrids and baselines fitted on one condition of the test places, queried
+with the other: Nordland summer/winter, aerial A/B; docs/appearance.md); digits that
+group frames that look alike (map layouts across seasons on Nordland).
 
-    python scripts/bench_cross_condition.py --no-progress   # reports/cross_condition.*
-    python scripts/bench_cross_condition.py --quick         # patchnorm, closed form
+python scripts/bench_recall.py per-byte          # reports/recall_per_byte.*
+python scripts/bench_recall.py per-byte --quick  # 2 maps, 2 code sizes
+python scripts/bench_recall.py cross-condition --no-progress  # cross_condition.*
+python scripts/bench_recall.py cross-condition --quick        # patchnorm
+python scripts/bench_recall.py digits            # reports/digits.{json,md}
 """
 
 import copy
+import dataclasses
+import itertools
 import json
+import logging
 import math
 import time
 from dataclasses import asdict, replace
@@ -15,21 +23,220 @@ from functools import partial
 from pathlib import Path
 
 import _harness as h
+import faiss
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-from rhythmic_jax.decoding.fusion import learn_weight
+from rhythmic_jax import database_bytes, storage_bytes
+from rhythmic_jax.decoding.dispatch import decode_scores
+from rhythmic_jax.decoding.fusion import fused_decode, learn_weight
 from rhythmic_jax.decoding.group_decode import place_scores as group_place_scores
+from rhythmic_jax.decoding.sequence import sequence_decode
+from rhythmic_jax.decoding.soft import calibrate, soft_decode
+from rhythmic_jax.eval import frontier as fr
+from rhythmic_jax.eval.metrics import accuracy, recall_at_k
+from rhythmic_jax.eval.report import ranked_places
 from rhythmic_jax.eval.seqslam import seqslam_decode
 from rhythmic_jax.eval.split import NORDLAND_SPLIT
 from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
 from rhythmic_jax.frames.cache_files import default_cache_dir
 from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.map import embedding as emb_files
-from rhythmic_jax.map.codes import fit_codebook
+from rhythmic_jax.map.codes import code_bytes, fit_codebook, pack_bits
 from rhythmic_jax.map.embedding import apply, embedding_bytes
-from rhythmic_jax.map.periods import database_bytes
+from rhythmic_jax.map.groups import Groups, parse_layout, resolve_layout
+from rhythmic_jax.map.periods import candidate_periods, choose_periods
 from rhythmic_jax.map.scalar_codes import scalar_code_bytes
 from rhythmic_jax.rhythmic_map import RhythmicMap
+from rhythmic_jax.solvers.newton import NewtonConfig, newton_fit
+from rhythmic_jax.solvers.objective import default_c, period_errors, scores, targets
+
+RPB_BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
+NS = tuple(10**k for k in range(4, 10))
+DS = (256, 2048, 4096, 10976)
+BITS = (64, 128, 256, 512)
+BUDGET = ["budget", "best", "map or hybrid", "ITQ", "own - ITQ"]
+QUICK_BYTES = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
+
+
+def projections() -> list[dict]:
+    """Map and code bytes for N = 1e4 .. 1e9, and the N where the map gets smaller."""
+    return fr.projection_rows(DS, NS, BITS)
+
+
+def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
+    """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
+    faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
+    w, b, per = fr.fitted_map(ref, r, level, gap, cache)
+    book, n = fr.fitted_codes(ref, bits, cache), len(ref)
+    wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
+    index = faiss.IndexBinaryFlat(bits)
+    index.add(pack_bits(book.codes))
+    codes = lambda: pack_bits(book.transform.encode(q))  # noqa: E731
+    fns = {
+        "map alone": lambda: soft_decode(qj @ wj + bj, per, n).index,
+        "hybrid (map + codes, fused)": lambda: (
+            fused_decode(qj @ wj + bj, book.similarity(qj), per, n).index
+        ),
+        "codes alone (JAX)": lambda: book.similarity(qj).argmax(1),
+        "codes alone (faiss IndexBinaryFlat)": lambda: index.search(codes(), 1)[1],
+    }
+    secs = {name: h.fastest(fn, 5)[1] for name, fn in fns.items()}
+    out = {k: {"seconds": s, "queries_per_s": len(q) / s} for k, s in secs.items()}
+    for v in out.values():
+        v["x map alone"] = v["seconds"] / out["map alone"]["seconds"]
+    out["setting"] = f"map r={r} level {level} {per} + ITQ {bits}, {len(q)} queries"
+    return out
+
+
+def _span(until, since) -> str:
+    """Where the map is smaller: "<= 3e4 and >= 1.2e8", ">= 1e8", "never"."""
+    if until and until >= 10**12:
+        return "every N"
+    parts = [f"{op} {v:.2g}" for op, v in (("<=", until), (">=", since)) if v]
+    return " and ".join(parts) or "never <= 1e12"
+
+
+def _targets(rep: dict) -> list[str]:
+    """The hybrid at <= 20 % against the targets, and own - ITQ per length."""
+    hyb = [r for r in rep["rows"] if r["kind"] == "hybrid" and r["share"] <= 0.20]
+    out = []
+    for length, goal in ((1, 0.27), (10, 0.88)):
+        key = f"recall@1 L={length}"
+        if not hyb or key not in hyb[0]:
+            continue
+        best = max(hyb, key=lambda r: r[key])
+        met = "met" if best[key] >= goal else "not met"
+        out.append(
+            f"- Hybrid at <= 20 %, L = {length}: best {best[key]:.3f} "
+            f"({best['name']}, {100 * best['share']:.1f} %); target {goal}: {met}."
+        )
+    for length in rep["lengths"]:
+        b = rep["budgets"][str(length)]
+        none = [x for x in b if x["own"] is None]
+        short = [x for x in b if x["own"] is not None and x["own_minus_itq"] < 0]
+        line = f"- L = {length}: the map or a hybrid is at least ITQ's best at "
+        line += f"{len(b) - len(none) - len(short)} of {len(b)} budgets"
+        if none:
+            at = ", ".join(f"{100 * x['budget']:g} %" for x in none)
+            line += f"; none of them fits in {at}"
+        if short:
+            worst = min(short, key=lambda x: x["own_minus_itq"])
+            at = ", ".join(
+                f"{100 * x['budget']:g} % ({x['own_minus_itq']:+.3f})" for x in short
+            )
+            line += f"; behind at {at}, at most by {-worst['own_minus_itq']:.3f}"
+        out.append(line + ".")
+    return out
+
+
+def markdown_bytes(rep: dict) -> str:
+    lines = []
+    lines += [rep["protocol"], ""]
+    lines += [
+        f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
+        " and code books are kept in the cache folder, so a re-run of settings"
+        " already fitted only decodes).",
+        "",
+    ]
+    lines += ["### Targets", ""] + _targets(rep) + [""]
+    ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
+    heads += [f"R@1 L={k}" for k in ls] + ["sequence scorer", "weight"]
+    keys = [f"recall@1 L={k}" for k in ls]
+    rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
+             *("-" if r[k] is None else r[k] for k in keys),
+             r.get("sequence_scorer") or "-", r.get("weight", "-")]
+            for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
+    lines.append(h.table(heads, rows))
+    for length in ls:
+        key = f"recall@1 L={length}"
+        body = [[f"{100 * b['budget']:g} %",
+                 *(f"{x['name']} ({x[key]:.3f})" if x else "none fits"
+                   for x in (b["best"], b["own"], b["itq"])),
+                 round(b["own_minus_itq"], 3)]
+                for b in rep["budgets"][str(length)]]  # fmt: skip
+        lines += ["", f"### Budget by budget, L = {length}", "", h.table(BUDGET, body)]
+    t = rep["timing"] or {"setting": "not measured in this run"}
+    lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
+    body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
+            for k, v in t.items() if k != "setting"]  # fmt: skip
+    lines.append(h.table(["decode", "seconds", "queries/s", "time / map alone"], body))
+    lines += ["", "### Projected bytes (level 1) and the N from which the map is "
+              "smaller than each code", "",
+              "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods"
+              " from `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
+              ""]  # fmt: skip
+    proj = rep["projections"]
+    keys = [k for k in proj[0] if k.startswith("map")]
+    body = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
+             *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
+               for b in BITS)] for p in proj]  # fmt: skip
+    lines.append(h.table(["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], body))
+    lines += ["", "Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): "]
+    for b in BITS:
+        sizes = ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
+        lines.append(f"- ITQ {b}: {sizes}")
+    return h.render("Recall per byte: map, ITQ codes and hybrids",
+                    rep, "\n".join(lines))
+
+
+def _ints(text: str) -> tuple:
+    """``64,128`` -> (64, 128); ``2:4,3:4`` -> ((2, 4), (3, 4))."""
+    parts = [tuple(int(v) for v in part.split(":")) for part in text.split(",")]
+    return tuple(p if len(p) > 1 else p[0] for p in parts)
+
+
+def options_bytes(ap) -> None:
+    cache = Path.home() / ".cache" / "rhythmic_jax" / "frontier"
+    ap.add_argument("--cache", default=str(cache), help="fitted maps, codes ('': none)")
+    ap.add_argument("--maps", type=_ints, help="maps as r:level,... (e.g. 2:4,3:4)")
+    ap.add_argument("--bits", type=_ints, help="code sizes, e.g. 64,128")
+    ap.add_argument("--no-timing", action="store_true", help="skip the speed table")
+
+
+def run_bytes(args) -> dict:
+    """Recall per byte: maps, ITQ codes, hybrids (recall_per_byte)."""
+    logging.getLogger("rhythmic_jax.eval.frontier").setLevel(logging.INFO)
+    s, w = h.nordland_features(args.root, "efficientnet_lite0", key="nordland_",
+                             progress=args.progress)  # fmt: skip
+    tr, te = NORDLAND_SPLIT.train, NORDLAND_SPLIT.test
+    given = {k: v for k in ("maps", "bits") if (v := getattr(args, k))}
+    cfg, t0 = dataclasses.replace(fr.FrontierConfig(), **given), time.perf_counter()
+    cache = args.cache or None
+    rows = fr.frontier_rows(s[te], w[te], cfg, train=(s[tr], w[tr]), cache=cache)
+    rep = {
+        "protocol": (
+            f"Nordland split: test places {int(te[0])}-{int(te[-1])} (N = {len(te)}),"
+            f" summer references, winter queries, recall@1 within ±{cfg.tolerance};"
+            f" training places {int(tr[0])}-{int(tr[-1])} for the fusion weights."
+            f" Maps: squared-hinge RhythmicMap (gap {cfg.gap}), soft decode; int8"
+            f" rows are the same templates stored as int8 with a float32 scale per"
+            f" template (rhythmic_jax.map.quantize). Codes: ITQ fitted on the summer"
+            f" references, its mean and projection counted. Fusion weights:"
+            f" learned per map + code pair on the training places' single frames"
+            f" and kept for sequences. Sequences at velocity 1, the scorer named"
+            f" per row: maps accumulate their scores in the phase domain; codes"
+            f" and brute force sum their per-frame z-scored similarities along"
+            f" the diagonal; hybrids fuse the two; SeqSLAM on the raw descriptors."
+            f" The ITQ fit runs on one thread (rhythmic_jax.map.codes.fit_codes)."
+        ),
+        "config": dataclasses.asdict(cfg),
+        "lengths": list(cfg.lengths),
+        "rows": rows,
+        "budgets": {str(k): fr.budget_table(rows, RPB_BUDGETS, k) for k in cfg.lengths},
+        "timing": {}
+        if args.no_timing
+        else timing(s[te], w[te], cache, cfg.bits[0], *cfg.maps[-1], cfg.gap),
+        "projections": projections(),
+        "seconds": time.perf_counter() - t0,
+    }
+    from rhythmic_jax.eval.figures import plot_frontier
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    plot_frontier(rows, args.out / f"{args.stem}.png", cfg.lengths)
+    return rep
+
 
 TOL = 1
 LENGTHS = (5, 10, 20)
@@ -283,11 +490,12 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
             (AERIAL, aerial_data, aerial), (PATCH, nordland_data, patch)]  # fmt: skip
 
 
-def options(ap) -> None:
+def options_cross(ap) -> None:
     ap.add_argument("--only", help="comma-separated words of the data sets to run")
 
 
-def run(args) -> dict:
+def run_cross(args) -> dict:
+    """Recognition under appearance change, split by place (cross_condition)."""
     t0 = time.perf_counter()
     datasets, words = {}, args.only.split(",") if args.only else None
     saved = args.out / f"{args.stem}.partial.json"
@@ -301,7 +509,7 @@ def run(args) -> dict:
         args.out.mkdir(parents=True, exist_ok=True)
         saved.write_text(json.dumps(dict(datasets=datasets), default=float))
     report = dict(datasets=datasets, wall_seconds=time.perf_counter() - t0)
-    report["targets"] = targets(report)
+    report["targets"] = cross_targets(report)
     draw(report, args.out / f"{args.stem}.png")
     saved.unlink(missing_ok=True)
     return report
@@ -309,7 +517,7 @@ def run(args) -> dict:
 
 def refresh(report: dict, args) -> None:
     """Targets and figure again, for ``--render``."""
-    report["targets"] = targets(report)
+    report["targets"] = cross_targets(report)
     draw(report, args.render.with_suffix(".png"))
 
 
@@ -345,7 +553,7 @@ def _check(row, key, goal, share=True) -> str:
     return f"{word} ({v:.3f} vs {goal:.3f}, {v - goal:+.3f}): {row['method']}{tail}"
 
 
-def targets(report: dict) -> list[tuple[str, str]]:
+def cross_targets(report: dict) -> list[tuple[str, str]]:
     """(target, verdict with figures) of every target the report can judge."""
     sets, out = report["datasets"], []
     if LITE in sets:
@@ -395,8 +603,8 @@ def _fmt(v):
     return round(v, 4) if isinstance(v, float) else v
 
 
-def markdown(report: dict) -> str:
-    lines = h.header("Recognition under appearance change (split by place)", report)
+def markdown_cross(report: dict) -> str:
+    lines = []
     wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
     if walls := report.get("wall_seconds_by_process"):
         wall = "Data sets run in parallel processes (the commands above, joined by "
@@ -421,7 +629,7 @@ def markdown(report: dict) -> str:
               " the templates add. Budget rows take the largest pair of periods (t, t +"
               " 1) that fits; their t/N says how far from sub-linear they are.",
               "", "## Targets", ""]  # fmt: skip
-    lines += [f"- {t}: **{v}**" for t, v in targets(report)] + [""]
+    lines += [f"- {t}: **{v}**" for t, v in cross_targets(report)] + [""]
     for name, ds in report["datasets"].items():
         lines += [f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})", ""]
         learn = "; ".join(
@@ -437,7 +645,8 @@ def markdown(report: dict) -> str:
                      _fmt(r["ratio"]), str(tuple(r.get("sizes", ()))),
                      _fmt(r.get("fit_seconds", ""))] for r in rows]  # fmt: skip
             lines += [f"### {key}", "", h.table(HEADS, body), ""]
-    return "\n".join(lines)
+    return h.render("Recognition under appearance change (split by place)",
+                    report, "\n".join(lines))
 
 
 def draw(report: dict, path: Path) -> None:
@@ -467,5 +676,153 @@ def draw(report: dict, path: Path) -> None:
     plt.close(fig)
 
 
+QUICK_DIGITS = dict(levels="1")  # --quick
+
+
+def layouts(n: int, levels) -> list[tuple[str, int, Groups]]:
+    """(name, level, groups) of every map measured."""
+    out = []
+    for level in levels:
+        cands = candidate_periods(n, 2, level)
+        per = choose_periods(cands, [0.0] * len(cands), n, 2)
+        out.append(("periods", level, Groups("periods", per)))
+        for kind in ("mixed", "hierarchical"):
+            out.append((kind, level, resolve_layout(parse_layout(kind), n, 2, level)))
+        # the same storage as the periods (the budget rule keeps a little less)
+        t = next(t for t in itertools.count(2) if -(-n // t) + t <= sum(per) + 6)
+        equal = Groups("mixed", (-(-n // t), t))
+        if sum(per) - out[-2][2].p > 10:
+            out.append(("mixed, equal storage", level, equal))
+    return out
+
+
+def measure(groups: Groups, s_self, s_query, n: int, gt) -> dict:
+    """Every figure of one map from its template scores (b, p) of both conditions."""
+    self_hard = np.asarray(decode_scores(s_self, groups, n, "hard").index)
+    hard = np.asarray(decode_scores(s_query, groups, n, "hard").index)
+    row = {
+        "self_query_hard": accuracy(self_hard, gt, 0),
+        "hard": accuracy(hard, gt, TOL),
+        # per group: winter queries whose argmax label is their place's label
+        "label_accuracy": np.asarray(
+            1.0 - period_errors(jnp.asarray(s_query), gt, groups)
+        ).tolist(),
+        "label_chance": [1.0 / t for t in groups.sizes],
+    }
+    soft = {}
+    for name, sc in (("raw", s_query), ("calibrated", calibrate(s_query, groups))):
+        soft[name] = np.asarray(decode_scores(sc, groups, n, "soft").index)
+        ranked = ranked_places(sc, groups, n, 5)
+        row[f"soft_{name}"] = accuracy(soft[name], gt, TOL)
+        row[f"soft_{name}_exact"] = accuracy(soft[name], gt, 0)
+        row[f"recall@5_{name}"] = recall_at_k(ranked, gt, (5,), tolerance=TOL)[5]
+        for length in LENGTHS:
+            idx, _ = sequence_decode(sc, groups, n, length, (1.0,), "soft")
+            row[f"seq{length}_{name}"] = accuracy(np.asarray(idx), gt, TOL)
+    row["calibrated_same_index"] = float(np.mean(soft["raw"] == soft["calibrated"]))
+    return row
+
+
+def brute(summer, winter, gt) -> dict:
+    top = np.argsort(-(winter @ summer.T), axis=1)[:, :5]
+    row = {
+        "soft_raw": accuracy(top[:, 0], gt, TOL),
+        "soft_raw_exact": accuracy(top[:, 0], gt, 0),
+        "recall@5_raw": recall_at_k(top, gt, (5,), tolerance=TOL)[5],
+    }
+    for length in LENGTHS:
+        idx, _ = seqslam_decode(winter, summer, length, (1.0,), progress=False)
+        row[f"seq{length}_raw"] = accuracy(np.asarray(idx), gt, TOL)
+    return row
+
+
+def markdown_digits(report: dict) -> str:
+    lines = []
+    lines.append(
+        f"Nordland test places {report['places']} (N = {report['n']}), "
+        f"{report['descriptor']} d = {report['d']}: summer map, winter queries, "
+        f"recall@1 within ±{TOL} frame unless marked exact. One joint Newton solve "
+        f"of {report['templates_total']} templates, C = log N: "
+        f"{report['fit_wall_s']:.0f} s wall. Storage: sum of group sizes x (d + 1) "
+        f"float32 over the N x d float32 database."
+    )
+    cols = ["layout", "sizes", "storage %", "self hard", "hard", "soft", "soft exact",
+            "R@5", "L=5", "L=10", "L=20", "label acc. (chance)"]  # fmt: skip
+    rows = [[
+        r["layout"], r["sizes"], round(100 * r["ratio"], 1),
+        r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
+        r["soft_raw_exact"], r["recall@5_raw"],
+        *(r[f"seq{length}_raw"] for length in LENGTHS),
+        " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
+                 r.get("label_chance", ()), strict=True)) or "-",
+    ] for r in report["rows"]]  # fmt: skip
+    lines += ["", h.table(cols, rows), ""]
+    same = [r for r in report["rows"] if "calibrated_same_index" in r]
+    lines.append(
+        "soft: argmax of the summed template scores of every group (a log-softmax "
+        "within every group, rhythmic_jax.decoding.soft.calibrate, shifts every "
+        "place of a query by the same constant: the same argmax, checked here); "
+        "sequences sum the place scores at speed 1 (brute force: cosine sums along the "
+        "diagonal); same index after calibration: "
+        + ", ".join(f"{r['calibrated_same_index']:.3f}" for r in same)
+        + ". label acc.: per group, the fraction of winter queries whose "
+        "argmax class is their place's label (most significant digit / segment "
+        "first), beside chance 1 / size."
+    )
+    return h.render("Digits that group frames that look alike (Nordland)",
+                    report, "\n".join(lines))
+
+
+def options_digits(ap) -> None:
+    ap.add_argument("--cache", type=Path, default=Path("/work/cache"))
+    ap.add_argument("--descriptor", default="efficientnet_lite0")
+    ap.add_argument("--levels", default="1,2,4", help="storage levels (1,2,4)")
+
+
+def run_digits(args) -> dict:
+    """Map layouts (digits) across seasons on Nordland (digits)."""
+    test = NORDLAND_SPLIT.test
+    path = str(args.cache / f"nordland_%s_{args.descriptor}.npy")  # per season
+    summer, winter = (np.ascontiguousarray(np.load(path % s, mmap_mode="r")[test])
+                      for s in ("summer", "winter"))  # fmt: skip
+    n, d = summer.shape
+    gt, maps = np.arange(n), layouts(n, [int(v) for v in args.levels.split(",")])
+    y = jnp.concatenate([targets(gt, g) for _, _, g in maps], axis=1)
+    h.log.info("fitting %d templates on %d x %d", y.shape[1], n, d)
+    fit = summer, y, default_c(n), NewtonConfig()
+    (params, _), fit_wall, _ = h.timed(newton_fit, *fit, progress=args.progress)
+    s_self = np.asarray(scores(params, jnp.asarray(summer)))
+    s_query = np.asarray(scores(params, jnp.asarray(winter)))
+    rows, start = [], 0
+    for kind, level, groups in maps:
+        cols = slice(start, start + groups.p)
+        start += groups.p
+        row = measure(groups, s_self[:, cols], s_query[:, cols], n, gt)
+        row.update(
+            layout=f"{kind} (level {level})", kind=kind, level=level,
+            sizes=groups.describe(), templates=groups.p,
+            storage_bytes=storage_bytes(groups.sizes, d),
+            ratio=storage_bytes(groups.sizes, d, 1) / database_bytes(n, d, 1),
+        )  # fmt: skip
+        h.log.info("%s", row)
+        rows.append(row)
+    bf = brute(summer, winter, gt)
+    bf.update(layout="brute force", sizes="-", ratio=1.0,
+              storage_bytes=database_bytes(n, d))  # fmt: skip
+    rows.append(bf)
+    return dict(descriptor=args.descriptor, places=f"{int(test[0])}-{int(test[-1])}",
+                n=n, d=d, templates_total=int(y.shape[1]), fit_wall_s=fit_wall,
+                tolerance=TOL, rows=rows)  # fmt: skip
+
+
+PARTS = {
+    "per-byte": h.Part(run_bytes, markdown_bytes, options_bytes, "recall_per_byte",
+                       QUICK_BYTES),  # fmt: skip
+    "cross-condition": h.Part(run_cross, markdown_cross, options_cross,
+                              "cross_condition", refresh=refresh),  # fmt: skip
+    "digits": h.Part(run_digits, markdown_digits, options_digits, "digits",
+                     QUICK_DIGITS),  # fmt: skip
+}
+
 if __name__ == "__main__":
-    h.main(__doc__, run, markdown, options, stem="cross_condition", refresh=refresh)
+    h.main(__doc__, PARTS)
