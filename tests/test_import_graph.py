@@ -48,7 +48,7 @@ LAYERS = [
     ["solvers.protocol"],
     ["decoding.buckets"],
     ["decoding.hard"],
-    ["decoding.soft"],
+    ["decoding.host", "decoding.soft"],
     ["decoding.group_decode"],
     ["decoding.dispatch", "decoding.sequence"],
     ["decoding.fusion"],

@@ -21,11 +21,11 @@ def decode_scores(
     periods: Sequence[int] | Groups,
     n: int,
     method: str = "hard",
-    m: int = 3,
+    top: int = 3,
 ) -> Decoded:
     """Decode (..., p) decision values with ``method`` in ``"hard" | "soft" | "topm"``.
 
-    ``topm`` keeps the ``m`` best phases of every period (see
+    ``topm`` keeps the ``top`` best phases of every period (see
     :func:`rhythmic_jax.decoding.soft.topm_decode`). Every field of the result has the
     scores' leading shape. ``periods`` may be a map's
     :class:`~rhythmic_jax.map.groups.Groups`: mixed-radix and hierarchical layouts
@@ -37,11 +37,11 @@ def decode_scores(
         if method == "soft":
             return group_soft_decode(scores, periods, n)
         if method == "topm":
-            return group_topm_decode(scores, periods, n, m)
+            return group_topm_decode(scores, periods, n, top)
         return hard_decode(scores, periods, n)
     periods, n = check_scores(scores, getattr(periods, "sizes", periods), n)
     if method == "soft":
         return soft_decode(scores, periods, n)
     if method == "topm":
-        return topm_decode(scores, periods, n, m)
+        return topm_decode(scores, periods, n, top)
     return hard_decode(scores, periods, n)

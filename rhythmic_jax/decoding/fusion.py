@@ -201,7 +201,8 @@ def fused_decode(
     w = jnp.float32(weight)
     batch = int(batch_size)
     (s, sim), b = _bucketed(s, sim)
-    out = _fused_jit(s, sim, w, per, n, method, m, weight < 1, exclude, batch)
+    codes = isinstance(weight, jax.core.Tracer) or weight < 1  # traced: both terms
+    out = _fused_jit(s, sim, w, per, n, method, m, codes, exclude, batch)
     return head(out, b)
 
 

@@ -11,8 +11,8 @@ tau_g`` and this is soft decode (:mod:`rhythmic_jax.decoding.soft`)):
 
 - soft: ``argmax_{i < n} S(i)``, runner-up the best place more than ``exclude``
   frames away (as the periods' soft decode);
-- top-m: the same argmax over the places whose label is among the ``m`` best of
-  every group (``m = 1``: every group's argmax; ``m >= max(size)``: soft);
+- top-m: the same argmax over the places whose label is among the ``top`` best of
+  every group (``top = 1``: every group's argmax; ``top >= max(size)``: soft);
 - hard (the one kernel, :func:`rhythmic_jax.decoding.hard.hard_decode`):
   mixed radix, the argmax digits give the index directly
   (``sum_k d_k prod(b_{k+1..r})``, no match when it is ``>= n``); hierarchical,
@@ -97,25 +97,25 @@ def _soft_one(s, groups: Groups, n: int, exclude: int) -> Decoded:
     )
 
 
-def _topm_one(s, groups: Groups, n: int, m: int, exclude: int) -> Decoded:
+def _topm_one(s, groups: Groups, n: int, top: int, exclude: int) -> Decoded:
     cols = _columns(groups, n)
     valid = jnp.ones((n,), bool)
     for g, (off, t) in enumerate(zip(groups.offsets, groups.sizes, strict=True)):
-        _, best = jax.lax.top_k(s[off : off + t], min(m, t))
+        _, best = jax.lax.top_k(s[off : off + t], min(top, t))
         keep = jnp.zeros((t,), bool).at[best].set(True)
         valid = valid & keep[cols[g] - off]
     total = _place_sum(s, groups, n)
     return _best_two(total, jnp.arange(n, dtype=jnp.int32), valid, exclude)
 
 
-@functools.partial(jit, static_argnames=("groups", "n", "m", "exclude", "batch_size"))
-def _decode_jit(scores, groups, n, m, exclude, batch_size):
-    if m is None:
+@functools.partial(jit, static_argnames=("groups", "n", "top", "exclude", "batch_size"))
+def _decode_jit(scores, groups, n, top, exclude, batch_size):
+    if top is None:
         return _batched(
             _soft_one, scores, batch_size, groups=groups, n=n, exclude=exclude
         )
     return _batched(
-        _topm_one, scores, batch_size, groups=groups, n=n, m=m, exclude=exclude
+        _topm_one, scores, batch_size, groups=groups, n=n, top=top, exclude=exclude
     )
 
 
@@ -141,24 +141,24 @@ def group_topm_decode(
     scores: jax.Array,
     groups: Groups,
     n: int,
-    m: int,
+    top: int,
     *,
     exclude: int = 0,
     batch_size: int = 256,
 ) -> Decoded:
-    """Best ``S(i)`` over places whose labels are all among their group's ``m`` best.
+    """Best ``S(i)`` over places whose labels are all among their group's ``top`` best.
 
     Index -1 (score -inf) when no place has such labels (e.g. a mixed-radix
-    combination ``>= n`` at ``m = 1``).
+    combination ``>= n`` at ``top = 1``).
     """
     n = check_group_scores(scores, groups, n)
-    m = _check_int(m, "m", 1)
+    top = _check_int(top, "top", 1)
     exclude = _check_int(exclude, "exclude", 0)
     batch_size = _check_int(batch_size, "batch_size", 1)
     scores = jnp.asarray(scores)
     if math.prod(scores.shape[:-1]) == 0:
         return _empty(scores.shape[:-1], scores.dtype)
-    return _decode_jit(scores, groups, n, m, exclude, batch_size)
+    return _decode_jit(scores, groups, n, top, exclude, batch_size)
 
 
 # --------------------------------------------------------------------- hard

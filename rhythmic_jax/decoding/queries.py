@@ -1,6 +1,6 @@
 """Queries of a map: pure functions of a :class:`~rhythmic_jax.map.pytree.Map`.
 
-``scores(map, q)``, ``place_scores(map, q)``, ``decode(map, q, how)``,
+``scores(map, q)``, ``place_scores(map, q)``, ``decode(map, q, method)``,
 ``decode_sequence(map, q, length)``, ``predict(map, q)`` and ``locate(map, q)``
 take the map as a value. Queries (b, d) are checked and embedded (when the map
 has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
@@ -12,10 +12,12 @@ has an embedding) first; inside a trace (``jax.jit(decode)(map, q)``,
   decodes under ``jax.jit`` too), the queries padded to their bucket first, so
   the scores, codes and fused decode compile once per bucket;
 - the hard decode of any layout: the one kernel
-  (:func:`rhythmic_jax.decoding.hard.decode`), with up to
-  :data:`~rhythmic_jax.decoding.hard.SMALL_BATCH` float32 queries of a periods
-  map answered by its numpy lane (:class:`~rhythmic_jax.decoding.hard.SmallDecoder`,
-  built once per map) in ``predict`` and ``locate``;
+  (:func:`rhythmic_jax.decoding.hard.decode`), or a host lane
+  (:mod:`rhythmic_jax.decoding.host`) where the queries lie in host memory: a
+  float32 numpy batch on a CPU by numpy's product, and up to
+  :data:`~rhythmic_jax.decoding.host.SMALL_BATCH` float32 queries of a periods
+  map by its single-query lane in ``predict`` and ``locate`` (:func:`way`
+  chooses the lane for both);
 - soft and top-m decodes, jitted in padded buckets of rows
   (:mod:`rhythmic_jax.decoding.buckets`: one program per bucket);
 - a batch above :data:`~rhythmic_jax.decoding.buckets.CHUNK` rows, uploaded
@@ -39,14 +41,15 @@ dimension, p templates, n places.
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
 
-from rhythmic_jax.decoding import buckets, hard
+from rhythmic_jax.decoding import buckets, hard, host
 from rhythmic_jax.decoding.buckets import chunk_count, head, over_chunks, pad_rows
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.fusion import (
@@ -54,11 +57,12 @@ from rhythmic_jax.decoding.fusion import (
     fused_place_scores,
     fused_sequence_decode,
 )
-from rhythmic_jax.decoding.hard import SMALL_BATCH, Decoded, SmallDecoder
+from rhythmic_jax.decoding.hard import Decoded
 from rhythmic_jax.decoding.sequence import METHODS, _check_speeds, sequence_decode
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.checks import check_decode
+from rhythmic_jax.map.config import DECODERS
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.map.embedding import embed
 from rhythmic_jax.map.groups import Groups
@@ -74,13 +78,13 @@ __all__ = [
     "decode",
     "decode_queries",
     "decode_sequence",
-    "lane",
     "locate",
     "one_query",
     "place_scores",
     "predict",
     "scores",
     "sequence_queries",
+    "way",
 ]
 
 _scores_jit = jit(decision_values)
@@ -112,22 +116,39 @@ def place_scores(m: Map, q) -> jax.Array:
     )
 
 
-def decode(m: Map, q, how: str | None = None, top: int | None = None) -> Decoded:
+def decode(m: Map, q, method: str | None = None, top: int | None = None) -> Decoded:
     """Decode queries (b, d): index (b,) (-1 no match), score, runner-up,
-    confidence; ``how`` "hard", "soft" or "topm" (default: the map's), ``top``
+    confidence; ``method`` "hard", "soft" or "topm" (default: the map's), ``top``
     the phases top-m keeps (default: the map's)."""
-    how, top = how or m.config.decode, top or m.config.m
+    method, top = method or m.config.decode, top or m.config.m
     x = queries(m, q)
-    check_decode(m, how, x.shape[0], top)  # its largest allocation, before it
-    if m.codebook is not None:  # padded first: every program once per bucket
-        x, b = pad_rows(x)
-        return head(fused_decode(
-            _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
-            m.config.fusion, "soft" if how == "hard" else how, top,
-        ), b)  # fmt: skip
-    if how == "hard":
-        return hard.decode(m.params, x, m.groups, m.n)
-    return decode_queries(m.params, x, m.groups, m.n, how, top)
+    return by_method(method, lambda h: _decoded(m, x, h, top))
+
+
+def by_method(method, answer):
+    """``answer(method)`` for a method's name. Inside a trace of the map, its
+    stored method (:data:`rhythmic_jax.map.pytree.DECODE_SETTINGS`) is an
+    index into :data:`~rhythmic_jax.map.config.DECODERS` traced with the map:
+    every method is a branch of the one program and ``jax.lax.switch`` picks
+    one, so a map with another stored method compiles nothing new."""
+    if isinstance(method, Tracer):
+        return jax.lax.switch(method, [lambda h=h: answer(h) for h in DECODERS])
+    return answer(method)
+
+
+def _decoded(m: Map, x, method: str, top: int) -> Decoded:
+    """Decoded (b,) of checked, embedded queries x (b, k): with codes fused
+    (padded first: every program once per bucket), else by
+    :func:`decode_queries`; refused first where its largest allocation would
+    not fit (:func:`rhythmic_jax.map.checks.check_decode`)."""
+    check_decode(m, method, x.shape[0], top)
+    if m.codebook is None:
+        return decode_queries(m.params, x, m.groups, m.n, method, top)
+    x, b = pad_rows(x)
+    return head(fused_decode(
+        _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
+        m.config.fusion, "soft" if method == "hard" else method, top,
+    ), b)  # fmt: skip
 
 
 def decode_sequence(
@@ -135,47 +156,53 @@ def decode_sequence(
     q,
     length: int,
     speeds: Sequence[float] = (1.0,),
-    how: str | None = None,
+    method: str | None = None,
     top: int | None = None,
+    *,
+    how: str | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """``(index, confidence)`` (T,) of consecutive query frames q (T, d), each
-    decoded with the ``length - 1`` before it at ``speeds``
-    (:mod:`rhythmic_jax.decoding.sequence`)."""
-    how, top = how or m.config.decode, top or m.config.m
-    return _sequence(m, queries(m, q), length, speeds, how, top)
+    decoded with the ``length - 1`` before it at ``speeds`` by ``method``
+    (``how``: its earlier name) (:mod:`rhythmic_jax.decoding.sequence`)."""
+    method, top = method or how or m.config.decode, top or m.config.m
+    x = queries(m, q)
+    return by_method(method, lambda h: _sequence(m, x, length, speeds, h, top))
 
 
-def _sequence(m: Map, x, length, speeds, how: str, top: int):
+def _sequence(m: Map, x, length, speeds, method: str, top: int):
     """:func:`decode_sequence` of checked, embedded queries x (T, k), padded at
     the end first (a frame's answer depends on the frames before it only), so
     every program compiles once per bucket."""
-    check_decode(m, how, x.shape[0], top, sequence=True)  # before it allocates
+    check_decode(m, method, x.shape[0], top, sequence=True)  # before it allocates
     x, b = pad_rows(x)
     if m.codebook is not None:
         out = fused_sequence_decode(
             _scores_jit(m.params, x), m.codebook.similarity(x), m.periods, m.n,
-            length, speeds, m.config.fusion, how, top,
+            length, speeds, m.config.fusion, method, top,
         )  # fmt: skip
     else:
-        out = _padded_sequence(m.params, x, b, m.groups, m.n, length, speeds, how, top)
+        out = _padded_sequence(
+            m.params, x, b, m.groups, m.n, length, speeds, method, top
+        )
     return head(out, b)
 
 
 def predict(
     m: Map,
     q,
-    how: str | None = None,
+    method: str | None = None,
     *,
     top: int | None = None,
     sequence: int | None = None,
     speeds: tuple[float, ...] = (1.0,),
     threshold: float | None = None,
 ) -> np.ndarray:
-    """Place index of every query (b,) int64 in host memory, -1 for no match.
+    """Place index of every query (b,) int64 in host memory, -1 for no match:
+    the queries answered by the lane :func:`way` chooses, then the threshold.
 
     Args:
       q: (b, d) queries (consecutive frames of a traversal when ``sequence``).
-      how: "hard" (paper), "soft" or "topm"; default from the map's config.
+      method: "hard" (paper), "soft" or "topm"; default from the map's config.
       sequence: decode each frame with the L previous ones in the phase
         domain (:mod:`rhythmic_jax.decoding.sequence`; mixed-radix and
         hierarchical maps sum place scores instead); None (or 1) for single
@@ -184,99 +211,79 @@ def predict(
       threshold: reject queries whose confidence is below it (finite; default
         the map's).
     """
-    how = how or m.config.decode
+    method, top = method or m.config.decode, top or m.config.m
     thr = m.config.threshold
     if threshold is not None:
         thr = check_number(threshold, "{opt:threshold}")
     sequence = check_sequence(sequence)
-    single = sequence is None or sequence <= 1
-    if single and thr is None:  # up to SMALL_BATCH plain queries: the numpy lane
-        few = places(m, q, how)
-        if few is not None:
-            return few
-    if not single:  # embedded once here
-        q = queries(m, q)
-    if sequence is not None:
-        check_sequence(sequence, len(q))
-    if single:
-        out = decode(m, q, how, top)
-        idx, conf = out.index, out.confidence
-    else:
-        idx, conf = _sequence(m, q, sequence, speeds, how, top or m.config.m)
-    idx = np.asarray(idx).astype(np.int64)
+    idx, conf = way(m, method, thr, sequence)(m, q, method, top, sequence, speeds)
+    idx = np.asarray(idx, np.int64)  # no copy of the single-query lane's places
     if thr is not None:
         idx = np.where(np.asarray(conf, np.float64) >= thr, idx, -1)
     return idx
 
 
-def lane(m: Map) -> SmallDecoder:
-    """The numpy lane of the periods map ``m``: built on first use and kept on
-    the map value (as ``functools.cached_property`` keeps a value: outside its
-    fields, so not a leaf, and not carried to a map made from it)."""
-    small = vars(m).get("_numpy_lane")
-    if small is None:
-        small = SmallDecoder.build(m.params, m.periods, m.n)
-        object.__setattr__(m, "_numpy_lane", small)
-    return small
+Lane = Callable[..., tuple[Any, Any]]
+"""A way from queries to places: ``lane(m, q, method, top, sequence, speeds)`` ->
+(index, confidence) (b,), where q are the caller's (b, d) queries."""
 
 
-def _plain_lane(m: Map) -> SmallDecoder | None:
-    """:func:`lane` where a hard decode may answer by it alone (a periods map
-    without codes or embedding, outside a trace), else None; decided once per
-    map and kept on it, so a query pays one look-up."""
-    got = vars(m).get("_plain_lane", False)
-    if got is False:
-        plain = m.embedding is None and m.codebook is None
-        if plain and m.groups.kind == "periods" and not isinstance(m.w, Tracer):
-            got = lane(m)
-        else:
-            got = None
-        object.__setattr__(m, "_plain_lane", got)
-    return got
+def way(
+    m: Map, method: str, threshold: float | None = None, sequence: int | None = None
+) -> Lane:
+    """The one chooser of ``predict`` and ``locate``: the lane that answers
+    queries of ``m``. Frames in a sequence (L > 1): :func:`_in_sequence`; the
+    paper's hard decode without a threshold of a periods map without codes or
+    embedding, outside a trace: :func:`_small` (its single-query lane,
+    :func:`rhythmic_jax.decoding.host.lane`); else :func:`_one_by_one` (the
+    batch decodes)."""
+    if sequence is not None and sequence > 1:
+        return _in_sequence
+    if method == "hard" and threshold is None and host.lane(m) is not None:
+        return _small
+    return _one_by_one
 
 
-def places(m: Map, q, how: str) -> np.ndarray | None:
-    """Places (b,) int64 of up to :data:`SMALL_BATCH` float32 queries q (b, d)
-    of a periods map without codes or embedding, by its numpy lane (one
-    matrix-vector product each, the scores' finiteness checking the values);
-    None where that does not apply."""
-    small = vars(m).get("_plain_lane", False)
-    if small is False:
-        small = _plain_lane(m)
-    if (
-        small is not None
-        and how == "hard"
-        and type(q) is np.ndarray
-        and q.dtype == np.float32
-        and q.ndim == 2
-        and 0 < len(q) <= SMALL_BATCH
-        and q.shape[1] == m.d
-    ):
-        found = [small.place(row) for row in q]
-        if None not in found:
-            return np.array(found, np.int64)
-    return None
+def _small(m: Map, q, method, top, sequence, speeds):
+    """Up to :data:`~rhythmic_jax.decoding.host.SMALL_BATCH` float32 queries
+    by the map's single-query lane (one matrix-vector product each, the
+    scores' finiteness checking the values; no confidence: no threshold
+    reads it); anything else by :func:`_one_by_one`."""
+    few = host.lane(m).places(q)
+    if few is None:
+        return _one_by_one(m, q, method, top, sequence, speeds)
+    return few, None
+
+
+def _one_by_one(m: Map, q, method, top, sequence, speeds):
+    """Single frames (``sequence`` None or 1): the decode of every query."""
+    if sequence is not None:
+        check_sequence(sequence, len(q))
+    out = _decoded(m, queries(m, q), method, top)
+    return out.index, out.confidence
+
+
+def _in_sequence(m: Map, q, method, top, sequence, speeds):
+    """Frames in a sequence of L = ``sequence``, embedded once here."""
+    x = queries(m, q)
+    check_sequence(sequence, len(x))
+    return _sequence(m, x, sequence, speeds, method, top)
 
 
 def locate(m: Map, q) -> int:
     """Place of one descriptor ``q`` (d,), -1 for no match: ``predict(m,
-    q[None])[0]`` with nothing around it. For the paper's hard decode (no
-    threshold, codes or embedding) a float32 (d,) numpy array goes straight to
-    one BLAS product (no dispatch, no copies; a NaN or inf is caught on its
-    scores); anything else takes ``predict``'s checks."""
-    small = vars(m).get("_plain_lane", False)
-    if small is False:
-        small = _plain_lane(m)
+    q[None])[0]`` with nothing around it. Where :func:`way` chooses the
+    single-query lane, a float32 (d,) numpy array goes straight to one BLAS
+    product (no dispatch, no copies; a NaN or inf is caught on its scores);
+    anything else takes ``predict``'s checks."""
     cfg = m.config
     if (
-        small is not None
-        and type(q) is np.ndarray
+        type(q) is np.ndarray
         and q.dtype == np.float32
         and q.shape == (m.d,)
-        and cfg.decode == "hard"
-        and cfg.threshold is None
+        and way(m, cfg.decode, cfg.threshold) is _small
     ):
-        found = small.place(q)
+        found = host.lane(m).place(q)
         if found is not None:
             return found
     return int(predict(m, one_query(q, m.d))[0])
@@ -297,10 +304,10 @@ def one_query(q, d: int):
 
 
 # ------------------------------------------- templates and queries, bucketed
-@functools.partial(jit, static_argnames=("groups", "n", "method", "m", "chunk"))
-def _decode_jit(params, queries, count, groups, n, method, m, chunk):
+@functools.partial(jit, static_argnames=("groups", "n", "method", "top", "chunk"))
+def _decode_jit(params, queries, count, groups, n, method, top, chunk):
     def body(p, x, _):
-        return decode_scores(decision_values(p, x), groups, n, method, m)
+        return decode_scores(decision_values(p, x), groups, n, method, top)
 
     return over_chunks(body, params, queries, count, chunk)
 
@@ -308,32 +315,44 @@ def _decode_jit(params, queries, count, groups, n, method, m, chunk):
 def decode_queries(
     params: Templates,
     queries,
-    groups: Groups,
+    groups: Groups | Sequence[int],
     n: int,
     method: str = "hard",
-    m: int = 3,
+    top: int = 3,
 ) -> Decoded:
-    """Scores and decode of queries (b, d) in one program per bucket: Decoded (b,).
+    """Scores and decode of queries (b, d) by templates ``params``: Decoded (b,).
 
-    ``decode_scores(decision_values(params, queries), groups, n, method, m)``
-    (:func:`rhythmic_jax.decoding.dispatch.decode_scores`) with the batch padded
-    to :func:`~rhythmic_jax.decoding.buckets.bucket` ``(b)`` rows, uploaded once
+    The hard decode by the kernel (:func:`rhythmic_jax.decoding.hard.decode`),
+    or the host batch lane where it takes the queries
+    (:func:`rhythmic_jax.decoding.host.takes`: a float32 numpy batch on a CPU);
+    soft and top-m by ``decode_scores(decision_values(params, queries), groups,
+    n, method, top)`` (:func:`rhythmic_jax.decoding.dispatch.decode_scores`) in
+    one program per bucket: the batch padded to
+    :func:`~rhythmic_jax.decoding.buckets.bucket` ``(b)`` rows, uploaded once
     and decoded on the device in chunks of
     :data:`~rhythmic_jax.decoding.buckets.CHUNK` rows
     (:func:`~rhythmic_jax.decoding.buckets.over_chunks`).
     """
+    if not isinstance(groups, Groups):
+        groups = Groups("periods", tuple(int(t) for t in groups))
+    if method == "hard":
+        if host.takes(params, queries):
+            return host.decode(params, queries, groups, n)
+        return hard.decode(params, queries, groups, n)
     padded, b = pad_rows(queries)
     chunk = buckets.CHUNK
     count = chunk_count(b, chunk)
-    out = _decode_jit(params, padded, count, groups, n, method, int(m), chunk)
+    out = _decode_jit(params, padded, count, groups, n, method, int(top), chunk)
     return head(out, b)
 
 
 @functools.partial(
     jit,
-    static_argnames=("groups", "n", "length", "speeds", "method", "m", "chunk"),
+    static_argnames=("groups", "n", "length", "speeds", "method", "top", "chunk"),
 )
-def _sequence_jit(params, queries, count, groups, n, length, speeds, method, m, chunk):
+def _sequence_jit(
+    params, queries, count, groups, n, length, speeds, method, top, chunk
+):
     history = length - 1
 
     def body(p, window, start):
@@ -341,7 +360,7 @@ def _sequence_jit(params, queries, count, groups, n, length, speeds, method, m, 
         # unchunked decode pads them
         frame = start - history + jnp.arange(window.shape[0])
         s = jnp.where((frame >= 0)[:, None], decision_values(p, window), 0.0)
-        idx, conf = sequence_decode(s, groups, n, length, speeds, method, m)
+        idx, conf = sequence_decode(s, groups, n, length, speeds, method, top)
         return idx[history:], conf[history:]
 
     return over_chunks(body, params, queries, count, chunk, history)
@@ -355,7 +374,7 @@ def sequence_queries(
     length: int,
     speeds: Sequence[float] = (1.0,),
     method: str = "soft",
-    m: int = 3,
+    top: int = 3,
 ) -> tuple[jax.Array, jax.Array]:
     """Sequence decode of T consecutive query frames (T, d), one program per
     bucket: index (T,), confidence (T,)
@@ -367,20 +386,20 @@ def sequence_queries(
     ``length - 1`` frames before it.
     """
     padded, b = pad_rows(queries)
-    out = _padded_sequence(params, padded, b, groups, n, length, speeds, method, m)
+    out = _padded_sequence(params, padded, b, groups, n, length, speeds, method, top)
     return head(out, b)
 
 
-def _padded_sequence(params, padded, b, groups, n, length, speeds, method, m):
+def _padded_sequence(params, padded, b, groups, n, length, speeds, method, top):
     """:func:`sequence_queries` of queries already padded to their bucket,
     ``b`` of them real: (bucket,) index and confidence."""
     length = check_int(length, "length", 1)
     speeds = _check_speeds(speeds)
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got method={method!r}")
-    m = check_int(m, "m", 1)
+    top = check_int(top, "top", 1)
     chunk = buckets.CHUNK
     count = chunk_count(b, chunk)
     return _sequence_jit(
-        params, padded, count, groups, n, length, speeds, method, m, chunk
+        params, padded, count, groups, n, length, speeds, method, top, chunk
     )

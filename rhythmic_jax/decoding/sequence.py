@@ -140,16 +140,16 @@ def sequence_scores(
 
 @functools.partial(
     jit,
-    static_argnames=("periods", "n", "length", "speeds", "method", "m", "exclude"),
+    static_argnames=("periods", "n", "length", "speeds", "method", "top", "exclude"),
 )
-def _decode_jit(scores, periods, n, length, speeds, method, m, exclude):
+def _decode_jit(scores, periods, n, length, speeds, method, top, exclude):
     results = []
     for v in speeds:
         acc = _accumulate(scores, _shift_columns(periods, length, v))
         if method == "soft":
             results.append(soft_decode(acc, periods, n, exclude=exclude))
         elif method == "topm":
-            results.append(topm_decode(acc, periods, n, m, exclude=exclude))
+            results.append(topm_decode(acc, periods, n, top, exclude=exclude))
         else:
             results.append(hard_decode(acc, periods, n))
     # (S, T) per field: one row per speed
@@ -166,7 +166,7 @@ def sequence_decode(
     length: int,
     speeds: Sequence[float] = (1.0,),
     method: str = "soft",
-    m: int = 3,
+    top: int = 3,
     *,
     exclude: int = 0,
 ) -> tuple[jax.Array, jax.Array]:
@@ -174,8 +174,9 @@ def sequence_decode(
 
     For each speed ``v`` the accumulated scores ``A_v = sequence_scores(scores,
     periods, length, v)`` are decoded with ``method`` ("soft": exact score sum,
-    "topm": top-``m`` combinations, "hard": per-period argmax + CRT); per frame the
-    speed with the highest decoded score wins (first in ``speeds`` on ties).
+    "topm": combinations of the ``top`` best phases, "hard": per-period argmax +
+    CRT); per frame the speed with the highest decoded score wins (first in
+    ``speeds`` on ties).
 
     ``periods`` may be a map's :class:`~rhythmic_jax.map.groups.Groups`; a
     mixed-radix or hierarchical map sums its evidence in the place domain and
@@ -194,10 +195,10 @@ def sequence_decode(
         offsets = [frame_offsets(length, v) for v in speeds]
         return group_sequence_decode(scores, periods, n, offsets, exclude=exclude)
     scores, per, n = _check_frames(scores, getattr(periods, "sizes", periods), n)
-    check_int(m, "m", 1)
+    check_int(top, "top", 1)
     check_int(exclude, "exclude", 0)
     if method != "soft" and math.prod(per) >= 2**30:
         raise InputError(f"prod(periods)={math.prod(per)} too large for {method!r}")
     if scores.shape[0] == 0:
         return jnp.zeros((0,), jnp.int32), jnp.zeros((0,), scores.dtype)
-    return _decode_jit(scores, per, n, length, speeds, method, int(m), int(exclude))
+    return _decode_jit(scores, per, n, length, speeds, method, int(top), int(exclude))

@@ -15,12 +15,12 @@ a sum of per-period log-likelihoods, so periods with flat scores weigh less.
 the hard one. It differs, and rescues queries, when the hard combination falls at
 or beyond ``n`` (a "no match" of the paper), and it gives a runner-up score.
 
-Top-m decoding scores only the places whose phase is among the ``m`` best of every
-period: the ``prod_k min(m, tau_k)`` Chinese-remainder combinations (index
+Top-m decoding scores only the places whose phase is among the ``top`` best of every
+period: the ``prod_k min(top, tau_k)`` Chinese-remainder combinations (index
 ``(sum_k T_k[j_k]) mod M`` with the tables of
 :func:`rhythmic_jax.map.periods.crt_tables`),
-combinations with index ``>= n`` dropped. ``m = 1`` is the paper's hard decode
-(no match when the argmax combination is ``>= n``); ``m >= max(tau)`` is exactly the
+combinations with index ``>= n`` dropped. ``top = 1`` is the paper's hard decode
+(no match when the argmax combination is ``>= n``); ``top >= max(tau)`` is exactly the
 soft decode (same sums in the same order, ties to the smaller index).
 
 Both return the best score and the runner-up: the best score among the other places
@@ -137,10 +137,12 @@ def _soft_jit(scores, periods, n, exclude, batch_size):
     )
 
 
-@functools.partial(jit, static_argnames=("periods", "n", "m", "exclude", "batch_size"))
-def _topm_jit(scores, periods, n, m, exclude, batch_size):
+@functools.partial(
+    jit, static_argnames=("periods", "n", "top", "exclude", "batch_size")
+)
+def _topm_jit(scores, periods, n, top, exclude, batch_size):
     return _batched(
-        _topm_one, scores, batch_size, periods=periods, n=n, m=m, exclude=exclude
+        _topm_one, scores, batch_size, periods=periods, n=n, m=top, exclude=exclude
     )
 
 
@@ -178,21 +180,21 @@ def topm_decode(
     scores: jax.Array,
     periods: Sequence[int],
     n: int,
-    m: int,
+    top: int,
     *,
     exclude: int = 0,
     batch_size: int = 256,
 ) -> Decoded:
     """Top-m Chinese-remainder decode: scores (..., p) -> Decoded with shape (...).
 
-    Scores the ``prod_k min(m, tau_k)`` places whose phases are among the ``m`` best
+    Scores the ``prod_k min(top, tau_k)`` places whose phases are among the ``top`` best
     of every period and keeps the best one below ``n`` (index -1 and score -inf when
-    every combination is ``>= n``). ``m = 1`` is the paper's hard decode; ``m >=
-    max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``m ** r``
+    every combination is ``>= n``). ``top = 1`` is the paper's hard decode; ``top >=
+    max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``top ** r``
     instead of ``n``. Needs ``prod(periods) < 2**30`` (int32 index arithmetic).
     """
     per, n = check_scores(scores, periods, n)
-    m = check_int(m, "m", 1)
+    top = check_int(top, "top", 1)
     exclude = check_int(exclude, "exclude", 0)
     batch_size = check_int(batch_size, "batch_size", 1)
     if math.prod(per) >= _INT32_SAFE:
@@ -203,4 +205,4 @@ def topm_decode(
     scores = jnp.asarray(scores)
     if math.prod(scores.shape[:-1]) == 0:
         return _empty(scores.shape[:-1], scores.dtype)
-    return _topm_jit(scores, per, n, m, exclude, batch_size)
+    return _topm_jit(scores, per, n, top, exclude, batch_size)

@@ -16,6 +16,7 @@ a Python number.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 
 from rhythmic_jax.errors import InputError
@@ -53,12 +54,16 @@ def codes_setting(codes) -> int | str:
 
 
 def check_weight(weight) -> float:
-    """The map's share ``w`` of a fused score as a float in [0, 1], else one line."""
+    """The map's share ``w`` of a fused score as a float in [0, 1], else one
+    line; a map's stored weight traced with the map as it is."""
     ok = isinstance(weight, int | float) and not isinstance(weight, bool)
     if not ok:
         import numpy as np
 
         ok = isinstance(weight, np.floating)
+        jax = sys.modules.get("jax")
+        if not ok and jax is not None and isinstance(weight, jax.core.Tracer):
+            return weight  # a map's stored weight traced with it: checked when made
     if not ok or not 0.0 <= float(weight) <= 1.0:
         raise InputError(f"fusion weight must be a number in [0, 1], got {weight!r}")
     return float(weight)
@@ -98,6 +103,10 @@ class MapConfig:
         "hierarchical:SEG" or "hierarchical:SEG:T1,T2" (a segment classifier and
         co-prime fine periods). Sizes left out are chosen for the storage of a
         periods map of the same ``r`` and ``level``.
+
+    ``decode``, ``threshold`` and ``fusion`` are the defaults of a decode,
+    which takes each as an argument; a fitted map carries them as leaves, not
+    in its compiled key (:data:`rhythmic_jax.map.pytree.DECODE_SETTINGS`).
 
     ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
     summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a

@@ -7,12 +7,15 @@ kept beside the map (``extra``), the codes (a
 :class:`~rhythmic_jax.map.codes.CodeBook` or
 :class:`~rhythmic_jax.map.scalar_codes.ScalarCodeBook`, registered here as
 pytrees of their arrays) and the embedding (its arrays), None where absent.
-The fit's record (penalty, training errors) are leaves too. Everything else is
-static and hashable: the layout (``groups``), periods, n, d, the configuration
-(dtype, descriptor, decode settings) and the candidate periods. So
-a map can be an argument of ``jax.jit`` (a new layout or configuration compiles
-anew, new template values do not) and maps of one layout can be stacked and
-``jax.vmap``-ed. The pure functions over it live along the pipeline:
+The fit's record (penalty, training errors) are leaves too, and so are the
+decode settings the map stores as its defaults (:data:`DECODE_SETTINGS`: the
+method, threshold and fusion weight, as 0-d arrays). Everything else is static
+and hashable: the layout (``groups``), periods, n, d, the fit's configuration
+and provenance (dtype, descriptor, the top-m count, which sets a shape) and the
+candidate periods. So a map can be an argument of ``jax.jit`` (a new layout or
+fit configuration compiles anew; new template values, or another stored
+threshold, method or fusion weight, do not) and maps of one layout can be
+stacked and ``jax.vmap``-ed. The pure functions over it live along the pipeline:
 :func:`rhythmic_jax.fitting.fit_map.fit`, :mod:`rhythmic_jax.decoding.queries`
 (scores, decode, sequences) and :mod:`rhythmic_jax.map.map_file` (save, load).
 
@@ -23,7 +26,8 @@ n places.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+import math
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, NamedTuple
 
 import jax
@@ -32,7 +36,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.codes import CodeBook, CodeTransform
-from rhythmic_jax.map.config import MapConfig
+from rhythmic_jax.map.config import DECODERS, MapConfig
 from rhythmic_jax.map.embedding import Embedding, embedding_bytes
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.quantize import requantize
@@ -40,6 +44,7 @@ from rhythmic_jax.map.scalar_codes import ScalarCodeBook
 from rhythmic_jax.map.storage import map_storage
 
 __all__ = [
+    "DECODE_SETTINGS",
     "Map",
     "Templates",
     "decision_values",
@@ -80,6 +85,61 @@ jax.tree_util.register_dataclass(CodeTransform, ["mean", "projection"], [])
 jax.tree_util.register_dataclass(CodeBook, ["transform", "codes"], [])
 jax.tree_util.register_dataclass(ScalarCodeBook, ["vmin", "vdiff", "codes"], [])
 
+DECODE_SETTINGS = ("decode", "threshold", "fusion")
+"""The :class:`~rhythmic_jax.map.config.MapConfig` fields a map carries as
+leaves: its default decode method (the index in
+:data:`~rhythmic_jax.map.config.DECODERS`, int32), threshold (float64, NaN for
+none) and fusion weight (float64)."""
+
+_NONE = dict(decode="hard", threshold=None, fusion=0.5)  # the aux data's values
+
+
+def _leaf(value):
+    """A setting's Python value as its 0-d leaf; a value that is a leaf
+    already (an array of a stacked or traced map) as it is."""
+    if isinstance(value, str):  # the method
+        return np.asarray(DECODERS.index(value), np.int32)
+    if value is None or isinstance(value, int | float):
+        return np.asarray(math.nan if value is None else value, np.float64)
+    return value
+
+
+def _value(name: str, leaf):
+    """A concrete 0-d leaf as the setting's Python value; anything else (a
+    tracer, a stacked array, a placeholder of a tree operation) as it is."""
+    concrete = isinstance(leaf, np.ndarray | np.generic | jax.Array)
+    if not concrete or isinstance(leaf, jax.core.Tracer) or np.ndim(leaf) != 0:
+        return leaf
+    if name == "decode":
+        return DECODERS[int(leaf)]
+    v = float(leaf)
+    return None if name == "threshold" and math.isnan(v) else v
+
+
+def _flatten_config(cfg: MapConfig):
+    leaves = tuple(
+        (jax.tree_util.GetAttrKey(name), _leaf(getattr(cfg, name)))
+        for name in DECODE_SETTINGS
+    )
+    rest = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | _NONE
+    aux = object.__new__(MapConfig)  # the values are checked already
+    aux.__dict__.update(rest)
+    return leaves, aux
+
+
+def _unflatten_config(aux: MapConfig, leaves) -> MapConfig:
+    cfg = object.__new__(MapConfig)  # a leaf may be a tracer: nothing to check
+    cfg.__dict__.update(vars(aux))
+    for name, leaf in zip(DECODE_SETTINGS, leaves, strict=True):
+        cfg.__dict__[name] = _value(name, leaf)
+    return cfg
+
+
+# the decode settings are leaves, the fit's configuration and provenance static
+jax.tree_util.register_pytree_with_keys(
+    MapConfig, _flatten_config, _unflatten_config
+)
+
 _STATIC = dict(metadata=dict(static=True))
 
 
@@ -95,12 +155,13 @@ class Map:
     ``codebook``: codes per place or None; ``embedding``: applied to frames and
     queries first, or None; and the fit's record, float64: the penalty ``c`` (a
     0-d array), the training error of every candidate period
-    (``candidate_errors`` (k,)) and of every kept group (``group_errors``
-    (r,)). Leaves that are numpy arrays are copied to the device by every jitted
-    call that takes the map: ``jax.device_put(map)`` once keeps them there.
+    (``candidate_errors`` (count,)) and of every kept group (``group_errors``
+    (r,)); ``config`` (:class:`~rhythmic_jax.map.config.MapConfig`): its
+    decode settings (:data:`DECODE_SETTINGS`) as leaves, the rest static.
+    Leaves that are numpy arrays are copied to the device by every jitted call
+    that takes the map: ``jax.device_put(map)`` once keeps them there.
 
-    Static: ``config`` (:class:`~rhythmic_jax.map.config.MapConfig`),
-    ``groups`` (:class:`~rhythmic_jax.map.groups.Groups`), ``periods`` (the
+    Static: ``groups`` (:class:`~rhythmic_jax.map.groups.Groups`), ``periods`` (the
     co-prime periods; empty for another layout), ``n`` places, ``d`` input
     features, the ``candidates`` periods and ``reference`` (JSON text: where the
     reference frames came from). Maps of one layout and configuration, fitted
@@ -116,7 +177,7 @@ class Map:
     c: np.ndarray = field(default_factory=lambda: np.ones((), np.float64))
     candidate_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     group_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    config: MapConfig = field(default_factory=MapConfig, **_STATIC)
+    config: MapConfig = field(default_factory=MapConfig)
     groups: Groups = field(default=Groups("periods", (1,)), **_STATIC)
     periods: tuple[int, ...] = field(default=(), **_STATIC)
     n: int = field(default=1, **_STATIC)
@@ -180,7 +241,8 @@ def storage(m: Map) -> dict[str, Any]:
 def with_dtype(m: Map, dtype: str) -> Map:
     """``m`` storing its templates as ``dtype``, from the values it stores now
     (requantize a float32 map, not a float16 one)."""
-    stored, (w, b) = requantize({k: np.asarray(v) for k, v in m.stored.items()}, dtype)
+    stored = {key: np.asarray(v) for key, v in m.stored.items()}
+    stored, (w, b) = requantize(stored, dtype)
     return replace(
         m, w=jax.device_put(w), b=jax.device_put(b), stored=stored,
         config=replace(m.config, dtype=dtype),

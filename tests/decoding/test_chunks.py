@@ -139,7 +139,7 @@ def test_a_large_batch_equals_the_host_decode():
     params = _templates(3, 12, seed=9)
     q = _queries(100_000, 3, seed=10)
     got = decode(params, jnp.asarray(q), periods, n)
-    want = decode(params, q, periods, n)
+    want = decode_queries(params, q, periods, n)  # the host batch lane
     s = q.astype(np.float64) @ np.asarray(params.w, np.float64) + np.asarray(
         params.b, np.float64
     )
@@ -156,11 +156,11 @@ def test_jitted_decode_of_a_chunked_batch_equals_predict(small_chunks):
     x /= np.linalg.norm(x, axis=1, keepdims=True)
     model = rj.RhythmicMap(r=2, level=1).fit(x, progress=False)
     q = (x + rng.normal(scale=0.01, size=x.shape)).astype(np.float32)
-    for how in ("hard", "soft", "topm"):
-        got = jax.jit(queries.decode, static_argnames="how")(
-            model.map, jnp.asarray(q), how=how
+    for method in ("hard", "soft", "topm"):
+        got = jax.jit(queries.decode, static_argnames="method")(
+            model.map, jnp.asarray(q), method=method
         )
-        np.testing.assert_array_equal(np.asarray(got.index), model.predict(q, how))
+        np.testing.assert_array_equal(np.asarray(got.index), model.predict(q, method))
 
 
 @pytest.fixture(scope="module")

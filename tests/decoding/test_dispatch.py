@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax.decoding.dispatch import DECODERS, decode_scores
-from rhythmic_jax.decoding.hard import _hard_jit
+from rhythmic_jax.decoding.hard import hard_kernel
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.periods import period_offsets
 
@@ -53,7 +53,7 @@ def test_soft_and_topm_agree_with_hard_on_clean_scores(periods, n):
     hard = np.asarray(decode_scores(s, periods, n).index)
     np.testing.assert_array_equal(hard, every)
     for method, m in [("soft", 3), ("topm", 1), ("topm", 3)]:
-        got = np.asarray(decode_scores(s, periods, n, method=method, m=m).index)
+        got = np.asarray(decode_scores(s, periods, n, method=method, top=m).index)
         np.testing.assert_array_equal(got, hard, err_msg=f"{method} m={m}")
 
 
@@ -62,7 +62,7 @@ def test_soft_and_topm_below_product():
     every = np.arange(35)
     s = encode(every, periods, 0.0, seed=0)
     hard = np.asarray(decode_scores(s, periods, n, "hard").index)
-    top1 = np.asarray(decode_scores(s, periods, n, "topm", m=1).index)
+    top1 = np.asarray(decode_scores(s, periods, n, "topm", top=1).index)
     soft = np.asarray(decode_scores(s, periods, n, "soft").index)
     np.testing.assert_array_equal(hard, np.where(every < n, every, -1))
     np.testing.assert_array_equal(top1, hard)  # m = 1 is the paper's decode
@@ -87,6 +87,6 @@ def test_leading_dims_and_empty_batch():
 def test_hard_decode_does_not_recompile():
     periods, n = (5, 7), 33
     decode_scores(encode(np.arange(35), periods, 0.1, seed=5), periods, n)
-    size = _hard_jit._cache_size()
+    size = hard_kernel._cache_size()
     decode_scores(encode(np.arange(35), periods, 0.2, seed=6), list(periods), n)
-    assert _hard_jit._cache_size() == size
+    assert hard_kernel._cache_size() == size

@@ -86,7 +86,7 @@ def test_speed_one_grid_is_plain_decode_of_accumulated_scores():
     scores = np.random.default_rng(3).normal(size=(15, 12)).astype(np.float32)
     acc = naive_sequence_scores(scores, periods, length, 1.0)
     index, conf = sequence_decode(
-        scores, periods, n, length, (1.0,), method="topm", m=2
+        scores, periods, n, length, (1.0,), method="topm", top=2
     )
     want = topm_decode(acc, periods, n, 2)
     np.testing.assert_array_equal(np.asarray(index), np.asarray(want.index))
@@ -139,7 +139,7 @@ def test_speed_grid_recovers_a_faster_traversal():
         ({"length": 0}, "length"),
         ({"speeds": ()}, "speeds"),
         ({"method": "viterbi"}, "method"),
-        ({"method": "topm", "m": 0}, "m must"),
+        ({"method": "topm", "top": 0}, "top must"),
     ],
 )
 def test_bad_options_raise(kwargs, match):

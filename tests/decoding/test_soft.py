@@ -204,6 +204,6 @@ def test_bad_input_raises(periods, n, shape):
         soft_decode(jnp.zeros(shape), periods, n)
 
 
-def test_bad_m_raises():
-    with pytest.raises(InputError, match="m must"):
+def test_bad_top_raises():
+    with pytest.raises(InputError, match="top must"):
         topm_decode(jnp.zeros((2, 8)), (3, 5), 10, 0)

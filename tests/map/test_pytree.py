@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decoding import hard, queries
+from rhythmic_jax.decoding import hard, host, queries
 from rhythmic_jax.decoding.hard import hard_decode
 from rhythmic_jax.fitting.fit_map import fit
 from rhythmic_jax.map import map_file
@@ -54,9 +54,10 @@ def test_jitted_decode_of_the_map_equals_predict(maps):
     q = _queries(x)
     model = RhythmicMap()
     model.map = m
-    for how in ("hard", "soft", "topm"):
-        got = jax.jit(queries.decode, static_argnames="how")(m, jnp.asarray(q), how=how)
-        np.testing.assert_array_equal(np.asarray(got.index), model.predict(q, how))
+    decode = jax.jit(queries.decode, static_argnames="method")
+    for method in ("hard", "soft", "topm"):
+        got = decode(m, jnp.asarray(q), method=method)
+        np.testing.assert_array_equal(np.asarray(got.index), model.predict(q, method))
     assert (model.predict(x) == np.arange(80)).mean() > 0.9  # a real answer
 
 
@@ -74,6 +75,37 @@ def test_jit_takes_new_template_values_without_compiling(maps):
     assert not np.array_equal(np.asarray(first.index), np.asarray(second.index))
 
 
+def test_a_new_threshold_method_or_fusion_weight_compiles_nothing(maps):
+    """The decode settings a map stores are leaves, not the compiled key: a map
+    with another threshold, method or fusion weight reuses the program, and its
+    stored method still decides its answer; an explicit method overrides it."""
+    (m, _), (x, _) = maps
+    q = jnp.asarray(_queries(x))
+    decode = jax.jit(queries.decode)
+    decode(m, q)
+    programs = decode._cache_size()
+    named = jax.jit(queries.decode, static_argnames="method")
+    named(m, q, method="hard")
+    named_programs = named._cache_size()
+    for change in (dict(threshold=0.25), dict(fusion=0.8), dict(decode="soft"),
+                   dict(decode="topm", threshold=-1.0)):  # fmt: skip
+        other = replace(m, config=replace(m.config, **change))
+        got = decode(other, q)
+        want = queries.decode(other, np.asarray(q))
+        np.testing.assert_array_equal(np.asarray(got.index), want.index)
+        np.testing.assert_allclose(np.asarray(got.score), want.score, rtol=1e-5)
+        hard = named(other, q, method="hard")
+        np.testing.assert_array_equal(np.asarray(hard.index), np.asarray(named(
+            m, q, method="hard").index))  # fmt: skip
+    assert decode._cache_size() == programs
+    assert named._cache_size() == named_programs
+    leaves = jax.tree_util.tree_leaves(replace(m, config=other.config))
+    assert len(leaves) == len(jax.tree_util.tree_leaves(m))  # settings: leaves
+    moved = jax.device_put(other)  # the settings read back as Python values
+    assert moved.config == other.config and moved.config.decode == "topm"
+    assert replace(m, config=replace(m.config, m=5)).config != m.config
+
+
 def test_decode_compiles_once_per_bucket(maps):
     """Device batches: one program per bucket of rows; a float32 numpy batch on
     the CPU is answered by the numpy lane and compiles nothing."""
@@ -85,12 +117,12 @@ def test_decode_compiles_once_per_bucket(maps):
     assert hard._localise._cache_size() == 1
     hard.decode(m.params, jnp.asarray(x[:17]), m.groups, m.n)
     assert hard._localise._cache_size() == 2
-    hard._hard_jit.clear_cache()
+    hard.hard_kernel.clear_cache()
     for b in (3, 17, 40):
         want = hard.decode(m.params, jnp.asarray(x[:b]), m.groups, m.n).index
         got = queries.decode(m, x[:b])
         np.testing.assert_array_equal(got.index, np.asarray(want))
-    assert hard._hard_jit._cache_size() == 0 and hard._localise._cache_size() == 3
+    assert hard.hard_kernel._cache_size() == 0 and hard._localise._cache_size() == 3
 
 
 def test_vmap_over_two_maps_of_one_layout_equals_two_decodes(maps):
@@ -98,7 +130,7 @@ def test_vmap_over_two_maps_of_one_layout_equals_two_decodes(maps):
     assert m1.periods == m2.periods == (9, 11)
     q = jnp.asarray(_queries(np.concatenate([x1[:20], x2[:20]])))
     stacked = jax.tree.map(lambda *a: jnp.stack(a), m1, m2)
-    out = jax.vmap(functools.partial(queries.decode, q=q, how="hard"))(stacked)
+    out = jax.vmap(functools.partial(queries.decode, q=q, method="hard"))(stacked)
     for i, m in enumerate((m1, m2)):
         want = queries.decode(m, np.asarray(q))
         np.testing.assert_array_equal(np.asarray(out.index[i]), want.index)
@@ -167,7 +199,7 @@ def test_the_kernel_equals_a_brute_force_loop_over_every_place(groups, n):
 def test_the_numpy_lane_equals_the_kernel(maps):
     (m, _), (x, _) = maps
     q = _queries(x, seed=9)
-    lane = queries.lane(m)
+    lane = host.lane(m)
     want = np.asarray(hard.decode(m.params, q, m.groups, m.n).index).tolist()
     assert [lane.place(row) for row in q] == want
     assert [queries.locate(m, row) for row in q] == want

@@ -1,8 +1,10 @@
-"""The numpy lane (one query's place, a host batch's decode) equals the hard-decode
+"""The host lanes (one query's place, a host batch's decode) equal the hard-decode
 kernel's."""
 
 from __future__ import annotations
 
+import gc
+import weakref
 from dataclasses import replace
 
 import jax.numpy as jnp
@@ -10,17 +12,18 @@ import numpy as np
 import pytest
 
 from rhythmic_jax import RhythmicMap
-from rhythmic_jax.decoding import queries
-from rhythmic_jax.decoding.hard import (
+from rhythmic_jax.decoding import host, queries
+from rhythmic_jax.decoding.hard import decode, hard_decode
+from rhythmic_jax.decoding.host import (
     GEMV_THREADED,
     SMALL_BATCH,
     SmallDecoder,
     block_rows,
-    decode,
     gemv_rows,
-    hard_decode,
     host_decode,
+    lane,
 )
+from rhythmic_jax.decoding.queries import decode_queries
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import candidate_periods, choose_periods
@@ -89,7 +92,7 @@ def test_a_float32_host_batch_on_the_cpu_takes_the_lane():
     periods, n = (45, 46), 2000
     params = _templates(32, periods, seed=5)
     q = np.random.default_rng(6).standard_normal((1000, 32), dtype=np.float32)
-    got = decode(params, q, periods, n)
+    got = decode_queries(params, q, periods, n)
     want = decode(params, jnp.asarray(q), periods, n)
     assert isinstance(got.index, np.ndarray)
     np.testing.assert_array_equal(got.index, np.asarray(want.index))
@@ -105,17 +108,23 @@ def test_predict_answers_few_queries_in_numpy():
     model = RhythmicMap(r=2).fit(x, progress=False)
     q = x + 0.1 * rng.standard_normal(x.shape, dtype=np.float32)
     full = np.asarray(model.decode(q).index)  # a batch: the kernel
+    assert queries.way(model.map, "hard") is queries._small
+    small = lane(model.map)
     for i in range(0, 60, 5):  # predict's own path: places only, in numpy
-        few = queries.places(model.map, q[i : i + 5], "hard")
+        few = small.places(q[i : i + 5])
         assert few.dtype == np.int64
         np.testing.assert_array_equal(few, full[i : i + 5])
         np.testing.assert_array_equal(model.predict(q[i : i + 5]), few)
-    assert queries.places(model.map, q[: SMALL_BATCH + 1], "hard") is None  # a batch
-    assert queries.places(model.map, q[:1], "soft") is None
-    first = queries.lane(model.map)
-    assert queries.lane(model.map) is first  # built once per map
+    assert small.places(q[: SMALL_BATCH + 1]) is None  # a batch
+    assert queries.way(model.map, "soft") is queries._one_by_one
+    assert queries.way(model.map, "hard", 0.5) is queries._one_by_one
+    assert queries.way(model.map, "hard", None, 2) is queries._in_sequence
+    assert lane(model.map) is small  # built once per map
     model.fit(x[::-1].copy(), progress=False)  # new templates: a new lane
-    assert queries.lane(model.map) is not first
+    assert lane(model.map) is not small
+    assert not hasattr(model.map, "__dict__") or not {
+        k for k in vars(model.map) if k.startswith("_")
+    }  # nothing written onto the frozen value
 
 
 def test_rows_are_padded_onto_the_blas_thread_pool_only_where_it_pays():
@@ -174,7 +183,7 @@ def test_locate_is_predict_of_one_row():
     q = np.random.default_rng(7).standard_normal((60, 16), dtype=np.float32)
     want = model.predict(q).tolist()
     assert [model.locate(row) for row in q] == want  # first call builds the lane
-    assert queries.lane(model.map) is queries.lane(model.map)  # kept on the map
+    assert lane(model.map) is lane(model.map)  # kept beside the map
     assert [model.locate(row) for row in q] == want
     assert model.locate(q[3].astype(np.float64)) == want[3]  # converted
     assert model.locate(q[3].tolist()) == want[3]
@@ -188,3 +197,20 @@ def test_locate_is_predict_of_one_row():
         model.locate(q[3, :8])
     model.config = replace(model.config, threshold=1e9)
     assert model.locate(q[0]) == -1  # the config's threshold holds
+
+
+def test_the_lane_is_kept_beside_the_map_until_it_is_collected():
+    """The lane is keyed by the map value from outside it: it does not keep
+    the map alive, and goes with it."""
+    periods, n = (7, 9), 60
+    params = _templates(16, periods)
+    m = Map(*params, stored=dict(params._asdict()), groups=Groups("periods", periods),
+            periods=periods, n=n, d=16)  # fmt: skip
+    small, key = lane(m), id(m)
+    assert host._LANES[key] is small and not vars(m).keys() - {
+        f for f in Map.__dataclass_fields__
+    }
+    alive = weakref.ref(m)
+    del m
+    gc.collect()
+    assert alive() is None and key not in host._LANES
