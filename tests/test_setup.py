@@ -58,8 +58,14 @@ def test_ci_runs_the_readme_test_command_line_in_a_new_environment():
     # the environment is made in the run itself, before the install
     assert ci.index("-m venv") < ci.index("bin/activate") < ci.index(tests[0])
     installs = [line for line in lines if "pip install" in line]
-    assert len(installs) == 2
-    assert all("pip install -c constraints.txt " in line for line in installs)
+    # the two set-up commands: install, then the main job or the suite
+    assert [line for line in installs if "&&" in line] == [
+        "pip install -c constraints.txt -e . && rhythmic-jax demo",
+        tests[0],
+    ]
+    # every other install line (the CPU wheel of torch, the GPU extra) pins too
+    for line in installs:
+        assert "-c constraints.txt" in line or "torch==2.13.0" in line, line
     assert any(line.startswith("python -m venv .venv") for line in lines)
 
 

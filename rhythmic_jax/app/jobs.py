@@ -357,7 +357,9 @@ def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
     model, feats, pred = _queried(job, progress)
     result = qr.per_query(model, feats.x, pred, decode=job.decode,
                           sequence=job.sequence, top=job.top)  # fmt: skip
-    rows = qr.records(result, qr.source_names(job.source), qr.place_names(model))
+    rows = qr.records(
+        result, qr.source_names(job.source, job.reading.select), qr.place_names(model)
+    )
     if job.csv:
         from rhythmic_jax.io.atomic import write_file
 

@@ -26,10 +26,11 @@ __all__ = ["csv_text", "per_query", "place_names", "ranked_scores", "records",
 HDF5 = (".h5", ".hdf5")
 
 
-def source_names(source: str | Path) -> list[str] | None:
+def source_names(source: str | Path, select: str | None = None) -> list[str] | None:
     """The names of a source's rows: an image folder's file names (in the order
-    frames are read), an hloc ``.h5`` file's image names; None for a ``.npy``
-    file or a tiled image (rows are then numbered)."""
+    frames are read), an hloc ``.h5`` file's image names (those starting with
+    ``select`` when given, as the rows were read); None for a ``.npy`` file or a
+    tiled image (rows are then numbered)."""
     from rhythmic_jax.io.images import list_images
 
     path = Path(source)
@@ -38,7 +39,7 @@ def source_names(source: str | Path) -> list[str] | None:
     if path.suffix.lower() in HDF5 and path.is_file():
         from rhythmic_jax.io.vpr_files import read_hloc_descriptors
 
-        return list(read_hloc_descriptors(path)[0])
+        return list(read_hloc_descriptors(path, select)[0])
     return None
 
 
@@ -50,7 +51,7 @@ def place_names(model) -> list[str] | None:
     if not sources or "reference_labels" in model.extra:
         return None
     try:
-        names = source_names(sources[0])
+        names = source_names(sources[0], (model.reference or {}).get("select"))
     except Exception:  # a source that moved or changed: the places stay numbered
         return None
     return names if names is not None and len(names) == model.n else None

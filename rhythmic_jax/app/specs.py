@@ -211,6 +211,8 @@ def _named_rows(job) -> bool:
     """Whether every source ``select`` applies to is an hloc ``.h5`` file."""
     sources = job.sources if hasattr(job, "sources") else (job.source,)
     return all(Path(s).suffix.lower() in (".h5", ".hdf5") for s in sources)
+
+
 IGNORED = (
     Rule(("compile_min_frames",), "acts only with {opt:compile} auto; ignored",
          lambda j: j.reading.compile.mode == "auto", warn=True),

@@ -189,11 +189,14 @@ def _installed(*argv, cwd, env):
 def test_help_says_what_compiling_costs():
     from rhythmic_jax.app.cli import _parser
 
-    sub = _parser()._subparsers._group_actions[0].choices
+    parser = _parser()
+    sub = parser._subparsers._group_actions[0].choices
     for command in ("fit", "query", "evaluate", "learn"):
         text = " ".join(sub[command].format_help().split())
         assert "--compile {auto,always,never}" in text
-    assert "up to a minute once per machine" in text and "--compile-min-frames" in text
+        assert "--compile-min-frames" in text
+    text = " ".join(parser.format_help().split())  # the cost, once, in the epilog
+    assert "up to a minute once per machine" in text
 
 
 @pytest.mark.slow

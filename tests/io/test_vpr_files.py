@@ -295,9 +295,12 @@ def test_select_on_the_command_line(tmp_path, capsys):
     _write_hloc_as_hloc(path, names, np.concatenate([db, db]))
     out = str(tmp_path / "m.map")
     assert main(["fit", str(path), "--select", "db/", "--out", out, "--json"]) == 0
+    capsys.readouterr()
     assert main(["query", out, str(path), "--select", "query/", "--json"]) == 0
-    got = capsys.readouterr().out
-    assert got.rstrip().endswith('{"predictions": ' + str(list(range(n))) + "}")
+    got = json.loads(capsys.readouterr().out)
+    assert got["predictions"] == list(range(n))
+    assert [q["query"] for q in got["queries"]] == names[n:]  # in natural order
+    assert [q["place_name"] for q in got["queries"]] == names[:n]  # the map's rows
     assert main(["query", out, str(path), "--select", "night/"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no image name starts with 'night/'" in err[0]
