@@ -36,6 +36,7 @@ SETUP = (
     ". .venv/bin/activate",
     "bash scripts/test.sh",
     "bash scripts/refresh_constraints.sh",
+    "bash scripts/test_gpu.sh",  # a GPU machine's checks, from the checkout
 )
 PLACES = range(1000, 1060)  # the scored route: 60 Nordland places
 TRAIN = range(0, 150)  # the training route, places apart from the scored ones

@@ -110,7 +110,7 @@ def test_frontier_on_a_corridor_skips_with_a_note(tmp_path, capsys, n, d):
     assert any(r["name"] == "ITQ 64 bits" for r in result["rows"])
     code, out, err = run(capsys, "frontier", str(tmp_path / f"r{n}_{d}.npy"),
                          str(tmp_path / f"q{n}_{d}.npy"), "--maps", "2:1",
-                         "--no-progress")  # fmt: skip
+                         "--grid", "full", "--no-progress")  # fmt: skip
     assert code == 0, err
     skipped = ", ".join(str(b) for b in (128, 256, 512) if b > min(n, d))
     assert f"ITQ bits {skipped}: skipped" in out
