@@ -50,6 +50,9 @@ def shape_checked(X, name: str, d: int | None = None):
     """X as it is, refused in scikit-learn's words where its shape (when it has
     one) is 1-d, has no features or not ``d`` of them; numbers held as Python
     objects become float64."""
+    if type(X) is np.ndarray and X.dtype != object:  # the common case, at once
+        if X.ndim == 2 and X.shape[1] and (d is None or X.shape[1] == d):
+            return X
     if isinstance(X, np.ndarray) and X.dtype == object:
         try:
             X = X.astype(np.float64)

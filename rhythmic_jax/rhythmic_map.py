@@ -320,14 +320,15 @@ class RhythmicMap(BaseEstimator):
         """Place of every query X (b, d): (b,) int64, -1 for no match
         (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, top-``m``,
         ``sequence`` length, ``speeds``, ``threshold``)."""
-        how = dict(top=m, sequence=sequence, speeds=speeds, threshold=threshold)
-        return self._labelled(
-            queries.predict(self._fitted(), self._queries(X), method, **how)
-        )
+        got = queries.predict(
+            self._fitted(), self._queries(X), method, top=m, sequence=sequence,
+            speeds=speeds, threshold=threshold,
+        )  # fmt: skip
+        return self._labelled(got)
 
     def _labelled(self, index):
         """Places (b,) of the map as the labels ``fit`` was given (-1 kept)."""
-        labels = self._fitted().extra.get("place_labels")
+        labels = self.map_.extra.get("place_labels")  # fitted: its caller checked
         if labels is None:
             return index
         labels = np.asarray(labels)
