@@ -30,7 +30,7 @@ from typing import Any
 
 from rhythmic_jax.app.specs import GRIDS
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.outputs import check_place
+from rhythmic_jax.io.outputs import check_file_place
 
 __all__ = ["frontier", "frontier_lines", "main", "write_csv"]
 
@@ -261,13 +261,8 @@ def write_csv(rows, path: str | Path) -> None:
 
 def main(args) -> int:
     """The ``frontier`` command: the table (or ``--json``), ``--csv``, ``--plot``."""
-    for opt in ("csv", "plot"):
-        out = getattr(args, opt)
-        if out and not Path(out).absolute().parent.is_dir():
-            where = Path(out).parent
-            raise InputError(f"{{opt:{opt}}} {out}: folder {where} not found")
-        if out:
-            check_place(opt, out, file=True)  # a folder there: refused before work
+    for opt in ("csv", "plot"):  # a folder there: refused before work
+        check_file_place(opt, getattr(args, opt))
     if args.ground_truth_format and not args.ground_truth:
         raise InputError("{opt:ground_truth_format} needs {opt:ground_truth}")
     if args.plot and not str(args.plot).lower().endswith(".png"):

@@ -40,7 +40,7 @@ from rhythmic_jax.app.specs import (
     Reading,
 )
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.outputs import check_place, write_errors
+from rhythmic_jax.io.outputs import check_file_place, check_place, write_errors
 from rhythmic_jax.map.config import MapConfig
 
 if TYPE_CHECKING:
@@ -374,13 +374,8 @@ def _queried(job: QueryJob, progress: bool):
     predictions written to ``job.out`` (``.npy``) when given."""
     import numpy as np
 
-    for opt in ("out", "csv"):
-        path = getattr(job, opt)
-        if path and not Path(path).absolute().parent.is_dir():
-            where = Path(path).parent
-            raise InputError(f"{{opt:{opt}}} {path}: folder {where} not found")
-        if path:
-            check_place(opt, path, file=True)  # a folder there: refused before work
+    for opt in ("out", "csv"):  # a folder there: refused before work
+        check_file_place(opt, getattr(job, opt))
     out = job.out
     model, feats = _load_queries(job, progress)
     pred = model.predict(

@@ -48,6 +48,7 @@ __all__ = [
     "Target",
     "cancel",
     "cancelled",
+    "check_file_place",
     "check_place",
     "committing",
     "output_target",
@@ -189,6 +190,17 @@ def _check_through(option: str, path, target: Target) -> None:
         raise InputError(
             f"{{opt:{option}}} {path}: cannot write it ({os.strerror(errno.EACCES)})"
         )
+
+
+def check_file_place(option: str, path: str | os.PathLike | None) -> Path | None:
+    """One file's output ``path`` (None: not asked for): its folder must exist
+    (one line naming it), then :func:`check_place` with ``file=True``."""
+    if not path:
+        return None
+    if not Path(path).absolute().parent.is_dir():
+        where = Path(path).parent
+        raise InputError(f"{{opt:{option}}} {path}: folder {where} not found")
+    return check_place(option, path, file=True)
 
 
 def check_place(
