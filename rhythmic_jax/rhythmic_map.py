@@ -12,21 +12,28 @@ name and kept as given (``get_params``, ``set_params``, ``sklearn.clone``,
 pure functions of :mod:`rhythmic_jax.decoding.queries` on it, and ``save`` /
 ``load`` those of :mod:`rhythmic_jax.map.map_file`. The map's fields read as
 attributes of a fitted estimator (``m.periods``, ``m.n``, ``m.codebook``, ...);
-before a fit they raise :class:`NotFittedMapError`.
+before a fit they raise ``NotFittedMapError``, scikit-learn's ``NotFittedError``
+and this package's :class:`~rhythmic_jax.errors.InputError` at once.
+
+``RhythmicMap`` is :class:`MapEstimator` on scikit-learn's ``BaseEstimator`` as
+well, made when first asked for: importing scikit-learn would cost every
+command that holds a map, so the command line holds :class:`MapEstimator`,
+which answers scikit-learn's protocol without it
+(:mod:`rhythmic_jax.estimator_face`).
 """
 
 from __future__ import annotations
 
+import functools
 import inspect
 import json
 from dataclasses import fields, replace
 
 import numpy as np
-from sklearn.base import BaseEstimator
-from sklearn.exceptions import NotFittedError
 
 from rhythmic_jax.decoding import queries
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.estimator_face import EstimatorFace, not_fitted_error
 from rhythmic_jax.estimator_inputs import (
     SCALE_KEYS,
     SCALES,
@@ -42,14 +49,9 @@ from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.embedding import embedding_bytes
 from rhythmic_jax.validate import check_features
 
-__all__ = ["MapConfig", "NotFittedMapError", "RhythmicMap"]
+__all__ = ["MapConfig", "MapEstimator", "RhythmicMap"]  # noqa: F822 - RhythmicMap: made on first use
 
 _FIT_KEYS = (*SCALE_KEYS, "place_labels")  # extra arrays each fit makes anew
-
-
-class NotFittedMapError(InputError, NotFittedError):
-    """A fitted map's value asked of an estimator before ``fit`` or ``load``:
-    scikit-learn's ``NotFittedError`` and this package's one-line error."""
 
 
 def _map_field(name: str, doc: str) -> property:
@@ -61,7 +63,7 @@ def _map_field(name: str, doc: str) -> property:
     return property(lambda self: getattr(self._fitted(), name), set_, doc=doc)
 
 
-class RhythmicMap(BaseEstimator):
+class MapEstimator(EstimatorFace):
     """A place-recognition map stored as r groups of periodic linear templates.
 
     Parameters (by name only; checked by ``fit``): ``r``, ``level``, ``count``,
@@ -210,7 +212,7 @@ class RhythmicMap(BaseEstimator):
                       progress=progress, refine=refine, plan=plan)  # fmt: skip
         return self._take(got, extra=extra)
 
-    def _take(self, kept, d: int | None = None, extra=None) -> RhythmicMap:
+    def _take(self, kept, d: int | None = None, extra=None) -> MapEstimator:
         """Hold a fitted map, or a fit's ``kept`` templates of d-dim frames (a fit
         from files), with this estimator's extra arrays and reference."""
         extra = dict(self.extra if extra is None else extra)
@@ -243,7 +245,7 @@ class RhythmicMap(BaseEstimator):
     def _fitted(self) -> pytree.Map:
         got = vars(self).get("map_")
         if got is None:
-            raise NotFittedMapError(
+            raise not_fitted_error()(
                 "this map is not fitted yet: call fit() or load() first"
             )
         return got
@@ -368,7 +370,7 @@ class RhythmicMap(BaseEstimator):
         return map_file.describe(self._fitted())
 
     # ------------------------------------------------------------ files
-    def with_dtype(self, dtype: str) -> RhythmicMap:
+    def with_dtype(self, dtype: str) -> MapEstimator:
         """A copy storing its templates as ``dtype`` (from the values stored now)."""
         return type(self)._holding(pytree.with_dtype(self._fitted(), dtype))
 
@@ -384,7 +386,7 @@ class RhythmicMap(BaseEstimator):
         return cls._holding(got)
 
     @classmethod
-    def _holding(cls, m: pytree.Map) -> RhythmicMap:
+    def _holding(cls, m: pytree.Map) -> MapEstimator:
         """A fitted estimator holding ``m``, with the parameters it was built with."""
         scale = "standardize" if "scale_mean" in m.extra else "refuse"
         self = cls.from_config(m.config, embedding=m.embedding, scale=scale)
@@ -393,10 +395,34 @@ class RhythmicMap(BaseEstimator):
 
 
 # what inspect.signature(RhythmicMap) shows (else __new__'s *args, **kwargs)
-_INIT = inspect.signature(RhythmicMap.__init__)
-RhythmicMap.__signature__ = _INIT.replace(
+_INIT = inspect.signature(MapEstimator.__init__)
+MapEstimator.__signature__ = _INIT.replace(
     parameters=list(_INIT.parameters.values())[1:]
 )
+
+
+@functools.cache
+def _estimator_class() -> type:
+    """``RhythmicMap``: :class:`MapEstimator` on scikit-learn's ``BaseEstimator``
+    too, made on first use (importing scikit-learn costs every command that
+    holds a map; the command line holds :class:`MapEstimator` itself)."""
+    from sklearn.base import BaseEstimator
+
+    cls = type("RhythmicMap", (MapEstimator, BaseEstimator), {
+        "__doc__": MapEstimator.__doc__, "__module__": __name__,
+    })  # fmt: skip
+    cls.__signature__ = MapEstimator.__signature__
+    return cls
+
+
+def __getattr__(name: str):
+    """``RhythmicMap`` and ``NotFittedMapError``, made on first use (both import
+    scikit-learn)."""
+    if name == "RhythmicMap":
+        return _estimator_class()
+    if name == "NotFittedMapError":
+        return not_fitted_error()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _params_of(config: MapConfig) -> dict:

@@ -55,7 +55,7 @@ LAYERS = [
     ["decoding.queries"],
     ["fitting.closed_form", "fitting.fit_plan"],
     ["fitting.fit_map", "fitting.learn", "fitting.scale_fit"],
-    ["estimator_inputs"],
+    ["estimator_face", "estimator_inputs"],
     ["rhythmic_map"],
     ["augment.kornia_ops"],
     ["augment.stream"],

@@ -259,3 +259,24 @@ def test_grid_search_as_written_fits_every_setting():
     ).fit(route(200, 64, seed=8))
     assert len(grid.cv_results_["mean_test_score"]) == 4
     assert grid.best_estimator_.n == 200
+
+
+def test_the_command_line_imports_no_scikit_learn():
+    """The command line's jobs hold maps as ``MapEstimator`` (the estimator's
+    logic and scikit-learn's protocol without its base class), so a command
+    loads no scikit-learn; ``RhythmicMap``, asked for, is a ``BaseEstimator``."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, rhythmic_jax, rhythmic_jax.app.jobs\n"
+        "from rhythmic_jax.rhythmic_map import MapEstimator\n"
+        "m = MapEstimator(r=3)\n"
+        "assert repr(m) == 'MapEstimator(r=3)' and m.get_params()['r'] == 3\n"
+        "assert 'sklearn' not in sys.modules, 'imported'\n"
+        "from sklearn.base import BaseEstimator\n"
+        "assert isinstance(rhythmic_jax.RhythmicMap(), BaseEstimator)\n"
+        "assert isinstance(rhythmic_jax.RhythmicMap(), MapEstimator)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -153,7 +153,7 @@ def run_demo(
     from rhythmic_jax.frames.sources import describe_images
     from rhythmic_jax.io.tiles import tile_image
     from rhythmic_jax.jit_cache import enable_compile_cache
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     enable_compile_cache()
 

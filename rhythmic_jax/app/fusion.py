@@ -58,7 +58,7 @@ def learn_fusion(traversals, emb, codes="int8") -> dict[str, Any]:
 
     from rhythmic_jax.decoding.fusion import learn_weight
     from rhythmic_jax.map.embedding import apply
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     t0 = time.perf_counter()
     n = len(traversals[0])

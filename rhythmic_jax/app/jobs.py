@@ -197,7 +197,7 @@ def fit(job: FitJob, progress: bool = False):
     :class:`FitInterrupted`, which says where it is kept.
     """
     from rhythmic_jax.frames.sources import load_sources
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     augmented, learned, read, fit_plan = _before_reading(job)
     feats = load_sources(
@@ -331,7 +331,7 @@ def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
 
 def _load_queries(job, progress: bool):
     from rhythmic_jax.frames.sources import load_query_source
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     model, read = RhythmicMap.load(job.map), job.reading
     feats = load_query_source(
@@ -404,7 +404,7 @@ def info(map_path: str) -> dict[str, Any]:
 
 
 def _loaded_info(map_path: str) -> dict[str, Any]:
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     return RhythmicMap.load(map_path).info()
 

@@ -205,7 +205,7 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     import jax
 
     from rhythmic_jax.io.frame_files import shard_descriptor
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     name, settings = shard_descriptor(sources[0])
     model = RhythmicMap.from_config(

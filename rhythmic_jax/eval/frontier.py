@@ -210,7 +210,7 @@ def _similarity_extra(sims, tol, truth, search=None) -> dict:
 
 def _fit_map(x, r, level, gap):
     """The (w (d, p), b (p,)) templates and periods of a soft-decode map of x."""
-    from rhythmic_jax.rhythmic_map import RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
 
     m = RhythmicMap(r=r, level=level, gap=gap, method="soft").fit(x, progress=False)
     return np.asarray(m.params.w), np.asarray(m.params.b), tuple(m.periods)
