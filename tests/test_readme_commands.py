@@ -181,12 +181,12 @@ def _mosaic(files: list[Path], path: Path) -> None:
     skimage.io.imsave(path, np.concatenate(rows, axis=0), check_contrast=False)
 
 
-def _hloc(path: Path, x: np.ndarray) -> None:
+def _hloc(path: Path, x: np.ndarray, prefix: str = "") -> None:
     import h5py
 
-    with h5py.File(path, "w") as f:
+    with h5py.File(path, "a") as f:
         for i, row in enumerate(x):
-            f.create_group(f"img{i:03d}.jpg")["global_descriptor"] = row
+            f.create_group(f"{prefix}img{i:03d}.jpg")["global_descriptor"] = row
 
 
 def make_files(cwd: Path, nordland: Path, aerial: Path) -> None:
@@ -231,6 +231,8 @@ def make_files(cwd: Path, nordland: Path, aerial: Path) -> None:
         np.save(cwd / name, rows)
     _hloc(cwd / "global-feats-netvlad-db.h5", x)
     _hloc(cwd / "global-feats-netvlad-q.h5", q)
+    _hloc(cwd / "global-feats-netvlad.h5", x, "db/")  # one file holding both
+    _hloc(cwd / "global-feats-netvlad.h5", q, "query/")
     near = [np.arange(max(0, i - 1), min(n, i + 2)) for i in range(n)]
     gt = np.empty(n, dtype=object)
     for i in range(n):

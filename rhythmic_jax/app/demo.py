@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -232,7 +233,14 @@ def run_demo(
         + "\n```\n\n![storage growth and accuracy](report.png)\n",
     )
     print("\n".join(text))
-    print(
-        f"\nreport: {out / 'report.md'} (plot {out / 'report.png'}, map {out / 'map'})"
-    )
+    shown = _shown(out)
+    print(f"\nreport: {shown / 'report.md'} (plot {shown / 'report.png'}, map "
+          f"{shown / 'map'})")  # fmt: skip
     return result
+
+
+def _shown(path: Path) -> Path:
+    """``path`` as the user would type it here: relative to the current folder
+    when it lies inside it, else whole."""
+    rel = os.path.relpath(path)
+    return Path(rel) if not rel.startswith("..") else Path(path)
