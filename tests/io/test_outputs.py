@@ -251,7 +251,7 @@ def test_every_output_on_a_read_only_place_is_refused_before_any_work(
         return real(dir=dir, prefix=prefix)
 
     _fail(monkeypatch, "rhythmic_jax.frames.sources.load_sources", AssertionError())
-    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.RhythmicMap.load", AssertionError())
+    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.MapEstimator.load", AssertionError())
     monkeypatch.setattr(outputs.tempfile, "mkstemp", read_only)
     runs = {
         "--out": ["fit", ref, "--out", f"{ro}/x.map"],
@@ -273,7 +273,7 @@ def test_every_output_on_a_read_only_place_is_refused_before_any_work(
 def test_fit_out_that_fails_to_write_is_one_line(route, tmp_path, monkeypatch, capsys):
     out = tmp_path / "x.map"
     err = OSError(errno.EROFS, os.strerror(errno.EROFS), str(tmp_path / ".x.map.t"))
-    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.RhythmicMap.save", err)
+    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.MapEstimator.save", err)
     argv = ["fit", str(route / "ref.npy"), "--out", str(out), "--no-progress"]
     assert main(argv) == 2
     _one_line(capsys, f"--out {out}: could not write it (Read-only file system)")
@@ -469,7 +469,7 @@ def test_file_outputs_go_through_devices_and_folders_are_refused_before_work(
     capsys.readouterr()
     folder = tmp_path / "pr.png"
     folder.mkdir()
-    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.RhythmicMap.load", AssertionError())
+    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.MapEstimator.load", AssertionError())
     _fail(monkeypatch, "rhythmic_jax.app.frontier.frontier", AssertionError())
     assert main(["evaluate", m, ref, "--plot", str(folder), "--no-progress"]) == 2
     _one_line(capsys, f"--plot {folder}: is a folder; give a file name")
