@@ -67,7 +67,7 @@ class MapEstimator(EstimatorFace):
     """A place-recognition map stored as r groups of periodic linear templates.
 
     Parameters (by name only; checked by ``fit``): ``r``, ``level``, ``count``,
-    ``c``, ``solver``, ``gap``, ``m``, ``threshold``, ``descriptor``,
+    ``c``, ``solver``, ``gap``, ``top``, ``threshold``, ``descriptor``,
     ``descriptor_settings`` (None: none), ``dtype``, ``codes``, ``fusion`` and
     ``layout`` as in :class:`~rhythmic_jax.map.config.MapConfig`, whose
     ``decode`` is ``method`` here ("hard", "soft" or "topm": what ``predict``
@@ -116,7 +116,7 @@ class MapEstimator(EstimatorFace):
         solver="newton",
         gap=1e-7,
         method="hard",
-        m=3,
+        top=3,
         threshold=None,
         descriptor="features",
         descriptor_settings=None,
@@ -128,7 +128,7 @@ class MapEstimator(EstimatorFace):
         scale="auto",
     ):
         self.r, self.level, self.count, self.c = r, level, count, c
-        self.solver, self.gap, self.method, self.m = solver, gap, method, m
+        self.solver, self.gap, self.method, self.top = solver, gap, method, top
         self.threshold, self.descriptor = threshold, descriptor
         self.descriptor_settings, self.dtype = descriptor_settings, dtype
         self.codes, self.fusion, self.layout = codes, fusion, layout
@@ -310,20 +310,21 @@ class MapEstimator(EstimatorFace):
         """Score of every place (b, n) for queries X (b, d); fused with codes."""
         return queries.place_scores(self._fitted(), self._queries(X))
 
-    def decode(self, X, method: str | None = None, m: int | None = None):
+    def decode(self, X, method: str | None = None, top: int | None = None):
         """Decode queries X (b, d): :class:`~rhythmic_jax.decoding.hard.Decoded`
         (index -1 for no match, score, runner-up, confidence); ``method`` "hard",
-        "soft" or "topm" and ``m`` (top-m) default to the map's. The index is the
-        map's place row 0 .. n-1 (``predict`` names it by the labels ``fit`` had)."""
-        return queries.decode(self._fitted(), self._queries(X), method, m)
+        "soft" or "topm" and ``top`` (the phases per period top-m keeps) default
+        to the map's. The index is the map's place row 0 .. n-1 (``predict``
+        names it by the labels ``fit`` had)."""
+        return queries.decode(self._fitted(), self._queries(X), method, top)
 
-    def predict(self, X, method=None, *, m=None, sequence=None, speeds=(1.0,),
+    def predict(self, X, method=None, *, top=None, sequence=None, speeds=(1.0,),
                 threshold=None):  # fmt: skip
         """Place of every query X (b, d): (b,) int64, -1 for no match
-        (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, top-``m``,
+        (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, ``top``,
         ``sequence`` length, ``speeds``, ``threshold``)."""
         got = queries.predict(
-            self._fitted(), self._queries(X), method, top=m, sequence=sequence,
+            self._fitted(), self._queries(X), method, top=top, sequence=sequence,
             speeds=speeds, threshold=threshold,
         )  # fmt: skip
         return self._labelled(got)

@@ -216,6 +216,26 @@ def test_maps_saved_without_a_layout_still_load(fitted, tmp_path):
     np.testing.assert_array_equal(back.predict(x), model.predict(x))
 
 
+def test_maps_saved_with_the_top_m_count_as_m_still_load(fitted, tmp_path):
+    """The phases top-m keeps were saved as ``m`` before they were named
+    ``top``: such a map.json loads with them as ``top``."""
+    import json
+
+    model, x = fitted
+    model.save(tmp_path / "old.map")
+    meta_file = tmp_path / "old.map" / "map.json"
+    meta = json.loads(meta_file.read_text())
+    assert meta["config"].pop("top") == 3
+    meta["config"]["m"] = 2
+    meta_file.write_text(json.dumps(meta))
+    back = RhythmicMap.load(tmp_path / "old.map")
+    assert back.config.top == 2 and back.top == 2 and "m" not in back.get_params()
+    np.testing.assert_array_equal(
+        back.predict(x, "topm"), model.predict(x, "topm", top=2)
+    )
+    assert back.info()["config"]["top"] == 2 and "m" not in back.info()["config"]
+
+
 def test_bad_layouts_are_refused_before_fitting():
     with pytest.raises(InputError, match="layout 'mixed:1,2'"):
         RhythmicMap(layout="mixed:1,2").fit(np.zeros((0, 3)), progress=False)

@@ -12,7 +12,7 @@ with ``w`` in [0, 1] the map's share (``w = 1``: the map alone, ``w = 0``: the c
 alone; both give the same argmax as their part). ``w`` is settled on places that
 are never scored (:func:`learn_weight`: training places, or a fixed 0.5).
 
-Top-m keeps the ``prod_k min(m, tau_k)`` places of the map's best phase
+Top-m keeps the ``prod_k min(top, tau_k)`` places of the map's best phase
 combinations and, when ``w < 1``, as many places of the highest code similarity;
 the map part is standardised with the moments over every phase combination,
 ``mean S = sum_k mean s_k`` and ``var S = sum_k var s_k`` (exact when ``n =
@@ -85,7 +85,7 @@ def _soft_one(s, sim, weight, periods, n, exclude) -> Decoded:
     )
 
 
-def _topm_one(s, sim, weight, periods, n, m, codes, exclude) -> Decoded:
+def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
     """One query, over the map's top-m places (and the codes' best when codes)."""
     tables, big_m = crt_tables(periods)
     score = index = None
@@ -93,7 +93,7 @@ def _topm_one(s, sim, weight, periods, n, m, codes, exclude) -> Decoded:
     for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
         block = s[off : off + t]
         mean_s, var_s = mean_s + jnp.mean(block), var_s + jnp.var(block)
-        val, phase = jax.lax.top_k(block, min(m, t))
+        val, phase = jax.lax.top_k(block, min(top, t))
         part = jnp.asarray(table.astype(np.int32))[phase]
         if score is None:
             score, index = val, part
@@ -126,9 +126,9 @@ def _batched(one, s, sim, weight, batch_size, **static) -> Decoded:
 
 @functools.partial(
     jit,
-    static_argnames=("periods", "n", "method", "m", "codes", "exclude", "batch"),
+    static_argnames=("periods", "n", "method", "top", "codes", "exclude", "batch"),
 )
-def _fused_jit(s, sim, weight, periods, n, method, m, codes, exclude, batch):
+def _fused_jit(s, sim, weight, periods, n, method, top, codes, exclude, batch):
     if method == "soft":
         return _batched(
             _soft_one, s, sim, weight, batch,
@@ -136,11 +136,11 @@ def _fused_jit(s, sim, weight, periods, n, method, m, codes, exclude, batch):
         )  # fmt: skip
     return _batched(
         _topm_one, s, sim, weight, batch,
-        periods=periods, n=n, m=m, codes=codes, exclude=exclude,
+        periods=periods, n=n, top=top, codes=codes, exclude=exclude,
     )  # fmt: skip
 
 
-def _check(scores, sims, periods, n, method, m, weight, exclude):
+def _check(scores, sims, periods, n, method, top, weight, exclude):
     per, n = check_scores(scores, periods, n)
     if in_host_memory(scores) is not None or not isinstance(scores, jax.Array):
         scores = np.asarray(scores)  # kept on the host: padded there
@@ -157,16 +157,16 @@ def _check(scores, sims, periods, n, method, m, weight, exclude):
         )
     if method not in ("soft", "topm", "hard"):
         raise InputError(f"method must be soft, topm or hard, got {method!r}")
-    if method == "hard":  # the argmax combination: top-m with m = 1
-        method, m = "topm", 1
-    for name, value, low in (("m", m, 1), ("exclude", exclude, 0)):
+    if method == "hard":  # the argmax combination: top-m with top = 1
+        method, top = "topm", 1
+    for name, value, low in (("top", top, 1), ("exclude", exclude, 0)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer):
             raise InputError(f"{name} must be an integer >= {low}, got {value!r}")
         if value < low:
             raise InputError(f"{name} must be an integer >= {low}, got {value!r}")
     if method == "topm" and math.prod(per) >= 2**30:
         raise InputError(f"prod(periods)={math.prod(per)} too large for top-m")
-    return scores, sims, per, n, method, int(m), check_weight(weight), int(exclude)
+    return scores, sims, per, n, method, int(top), check_weight(weight), int(exclude)
 
 
 def fused_decode(
@@ -176,24 +176,25 @@ def fused_decode(
     n: int,
     weight: float = 0.5,
     method: str = "soft",
-    m: int = 3,
+    top: int = 3,
     *,
     exclude: int = 0,
     batch_size: int = 256,
 ) -> Decoded:
     """Decode b queries from map scores (b, p) and code similarities (b, n).
 
-    ``method``: "soft" (every place), "topm" (the map's top-``m`` combinations and
-    as many best-code places) or "hard" (top-m with m = 1). Returns
+    ``method``: "soft" (every place), "topm" (the map's combinations of the ``top``
+    best phases of every period and as many best-code places) or "hard" (top-m
+    with ``top = 1``). Returns
     :class:`~rhythmic_jax.decoding.hard.Decoded` whose scores are fused z-scores.
-    Jit-compiled once per (periods, n, method, m, weight, exclude) and bucket
+    Jit-compiled once per (periods, n, method, top, weight, exclude) and bucket
     of rows (:func:`~rhythmic_jax.decoding.buckets.bucket`: the rows are padded
     where they lie, host inputs on the host, and the results cut where they
     were computed); ``batch_size`` queries are fused at a time, so the program
     holds ``batch_size x n`` fused scores.
     """
-    s, sim, per, n, method, m, weight, exclude = _check(
-        scores, sims, periods, n, method, m, weight, exclude
+    s, sim, per, n, method, top, weight, exclude = _check(
+        scores, sims, periods, n, method, top, weight, exclude
     )
     if s.shape[0] == 0:
         neg = jnp.zeros((0,), s.dtype)
@@ -202,7 +203,7 @@ def fused_decode(
     batch = int(batch_size)
     (s, sim), b = _bucketed(s, sim)
     codes = isinstance(weight, jax.core.Tracer) or weight < 1  # traced: both terms
-    out = _fused_jit(s, sim, w, per, n, method, m, codes, exclude, batch)
+    out = _fused_jit(s, sim, w, per, n, method, top, codes, exclude, batch)
     return head(out, b)
 
 
@@ -274,7 +275,7 @@ def fused_sequence_decode(
     speeds: Sequence[float] = (1.0,),
     weight: float = 0.5,
     method: str = "soft",
-    m: int = 3,
+    top: int = 3,
     *,
     exclude: int = 0,
 ) -> tuple[jax.Array, jax.Array]:
@@ -285,8 +286,8 @@ def fused_sequence_decode(
     fused score wins. ``weight = 1`` equals
     :func:`rhythmic_jax.decoding.sequence.sequence_decode` (same method).
     """
-    s, sim, per, n, method, m, weight, exclude = _check(
-        scores, sims, periods, n, method, m, weight, exclude
+    s, sim, per, n, method, top, weight, exclude = _check(
+        scores, sims, periods, n, method, top, weight, exclude
     )
     out = []
     for v in speeds:
@@ -300,7 +301,7 @@ def fused_sequence_decode(
                 n,
                 weight,
                 method,
-                m,
+                top,
                 exclude=exclude,
             )  # fmt: skip
         )

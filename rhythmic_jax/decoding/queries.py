@@ -120,7 +120,7 @@ def decode(m: Map, q, method: str | None = None, top: int | None = None) -> Deco
     """Decode queries (b, d): index (b,) (-1 no match), score, runner-up,
     confidence; ``method`` "hard", "soft" or "topm" (default: the map's), ``top``
     the phases top-m keeps (default: the map's)."""
-    method, top = method or m.config.decode, top or m.config.m
+    method, top = method or m.config.decode, top or m.config.top
     x = queries(m, q)
     return by_method(method, lambda h: _decoded(m, x, h, top))
 
@@ -164,7 +164,7 @@ def decode_sequence(
     """``(index, confidence)`` (T,) of consecutive query frames q (T, d), each
     decoded with the ``length - 1`` before it at ``speeds`` by ``method``
     (``how``: its earlier name) (:mod:`rhythmic_jax.decoding.sequence`)."""
-    method, top = method or how or m.config.decode, top or m.config.m
+    method, top = method or how or m.config.decode, top or m.config.top
     x = queries(m, q)
     return by_method(method, lambda h: _sequence(m, x, length, speeds, h, top))
 
@@ -211,7 +211,7 @@ def predict(
       threshold: reject queries whose confidence is below it (finite; default
         the map's).
     """
-    method, top = method or m.config.decode, top or m.config.m
+    method, top = method or m.config.decode, top or m.config.top
     thr = m.config.threshold
     if threshold is not None:
         thr = check_number(threshold, "{opt:threshold}")

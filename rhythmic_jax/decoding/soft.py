@@ -104,13 +104,13 @@ def _soft_one(s: jax.Array, periods: tuple[int, ...], n: int, exclude: int) -> D
 
 
 def _topm_one(
-    s: jax.Array, periods: tuple[int, ...], n: int, m: int, exclude: int
+    s: jax.Array, periods: tuple[int, ...], n: int, top: int, exclude: int
 ) -> Decoded:
-    """One query: s (p,) -> scalars, over prod_k min(m, tau_k) combinations."""
+    """One query: s (p,) -> scalars, over prod_k min(top, tau_k) combinations."""
     tables, big_m = crt_tables(periods)
     score = index = None
     for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
-        val, phase = jax.lax.top_k(s[off : off + t], min(m, t))
+        val, phase = jax.lax.top_k(s[off : off + t], min(top, t))
         part = jnp.asarray(table.astype(np.int32))[phase]
         if score is None:
             score, index = val, part
@@ -142,7 +142,7 @@ def _soft_jit(scores, periods, n, exclude, batch_size):
 )
 def _topm_jit(scores, periods, n, top, exclude, batch_size):
     return _batched(
-        _topm_one, scores, batch_size, periods=periods, n=n, m=top, exclude=exclude
+        _topm_one, scores, batch_size, periods=periods, n=n, top=top, exclude=exclude
     )
 
 

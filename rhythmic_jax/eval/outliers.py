@@ -79,12 +79,12 @@ def finite_confidence(confidence) -> np.ndarray:
 
 
 def _decode(
-    scores, periods: tuple[int, ...], n: int, method: str, m: int, exclude: int
+    scores, periods: tuple[int, ...], n: int, method: str, top: int, exclude: int
 ) -> Decoded:
     if method == "soft":
         return soft_decode(scores, periods, n, exclude=exclude)
     if method == "topm":
-        return topm_decode(scores, periods, n, m, exclude=exclude)
+        return topm_decode(scores, periods, n, top, exclude=exclude)
     return decode_scores(scores, periods, n, "hard")
 
 
@@ -95,7 +95,7 @@ def decode_confidence(
     method: str = "soft",
     *,
     kind: str = "margin",
-    m: int = 3,
+    top: int = 3,
     exclude: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Decode (b, p) scores and give every query a confidence.
@@ -104,7 +104,7 @@ def decode_confidence(
       scores: (b, p) decision values of single frames, or accumulated sequence
         scores (:func:`rhythmic_jax.decoding.sequence.sequence_scores`).
       periods, n: the map's periods and number of places.
-      method: "hard" | "soft" | "topm" (``m`` phases per period).
+      method: "hard" | "soft" | "topm" (``top`` phases per period).
       kind: "margin" (best minus runner-up) or "likelihood" (summed per-period
         log-probability of the decoded place, after ``calibrate``).
       exclude: rivals of soft / top-m must be more than ``exclude`` places away
@@ -123,7 +123,7 @@ def decode_confidence(
     if kind == "likelihood":
         check_scores(scores, per)  # one-line errors before the program
         scores = _calibrated(scores, per)
-    out = _decode(scores, per, n, method, m, exclude)
+    out = _decode(scores, per, n, method, top, exclude)
     conf = out.confidence if kind == "margin" else out.score
     index = np.asarray(out.index).astype(np.int64)
     return index, finite_confidence(conf)

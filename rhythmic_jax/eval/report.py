@@ -105,7 +105,7 @@ def _hybrid_decisions(model, queries, method, sequence):
     s, sims = model.scores(queries), _code_similarity(model, queries)
     w, per = model.config.fusion, model.periods
     _, conf = fused_sequence_decode(
-        s, sims, per, model.n, sequence, (1.0,), w, method, model.config.m
+        s, sims, per, model.n, sequence, (1.0,), w, method, model.config.top
     )
     acc = sequence_scores(s, per, sequence)
     total = fused_place_scores(acc, code_sequence_scores(sims, sequence), per,
@@ -126,7 +126,7 @@ def _map_decisions(model, queries, method, sequence):
         from rhythmic_jax.decoding.sequence import sequence_decode, sequence_scores
 
         _, conf = sequence_decode(
-            s, model.groups, model.n, sequence, (1.0,), method, model.config.m
+            s, model.groups, model.n, sequence, (1.0,), method, model.config.top
         )
         if model.groups.kind == "periods":
             s = sequence_scores(s, model.periods, sequence)

@@ -113,9 +113,9 @@ def _check_config(cfg) -> None:
         raise InputError(
             f"descriptor_settings must be a mapping, got {cfg.descriptor_settings!r}"
         )
-    if type(cfg.m) is not int or cfg.m < 1:
+    if type(cfg.top) is not int or cfg.top < 1:
         raise InputError(
-            f"m (phases top-m keeps) must be an integer >= 1, got {cfg.m!r}"
+            f"top (phases top-m keeps) must be an integer >= 1, got {cfg.top!r}"
         )
 
 

@@ -84,7 +84,8 @@ class MapConfig:
         of every template (1e-7: the optimum; 5e-4 keeps it within 0.1 % in
         about half the time, with the same periods chosen on Nordland).
       decode: default decode for :meth:`RhythmicMap.predict`: hard | soft | topm.
-      m: phases per period kept by the top-m decode.
+      top: phases per period kept by the top-m decode (``m`` in maps saved
+        before it was named ``top``).
       threshold: confidence below which a query is "no match" (None: never).
       descriptor: name of the descriptor the features came from.
       descriptor_settings: its settings (compared when a map is queried).
@@ -120,7 +121,7 @@ class MapConfig:
     solver: str = "newton"
     gap: float = 1e-7
     decode: str = "hard"
-    m: int = 3
+    top: int = 3
     threshold: float | None = None
     descriptor: str = "features"
     descriptor_settings: dict = field(default_factory=dict, hash=False)

@@ -18,8 +18,9 @@ stored file and array, checked by :func:`load` and :func:`info`).
 reads one back, checked, and :func:`info` describes a folder from
 ``map.json`` and its files' checksums when its metadata is complete and
 consistent and its arrays are listed as saved (no JAX imported, no array
-decoded). Maps saved before layouts, embeddings, codes or checksums existed
-still load.
+decoded). Maps saved before layouts, embeddings, codes or checksums existed,
+or with a setting under its earlier name (:data:`RENAMED_SETTINGS`), still
+load.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from rhythmic_jax.map.quantize import dequantize
 __all__ = [
     "CODE_ARRAYS",
     "INFO_KEYS",
+    "RENAMED_SETTINGS",
     "MapFile",
     "consistent",
     "describe",
@@ -54,6 +56,7 @@ __all__ = [
     "info",
     "load",
     "save",
+    "settings_now",
 ]
 
 INFO_KEYS = (
@@ -67,6 +70,8 @@ CODE_ARRAYS = {
     "itq": {"codes_mean", "codes_projection", "codes_packed"},
     "int8": {"codes_vmin", "codes_vdiff", "codes_uint8"},
 }
+# settings saved under an earlier name in a map's config: earlier -> now
+RENAMED_SETTINGS = {"m": "top"}
 EMBEDDING_KEYS = ("kind", "head", "d", "k", "descriptor", "descriptor_settings",
                   "learn", "sources")  # fmt: skip
 
@@ -139,6 +144,17 @@ def save(path: str | os.PathLike, m) -> None:
     save_map(path, arrays, meta)
 
 
+def settings_now(saved: dict) -> dict:
+    """A saved map's configuration ``{setting: value}`` under the names its
+    settings have now (:data:`RENAMED_SETTINGS`; a name of now wins)."""
+    got = dict(saved)
+    for old, new in RENAMED_SETTINGS.items():
+        if old in got:
+            value = got.pop(old)
+            got.setdefault(new, value)
+    return got
+
+
 def load(
     path: str | os.PathLike,
     make_config: Callable[..., Any] | None = None,
@@ -148,10 +164,11 @@ def load(
     d: int | None = None,
 ):
     """Read and check the map folder ``path`` into a
-    :class:`~rhythmic_jax.map.pytree.Map`; ``make_config(**meta["config"])``
+    :class:`~rhythmic_jax.map.pytree.Map`; ``make_config(**settings)``
     (default :class:`~rhythmic_jax.map.config.MapConfig`) builds its
-    configuration. A map built for another descriptor, other settings or another
-    d is refused (:class:`InputError`), as is a corrupt one."""
+    configuration from ``map.json``'s, earlier names renamed
+    (:func:`settings_now`). A map built for another descriptor, other settings
+    or another d is refused (:class:`InputError`), as is a corrupt one."""
     from rhythmic_jax.map.checks import check_map
     from rhythmic_jax.map.codes import codebook_from_arrays
     from rhythmic_jax.map.config import MapConfig
@@ -162,7 +179,7 @@ def load(
     make_config = make_config or MapConfig
     arrays, meta = load_map(path)
     try:
-        cfg = make_config(**meta["config"])
+        cfg = make_config(**settings_now(meta["config"]))
         periods = tuple(int(t) for t in meta["periods"])
         n, dim = int(meta["n"]), int(meta["d"])
         c = float(meta["c"])

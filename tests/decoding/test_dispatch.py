@@ -52,9 +52,9 @@ def test_soft_and_topm_agree_with_hard_on_clean_scores(periods, n):
     s = encode(every, periods, 0.0, seed=0)
     hard = np.asarray(decode_scores(s, periods, n).index)
     np.testing.assert_array_equal(hard, every)
-    for method, m in [("soft", 3), ("topm", 1), ("topm", 3)]:
-        got = np.asarray(decode_scores(s, periods, n, method=method, top=m).index)
-        np.testing.assert_array_equal(got, hard, err_msg=f"{method} m={m}")
+    for method, top in [("soft", 3), ("topm", 1), ("topm", 3)]:
+        got = np.asarray(decode_scores(s, periods, n, method=method, top=top).index)
+        np.testing.assert_array_equal(got, hard, err_msg=f"{method} top={top}")
 
 
 def test_soft_and_topm_below_product():
@@ -65,7 +65,7 @@ def test_soft_and_topm_below_product():
     top1 = np.asarray(decode_scores(s, periods, n, "topm", top=1).index)
     soft = np.asarray(decode_scores(s, periods, n, "soft").index)
     np.testing.assert_array_equal(hard, np.where(every < n, every, -1))
-    np.testing.assert_array_equal(top1, hard)  # m = 1 is the paper's decode
+    np.testing.assert_array_equal(top1, hard)  # top = 1 is the paper's decode
     np.testing.assert_array_equal(soft[:n], every[:n])
     assert (soft[n:] >= 0).all() and (soft[n:] < n).all()  # soft always answers
 

@@ -58,18 +58,21 @@ def test_place_scores_and_soft_decode_match_the_loop(groups, n):
 
 
 @pytest.mark.parametrize(("groups", "n"), LAYOUTS)
-def test_topm_keeps_places_whose_labels_are_all_among_the_m_best(groups, n):
+def test_topm_keeps_places_whose_labels_are_all_among_the_top_best(groups, n):
     s = random_scores(groups, seed=1)
     total = loop_place_scores(s, groups, n)
-    for m in (1, 2, 3):
-        out = group_topm_decode(s, groups, n, m)
+    for top in (1, 2, 3):
+        out = group_topm_decode(s, groups, n, top)
         for q in range(len(s)):
             tops = [
-                set(np.argsort(-s[q, o : o + t], kind="stable")[:m].tolist())
+                set(np.argsort(-s[q, o : o + t], kind="stable")[:top].tolist())
                 for o, t in zip(groups.offsets, groups.sizes, strict=True)
             ]
             keep = [
-                all(lab in top for lab, top in zip(groups.labels(i), tops, strict=True))
+                all(
+                    lab in best
+                    for lab, best in zip(groups.labels(i), tops, strict=True)
+                )
                 for i in range(n)
             ]
             keep = np.asarray(keep)

@@ -48,10 +48,10 @@ def brute_soft(scores, periods, n, exclude=0):
     return [np.array(x) for x in zip(*out, strict=True)]
 
 
-def brute_topm(scores, periods, n, m, exclude=0):
+def brute_topm(scores, periods, n, top, exclude=0):
     out = []
     for s in scores:
-        tops = [np.argsort(-b, kind="stable")[:m] for b in _blocks(s, periods)]
+        tops = [np.argsort(-b, kind="stable")[:top] for b in _blocks(s, periods)]
         cands = []
         for phases in itertools.product(*tops):
             i = next(
@@ -83,12 +83,12 @@ def test_soft_matches_brute_force(periods, n, exclude):
 
 
 @pytest.mark.parametrize("periods,n", CASES)
-@pytest.mark.parametrize("m", [1, 3])
-def test_topm_matches_brute_force(periods, n, m):
-    scores = _scores(periods, seed=7 * n + m)
+@pytest.mark.parametrize("top", [1, 3])
+def test_topm_matches_brute_force(periods, n, top):
+    scores = _scores(periods, seed=7 * n + top)
     _assert_matches(
-        topm_decode(scores, periods, n, m, exclude=1),
-        brute_topm(scores, periods, n, m, exclude=1),
+        topm_decode(scores, periods, n, top, exclude=1),
+        brute_topm(scores, periods, n, top, exclude=1),
     )
 
 

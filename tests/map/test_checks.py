@@ -299,8 +299,8 @@ def test_an_infinite_ground_truth_radius_is_refused(tmp_path):
         ("descriptor_settings", "x", "descriptor_settings must be a mapping"),
         ("descriptor_settings", None, "descriptor_settings must be a mapping"),
         ("descriptor", 3, "descriptor must be a name"),
-        ("m", 0, r"m \(phases top-m keeps\) must be an integer >= 1"),
-        ("m", 2.5, "must be an integer"),
+        ("top", 0, r"top \(phases top-m keeps\) must be an integer >= 1"),
+        ("top", 2.5, "must be an integer"),
     ],
 )
 def test_the_configuration_a_query_reads_is_checked(

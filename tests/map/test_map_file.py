@@ -66,3 +66,10 @@ def test_load_checks_what_queries_need(saved):
         map_file.load(saved, MapConfig, d=9)
     with pytest.raises(InputError, match="queries use 'hog'"):
         map_file.load(saved, MapConfig, descriptor="hog")
+
+
+def test_settings_under_an_earlier_name_are_renamed():
+    """``m`` was the name of the phases top-m keeps; a name of now wins."""
+    assert map_file.settings_now({"m": 4, "r": 2}) == {"top": 4, "r": 2}
+    assert map_file.settings_now({"m": 4, "top": 2}) == {"top": 2}
+    assert map_file.settings_now({"top": 2}) == {"top": 2}

@@ -103,7 +103,7 @@ def test_a_new_threshold_method_or_fusion_weight_compiles_nothing(maps):
     assert len(leaves) == len(jax.tree_util.tree_leaves(m))  # settings: leaves
     moved = jax.device_put(other)  # the settings read back as Python values
     assert moved.config == other.config and moved.config.decode == "topm"
-    assert replace(m, config=replace(m.config, m=5)).config != m.config
+    assert replace(m, config=replace(m.config, top=5)).config != m.config
 
 
 def test_decode_compiles_once_per_bucket(maps):
