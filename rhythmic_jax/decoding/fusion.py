@@ -40,11 +40,11 @@ import numpy as np
 from rhythmic_jax.decoding.buckets import head, in_host_memory, pad_rows
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.sequence import _sequence_scores_jit, frame_offsets
-from rhythmic_jax.decoding.soft import _best_two
+from rhythmic_jax.decoding.soft import _best_two, topm_combinations
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.config import check_weight
-from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
+from rhythmic_jax.map.periods import period_offsets, place_columns
 
 __all__ = [
     "check_weight",
@@ -87,19 +87,11 @@ def _soft_one(s, sim, weight, periods, n, exclude) -> Decoded:
 
 def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
     """One query, over the map's top-m places (and the codes' best when codes)."""
-    tables, big_m = crt_tables(periods)
-    score = index = None
+    score, index = topm_combinations(s, periods, top)
     mean_s = var_s = 0.0
-    for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
+    for off, t in zip(period_offsets(periods), periods, strict=True):
         block = s[off : off + t]
         mean_s, var_s = mean_s + jnp.mean(block), var_s + jnp.var(block)
-        val, phase = jax.lax.top_k(block, min(top, t))
-        part = jnp.asarray(table.astype(np.int32))[phase]
-        if score is None:
-            score, index = val, part
-        else:
-            score = (score[:, None] + val[None, :]).reshape(-1)
-            index = ((index[:, None] + part[None, :]) % big_m).reshape(-1)
     std_s = jnp.sqrt(var_s)
     mu, sd = jnp.mean(sim), jnp.std(sim)
     valid = index < n

@@ -48,7 +48,7 @@ from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
 from rhythmic_jax.validate import check_int
 
-__all__ = ["calibrate", "soft_decode", "topm_decode"]
+__all__ = ["calibrate", "soft_decode", "topm_combinations", "topm_decode"]
 
 _INT32_SAFE = 2**30  # running CRT sums stay below 2 M < 2**31
 
@@ -103,10 +103,18 @@ def _soft_one(s: jax.Array, periods: tuple[int, ...], n: int, exclude: int) -> D
     return _best_two(total, index, jnp.ones((n,), bool), exclude)
 
 
-def _topm_one(
-    s: jax.Array, periods: tuple[int, ...], n: int, top: int, exclude: int
-) -> Decoded:
-    """One query: s (p,) -> scalars, over prod_k min(top, tau_k) combinations."""
+def topm_combinations(
+    s: jax.Array, periods: tuple[int, ...], top: int
+) -> tuple[jax.Array, jax.Array]:
+    """The top-m phase combinations of one query: s (p,) -> (score (c,), index (c,)).
+
+    Every combination of the ``min(top, tau_k)`` best phases of each period,
+    ``c = prod_k min(top, tau_k)`` of them, the last period varying fastest:
+    ``score`` the sum of their phase scores (in the scores' dtype, periods added
+    in order) and ``index`` its Chinese-remainder place ``(sum_k T_k[j_k]) mod
+    M`` (int32, below ``M = prod(periods)``; at or beyond n: no place). Needs
+    ``M < 2**30``.
+    """
     tables, big_m = crt_tables(periods)
     score = index = None
     for off, t, table in zip(period_offsets(periods), periods, tables, strict=True):
@@ -117,6 +125,14 @@ def _topm_one(
         else:
             score = (score[:, None] + val[None, :]).reshape(-1)
             index = ((index[:, None] + part[None, :]) % big_m).reshape(-1)
+    return score, index
+
+
+def _topm_one(
+    s: jax.Array, periods: tuple[int, ...], n: int, top: int, exclude: int
+) -> Decoded:
+    """One query: s (p,) -> scalars, over prod_k min(top, tau_k) combinations."""
+    score, index = topm_combinations(s, periods, top)
     return _best_two(score, index, index < n, exclude)
 
 

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 from scipy.special import log_softmax
 
-from rhythmic_jax.decoding.soft import _soft_jit, calibrate, soft_decode, topm_decode
+from rhythmic_jax.decoding.soft import (
+    _soft_jit,
+    calibrate,
+    soft_decode,
+    topm_combinations,
+    topm_decode,
+)
 from rhythmic_jax.errors import InputError
 
 CASES = [((3, 5), 13), ((4, 5), 20), ((2, 3, 5), 29), ((5, 7, 9), 300)]
@@ -79,6 +85,32 @@ def test_soft_matches_brute_force(periods, n, exclude):
     _assert_matches(
         soft_decode(scores, periods, n, exclude=exclude),
         brute_soft(scores, periods, n, exclude),
+    )
+
+
+@pytest.mark.parametrize("periods", [(3, 5), (2, 3, 5), (5, 7, 9)])
+@pytest.mark.parametrize("top", [1, 2, 4])
+def test_topm_combinations_are_every_product_of_the_best_phases(periods, top):
+    """Every combination of each period's ``top`` best phases, the last period
+    fastest: its summed score and the place with those phases."""
+    s = _scores(periods, b=1, seed=top)[0]
+    score, index = topm_combinations(jnp.asarray(s), periods, top)
+    tops = [np.argsort(-b, kind="stable")[:top] for b in _blocks(s, periods)]
+    combos = list(itertools.product(*tops))
+    place = [
+        next(
+            i
+            for i in range(int(np.prod(periods)))
+            if all(i % t == j for t, j in zip(periods, phases, strict=True))
+        )
+        for phases in combos
+    ]
+    np.testing.assert_array_equal(np.asarray(index), place)
+    np.testing.assert_allclose(
+        np.asarray(score),
+        [_place_score(s, periods, i) for i in place],
+        rtol=1e-5,
+        atol=1e-5,
     )
 
 
