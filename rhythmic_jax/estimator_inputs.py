@@ -14,7 +14,8 @@ Place labels ``y`` (:func:`place_labels`) may be any integers >= 0 (whole
 floats too); the estimator numbers its places in their order. Features not of
 order one (:func:`not_of_order_one`) are refused by the fit, or standardized
 per feature (:func:`standardize`, :func:`standardized`) where the estimator's
-``scale`` says so.
+``scale`` says so; :func:`query_rows` takes a fitted map's queries, the
+standardization included.
 
 Shapes: n frames, b queries, d features.
 """
@@ -24,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.validate import check_fit_scale, is_sparse, scale_sums
+from rhythmic_jax.validate import check_features, check_fit_scale, is_sparse, scale_sums
 
 __all__ = [
     "SCALES",
@@ -32,6 +33,7 @@ __all__ = [
     "NotNumbersError",
     "not_of_order_one",
     "place_labels",
+    "query_rows",
     "shape_checked",
     "standardize",
     "standardized",
@@ -120,5 +122,26 @@ def standardize(x: np.ndarray) -> dict[str, np.ndarray]:
 def standardized(x: np.ndarray, extra: dict) -> np.ndarray:
     """Frames x (b, d) standardized by ``extra``'s ``scale_mean`` and ``scale_std``:
     ``(x - mean) / std``, float32."""
-    mean, std = (np.asarray(extra[k], np.float32) for k in SCALE_KEYS)
+    mean, std = _scale(extra)
     return (x - mean[None, :]) / std[None, :]
+
+
+def query_rows(X, d: int, extra: dict, name: str = "queries"):
+    """Queries X (b, d) of a map of d features, as its decode takes them: the
+    shape checked (:func:`shape_checked`); where the fit standardized its frames
+    (``extra`` holds ``scale_mean`` and ``scale_std``) the values checked too
+    (:func:`rhythmic_jax.validate.check_features`) and standardized, float32
+    ``(x - mean) / std`` as :func:`standardized`; else X as it is (the decode
+    checks its values)."""
+    X = shape_checked(X, name, d)
+    if "scale_mean" not in extra:
+        return X
+    x = check_features(X, name, d=d)
+    mean, std = _scale(extra)
+    return (x - mean[None, :]) / std[None, :]
+
+
+def _scale(extra: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``scale_mean`` and ``scale_std`` (d,) of ``extra`` as float32."""
+    mean, std = (np.asarray(extra[k], np.float32) for k in SCALE_KEYS)
+    return mean, std

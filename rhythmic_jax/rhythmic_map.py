@@ -39,6 +39,7 @@ from rhythmic_jax.estimator_inputs import (
     SCALES,
     not_of_order_one,
     place_labels,
+    query_rows,
     shape_checked,
     standardize,
     standardized,
@@ -293,22 +294,17 @@ class MapEstimator(EstimatorFace):
         return vars(self).get("_reference", "{}")
 
     # ------------------------------------------------------------ queries
-    def _queries(self, X, name: str = "queries"):
-        """Queries X (b, d) for the map: shape and values checked, standardized
-        where the fit standardized its frames."""
-        m = self._fitted()
-        X = shape_checked(X, name, m.d)
-        if "scale_mean" not in m.extra:
-            return X
-        return standardized(check_features(X, name, d=m.d), m.extra)
-
     def scores(self, X):
         """Decision values of queries X (b, d) -> (b, p)."""
-        return queries.scores(self._fitted(), self._queries(X))
+        m = self._fitted()
+        x = query_rows(X, m.d, m.extra)
+        return queries.scores(m, x)
 
     def place_scores(self, X):
         """Score of every place (b, n) for queries X (b, d); fused with codes."""
-        return queries.place_scores(self._fitted(), self._queries(X))
+        m = self._fitted()
+        x = query_rows(X, m.d, m.extra)
+        return queries.place_scores(m, x)
 
     def decode(self, X, method: str | None = None, top: int | None = None):
         """Decode queries X (b, d): :class:`~rhythmic_jax.decoding.hard.Decoded`
@@ -316,17 +312,20 @@ class MapEstimator(EstimatorFace):
         "soft" or "topm" and ``top`` (the phases per period top-m keeps) default
         to the map's. The index is the map's place row 0 .. n-1 (``predict``
         names it by the labels ``fit`` had)."""
-        return queries.decode(self._fitted(), self._queries(X), method, top)
+        m = self._fitted()
+        x = query_rows(X, m.d, m.extra)
+        return queries.decode(m, x, method, top)
 
     def predict(self, X, method=None, *, top=None, sequence=None, speeds=(1.0,),
                 threshold=None):  # fmt: skip
         """Place of every query X (b, d): (b,) int64, -1 for no match
         (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, ``top``,
-        ``sequence`` length, ``speeds``, ``threshold``)."""
-        got = queries.predict(
-            self._fitted(), self._queries(X), method, top=top, sequence=sequence,
-            speeds=speeds, threshold=threshold,
-        )  # fmt: skip
+        ``sequence`` length, ``speeds``, ``threshold``); the queries taken by
+        :func:`rhythmic_jax.estimator_inputs.query_rows` first."""
+        m = self._fitted()
+        x = query_rows(X, m.d, m.extra)
+        got = queries.predict(m, x, method, top=top, sequence=sequence,
+                              speeds=speeds, threshold=threshold)  # fmt: skip
         return self._labelled(got)
 
     def _labelled(self, index):
@@ -358,7 +357,7 @@ class MapEstimator(EstimatorFace):
         """Place of one descriptor q (d,), -1 for no match."""
         m = self._fitted()
         if "scale_mean" in m.extra:
-            q = self._queries(queries.one_query(q, m.d), "query")[0]
+            q = query_rows(queries.one_query(q, m.d), m.d, m.extra, "query")[0]
         got = queries.locate(m, q)
         return got if "place_labels" not in m.extra else int(self._labelled(got))
 

@@ -186,6 +186,29 @@ def test_scale_refuses_unscaled_features_or_standardizes_them():
     assert "scale_mean" not in auto.extra
 
 
+def test_query_rows_check_the_shape_and_standardize_where_the_fit_did():
+    """A map's queries, one function: the shape in scikit-learn's words; the
+    values checked and standardized where the fit kept a scale; else as given."""
+    from rhythmic_jax.estimator_inputs import query_rows, standardize, standardized
+
+    x = 100 + route(40, 8, seed=5)
+    q = x[:3].copy()
+    assert query_rows(q, 8, {}) is q
+    scale = standardize(x)
+    want = standardized(q, scale)
+    got = query_rows(q, 8, scale)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+    with pytest.raises(InputError, match="expecting 8 features"):
+        query_rows(x[:3, :5], 8, scale)
+    with pytest.raises(InputError, match="Reshape your data"):
+        query_rows(q[0], 8, {})
+    bad = q.copy()
+    bad[1, 2] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        query_rows(bad, 8, scale)
+
+
 def test_standardized_map_survives_save_and_load(tmp_path):
     x = 50 + route(80, 16, seed=4)
     est = RhythmicMap(scale="standardize").fit(x, progress=False)
