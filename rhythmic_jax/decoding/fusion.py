@@ -1,6 +1,6 @@
 """A hybrid decode: a map's place scores fused with binary-code similarities.
 
-A map scores place ``i`` by ``S(i) = sum_k s_k[i mod tau_k]``
+A map scores place ``i`` by ``S(i) = sum_g s_g[i mod tau_g]``
 (:mod:`rhythmic_jax.decoding.soft`); a code per place (:mod:`rhythmic_jax.map.codes`)
 scores it by ``C(i)``, the bits the query's code shares with place i's. The two live
 on different scales, so each is standardised over the places of the query and
@@ -12,10 +12,10 @@ with ``w`` in [0, 1] the map's share (``w = 1``: the map alone, ``w = 0``: the c
 alone; both give the same argmax as their part). ``w`` is settled on places that
 are never scored (:func:`learn_weight`: training places, or a fixed 0.5).
 
-Top-m keeps the ``prod_k min(top, tau_k)`` places of the map's best phase
+Top-m keeps the ``prod_g min(top, tau_g)`` places of the map's best phase
 combinations and, when ``w < 1``, as many places of the highest code similarity;
 the map part is standardised with the moments over every phase combination,
-``mean S = sum_k mean s_k`` and ``var S = sum_k var s_k`` (exact when ``n =
+``mean S = sum_g mean s_g`` and ``var S = sum_g var s_g`` (exact when ``n =
 prod tau``), so no place outside the candidates is scored by the map.
 
 Sequences: the map's scores are summed along the diagonal in the phase domain
@@ -69,7 +69,7 @@ def _zrow(v: jax.Array) -> jax.Array:
 
 
 def _place_sum(s: jax.Array, periods: tuple[int, ...], n: int) -> jax.Array:
-    """(..., p) phase scores -> (..., n) place scores ``sum_k s_k[i mod tau_k]``."""
+    """(..., p) phase scores -> (..., n) place scores ``sum_g s_g[i mod tau_g]``."""
     cols = place_columns(periods, n)
     total = s[..., cols[0]]
     for c in cols[1:]:
@@ -218,7 +218,7 @@ def _fused_scores_jit(place, sims, weight):
 def fused_place_scores(scores, sims, periods, n: int, weight: float = 0.5):
     """Fused score of every place: (b, p), (b, n) -> (b, n) (for ranking top K).
 
-    ``sims = None``: the map's own place scores ``sum_k s_k[i mod tau_k]``.
+    ``sims = None``: the map's own place scores ``sum_g s_g[i mod tau_g]``.
     """
     if sims is None:
         per, n = check_scores(scores, periods, n)

@@ -15,7 +15,7 @@ tau_g`` and this is soft decode (:mod:`rhythmic_jax.decoding.soft`)):
   every group (``top = 1``: every group's argmax; ``top >= max(size)``: soft);
 - hard (the one kernel, :func:`rhythmic_jax.decoding.hard.hard_decode`):
   mixed radix, the argmax digits give the index directly
-  (``sum_k d_k prod(b_{k+1..r})``, no match when it is ``>= n``); hierarchical,
+  (``sum_g d_g prod(b_{g+1..r})``, no match when it is ``>= n``); hierarchical,
   the argmax segment, then its best place by the summed fine scores. Confidence
   is the smallest top-2 margin (of every digit; of the segment and of the place
   within it);

@@ -1,27 +1,27 @@
 """The hard decode: the paper's kernel, one for every layout.
 
 The paper's decode (Sec. III-C): for every period take the argmax phase
-``j_k = argmax_j (w_j . x + b_j)`` (Eq. 3), then the unique index ``i < n`` with
-``i mod tau_k = j_k`` for all k, found here in O(r) by the Chinese-remainder tables
+``j_g = argmax_j (w_j . x + b_j)`` (Eq. 3), then the unique index ``i < n`` with
+``i mod tau_g = j_g`` for all g, found here in O(r) by the Chinese-remainder tables
 of :func:`rhythmic_jax.map.periods.crt_tables` (the paper intersects sorted candidate
 sets; the answer is the same). When the combination is ``>= n`` no frame has those
 phases and the answer is "no match" (-1).
 
 A mixed-radix layout (:class:`~rhythmic_jax.map.groups.Groups`) is the same sum
-of per-group tables (digit ``j`` of group k is worth ``j * prod(b_{k+1..r})``);
+of per-group tables (digit ``j`` of group g is worth ``j * prod(b_{g+1..r})``);
 a hierarchical one takes the argmax segment, then its best place by the summed
 fine scores. :func:`hard_decode` is that one kernel; the batch, sequence and
 grouped decodes all call it, and the host lanes
 (:mod:`rhythmic_jax.decoding.host`) are tested against it.
 
 The confidence of a hard decode is its weakest phase margin,
-``min_k (top1_k - top2_k)``: a query whose phases are all clear-cut scores high,
+``min_g (top1_g - top2_g)``: a query whose phases are all clear-cut scores high,
 and a threshold on it rejects queries (the paper's "lower bound of decision value").
 Soft and top-m decodes (:mod:`rhythmic_jax.decoding.soft`) share the :class:`Decoded`
 result and its confidence.
 
 Shapes: b queries, d features, p = sum(periods) templates, r periods (or
-groups), indexed by k in ``tau_k``, ``j_k``, ``off_k``.
+groups), indexed by g in ``tau_g``, ``j_g``, ``off_g``.
 """
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ def place_tables(groups: Groups) -> tuple[tuple[np.ndarray, ...], int]:
     """Per-group int32 tables whose sum (mod the modulus) is the place."""
     if groups.kind == "periods":
         tables, big_m = crt_tables(groups.sizes)
-    else:  # mixed radix: digit j of group k is worth j * weight_k
+    else:  # mixed radix: digit j of group g is worth j * weight_g
         sizes, weights = groups.sizes, groups.weights()
         tables = tuple(np.arange(t) * w for t, w in zip(sizes, weights, strict=True))
         big_m = groups.capacity
@@ -199,7 +199,7 @@ def hard_decode(
     """The hard decode of decision values (..., p): per-group argmax, then the place.
 
     Args:
-      scores: (..., p) decision values, group k in columns ``off_k : off_k + t_k``.
+      scores: (..., p) decision values, group g in columns ``off_g : off_g + t_g``.
       periods: pairwise co-prime periods, or a map's
         :class:`~rhythmic_jax.map.groups.Groups` (any layout).
       n: number of places (default: every combination); a combination
@@ -208,7 +208,7 @@ def hard_decode(
     Returns:
       :class:`Decoded` with the scores' leading shape: index int32 (-1 = no
       match), score the sum of the per-group maxima (-inf for no match), and
-      runner_up such that ``confidence = min_k (top1_k - top2_k)``. Inside a trace
+      runner_up such that ``confidence = min_g (top1_g - top2_g)``. Inside a trace
       the kernel is traced in place (static layout and n); outside, one program
       per layout, n and shape.
     """

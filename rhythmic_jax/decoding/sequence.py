@@ -2,12 +2,12 @@
 
 The paper leaves sequence matching (SeqSLAM-style) as future work. With rhythmic
 templates it needs no descriptors: a query frame seen ``l`` steps ago at phase
-``j`` of period ``k`` predicts phase ``(j + o_l) mod tau_k`` now, where
+``j`` of period ``g`` predicts phase ``(j + o_l) mod tau_g`` now, where
 ``o_l = round(l * v)`` is how many map frames the traversal moved in ``l`` query
 frames at speed ``v`` (map frames per query frame). The accumulated scores at end
 frame ``t`` are
 
-    A_k^t[j] = sum_{l=0}^{L-1} s_k^{t-l}[(j - o_l) mod tau_k],
+    A_g^t[j] = sum_{l=0}^{L-1} s_g^{t-l}[(j - o_l) mod tau_g],
 
 with frames before the start of the query left out (``t < L - 1`` sums ``t + 1``
 frames). ``A`` has the layout of a single frame's scores (b, p), so it is decoded
@@ -84,7 +84,7 @@ def _check_speeds(speeds: Sequence[float] | float) -> tuple[float, ...]:
 
 @functools.lru_cache(maxsize=128)
 def _shift_columns(periods: tuple[int, ...], length: int, speed: float) -> np.ndarray:
-    """(L, p) int32: ``G[l, off_k + j] = off_k + (j - o_l) mod tau_k``."""
+    """(L, p) int32: ``G[l, off_g + j] = off_g + (j - o_l) mod tau_g``."""
     offs = frame_offsets(length, speed)
     out = np.empty((length, sum(periods)), np.int32)
     start = 0
@@ -129,8 +129,8 @@ def sequence_scores(
 ) -> jax.Array:
     """Accumulated phase scores of every end frame: scores (T, p) -> A (T, p).
 
-    ``A[t]`` at column ``off_k + j`` is ``sum_{l=0}^{min(t, L-1)}
-    scores[t-l, off_k + (j - o_l) mod tau_k]`` with ``o_l = round(l * speed)``.
+    ``A[t]`` at column ``off_g + j`` is ``sum_{l=0}^{min(t, L-1)}
+    scores[t-l, off_g + (j - o_l) mod tau_g]`` with ``o_l = round(l * speed)``.
     """
     scores, per, _ = _check_frames(scores, periods)
     length = _check_length(length)

@@ -5,7 +5,7 @@ remainder intersection of those phases (Sec. III-B, Eq. 5); one wrong argmax in 
 period gives a wrong place. Soft decoding keeps every phase score and scores place
 ``i < n`` by
 
-    S(i) = sum_k s_k[i mod tau_k],
+    S(i) = sum_g s_g[i mod tau_g],
 
 returning ``argmax_i S(i)``: ``r * n`` gathers per query and no descriptor access.
 After :func:`calibrate` (a log-softmax over the phases of each period) ``S(i)`` is
@@ -16,8 +16,8 @@ the hard one. It differs, and rescues queries, when the hard combination falls a
 or beyond ``n`` (a "no match" of the paper), and it gives a runner-up score.
 
 Top-m decoding scores only the places whose phase is among the ``top`` best of every
-period: the ``prod_k min(top, tau_k)`` Chinese-remainder combinations (index
-``(sum_k T_k[j_k]) mod M`` with the tables of
+period: the ``prod_g min(top, tau_g)`` Chinese-remainder combinations (index
+``(sum_g T_g[j_g]) mod M`` with the tables of
 :func:`rhythmic_jax.map.periods.crt_tables`),
 combinations with index ``>= n`` dropped. ``top = 1`` is the paper's hard decode
 (no match when the argmax combination is ``>= n``); ``top >= max(tau)`` is exactly the
@@ -56,7 +56,7 @@ _INT32_SAFE = 2**30  # running CRT sums stay below 2 M < 2**31
 def calibrate(scores: jax.Array, periods: Sequence[int] | Groups) -> jax.Array:
     """Per-period log-softmax over phases: (..., p) -> (..., p).
 
-    ``c_k[j] = s_k[j] - log sum_j' exp(s_k[j'])``, so ``sum_k c_k[i mod tau_k]`` is a
+    ``c_g[j] = s_g[j] - log sum_j' exp(s_g[j'])``, so ``sum_g c_g[i mod tau_g]`` is a
     sum of log-probabilities. Argmaxes (the hard decode) are unchanged. With a
     :class:`~rhythmic_jax.map.groups.Groups` the softmax runs over every group's
     classes.
@@ -108,10 +108,10 @@ def topm_combinations(
 ) -> tuple[jax.Array, jax.Array]:
     """The top-m phase combinations of one query: s (p,) -> (score (c,), index (c,)).
 
-    Every combination of the ``min(top, tau_k)`` best phases of each period,
-    ``c = prod_k min(top, tau_k)`` of them, the last period varying fastest:
+    Every combination of the ``min(top, tau_g)`` best phases of each period,
+    ``c = prod_g min(top, tau_g)`` of them, the last period varying fastest:
     ``score`` the sum of their phase scores (in the scores' dtype, periods added
-    in order) and ``index`` its Chinese-remainder place ``(sum_k T_k[j_k]) mod
+    in order) and ``index`` its Chinese-remainder place ``(sum_g T_g[j_g]) mod
     M`` (int32, below ``M = prod(periods)``; at or beyond n: no place). Needs
     ``M < 2**30``.
     """
@@ -131,7 +131,7 @@ def topm_combinations(
 def _topm_one(
     s: jax.Array, periods: tuple[int, ...], n: int, top: int, exclude: int
 ) -> Decoded:
-    """One query: s (p,) -> scalars, over prod_k min(top, tau_k) combinations."""
+    """One query: s (p,) -> scalars, over prod_g min(top, tau_g) combinations."""
     score, index = topm_combinations(s, periods, top)
     return _best_two(score, index, index < n, exclude)
 
@@ -177,7 +177,7 @@ def soft_decode(
 ) -> Decoded:
     """Exact score-sum decode of b queries: scores (..., p) -> Decoded with shape (...).
 
-    ``index = argmax_{i < n} sum_k s_k[i mod tau_k]`` (ties to the smaller index);
+    ``index = argmax_{i < n} sum_g s_g[i mod tau_g]`` (ties to the smaller index);
     ``runner_up`` is the best score of a place more than ``exclude`` frames away
     (``exclude = 0``: plain second best). Jit-compiled once per (periods, n,
     exclude) and shape; ``batch_size`` queries are scored at a time, so memory is
@@ -203,7 +203,7 @@ def topm_decode(
 ) -> Decoded:
     """Top-m Chinese-remainder decode: scores (..., p) -> Decoded with shape (...).
 
-    Scores the ``prod_k min(top, tau_k)`` places whose phases are among the ``top`` best
+    Scores the ``prod_g min(top, tau_g)`` places whose phases are among the ``top`` best
     of every period and keeps the best one below ``n`` (index -1 and score -inf when
     every combination is ``>= n``). ``top = 1`` is the paper's hard decode; ``top >=
     max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``top ** r``

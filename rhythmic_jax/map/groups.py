@@ -3,17 +3,17 @@
 A map keeps ``G`` groups of linear classifiers; group ``g`` has ``size_g`` classes
 and labels frame ``i`` with one of them. Three layouts:
 
-- ``periods`` (the paper, Sec. III-B): pairwise co-prime periods ``tau_k``, label
-  ``i mod tau_k``. A template fires on every ``tau``-th frame, so it groups frames
+- ``periods`` (the paper, Sec. III-B): pairwise co-prime periods ``tau_g``, label
+  ``i mod tau_g``. A template fires on every ``tau``-th frame, so it groups frames
   that need not look alike.
 - ``mixed`` (Le, Xu, Hoang and Milford 2018, sub-linear storage growth): radices
-  ``b_1 .. b_r`` (most significant first) with ``prod(b) >= n``; label ``k`` is
-  digit ``k`` of ``i``, ``(i // prod(b_{k+1..r})) mod b_k``. The most significant
+  ``b_1 .. b_r`` (most significant first) with ``prod(b) >= n``; label ``g`` is
+  digit ``g`` of ``i``, ``(i // prod(b_{g+1..r})) mod b_g``. The most significant
   digit ``i // prod(b_2..r)`` classifies contiguous segments of the route, whose
   frames look alike.
 - ``hierarchical``: a coarse classifier of contiguous segments of length ``s``
   (label ``i // s``, ``ceil(n / s)`` classes) and pairwise co-prime fine periods
-  ``tau_k`` with ``prod(tau) >= s`` (labels ``i mod tau_k``), which tell apart
+  ``tau_g`` with ``prod(tau) >= s`` (labels ``i mod tau_g``), which tell apart
   the places of one segment.
 
 In every layout the labels identify a frame uniquely below :attr:`Groups.capacity`,
@@ -135,8 +135,8 @@ class Groups:
         return math.prod(self.sizes)
 
     def weights(self) -> tuple[int, ...]:
-        """Mixed radix: place value of each digit, ``prod(b_{k+1..r})``."""
-        return tuple(math.prod(self.sizes[k + 1 :]) for k in range(len(self.sizes)))
+        """Mixed radix: place value of each digit, ``prod(b_{g+1..r})``."""
+        return tuple(math.prod(self.sizes[g + 1 :]) for g in range(len(self.sizes)))
 
     def check(self, n: int) -> int:
         """``n`` as an int, or InputError when the labels cannot tell n places apart.

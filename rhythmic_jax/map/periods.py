@@ -1,7 +1,7 @@
 """Integer maths of periods: candidates, co-primality, choice, storage (no JAX).
 
 A map of ``n`` frames keeps ``r`` periods ``tau_1 .. tau_r``. Frame ``i`` has phase
-``i mod tau_k`` in period ``k``; with pairwise co-prime periods whose product is at
+``i mod tau_g`` in period ``g``; with pairwise co-prime periods whose product is at
 least ``n`` the phases identify the frame uniquely (Chinese remainder theorem,
 paper Sec. III-B, Eq. 5). The map stores ``sum(tau) * (d + 1)`` numbers (weights
 and a bias per template), so storage grows as ``r * n ** (1 / r)``.
@@ -147,7 +147,7 @@ def choose_periods(
 
 
 def phases(index: np.ndarray | int, periods: Sequence[int]) -> np.ndarray:
-    """Phase of frame ``index`` in every period: ``index mod tau_k``, shape (..., r)."""
+    """Phase of frame ``index`` in every period: ``index mod tau_g``, shape (..., r)."""
     import numpy as np
 
     idx = np.asarray(index, dtype=np.int64)
@@ -157,14 +157,14 @@ def phases(index: np.ndarray | int, periods: Sequence[int]) -> np.ndarray:
 def crt_tables(periods: Sequence[int]) -> tuple[tuple[np.ndarray, ...], int]:
     """Chinese-remainder lookup tables for pairwise co-prime ``periods``.
 
-    With ``M = prod(tau)``, ``M_k = M / tau_k`` and ``u_k = M_k^{-1} mod tau_k``,
-    the index with phases ``j_k`` is ``(sum_k T_k[j_k]) mod M`` where
-    ``T_k[j] = j * M_k * u_k mod M``. Each table entry is below M, so a running sum
+    With ``M = prod(tau)``, ``M_g = M / tau_g`` and ``u_g = M_g^{-1} mod tau_g``,
+    the index with phases ``j_g`` is ``(sum_g T_g[j_g]) mod M`` where
+    ``T_g[j] = j * M_g * u_g mod M``. Each table entry is below M, so a running sum
     reduced mod M after every addition stays below 2M (no overflow for M < 2**30
     in int32).
 
     Returns:
-      tables: one int64 array of shape (tau_k,) per period; and M.
+      tables: one int64 array of shape (tau_g,) per period; and M.
     """
     import numpy as np
 
@@ -201,7 +201,7 @@ def period_offsets(periods: Sequence[int]) -> tuple[int, ...]:
 
 @functools.lru_cache(maxsize=64)
 def place_columns(periods: tuple[int, ...], n: int) -> np.ndarray:
-    """(r, n) int32: column of place i in period k, ``off_k + i mod tau_k``."""
+    """(r, n) int32: column of place i in period g, ``off_g + i mod tau_g``."""
     import numpy as np
 
     i = np.arange(n)

@@ -42,10 +42,10 @@ def encode(index: np.ndarray, periods, noise: float, seed: int) -> np.ndarray:
 
 
 def brute_force(scores: np.ndarray, periods, n: int):
-    """Per row: argmax phases, then the j < n with j mod tau_k == phase_k for all k.
+    """Per row: argmax phases, then the j < n with j mod tau_g == phase_g for all g.
 
     Returns index (-1 when no j), the sum of per-period maxima, and the confidence
-    min_k (top1_k - top2_k) over periods with at least two phases.
+    min_g (top1_g - top2_g) over periods with at least two phases.
     """
     residues = np.arange(n)[:, None] % np.array(periods)[None, :]  # (n, r): j mod tau
     index, total, conf = [], [], []

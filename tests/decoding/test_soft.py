@@ -169,7 +169,7 @@ def test_soft_rescues_hard_no_match_when_n_below_product():
 
 
 def test_soft_equals_hard_when_every_combination_is_a_place():
-    # sum_k s_k[j_k] is separable, so with n = prod(tau) its argmax is the
+    # sum_g s_g[j_g] is separable, so with n = prod(tau) its argmax is the
     # per-period argmax: soft decoding changes the answer only through n < M.
     periods = (11, 13)
     scores, _ = _noisy(periods, 143, 400, 0.45, seed=6)
