@@ -136,9 +136,7 @@ def _unflatten_config(aux: MapConfig, leaves) -> MapConfig:
 
 
 # the decode settings are leaves, the fit's configuration and provenance static
-jax.tree_util.register_pytree_with_keys(
-    MapConfig, _flatten_config, _unflatten_config
-)
+jax.tree_util.register_pytree_with_keys(MapConfig, _flatten_config, _unflatten_config)
 
 _STATIC = dict(metadata=dict(static=True))
 
