@@ -303,3 +303,31 @@ def test_the_command_line_imports_no_scikit_learn():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_the_methods_are_defined_in_the_class_with_their_parameters():
+    """What ``help(model.decode)`` shows: every method a function of the class
+    body, named for it, with its parameters (none made by a loop)."""
+    from rhythmic_jax.rhythmic_map import MapEstimator
+
+    named = {
+        "fit": ["X", "y", "verbose", "progress", "refine", "plan"],
+        "predict": ["X", "method", "top", "sequence", "speeds", "threshold"],
+        "decode": ["X", "method", "top"],
+        "scores": ["X"],
+        "place_scores": ["X"],
+        "locate": ["q"],
+        "score": ["X", "y"],
+        "save": ["path"],
+        "load": ["path", "descriptor", "descriptor_settings", "d"],
+        "with_dtype": ["dtype"],
+        "info": [],
+        "storage": [],
+    }
+    model = RhythmicMap()
+    for name, params in named.items():
+        method = getattr(model, name)
+        assert method.__qualname__ == f"MapEstimator.{name}"
+        assert name in vars(MapEstimator)
+        assert list(inspect.signature(method).parameters) == params, name
+        assert method.__doc__
