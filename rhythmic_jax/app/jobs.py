@@ -24,6 +24,8 @@ Nothing here prints: the command line shows what they return through
 
 from __future__ import annotations
 
+import contextlib
+import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -185,19 +187,23 @@ def _after_reading(job: FitJob, learned, read: Reading, fit_plan, feats):
 
 
 def fit(job: FitJob, progress: bool = False):
-    """Fit, record provenance and save the map of ``job``; returns the map.
+    """Fit, record provenance and save the map of ``job``; returns the map
+    (a :class:`~rhythmic_jax.rhythmic_map.MapEstimator` holding it).
 
     Everything the settings alone decide is refused before any source is read
     (:func:`_before_reading`: for descriptor files the fit's plan and the memory
     it needs, from their headers); for images the plan once they are read
     (:func:`_after_reading`), with the disk the map needs before the solve. The
-    one plan is the fit's (:func:`rhythmic_jax.fitting.fit_plan.plan`). An
-    augmented fit (image sources) keeps a checkpoint folder, default
-    ``OUT.ckpt``, removed once the map is saved; Ctrl-C raises
-    :class:`FitInterrupted`, which says where it is kept.
+    one plan is the fit's (:func:`rhythmic_jax.fitting.fit_plan.plan`), and the
+    fit is :func:`rhythmic_jax.fitting.fit_map.fit`. An augmented fit (image
+    sources) keeps a checkpoint folder, default ``OUT.ckpt``, removed once the
+    map is saved; Ctrl-C raises :class:`FitInterrupted`, which says where it is
+    kept.
     """
+    from rhythmic_jax.fitting.fit_map import fit as fit_map
     from rhythmic_jax.frames.sources import load_sources
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.map import map_file
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
     augmented, learned, read, fit_plan = _before_reading(job)
     feats = load_sources(
@@ -208,66 +214,60 @@ def fit(job: FitJob, progress: bool = False):
     config, emb, ref, feats, fit_plan = _after_reading(
         job, learned, read, fit_plan, feats
     )
-    model = RhythmicMap.from_config(config, embedding=emb)
-    model.extra.update(feats.extra)
-    model.reference = ref
-    if augmented is None:
-        model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
-    else:
-        from rhythmic_jax.augment.stream import fit_map_augmented
-        from rhythmic_jax.frames.compiled import FastDescriptor
-
-        if feats.images is None:
-            raise InputError(
-                "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
-            )
-        from rhythmic_jax.app import signals
-
-        config, ckpt = augmented
-        frames = len(feats.images) * config.epochs  # frames the network will see
-        kept = (f"the augmented fit's checkpoint is kept in {ckpt}; run the same "
-                "command again to resume")  # fmt: skip
-        signals.set_note(kept)
-        try:
-            with write_errors("checkpoint", ckpt):
-                fit_map_augmented(
-                    model, feats.images, feats.x,
-                    FastDescriptor(feats.describer, frames, read.compile), config,
-                    feats.labels, progress=progress, checkpoint=ckpt, plan=fit_plan,
-                )  # fmt: skip
-        except KeyboardInterrupt:
-            raise FitInterrupted(kept) from None
+    with _augmenting(augmented, feats, read, progress) as refine:
+        fitted = fit_map(feats.x, config, labels=feats.labels, embedding=emb,
+                         progress=progress, refine=refine, plan=fit_plan)  # fmt: skip
+    fitted = replace(fitted, extra={**fitted.extra, **feats.extra},
+                     reference=json.dumps(ref, sort_keys=True))  # fmt: skip
     with write_errors("out", job.out):
-        model.save(job.out)
+        map_file.save(job.out, fitted)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
+    model = MapEstimator.from_config(config, embedding=emb)
+    model.map = fitted
     return model
 
 
-def _with_positions(feats, job: FitJob):
-    """Features whose extra holds the frames' positions (and k-means places)."""
-    import dataclasses
+@contextlib.contextmanager
+def _augmenting(augmented, feats, read: Reading, progress: bool):
+    """The fit's ``refine`` over frames augmented on the fly
+    (:func:`rhythmic_jax.augment.stream.refining`), or None for a plain fit;
+    within, a checkpoint that cannot be written is one line, and Ctrl-C raises
+    :class:`FitInterrupted`, which says where the checkpoint is kept."""
+    if augmented is None:
+        yield None
+        return
+    from rhythmic_jax.app import signals
+    from rhythmic_jax.augment.stream import refining
+    from rhythmic_jax.frames.compiled import FastDescriptor
 
-    import numpy as np
-
-    from rhythmic_jax.eval.ground_truth_files import in_metres, positions_of_sources
-    from rhythmic_jax.io.images import gps_places
-
-    xy, unit = positions_of_sources(job.positions, job.sources)
-    if len(xy) != len(feats.x):
+    if feats.images is None:
         raise InputError(
-            f"{{opt:positions}}: {len(xy)} positions for {len(feats.x)} reference "
-            "frames"
+            "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
         )
-    extra = dict(feats.extra)
-    extra["reference_positions"] = xy
-    extra["reference_positions_degrees"] = np.asarray(int(unit == "degrees"))
-    labels = feats.labels
-    if job.places is not None:
-        metres = in_metres((xy, unit))[0]
-        labels = gps_places(metres, job.places)
-        extra["reference_labels"] = labels
-    return dataclasses.replace(feats, labels=labels, extra=extra)
+    config, ckpt = augmented
+    frames = len(feats.images) * config.epochs  # frames the network will see
+    kept = (f"the augmented fit's checkpoint is kept in {ckpt}; run the same "
+            "command again to resume")  # fmt: skip
+    signals.set_note(kept)
+    network = FastDescriptor(feats.describer, frames, read.compile)
+    try:
+        with write_errors("checkpoint", ckpt):
+            yield refining(feats.images, feats.x, feats.labels, network, config,
+                           progress=progress, checkpoint=ckpt)  # fmt: skip
+    except KeyboardInterrupt:
+        raise FitInterrupted(kept) from None
+
+
+def _with_positions(feats, job: FitJob):
+    """Features whose labels are the frames' places (with ``job.places``) and
+    whose extra holds their positions
+    (:func:`rhythmic_jax.fitting.places.frame_places`)."""
+    from rhythmic_jax.fitting.places import frame_places
+
+    labels, extra = frame_places(job.positions, job.sources, len(feats.x), job.places)
+    labels = feats.labels if labels is None else labels
+    return replace(feats, labels=labels, extra={**feats.extra, **extra})
 
 
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:

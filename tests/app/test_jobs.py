@@ -194,12 +194,12 @@ def test_the_descriptor_is_resolved_once_and_carried_to_the_augmented_fit(
 
     seen = {}
 
-    def augmented(model, images, x, descriptor, config, labels, **kw):
+    def refining(images, x, labels, descriptor, config, **kw):
         seen["descriptor"] = descriptor.descriptor
-        return model.fit(x, labels, progress=False)
+        return None  # the plain fit's
 
     monkeypatch.setattr(features, "get_descriptor", counted)
-    monkeypatch.setattr(stream, "fit_map_augmented", augmented)
+    monkeypatch.setattr(stream, "refining", refining)
     job = FitJob(tuple(sources), str(tmp_path / "m.map"), augment="all")
     model = jobs.fit(job, progress=False)
     assert len(resolved) == 1 and seen["descriptor"] is resolved[0]
