@@ -210,14 +210,13 @@ def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
 
 
 def frame_places(
-    specs: Sequence[str], sources: Sequence[str], frames: int, places: int | None
+    located: tuple[np.ndarray, str], frames: int, places: int | None
 ) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
     """The positions of a fit's ``frames`` reference frames and their places.
 
     Args:
-      specs: one positions file per source, or ``["names"]``
-        (:func:`positions_of_sources`).
-      sources: the fit's sources, in order.
+      located: the frames' positions ``(array (frames, 2), unit)``, as
+        :func:`positions_of_sources` reads them (before the frames are read).
       frames: how many frames the sources gave.
       places: group the frames into this many places by k-means over their
         positions in metres (:func:`gps_places`); None keeps the sources' own.
@@ -228,7 +227,7 @@ def frame_places(
       (frames, 2) float64 and ``reference_positions_degrees`` (1 where they are
       latitude, longitude), plus ``reference_labels`` with ``places``.
     """
-    xy, unit = positions_of_sources(specs, sources)
+    xy, unit = located
     if len(xy) != frames:
         raise InputError(
             f"{{opt:positions}}: {len(xy)} positions for {frames} reference frames"
@@ -239,5 +238,6 @@ def frame_places(
     }
     if places is None:
         return None, extra
-    labels = gps_places(in_metres((xy, unit))[0], places)
+    metres = in_metres(located)[0]
+    labels = gps_places(metres, places)
     return labels, {**extra, "reference_labels": labels}

@@ -126,14 +126,16 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
         _before_reading(huge)
     np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
     two = FitJob((str(tmp_path / "small.npy"),) * 2, out)
-    planned = _before_reading(two)[3]  # fits
+    planned = _before_reading(two).plan  # fits
     assert (planned.n, planned.d) == (100, 8)
+    np.save(tmp_path / "xy.npy", np.arange(200.0).reshape(100, 2))
+    located = (str(tmp_path / "xy.npy"),) * 2
     for left in (  # to the read: absent, projected, grouped into places
         FitJob((str(tmp_path / "absent.npy"),), out),
         FitJob(two.sources, out, pca=4),
-        FitJob(two.sources, out, positions=("names",), places=5),
+        FitJob(two.sources, out, positions=located, places=5),
     ):
-        assert _before_reading(left)[3] is None
+        assert _before_reading(left).plan is None
 
 
 @pytest.mark.parametrize("kind", ["npy", "images"])

@@ -17,6 +17,7 @@ from rhythmic_jax.fitting.places import (
     gps_places,
     latlon_to_metres,
     positions_from_names,
+    positions_of_sources,
     read_positions,
 )
 
@@ -91,15 +92,16 @@ def test_frame_places_keep_positions_and_group_them(tmp_path):
     np.save(tmp_path / "a.npy", coords[:100])
     np.save(tmp_path / "b.npy", coords[100:])
     specs, sources = [str(tmp_path / "a.npy"), str(tmp_path / "b.npy")], ["a", "b"]
-    labels, extra = frame_places(specs, sources, 200, None)
+    located = positions_of_sources(specs, sources)
+    labels, extra = frame_places(located, 200, None)
     assert labels is None and set(extra) == {
         "reference_positions", "reference_positions_degrees"
     }  # fmt: skip
     np.testing.assert_array_equal(extra["reference_positions"], coords)
-    labels, extra = frame_places(specs, sources, 200, 8)
+    labels, extra = frame_places(located, 200, 8)
     np.testing.assert_array_equal(labels, gps_places(coords, 8))
     np.testing.assert_array_equal(extra["reference_labels"], labels)
     with pytest.raises(InputError, match="200 positions for 199 reference frames"):
-        frame_places(specs, sources, 199, None)
+        frame_places(located, 199, None)
     with pytest.raises(InputError, match="2 files for 1 sources"):
-        frame_places(specs, ["a"], 200, None)
+        positions_of_sources(specs, ["a"])
