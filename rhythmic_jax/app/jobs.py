@@ -245,11 +245,14 @@ def _augmenting(augmented, feats, labels, read: Reading, progress: bool):
     kept = (f"the augmented fit's checkpoint is kept in {ckpt}; run the same "
             "command again to resume")  # fmt: skip
     signals.set_note(kept)
-    network = FastDescriptor(feats.describer, frames, read.compile)
+    refine = refining(
+        feats.images, feats.x, labels,
+        FastDescriptor(feats.describer, frames, read.compile), config,
+        progress=progress, checkpoint=ckpt,
+    )  # fmt: skip
     try:
         with write_errors("checkpoint", ckpt):
-            yield refining(feats.images, feats.x, labels, network, config,
-                           progress=progress, checkpoint=ckpt)  # fmt: skip
+            yield refine
     except KeyboardInterrupt:
         raise FitInterrupted(kept) from None
 
