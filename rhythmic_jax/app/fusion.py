@@ -34,13 +34,13 @@ def learn_fusion(traversals, emb, codes="int8") -> dict[str, Any]:
 
     from rhythmic_jax.decoding.fusion import learn_weight
     from rhythmic_jax.map.embedding import apply
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
     t0 = time.perf_counter()
     n = len(traversals[0])
     gt, tables = np.arange(n), []
     for a, ref in enumerate(traversals):
-        m = RhythmicMap(embedding=emb, codes=codes).fit(ref, progress=False)
+        m = MapEstimator(embedding=emb, codes=codes).fit(ref, progress=False)
         for b, qry in enumerate(traversals):
             if a != b:
                 sims = m.codebook.similarity(apply(emb, qry))

@@ -318,9 +318,9 @@ def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
 
 def _load_queries(job, progress: bool):
     from rhythmic_jax.frames.sources import load_query_source
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
-    model, read = RhythmicMap.load(job.map), job.reading
+    model, read = MapEstimator.load(job.map), job.reading
     feats = load_query_source(
         job.source, model, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, select=read.select,
@@ -391,9 +391,9 @@ def info(map_path: str) -> dict[str, Any]:
 
 
 def _loaded_info(map_path: str) -> dict[str, Any]:
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
-    return RhythmicMap.load(map_path).info()
+    return MapEstimator.load(map_path).info()
 
 
 def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
