@@ -154,7 +154,7 @@ def run_demo(
     from rhythmic_jax.frames.sources import describe_images
     from rhythmic_jax.io.tiles import tile_image
     from rhythmic_jax.jit_cache import enable_compile_cache
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
     enable_compile_cache()
 
@@ -173,7 +173,7 @@ def run_demo(
     print(f"route: {len(ref)} places ({cfg.tile}-pixel tiles of a {side}-pixel "
           f"mosaic), {x_ref.shape[1]}-d patchnorm descriptors")  # fmt: skip
     t1 = time.perf_counter()
-    model = RhythmicMap(
+    model = MapEstimator(
         level=cfg.level, descriptor="patchnorm", descriptor_settings=settings
     ).fit(x_ref, progress=progress)
     fit_s = time.perf_counter() - t1

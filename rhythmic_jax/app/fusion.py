@@ -4,38 +4,14 @@ A hybrid map (``--codes``) fuses its place scores with the codes' similarities
 at a weight ``w`` (:mod:`rhythmic_jax.decoding.fusion`). ``learn`` learns ``w``
 on its training traversals (:func:`learn_fusion`) and saves it with the
 embedding; ``fit --embedding`` takes it from there unless ``--fusion`` is given
-(:func:`fusion_of`).
+(:func:`rhythmic_jax.map.embedding.fusion_of`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["FUSION_TOLERANCE", "fusion_of", "learn_fusion"]
-
-
-def fusion_of(option: float | None, codes, meta: dict | None) -> dict[str, Any]:
-    """The map's share of the fused score and where it comes from: ``option``
-    when given, else the weight an embedding's ``meta`` learned for ``codes``,
-    else 0.5. Returns ``{"weight": w, "from": "option" | "embedding" |
-    "default", "note": why}``."""
-    if option is not None:
-        return {"weight": option, "from": "option", "note": "given with --fusion"}
-    learned = (meta or {}).get("fusion")
-    if meta is None:
-        note = "no embedding"
-    elif not learned:
-        note = "the embedding holds no learned weight (saved before learn kept one)"
-    elif learned.get("codes") != codes:
-        note = f"the embedding's weight was learned for {learned.get('codes')} codes"
-    else:
-        return {
-            "weight": float(learned["weight"]),
-            "from": "embedding",
-            "note": f"learned with the embedding for {codes} codes: R@1 "
-            f"{learned['recall']:.3f} on its {learned['places']} training places",
-        }
-    return {"weight": 0.5, "from": "default", "note": note}
+__all__ = ["FUSION_TOLERANCE", "learn_fusion"]
 
 
 FUSION_TOLERANCE = 1  # places: a match within one place counts, as in the reports
@@ -58,13 +34,13 @@ def learn_fusion(traversals, emb, codes="int8") -> dict[str, Any]:
 
     from rhythmic_jax.decoding.fusion import learn_weight
     from rhythmic_jax.map.embedding import apply
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
     t0 = time.perf_counter()
     n = len(traversals[0])
     gt, tables = np.arange(n), []
     for a, ref in enumerate(traversals):
-        m = RhythmicMap(embedding=emb, codes=codes).fit(ref, progress=False)
+        m = MapEstimator(embedding=emb, codes=codes).fit(ref, progress=False)
         for b, qry in enumerate(traversals):
             if a != b:
                 sims = m.codebook.similarity(apply(emb, qry))

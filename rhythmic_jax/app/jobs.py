@@ -24,12 +24,14 @@ Nothing here prints: the command line shows what they return through
 
 from __future__ import annotations
 
+import contextlib
+import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-from rhythmic_jax.app.fusion import fusion_of, learn_fusion
+from rhythmic_jax.app.fusion import learn_fusion
 from rhythmic_jax.app.specs import (
     DescribeJob,
     EvaluateJob,
@@ -41,7 +43,6 @@ from rhythmic_jax.app.specs import (
 )
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import check_file_place, check_place, write_errors
-from rhythmic_jax.map.config import MapConfig
 
 if TYPE_CHECKING:
     import numpy as np
@@ -62,28 +63,47 @@ def quiet_io_threads() -> None:
     sys.unraisablehook = without_closed_loop(sys.unraisablehook)
 
 
-def _before_reading(job: FitJob):
-    """What a fit's settings and its sources' headers decide, refused before
-    any source is read: the augmented fit's settings (and checkpoint folder),
-    the embedding of ``fit --embedding`` and the reading of the sources it
-    implies (its descriptor and weights, for images that name none), the map
-    folder, and for descriptor files of one shape the plan and its memory.
+class Settled(NamedTuple):
+    """What a fit's settings and its sources' headers decide before any source
+    is read (:func:`_before_reading`)."""
 
-    Returns ``(augmented, learned, reading, plan)``: ``(AugmentedFit, checkpoint
-    folder)`` or None, ``(embedding, meta)`` or None, the :class:`Reading`, and
-    the :class:`~rhythmic_jax.fitting.fit_plan.FitPlan`, or None where only
-    reading the sources tells (images, files missing or of other shapes,
-    ``pca``, ``places``, an embedding of another dimension: reading them says
-    what is wrong).
+    augmented: tuple[Any, Path] | None  # (AugmentedFit, checkpoint folder)
+    learned: tuple[Any, dict] | None  # (embedding, meta) of fit --embedding
+    located: tuple[Any, str] | None  # the frames' positions (array, unit)
+    reading: Reading  # with the embedding's descriptor for images naming none
+    reference: dict[str, Any]  # the map's provenance
+    fusion: float  # the map's share of a fused score
+    plan: Any  # the FitPlan, or None where only reading the sources tells
+
+
+def _before_reading(job: FitJob) -> Settled:
+    """What a fit's settings and its sources' headers decide, refused before
+    any source is read: the frames' positions
+    (:func:`rhythmic_jax.fitting.places.positions_of_sources`), the augmented
+    fit's settings (and checkpoint folder), the embedding of ``fit
+    --embedding`` and the reading of the sources it implies (its descriptor and
+    weights, for images that name none), the fusion weight, the map's
+    provenance (the sources' absolute paths and tiling, so that
+    :func:`evaluate` finds the reference frames again; the embedding and the
+    fusion weight), for descriptor files of one shape the plan and its memory,
+    and the map folder. The plan is None where only reading the sources tells
+    (images, files missing or of other shapes, ``pca``, ``places``, an
+    embedding of another dimension: reading them says what is wrong).
     """
+    from rhythmic_jax.fitting.fit_plan import plan as plan_fit
+    from rhythmic_jax.fitting.places import positions_of_sources
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.descriptor_files import descriptor_shape
+    from rhythmic_jax.map.embedding import (
+        embedding_descriptor,
+        fusion_of,
+        load_embedding,
+    )
 
-    check_place("out", job.out)
-    if job.augment:
-        check_place("checkpoint", job.checkpoint_folder, inside=True)
-    augmented = learned = fit_plan = None
+    augmented = learned = located = fit_plan = None
     read, sources = job.reading, job.sources
+    if job.positions is not None:  # a bad file is refused before any frame is read
+        located = positions_of_sources(job.positions, sources)
     if job.augment:
         from rhythmic_jax.augment.kornia_ops import AugmentConfig
         from rhythmic_jax.augment.stream import AugmentedFit
@@ -97,78 +117,11 @@ def _before_reading(job: FitJob):
             checkpoint_every=job.checkpoint_every or 50,
         ), job.checkpoint_folder  # fmt: skip
     if job.embedding is not None:
-        from rhythmic_jax.map.embedding import embedding_descriptor, load_embedding
-
         learned = load_embedding(job.embedding)
         name, weights = embedding_descriptor(learned[1])
         if read.descriptor is None and name is not None and job.images:
             read = replace(read, descriptor=name, weights=read.weights or weights)
-    check_target(job.out)  # before the fit, not after it
-    files = (
-        job.pca is None
-        and job.places is None
-        and all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources)
-    )
-    shapes = {descriptor_shape(s) for s in sources} if files else set()
-    shape = shapes.pop() if len(shapes) == 1 else ()
-    n, d = shape if len(shape) == 2 and 0 not in shape else (0, 0)
-    if n and (learned is None or learned[0].d == d):
-        k = d if learned is None else learned[0].k
-        fit_plan = _planned(job.config, n * len(sources), n, k, learned)
-    return augmented, learned, read, fit_plan
-
-
-def _planned(config: MapConfig, frames: int, n: int, d: int, learned):
-    """The fit's plan for ``n`` places of ``d`` features (the templates'), its
-    memory for ``frames`` rows checked (:func:`rhythmic_jax.fitting.fit_plan.plan`);
-    codes of more bits than ``d`` are refused in the job's words."""
-    from rhythmic_jax.fitting import fit_plan
-
-    if isinstance(config.codes, int) and config.codes > d:
-        what = "descriptors'" if learned is None else "embedding's"
-        raise InputError(
-            f"{{opt:codes}} {config.codes}: at most d={d} bits (the {what} dimension)"
-        )
-    return fit_plan.plan(config, n, d, frames)
-
-
-def _after_reading(job: FitJob, learned, read: Reading, fit_plan, feats):
-    """The map to fit on the read ``feats``: the embedding checked against them,
-    the frames' positions (and k-means places) added, the plan made where the
-    headers could not tell, the disk the map needs checked (before the solve),
-    and the map's settings and provenance (the sources' absolute paths and
-    tiling, so that :func:`evaluate` finds the reference frames again; the
-    embedding and the fusion weight). Returns ``(config, embedding or None,
-    provenance, feats, plan)``."""
-    import numpy as np
-
-    from rhythmic_jax.io.checkpoint import check_space
-
-    emb, meta = learned or (None, None)
-    if meta is not None and meta.get("descriptor") != feats.descriptor:
-        raise InputError(
-            f"{{opt:embedding}} {job.embedding}: learned on "
-            f"{meta.get('descriptor')!r} descriptors, the map's are "
-            f"{feats.descriptor!r}"
-        )
-    if emb is not None and emb.d != feats.x.shape[1]:
-        raise InputError(
-            f"{{opt:embedding}} {job.embedding}: expects {emb.d}-d descriptors, "
-            f"got {feats.x.shape[1]}"
-        )
-    fusion = fusion_of(job.fusion, job.config.codes, meta)
-    if job.positions is not None:
-        feats = _with_positions(feats, job)
-    if fit_plan is None:
-        d = feats.x.shape[1] if emb is None else emb.k
-        n = int(feats.labels.max()) + 1
-        fit_plan = _planned(job.config, len(feats.x), n, int(d), learned)
-    extra = sum(np.asarray(v).nbytes for v in feats.extra.values())
-    check_space(job.out, fit_plan.largest_bytes + extra)  # said before the solve
-    config = replace(
-        job.config, descriptor=feats.descriptor, descriptor_settings=feats.settings,
-        fusion=fusion["weight"],
-    )  # fmt: skip
+    fusion = fusion_of(job.fusion, job.config.codes, (learned or (None, None))[1])
     ref = {
         "sources": [str(Path(src).expanduser().absolute()) for src in job.sources],
         "tile": read.tile,
@@ -181,93 +134,127 @@ def _after_reading(job: FitJob, learned, read: Reading, fit_plan, feats):
         ref["descriptor_from_embedding"] = read != job.reading
     if job.config.codes is not None:
         ref["fusion"] = fusion
-    return config, emb, ref, feats, fit_plan
+    files = (
+        job.pca is None
+        and job.places is None
+        and all(s.lower().endswith(".npy") and Path(s).is_file() for s in sources)
+    )
+    shapes = {descriptor_shape(s) for s in sources} if files else set()
+    shape = shapes.pop() if len(shapes) == 1 else ()
+    n, d = shape if len(shape) == 2 and 0 not in shape else (0, 0)
+    if n and (learned is None or learned[0].d == d):
+        k = d if learned is None else learned[0].k
+        fit_plan = plan_fit(job.config, n, k, n * len(sources))
+    check_place("out", job.out)
+    if augmented is not None:
+        check_place("checkpoint", augmented[1], inside=True)
+    check_target(job.out)  # before the fit, not after it
+    return Settled(augmented, learned, located, read, ref, fusion["weight"], fit_plan)
 
 
 def fit(job: FitJob, progress: bool = False):
-    """Fit, record provenance and save the map of ``job``; returns the map.
+    """Fit, record provenance and save the map of ``job``; returns the map
+    (a :class:`~rhythmic_jax.rhythmic_map.MapEstimator` holding it).
 
     Everything the settings alone decide is refused before any source is read
     (:func:`_before_reading`: for descriptor files the fit's plan and the memory
-    it needs, from their headers); for images the plan once they are read
-    (:func:`_after_reading`), with the disk the map needs before the solve. The
-    one plan is the fit's (:func:`rhythmic_jax.fitting.fit_plan.plan`). An
-    augmented fit (image sources) keeps a checkpoint folder, default
-    ``OUT.ckpt``, removed once the map is saved; Ctrl-C raises
-    :class:`FitInterrupted`, which says where it is kept.
+    it needs, from their headers); for images the plan once they are read, with
+    the disk the map needs before the solve. The one plan is the fit's
+    (:func:`rhythmic_jax.fitting.fit_plan.plan`), and the fit is
+    :func:`rhythmic_jax.fitting.fit_map.fit`; the frames' positions and places
+    are :func:`rhythmic_jax.fitting.places.frame_places`. An augmented fit (image
+    sources) keeps a checkpoint folder, default ``OUT.ckpt``, removed once the
+    map is saved; Ctrl-C raises :class:`FitInterrupted`, which says where it is
+    kept.
     """
-    from rhythmic_jax.frames.sources import load_sources
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    import numpy as np
 
-    augmented, learned, read, fit_plan = _before_reading(job)
+    from rhythmic_jax.fitting.fit_map import fit as fit_map
+    from rhythmic_jax.fitting.fit_plan import plan as plan_fit
+    from rhythmic_jax.fitting.places import frame_places
+    from rhythmic_jax.frames.sources import load_sources
+    from rhythmic_jax.io.checkpoint import check_space
+    from rhythmic_jax.map import map_file
+    from rhythmic_jax.rhythmic_map import MapEstimator
+
+    augmented, learned, located, read, ref, weight, fit_plan = _before_reading(job)
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
         compile=read.compile, keep_images=augmented is not None, select=read.select,
     )  # fmt: skip
-    config, emb, ref, feats, fit_plan = _after_reading(
-        job, learned, read, fit_plan, feats
-    )
-    model = RhythmicMap.from_config(config, embedding=emb)
-    model.extra.update(feats.extra)
-    model.reference = ref
-    if augmented is None:
-        model.fit(feats.x, feats.labels, progress=progress, plan=fit_plan)
-    else:
-        from rhythmic_jax.augment.stream import fit_map_augmented
-        from rhythmic_jax.frames.compiled import FastDescriptor
-
-        if feats.images is None:
-            raise InputError(
-                "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
-            )
-        from rhythmic_jax.app import signals
-
-        config, ckpt = augmented
-        frames = len(feats.images) * config.epochs  # frames the network will see
-        kept = (f"the augmented fit's checkpoint is kept in {ckpt}; run the same "
-                "command again to resume")  # fmt: skip
-        signals.set_note(kept)
-        try:
-            with write_errors("checkpoint", ckpt):
-                fit_map_augmented(
-                    model, feats.images, feats.x,
-                    FastDescriptor(feats.describer, frames, read.compile), config,
-                    feats.labels, progress=progress, checkpoint=ckpt, plan=fit_plan,
-                )  # fmt: skip
-        except KeyboardInterrupt:
-            raise FitInterrupted(kept) from None
+    emb, meta = learned or (None, None)
+    if meta is not None and meta.get("descriptor") != feats.descriptor:
+        raise InputError(
+            f"{{opt:embedding}} {job.embedding}: learned on "
+            f"{meta.get('descriptor')!r} descriptors, the map's are "
+            f"{feats.descriptor!r}"
+        )
+    if emb is not None and emb.d != feats.x.shape[1]:
+        raise InputError(
+            f"{{opt:embedding}} {job.embedding}: expects {emb.d}-d descriptors, "
+            f"got {feats.x.shape[1]}"
+        )
+    labels, extra = feats.labels, feats.extra
+    if located is not None:
+        places, kept = frame_places(located, len(feats.x), job.places)
+        labels = labels if places is None else places
+        extra = {**extra, **kept}
+    if fit_plan is None:
+        d = feats.x.shape[1] if emb is None else emb.k
+        fit_plan = plan_fit(job.config, int(labels.max()) + 1, int(d), len(feats.x))
+    config = replace(
+        job.config, descriptor=feats.descriptor, descriptor_settings=feats.settings,
+        fusion=weight,
+    )  # fmt: skip
+    stored = sum(np.asarray(v).nbytes for v in extra.values())
+    check_space(job.out, fit_plan.largest_bytes + stored)  # said before the solve
+    with _augmenting(augmented, feats, labels, read, progress) as refine:
+        fitted = fit_map(feats.x, config, labels=labels, embedding=emb,
+                         progress=progress, refine=refine, plan=fit_plan)  # fmt: skip
+    fitted = replace(fitted, extra={**fitted.extra, **extra},
+                     reference=json.dumps(ref, sort_keys=True))  # fmt: skip
     with write_errors("out", job.out):
-        model.save(job.out)
+        map_file.save(job.out, fitted)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
+    model = MapEstimator.from_config(config, embedding=emb)
+    model.map = fitted
     return model
 
 
-def _with_positions(feats, job: FitJob):
-    """Features whose extra holds the frames' positions (and k-means places)."""
-    import dataclasses
+@contextlib.contextmanager
+def _augmenting(augmented, feats, labels, read: Reading, progress: bool):
+    """The fit's ``refine`` over frames augmented on the fly
+    (:func:`rhythmic_jax.augment.stream.refining`), or None for a plain fit;
+    within, a checkpoint that cannot be written is one line, and Ctrl-C raises
+    :class:`FitInterrupted`, which says where the checkpoint is kept."""
+    if augmented is None:
+        yield None
+        return
+    from rhythmic_jax.app import signals
+    from rhythmic_jax.augment.stream import refining
+    from rhythmic_jax.frames.compiled import FastDescriptor
 
-    import numpy as np
-
-    from rhythmic_jax.eval.ground_truth_files import in_metres, positions_of_sources
-    from rhythmic_jax.io.images import gps_places
-
-    xy, unit = positions_of_sources(job.positions, job.sources)
-    if len(xy) != len(feats.x):
+    if feats.images is None:
         raise InputError(
-            f"{{opt:positions}}: {len(xy)} positions for {len(feats.x)} reference "
-            "frames"
+            "{opt:augment} needs image sources (folders or {opt:tile}), not .npy"
         )
-    extra = dict(feats.extra)
-    extra["reference_positions"] = xy
-    extra["reference_positions_degrees"] = np.asarray(int(unit == "degrees"))
-    labels = feats.labels
-    if job.places is not None:
-        metres = in_metres((xy, unit))[0]
-        labels = gps_places(metres, job.places)
-        extra["reference_labels"] = labels
-    return dataclasses.replace(feats, labels=labels, extra=extra)
+    config, ckpt = augmented
+    frames = len(feats.images) * config.epochs  # frames the network will see
+    kept = (f"the augmented fit's checkpoint is kept in {ckpt}; run the same "
+            "command again to resume")  # fmt: skip
+    signals.set_note(kept)
+    refine = refining(
+        feats.images, feats.x, labels,
+        FastDescriptor(feats.describer, frames, read.compile), config,
+        progress=progress, checkpoint=ckpt,
+    )  # fmt: skip
+    try:
+        with write_errors("checkpoint", ckpt):
+            yield refine
+    except KeyboardInterrupt:
+        raise FitInterrupted(kept) from None
 
 
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
@@ -331,9 +318,9 @@ def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
 
 def _load_queries(job, progress: bool):
     from rhythmic_jax.frames.sources import load_query_source
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
-    model, read = RhythmicMap.load(job.map), job.reading
+    model, read = MapEstimator.load(job.map), job.reading
     feats = load_query_source(
         job.source, model, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, select=read.select,
@@ -404,9 +391,9 @@ def info(map_path: str) -> dict[str, Any]:
 
 
 def _loaded_info(map_path: str) -> dict[str, Any]:
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
-    return RhythmicMap.load(map_path).info()
+    return MapEstimator.load(map_path).info()
 
 
 def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:

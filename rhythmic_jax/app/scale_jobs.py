@@ -205,28 +205,31 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     import jax
 
     from rhythmic_jax.io.frame_files import shard_descriptor
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.map import map_file
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
     name, settings = shard_descriptor(sources[0])
-    model = RhythmicMap.from_config(
-        replace(job.config, descriptor=name, descriptor_settings=settings)
-    )
+    config = replace(job.config, descriptor=name, descriptor_settings=settings)
     ckpt = job.checkpoint_folder
     with write_errors("checkpoint", ckpt):
-        run = fit_map_files(
-            model, sources, memory=memory, stream=scale.stream, progress=progress,
+        fitted, run = fit_map_files(
+            config, sources, memory=memory, stream=scale.stream, progress=progress,
             checkpoint=ckpt,
         )  # fmt: skip
     if name == "features":
-        model.config = replace(model.config, descriptor_settings={"dim": model.d})
-    model.reference = {
+        settings = {"dim": fitted.d}
+    reference = {
         "sources": [str(Path(src).expanduser().absolute()) for src in sources],
         "tile": None,
         "stride": None,
     }
+    fitted = replace(
+        fitted, config=replace(fitted.config, descriptor_settings=settings),
+        reference=json.dumps(reference, sort_keys=True),
+    )  # fmt: skip
     if jax.process_index() == 0:
         with write_errors("out", job.out):
-            model.save(job.out)
+            map_file.save(job.out, fitted)
     distributed.allreduce(np.zeros(1))  # every process waits for the saved map
     (ckpt / f"stream-{jax.process_index()}-of-{jax.process_count()}.npz").unlink(
         missing_ok=True
@@ -235,4 +238,6 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         ckpt.rmdir()  # once every process has removed its file
     if jax.process_index() != 0:
         return None, None
+    model = MapEstimator.from_config(fitted.config)
+    model.map = fitted
     return model, run

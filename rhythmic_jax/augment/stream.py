@@ -43,6 +43,7 @@ __all__ = [
     "AugmentedFit",
     "fit_augmented",
     "fit_map_augmented",
+    "refining",
 ]
 
 log = logging.getLogger(__name__)
@@ -260,6 +261,35 @@ def fit_augmented(
     return params, timings
 
 
+def refining(
+    images: np.ndarray,
+    clean: np.ndarray,
+    labels: np.ndarray,
+    descriptor,
+    config: AugmentedFit = AugmentedFit(),
+    *,
+    progress: bool = False,
+    checkpoint: str | os.PathLike | None = None,
+    timings: dict[str, float] | None = None,
+):
+    """The ``refine`` of :func:`rhythmic_jax.fitting.fit_map.fit` that trains
+    every candidate over frames augmented on the fly (:func:`fit_augmented`,
+    resumable from ``checkpoint``) after the exact solve on the clean
+    descriptors (n, d) of ``images`` (n, H, W, 3), with place ``labels`` (n,);
+    the pipeline's timings are added to ``timings`` when given."""
+
+    def refine(params, cands, c):
+        params, t = fit_augmented(
+            images, clean, labels, cands, params, c, descriptor, config,
+            progress=progress, checkpoint=checkpoint,
+        )  # fmt: skip
+        if timings is not None:
+            timings.update(t)
+        return params
+
+    return refine
+
+
 def fit_map_augmented(
     model,
     images: np.ndarray,
@@ -276,21 +306,14 @@ def fit_map_augmented(
 
     Exact solve on the clean descriptors (n, d) of ``images`` (n, H, W, 3), then
     :func:`fit_augmented` over every candidate (resumable from ``checkpoint``),
-    then the period choice. Returns the model; ``model.timings`` holds the
-    pipeline's timings. ``plan``: the fit's
+    then the period choice (:func:`refining`). Returns the model;
+    ``model.timings`` holds the pipeline's timings. ``plan``: the fit's
     :class:`~rhythmic_jax.fitting.fit_plan.FitPlan` when already made.
     """
     labels = np.arange(len(clean)) if labels is None else np.asarray(labels)
     timings: dict[str, float] = {}
-
-    def refine(params, cands, c):
-        params, t = fit_augmented(
-            images, clean, labels, cands, params, c, descriptor, config,
-            progress=progress, checkpoint=checkpoint,
-        )  # fmt: skip
-        timings.update(t)
-        return params
-
+    refine = refining(images, clean, labels, descriptor, config, progress=progress,
+                      checkpoint=checkpoint, timings=timings)  # fmt: skip
     model.fit(clean, labels, progress=progress, refine=refine, plan=plan)
     model.timings = timings
     return model

@@ -210,9 +210,9 @@ def _similarity_extra(sims, tol, truth, search=None) -> dict:
 
 def _fit_map(x, r, level, gap):
     """The (w (d, p), b (p,)) templates and periods of a soft-decode map of x."""
-    from rhythmic_jax.rhythmic_map import MapEstimator as RhythmicMap
+    from rhythmic_jax.rhythmic_map import MapEstimator
 
-    m = RhythmicMap(r=r, level=level, gap=gap, method="soft").fit(x, progress=False)
+    m = MapEstimator(r=r, level=level, gap=gap, method="soft").fit(x, progress=False)
     return np.asarray(m.params.w), np.asarray(m.params.b), tuple(m.periods)
 
 

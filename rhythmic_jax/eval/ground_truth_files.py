@@ -5,12 +5,9 @@
   ``.npy`` is a pickle; :func:`read_vpr_bench` unpickles it with an allowlist
   (ints, floats, lists, tuples and plain numpy arrays and scalars; nothing that
   names another callable) and refuses anything else in one line.
-* **Positions** (:func:`read_positions`): a CSV with a header naming
-  ``easting``/``northing`` (or ``x``/``y``) in metres, or ``latitude``/
-  ``longitude`` (``lat``/``lon``) in degrees, converted to metres; a CSV of two
-  unnamed columns or an ``(n, 2)`` ``.npy`` holds easting, northing in metres.
-* **File names** ``@easting@northing@...`` as the Pittsburgh and GSV downloaders
-  write them (:func:`positions_from_names`).
+* **Positions** of queries and references, in a CSV or ``.npy`` or in
+  ``@easting@northing@`` file names, as a fit reads its own
+  (:mod:`rhythmic_jax.fitting.places`), matched within a radius.
 * **OpenVPRLab** ``<name>_gt_25m.npy``, **VPR_Tutorial** ``GT.npz`` and
   **Patch-NetVLAD** ``.npz`` (``utmQ``, ``utmDb``, ``posDistThr``), read by
   :mod:`rhythmic_jax.io.vpr_files` (:func:`read_openvprlab`,
@@ -24,7 +21,6 @@ only breaks a tie; ``fmt`` of :func:`load_ground_truth` says it outright.
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,31 +30,25 @@ import numpy as np
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import GroundTruth, from_lists, from_positions
 from rhythmic_jax.eval.ground_truth_formats import FORMATS, detect_format
-from rhythmic_jax.io.reader import (
-    load_npy,
-    memory_budget,
-    npy_header,
-    npz_headers,
-    read_text,
+from rhythmic_jax.fitting.places import (
+    in_metres,
+    positions_from_names,
+    positions_of_sources,
+    read_positions,
 )
+from rhythmic_jax.io.reader import npz_headers
 from rhythmic_jax.io.vpr_files import safe_object_npy
 
 __all__ = [
     "SoftGroundTruth",
-    "in_metres",
     "load_ground_truth",
-    "latlon_to_metres",
-    "positions_from_names",
-    "positions_of_sources",
     "read_openvprlab",
     "read_patchnetvlad_gt",
-    "read_positions",
     "read_tutorial_gt",
     "read_vpr_bench",
     "safe_object_npy",
 ]
 
-EARTH_RADIUS_M = 6_371_008.8  # mean radius (IUGG)
 
 
 def _int(v, where: str) -> int:
@@ -94,132 +84,6 @@ def read_vpr_bench(path: str | Path, n_queries: int, n_places: int) -> GroundTru
         raise InputError(f"{path}: {what} (there are {n_queries} queries)")
     src = f"VPR-Bench ground truth {Path(path).absolute()}"
     return from_lists([lists[q] for q in range(n_queries)], n_places, src)
-
-
-def latlon_to_metres(latlon, origin=None) -> np.ndarray:
-    """(n, 2) latitude, longitude in degrees -> (n, 2) easting, northing in metres.
-
-    A local equirectangular projection about ``origin`` (default: the mean):
-    ``east = R cos(lat0) dlon``, ``north = R dlat`` (R = 6,371,008.8 m); within
-    a city it agrees with great-circle distances to well under 0.1 %.
-    """
-    ll = np.radians(np.asarray(latlon, np.float64))
-    lat0, lon0 = ll.mean(0) if origin is None else np.radians(origin)
-    east = EARTH_RADIUS_M * np.cos(lat0) * (ll[:, 1] - lon0)
-    north = EARTH_RADIUS_M * (ll[:, 0] - lat0)
-    return np.stack([east, north], axis=1)
-
-
-_METRES = (("easting", "northing"), ("x", "y"), ("east", "north"))
-_DEGREES = (("latitude", "longitude"), ("lat", "lon"), ("lat", "lng"))
-
-
-def _plain_npy(path: Path) -> np.ndarray:
-    """A numeric ``.npy``; one holding pickled objects is refused unread (nothing
-    is unpickled), as is a file that is not a ``.npy``."""
-    if npy_header(path).dtype.hasobject:
-        raise InputError(
-            f"{path}: holds pickled objects, not numbers; refusing to unpickle "
-            "it (save the positions as a numeric (n, 2) array or a CSV)"
-        )
-    return load_npy(path)
-
-
-def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
-    """Per-frame positions of a file: ``(n, 2)`` and their unit.
-
-    ``"metres"``: (easting, northing); ``"degrees"``: (latitude, longitude), to
-    be projected with :func:`in_metres` together with the files they meet.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: positions file not found")
-    if path.suffix.lower() == ".npy":
-        return _checked(_plain_npy(path), path), "metres"
-    # as a spreadsheet saves it too: a byte-order mark, CRLF ends, blank lines
-    text = read_text(path, limit=memory_budget() // 8, encoding="utf-8-sig")
-    rows = list(csv.reader(text.splitlines()))
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if not rows:
-        raise InputError(f"{path}: no positions")
-    head = [c.strip().lower() for c in rows[0]]
-    try:
-        [float(c) for c in head]
-    except ValueError:
-        pass
-    else:
-        if len(head) != 2:
-            raise InputError(f"{path}: {len(head)} unnamed columns; name them")
-        return _checked(_floats(rows, (0, 1), path), path), "metres"
-    named = [(m, "metres") for m in _METRES] + [(d, "degrees") for d in _DEGREES]
-    for (a, b), unit in named:
-        if a in head and b in head:
-            xy = _floats(rows[1:], (head.index(a), head.index(b)), path)
-            return _checked(xy, path), unit
-    raise InputError(
-        f"{path}: no easting,northing / x,y / latitude,longitude columns in {head}"
-    )
-
-
-def in_metres(*positions: tuple[np.ndarray, str]) -> list[np.ndarray]:
-    """Positions ``(array, unit)`` of one area in metres, degrees projected
-    about the mean of them all (:func:`latlon_to_metres`); units must agree."""
-    units = {unit for _, unit in positions}
-    if len(units) > 1:
-        raise InputError("positions mix metres and latitude/longitude; use one")
-    if units != {"degrees"}:
-        return [np.asarray(a, np.float64) for a, _ in positions]
-    origin = np.concatenate([a for a, _ in positions]).mean(0)
-    return [latlon_to_metres(a, origin) for a, _ in positions]
-
-
-def _floats(rows, cols: tuple[int, int], path: Path) -> np.ndarray:
-    try:
-        return np.array([[float(r[c]) for c in cols] for r in rows], np.float64)
-    except (ValueError, IndexError):
-        raise InputError(f"{path}: a row without two numbers in its columns") from None
-
-
-def _checked(xy: np.ndarray, path) -> np.ndarray:
-    xy = np.asarray(xy, np.float64)
-    if xy.ndim != 2 or xy.shape[1] != 2 or not len(xy):
-        raise InputError(f"{path}: positions must be (n, 2), got {xy.shape}")
-    if not np.isfinite(xy).all():
-        raise InputError(f"{path}: positions hold NaN or infinite values")
-    return xy
-
-
-def positions_from_names(paths: Sequence[str | Path]) -> np.ndarray:
-    """``@easting@northing@...`` file names (Pittsburgh, GSV) -> (n, 2) metres."""
-    out = []
-    for p in paths:
-        parts = Path(p).name.split("@")
-        try:
-            out.append((float(parts[1]), float(parts[2])))
-        except (IndexError, ValueError):
-            raise InputError(f"{p}: no @easting@northing@ in the file name") from None
-    return _checked(np.array(out), paths[0] if paths else "file names")
-
-
-def positions_of_sources(specs: Sequence[str], sources: Sequence[str]):
-    """Reference positions ``(array, unit)`` for the map's sources: one file per
-    source, or ``["names"]`` to read ``@easting@northing@`` from its folders."""
-    from rhythmic_jax.io.images import list_images
-
-    if list(specs) != ["names"]:
-        if len(specs) != len(sources):
-            raise InputError(
-                f"{{opt:positions}}: {len(specs)} files for {len(sources)} sources; "
-                "give one per source, or 'names'"
-            )
-        read = [read_positions(s) for s in specs]
-        if len({unit for _, unit in read}) > 1:
-            raise InputError(
-                "{opt:positions} mix metres and latitude/longitude; use one"
-            )
-        return np.concatenate([a for a, _ in read]), read[0][1]
-    files = [f for s in sources for f in list_images(Path(s), "reference")]
-    return positions_from_names(files), "metres"
 
 
 def load_ground_truth(

@@ -25,9 +25,12 @@ import jax
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.fitting.fit_map import fit
 from rhythmic_jax.fitting.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
+from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.groups import parse_layout
+from rhythmic_jax.map.pytree import Map
 from rhythmic_jax.solvers.distributed import allreduce, fit_newton, row_block
 from rhythmic_jax.solvers.memory import available_memory, fit_bytes
 from rhythmic_jax.solvers.newton import NewtonConfig
@@ -90,15 +93,15 @@ def block_rows_for(
 
 
 def fit_map_files(
-    model,
+    config: MapConfig,
     sources: Sequence[str],
     *,
     memory: int | None = None,
     stream: bool = False,
     progress: bool = True,
     checkpoint: str | os.PathLike | None = None,
-) -> dict:
-    """Fit ``model`` (a :class:`~rhythmic_jax.rhythmic_map.RhythmicMap`) on files.
+) -> tuple[Map, dict]:
+    """A map fitted as ``config`` says on the frames of files.
 
     Args:
       sources: ``.npy`` files or shard folders, one traversal each (the same
@@ -110,8 +113,10 @@ def fit_map_files(
         on from there; the caller removes it once the map is saved.
 
     Returns:
-      How it ran: ``mode`` (memory or stream), ``rows`` of this process,
-      ``block_rows``, solver ``steps`` and ``pass_seconds`` (streamed).
+      ``(map, run)``: the :class:`~rhythmic_jax.map.pytree.Map` (the same on
+      every process), and how it ran: ``mode`` (memory or stream), ``rows`` of
+      this process, ``block_rows``, solver ``steps`` and ``pass_seconds``
+      (streamed).
     """
     traversals = [open_frames(s) for s in sources]
     n_place, d = traversals[0].shape
@@ -126,19 +131,19 @@ def fit_map_files(
     k, i = jax.process_count(), jax.process_index()
     start, stop = row_block(frames.n, k, i)
     labels = labels_all[start:stop]
-    _check_layout(model.config.layout)
-    fit_plan = plan(model.config, n_place, d)
+    _check_layout(config.layout)
+    fit_plan = plan(config, n_place, d)
     cands, c, p = fit_plan.periods, fit_plan.c, fit_plan.p
     limit = available_memory() if memory is None else memory
     need = sum(fit_bytes(-(-frames.n // k), d, p).values())
     in_memory = not stream and resident_bytes() + need + SLACK <= limit
     # every process must take the same path
     in_memory = allreduce(np.array([float(not in_memory)]))[0] == 0
-    cfg = model.config
+    cfg = config
     run = {"mode": "memory" if in_memory else "stream", "rows": stop - start}
     if in_memory and k == 1:  # the one-process fit of frames held whole
-        model.fit(frames.read(0, frames.n), labels_all, progress=progress)
-        return run
+        x = frames.read(0, frames.n)
+        return fit(x, cfg, labels=labels_all, progress=progress), run
     _check_scale(frames, start, stop)  # as the in-memory fit does, before the solve
     if in_memory:
         config = NewtonConfig(gap_tol=cfg.gap, span=False)
@@ -175,9 +180,9 @@ def fit_map_files(
         run.update(line=info.line_passes)
         run.update(pass_seconds=info.pass_seconds)
         run["pass_median_s"] = float(np.median(info.pass_seconds))
-    model._take(fit_plan.keep(params, np.asarray(errors), cfg.dtype), d)
+    kept = fit_plan.keep(params, np.asarray(errors), cfg.dtype)
     log.info("fit from files: %s", {k: v for k, v in run.items() if k[0] != "p"})
-    return run
+    return Map.build(kept, d, cfg), run
 
 
 def _check_layout(layout: str) -> None:

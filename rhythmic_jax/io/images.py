@@ -1,4 +1,4 @@
-"""Routes from disk: image-folder traversals, Nordland, GPS places.
+"""Routes from disk: image-folder traversals and Nordland.
 
 Image convention: frames from disk are ``uint8`` arrays of shape ``(n, H, W, 3)``
 (RGB). A *traversal* is one folder of frames of a route under one condition
@@ -6,8 +6,8 @@ Image convention: frames from disk are ``uint8`` arrays of shape ``(n, H, W, 3)`
 frames are the route in order, and the same index is the same place in every
 condition of that route (the paper's Nordland protocol).
 
-The paper's RobotCar protocol groups GPS positions into places with k-means on
-normalised coordinates (:func:`gps_places`). The aerial protocol (tiles of large
+The RobotCar protocol's places (k-means over GPS) are
+:mod:`rhythmic_jax.fitting.places`. The aerial protocol (tiles of large
 images) is :mod:`rhythmic_jax.io.tiles`; descriptor files are
 :mod:`rhythmic_jax.io.descriptor_files`.
 """
@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.names import natural_sorted
@@ -33,7 +32,6 @@ from rhythmic_jax.validate import check_int
 
 __all__ = [
     "Traversal",
-    "gps_places",
     "list_images",
     "load_route",
     "load_traversal",
@@ -333,48 +331,3 @@ def nordland(
     64x32 set has 3576 frames per season, the same name being the same place.
     """
     return load_route([Path(root) / s for s in seasons], progress=progress)
-
-
-# -------------------------------------------------------------------- GPS places
-
-
-def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
-    """Group GPS positions into ``k`` places (the paper's RobotCar protocol).
-
-    k-means (scikit-learn, ``n_init=10``) on coordinates normalised to zero mean
-    and unit variance per axis; labels are renumbered in route order, so place 0
-    holds the first frame and a new place number appears the first time the
-    sequence enters that place.
-
-    Args:
-      coords: float (n, 2) positions along the sequence (e.g. northing, easting).
-      k: number of places, ``1 <= k <= n``.
-      seed: k-means random state.
-
-    Returns:
-      int64 (n,) place label per frame.
-    """
-    coords = np.asarray(coords, dtype=np.float64)
-    if coords.ndim != 2 or coords.shape[1] != 2 or len(coords) == 0:
-        raise InputError(f"coords must have shape (n, 2), got {coords.shape}")
-    bad = np.flatnonzero(~np.isfinite(coords).all(axis=1))
-    if bad.size:
-        raise InputError(f"coords row {bad[0]} is not finite: {coords[bad[0]]}")
-    check_int(
-        k,
-        "k",
-        1,
-        len(coords),
-        msg=f"k must be an integer in [1, {len(coords)}], got {k}",
-    )
-    std = coords.std(axis=0)
-    z = (coords - coords.mean(axis=0)) / np.where(std > 0, std, 1.0)
-    from sklearn.cluster import KMeans  # here: importing it costs a query 0.6 s
-
-    kmeans = KMeans(n_clusters=int(k), n_init=10, random_state=seed)
-    with threadpool_limits(limits=1):  # small 2-D problem: threads only add waiting
-        labels = kmeans.fit_predict(z)
-    _, first = np.unique(labels, return_index=True)
-    rank = np.empty(int(labels.max()) + 1, np.int64)
-    rank[labels[np.sort(first)]] = np.arange(len(first))
-    return rank[labels]

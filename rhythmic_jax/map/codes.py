@@ -68,10 +68,16 @@ def check_bits(bits, d: int, name: str = "codes", n: int | None = None) -> int:
     ``n`` frames ITQ is fitted on, at most ``n`` (their PCA has no more axes:
     faiss would stop in ``PCAMatrix::prepare_Ab``); else one line."""
     ok = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
-    if not ok or not 1 <= bits <= d:
+    if not ok or bits < 1:
         raise InputError(
             f"{name} must be a number of bits in [1, d={d}] (ITQ projects the "
             f"{d}-d descriptors to that many dimensions), got {bits!r}"
+        )
+    if bits > d:
+        raise InputError(
+            f"{{opt:{name}}} {bits}: at most d={d} bits (a number of bits in "
+            f"[1, d={d}]: ITQ projects the {d}-d frames the map is fitted on, "
+            "embedded where it has an embedding, to that many dimensions)"
         )
     if n is not None and bits > n:
         raise InputError(

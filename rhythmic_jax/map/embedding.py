@@ -19,7 +19,7 @@ h hidden units of the residual layer.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -37,6 +37,7 @@ __all__ = [
     "embedding_descriptor",
     "embedding_from_arrays",
     "fit_invariant",
+    "fusion_of",
     "load_embedding",
     "save_embedding",
 ]
@@ -241,3 +242,27 @@ def load_embedding(path) -> tuple[Embedding, dict]:
             f"{path}: not an embedding (write one with rhythmic-jax learn)"
         )
     return emb, meta
+
+
+def fusion_of(option: float | None, codes, meta: dict | None) -> dict[str, Any]:
+    """The map's share of the fused score and where it comes from: ``option``
+    when given, else the weight an embedding's ``meta`` learned for ``codes``,
+    else 0.5. Returns ``{"weight": w, "from": "option" | "embedding" |
+    "default", "note": why}``."""
+    if option is not None:
+        return {"weight": option, "from": "option", "note": "given with --fusion"}
+    learned = (meta or {}).get("fusion")
+    if meta is None:
+        note = "no embedding"
+    elif not learned:
+        note = "the embedding holds no learned weight (saved before learn kept one)"
+    elif learned.get("codes") != codes:
+        note = f"the embedding's weight was learned for {learned.get('codes')} codes"
+    else:
+        return {
+            "weight": float(learned["weight"]),
+            "from": "embedding",
+            "note": f"learned with the embedding for {codes} codes: R@1 "
+            f"{learned['recall']:.3f} on its {learned['places']} training places",
+        }
+    return {"weight": 0.5, "from": "default", "note": note}

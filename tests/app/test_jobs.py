@@ -126,14 +126,16 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
         _before_reading(huge)
     np.save(tmp_path / "small.npy", np.zeros((100, 8), np.float32))
     two = FitJob((str(tmp_path / "small.npy"),) * 2, out)
-    planned = _before_reading(two)[3]  # fits
+    planned = _before_reading(two).plan  # fits
     assert (planned.n, planned.d) == (100, 8)
+    np.save(tmp_path / "xy.npy", np.arange(200.0).reshape(100, 2))
+    located = (str(tmp_path / "xy.npy"),) * 2
     for left in (  # to the read: absent, projected, grouped into places
         FitJob((str(tmp_path / "absent.npy"),), out),
         FitJob(two.sources, out, pca=4),
-        FitJob(two.sources, out, positions=("names",), places=5),
+        FitJob(two.sources, out, positions=located, places=5),
     ):
-        assert _before_reading(left)[3] is None
+        assert _before_reading(left).plan is None
 
 
 @pytest.mark.parametrize("kind", ["npy", "images"])
@@ -194,12 +196,12 @@ def test_the_descriptor_is_resolved_once_and_carried_to_the_augmented_fit(
 
     seen = {}
 
-    def augmented(model, images, x, descriptor, config, labels, **kw):
+    def refining(images, x, labels, descriptor, config, **kw):
         seen["descriptor"] = descriptor.descriptor
-        return model.fit(x, labels, progress=False)
+        return None  # the plain fit's
 
     monkeypatch.setattr(features, "get_descriptor", counted)
-    monkeypatch.setattr(stream, "fit_map_augmented", augmented)
+    monkeypatch.setattr(stream, "refining", refining)
     job = FitJob(tuple(sources), str(tmp_path / "m.map"), augment="all")
     model = jobs.fit(job, progress=False)
     assert len(resolved) == 1 and seen["descriptor"] is resolved[0]

@@ -18,14 +18,9 @@ from rhythmic_jax import RhythmicMap
 from rhythmic_jax.app.cli import main
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.eval.ground_truth import from_lists, from_positions
-from rhythmic_jax.eval.ground_truth_files import (
-    latlon_to_metres,
-    load_ground_truth,
-    positions_from_names,
-    read_positions,
-    safe_object_npy,
-)
+from rhythmic_jax.eval.ground_truth_files import load_ground_truth, safe_object_npy
 from rhythmic_jax.eval.report import evaluate_map
+from rhythmic_jax.fitting.places import read_positions
 from rhythmic_jax.frames.sources import load_query_source
 
 RNG = np.random.default_rng(0)
@@ -133,35 +128,6 @@ def test_a_malicious_ground_truth_runs_no_code(vpr_bench, tmp_path, capsys):
 class _Eval:
     def __reduce__(self):
         return (eval, ("1",))
-
-
-def test_positions_in_metres_and_degrees(tmp_path):
-    ref = np.c_[np.arange(40) * 10.0, np.zeros(40)] + 500_000
-    (tmp_path / "ref.csv").write_text(
-        "timestamp,northing,easting\n"
-        + "".join(f"{i},{n},{e}\n" for i, (e, n) in enumerate(ref))
-    )
-    xy, unit = read_positions(tmp_path / "ref.csv")
-    np.testing.assert_array_equal(xy, ref) and unit == "metres"
-    np.save(tmp_path / "q.npy", ref[:5] + [3.0, 4.0])
-    assert read_positions(tmp_path / "q.npy")[1] == "metres"
-    # degrees: the local projection keeps great-circle distances within 0.1 %
-    ll = np.array([[40.44, -79.99]]) + RNG.uniform(-0.03, 0.03, (50, 2))
-    m = latlon_to_metres(ll)
-    lat, lon = np.radians(ll).T
-    i, j = np.triu_indices(50, 1)
-    hav = 2 * 6_371_008.8 * np.arcsin(np.sqrt(
-        np.sin((lat[j] - lat[i]) / 2) ** 2
-        + np.cos(lat[i]) * np.cos(lat[j]) * np.sin((lon[j] - lon[i]) / 2) ** 2
-    ))  # fmt: skip
-    np.testing.assert_allclose(np.linalg.norm(m[i] - m[j], axis=1), hav, rtol=1e-3)
-    (tmp_path / "ll.csv").write_text("lat,lon\n" + "".join(f"{a},{b}\n" for a, b in ll))
-    assert read_positions(tmp_path / "ll.csv")[1] == "degrees"
-    names = [f"@{e:.2f}@{n:.2f}@17@T@040.4@-079.9@pano{k}@@@@@201411@.jpg"
-             for k, (e, n) in enumerate(ref[:3])]  # fmt: skip
-    np.testing.assert_allclose(positions_from_names(names), ref[:3])
-    with pytest.raises(InputError, match="no @easting@northing@"):
-        positions_from_names(["image0.jpg"])
 
 
 def test_evaluate_with_positions_names_and_places(tmp_path, capsys):

@@ -64,9 +64,7 @@ def test_plan_refuses_what_the_fit_refused_before():
     with pytest.raises(InputError) as now:
         plan(MapConfig(r=1), 100, 8)
     assert str(now.value) == str(before.value)
-    with pytest.raises(
-        InputError, match=r"codes must be a number of bits in \[1, d=8\]"
-    ):
+    with pytest.raises(InputError, match=r"codes 9: at most d=8 bits \(a number"):
         plan(MapConfig(codes=9), 100, 8)
     with pytest.raises(InputError, match="codes fuse with the place scores"):
         plan(MapConfig(codes="int8", layout="mixed"), 100, 8)

@@ -29,8 +29,8 @@ FITS = {
     "lbfgs": lambda x, path: fit(x, MapConfig(solver="lbfgs")),
     "estimator": lambda x, path: RhythmicMap(scale="refuse").fit(x, progress=False),
     "stream": lambda x, path: fit_map_files(
-        RhythmicMap(scale="refuse"), [str(path)], stream=True, progress=False
-    ),
+        MapConfig(), [str(path)], stream=True, progress=False
+    )[1],
 }
 
 
@@ -81,8 +81,7 @@ def test_the_same_values_over_255_fit(how, tmp_path):
 def test_a_uint8_file_is_refused_as_its_float_values(tmp_path):
     np.save(tmp_path / "u8.npy", EIGHT_BIT.astype(np.uint8))
     with pytest.raises(InputError, match=ADVICE):
-        model = RhythmicMap(scale="refuse")
-        fit_map_files(model, [str(tmp_path / "u8.npy")], progress=False)
+        fit_map_files(MapConfig(), [str(tmp_path / "u8.npy")], progress=False)
 
 
 def test_features_just_inside_the_limit_reach_liblinears_optimum(liblinear_objectives):

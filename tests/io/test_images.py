@@ -7,14 +7,9 @@ import pytest
 import skimage.io
 import skimage.transform
 import skimage.util
-from sklearn.cluster import KMeans
-from sklearn.metrics import adjusted_rand_score
-from sklearn.preprocessing import StandardScaler
-from threadpoolctl import threadpool_limits
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.images import (
-    gps_places,
     load_route,
     load_traversal,
     natural_key,
@@ -203,40 +198,3 @@ def test_nordland_both_seasons(nordland_root):
     assert summer.names[0] == "images-00010.png"
     assert summer.names[-1] == "images-35760.png"
     assert not np.array_equal(summer.images[100], winter.images[100])
-
-
-# ------------------------------------------------------------------- GPS places
-
-
-def _loop(n_per_lap: int, laps: int, noise: float) -> np.ndarray:
-    """A 2 km x 200 m oval driven ``laps`` times (metres, UTM-like offsets)."""
-    t = np.tile(np.linspace(0, 2 * np.pi, n_per_lap, endpoint=False), laps)
-    xy = np.stack([5e5 + 1000 * np.cos(t), 5.7e6 + 100 * np.sin(t)], axis=1)
-    return xy + noise * RNG.standard_normal(xy.shape)
-
-
-def test_gps_places_route_order_and_laps():
-    coords = _loop(200, 2, noise=2.0)
-    labels = gps_places(coords, k=16, seed=0)
-    assert labels.shape == (400,) and set(labels) == set(range(16))
-    _, first = np.unique(labels, return_index=True)
-    np.testing.assert_array_equal(labels[np.sort(first)], np.arange(16))
-    lap1, lap2 = labels[:200], labels[200:]
-    assert lap1[0] == 0 and np.mean(lap1 == lap2) > 0.95  # same place, same label
-    changes = np.count_nonzero(np.diff(lap1))
-    assert changes <= 16 + 4  # contiguous arcs along the oval, few boundary flips
-    z = StandardScaler().fit_transform(coords)
-    with threadpool_limits(limits=1):
-        ref = KMeans(n_clusters=16, n_init=10, random_state=0).fit_predict(z)
-    assert adjusted_rand_score(labels, ref) == 1.0
-
-
-def test_gps_places_errors():
-    with pytest.raises(InputError, match=r"\(n, 2\)"):
-        gps_places(np.zeros((5, 3)), 2)
-    bad = _loop(10, 1, 0.0)
-    bad[4, 1] = np.nan
-    with pytest.raises(InputError, match="row 4"):
-        gps_places(bad, 2)
-    with pytest.raises(InputError, match="k must be"):
-        gps_places(_loop(10, 1, 0.0), 11)

@@ -273,7 +273,7 @@ def test_every_output_on_a_read_only_place_is_refused_before_any_work(
 def test_fit_out_that_fails_to_write_is_one_line(route, tmp_path, monkeypatch, capsys):
     out = tmp_path / "x.map"
     err = OSError(errno.EROFS, os.strerror(errno.EROFS), str(tmp_path / ".x.map.t"))
-    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.MapEstimator.save", err)
+    _fail(monkeypatch, "rhythmic_jax.map.map_file.save", err)
     argv = ["fit", str(route / "ref.npy"), "--out", str(out), "--no-progress"]
     assert main(argv) == 2
     _one_line(capsys, f"--out {out}: could not write it (Read-only file system)")
@@ -319,7 +319,7 @@ def test_checkpoint_that_fails_to_write_is_one_line(
     assert main(argv) == 2
     _one_line(capsys, f"--checkpoint {ckpt}: could not write it (No space left")
 
-    _fail(monkeypatch, "rhythmic_jax.augment.stream.fit_map_augmented",
+    _fail(monkeypatch, "rhythmic_jax.augment.stream.fit_augmented",
           _enospc(ckpt / "3" / "state"))  # fmt: skip
     argv = ["fit", str(route / "frames"), "--out", str(tmp_path / "x.map"),
             "--augment", "hflip", "--checkpoint", str(ckpt),

@@ -30,7 +30,8 @@ from skimage.io import imsave
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.app.cli import main
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval.ground_truth_files import load_ground_truth, read_positions
+from rhythmic_jax.eval.ground_truth_files import load_ground_truth
+from rhythmic_jax.fitting.places import read_positions
 from rhythmic_jax.frames.features import Hog
 from rhythmic_jax.io import reader
 from rhythmic_jax.io.vpr_files import read_hloc_descriptors

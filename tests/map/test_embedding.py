@@ -135,7 +135,7 @@ def test_invariant_embedding_is_finite_with_few_training_frames():
 def test_fusion_weight_of_an_option_an_embedding_or_the_default():
     """--fusion wins; else the weight the embedding learned for these codes; an
     embedding saved before (no weight) or for other codes: 0.5, said why."""
-    from rhythmic_jax.app.fusion import fusion_of
+    from rhythmic_jax.map.embedding import fusion_of
 
     learned = {"descriptor": "features", "fusion": {
         "weight": 0.15, "codes": "int8", "recall": 0.9, "places": 120}}  # fmt: skip
@@ -154,10 +154,10 @@ def test_fusion_weight_of_an_option_an_embedding_or_the_default():
 def test_an_embedding_saved_without_a_weight_loads_and_gives_its_descriptor(
     tmp_path,
 ):
-    from rhythmic_jax.app.fusion import fusion_of
     from rhythmic_jax.app.jobs import _before_reading, info
     from rhythmic_jax.app.render import info_lines
     from rhythmic_jax.app.specs import FitJob, Reading
+    from rhythmic_jax.map.embedding import fusion_of
 
     a, b = two_conditions(n=120)
     emb = fit_invariant([a, b], k=8, p=16)
@@ -170,7 +170,7 @@ def test_an_embedding_saved_without_a_weight_loads_and_gives_its_descriptor(
 
     def reading(sources, embedding=str(tmp_path / "e"), **kw):
         """The reading a fit of ``sources`` settles before reading them."""
-        return _before_reading(FitJob(sources, out, embedding=embedding, **kw))[2]
+        return _before_reading(FitJob(sources, out, embedding=embedding, **kw)).reading
 
     taken = reading((folder,))
     assert taken.descriptor == "vgg16_fc7" and taken.weights == "/w/vgg.pth"
