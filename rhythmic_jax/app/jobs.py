@@ -342,7 +342,7 @@ def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
     from rhythmic_jax.app import query_results as qr
 
     model, feats, pred = _queried(job, progress)
-    result = qr.per_query(model, feats.x, pred, decode=job.decode,
+    result = qr.per_query(model, feats.x, pred, method=job.decode,
                           sequence=job.sequence, top=job.top)  # fmt: skip
     rows = qr.records(
         result, qr.source_names(job.source, job.reading.select), qr.place_names(model)

@@ -86,7 +86,7 @@ def ranked_scores(model, x: np.ndarray, sequence: int | None = None):
     return np.asarray(total), f"fused {what}"
 
 
-def per_query(model, x, pred, *, decode=None, sequence=None, top: int = 5):
+def per_query(model, x, pred, *, method=None, sequence=None, top: int = 5):
     """Per query of x (b, d) with predictions ``pred`` (b,) (-1: no match):
     ``{"place", "score" (the chosen place's ranked score, NaN for no match),
     "confidence" (the decode's), "top" (b, K) places, "top_scores" (b, K),
@@ -98,9 +98,9 @@ def per_query(model, x, pred, *, decode=None, sequence=None, top: int = 5):
     if sequence is not None and sequence > 1:
         from rhythmic_jax.decoding.queries import decode_sequence
 
-        conf = np.asarray(decode_sequence(model.value, x, sequence, how=decode)[1])
+        conf = np.asarray(decode_sequence(model.value, x, sequence, method=method)[1])
     else:
-        conf = np.asarray(model.decode(x, decode).confidence)
+        conf = np.asarray(model.decode(x, method).confidence)
     pred = np.asarray(pred, np.int64)
     rows = np.arange(len(pred))
     score = np.where(pred >= 0, total[rows, np.maximum(pred, 0)], np.nan)

@@ -158,13 +158,11 @@ def decode_sequence(
     speeds: Sequence[float] = (1.0,),
     method: str | None = None,
     top: int | None = None,
-    *,
-    how: str | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """``(index, confidence)`` (T,) of consecutive query frames q (T, d), each
     decoded with the ``length - 1`` before it at ``speeds`` by ``method``
-    (``how``: its earlier name) (:mod:`rhythmic_jax.decoding.sequence`)."""
-    method, top = method or how or m.config.decode, top or m.config.top
+    (:mod:`rhythmic_jax.decoding.sequence`)."""
+    method, top = method or m.config.decode, top or m.config.top
     x = queries(m, q)
     return by_method(method, lambda h: _sequence(m, x, length, speeds, h, top))
 
