@@ -1,21 +1,19 @@
 """An option declared once: a field of a job's frozen dataclass, with metadata.
 
-A field is an option when its metadata holds ``help`` (:func:`option`; None: an
-option offered only where a job words it, by the ``helps`` of its part). Its
-default is the field's (none: a positional, or an option ``required``); a field
-defaulting to False is a flag. The metadata holds what ``add_argument`` takes
-(:data:`ARGPARSE`) and: ``domain``, the :class:`rhythmic_jax.validate.Domain` a
-number is parsed with, stated in ``--help`` and checked when a job is made;
-``dest``, the option's name where it is not the field's; ``positional``; and
-``path`` (``"reads"`` or ``"writes"``), for
-:func:`rhythmic_jax.app.specs.check_paths`. A field holding a part of the
-settings (:func:`part`) offers the part's options: ``group`` titles them in
-``--help``, and ``make`` makes the value from them (default: the part's class).
+A field is an option when its metadata holds ``help`` (:func:`option`; None: one
+a job offers only where it words it, by its part's ``helps``). Its default is
+the field's (none: a positional, or a ``required`` option); one of False is a
+flag. The metadata holds what ``add_argument`` takes (:data:`ARGPARSE`) and:
+``domain``, the :class:`rhythmic_jax.validate.Domain` a number is parsed with,
+stated in ``--help`` and checked when a job is made; ``dest``, the option's name
+where it is not the field's; ``positional``; ``path``: what the job does with
+it (``reads``, ``writes``, ``frames``: reads frames from it;
+:func:`rhythmic_jax.app.specs.check_paths`). A field holding a part of the
+settings (:func:`part`) offers the part's options, titled ``group`` in ``--help``
+and made into its value by ``make`` (default: the part's class).
 
-The parser of a command is rendered from its job's class (:func:`add_options`)
-and the job made from the parsed options (:func:`make`), so an option's flag,
-help, default, choices and domain are written in one place. Importing this
-module imports no numpy, JAX or torch.
+A command's parser is rendered from its job's class (:func:`add_options`) and
+the job made from what it parsed (:func:`make`). Imports no numpy, JAX or torch.
 """
 
 from __future__ import annotations

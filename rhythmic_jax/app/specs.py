@@ -139,7 +139,7 @@ class Checked:
     @property
     def images(self) -> bool:
         """Whether a source of the job may be images (not only .npy descriptors)."""
-        return not all(str(s).lower().endswith(".npy") for s in self.read_sources)
+        return not all(p.lower().endswith(".npy") for _, p in _paths(self, "frames"))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -237,11 +237,6 @@ def _scaled(job) -> bool:
     return bool(s.asked or s.shards or any(Path(p).is_dir() for p in job.sources))
 
 
-FIT_SELECT = ("only the images of hloc .h5 sources whose names start with PREFIX "
-              "(db/; the map keeps it for brute force)")  # fmt: skip
-CODES = {"metavar": "BITS|int8", "domain": Domain(True, 1, words=("int8",))}
-
-
 @dataclass(frozen=True)
 class FitJob(Job):
     """A map to fit from reference sources and write to ``out``:
@@ -253,7 +248,7 @@ class FitJob(Job):
     """
 
     sources: tuple[str, ...] = option("descriptor .npy, image folder(s), image",
-                                      positional=True, nargs="+", path="reads")
+                                      positional=True, nargs="+", path="frames")
     out: str = option("map folder to write", required=True, path="writes")
     config: MapConfig = part(MapConfig)
     pca: int | None = option("project descriptors to K dims (saved)",
@@ -276,7 +271,9 @@ class FitJob(Job):
         "the map's share of the fused score with --codes (default: the weight the "
         "--embedding learned for these codes, else 0.5)",
         domain=number_option(0, 1, closed=True))
-    reading: Reading = part(Reading, helps={"select": FIT_SELECT})
+    reading: Reading = part(Reading, helps={"select": "only the images of hloc .h5 "
+        "sources whose names start with PREFIX (db/; the map keeps it for brute "
+        "force)"})  # fmt: skip
     positions: tuple[str, ...] | None = option(
         "per-frame positions of the sources, one CSV/.npy per source "
         "(easting,northing metres or latitude,longitude), or 'names' for "
@@ -329,9 +326,6 @@ class FitJob(Job):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return self.sources
 
     @property
     def checkpoint_folder(self) -> Path:
@@ -375,12 +369,13 @@ class LearnJob(Job):
     learned for (:func:`rhythmic_jax.app.fusion.learn_fusion`; None: none)."""
 
     sources: tuple[str, ...] = option("one source per traversal (same places)",
-                                      positional=True, nargs="+", path="reads")
+                                      positional=True, nargs="+", path="frames")
     out: str = option("embedding folder to write", required=True, path="writes")
     config: Any = part(LearnSettings, None, make=learn_config)
     codes: int | str | None = option(
         "codes a map's fusion weight is learned for on these traversals and saved "
-        "with the embedding for fit --embedding", "int8", **CODES)
+        "with the embedding for fit --embedding", "int8", metavar="BITS|int8",
+        domain=Domain(True, 1, words=("int8",)))
     reading: Reading = part(Reading)
 
     RULES = (
@@ -391,9 +386,6 @@ class LearnJob(Job):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return self.sources
 
 
 QUERIES = "query descriptors .npy, image folder or image"
@@ -414,7 +406,7 @@ class QueryJob(Job):
     takes them (:func:`rhythmic_jax.app.jobs.query_results`: ``top``)."""
 
     map: str = option("map folder", positional=True, path="reads")
-    source: str = option(QUERIES, positional=True, path="reads")
+    source: str = option(QUERIES, positional=True, path="frames")
     decode: str | None = option(DECODE, choices=DECODERS)
     sequence: int | None = option("sequence length L (at most the number of "
                                   "queries; default off: single frames)",
@@ -443,9 +435,6 @@ class QueryJob(Job):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return (self.source,)
 
 
 GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds; "
@@ -462,10 +451,10 @@ class EvaluateJob(Job):
     :func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth` reads it."""
 
     map: str = option("map folder", positional=True, path="reads")
-    source: str = option(QUERIES, positional=True, path="reads")
+    source: str = option(QUERIES, positional=True, path="frames")
     reference: str | None = option(
         "reference source for the brute-force line (default: the sources the map "
-        "was fitted on, when they are still there)", path="reads")
+        "was fitted on, when they are still there)", path="frames")
     tolerance: int = option("frame tolerance (default 0)", 0, domain=int_option(0))
     decode: str | None = option(DECODE, choices=DECODERS)
     sequence: int | None = option(
@@ -504,9 +493,6 @@ class EvaluateJob(Job):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return (self.source,) + ((self.reference,) if self.reference else ())
 
 
 @dataclass(frozen=True)
@@ -515,16 +501,13 @@ class DescribeJob(Job):
     (:func:`rhythmic_jax.frames.route_descriptors.describe_frames`)."""
 
     source: str = option("image folder (frames sorted by name), or one large image "
-                         "with --tile", positional=True, path="reads")
+                         "with --tile", positional=True, path="frames")
     out: str = option("descriptor file to write (.npy, float32, one row per frame)",
                       required=True, path="writes")
     reading: Reading = part(Reading)
 
     RULES = (READS[0], IGNORED[0])
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return (self.source,)
 
 
 @dataclass(frozen=True)
@@ -589,12 +572,13 @@ ROLES = {"map": "the map", "source": "the queries", "sources": "the source",
 NAMES = ("names",)  # --positions / --ground-truth names: no file
 
 
-def _paths(job, how: str) -> list[tuple[str, str]]:
-    """(option, path) of every path the job ``how`` (reads, writes)."""
+def _paths(job, *how: str) -> list[tuple[str, str]]:
+    """(option, path) of every path the job ``how`` (reads, writes; frames: reads
+    frames from)."""
     found = []
     for dest, (value, _, meta) in settings(job).items():
         for v in value if isinstance(value, tuple) else [value]:
-            if meta.get("path") == how and v is not None and v not in NAMES:
+            if meta.get("path") in how and v is not None and v not in NAMES:
                 found.append((dest, str(v)))
     return found
 
@@ -613,7 +597,7 @@ def check_paths(job) -> str | None:
     """The line refusing a path the job would write over something it reads
     (or writes twice), compared resolved (through links and ``..``), or None:
     no path written may be, hold or lie inside another the job reads or writes."""
-    writes, reads = _paths(job, "writes"), _paths(job, "reads")
+    writes, reads = _paths(job, "writes"), _paths(job, "reads", "frames")
     if isinstance(job, FitJob) and job.checkpoint is None:
         writes.append(("checkpoint", str(job.out) + ".ckpt"))  # its default
     for i, (dest, path) in enumerate(writes):

@@ -403,7 +403,7 @@ def test_every_rule_and_path_names_options_of_its_commands():
         for rule in COMMANDS[name][0].RULES:
             assert set(rule.options) <= set(declared), (name, rule.options)
         for dest, f in declared.items():
-            assert f.metadata.get("path") in (None, "reads", "writes"), dest
+            assert f.metadata.get("path") in (None, "reads", "writes", "frames"), dest
 
 
 @pytest.mark.parametrize("command", ["query", "info"])
