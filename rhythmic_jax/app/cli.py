@@ -145,7 +145,7 @@ def _parser() -> argparse.ArgumentParser:
                         version=f"%(prog)s {__version__}")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     parser.commands = {}
-    for name, (job, about, _) in COMMANDS.items():
+    for name, (job, about) in JOBS.items():
         parser.commands[name] = sub.add_parser(
             name, help=about, description=about,
             epilog="examples:" + textwrap.dedent(EXAMPLES[name]),
@@ -228,25 +228,27 @@ def _frontier(args, job, progress: bool) -> None:
     frontier(args)  # prints its table itself, before its files are written
 
 
-# command -> (its job, what it does, what runs the job and returns the text it
-# prints: None, nothing)
-COMMANDS = {
+# command -> what runs its job and returns the text it prints (None: nothing)
+COMMANDS = {"fit": _fit, "learn": _learn, "query": _query, "info": _info,
+            "evaluate": _evaluate, "demo": _demo, "frontier": _frontier,
+            "describe": _describe}  # fmt: skip
+# command -> (its job, whose fields are its options; what it does)
+JOBS = {
     "fit": (specs.FitJob, "fit a map on reference frames (.npy, image folders, or "
-            "--tile)", _fit),
+            "--tile)"),
     "learn": (specs.LearnJob, "learn an embedding from two or more traversals of "
-              "a training route", _learn),
-    "query": (specs.QueryJob, "localise queries against a map (-1 = no match)",
-              _query),
+              "a training route"),
+    "query": (specs.QueryJob, "localise queries against a map (-1 = no match)"),
     "info": (specs.InfoJob, "describe a map (n, d, periods, storage, candidate "
-             "errors) or an embedding", _info),
+             "errors) or an embedding"),
     "evaluate": (specs.EvaluateJob, "accuracy, recall@K, storage and latency "
-                 "beside brute force", _evaluate),
+                 "beside brute force"),
     "demo": (specs.DemoJob, "fit and query a map on built-in photographs; write a "
-             "report", _demo),
+             "report"),
     "describe": (specs.DescribeJob, "describe a route's frames once into a .npy "
-                 "that fit, query, evaluate, learn and frontier read", _describe),
+                 "that fit, query, evaluate, learn and frontier read"),
     "frontier": (specs.FrontierJob, "recall against bytes per place of every "
-                 "representation", _frontier),
+                 "representation"),
 }  # fmt: skip
 
 
@@ -254,7 +256,7 @@ def _checked_job(args, prog: str):
     """The command's job, made (so checked) from the options; a refused option
     or a path written over one read ends in one usage line (InputError)."""
     given = frozenset(_given_options(args.argv, args))
-    job = make(COMMANDS[args.command][0], args, given=given)
+    job = make(JOBS[args.command][0], args, given=given)
     line = specs.check_paths(job)
     if line is not None:
         raise specs.OptionRefused(line)
@@ -344,8 +346,7 @@ def _main(args, prog: str) -> int:
 
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
-        runner = COMMANDS[args.command][2]
-        text = runner(args, job, not getattr(job, "no_progress", False))
+        text = COMMANDS[args.command](args, job, not getattr(job, "no_progress", 0))
         if text is not None:
             from rhythmic_jax.app.signals import readable
 

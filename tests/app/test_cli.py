@@ -298,12 +298,12 @@ def _commands():
 
 def _declared() -> dict[str, dict]:
     """command -> {dest: field} of the options its job declares."""
-    from rhythmic_jax.app.cli import COMMANDS
+    from rhythmic_jax.app.cli import JOBS
     from rhythmic_jax.app.options import options
 
     return {
         name: {dest: f for dest, f, _, _ in options(job)}
-        for name, (job, _, _) in COMMANDS.items()
+        for name, (job, _) in JOBS.items()
     }
 
 
@@ -375,7 +375,7 @@ def test_every_domain_refuses_in_one_line(value, capsys):
 def test_every_job_checks_its_domains():
     """A job made with a number below an option's domain refuses it in one line
     naming the setting (its part, as a map's configuration, may say it first)."""
-    from rhythmic_jax.app.cli import COMMANDS, _parser
+    from rhythmic_jax.app.cli import JOBS, _parser
     from rhythmic_jax.app.options import make
     from rhythmic_jax.errors import InputError
 
@@ -391,16 +391,16 @@ def test_every_job_checks_its_domains():
             args = _parser().parse_args([name, *argv])
             setattr(args, dest, int(domain.low) - 1)
             with pytest.raises(InputError, match=rf"^({{opt:)?{dest}\b.* must be"):
-                make(COMMANDS[name][0], args)
+                make(JOBS[name][0], args)
             checked.add(dest)
     assert {"r", "gap", "tile", "compile_min_frames", "memory", "top"} <= checked
 
 
 def test_every_rule_and_path_names_options_of_its_commands():
-    from rhythmic_jax.app.cli import COMMANDS
+    from rhythmic_jax.app.cli import JOBS
 
     for name, declared in _declared().items():
-        for rule in COMMANDS[name][0].RULES:
+        for rule in JOBS[name][0].RULES:
             assert set(rule.options) <= set(declared), (name, rule.options)
         for dest, f in declared.items():
             assert f.metadata.get("path") in (None, "reads", "writes", "frames"), dest
