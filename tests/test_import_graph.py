@@ -3,7 +3,7 @@
 Every ``rhythmic_jax`` import in the package, including those inside functions,
 is read from the source. Modules sit in layers, lowest first; a module may import
 only from lower layers. The command line builds its parser from light modules
-(the map's configuration, the jobs' settings and domains, the compile policy) and
+(the jobs' options, the map's configuration, the compile policy) and
 runs the jobs only when a command runs; nothing imports the public face.
 """
 
@@ -65,7 +65,8 @@ LAYERS = [
      "eval.outliers"],
     ["eval.ground_truth_files", "eval.report"],
     ["eval.ablation"],
-    ["app.native_stderr", "app.signals", "app.specs"],
+    ["app.native_stderr", "app.options", "app.signals"],
+    ["app.specs"],
     ["app.demo", "app.frontier", "app.fusion", "app.matches", "app.query_results",
      "app.render", "app.scale_jobs"],
     ["app.jobs"],
@@ -135,8 +136,8 @@ def test_imports_point_down(path):
 
 
 # no numpy, JAX, torch at load (jit_cache is imported inside a function)
-PARSER = {"app.specs", "errors", "map.config", "validate", "frames.compile_policy",
-          "version"}  # fmt: skip
+PARSER = {"app.options", "app.specs", "errors", "map.config", "validate",
+          "frames.compile_policy", "version"}  # fmt: skip
 
 
 def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():

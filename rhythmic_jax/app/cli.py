@@ -22,19 +22,12 @@ import sys
 import textwrap
 
 from rhythmic_jax.app import specs
+from rhythmic_jax.app.options import add_options, make
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames.compile_policy import (
-    BUILD_MIN_FRAMES,
-    COMPILE_MODES,
-    LOAD_MIN_FRAMES,
-    CompilePolicy,
-)
-from rhythmic_jax.map.config import DECODERS, DTYPES, SOLVERS, MapConfig
+from rhythmic_jax.frames.compile_policy import BUILD_MIN_FRAMES, LOAD_MIN_FRAMES
 from rhythmic_jax.version import __version__
 
 __all__ = ["main"]
-
-DEFAULTS = MapConfig()  # the defaults of a map's settings, as fit offers them
 
 EXAMPLES = {
     "fit": """
@@ -104,40 +97,6 @@ EXAMPLES = {
 }
 
 
-def _opt(flags: str, help_: str | None = None, **settings) -> tuple[list[str], dict]:
-    """One row of :data:`OPTIONS`: the flags (or a positional's name) and what
-    ``add_argument`` takes (``group``: the title of the option's group)."""
-    return flags.split(), {"help": help_, **settings}
-
-
-FLAG = {"action": "store_true"}
-SOURCE = (  # how the frames of image sources are read (fit, learn, query, evaluate)
-    _opt("--descriptor", "descriptor for image sources (patchnorm, hog, "
-         "efficientnet_lite0, vgg16_fc7; default patchnorm, or an --embedding's); a "
-         "map remembers its own"),
-    _opt("--weights", "weights file of vgg16_fc7 (a state dict); when querying a "
-         "map, a moved copy of the file it was fitted with (its sha256 is checked)"),
-    _opt("--tile", "tile a large image: size (queries of a tiled map: the map's own)"),
-    _opt("--stride", "tile stride, with --tile (default size/2)"),
-    _opt("--compile", "when a network descriptor (efficientnet_lite0, vgg16_fc7) "
-         "runs compiled for this CPU (see the main --help)", default="auto",
-         choices=COMPILE_MODES),
-    _opt("--compile-min-frames", "with --compile auto, compile from N frames on "
-         f"(built or not; default {LOAD_MIN_FRAMES})", metavar="N"),
-    _opt("--no-progress", "hide progress bars", **FLAG),
-)  # fmt: skip
-QUERIES = "query descriptors .npy, image folder or image"
-SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)"
-GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds; "
-             "its name only breaks a tie)")  # fmt: skip
-RECALL_OVER = ("recall@K's denominator: the queries with a right place (matched, "
-               "VPR_Tutorial's; default) or every query (all, "
-               "VPR-methods-evaluation's); the table says which")  # fmt: skip
-DECODE = ("how a query's place is read from the map's scores: hard (the best "
-          "phase of each period, joined by the Chinese remainder; -1, no match, "
-          "when they name no place of the route), soft (the place of the highest "
-          "summed phase scores), topm (soft among the m best phases of each "
-          "period); default the map's own (fit: hard)")
 COMPILE_NOTE = textwrap.fill(
     "--compile (fit, learn, query, evaluate): a network descriptor "
     "(efficientnet_lite0, vgg16_fc7) compiled for this CPU gives about 1.5-1.8x the "
@@ -151,193 +110,6 @@ COMPILE_NOTE = textwrap.fill(
     "reference). Without a C++ compiler the job runs eagerly and says so.",
     79,
 )
-SCALE = "scale (descriptor files or shard folders)"
-CODES = {"metavar": "BITS|int8"}
-
-# command -> (what it does, its options in the order --help lists them); a
-# numeric option's type and the domain --help states come from specs.DOMAINS
-OPTIONS = {
-    "fit": ("fit a map on reference frames (.npy, image folders, or --tile)", (
-        _opt("sources", "descriptor .npy, image folder(s), image", nargs="+"),
-        _opt("--select", "only the images of hloc .h5 sources whose names start "
-             "with PREFIX (db/; the map keeps it for brute force)", metavar="PREFIX"),
-        _opt("--out", "map folder to write", required=True),
-        _opt("--r", f"number of periods (default {DEFAULTS.r})", default=DEFAULTS.r),
-        _opt("--level", "period level c (c*N^(1/r))", default=DEFAULTS.level),
-        _opt("--count", f"candidate periods (default {DEFAULTS.count})",
-             default=DEFAULTS.count),
-        _opt("--c", "SVM penalty (default log N)", default=DEFAULTS.c),
-        _opt("--solver", "how the SVMs are solved (newton: Newton-CG to --gap)",
-             default=DEFAULTS.solver, choices=SOLVERS),
-        _opt("--gap", "stop the solver at this estimated relative objective gap "
-             "(default %(default)g: the optimum; 1e-3 stops within about 0.1 %%, "
-             "sooner)",
-             default=DEFAULTS.gap),
-        _opt("--layout", "how frames are labelled: periods (default, chosen by "
-             "training error), periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix "
-             "digits, most significant first: it classifies contiguous segments), "
-             "hierarchical, hierarchical:SEG or hierarchical:SEG:T1,T2 (segments of "
-             "SEG frames plus co-prime fine periods); sizes left out match the "
-             "storage of --r/--level", default=DEFAULTS.layout),
-        _opt("--json", "print the map's info as JSON", **FLAG),
-        _opt("--augment", "train over frames augmented on the fly (image sources): "
-             "comma-separated names from gaussian_blur, hflip, random_crop, elastic, "
-             "contrast, invert, grayscale, or 'all'"),
-        _opt("--epochs", "augmented epochs (default 3)"),
-        _opt("--batch-size", "augmented frames per step (default 128)"),
-        _opt("--checkpoint", "checkpoint folder of an augmented fit (default "
-             "OUT.ckpt, removed once the map is saved); a killed or interrupted fit "
-             "resumes from it when the same command runs again"),
-        _opt("--checkpoint-every", "steps between checkpoints of an augmented fit "
-             "(default 50)"),
-        _opt("--pca", "project descriptors to K dims (saved)"),
-        _opt("--dtype", "how the map stores its templates (int8: a scale per "
-             "template)", default=DEFAULTS.dtype, choices=DTYPES),
-        _opt("--processes", "start this many local processes for one fit (frames "
-             "split by rows)", default=1, group=SCALE),
-        _opt("--coordinator", "HOST:PORT of process 0", group=SCALE),
-        _opt("--num-processes", "K hosts", group=SCALE),
-        _opt("--process-id", "this one's i", group=SCALE),
-        _opt("--memory", "bytes each process may use (1GiB, 800M); frames that do "
-             "not fit are streamed from disk in blocks", group=SCALE),
-        _opt("--stream", "stream the frames from disk always", group=SCALE, **FLAG),
-        _opt("--shards", "image sources: describe them into this folder of .npy "
-             "shards as they are read, then fit from the shards", group=SCALE),
-        _opt("--positions", "per-frame positions of the sources, one CSV/.npy per "
-             "source (easting,northing metres or latitude,longitude), or 'names' for "
-             "@easting@northing@ file names; saved for evaluate --ground-truth",
-             nargs="+"),
-        _opt("--places", "group the frames into K places by k-means over "
-             "--positions (the RobotCar protocol); traversals may then differ in "
-             "length"),
-        _opt("--codes", "also store a code per place: BITS-bit ITQ (1 <= BITS <= "
-             "d), or int8 (a byte per dimension: d bytes a place, best on an "
-             "--embedding); queries fuse the map's place scores with the code "
-             "similarities", **CODES),
-        _opt("--fusion", "the map's share of the fused score with --codes "
-             "(default: the weight the --embedding learned for these codes, else "
-             "0.5)"),
-        *SOURCE,
-        _opt("--embedding", "embedding folder written by 'rhythmic-jax learn' "
-             "(saved in the map and applied to every query; its descriptor unless "
-             "--descriptor is given)"),
-    )),
-    "learn": ("learn an embedding from two or more traversals of a training route", (
-        _opt("sources", "one source per traversal (same places)", nargs="+"),
-        _opt("--out", "embedding folder to write", required=True),
-        _opt("--method", "invariant: closed form, pca: principal axes only, map: "
-             "learned through the map, infonce: InfoNCE", default="invariant",
-             choices=("invariant", "pca", "map", "infonce")),
-        _opt("--head", "the learned head of --method map or infonce: linear (k x k) "
-             "or mlp (plus a residual ReLU layer)", default="linear",
-             choices=("linear", "mlp")),
-        _opt("--k", "output dimensions", default=256),
-        _opt("--steps", "gradient steps", default=300),
-        _opt("--seed", "PRNG seed", default=0),
-        _opt("--codes", "codes a map's fusion weight is learned for on these "
-             "traversals and saved with the embedding for fit --embedding",
-             default="int8", **CODES),
-        *SOURCE,
-    )),
-    "query": ("localise queries against a map (-1 = no match)", (
-        _opt("map", "map folder"),
-        _opt("source", QUERIES),
-        _opt("--select", SELECT, metavar="PREFIX"),
-        _opt("--out", "write predictions to this .npy"),
-        _opt("--decode", DECODE, choices=DECODERS),
-        _opt("--sequence", "sequence length L (at most the number of queries; "
-             "default off: single frames)"),
-        _opt("--threshold", "reject queries whose confidence is below this "
-             "(default none: every query gets a place)"),
-        _opt("--json", "print JSON: the predictions, and per query its name (file "
-             "name, else row), the place chosen (and its name where the map's "
-             "reference names it), its score and confidence, and the --top best "
-             "places with their scores", **FLAG),
-        _opt("--top", "best places listed per query (--json, --csv)", default=5),
-        _opt("--csv", "write the results per query as CSV (query, place, "
-             "place_name, score, confidence, top1, top1_name, top1_score, ...)"),
-        *SOURCE,
-    )),
-    "info": ("describe a map (n, d, periods, storage, candidate errors) or an "
-             "embedding", (
-        _opt("map", "map folder (or embedding folder)"),
-        _opt("--json", "print JSON", **FLAG),
-    )),
-    "evaluate": ("accuracy, recall@K, storage and latency beside brute force", (
-        _opt("map", "map folder"),
-        _opt("source", QUERIES),
-        _opt("--select", SELECT + " (an .h5 reference: the map's prefix)",
-             metavar="PREFIX"),
-        _opt("--reference", "reference source for the brute-force line (default: "
-             "the sources the map was fitted on, when they are still there)"),
-        _opt("--tolerance", "frame tolerance (default 0)", default=0),
-        _opt("--decode", DECODE, choices=DECODERS),
-        _opt("--sequence", "sequence length L, at most the number of queries "
-             "(accuracy, PR and recall@K use the sequence scores; default off)"),
-        _opt("--ground-truth", "VPR-Bench ground_truth_new.npy; or QUERY_POSITIONS "
-             "(the map's from fit --positions); or REF_POSITIONS QUERY_POSITIONS; or "
-             "'names' (@easting@northing@ file names). Default: query i is place i",
-             nargs="+", metavar="FILE"),
-        _opt("--ground-truth-format", GT_FORMAT, choices=specs.GROUND_TRUTH_FORMATS),
-        _opt("--tolerance-m", "radius of a right match for positions, metres "
-             "(default %(default)g)", default=25.0),
-        _opt("--recall-over", RECALL_OVER, default="matched",
-             choices=specs.RECALL_OVER),
-        _opt("--plot", "write PR curves, recall@N (N = 1..20) and the predicted "
-             "place against query index along the route (.png)"),
-        _opt("--matches", "draw queries beside the place chosen and the right "
-             "place, 4 successes and the 4 most confident failures (.png; the "
-             "queries and the reference as image folders)"),
-        _opt("--json", "print JSON", **FLAG),
-        *SOURCE,
-    )),
-    "demo": ("fit and query a map on built-in photographs; write a report", (
-        _opt("--out", "report folder", default="rhythmic_demo"),
-        _opt("--quick", "a smaller route (CI)", **FLAG),
-        _opt("--no-progress", "hide progress bars", **FLAG),
-    )),
-    "describe": ("describe a route's frames once into a .npy that fit, query, "
-                 "evaluate, learn and frontier read", (
-        _opt("source", "image folder (frames sorted by name), or one large image "
-             "with --tile"),
-        _opt("--out", "descriptor file to write (.npy, float32, one row per frame)",
-             required=True),
-        *SOURCE,
-    )),
-    "frontier": ("recall against bytes per place of every representation", (
-        _opt("reference", "reference descriptors (.npy, .h5) or folder"),
-        _opt("queries", "query descriptors (.npy, .h5) or folder"),
-        _opt("--select", "the images of hloc .h5 files whose names start with "
-             "REF_PREFIX, QUERY_PREFIX ('' takes all): one file split in two",
-             nargs=2, metavar=("REF_PREFIX", "QUERY_PREFIX")),
-        _opt("--ground-truth", "as evaluate reads it (default: query i is place i)",
-             nargs="+", metavar="FILE"),
-        _opt("--ground-truth-format", GT_FORMAT, choices=specs.GROUND_TRUTH_FORMATS),
-        _opt("--recall-over", RECALL_OVER, default="matched",
-             choices=specs.RECALL_OVER),
-        _opt("--tolerance", "frame tolerance (default 0)", default=0),
-        _opt("--tolerance-m", "radius for positions, m (default %(default)g)",
-             default=25.0),
-        _opt("--budget", "name the best representation within this many bytes",
-             metavar="BYTES_PER_PLACE"),
-        _opt("--grid", "the representations fitted unless --maps, --bits or --pq "
-             f"say otherwise: small ({specs.grid_text('small')}: a couple of "
-             f"minutes on a few thousand places), full ({specs.grid_text('full')})",
-             default="small", choices=tuple(specs.GRIDS)),
-        _opt("--maps", "maps as r:level,... (default: the --grid's)"),
-        _opt("--bits", "ITQ code sizes, comma-separated (default: the --grid's)"),
-        _opt("--pq", "PQ sub-quantisers ('': none; default: the --grid's)"),
-        _opt("--lengths", "sequence lengths L", default="1,5,10"),
-        _opt("--descriptor", "descriptor for image folders (default patchnorm)"),
-        _opt("--cache", "folder keeping fitted maps and codes (default none)",
-             default=""),
-        _opt("--csv", "write the rows as CSV"),
-        _opt("--plot", "draw the frontier (.png)"),
-        _opt("--json", "print JSON", **FLAG),
-        _opt("--no-progress", "hide progress bars", **FLAG),
-    )),
-}  # fmt: skip
-
 
 class _Parser(argparse.ArgumentParser):
     """Usage errors in one line, like every other refusal (exit status 2)."""
@@ -355,21 +127,9 @@ def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
     return set(vars(seen))
 
 
-def _state_default(action: argparse.Action) -> None:
-    """An option's help ends with its default, unless it says it already: a
-    declared default (not None, False or '') is stated from the declaration."""
-    default = action.default
-    if not action.option_strings or default is None or default is False:
-        return
-    if default == "":
-        return
-    if "default" not in (action.help or ""):
-        action.help = f"{action.help or ''} (default %(default)s)".lstrip()
-
-
 def _parser() -> argparse.ArgumentParser:
-    """The parser rendered from :data:`OPTIONS`; every numeric option parsed
-    with its domain (:data:`rhythmic_jax.app.specs.DOMAINS`), stated in --help."""
+    """The parser: each command's options rendered from its job's fields
+    (:func:`rhythmic_jax.app.options.add_options`)."""
     parser = _Parser(
         prog="rhythmic-jax",
         description="Sub-linear-storage place recognition with rhythmic templates.",
@@ -385,68 +145,14 @@ def _parser() -> argparse.ArgumentParser:
                         version=f"%(prog)s {__version__}")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     parser.commands = {}
-    for name, (help_, options) in OPTIONS.items():
-        p = parser.commands[name] = sub.add_parser(
-            name, help=help_, description=help_,
+    for name, (job, about) in JOBS.items():
+        parser.commands[name] = sub.add_parser(
+            name, help=about, description=about,
             epilog="examples:" + textwrap.dedent(EXAMPLES[name]),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )  # fmt: skip
-        groups = {}
-        for flags, settings in options:
-            settings = dict(settings)
-            title = settings.pop("group", None)
-            if title is not None and title not in groups:
-                groups[title] = p.add_argument_group(title)
-            action = groups.get(title, p).add_argument(*flags, **settings)
-            _state_default(action)
-            domain = specs.DOMAINS.get(action.dest)
-            if domain is not None and action.option_strings:
-                action.type = domain
-                action.help = f"{action.help or ''} [{domain.text()}]".lstrip()
+        add_options(parser.commands[name], job)
     return parser
-
-
-def _take(args, names: str) -> dict:
-    """``{name: option}`` of the space-separated ``names`` (lists as tuples)."""
-    values = {name: getattr(args, name) for name in names.split()}
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-
-
-# command -> (its job's class in specs, the options that are the job's own)
-JOBS = {
-    "fit": ("FitJob", "sources out pca augment epochs batch_size checkpoint "
-            "checkpoint_every fusion positions places embedding"),
-    "learn": ("LearnJob", "sources out codes"),
-    "query": ("QueryJob", "map source decode sequence threshold out top csv json"),
-    "evaluate": ("EvaluateJob", "map source reference tolerance decode sequence "
-                 "ground_truth tolerance_m plot matches"),
-    "describe": ("DescribeJob", "source out"),
-}  # fmt: skip
-
-
-def _job(args, given: frozenset[str]):
-    """The command's job made (so checked) from its options; None for info and
-    demo, which take no settings a rule could refuse."""
-    if args.command not in JOBS:
-        return None
-    kind, own = JOBS[args.command]
-    parts = {"reading": specs.Reading(
-        compile=CompilePolicy(args.compile, args.compile_min_frames),
-        **_take(args, "descriptor weights tile stride"),
-        select=getattr(args, "select", None),
-    )}  # fmt: skip
-    if args.command == "fit":
-        parts["config"] = MapConfig(
-            **_take(args, "r level count c solver gap layout dtype codes")
-        )
-        parts["scale"] = specs.ScaleJob(**_take(
-            args, "processes coordinator num_processes process_id memory stream shards"
-        ))  # fmt: skip
-    elif args.command == "learn":
-        parts["config"] = specs.learn_config(**_take(args, "method head k steps seed"))
-    elif args.command == "evaluate":  # how the ground truth is read and counted
-        parts.update(_take(args, "ground_truth_format recall_over"))
-    return getattr(specs, kind)(**_take(args, own), **parts, given=given)
 
 
 def _fit(args, job, progress: bool) -> str | None:
@@ -464,9 +170,7 @@ def _fit(args, job, progress: bool) -> str | None:
         info["fit"] = dict(run)
         if "pass_seconds" in run:  # every pass, to the millisecond
             info["fit"]["pass_seconds"] = [round(t, 3) for t in run["pass_seconds"]]
-    return (
-        json.dumps(info, indent=2) if args.json else render.fit_summary(args.out, info)
-    )
+    return json.dumps(info, indent=2) if job.json else render.fit_summary(job.out, info)
 
 
 def _query(args, job, progress: bool) -> str:
@@ -474,38 +178,36 @@ def _query(args, job, progress: bool) -> str:
 
     from rhythmic_jax.app import jobs, render
 
-    if args.json or args.csv:
+    if job.json or job.csv:
         result = jobs.query_results(job, progress=progress)
-        if args.json:
+        if job.json:
             return json.dumps(result, indent=1)
         pred = np.asarray(result["predictions"])
-        return render.query_summary(pred, args.out, args.csv)
+        return render.query_summary(pred, job.out, job.csv)
     pred = jobs.query(job, progress=progress)
-    if not args.out:
+    if not job.out:
         return "\n".join(str(int(v)) for v in pred)
-    return render.query_summary(pred, args.out)
+    return render.query_summary(pred, job.out)
 
 
 def _learn(args, job, progress: bool) -> str:
     from rhythmic_jax.app import jobs, render
 
-    return render.learn_summary(args.out, *jobs.learn(job, progress=progress))
+    return render.learn_summary(job.out, *jobs.learn(job, progress=progress))
 
 
 def _info(args, job, progress: bool) -> str:
     from rhythmic_jax.app import jobs, render
 
-    info = jobs.info(args.map)
-    return json.dumps(info, indent=2) if args.json else render.info_lines(info)
+    info = jobs.info(job.map)
+    return json.dumps(info, indent=2) if job.json else render.info_lines(info)
 
 
 def _evaluate(args, job, progress: bool) -> str:
     from rhythmic_jax.app import jobs, render
 
     result = jobs.evaluate(job, progress=progress)
-    return (
-        json.dumps(result, indent=2) if args.json else render.evaluate_summary(result)
-    )
+    return json.dumps(result, indent=2) if job.json else render.evaluate_summary(result)
 
 
 def _describe(args, job, progress: bool) -> str:
@@ -517,7 +219,7 @@ def _describe(args, job, progress: bool) -> str:
 def _demo(args, job, progress: bool) -> None:
     from rhythmic_jax.app.demo import run_demo
 
-    run_demo(args.out, quick=args.quick, progress=progress)
+    run_demo(job.out, quick=job.quick, progress=progress)
 
 
 def _frontier(args, job, progress: bool) -> None:
@@ -530,16 +232,35 @@ def _frontier(args, job, progress: bool) -> None:
 COMMANDS = {"fit": _fit, "learn": _learn, "query": _query, "info": _info,
             "evaluate": _evaluate, "demo": _demo, "frontier": _frontier,
             "describe": _describe}  # fmt: skip
+# command -> (its job, whose fields are its options; what it does)
+JOBS = {
+    "fit": (specs.FitJob, "fit a map on reference frames (.npy, image folders, or "
+            "--tile)"),
+    "learn": (specs.LearnJob, "learn an embedding from two or more traversals of "
+              "a training route"),
+    "query": (specs.QueryJob, "localise queries against a map (-1 = no match)"),
+    "info": (specs.InfoJob, "describe a map (n, d, periods, storage, candidate "
+             "errors) or an embedding"),
+    "evaluate": (specs.EvaluateJob, "accuracy, recall@K, storage and latency "
+                 "beside brute force"),
+    "demo": (specs.DemoJob, "fit and query a map on built-in photographs; write a "
+             "report"),
+    "describe": (specs.DescribeJob, "describe a route's frames once into a .npy "
+                 "that fit, query, evaluate, learn and frontier read"),
+    "frontier": (specs.FrontierJob, "recall against bytes per place of every "
+                 "representation"),
+}  # fmt: skip
 
 
 def _checked_job(args, prog: str):
     """The command's job, made (so checked) from the options; a refused option
     or a path written over one read ends in one usage line (InputError)."""
-    job = _job(args, frozenset(_given_options(args.argv, args)))
-    line = specs.check_paths(args)
+    given = frozenset(_given_options(args.argv, args))
+    job = make(JOBS[args.command][0], args, given=given)
+    line = specs.check_paths(job)
     if line is not None:
         raise specs.OptionRefused(line)
-    for warning in getattr(job, "warnings", ()):
+    for warning in job.warnings:
         print(f"{prog}: warning: {InputError(warning).as_flag()}", file=sys.stderr)
     return job
 
@@ -625,7 +346,7 @@ def _main(args, prog: str) -> int:
 
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
-        text = COMMANDS[args.command](args, job, not getattr(args, "no_progress", 0))
+        text = COMMANDS[args.command](args, job, not getattr(job, "no_progress", 0))
         if text is not None:
             from rhythmic_jax.app.signals import readable
 

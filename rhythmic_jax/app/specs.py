@@ -1,34 +1,37 @@
-"""What a job is: the settings of each command, and the rules they obey.
+"""What a job is: the settings of each command, its options, and their rules.
 
-A job is a frozen dataclass that checks itself when it is made, before any
-work: each numeric setting against its domain (:data:`DOMAINS`, which the
-command line also parses its options with and states in ``--help``) and every
-setting against the others (the job's ``RULES``, :class:`Rule`: an option given
-where it has no effect, or without one it needs). :func:`check_paths` refuses a
-command whose outputs would overwrite what it reads. Running a job is
-:mod:`rhythmic_jax.app.jobs`; what it prints, :mod:`rhythmic_jax.app.render`.
+A job is a frozen dataclass whose fields are the command's options
+(:mod:`rhythmic_jax.app.options`: help, default, choices, domain); the command
+line renders its parser from them and makes the job from what it parsed. A job
+checks itself when it is made, before any work: each numeric setting against
+its domain, and every setting against the others (the job's ``RULES``,
+:class:`Rule`: an option given where it has no effect, or without one it
+needs). :func:`check_paths` refuses a job whose outputs would overwrite what it
+reads. Running a job is :mod:`rhythmic_jax.app.jobs`; what it prints,
+:mod:`rhythmic_jax.app.render`.
 
 Errors name settings by parameter (``{opt:tile}``); the command line spells them
-as flags. Importing this module imports no numpy, JAX or torch: the command
-line builds its parser and its jobs from it at once.
+as flags. Importing this module imports no numpy, JAX or torch.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from rhythmic_jax.app.options import option, part, settings
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames.compile_policy import AUTO, CompilePolicy
-from rhythmic_jax.map.config import MapConfig
+from rhythmic_jax.frames.compile_policy import CompilePolicy
+from rhythmic_jax.map.config import DECODERS, MapConfig
 from rhythmic_jax.validate import Domain, int_option, is_number, number_option
 
 __all__ = [
-    "DOMAINS", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob", "GRIDS",
-    "LearnJob", "OptionRefused", "QueryJob", "Reading", "Reported", "Rule",
-    "ScaleJob", "check_paths", "learn_config", "GROUND_TRUTH_FORMATS", "RECALL_OVER",
+    "DemoJob", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob",
+    "FrontierJob", "GRIDS", "GROUND_TRUTH_FORMATS", "InfoJob", "LearnJob",
+    "OptionRefused", "QueryJob", "RECALL_OVER", "Reading", "Reported", "Rule",
+    "ScaleJob", "check_paths", "learn_config",
 ]  # fmt: skip
 
 
@@ -38,41 +41,6 @@ def memory_bytes(text: str) -> int:
     from rhythmic_jax.fitting.scale_fit import parse_bytes
 
     return parse_bytes(text)
-
-
-# Every numeric setting's domain, by name (the same in every job that has it): a
-# job checks its values with it, and the command line parses its options with it
-# and states it in --help.
-DOMAINS: dict[str, Domain] = {
-    "r": int_option(2),
-    "level": int_option(1),
-    "count": int_option(2),
-    "c": number_option(0),
-    "gap": number_option(0, 1),
-    "epochs": int_option(1),
-    "batch_size": int_option(1),
-    "checkpoint_every": int_option(1),
-    "pca": int_option(1),
-    "processes": int_option(1),
-    "num_processes": int_option(1),
-    "process_id": int_option(0),
-    "memory": Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"),
-    "places": int_option(1),
-    "codes": Domain(True, 1, words=("int8",)),
-    "fusion": number_option(0, 1, closed=True),
-    "tile": int_option(1),
-    "stride": int_option(1),
-    "compile_min_frames": int_option(0),
-    "k": int_option(1),
-    "steps": int_option(1),
-    "seed": int_option(0, 2**32 - 1),
-    "sequence": int_option(1),
-    "top": int_option(1),
-    "threshold": number_option(),
-    "tolerance": int_option(0),
-    "tolerance_m": number_option(0),
-    "budget": number_option(0),
-}
 
 
 # ground-truth formats (rhythmic_jax.eval.ground_truth_formats.FORMATS) and
@@ -134,65 +102,51 @@ class Rule:
     warn: bool = False
 
 
-PARTS = ("reading", "compile", "scale", "config")  # a job's nested settings
-RENAMED = {"mode": "compile", "min_frames": "compile_min_frames"}  # their options
-
-
-def _settings(obj) -> dict[str, tuple[Any, Any]]:
-    """``{setting: (value, default)}`` of a job and of the parts it holds
-    (:data:`PARTS`, flattened; a name of the job itself, or of an earlier part,
-    wins)."""
-    own = {}
-    for f in fields(obj):
-        if f.name not in PARTS:
-            default = f.default if f.default_factory is MISSING else f.default_factory()
-            own[RENAMED.get(f.name, f.name)] = (getattr(obj, f.name), default)
-    for part in PARTS:
-        value = getattr(obj, part, None)
-        if is_dataclass(value):
-            own = {**_settings(value), **own}
-    return own
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Checked:
     """A job that checks itself when made: every numeric setting against its
-    :data:`DOMAINS` entry, then every rule of ``RULES`` (:class:`Rule`); a
-    refused rule raises :class:`OptionRefused`, and ``warnings`` holds the
-    lines naming settings a warning rule ignores.
-
-    ``given`` (a field of each job) names settings given explicitly, as the
-    command line's options are: a rule refuses them even at their default.
+    option's domain, then every rule of ``RULES`` (:class:`Rule`); a refused
+    rule raises :class:`OptionRefused`, and ``warnings`` holds the lines naming
+    settings a warning rule ignores. ``given`` names settings given explicitly,
+    as the command line's options are: a rule refuses them even at their default.
     """
 
     RULES: ClassVar[tuple[Rule, ...]] = ()
+    given: frozenset[str] = frozenset()
     warnings: tuple[str, ...] = field(default=(), init=False, compare=False)
 
     def __post_init__(self):
-        values = _settings(self)
-        for name, (value, _) in values.items():
-            if name in DOMAINS and is_number(value):
+        values = settings(self)
+        for name, (value, _, meta) in values.items():
+            if meta.get("domain") is not None and is_number(value):
                 try:
-                    DOMAINS[name].check(value)
+                    meta["domain"].check(value)
                 except InputError as err:
                     raise InputError(f"{{opt:{name}}} {err}") from None
-        given = {k for k, (v, d) in values.items() if v != d} | set(self.given)
+        given = {k for k, (v, d, _) in values.items() if v != d} | set(self.given)
         warned: dict[str, str] = {}
         for rule in self.RULES:
             named = [o for o in rule.options if o in given]
             if not named or rule.holds(self):
                 continue
-            for option in named:
-                line = f"{{opt:{option}}} {rule.says}"
+            for option_ in named:
+                line = f"{{opt:{option_}}} {rule.says}"
                 if not rule.warn:
                     raise OptionRefused(line)
-                warned.setdefault(option, line)
+                warned.setdefault(option_, line)
         object.__setattr__(self, "warnings", tuple(warned.values()))
 
     @property
     def images(self) -> bool:
         """Whether a source of the job may be images (not only .npy descriptors)."""
-        return not all(str(s).lower().endswith(".npy") for s in self.read_sources)
+        return not all(p.lower().endswith(".npy") for _, p in _paths(self, "frames"))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Job(Checked):
+    """A job that shows its progress unless told not to."""
+
+    no_progress: bool = option("hide progress bars", False)
 
 
 READS = (
@@ -223,43 +177,43 @@ IGNORED = (
 
 @dataclass(frozen=True)
 class Reading:
-    """How frames are read from a source (see :mod:`rhythmic_jax.frames.sources`).
+    """How frames are read from a source (:mod:`rhythmic_jax.frames.sources`);
+    ``compile``: :class:`rhythmic_jax.frames.compile_policy.CompilePolicy`.
+    ``select`` (rows of hloc ``.h5`` sources) is worded by each job offering it;
+    a map remembers its prefix, for brute force over its reference."""
 
-    Attributes:
-      descriptor: descriptor of image sources (a map remembers its own).
-      weights: weights file of a descriptor that needs one; when querying a map,
-        a moved copy of the file it was fitted with (its sha256 is checked).
-      tile: cut one large image into tiles of this size.
-      stride: the tiles' stride (default ``tile // 2``).
-      compile: when a descriptor network runs compiled for this CPU
-        (:class:`rhythmic_jax.frames.compiled.CompilePolicy`; by default when the job
-        is large enough for compiling to pay).
-      select: the rows of hloc ``.h5`` sources whose image names start with it
-        (``"db/"``, ``"query/"``); a map remembers the prefix it was fitted
-        with, for brute force over its reference.
-    """
-
-    descriptor: str | None = None
-    weights: str | None = None
-    tile: int | None = None
-    stride: int | None = None
-    compile: CompilePolicy = AUTO
-    select: str | None = None
+    descriptor: str | None = option(
+        "descriptor for image sources (patchnorm, hog, efficientnet_lite0, "
+        "vgg16_fc7; default patchnorm, or an --embedding's); a map remembers its own")
+    weights: str | None = option(
+        "weights file of vgg16_fc7 (a state dict); when querying a map, a moved "
+        "copy of the file it was fitted with (its sha256 is checked)", path="reads")
+    tile: int | None = option("tile a large image: size (queries of a tiled map: "
+                              "the map's own)", domain=int_option(1))
+    stride: int | None = option("tile stride, with --tile (default size/2)",
+                                domain=int_option(1))
+    compile: CompilePolicy = part(CompilePolicy)
+    select: str | None = option(None, metavar="PREFIX")
 
 
 @dataclass(frozen=True)
 class ScaleJob:
-    """How a fit from files is spread and bounded (see ``rhythmic-jax fit
-    --help``; run by :mod:`rhythmic_jax.app.scale_jobs`); its settings are
-    checked with the fit job's (:class:`FitJob`)."""
+    """How a fit from files is spread and bounded (run by
+    :mod:`rhythmic_jax.app.scale_jobs`); checked with its :class:`FitJob`."""
 
-    processes: int = 1
-    coordinator: str | None = None
-    num_processes: int | None = None
-    process_id: int | None = None
-    memory: str | None = None
-    stream: bool = False
-    shards: str | None = None
+    processes: int = option("start this many local processes for one fit (frames "
+                            "split by rows)", 1, domain=int_option(1))
+    coordinator: str | None = option("HOST:PORT of process 0")
+    num_processes: int | None = option("K hosts", domain=int_option(1))
+    process_id: int | None = option("this one's i", domain=int_option(0))
+    memory: str | None = option(
+        "bytes each process may use (1GiB, 800M); frames that do not fit are "
+        "streamed from disk in blocks",
+        domain=Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"))
+    stream: bool = option("stream the frames from disk always", False)
+    shards: str | None = option(
+        "image sources: describe them into this folder of .npy shards as they are "
+        "read, then fit from the shards", path="writes")
 
     @property
     def asked(self) -> bool:
@@ -284,47 +238,57 @@ def _scaled(job) -> bool:
 
 
 @dataclass(frozen=True)
-class FitJob(Checked):
-    """A map to fit from reference sources and write to ``out``.
-
+class FitJob(Job):
+    """A map to fit from reference sources and write to ``out``:
     ``rhythmic-jax fit ref.npy --out route.map`` is ``fit(FitJob(("ref.npy",),
-    "route.map"))``. ``config`` is the map's :class:`rhythmic_jax.MapConfig` (its
-    descriptor is the sources', and its fusion weight ``fusion``'s); ``pca``
-    projects the descriptors to that many dimensions first. ``augment``
-    (comma-separated kornia operation names, or ``"all"``) trains over frames
-    augmented on the fly for ``epochs`` passes (None: 3) of ``batch_size``
-    frames (None: 128), checkpointed every ``checkpoint_every`` steps (None: 50)
-    in ``checkpoint`` (default ``OUT.ckpt``, removed once the map is saved; a
-    given folder is kept). ``positions`` (one CSV/.npy per source, or
-    ``("names",)`` for ``@easting@northing@`` file names) are saved in the map
-    for the ground truth of :func:`rhythmic_jax.app.jobs.evaluate`; ``places``
-    groups the frames into that many places by k-means over them (the RobotCar
-    protocol; traversals may then differ in length). ``embedding`` names a
-    folder written by :func:`rhythmic_jax.app.jobs.learn`: it is saved inside
-    the map and applied to every query (with codes, ITQ is fitted on the
-    embedded reference frames); image sources are described with its
-    descriptor unless ``reading`` names one, and ``fusion`` None takes the
-    weight it learned for the config's codes (else 0.5, the weight without
-    one). ``scale`` spreads and bounds a fit from files
-    (:mod:`rhythmic_jax.app.scale_jobs`); ``given``: see :class:`Checked`.
+    "route.map"))``. ``config``'s descriptor is the sources' and its fusion
+    weight ``fusion``'s; ``positions`` ``("names",)`` reads ``@easting@northing@``
+    file names; an ``embedding``'s descriptor reads image sources unless
+    ``reading`` names one, and with codes ITQ is fitted on the embedded frames.
     """
 
-    sources: tuple[str, ...]
-    out: str
-    config: MapConfig = field(default_factory=MapConfig)
-    pca: int | None = None
-    augment: str | None = None
-    epochs: int | None = None
-    batch_size: int | None = None
-    checkpoint: str | None = None
-    checkpoint_every: int | None = None
-    fusion: float | None = None
-    reading: Reading = Reading()
-    positions: tuple[str, ...] | None = None
-    places: int | None = None
-    embedding: str | None = None
-    scale: ScaleJob = ScaleJob()
-    given: frozenset[str] = frozenset()
+    sources: tuple[str, ...] = option("descriptor .npy, image folder(s), image",
+                                      positional=True, nargs="+", path="frames")
+    out: str = option("map folder to write", required=True, path="writes")
+    config: MapConfig = part(MapConfig)
+    pca: int | None = option("project descriptors to K dims (saved)",
+                             domain=int_option(1))
+    augment: str | None = option(
+        "train over frames augmented on the fly (image sources): comma-separated "
+        "names from gaussian_blur, hflip, random_crop, elastic, contrast, invert, "
+        "grayscale, or 'all'")
+    epochs: int | None = option("augmented epochs (default 3)", domain=int_option(1))
+    batch_size: int | None = option("augmented frames per step (default 128)",
+                                    domain=int_option(1))
+    checkpoint: str | None = option(
+        "checkpoint folder of an augmented fit (default OUT.ckpt, removed once the "
+        "map is saved); a killed or interrupted fit resumes from it when the same "
+        "command runs again", path="writes")
+    checkpoint_every: int | None = option(
+        "steps between checkpoints of an augmented fit (default 50)",
+        domain=int_option(1))
+    fusion: float | None = option(
+        "the map's share of the fused score with --codes (default: the weight the "
+        "--embedding learned for these codes, else 0.5)",
+        domain=number_option(0, 1, closed=True))
+    reading: Reading = part(Reading, helps={"select": "only the images of hloc .h5 "
+        "sources whose names start with PREFIX (db/; the map keeps it for brute "
+        "force)"})  # fmt: skip
+    positions: tuple[str, ...] | None = option(
+        "per-frame positions of the sources, one CSV/.npy per source "
+        "(easting,northing metres or latitude,longitude), or 'names' for "
+        "@easting@northing@ file names; saved for evaluate --ground-truth",
+        nargs="+", path="reads")
+    places: int | None = option(
+        "group the frames into K places by k-means over --positions (the RobotCar "
+        "protocol); traversals may then differ in length", domain=int_option(1))
+    embedding: str | None = option(
+        "embedding folder written by 'rhythmic-jax learn' (saved in the map and "
+        "applied to every query; its descriptor unless --descriptor is given)",
+        path="reads")
+    scale: ScaleJob = part(ScaleJob, group="scale (descriptor files or shard "
+                           "folders)")
+    json: bool = option("print the map's info as JSON", False)
 
     RULES = (
         *READS,
@@ -362,9 +326,6 @@ class FitJob(Checked):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return self.sources
 
     @property
     def checkpoint_folder(self) -> Path:
@@ -376,36 +337,20 @@ class FitJob(Checked):
 
 
 @dataclass(frozen=True)
-class LearnJob(Checked):
-    """An embedding to learn from two or more traversals and write to ``out``.
+class LearnSettings:
+    """The settings of :class:`rhythmic_jax.fitting.learn.LearnConfig` that
+    ``learn`` offers, with the command's defaults."""
 
-    ``rhythmic-jax learn a.npy b.npy --out route.emb`` is
-    ``learn(LearnJob(("a.npy", "b.npy"), "route.emb"))``; ``config`` is a
-    :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed). ``codes``
-    (a number of ITQ bits, or int8; None: none) are those a map's fusion weight
-    is learned for on the same traversals
-    (:func:`rhythmic_jax.app.fusion.learn_fusion`), saved with the embedding
-    for ``fit --embedding``. ``given``: see :class:`Checked`.
-    """
-
-    sources: tuple[str, ...]
-    out: str
-    config: Any = None
-    reading: Reading = Reading()
-    codes: int | str | None = "int8"
-    given: frozenset[str] = frozenset()
-
-    RULES = (
-        *READS,
-        Rule(("head", "steps", "seed"), "acts only with {opt:method} map or infonce "
-             "(the closed forms take no steps)",
-             lambda j: j.config is None or j.config.method in ("map", "infonce")),
-        *IGNORED,
-    )  # fmt: skip
-
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return self.sources
+    method: str = option(
+        "invariant: closed form, pca: principal axes only, map: learned through the "
+        "map, infonce: InfoNCE", "invariant",
+        choices=("invariant", "pca", "map", "infonce"))
+    head: str = option("the learned head of --method map or infonce: linear (k x "
+                       "k) or mlp (plus a residual ReLU layer)", "linear",
+                       choices=("linear", "mlp"))
+    k: int = option("output dimensions", 256, domain=int_option(1))
+    steps: int = option("gradient steps", 300, domain=int_option(1))
+    seed: int = option("PRNG seed", 0, domain=int_option(0, 2**32 - 1))
 
 
 def learn_config(**settings) -> Any:
@@ -416,30 +361,71 @@ def learn_config(**settings) -> Any:
 
 
 @dataclass(frozen=True)
-class QueryJob(Checked):
-    """Queries of ``source`` to localise with the map at ``map``.
+class LearnJob(Job):
+    """An embedding to learn from two or more traversals and write to ``out``:
+    ``rhythmic-jax learn a.npy b.npy --out route.emb`` is
+    ``learn(LearnJob(("a.npy", "b.npy"), "route.emb"))``; ``config``: a
+    :class:`rhythmic_jax.LearnConfig`; ``codes``: those a map's fusion weight is
+    learned for (:func:`rhythmic_jax.app.fusion.learn_fusion`; None: none)."""
 
+    sources: tuple[str, ...] = option("one source per traversal (same places)",
+                                      positional=True, nargs="+", path="frames")
+    out: str = option("embedding folder to write", required=True, path="writes")
+    config: Any = part(LearnSettings, None, make=learn_config)
+    codes: int | str | None = option(
+        "codes a map's fusion weight is learned for on these traversals and saved "
+        "with the embedding for fit --embedding", "int8", metavar="BITS|int8",
+        domain=Domain(True, 1, words=("int8",)))
+    reading: Reading = part(Reading)
+
+    RULES = (
+        *READS,
+        Rule(("head", "steps", "seed"), "acts only with {opt:method} map or infonce "
+             "(the closed forms take no steps)",
+             lambda j: j.config is None or j.config.method in ("map", "infonce")),
+        *IGNORED,
+    )  # fmt: skip
+
+
+
+QUERIES = "query descriptors .npy, image folder or image"
+SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)"
+DECODE = ("how a query's place is read from the map's scores: hard (the best "
+          "phase of each period, joined by the Chinese remainder; -1, no match, "
+          "when they name no place of the route), soft (the place of the highest "
+          "summed phase scores), topm (soft among the m best phases of each "
+          "period); default the map's own (fit: hard)")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class QueryJob(Job):
+    """Queries of ``source`` to localise with the map at ``map``:
     ``rhythmic-jax query route.map q.npy --out pred.npy`` is
-    ``query(QueryJob("route.map", "q.npy", out="pred.npy"))``: ``decode``,
+    ``query(QueryJob("route.map", "q.npy", out="pred.npy"))``; ``decode``,
     ``sequence`` and ``threshold`` as :meth:`rhythmic_jax.RhythmicMap.predict`
-    takes them; with ``out`` the predictions are also written there (``.npy``,
-    atomically; its folder must exist). ``top`` best places per query, with
-    their scores, go to ``csv`` (a file, atomically) and, with ``json``, to the
-    printed JSON (:func:`rhythmic_jax.app.jobs.query_results`). ``given``: see
-    :class:`Checked`.
-    """
+    takes them (:func:`rhythmic_jax.app.jobs.query_results`: ``top``)."""
 
-    map: str
-    source: str
-    decode: str | None = None
-    sequence: int | None = None
-    threshold: float | None = None
-    out: str | None = None
-    top: int = 5
-    csv: str | None = None
-    json: bool = False
-    reading: Reading = Reading()
-    given: frozenset[str] = frozenset()
+    map: str = option("map folder", positional=True, path="reads")
+    source: str = option(QUERIES, positional=True, path="frames")
+    decode: str | None = option(DECODE, choices=DECODERS)
+    sequence: int | None = option("sequence length L (at most the number of "
+                                  "queries; default off: single frames)",
+                                  domain=int_option(1))
+    threshold: float | None = option("reject queries whose confidence is below "
+                                     "this (default none: every query gets a "
+                                     "place)", domain=number_option())
+    out: str | None = option("write predictions to this .npy", path="writes")
+    top: int = option("best places listed per query (--json, --csv)", 5,
+                      domain=int_option(1))
+    csv: str | None = option(
+        "write the results per query as CSV (query, place, place_name, score, "
+        "confidence, top1, top1_name, top1_score, ...)", path="writes")
+    json: bool = option(
+        "print JSON: the predictions, and per query its name (file name, else "
+        "row), the place chosen (and its name where the map's reference names "
+        "it), its score and confidence, and the --top best places with their "
+        "scores", False)
+    reading: Reading = part(Reading, helps={"select": SELECT})
 
     RULES = (
         *READS,
@@ -449,43 +435,51 @@ class QueryJob(Checked):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return (self.source,)
+
+
+GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds; "
+             "its name only breaks a tie)")  # fmt: skip
+RECALL = ("recall@K's denominator: the queries with a right place (matched, "
+          "VPR_Tutorial's; default) or every query (all, VPR-methods-evaluation's); "
+          "the table says which")  # fmt: skip
 
 
 @dataclass(frozen=True)
-class EvaluateJob(Checked):
-    """The map at ``map`` judged on the queries of ``source``, beside brute force.
+class EvaluateJob(Job):
+    """The map at ``map`` judged on the queries of ``source``, beside brute force
+    (:func:`rhythmic_jax.app.jobs.evaluate`); ``ground_truth`` as
+    :func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth` reads it."""
 
-    Brute force searches ``reference`` when given, else the sources the map was
-    fitted on when they are still there. ``ground_truth`` names the right places
-    (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`; None: query
-    i is place i, give or take ``tolerance`` frames; positions match within
-    ``tolerance_m`` metres); ``ground_truth_format`` names its format (one
-    of :data:`GROUND_TRUTH_FORMATS`; None: read from what the file holds);
-    ``recall_over``: recall@K's denominator (:data:`RECALL_OVER`: the queries
-    with a right place, or all); ``plot``: a .png of PR curves, recall at
-    N = 1..20 and the predicted place along the route; ``matches``: a .png of
-    queries beside the place chosen and the right place (image folders).
-    ``decode`` and ``sequence`` as :class:`QueryJob`'s; ``given``: see
-    :class:`Checked`.
-    """
-
-    map: str
-    source: str
-    reference: str | None = None
-    tolerance: int = 0
-    decode: str | None = None
-    sequence: int | None = None
-    ground_truth: tuple[str, ...] | None = None
-    tolerance_m: float = 25.0
-    plot: str | None = None
-    matches: str | None = None
-    reading: Reading = Reading()
-    given: frozenset[str] = frozenset()
-    ground_truth_format: str | None = None
-    recall_over: str = "matched"
+    map: str = option("map folder", positional=True, path="reads")
+    source: str = option(QUERIES, positional=True, path="frames")
+    reference: str | None = option(
+        "reference source for the brute-force line (default: the sources the map "
+        "was fitted on, when they are still there)", path="frames")
+    tolerance: int = option("frame tolerance (default 0)", 0, domain=int_option(0))
+    decode: str | None = option(DECODE, choices=DECODERS)
+    sequence: int | None = option(
+        "sequence length L, at most the number of queries (accuracy, PR and "
+        "recall@K use the sequence scores; default off)", domain=int_option(1))
+    ground_truth: tuple[str, ...] | None = option(
+        "VPR-Bench ground_truth_new.npy; or QUERY_POSITIONS (the map's from fit "
+        "--positions); or REF_POSITIONS QUERY_POSITIONS; or 'names' "
+        "(@easting@northing@ file names). Default: query i is place i",
+        nargs="+", metavar="FILE", path="reads")
+    ground_truth_format: str | None = option(GT_FORMAT, choices=GROUND_TRUTH_FORMATS)
+    tolerance_m: float = option("radius of a right match for positions, metres "
+                                "(default %(default)g)", 25.0,
+                                domain=number_option(0))
+    recall_over: str = option(RECALL, "matched", choices=RECALL_OVER)
+    plot: str | None = option(
+        "write PR curves, recall@N (N = 1..20) and the predicted place against "
+        "query index along the route (.png)", path="writes")
+    matches: str | None = option(
+        "draw queries beside the place chosen and the right place, 4 successes and "
+        "the 4 most confident failures (.png; the queries and the reference as "
+        "image folders)", path="writes")
+    json: bool = option("print JSON", False)
+    reading: Reading = part(Reading, helps={
+        "select": SELECT + " (an .h5 reference: the map's prefix)"})  # fmt: skip
 
     RULES = (
         *READS,
@@ -499,79 +493,94 @@ class EvaluateJob(Checked):
         *IGNORED,
     )  # fmt: skip
 
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return (self.source,) + ((self.reference,) if self.reference else ())
 
 
 @dataclass(frozen=True)
-class DescribeJob(Checked):
-    """The frames of ``source`` described once and written to ``out`` (.npy).
+class DescribeJob(Job):
+    """The frames of ``source`` described once and written to ``out``
+    (:func:`rhythmic_jax.frames.route_descriptors.describe_frames`)."""
 
-    ``rhythmic-jax describe summer/ --descriptor efficientnet_lite0 --out
-    summer.npy`` is ``describe(DescribeJob("summer/", "summer.npy",
-    Reading(descriptor="efficientnet_lite0")))``
-    (:func:`rhythmic_jax.frames.route_descriptors.describe_frames`); ``fit``,
-    ``query``, ``evaluate`` and ``frontier`` then read the file. ``given``: see
-    :class:`Checked`.
-    """
+    source: str = option("image folder (frames sorted by name), or one large image "
+                         "with --tile", positional=True, path="frames")
+    out: str = option("descriptor file to write (.npy, float32, one row per frame)",
+                      required=True, path="writes")
+    reading: Reading = part(Reading)
 
-    source: str
-    out: str
-    reading: Reading = Reading()
-    given: frozenset[str] = frozenset()
-
-    RULES = (
-        Rule(("stride",), "needs {opt:tile} (it is the step between tiles)",
-             lambda j: j.reading.tile is not None),
-        *IGNORED[:1],
-    )  # fmt: skip
-
-    @property
-    def read_sources(self) -> tuple[str, ...]:
-        return (self.source,)
+    RULES = (READS[0], IGNORED[0])
 
 
-# What each command writes and reads, by destination: no path written may be,
-# hold or lie inside another the job reads or writes.
-WRITTEN = {
-    "fit": ("out", "checkpoint", "shards"),
-    "learn": ("out",),
-    "query": ("out", "csv"),
-    "evaluate": ("plot", "matches"),
-    "frontier": ("csv", "plot"),
-    "describe": ("out",),
-}
-READ = {
-    "fit": ("sources", "embedding", "positions", "weights"),
-    "learn": ("sources", "weights"),
-    "query": ("map", "source", "weights"),
-    "evaluate": ("map", "source", "reference", "ground_truth", "weights"),
-    "frontier": ("reference", "queries", "ground_truth"),
-    "describe": ("source", "weights"),
-}
-ROLES = {
-    "map": "the map",
-    "source": "the queries",
-    "sources": "the source",
-    "queries": "the queries",
-}
+
+@dataclass(frozen=True)
+class InfoJob(Checked):
+    """A map's or an embedding's info (:func:`rhythmic_jax.app.jobs.info`)."""
+
+    map: str = option("map folder (or embedding folder)", positional=True)
+    json: bool = option("print JSON", False)
+
+
+@dataclass(frozen=True)
+class DemoJob(Job):
+    """The demo (:func:`rhythmic_jax.app.demo.run_demo`)."""
+
+    out: str = option("report folder", "rhythmic_demo")
+    quick: bool = option("a smaller route (CI)", False)
+
+
+@dataclass(frozen=True)
+class FrontierJob(Job):
+    """The frontier's options; :func:`rhythmic_jax.app.frontier.main` reads them
+    from the parsed command line."""
+
+    reference: str = option("reference descriptors (.npy, .h5) or folder",
+                            positional=True, path="reads")
+    queries: str = option("query descriptors (.npy, .h5) or folder", positional=True,
+                          path="reads")
+    select: tuple[str, str] | None = option(
+        "the images of hloc .h5 files whose names start with REF_PREFIX, "
+        "QUERY_PREFIX ('' takes all): one file split in two",
+        nargs=2, metavar=("REF_PREFIX", "QUERY_PREFIX"))
+    ground_truth: tuple[str, ...] | None = option(
+        "as evaluate reads it (default: query i is place i)", nargs="+",
+        metavar="FILE", path="reads")
+    ground_truth_format: str | None = option(GT_FORMAT, choices=GROUND_TRUTH_FORMATS)
+    recall_over: str = option(RECALL, "matched", choices=RECALL_OVER)
+    tolerance: int = option("frame tolerance (default 0)", 0, domain=int_option(0))
+    tolerance_m: float = option("radius for positions, m (default %(default)g)", 25.0,
+                                domain=number_option(0))
+    budget: float | None = option("name the best representation within this many "
+                                  "bytes", metavar="BYTES_PER_PLACE",
+                                  domain=number_option(0))
+    grid: str = option(
+        "the representations fitted unless --maps, --bits or --pq say otherwise: "
+        f"small ({grid_text('small')}: a couple of minutes on a few thousand "
+        f"places), full ({grid_text('full')})", "small", choices=tuple(GRIDS))
+    maps: str | None = option("maps as r:level,... (default: the --grid's)")
+    bits: str | None = option("ITQ code sizes, comma-separated (default: the "
+                              "--grid's)")
+    pq: str | None = option("PQ sub-quantisers ('': none; default: the --grid's)")
+    lengths: str = option("sequence lengths L", "1,5,10")
+    descriptor: str | None = option("descriptor for image folders (default "
+                                    "patchnorm)")
+    cache: str = option("folder keeping fitted maps and codes (default none)", "")
+    csv: str | None = option("write the rows as CSV", path="writes")
+    plot: str | None = option("draw the frontier (.png)", path="writes")
+    json: bool = option("print JSON", False)
+
+
+ROLES = {"map": "the map", "source": "the queries", "sources": "the source",
+         "queries": "the queries"}  # fmt: skip
 NAMES = ("names",)  # --positions / --ground-truth names: no file
 
 
-def _flag(dest: str) -> str:
-    return ROLES.get(dest) or "--" + dest.replace("_", "-")
-
-
-def _paths(args, dests) -> list[tuple[str, str]]:
-    """(dest, path) of every path given to ``dests`` (lists flattened)."""
-    out = []
-    for dest in dests:
-        value = getattr(args, dest, None)
-        for v in value if isinstance(value, list | tuple) else [value]:
-            if v is not None and v not in NAMES:
-                out.append((dest, str(v)))
-    return out
+def _paths(job, *how: str) -> list[tuple[str, str]]:
+    """(option, path) of every path the job ``how`` (reads, writes; frames: reads
+    frames from)."""
+    found = []
+    for dest, (value, _, meta) in settings(job).items():
+        for v in value if isinstance(value, tuple) else [value]:
+            if meta.get("path") in how and v is not None and v not in NAMES:
+                found.append((dest, str(v)))
+    return found
 
 
 def _clash(w: Path, r: Path) -> str | None:
@@ -584,13 +593,13 @@ def _clash(w: Path, r: Path) -> str | None:
     return None
 
 
-def check_paths(args) -> str | None:
+def check_paths(job) -> str | None:
     """The line refusing a path the job would write over something it reads
-    (or writes twice), compared resolved (through links and ``..``), or None."""
-    writes = _paths(args, WRITTEN.get(args.command, ()))
-    if args.command == "fit" and args.checkpoint is None:
-        writes.append(("checkpoint", str(args.out) + ".ckpt"))  # its default
-    reads = _paths(args, READ.get(args.command, ()))
+    (or writes twice), compared resolved (through links and ``..``), or None:
+    no path written may be, hold or lie inside another the job reads or writes."""
+    writes, reads = _paths(job, "writes"), _paths(job, "reads", "frames")
+    if isinstance(job, FitJob) and job.checkpoint is None:
+        writes.append(("checkpoint", str(job.out) + ".ckpt"))  # its default
     for i, (dest, path) in enumerate(writes):
         w = Path(path).expanduser().resolve()
         others = [(d, p, "reads") for d, p in reads]
@@ -598,8 +607,8 @@ def check_paths(args) -> str | None:
         for other, opath, verb in others:
             how = _clash(w, Path(opath).expanduser().resolve())
             if how is not None:
-                return (
-                    f"{_flag(dest)} {path}: {how} {_flag(other)} {opath}, which "
-                    f"this job {verb}; give another path"
-                )
+                flag, oflag = (ROLES.get(d) or "--" + d.replace("_", "-")
+                               for d in (dest, other))  # fmt: skip
+                return (f"{flag} {path}: {how} {oflag} {opath}, which this job "
+                        f"{verb}; give another path")  # fmt: skip
     return None

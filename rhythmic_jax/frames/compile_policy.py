@@ -1,7 +1,8 @@
 """When a job compiles its descriptor network: :class:`CompilePolicy` and the
 frame counts from which compiling pays.
 
-The policy is what a command gives (``--compile``, ``--compile-min-frames``);
+The policy is what a command gives (``--compile``, ``--compile-min-frames``: its
+fields' metadata declare the two options, :mod:`rhythmic_jax.app.options`);
 :mod:`rhythmic_jax.frames.compiled` decides with it (its ``plan``) and runs the
 network. This module imports nothing heavy (no torch, no numpy, none of the
 compiled runner's files and processes): the command line states these numbers
@@ -10,9 +11,10 @@ in ``--help``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import int_option
 
 __all__ = [
     "AUTO",
@@ -46,8 +48,14 @@ class CompilePolicy:
         :data:`BUILD_MIN_FRAMES` when it must be built first.
     """
 
-    mode: str = "auto"
-    min_frames: int | None = None
+    mode: str = field(default="auto", metadata={
+        "help": "when a network descriptor (efficientnet_lite0, vgg16_fc7) runs "
+        "compiled for this CPU (see the main --help)",
+        "choices": COMPILE_MODES, "dest": "compile"})  # fmt: skip
+    min_frames: int | None = field(default=None, metadata={
+        "help": "with --compile auto, compile from N frames on (built or not; "
+        f"default {LOAD_MIN_FRAMES})", "metavar": "N", "domain": int_option(0),
+        "dest": "compile_min_frames"})  # fmt: skip
 
     def __post_init__(self):
         if self.mode not in COMPILE_MODES:

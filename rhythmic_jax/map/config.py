@@ -22,7 +22,13 @@ from dataclasses import dataclass, field
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.groups import parse_layout
 from rhythmic_jax.map.quantize import DTYPES
-from rhythmic_jax.validate import check_number, is_int
+from rhythmic_jax.validate import (
+    Domain,
+    check_number,
+    int_option,
+    is_int,
+    number_option,
+)
 
 __all__ = [
     "DECODERS",
@@ -109,27 +115,50 @@ class MapConfig:
     which takes each as an argument; a fitted map carries them as leaves, not
     in its compiled key (:data:`rhythmic_jax.map.pytree.DECODE_SETTINGS`).
 
-    ``rhythmic-jax fit ref.npy --out route.map`` uses the defaults; on Nordland
-    summer (3576 frames, patch-normalised 64x32) they give periods near 60 and a
-    self-query accuracy of about 0.93.
+    The metadata of the fields ``fit`` offers declare its options
+    (:mod:`rhythmic_jax.app.options`). ``rhythmic-jax fit ref.npy --out
+    route.map`` uses the defaults; on Nordland summer (3576 frames,
+    patch-normalised 64x32) they give periods near 60 and a self-query accuracy
+    of about 0.93.
     """
 
-    r: int = 2
-    level: int = 1
-    count: int = 7
-    c: float | None = None
-    solver: str = "newton"
-    gap: float = 1e-7
+    r: int = field(default=2, metadata={
+        "help": "number of periods", "domain": int_option(2)})  # fmt: skip
+    level: int = field(default=1, metadata={
+        "help": "period level c (c*N^(1/r))", "domain": int_option(1)})  # fmt: skip
+    count: int = field(default=7, metadata={
+        "help": "candidate periods", "domain": int_option(2)})  # fmt: skip
+    c: float | None = field(default=None, metadata={
+        "help": "SVM penalty (default log N)", "domain": number_option(0)})  # fmt: skip
+    solver: str = field(default="newton", metadata={
+        "help": "how the SVMs are solved (newton: Newton-CG to --gap)",
+        "choices": SOLVERS})  # fmt: skip
+    gap: float = field(default=1e-7, metadata={
+        "help": "stop the solver at this estimated relative objective gap (default "
+        "%(default)g: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
+        "domain": number_option(0, 1)})  # fmt: skip
     decode: str = "hard"
     top: int = 3
     threshold: float | None = None
     descriptor: str = "features"
     descriptor_settings: dict = field(default_factory=dict, hash=False)
-    dtype: str = "float32"
-    codes: int | str | None = None
+    dtype: str = field(default="float32", metadata={
+        "help": "how the map stores its templates (int8: a scale per template)",
+        "choices": DTYPES})  # fmt: skip
+    codes: int | str | None = field(default=None, metadata={
+        "help": "also store a code per place: BITS-bit ITQ (1 <= BITS <= d), or int8 "
+        "(a byte per dimension: d bytes a place, best on an --embedding); queries "
+        "fuse the map's place scores with the code similarities",
+        "metavar": "BITS|int8", "domain": Domain(True, 1, words=(INT8,))})  # fmt: skip
     fusion: float = 0.5
 
-    layout: str = "periods"
+    layout: str = field(default="periods", metadata={
+        "help": "how frames are labelled: periods (default, chosen by training "
+        "error), periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix digits, most "
+        "significant first: it classifies contiguous segments), hierarchical, "
+        "hierarchical:SEG or hierarchical:SEG:T1,T2 (segments of SEG frames plus "
+        "co-prime fine periods); sizes left out match the storage of --r/--level"
+    })  # fmt: skip
 
     def __post_init__(self):
         parse_layout(self.layout)

@@ -296,47 +296,72 @@ def _commands():
     return _parser().commands
 
 
-def test_every_numeric_option_states_its_domain(capsys):
-    """No option is typed outside the DOMAINS table, and --help states each
-    domain; every entry of the table names an option of some command."""
+def _declared() -> dict[str, dict]:
+    """command -> {dest: field} of the options its job declares."""
+    from rhythmic_jax.app.cli import JOBS
+    from rhythmic_jax.app.options import options
+
+    return {
+        name: {dest: f for dest, f, _, _ in options(job)}
+        for name, (job, _) in JOBS.items()
+    }
+
+
+def test_every_option_is_declared_once():
+    """Each command's parser holds exactly the options its job's fields declare,
+    each once, with the field's default, choices and domain; the command line
+    adds no option of its own but --verbose and --version."""
+    import argparse
     import ast
-    from pathlib import Path
+    from dataclasses import MISSING
 
-    from rhythmic_jax.app import cli, specs
+    from rhythmic_jax.app import cli
+    from rhythmic_jax.app.options import default_of
 
+    for name, declared in _declared().items():
+        actions = [a for a in _commands()[name]._actions
+                   if not isinstance(a, argparse._HelpAction)]  # fmt: skip
+        assert sorted(a.dest for a in actions) == sorted(declared), name
+        for action in actions:
+            f = declared[action.dest]
+            default = default_of(f)
+            assert action.default == (None if default is MISSING else default)
+            assert action.choices == f.metadata.get("choices"), action.dest
+            assert action.type is f.metadata.get("domain"), action.dest
     tree = ast.parse(Path(cli.__file__).read_text())
-    typed = [
-        node.lineno
+    added = [
+        node.args[-1].value
         for node in ast.walk(tree)
         if isinstance(node, ast.Call)
         and getattr(node.func, "attr", "") == "add_argument"
-        and any(k.arg == "type" for k in node.keywords)
     ]
-    assert typed == []  # types come from the table only
-    used = set()
-    for name, command in _commands().items():
-        for action in command._actions:
-            if action.dest in specs.DOMAINS and action.option_strings:
-                used.add(action.dest)
-                assert action.type is specs.DOMAINS[action.dest]
-                assert main([name, "--help"]) == 0
-                text = " ".join(capsys.readouterr().out.split())
-                domain = specs.DOMAINS[action.dest].text()
-                assert f"[{domain}]" in text, (name, action.dest)
-    assert used == set(specs.DOMAINS)
+    assert added == ["--verbose", "--version"]
+
+
+def test_every_numeric_option_states_its_domain(capsys):
+    """--help states the domain of every option that declares one."""
+    stated = set()
+    for name, declared in _declared().items():
+        assert main([name, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        for dest, f in declared.items():
+            domain = f.metadata.get("domain")
+            if domain is not None:
+                assert f"[{domain.text()}]" in text, (name, dest)
+                stated.add(dest)
+    assert {"r", "tile", "memory", "codes", "seed", "budget"} <= stated
 
 
 @pytest.mark.parametrize("value", ["nan", "-1e9", "1e400", "x", ""])
 def test_every_domain_refuses_in_one_line(value, capsys):
     """Each numeric option of each command refuses a value outside its domain
     where it is parsed: exit 2, one line naming the flag."""
-    from rhythmic_jax.app import specs
-
     for name, command in _commands().items():
         required = {"fit": ["a.npy", "--out", "m.map"], "learn": ["a", "b", "--out",
-                    "e.emb"], "query": ["m", "q"], "evaluate": ["m", "q"]}  # fmt: skip
+                    "e.emb"], "query": ["m", "q"], "evaluate": ["m", "q"],
+                    "describe": ["d", "--out", "d.npy"], "frontier": ["a", "b"]}
         for action in command._actions:
-            if action.dest not in specs.DOMAINS or not action.option_strings:
+            if action.type is None or not action.option_strings:
                 continue
             if value == "-1e9" and action.dest == "threshold":
                 continue  # any finite number
@@ -347,18 +372,38 @@ def test_every_domain_refuses_in_one_line(value, capsys):
             assert len(err) == 1 and f"argument {flag}: " in err[0], (argv, err)
 
 
-def test_every_rule_names_options_of_its_commands():
-    from rhythmic_jax.app import specs
+def test_every_job_checks_its_domains():
+    """A job made with a number below an option's domain refuses it in one line
+    naming the setting (its part, as a map's configuration, may say it first)."""
+    from rhythmic_jax.app.cli import JOBS, _parser
+    from rhythmic_jax.app.options import make
+    from rhythmic_jax.errors import InputError
 
-    commands = _commands()
-    made = {"fit": specs.FitJob, "learn": specs.LearnJob, "query": specs.QueryJob}
-    for name, job in {**made, "evaluate": specs.EvaluateJob}.items():
-        dests = {a.dest for a in commands[name]._actions}
-        for rule in job.RULES:
-            assert set(rule.options) <= dests, (name, rule.options)
-    for table in (specs.WRITTEN, specs.READ):
-        for name, dests in table.items():
-            assert set(dests) <= {a.dest for a in commands[name]._actions}
+    argvs = {"fit": ["a.npy", "--out", "m"], "query": ["m", "q"], "evaluate":
+             ["m", "q"], "describe": ["d", "--out", "d.npy"], "frontier": ["a", "b"],
+             "demo": []}  # fmt: skip
+    checked = set()
+    for name, argv in argvs.items():
+        for dest, f in _declared()[name].items():
+            domain = f.metadata.get("domain")
+            if domain is None or domain.low is None:
+                continue
+            args = _parser().parse_args([name, *argv])
+            setattr(args, dest, int(domain.low) - 1)
+            with pytest.raises(InputError, match=rf"^({{opt:)?{dest}\b.* must be"):
+                make(JOBS[name][0], args)
+            checked.add(dest)
+    assert {"r", "gap", "tile", "compile_min_frames", "memory", "top"} <= checked
+
+
+def test_every_rule_and_path_names_options_of_its_commands():
+    from rhythmic_jax.app.cli import JOBS
+
+    for name, declared in _declared().items():
+        for rule in JOBS[name][0].RULES:
+            assert set(rule.options) <= set(declared), (name, rule.options)
+        for dest, f in declared.items():
+            assert f.metadata.get("path") in (None, "reads", "writes", "frames"), dest
 
 
 @pytest.mark.parametrize("command", ["query", "info"])
