@@ -393,7 +393,7 @@ SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)
 DECODE = ("how a query's place is read from the map's scores: hard (the best "
           "phase of each period, joined by the Chinese remainder; -1, no match, "
           "when they name no place of the route), soft (the place of the highest "
-          "summed phase scores), topm (soft among the m best phases of each "
+          "summed phase scores), topm (soft among the top best phases of each "
           "period); default the map's own (fit: hard)")  # fmt: skip
 
 
