@@ -142,14 +142,12 @@ def markdown(report: dict) -> str:
     )  # fmt: skip
 
 
-def options(ap) -> None:
-    ap.add_argument("--features", type=Path, help="float16 (2, n, d) .npy")
-    ap.add_argument("--write-features", type=Path, help="write that .npy and stop")
-    ap.add_argument("--rows", type=int, default=None, help="first rows only")
-    ap.add_argument("--batches", type=int, nargs="*", default=[100, 300, 700])
-    ap.add_argument("--decode", type=int, default=100_000)
-    ap.add_argument("--length", type=int, default=10)
-    ap.add_argument("--fit-sizes", type=int, nargs="*", default=[20_000, 100_000])
+options = dict(
+    features=(Path, "float16 (2, n, d) .npy"),
+    write_features=(Path, "write that .npy and stop"), rows=(int, "first rows only"),
+    batches=dict(type=int, nargs="*", default=[100, 300, 700]), decode=100_000,
+    length=10, fit_sizes=dict(type=int, nargs="*", default=[20_000, 100_000]),
+)  # fmt: skip
 
 
 def run(args) -> dict | None:

@@ -187,12 +187,13 @@ def _ints(text: str) -> tuple:
     return tuple(p if len(p) > 1 else p[0] for p in parts)
 
 
-def options_bytes(ap) -> None:
-    cache = Path.home() / ".cache" / "rhythmic_jax" / "frontier"
-    ap.add_argument("--cache", default=str(cache), help="fitted maps, codes ('': none)")
-    ap.add_argument("--maps", type=_ints, help="maps as r:level,... (e.g. 2:4,3:4)")
-    ap.add_argument("--bits", type=_ints, help="code sizes, e.g. 64,128")
-    ap.add_argument("--no-timing", action="store_true", help="skip the speed table")
+OPTIONS_BYTES = dict(
+    cache=(str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
+           "fitted maps, codes ('': none)"),
+    maps=(_ints, "maps as r:level,... (e.g. 2:4,3:4)"),
+    bits=(_ints, "code sizes, e.g. 64,128"),
+    no_timing=(False, "skip the speed table"),
+)  # fmt: skip
 
 
 def run_bytes(args) -> dict:
@@ -490,8 +491,7 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
             (AERIAL, aerial_data, aerial), (PATCH, nordland_data, patch)]  # fmt: skip
 
 
-def options_cross(ap) -> None:
-    ap.add_argument("--only", help="comma-separated words of the data sets to run")
+OPTIONS_CROSS = dict(only=(str, "comma-separated words of the data sets to run"))
 
 
 def run_cross(args) -> dict:
@@ -773,10 +773,8 @@ def markdown_digits(report: dict) -> str:
                     report, "\n".join(lines))
 
 
-def options_digits(ap) -> None:
-    ap.add_argument("--cache", type=Path, default=Path("/work/cache"))
-    ap.add_argument("--descriptor", default="efficientnet_lite0")
-    ap.add_argument("--levels", default="1,2,4", help="storage levels (1,2,4)")
+OPTIONS_DIGITS = dict(cache=Path("/work/cache"), descriptor="efficientnet_lite0",
+                      levels=("1,2,4", "storage levels (1,2,4)"))  # fmt: skip
 
 
 def run_digits(args) -> dict:
@@ -816,11 +814,11 @@ def run_digits(args) -> dict:
 
 
 PARTS = {
-    "per-byte": h.Part(run_bytes, markdown_bytes, options_bytes, "recall_per_byte",
+    "per-byte": h.Part(run_bytes, markdown_bytes, OPTIONS_BYTES, "recall_per_byte",
                        QUICK_BYTES),  # fmt: skip
-    "cross-condition": h.Part(run_cross, markdown_cross, options_cross,
+    "cross-condition": h.Part(run_cross, markdown_cross, OPTIONS_CROSS,
                               "cross_condition", refresh=refresh),  # fmt: skip
-    "digits": h.Part(run_digits, markdown_digits, options_digits, "digits",
+    "digits": h.Part(run_digits, markdown_digits, OPTIONS_DIGITS, "digits",
                      QUICK_DIGITS),  # fmt: skip
 }
 

@@ -495,17 +495,13 @@ def probe_lines(p: dict) -> list[str]:
     ]
 
 
-def options_grid(ap) -> None:
-    ap.add_argument("--budget", type=float, default=1200.0, help="seconds in all")
-    ap.add_argument("--memory", default="1GiB", help="memory bound of stream cells")
-    ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
-    ap.add_argument("--probe", type=int, default=0, help="frames of the probe")
-    ap.add_argument("--probe-memory", default="1GiB")
-    ap.add_argument("--full", type=int, default=0, help="frames of the full fit")
-    ap.add_argument("--full-periods", default="100,101,103")
-    ap.add_argument("--full-memory", default="1GiB")
-    ap.add_argument("--full-work", type=Path, default=Path("/tmp/bench_scale_full"),
-                    help="scratch folder of the full fit (features, map)")  # fmt: skip
+OPTIONS_GRID = dict(
+    budget=(1200.0, "seconds in all"), memory=("1GiB", "memory bound of stream cells"),
+    cells=(CELLS, "saved cells, features"), probe=(0, "frames of the probe"),
+    probe_memory="1GiB", full=(0, "frames of the full fit"),
+    full_periods="100,101,103", full_memory="1GiB",
+    full_work=(Path("/tmp/bench_scale_full"), "scratch folder of the full fit"),
+)  # fmt: skip
 
 
 def run_grid(args) -> dict:
@@ -649,10 +645,7 @@ def _widths(columns: list[int]) -> str:
     return ", ".join(f"{w} x {k}" if k > 1 else str(w) for w, k in runs)
 
 
-def options_streamed(ap) -> None:
-    ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--walk-frames", type=int, default=100_000)
-    ap.add_argument("--walk-periods", default="46,47,49")
+OPTIONS_STREAMED = dict(repeats=2, walk_frames=100_000, walk_periods="46,47,49")
 
 
 def run_streamed(args) -> dict:
@@ -730,9 +723,7 @@ def markdown_memory(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_memory(ap) -> None:
-    ap.add_argument("--shapes", nargs="+", default=SHAPES, help="NxD ...")
-    ap.add_argument("--repeats", type=int, default=2, help="warm refits a shape")
+OPTIONS_MEMORY = dict(shapes=(SHAPES, "NxD ..."), repeats=(2, "warm refits a shape"))
 
 
 def run_memory(args) -> dict:
@@ -749,10 +740,10 @@ def run_memory(args) -> dict:
 
 
 PARTS = {
-    "grid": h.Part(run_grid, markdown_grid, options_grid, "scale"),
-    "streamed": h.Part(run_streamed, markdown_streamed, options_streamed, "streamed",
+    "grid": h.Part(run_grid, markdown_grid, OPTIONS_GRID, "scale"),
+    "streamed": h.Part(run_streamed, markdown_streamed, OPTIONS_STREAMED, "streamed",
                        QUICK_STREAMED),  # fmt: skip
-    "memory": h.Part(run_memory, markdown_memory, options_memory, "memory",
+    "memory": h.Part(run_memory, markdown_memory, OPTIONS_MEMORY, "memory",
                      QUICK_MEMORY),  # fmt: skip
 }
 

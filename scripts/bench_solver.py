@@ -284,11 +284,8 @@ def markdown_joint(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_joint(ap) -> None:
-    ap.add_argument("--frames", type=int, default=3576, help="Nordland frames")
-    ap.add_argument("--video-frames", type=int, default=3705)
-    ap.add_argument("--video-dim", type=int, default=4096)
-    ap.add_argument("--samples", type=int, default=12, help="LinearSVC templates")
+OPTIONS_JOINT = dict(frames=(3576, "Nordland frames"), video_frames=3705,
+                     video_dim=4096, samples=(12, "LinearSVC templates"))  # fmt: skip
 
 
 def run_joint(args) -> dict:
@@ -324,10 +321,7 @@ class Record:
         return np.zeros(sum(self.cands), bool)
 
 
-def options_work(ap) -> None:
-    ap.add_argument("--frames", type=Path, default=None, help="(n, d) .npy")
-    ap.add_argument("--slack", type=float, default=0.005)
-    ap.add_argument("--after", type=int, default=4)
+OPTIONS_WORK = dict(frames=(Path, "(n, d) .npy"), slack=0.005, after=4)
 
 
 def run_work(args) -> dict:
@@ -438,10 +432,7 @@ def markdown_span(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_span(ap) -> None:
-    ap.add_argument("--frames", type=int, default=3576)
-    ap.add_argument("--level", type=int, default=1)
-    ap.add_argument("--descriptor", default="efficientnet_lite0")
+OPTIONS_SPAN = dict(frames=3576, level=1, descriptor="efficientnet_lite0")
 
 
 def run_span(args) -> dict:
@@ -474,9 +465,9 @@ def run_span(args) -> dict:
 
 
 PARTS = {
-    "joint": h.Part(run_joint, markdown_joint, options_joint, "solver", QUICK_JOINT),
-    "work": h.Part(run_work, markdown_work, options_work, "solver_work"),
-    "span": h.Part(run_span, markdown_span, options_span, "span", QUICK_SPAN),
+    "joint": h.Part(run_joint, markdown_joint, OPTIONS_JOINT, "solver", QUICK_JOINT),
+    "work": h.Part(run_work, markdown_work, OPTIONS_WORK, "solver_work"),
+    "span": h.Part(run_span, markdown_span, OPTIONS_SPAN, "span", QUICK_SPAN),
 }
 
 if __name__ == "__main__":
