@@ -60,11 +60,6 @@ BUDGET = ["budget", "best", "map or hybrid", "ITQ", "own - ITQ"]
 QUICK_BYTES = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
-def projections() -> list[dict]:
-    """Map and code bytes for N = 1e4 .. 1e9, and the N where the map gets smaller."""
-    return fr.projection_rows(DS, NS, BITS)
-
-
 def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
     faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
@@ -132,15 +127,6 @@ def _targets(rep: dict) -> list[str]:
 
 
 def markdown_bytes(rep: dict) -> str:
-    lines = []
-    lines += [rep["protocol"], ""]
-    lines += [
-        f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
-        " and code books are kept in the cache folder, so a re-run of settings"
-        " already fitted only decodes).",
-        "",
-    ]
-    lines += ["### Targets", ""] + _targets(rep) + [""]
     ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["sequence scorer", "weight"]
     keys = [f"recall@1 L={k}" for k in ls]
@@ -148,37 +134,39 @@ def markdown_bytes(rep: dict) -> str:
              *("-" if r[k] is None else r[k] for k in keys),
              r.get("sequence_scorer") or "-", r.get("weight", "-")]
             for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
-    lines.append(h.table(heads, rows))
-    for length in ls:
-        key = f"recall@1 L={length}"
+    blocks = [rep["protocol"],
+              f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
+              " and code books are kept in the cache folder, so a re-run of settings"
+              " already fitted only decodes).",
+              "### Targets", "\n".join(_targets(rep)), (heads, rows)]  # fmt: skip
+    for key in keys:
         body = [[f"{100 * b['budget']:g} %",
                  *(f"{x['name']} ({x[key]:.3f})" if x else "none fits"
                    for x in (b["best"], b["own"], b["itq"])),
                  round(b["own_minus_itq"], 3)]
-                for b in rep["budgets"][str(length)]]  # fmt: skip
-        lines += ["", f"### Budget by budget, L = {length}", "", h.table(BUDGET, body)]
+                for b in rep["budgets"][key.split("=")[1]]]  # fmt: skip
+        blocks += [f"### Budget by budget, L = {key.split('=')[1]}", (BUDGET, body)]
     t = rep["timing"] or {"setting": "not measured in this run"}
-    lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
     body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
             for k, v in t.items() if k != "setting"]  # fmt: skip
-    lines.append(h.table(["decode", "seconds", "queries/s", "time / map alone"], body))
-    lines += ["", "### Projected bytes (level 1) and the N from which the map is "
-              "smaller than each code", "",
-              "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods"
-              " from `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
-              ""]  # fmt: skip
     proj = rep["projections"]
     keys = [k for k in proj[0] if k.startswith("map")]
-    body = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
-             *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
-               for b in BITS)] for p in proj]  # fmt: skip
-    lines.append(h.table(["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], body))
-    lines += ["", "Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): "]
-    for b in BITS:
-        sizes = ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
-        lines.append(f"- ITQ {b}: {sizes}")
-    return h.render("Recall per byte: map, ITQ codes and hybrids",
-                    rep, "\n".join(lines))
+    spans = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
+              *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
+                for b in BITS)] for p in proj]  # fmt: skip
+    codes = [f"- ITQ {b}: " + ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}"
+                                        for n in NS) for b in BITS]  # fmt: skip
+    return h.render(
+        "Recall per byte: map, ITQ codes and hybrids", rep, *blocks,
+        f"### Decode speed ({t['setting']}, every test query at once)",
+        (["decode", "seconds", "queries/s", "time / map alone"], body),
+        "### Projected bytes (level 1) and the N from which the map is smaller than"
+        " each code",
+        "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods from"
+        " `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
+        (["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], spans),
+        "\n".join(["Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): ", *codes]),
+    )  # fmt: skip
 
 
 def _ints(text: str) -> tuple:
@@ -229,7 +217,7 @@ def run_bytes(args) -> dict:
         "timing": {}
         if args.no_timing
         else timing(s[te], w[te], cache, cfg.bits[0], *cfg.maps[-1], cfg.gap),
-        "projections": projections(),
+        "projections": fr.projection_rows(DS, NS, BITS),
         "seconds": time.perf_counter() - t0,
     }
     from rhythmic_jax.eval.figures import plot_frontier
