@@ -239,14 +239,12 @@ AERIAL = "Aerial pairs patchnorm"
 
 
 def _acc(pred, tol=TOL) -> float:
-    pred = np.asarray(pred)
-    return float(np.mean(np.abs(pred - np.arange(len(pred))) <= tol))
+    return accuracy(np.asarray(pred), np.arange(len(pred)), tol)
 
 
 def _recall(scores, k: int) -> float:
-    scores = np.asarray(scores)
-    gt, top = np.arange(len(scores)), np.argpartition(-scores, k, axis=1)[:, :k]
-    return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
+    top = np.argpartition(-np.asarray(scores), k, axis=1)[:, :k]
+    return recall_at_k(top, np.arange(len(top)), (k,), tolerance=TOL)[k]
 
 
 def nordland_data(root: Path, progress: bool, name="patchnorm", images=True):
@@ -592,13 +590,12 @@ def _fmt(v):
 
 
 def markdown_cross(report: dict) -> str:
-    lines = []
     wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
     if walls := report.get("wall_seconds_by_process"):
         wall = "Data sets run in parallel processes (the commands above, joined by "
         wall += "';'); wall time of each: "
         wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
-    lines += [wall + ".", "",
+    blocks = [wall + ".",
               "Maps are fitted on one condition of the test places and queried with the"
               " other; every embedding was learned on the training places only"
               " (Nordland 0-1199, test 1220-3575; aerial: DSIFN pairs train, LEVIR"
@@ -616,25 +613,25 @@ def markdown_cross(report: dict) -> str:
               " scored); `int8 codes alone`: those codes' own search, which shows what"
               " the templates add. Budget rows take the largest pair of periods (t, t +"
               " 1) that fits; their t/N says how far from sub-linear they are.",
-              "", "## Targets", ""]  # fmt: skip
-    lines += [f"- {t}: **{v}**" for t, v in cross_targets(report)] + [""]
+              "## Targets",
+              "\n".join(f"- {t}: **{v}**" for t, v in cross_targets(report))]  # fmt: skip
     for name, ds in report["datasets"].items():
-        lines += [f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})", ""]
+        blocks.append(f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})")
         learn = "; ".join(
             f"{k}: {v['seconds']:.1f} s learning, k = {v['config']['k']}, "
             f"{v['bytes']:,} B, kept step {v.get('kept_step', 0)} of "
             f"{v.get('steps', 0)}{' (read from the cache)' if v.get('cached') else ''}"
             for k, v in ds["learn"].items()
         )
-        lines += [f"Embeddings: {learn}.", ""]
+        blocks.append(f"Embeddings: {learn}.")
         for key, rows in ds["directions"].items():
             body = [[r["method"], *(_fmt(r.get(c, "")) for c in COLS),
                      r.get("storage_bytes", ""), r.get("embedding_bytes", 0),
                      _fmt(r["ratio"]), str(tuple(r.get("sizes", ()))),
                      _fmt(r.get("fit_seconds", ""))] for r in rows]  # fmt: skip
-            lines += [f"### {key}", "", h.table(HEADS, body), ""]
-    return h.render("Recognition under appearance change (split by place)",
-                    report, "\n".join(lines))
+            blocks += [f"### {key}", (HEADS, body)]
+    title = "Recognition under appearance change (split by place)"
+    return h.render(title, report, *blocks)
 
 
 def draw(report: dict, path: Path) -> None:
@@ -725,8 +722,7 @@ def brute(summer, winter, gt) -> dict:
 
 
 def markdown_digits(report: dict) -> str:
-    lines = []
-    lines.append(
+    text = (
         f"Nordland test places {report['places']} (N = {report['n']}), "
         f"{report['descriptor']} d = {report['d']}: summer map, winter queries, "
         f"recall@1 within ±{TOL} frame unless marked exact. One joint Newton solve "
@@ -744,9 +740,8 @@ def markdown_digits(report: dict) -> str:
         " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
                  r.get("label_chance", ()), strict=True)) or "-",
     ] for r in report["rows"]]  # fmt: skip
-    lines += ["", h.table(cols, rows), ""]
     same = [r for r in report["rows"] if "calibrated_same_index" in r]
-    lines.append(
+    notes = (
         "soft: argmax of the summed template scores of every group (a log-softmax "
         "within every group, rhythmic_jax.decoding.soft.calibrate, shifts every "
         "place of a query by the same constant: the same argmax, checked here); "
@@ -757,8 +752,8 @@ def markdown_digits(report: dict) -> str:
         "argmax class is their place's label (most significant digit / segment "
         "first), beside chance 1 / size."
     )
-    return h.render("Digits that group frames that look alike (Nordland)",
-                    report, "\n".join(lines))
+    title = "Digits that group frames that look alike (Nordland)"
+    return h.render(title, report, text, (cols, rows), notes)
 
 
 OPTIONS_DIGITS = dict(cache=Path("/work/cache"), descriptor="efficientnet_lite0",
