@@ -210,7 +210,6 @@ def markdown_grid(report: dict) -> str:
         f" and {report['cells_to']} at a 1-minute load average of"
         f" {report['load_cells']} (each cell's in the JSON); a rerun reuses cells"
         " already measured, so the command above may only have collected them.",
-        "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
             "fit s", "passes", "s/pass", "peak MiB", "acc f32", "acc f16",
@@ -226,11 +225,9 @@ def markdown_grid(report: dict) -> str:
         for r in report["rows"]
     ]  # fmt: skip
     lines += [
-        h.table(head, rows),
-        "",
+        (head, rows),
         "Storage slopes (log bytes on log N; one process, in memory, or"
         " streamed at an N the memory guard refuses in memory):",
-        "",
     ]
     slopes = [
         [s["source"], s["d"], s["r"], _rule(s), s["points"],
@@ -238,15 +235,15 @@ def markdown_grid(report: dict) -> str:
          _num(s.get("slope_from_10k"), 4), _allows(s)]
         for s in report["slopes"]
     ]  # fmt: skip
-    lines.append(h.table(SLOPES, slopes))
+    lines.append((SLOPES, slopes))
     for sl in report["slopes"]:
         pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
         pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
-        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
+        lines += [f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule lets the training errors choose r co-prime"
+    lines += ["The candidate rule lets the training errors choose r co-prime"
               " periods among ceil(N^(1/r)) + {0..6}: 'the rule allows' gives the"
               " least and largest fitted slope any such choice gives over the series'"
               " N; rule 'least' fixes the least-storage set before training, and the"
@@ -255,17 +252,17 @@ def markdown_grid(report: dict) -> str:
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
         worst = max(np.abs(gaps))
-        lines += ["", f"float16 against float32 self-query accuracy: at most "
+        lines += [f"float16 against float32 self-query accuracy: at most "
                   f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
     if report.get("full"):
-        lines += ["", *full_lines(report["full"], report.get("probe"))]
+        lines += full_lines(report["full"], report.get("probe"))
     if probe := report.get("probe"):
-        lines += ["", *probe_lines(probe)]
+        lines += probe_lines(probe)
     if report.get("missing"):
-        lines += ["", "Not measured (time budget or --skip, or failed as said): "
+        lines += ["Not measured (time budget or --skip, or failed as said): "
                   + ", ".join(report["missing"])]  # fmt: skip
-    lines += ["", "Figures: " + ", ".join(report["figures"])]
-    return h.render("Growth from real fits (--gap 1e-3)", report, "\n".join(lines))
+    lines += ["Figures: " + ", ".join(report["figures"])]
+    return h.render("Growth from real fits (--gap 1e-3)", report, *lines)
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -412,7 +409,6 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         f" (float16 {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command:"
         f" `{f['command']}`, with the streamed solver of commit"
         f" {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
-        "",
         f"The candidate search ({len(f['candidates'])} candidates {f['candidates'][0]}"
         f" - {f['candidates'][-1]}, {cands} templates) would train {cands / p:.1f}x"
         f" the templates per pass: with this fit's steps and passes, at {how}, it is"
@@ -490,8 +486,7 @@ def probe_lines(p: dict) -> list[str]:
         f" load {p['load'][0]:.1f}; peak resident {p['peak_bytes'] / 2**20:.0f} MiB;"
         " each includes its kernel's compilation). A CG pass from the kept"
         " curvature makes one product with the frames instead of two:",
-        "",
-        h.table(["periods", "templates", "rows / block", *kinds], rows),
+        (["periods", "templates", "rows / block", *kinds], rows),
     ]
 
 
@@ -609,9 +604,8 @@ def markdown_streamed(report: dict) -> str:
         " True gap: (f - f*) / f* of the final objectives against the in-memory Newton"
         " optimum (tight) of the same frames. Column-passes: templates carried, summed"
         " over every pass (gradient, CG and line-search passes of every step).",
-        "",
     ]
-    rows = []
+    rows, bullets = [], []
     for case in report["cases"]:
         for label, runs in case["runs"].items():
             first = runs[-1]
@@ -626,17 +620,17 @@ def markdown_streamed(report: dict) -> str:
     heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
              "steps", "passes", "reached", "true gap max", "true gap median",
              "templates per step", "column-passes"]  # fmt: skip
-    lines += [h.table(heads, rows), ""]
+    lines.append((heads, rows))
     for case in report["cases"]:
         old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
-        lines.append(
+        bullets.append(
             f"- {case['name']}: the spectral preconditioner {old / spec:.2f}x"
             f" ({spec:.1f} s against {old:.1f} s with Jacobi); compacted passes"
             f" {spec / comp:.2f}x on top ({comp:.1f} s); the in-memory reference"
             f" took {case['reference_s']:.1f} s."
         )
     title = "Streamed Newton-CG: preconditioner and compacted passes"
-    return h.render(title, report, "\n".join(lines))
+    return h.render(title, report, *lines, "\n".join(bullets))
 
 
 def _widths(columns: list[int]) -> str:
