@@ -53,12 +53,13 @@ def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarra
     return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
-def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
-    """(p,) liblinear primal of every template, float64: w (d, p), b (p,)."""
-    w = np.asarray(w, np.float64).reshape(x64.shape[1], -1)
-    b = np.asarray(b, np.float64).reshape(-1)
-    hinge = np.maximum(0.0, 1.0 - y * (x64 @ w + b[None, :]))
-    return 0.5 * (np.sum(w * w, axis=0) + b * b) + c * np.sum(hinge * hinge, axis=0)
+def objectives64(w, b, x, y, c: float) -> np.ndarray:
+    """(p,) every template's objective (liblinear's primal) in float64: w (d, p)."""
+    with jax.enable_x64(True):
+        w = np.asarray(w, np.float64).reshape(x.shape[1], -1)
+        params = Templates(w, np.asarray(b, np.float64).reshape(-1))
+        x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        return np.asarray(objective(params, x64, y64, c))
 
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
@@ -132,11 +133,11 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     h.log.info("L-BFGS: %.1f s (%d steps)", wall, len(hist))
     lbfgs = dict(seconds=wall, cpu_s=cpu, warmup_s=warm, load_average_start=load)
     lbfgs["steps"] = len(hist)
-    f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
+    f_f, f_t, f_l = (objectives64(w.w, w.b, x64, y64, c)
                      for w in (w_f, w_t, w_l))  # fmt: skip
     cols, f_svc = [t["column"] for t in svc], []
     for t, j in zip(svc, cols, strict=True):
-        f = liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
+        f = objectives64(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
         f_svc.append(f)
         t.update(objective=f, fast_gap=_gap(f_f[j], f), tight_gap=_gap(f_t[j], f),
                  lbfgs_gap=_gap(f_l[j], f))  # fmt: skip
@@ -449,10 +450,7 @@ def run_span(args) -> dict:
         ("direct (d-dim)", dataclasses.replace(NewtonConfig(), span=False)),
     ):
         (params, info), wall, cpu = h.timed(newton_fit, x, y, c, cfg, False)
-        with jax.enable_x64(True):  # every template's objective, in float64
-            w, b = (np.asarray(v, np.float64) for v in params)
-            x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
-            answers[name] = np.asarray(objective(Templates(w, b), x64, y64, c))
+        answers[name] = objectives64(params.w, params.b, x, y, c)
         rows.append(dict(solver=name, wall_s=wall, cpu_s=cpu, steps=info.steps,
                          cg_iterations=sum(info.cg_iterations)))  # fmt: skip
         print(rows[-1], flush=True)
