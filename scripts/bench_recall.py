@@ -614,7 +614,8 @@ def markdown_cross(report: dict) -> str:
               " the templates add. Budget rows take the largest pair of periods (t, t +"
               " 1) that fits; their t/N says how far from sub-linear they are.",
               "## Targets",
-              "\n".join(f"- {t}: **{v}**" for t, v in cross_targets(report))]  # fmt: skip
+              "\n".join(f"- {t}: **{v}**"
+                        for t, v in cross_targets(report))]  # fmt: skip
     for name, ds in report["datasets"].items():
         blocks.append(f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})")
         learn = "; ".join(
