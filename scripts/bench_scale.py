@@ -495,7 +495,8 @@ OPTIONS_GRID = dict(
     cells=(CELLS, "saved cells, features"), probe=(0, "frames of the probe"),
     probe_memory="1GiB", full=(0, "frames of the full fit"),
     full_periods="100,101,103", full_memory="1GiB",
-    full_work=(Path("/tmp/bench_scale_full"), "scratch folder of the full fit"),
+    full_work=(Path("/tmp/bench_scale_full"),
+               "scratch folder of the full fit (features, map)"),
 )  # fmt: skip
 
 
