@@ -245,6 +245,12 @@ def nordland_features(root: Path, descriptor="patchnorm", seasons=("summer", "wi
     )
 
 
+def summer(args, descriptor="patchnorm") -> np.ndarray:
+    """The Nordland summer traversal's descriptors (n, d) under ``args.root``."""
+    kw = dict(progress=getattr(args, "progress", False))
+    return nordland_features(args.root, descriptor, ("summer",), **kw)[0]
+
+
 def aerial_features(root: Path, descriptor="patchnorm", folder="samples_LEVIR",
                     key="levir-64-32-", progress=False, **kw):  # fmt: skip
     """(A tiles (n, d), B tiles (n, d), the route) of an aerial pairs folder."""

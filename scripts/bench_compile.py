@@ -117,8 +117,7 @@ def run_jobs(args) -> dict:
             np.save(inputs["fit"], route(n_fit, d_fit))
         if "nordland" in jobs:
             inputs["nordland"] = tmp / "nordland.npy"
-            (x,) = h.nordland_features(args.root, seasons=("summer",))
-            np.save(inputs["nordland"], x[:n_nord])
+            np.save(inputs["nordland"], h.summer(args)[:n_nord])
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
         h.bytecode(args.base, h.REPO)

@@ -649,7 +649,7 @@ def run_streamed(args) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
         if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
             path = Path(tmp) / "nordland.npy"
-            np.save(path, h.nordland_features(args.root, seasons=("summer",))[0])
+            np.save(path, h.summer(args))
             cases.append(run_case("nordland", path, (61, 65), args.repeats))
         else:
             h.log.warning("the Nordland case is left out (--quick or no frames)")

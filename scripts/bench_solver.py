@@ -199,7 +199,7 @@ def _newton_line(label: str, nw: dict) -> str:
     )
 
 
-def case_markdown(r: dict) -> str:
+def case_markdown(r: dict) -> list:
     s, fast, tight, lb = (r[k] for k in ("linearsvc", "newton_fast", "newton_tight",
                                          "lbfgs"))  # fmt: skip
     per, top = s["per_template_s"], fast["gap_vs_linearsvc"]["max"]
@@ -218,7 +218,7 @@ def case_markdown(r: dict) -> str:
         gap = "0" if gap is None else _rel(gap)
         load = f"{t['load_average_start'][0]:.1f}"
         rows.append([label, wall, wall0 / wall, cpu, cpu0 / cpu, gap, load])
-    timing = h.table([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
+    timing = ([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
     few, every = f"{s['sampled']} sampled", f"all {r['p']}"
     comparisons = (
         ("Newton 0.1 % vs LinearSVC", few, fast["gap_vs_linearsvc"]),
@@ -227,19 +227,18 @@ def case_markdown(r: dict) -> str:
         ("Newton 0.1 % vs Newton tight", every, fast["gap_vs_tight"]),
         ("L-BFGS vs Newton tight", every, lb["gap_vs_tight"]),
     )
-    gaps = h.table(GAPS, [[what, n, *(_rel(g[k]) for k in ("max", "median", "min"))]
-                          for what, n, g in comparisons])  # fmt: skip
+    gaps = (GAPS, [[what, n, *(_rel(g[k]) for k in ("max", "median", "min"))]
+                   for what, n, g in comparisons])  # fmt: skip
     errs = (r["candidates"], *(t["training_error"] for t in (fast, tight, lb)))
-    errors = h.table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
-                     [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
+    errors = (["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
+              [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
     sampled = [[t["period"], t["phase"], t["seconds"], t["n_iter"],
                 "yes" if t["converged"] else "no", t["objective"],
                 *(_rel(t[k]) for k in ("fast_gap", "tight_gap", "lbfgs_gap"))]
                for t in s["templates"]]  # fmt: skip
-    sampled = h.table([*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
-                      sampled)  # fmt: skip
+    heads = [*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"]
     lo, hi = s["extrapolated_range_s"]
-    return "\n\n".join([
+    return [
         f"## {r['name']}: n = {r['n']}, d = {r['d']}",
         f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
         f" {r['c']:.4f}. The load changed between solvers: see each row.",
@@ -270,8 +269,8 @@ def case_markdown(r: dict) -> str:
         " phase is wrong):",
         errors,
         "Sampled templates:",
-        sampled,
-    ]) + "\n"  # fmt: skip
+        (heads, sampled),
+    ]  # fmt: skip
 
 
 def markdown_joint(report: dict) -> str:
@@ -279,7 +278,7 @@ def markdown_joint(report: dict) -> str:
     cos = v and ", ".join(f"{lag}: {c:.3f}" for lag, c in v["cosines"].items())
     return h.render(
         "Joint solve of all candidate templates: Newton-CG, L-BFGS, liblinear",
-        report, *(case_markdown(r) for r in report["cases"]),
+        report, *(b for r in report["cases"] for b in case_markdown(r)),
         v and f"Video-like features: AR(1) walk rho = {v['rho']}, noise {v['noise']},"
         f" seed {v['seed']}; mean cosine of frames lag apart: {cos}.",
     )  # fmt: skip
@@ -293,10 +292,7 @@ def run_joint(args) -> dict:
     """Joint solve: Newton-CG, L-BFGS against LinearSVC (solver)."""
     cases, samples = [], args.samples
     if (args.root / "nordland_64x32").is_dir():
-        (x,) = h.nordland_features(
-            args.root, seasons=("summer",), progress=args.progress
-        )
-        name = "Nordland summer, patchnorm 64x32"
+        name, x = "Nordland summer, patchnorm 64x32", h.summer(args)
         cases.append(bench_case(name, x[: args.frames], samples, args.progress))
     else:
         h.log.warning("no Nordland data under %s: the real-frame case is left out",
@@ -327,11 +323,7 @@ OPTIONS_WORK = dict(frames=(Path, "(n, d) .npy"), slack=0.005, after=4)
 
 def run_work(args) -> dict:
     """Where the 0.1 % solve's work could be cut (solver_work)."""
-    if args.frames:
-        x = np.load(args.frames).astype(np.float32)
-    else:
-        (x,) = h.nordland_features(args.root, seasons=("summer",),
-                                   progress=args.progress)  # fmt: skip
+    x = np.load(args.frames).astype(np.float32) if args.frames else h.summer(args)
     if args.quick:
         x = x[:600]
     n, labels = len(x), np.arange(len(x))
@@ -439,8 +431,7 @@ OPTIONS_SPAN = dict(frames=3576, level=1, descriptor="efficientnet_lite0")
 def run_span(args) -> dict:
     """Wide frames: the solve in the frames' span against direct (span)."""
     desc = get_descriptor(args.descriptor)
-    (x,) = h.nordland_features(args.root, desc, ("summer",), progress=args.progress)
-    x = x[: args.frames]
+    x = h.summer(args, desc)[: args.frames]
     n, d = x.shape
     cands = candidate_periods(n, 2, args.level, 7)
     y, c = targets(np.arange(n), cands), default_c(n)
