@@ -203,7 +203,7 @@ def _allows(s: dict) -> str:
 
 
 def markdown_grid(report: dict) -> str:
-    lines = [
+    blocks = [
         "Every fit ran niced beside other jobs (load above): the times are pessimistic."
         f" Niceness {report['nices']} (each cell's in the JSON; at 19 a fit takes only"
         f" CPU no one else wants). Cells were measured between {report['cells_from']}"
@@ -224,7 +224,7 @@ def markdown_grid(report: dict) -> str:
          *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8"))]
         for r in report["rows"]
     ]  # fmt: skip
-    lines += [
+    blocks += [
         (head, rows),
         "Storage slopes (log bytes on log N; one process, in memory, or"
         " streamed at an N the memory guard refuses in memory):",
@@ -235,15 +235,15 @@ def markdown_grid(report: dict) -> str:
          _num(s.get("slope_from_10k"), 4), _allows(s)]
         for s in report["slopes"]
     ]  # fmt: skip
-    lines.append((SLOPES, slopes))
+    blocks.append((SLOPES, slopes))
     for sl in report["slopes"]:
         pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
         pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
-        lines += [f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
+        blocks += [f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["The candidate rule lets the training errors choose r co-prime"
+    blocks += ["The candidate rule lets the training errors choose r co-prime"
               " periods among ceil(N^(1/r)) + {0..6}: 'the rule allows' gives the"
               " least and largest fitted slope any such choice gives over the series'"
               " N; rule 'least' fixes the least-storage set before training, and the"
@@ -252,17 +252,17 @@ def markdown_grid(report: dict) -> str:
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
         worst = max(np.abs(gaps))
-        lines += [f"float16 against float32 self-query accuracy: at most "
+        blocks += [f"float16 against float32 self-query accuracy: at most "
                   f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
     if report.get("full"):
-        lines += full_lines(report["full"], report.get("probe"))
+        blocks += full_lines(report["full"], report.get("probe"))
     if probe := report.get("probe"):
-        lines += probe_lines(probe)
+        blocks += probe_lines(probe)
     if report.get("missing"):
-        lines += ["Not measured (time budget or --skip, or failed as said): "
+        blocks += ["Not measured (time budget or --skip, or failed as said): "
                   + ", ".join(report["missing"])]  # fmt: skip
-    lines += ["Figures: " + ", ".join(report["figures"])]
-    return h.render("Growth from real fits (--gap 1e-3)", report, *lines)
+    blocks += ["Figures: " + ", ".join(report["figures"])]
+    return h.render("Growth from real fits (--gap 1e-3)", report, *blocks)
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -597,7 +597,7 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
 
 
 def markdown_streamed(report: dict) -> str:
-    lines = [
+    blocks = [
         "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
         " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
         f" steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped `.npy`) in"
@@ -621,7 +621,7 @@ def markdown_streamed(report: dict) -> str:
     heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
              "steps", "passes", "reached", "true gap max", "true gap median",
              "templates per step", "column-passes"]  # fmt: skip
-    lines.append((heads, rows))
+    blocks.append((heads, rows))
     for case in report["cases"]:
         old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
         bullets.append(
@@ -631,7 +631,7 @@ def markdown_streamed(report: dict) -> str:
             f" took {case['reference_s']:.1f} s."
         )
     title = "Streamed Newton-CG: preconditioner and compacted passes"
-    return h.render(title, report, *lines, "\n".join(bullets))
+    return h.render(title, report, *blocks, "\n".join(bullets))
 
 
 def _widths(columns: list[int]) -> str:
