@@ -245,6 +245,12 @@ def nordland_features(root: Path, descriptor="patchnorm", seasons=("summer", "wi
     )
 
 
+def summer(args, descriptor="patchnorm") -> np.ndarray:
+    """The Nordland summer traversal's descriptors (n, d) under ``args.root``."""
+    kw = dict(progress=getattr(args, "progress", False))
+    return nordland_features(args.root, descriptor, ("summer",), **kw)[0]
+
+
 def aerial_features(root: Path, descriptor="patchnorm", folder="samples_LEVIR",
                     key="levir-64-32-", progress=False, **kw):  # fmt: skip
     """(A tiles (n, d), B tiles (n, d), the route) of an aerial pairs folder."""
@@ -383,13 +389,14 @@ def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> N
 @dataclasses.dataclass(frozen=True)
 class Part:
     """One report a script measures: ``run(args) -> dict`` (the measurements),
-    ``markdown(report) -> str`` (by :func:`render`), ``options(ap)``, the report's
-    ``stem``, the options ``--quick`` sets, ``refresh(report, args)`` (brings a
-    report read by ``--render`` up to date) and the Markdown's own stem."""
+    ``markdown(report) -> str`` (by :func:`render`), ``options``
+    (:func:`add_options`), the report's ``stem``, the options ``--quick`` sets,
+    ``refresh(report, args)`` (brings a report read by ``--render`` up to date) and
+    the Markdown's own stem."""
 
     run: Callable
     markdown: Callable
-    options: Callable | None = None
+    options: Callable | dict | None = None
     stem: str = "report"
     quick: dict | None = None
     refresh: Callable | None = None
@@ -407,22 +414,41 @@ def _common(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return ap
 
 
+def add_options(ap: argparse.ArgumentParser, options) -> None:
+    """A part's options: ``options(ap)``, or ``{name: spec}``, each ``--name`` (``_``
+    as ``-``) declared once; spec: a default, a type (default None), ``(either,
+    help)`` or add_argument's keywords. False: a flag; a list: ``nargs="+"``."""
+    if callable(options):
+        return options(ap)
+    for name, spec in (options or {}).items():
+        if not isinstance(spec, dict):
+            value, *text = spec if isinstance(spec, tuple) else (spec,)
+            spec = dict(type=value) if callable(value) else dict(default=value)
+            spec |= dict(zip(["help"], text, strict=False))
+        value = spec.get("default")
+        if value is False:
+            spec.setdefault("action", "store_true")
+        elif isinstance(value, list):
+            spec = dict(nargs="+", type=type(value[0])) | spec
+        elif value is not None:
+            spec.setdefault("type", type(value))
+        ap.add_argument("--" + name.replace("_", "-"), **spec)
+
+
 def parser(doc: str, parts: dict[str, Part] | None = None):
     """The options every script takes; with several ``parts``, one subcommand
     each (``script.py PART [options]``), with its own options too."""
     ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
     if not parts or len(parts) == 1:
         for part in (parts or {}).values():
-            if part.options:
-                part.options(ap)
+            add_options(ap, part.options)
         return _common(ap)
     sub = ap.add_subparsers(dest="part", required=True, metavar="PART")
     ap.parts = {}  # each part's parser, for its defaults
     for name, part in parts.items():
         text = (part.run.__doc__ or name).strip().splitlines()[0]
         ap.parts[name] = _common(sub.add_parser(name, help=text, description=text))
-        if part.options:
-            part.options(ap.parts[name])
+        add_options(ap.parts[name], part.options)
     return ap
 
 

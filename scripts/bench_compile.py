@@ -91,12 +91,11 @@ def wait_for_build(cache: Path, timeout: float = 1800.0) -> float:
     return time.perf_counter() - t
 
 
-def options_jobs(ap) -> None:
-    ap.add_argument("--base", type=Path, help="baseline checkout (to measure)")
-    ap.add_argument("--jobs", default="imports,fit,nordland,demo,jpeg")
-    ap.add_argument("--small", action="store_true", help="tiny sizes: a check")
-    ap.add_argument("--rounds", type=int, default=1, help="base, cold, warm, repeated:"
-                    " each target then takes the median of the rounds")  # fmt: skip
+OPTIONS_JOBS = dict(base=(Path, "baseline checkout (to measure)"),
+                    jobs="imports,fit,nordland,demo,jpeg",
+                    small=(False, "tiny sizes: a check"),
+                    rounds=(1, "base, cold, warm, repeated: each target then takes the"
+                            " median of the rounds"))  # fmt: skip
 
 
 def run_jobs(args) -> dict:
@@ -118,8 +117,7 @@ def run_jobs(args) -> dict:
             np.save(inputs["fit"], route(n_fit, d_fit))
         if "nordland" in jobs:
             inputs["nordland"] = tmp / "nordland.npy"
-            (x,) = h.nordland_features(args.root, seasons=("summer",))
-            np.save(inputs["nordland"], x[:n_nord])
+            np.save(inputs["nordland"], h.summer(args)[:n_nord])
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
         h.bytecode(args.base, h.REPO)
@@ -300,9 +298,7 @@ def markdown_startup(report: dict) -> str:
     return h.render("Start-up time: import, --help, info", report, text, (heads, rows))
 
 
-def options_startup(ap) -> None:
-    ap.add_argument("--before", type=Path, default=None, help="checkout to compare")
-    ap.add_argument("--repeats", type=int, default=5)
+OPTIONS_STARTUP = dict(before=(Path, "checkout to compare"), repeats=5)
 
 
 def run_startup(args) -> dict:
@@ -332,8 +328,8 @@ def run_startup(args) -> dict:
 
 
 PARTS = {
-    "jobs": h.Part(run_jobs, markdown_jobs, options_jobs, "compile"),
-    "startup": h.Part(run_startup, markdown_startup, options_startup, "startup",
+    "jobs": h.Part(run_jobs, markdown_jobs, OPTIONS_JOBS, "compile"),
+    "startup": h.Part(run_startup, markdown_startup, OPTIONS_STARTUP, "startup",
                       QUICK_STARTUP),  # fmt: skip
 }
 

@@ -9,7 +9,6 @@ python scripts/bench_decode.py single-query [--singles 2000] [--exact 200]
 python scripts/bench_decode.py batch --render reports/decode.json  # Markdown again
 """
 
-import argparse
 import functools
 import time
 from pathlib import Path
@@ -152,9 +151,8 @@ def markdown_batch(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_batch(ap) -> None:
-    ap.add_argument("--repeats", type=int, default=5, help="timed batch calls")
-    ap.add_argument("--singles", type=int, default=300, help="timed single queries")
+OPTIONS_BATCH = dict(repeats=(5, "timed batch calls"),
+                     singles=(300, "timed single queries"))  # fmt: skip
 
 
 def run_batch(args) -> dict:
@@ -459,7 +457,7 @@ def markdown_decoders(report: dict) -> str:
     )  # fmt: skip
 
 
-def run_decoders(args: argparse.Namespace) -> dict:
+def run_decoders(args) -> dict:
     """Decoders beyond the paper: soft, top-m, sequences, outliers (decoding)."""
     blocks, outliers = [], []
     repeats = 3 if args.quick else 5
@@ -502,11 +500,9 @@ def run_decoders(args: argparse.Namespace) -> dict:
                 outliers=outliers)  # fmt: skip
 
 
-def options_decoders(ap) -> None:
-    ap.add_argument("--cache-dir", type=Path, default=None, help="descriptor cache")
-    ap.add_argument("--descriptors", nargs="+", default=list(DESCRIPTORS))
-    ap.add_argument("--levels", type=int, nargs="+", default=[1, 4])
-    ap.add_argument("--frames", type=int, default=None, help="first frames only")
+OPTIONS_DECODERS = dict(cache_dir=(Path, "descriptor cache"),
+                        descriptors=list(DESCRIPTORS), levels=[1, 4],
+                        frames=(int, "first frames only"))  # fmt: skip
 
 
 QUICK_SINGLE = dict(n=2000, singles=200, exact=20)  # --quick
@@ -530,11 +526,8 @@ def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
                        calls=len(v)) for name, v in ts.items()}  # fmt: skip
 
 
-def options_single(ap) -> None:
-    ap.add_argument("--n", type=int, default=10_000)
-    ap.add_argument("--d", type=int, default=2048)
-    ap.add_argument("--singles", type=int, default=2000)
-    ap.add_argument("--exact", type=int, default=200, help="single faiss queries")
+OPTIONS_SINGLE = dict(n=10_000, d=2048, singles=2000,
+                      exact=(200, "single faiss queries"))  # fmt: skip
 
 
 def run_single(args) -> dict:
@@ -627,10 +620,10 @@ def markdown_single(r: dict) -> str:
 
 
 PARTS = {
-    "batch": h.Part(run_batch, markdown_batch, options_batch, "decode", QUICK_BATCH),
-    "decoders": h.Part(run_decoders, markdown_decoders, options_decoders, "decoding",
+    "batch": h.Part(run_batch, markdown_batch, OPTIONS_BATCH, "decode", QUICK_BATCH),
+    "decoders": h.Part(run_decoders, markdown_decoders, OPTIONS_DECODERS, "decoding",
                        QUICK_DECODERS),  # fmt: skip
-    "single-query": h.Part(run_single, markdown_single, options_single,
+    "single-query": h.Part(run_single, markdown_single, OPTIONS_SINGLE,
                            "single_query", QUICK_SINGLE),  # fmt: skip
 }
 

@@ -67,12 +67,8 @@ def timed_run(cmd: list[str], checkout: str, cache: Path) -> dict:
     return r | dict(stdout=r["stdout"][-2000:], stderr=r["stderr"][-500:])
 
 
-def options_frames(ap) -> None:
-    ap.add_argument("--base", type=Path, help="baseline checkout (to measure)")
-    ap.add_argument("--frames", type=int, default=1000)
-    ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--aug-frames", type=int, default=256)
-    ap.add_argument("--skip-augmented", action="store_true")
+OPTIONS_FRAMES = dict(base=(Path, "baseline checkout (to measure)"), frames=1000,
+                      repeats=2, aug_frames=256, skip_augmented=False)  # fmt: skip
 
 
 def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]:
@@ -254,11 +250,8 @@ def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
     return out
 
 
-def options_pipeline(ap) -> None:
-    ap.add_argument("--frames", type=int, default=1024)
-    ap.add_argument("--descriptor", default="patchnorm")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--elastic", default="coarse", choices=("kornia", "coarse"))
+OPTIONS_PIPELINE = dict(frames=1024, descriptor="patchnorm", threads=2,
+                        elastic=dict(default="coarse", choices=("kornia", "coarse")))
 
 
 def run_pipeline(args) -> dict:
@@ -324,11 +317,8 @@ def frames_per_s(run, x, repeats: int) -> dict:
                 cpu_per_wall=cpus[best] / walls[best])  # fmt: skip
 
 
-def options_network(ap) -> None:
-    ap.add_argument("--batches", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
-    ap.add_argument("--frames", type=int, default=512)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--block", type=int, default=10)
+OPTIONS_NETWORK = dict(batches=[1, 2, 4, 8, 16, 32, 64], frames=512, repeats=3,
+                       block=10)  # fmt: skip
 
 
 def run_network(args) -> dict:
@@ -484,12 +474,8 @@ def markdown_descriptors(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_descriptors(ap) -> None:
-    ap.add_argument("--cache-dir", type=Path, default=None)
-    ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--batch-size", type=int, default=64)
-    ap.add_argument("--timing-frames", type=int, default=256)
-    ap.add_argument("--pca-dim", type=int, default=512)
+OPTIONS_DESCRIPTORS = dict(cache_dir=Path, threads=os.cpu_count() or 1, batch_size=64,
+                           timing_frames=256, pca_dim=512)  # fmt: skip
 
 
 SIZES = ((32, 64), (112, 224), (224, 224))  # (H, W)
@@ -524,10 +510,7 @@ def time_augment(batch, config, repeats: int, min_s=0.2) -> list[float]:
     return times
 
 
-def options_augment(ap) -> None:
-    ap.add_argument("--batch", type=int, default=64)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--threads", type=int, nargs="+", default=[2])
+OPTIONS_AUGMENT = dict(batch=64, repeats=5, threads=[2])
 
 
 def run_augment(args) -> dict:
@@ -569,14 +552,14 @@ def markdown_augment(report: dict) -> str:
 
 
 PARTS = {
-    "end-to-end": h.Part(run_frames, markdown_frames, options_frames, "frames",
+    "end-to-end": h.Part(run_frames, markdown_frames, OPTIONS_FRAMES, "frames",
                          QUICK_FRAMES),  # fmt: skip
-    "pipeline": h.Part(run_pipeline, markdown_pipeline, options_pipeline, "pipeline"),
-    "network": h.Part(run_network, markdown_network, options_network, "network",
+    "pipeline": h.Part(run_pipeline, markdown_pipeline, OPTIONS_PIPELINE, "pipeline"),
+    "network": h.Part(run_network, markdown_network, OPTIONS_NETWORK, "network",
                       QUICK_NETWORK),  # fmt: skip
-    "descriptors": h.Part(run_descriptors, markdown_descriptors, options_descriptors,
+    "descriptors": h.Part(run_descriptors, markdown_descriptors, OPTIONS_DESCRIPTORS,
                           "descriptors"),  # fmt: skip
-    "augment": h.Part(run_augment, markdown_augment, options_augment, "augment",
+    "augment": h.Part(run_augment, markdown_augment, OPTIONS_AUGMENT, "augment",
                       QUICK_AUGMENT),  # fmt: skip
 }
 

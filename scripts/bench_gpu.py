@@ -18,7 +18,6 @@ from pathlib import Path
 import _harness as h
 import jax
 import numpy as np
-from _harness import log, main, nordland_features, timed
 from bench_scale import walk
 
 from rhythmic_jax import RhythmicMap
@@ -30,14 +29,13 @@ QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[2000])  # --quick
 def first_calls(features: str, rows: int | None, batches: list[int]) -> dict:
     """In this (fresh) process: wall seconds of the first fit and of the first
     predict of each batch size, compile included, and the backend's name."""
-    from rhythmic_jax import RhythmicMap
     from rhythmic_jax.jit_cache import enable_compile_cache
 
     enable_compile_cache()  # the folder $RHYTHMIC_JAX_COMPILE_CACHE names
     both = np.load(features)
     summer, winter = (np.asarray(x[:rows], np.float32) for x in both[:2])
-    m, fit_s, _ = timed(RhythmicMap(r=2, level=1).fit, summer)
-    predict = {b: timed(m.predict, winter[:b])[1] for b in batches}
+    m, fit_s, _ = h.timed(RhythmicMap(r=2, level=1).fit, summer)
+    predict = {b: h.timed(m.predict, winter[:b])[1] for b in batches}
     device = jax.devices()[0]
     return dict(fit_first_s=fit_s, predict_first_s=predict,
                 device=getattr(device, "device_kind", str(device)))  # fmt: skip
@@ -58,7 +56,7 @@ def fresh(platform: str, args) -> dict:
         for run in ("cold", "warm"):
             r = h.child(demo, env=env, JAX_PLATFORMS=platform)
             out[run]["demo_s"], out[run]["demo_cpu_s"] = r["wall"], r["cpu"]
-    log.info("%s fresh processes: %s", platform, out)
+    h.log.info("%s fresh processes: %s", platform, out)
     return out
 
 
@@ -68,7 +66,7 @@ def run_on(device, summer, winter, args) -> dict:
     rng = np.random.default_rng(0)
 
     def seconds(key, fn, *a, **kw):
-        result, out[key], _ = timed(fn, *a, **kw)
+        result, out[key], _ = h.timed(fn, *a, **kw)
         return result
 
     with jax.default_device(device):
@@ -78,7 +76,7 @@ def run_on(device, summer, winter, args) -> dict:
         out.update(periods=list(m.periods), self=m.predict(summer))
         out["winter"] = m.predict(winter)
         out["self_recall"] = float(np.mean(out["self"] == np.arange(len(summer))))
-        out["predict_s"] = {b: timed(m.predict, winter[:b])[1] for b in args.batches}
+        out["predict_s"] = {b: h.timed(m.predict, winter[:b])[1] for b in args.batches}
         picks = rng.integers(0, len(winter), args.decode)
         noise = rng.normal(scale=0.01, size=(args.decode, winter.shape[1]))
         q = (winter[picks] + noise.astype(np.float32)).astype(np.float32)
@@ -91,9 +89,9 @@ def run_on(device, summer, winter, args) -> dict:
         out["fits_first_s"], out["fits_s"] = {}, {}
         for n in sizes:  # the first call compiles; the second is the warm fit
             frames = walk(n, d, n)
-            out["fits_first_s"][n] = timed(fit, frames, count=3)[1]
-            out["fits_s"][n] = timed(fit, frames, count=3)[1]
-    log.info("%s: %s", device, {k: v for k, v in out.items() if k[-1] == "s"})
+            out["fits_first_s"][n] = h.timed(fit, frames, count=3)[1]
+            out["fits_s"][n] = h.timed(fit, frames, count=3)[1]
+    h.log.info("%s: %s", device, {k: v for k, v in out.items() if k[-1] == "s"})
     return out
 
 
@@ -142,23 +140,21 @@ def markdown(report: dict) -> str:
     )  # fmt: skip
 
 
-def options(ap) -> None:
-    ap.add_argument("--features", type=Path, help="float16 (2, n, d) .npy")
-    ap.add_argument("--write-features", type=Path, help="write that .npy and stop")
-    ap.add_argument("--rows", type=int, default=None, help="first rows only")
-    ap.add_argument("--batches", type=int, nargs="*", default=[100, 300, 700])
-    ap.add_argument("--decode", type=int, default=100_000)
-    ap.add_argument("--length", type=int, default=10)
-    ap.add_argument("--fit-sizes", type=int, nargs="*", default=[20_000, 100_000])
+options = dict(
+    features=(Path, "float16 (2, n, d) .npy"),
+    write_features=(Path, "write that .npy and stop"), rows=(int, "first rows only"),
+    batches=dict(type=int, nargs="*", default=[100, 300, 700]), decode=100_000,
+    length=10, fit_sizes=dict(type=int, nargs="*", default=[20_000, 100_000]),
+)  # fmt: skip
 
 
 def run(args) -> dict | None:
     if args.write_features:  # Nordland summer and winter patchnorm, float16 (2, n, d)
         from rhythmic_jax.io.atomic import save_npy
 
-        both = np.stack(nordland_features(args.root)).astype(np.float16)
+        both = np.stack(h.nordland_features(args.root)).astype(np.float16)
         save_npy(args.write_features, both)
-        log.info("wrote %s %s", args.write_features, both.shape)
+        h.log.info("wrote %s %s", args.write_features, both.shape)
         return None
     if args.features is None and args.quick:  # a rehearsal on synthetic frames
         args.features = Path(tempfile.mkdtemp()) / "walk_f16.npy"
@@ -192,4 +188,4 @@ def run(args) -> dict | None:
 PARTS = {"": h.Part(run, markdown, options, "gpu", QUICK)}  # one part: no subcommand
 
 if __name__ == "__main__":
-    main(__doc__, PARTS)
+    h.main(__doc__, PARTS)

@@ -60,11 +60,6 @@ BUDGET = ["budget", "best", "map or hybrid", "ITQ", "own - ITQ"]
 QUICK_BYTES = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
-def projections() -> list[dict]:
-    """Map and code bytes for N = 1e4 .. 1e9, and the N where the map gets smaller."""
-    return fr.projection_rows(DS, NS, BITS)
-
-
 def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
     faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
@@ -132,15 +127,6 @@ def _targets(rep: dict) -> list[str]:
 
 
 def markdown_bytes(rep: dict) -> str:
-    lines = []
-    lines += [rep["protocol"], ""]
-    lines += [
-        f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
-        " and code books are kept in the cache folder, so a re-run of settings"
-        " already fitted only decodes).",
-        "",
-    ]
-    lines += ["### Targets", ""] + _targets(rep) + [""]
     ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
     heads += [f"R@1 L={k}" for k in ls] + ["sequence scorer", "weight"]
     keys = [f"recall@1 L={k}" for k in ls]
@@ -148,37 +134,39 @@ def markdown_bytes(rep: dict) -> str:
              *("-" if r[k] is None else r[k] for k in keys),
              r.get("sequence_scorer") or "-", r.get("weight", "-")]
             for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
-    lines.append(h.table(heads, rows))
-    for length in ls:
-        key = f"recall@1 L={length}"
+    blocks = [rep["protocol"],
+              f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
+              " and code books are kept in the cache folder, so a re-run of settings"
+              " already fitted only decodes).",
+              "### Targets", "\n".join(_targets(rep)), (heads, rows)]  # fmt: skip
+    for key in keys:
         body = [[f"{100 * b['budget']:g} %",
                  *(f"{x['name']} ({x[key]:.3f})" if x else "none fits"
                    for x in (b["best"], b["own"], b["itq"])),
                  round(b["own_minus_itq"], 3)]
-                for b in rep["budgets"][str(length)]]  # fmt: skip
-        lines += ["", f"### Budget by budget, L = {length}", "", h.table(BUDGET, body)]
+                for b in rep["budgets"][key.split("=")[1]]]  # fmt: skip
+        blocks += [f"### Budget by budget, L = {key.split('=')[1]}", (BUDGET, body)]
     t = rep["timing"] or {"setting": "not measured in this run"}
-    lines += ["", f"### Decode speed ({t['setting']}, every test query at once)", ""]
     body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
             for k, v in t.items() if k != "setting"]  # fmt: skip
-    lines.append(h.table(["decode", "seconds", "queries/s", "time / map alone"], body))
-    lines += ["", "### Projected bytes (level 1) and the N from which the map is "
-              "smaller than each code", "",
-              "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods"
-              " from `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
-              ""]  # fmt: skip
     proj = rep["projections"]
     keys = [k for k in proj[0] if k.startswith("map")]
-    body = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
-             *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
-               for b in BITS)] for p in proj]  # fmt: skip
-    lines.append(h.table(["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], body))
-    lines += ["", "Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): "]
-    for b in BITS:
-        sizes = ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}" for n in NS)
-        lines.append(f"- ITQ {b}: {sizes}")
-    return h.render("Recall per byte: map, ITQ codes and hybrids",
-                    rep, "\n".join(lines))
+    spans = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
+              *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
+                for b in BITS)] for p in proj]  # fmt: skip
+    codes = [f"- ITQ {b}: " + ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}"
+                                        for n in NS) for b in BITS]  # fmt: skip
+    return h.render(
+        "Recall per byte: map, ITQ codes and hybrids", rep, *blocks,
+        f"### Decode speed ({t['setting']}, every test query at once)",
+        (["decode", "seconds", "queries/s", "time / map alone"], body),
+        "### Projected bytes (level 1) and the N from which the map is smaller than"
+        " each code",
+        "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods from"
+        " `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
+        (["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], spans),
+        "\n".join(["Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): ", *codes]),
+    )  # fmt: skip
 
 
 def _ints(text: str) -> tuple:
@@ -187,12 +175,13 @@ def _ints(text: str) -> tuple:
     return tuple(p if len(p) > 1 else p[0] for p in parts)
 
 
-def options_bytes(ap) -> None:
-    cache = Path.home() / ".cache" / "rhythmic_jax" / "frontier"
-    ap.add_argument("--cache", default=str(cache), help="fitted maps, codes ('': none)")
-    ap.add_argument("--maps", type=_ints, help="maps as r:level,... (e.g. 2:4,3:4)")
-    ap.add_argument("--bits", type=_ints, help="code sizes, e.g. 64,128")
-    ap.add_argument("--no-timing", action="store_true", help="skip the speed table")
+OPTIONS_BYTES = dict(
+    cache=(str(Path.home() / ".cache" / "rhythmic_jax" / "frontier"),
+           "fitted maps, codes ('': none)"),
+    maps=(_ints, "maps as r:level,... (e.g. 2:4,3:4)"),
+    bits=(_ints, "code sizes, e.g. 64,128"),
+    no_timing=(False, "skip the speed table"),
+)  # fmt: skip
 
 
 def run_bytes(args) -> dict:
@@ -228,7 +217,7 @@ def run_bytes(args) -> dict:
         "timing": {}
         if args.no_timing
         else timing(s[te], w[te], cache, cfg.bits[0], *cfg.maps[-1], cfg.gap),
-        "projections": projections(),
+        "projections": fr.projection_rows(DS, NS, BITS),
         "seconds": time.perf_counter() - t0,
     }
     from rhythmic_jax.eval.figures import plot_frontier
@@ -250,14 +239,12 @@ AERIAL = "Aerial pairs patchnorm"
 
 
 def _acc(pred, tol=TOL) -> float:
-    pred = np.asarray(pred)
-    return float(np.mean(np.abs(pred - np.arange(len(pred))) <= tol))
+    return accuracy(np.asarray(pred), np.arange(len(pred)), tol)
 
 
 def _recall(scores, k: int) -> float:
-    scores = np.asarray(scores)
-    gt, top = np.arange(len(scores)), np.argpartition(-scores, k, axis=1)[:, :k]
-    return float(np.mean(np.any(np.abs(top - gt[:, None]) <= TOL, axis=1)))
+    top = np.argpartition(-np.asarray(scores), k, axis=1)[:, :k]
+    return recall_at_k(top, np.arange(len(top)), (k,), tolerance=TOL)[k]
 
 
 def nordland_data(root: Path, progress: bool, name="patchnorm", images=True):
@@ -490,8 +477,7 @@ def plan(quick: bool) -> list[tuple[str, object, dict]]:
             (AERIAL, aerial_data, aerial), (PATCH, nordland_data, patch)]  # fmt: skip
 
 
-def options_cross(ap) -> None:
-    ap.add_argument("--only", help="comma-separated words of the data sets to run")
+OPTIONS_CROSS = dict(only=(str, "comma-separated words of the data sets to run"))
 
 
 def run_cross(args) -> dict:
@@ -604,13 +590,12 @@ def _fmt(v):
 
 
 def markdown_cross(report: dict) -> str:
-    lines = []
     wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
     if walls := report.get("wall_seconds_by_process"):
         wall = "Data sets run in parallel processes (the commands above, joined by "
         wall += "';'); wall time of each: "
         wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
-    lines += [wall + ".", "",
+    blocks = [wall + ".",
               "Maps are fitted on one condition of the test places and queried with the"
               " other; every embedding was learned on the training places only"
               " (Nordland 0-1199, test 1220-3575; aerial: DSIFN pairs train, LEVIR"
@@ -628,25 +613,26 @@ def markdown_cross(report: dict) -> str:
               " scored); `int8 codes alone`: those codes' own search, which shows what"
               " the templates add. Budget rows take the largest pair of periods (t, t +"
               " 1) that fits; their t/N says how far from sub-linear they are.",
-              "", "## Targets", ""]  # fmt: skip
-    lines += [f"- {t}: **{v}**" for t, v in cross_targets(report)] + [""]
+              "## Targets",
+              "\n".join(f"- {t}: **{v}**"
+                        for t, v in cross_targets(report))]  # fmt: skip
     for name, ds in report["datasets"].items():
-        lines += [f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})", ""]
+        blocks.append(f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})")
         learn = "; ".join(
             f"{k}: {v['seconds']:.1f} s learning, k = {v['config']['k']}, "
             f"{v['bytes']:,} B, kept step {v.get('kept_step', 0)} of "
             f"{v.get('steps', 0)}{' (read from the cache)' if v.get('cached') else ''}"
             for k, v in ds["learn"].items()
         )
-        lines += [f"Embeddings: {learn}.", ""]
+        blocks.append(f"Embeddings: {learn}.")
         for key, rows in ds["directions"].items():
             body = [[r["method"], *(_fmt(r.get(c, "")) for c in COLS),
                      r.get("storage_bytes", ""), r.get("embedding_bytes", 0),
                      _fmt(r["ratio"]), str(tuple(r.get("sizes", ()))),
                      _fmt(r.get("fit_seconds", ""))] for r in rows]  # fmt: skip
-            lines += [f"### {key}", "", h.table(HEADS, body), ""]
-    return h.render("Recognition under appearance change (split by place)",
-                    report, "\n".join(lines))
+            blocks += [f"### {key}", (HEADS, body)]
+    title = "Recognition under appearance change (split by place)"
+    return h.render(title, report, *blocks)
 
 
 def draw(report: dict, path: Path) -> None:
@@ -737,8 +723,7 @@ def brute(summer, winter, gt) -> dict:
 
 
 def markdown_digits(report: dict) -> str:
-    lines = []
-    lines.append(
+    text = (
         f"Nordland test places {report['places']} (N = {report['n']}), "
         f"{report['descriptor']} d = {report['d']}: summer map, winter queries, "
         f"recall@1 within ±{TOL} frame unless marked exact. One joint Newton solve "
@@ -756,9 +741,8 @@ def markdown_digits(report: dict) -> str:
         " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
                  r.get("label_chance", ()), strict=True)) or "-",
     ] for r in report["rows"]]  # fmt: skip
-    lines += ["", h.table(cols, rows), ""]
     same = [r for r in report["rows"] if "calibrated_same_index" in r]
-    lines.append(
+    notes = (
         "soft: argmax of the summed template scores of every group (a log-softmax "
         "within every group, rhythmic_jax.decoding.soft.calibrate, shifts every "
         "place of a query by the same constant: the same argmax, checked here); "
@@ -769,14 +753,12 @@ def markdown_digits(report: dict) -> str:
         "argmax class is their place's label (most significant digit / segment "
         "first), beside chance 1 / size."
     )
-    return h.render("Digits that group frames that look alike (Nordland)",
-                    report, "\n".join(lines))
+    title = "Digits that group frames that look alike (Nordland)"
+    return h.render(title, report, text, (cols, rows), notes)
 
 
-def options_digits(ap) -> None:
-    ap.add_argument("--cache", type=Path, default=Path("/work/cache"))
-    ap.add_argument("--descriptor", default="efficientnet_lite0")
-    ap.add_argument("--levels", default="1,2,4", help="storage levels (1,2,4)")
+OPTIONS_DIGITS = dict(cache=Path("/work/cache"), descriptor="efficientnet_lite0",
+                      levels=("1,2,4", "storage levels (1,2,4)"))  # fmt: skip
 
 
 def run_digits(args) -> dict:
@@ -816,11 +798,11 @@ def run_digits(args) -> dict:
 
 
 PARTS = {
-    "per-byte": h.Part(run_bytes, markdown_bytes, options_bytes, "recall_per_byte",
+    "per-byte": h.Part(run_bytes, markdown_bytes, OPTIONS_BYTES, "recall_per_byte",
                        QUICK_BYTES),  # fmt: skip
-    "cross-condition": h.Part(run_cross, markdown_cross, options_cross,
+    "cross-condition": h.Part(run_cross, markdown_cross, OPTIONS_CROSS,
                               "cross_condition", refresh=refresh),  # fmt: skip
-    "digits": h.Part(run_digits, markdown_digits, options_digits, "digits",
+    "digits": h.Part(run_digits, markdown_digits, OPTIONS_DIGITS, "digits",
                      QUICK_DIGITS),  # fmt: skip
 }
 

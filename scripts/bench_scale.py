@@ -203,14 +203,13 @@ def _allows(s: dict) -> str:
 
 
 def markdown_grid(report: dict) -> str:
-    lines = [
+    blocks = [
         "Every fit ran niced beside other jobs (load above): the times are pessimistic."
         f" Niceness {report['nices']} (each cell's in the JSON; at 19 a fit takes only"
         f" CPU no one else wants). Cells were measured between {report['cells_from']}"
         f" and {report['cells_to']} at a 1-minute load average of"
         f" {report['load_cells']} (each cell's in the JSON); a rerun reuses cells"
         " already measured, so the command above may only have collected them.",
-        "",
     ]
     head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
             "fit s", "passes", "s/pass", "peak MiB", "acc f32", "acc f16",
@@ -225,12 +224,10 @@ def markdown_grid(report: dict) -> str:
          *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8"))]
         for r in report["rows"]
     ]  # fmt: skip
-    lines += [
-        h.table(head, rows),
-        "",
+    blocks += [
+        (head, rows),
         "Storage slopes (log bytes on log N; one process, in memory, or"
         " streamed at an N the memory guard refuses in memory):",
-        "",
     ]
     slopes = [
         [s["source"], s["d"], s["r"], _rule(s), s["points"],
@@ -238,15 +235,15 @@ def markdown_grid(report: dict) -> str:
          _num(s.get("slope_from_10k"), 4), _allows(s)]
         for s in report["slopes"]
     ]  # fmt: skip
-    lines.append(h.table(SLOPES, slopes))
+    blocks.append((SLOPES, slopes))
     for sl in report["slopes"]:
         pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
         pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
         (n0, m0), (n1, m1) = pts[0], pts[-1]
-        lines += ["", f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
+        blocks += [f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
                   f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
                   f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    lines += ["", "The candidate rule lets the training errors choose r co-prime"
+    blocks += ["The candidate rule lets the training errors choose r co-prime"
               " periods among ceil(N^(1/r)) + {0..6}: 'the rule allows' gives the"
               " least and largest fitted slope any such choice gives over the series'"
               " N; rule 'least' fixes the least-storage set before training, and the"
@@ -255,17 +252,17 @@ def markdown_grid(report: dict) -> str:
     gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
     if gaps:
         worst = max(np.abs(gaps))
-        lines += ["", f"float16 against float32 self-query accuracy: at most "
+        blocks += [f"float16 against float32 self-query accuracy: at most "
                   f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
     if report.get("full"):
-        lines += ["", *full_lines(report["full"], report.get("probe"))]
+        blocks += full_lines(report["full"], report.get("probe"))
     if probe := report.get("probe"):
-        lines += ["", *probe_lines(probe)]
+        blocks += probe_lines(probe)
     if report.get("missing"):
-        lines += ["", "Not measured (time budget or --skip, or failed as said): "
+        blocks += ["Not measured (time budget or --skip, or failed as said): "
                   + ", ".join(report["missing"])]  # fmt: skip
-    lines += ["", "Figures: " + ", ".join(report["figures"])]
-    return h.render("Growth from real fits (--gap 1e-3)", report, "\n".join(lines))
+    blocks += ["Figures: " + ", ".join(report["figures"])]
+    return h.render("Growth from real fits (--gap 1e-3)", report, *blocks)
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -412,7 +409,6 @@ def full_lines(f: dict, probe: dict | None = None) -> list[str]:
         f" (float16 {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command:"
         f" `{f['command']}`, with the streamed solver of commit"
         f" {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
-        "",
         f"The candidate search ({len(f['candidates'])} candidates {f['candidates'][0]}"
         f" - {f['candidates'][-1]}, {cands} templates) would train {cands / p:.1f}x"
         f" the templates per pass: with this fit's steps and passes, at {how}, it is"
@@ -490,22 +486,18 @@ def probe_lines(p: dict) -> list[str]:
         f" load {p['load'][0]:.1f}; peak resident {p['peak_bytes'] / 2**20:.0f} MiB;"
         " each includes its kernel's compilation). A CG pass from the kept"
         " curvature makes one product with the frames instead of two:",
-        "",
-        h.table(["periods", "templates", "rows / block", *kinds], rows),
+        (["periods", "templates", "rows / block", *kinds], rows),
     ]
 
 
-def options_grid(ap) -> None:
-    ap.add_argument("--budget", type=float, default=1200.0, help="seconds in all")
-    ap.add_argument("--memory", default="1GiB", help="memory bound of stream cells")
-    ap.add_argument("--cells", type=Path, default=CELLS, help="saved cells, features")
-    ap.add_argument("--probe", type=int, default=0, help="frames of the probe")
-    ap.add_argument("--probe-memory", default="1GiB")
-    ap.add_argument("--full", type=int, default=0, help="frames of the full fit")
-    ap.add_argument("--full-periods", default="100,101,103")
-    ap.add_argument("--full-memory", default="1GiB")
-    ap.add_argument("--full-work", type=Path, default=Path("/tmp/bench_scale_full"),
-                    help="scratch folder of the full fit (features, map)")  # fmt: skip
+OPTIONS_GRID = dict(
+    budget=(1200.0, "seconds in all"), memory=("1GiB", "memory bound of stream cells"),
+    cells=(CELLS, "saved cells, features"), probe=(0, "frames of the probe"),
+    probe_memory="1GiB", full=(0, "frames of the full fit"),
+    full_periods="100,101,103", full_memory="1GiB",
+    full_work=(Path("/tmp/bench_scale_full"),
+               "scratch folder of the full fit (features, map)"),
+)  # fmt: skip
 
 
 def run_grid(args) -> dict:
@@ -605,7 +597,7 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
 
 
 def markdown_streamed(report: dict) -> str:
-    lines = [
+    blocks = [
         "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
         " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
         f" steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped `.npy`) in"
@@ -613,9 +605,8 @@ def markdown_streamed(report: dict) -> str:
         " True gap: (f - f*) / f* of the final objectives against the in-memory Newton"
         " optimum (tight) of the same frames. Column-passes: templates carried, summed"
         " over every pass (gradient, CG and line-search passes of every step).",
-        "",
     ]
-    rows = []
+    rows, bullets = [], []
     for case in report["cases"]:
         for label, runs in case["runs"].items():
             first = runs[-1]
@@ -630,17 +621,17 @@ def markdown_streamed(report: dict) -> str:
     heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
              "steps", "passes", "reached", "true gap max", "true gap median",
              "templates per step", "column-passes"]  # fmt: skip
-    lines += [h.table(heads, rows), ""]
+    blocks.append((heads, rows))
     for case in report["cases"]:
         old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
-        lines.append(
+        bullets.append(
             f"- {case['name']}: the spectral preconditioner {old / spec:.2f}x"
             f" ({spec:.1f} s against {old:.1f} s with Jacobi); compacted passes"
             f" {spec / comp:.2f}x on top ({comp:.1f} s); the in-memory reference"
             f" took {case['reference_s']:.1f} s."
         )
     title = "Streamed Newton-CG: preconditioner and compacted passes"
-    return h.render(title, report, "\n".join(lines))
+    return h.render(title, report, *blocks, "\n".join(bullets))
 
 
 def _widths(columns: list[int]) -> str:
@@ -649,10 +640,7 @@ def _widths(columns: list[int]) -> str:
     return ", ".join(f"{w} x {k}" if k > 1 else str(w) for w, k in runs)
 
 
-def options_streamed(ap) -> None:
-    ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--walk-frames", type=int, default=100_000)
-    ap.add_argument("--walk-periods", default="46,47,49")
+OPTIONS_STREAMED = dict(repeats=2, walk_frames=100_000, walk_periods="46,47,49")
 
 
 def run_streamed(args) -> dict:
@@ -661,7 +649,7 @@ def run_streamed(args) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_streamed_") as tmp:
         if (args.root / "nordland_64x32" / "summer").is_dir() and not args.quick:
             path = Path(tmp) / "nordland.npy"
-            np.save(path, h.nordland_features(args.root, seasons=("summer",))[0])
+            np.save(path, h.summer(args))
             cases.append(run_case("nordland", path, (61, 65), args.repeats))
         else:
             h.log.warning("the Nordland case is left out (--quick or no frames)")
@@ -730,9 +718,7 @@ def markdown_memory(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_memory(ap) -> None:
-    ap.add_argument("--shapes", nargs="+", default=SHAPES, help="NxD ...")
-    ap.add_argument("--repeats", type=int, default=2, help="warm refits a shape")
+OPTIONS_MEMORY = dict(shapes=(SHAPES, "NxD ..."), repeats=(2, "warm refits a shape"))
 
 
 def run_memory(args) -> dict:
@@ -749,10 +735,10 @@ def run_memory(args) -> dict:
 
 
 PARTS = {
-    "grid": h.Part(run_grid, markdown_grid, options_grid, "scale"),
-    "streamed": h.Part(run_streamed, markdown_streamed, options_streamed, "streamed",
+    "grid": h.Part(run_grid, markdown_grid, OPTIONS_GRID, "scale"),
+    "streamed": h.Part(run_streamed, markdown_streamed, OPTIONS_STREAMED, "streamed",
                        QUICK_STREAMED),  # fmt: skip
-    "memory": h.Part(run_memory, markdown_memory, options_memory, "memory",
+    "memory": h.Part(run_memory, markdown_memory, OPTIONS_MEMORY, "memory",
                      QUICK_MEMORY),  # fmt: skip
 }
 

@@ -53,12 +53,13 @@ def video_like(n: int, d: int, rho: float, noise: float, seed: int) -> np.ndarra
     return x / np.linalg.norm(x, axis=1, keepdims=True)
 
 
-def liblinear_objectives(w, b, x64: np.ndarray, y: np.ndarray, c: float):
-    """(p,) liblinear primal of every template, float64: w (d, p), b (p,)."""
-    w = np.asarray(w, np.float64).reshape(x64.shape[1], -1)
-    b = np.asarray(b, np.float64).reshape(-1)
-    hinge = np.maximum(0.0, 1.0 - y * (x64 @ w + b[None, :]))
-    return 0.5 * (np.sum(w * w, axis=0) + b * b) + c * np.sum(hinge * hinge, axis=0)
+def objectives64(w, b, x, y, c: float) -> np.ndarray:
+    """(p,) every template's objective (liblinear's primal) in float64: w (d, p)."""
+    with jax.enable_x64(True):
+        w = np.asarray(w, np.float64).reshape(x.shape[1], -1)
+        params = Templates(w, np.asarray(b, np.float64).reshape(-1))
+        x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        return np.asarray(objective(params, x64, y64, c))
 
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
@@ -132,11 +133,11 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     h.log.info("L-BFGS: %.1f s (%d steps)", wall, len(hist))
     lbfgs = dict(seconds=wall, cpu_s=cpu, warmup_s=warm, load_average_start=load)
     lbfgs["steps"] = len(hist)
-    f_f, f_t, f_l = (liblinear_objectives(w.w, w.b, x64, y64, c)
+    f_f, f_t, f_l = (objectives64(w.w, w.b, x64, y64, c)
                      for w in (w_f, w_t, w_l))  # fmt: skip
     cols, f_svc = [t["column"] for t in svc], []
     for t, j in zip(svc, cols, strict=True):
-        f = liblinear_objectives(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
+        f = objectives64(t.pop("w"), t.pop("b"), x64, y64[:, [j]], c)[0]
         f_svc.append(f)
         t.update(objective=f, fast_gap=_gap(f_f[j], f), tight_gap=_gap(f_t[j], f),
                  lbfgs_gap=_gap(f_l[j], f))  # fmt: skip
@@ -198,7 +199,7 @@ def _newton_line(label: str, nw: dict) -> str:
     )
 
 
-def case_markdown(r: dict) -> str:
+def case_markdown(r: dict) -> list:
     s, fast, tight, lb = (r[k] for k in ("linearsvc", "newton_fast", "newton_tight",
                                          "lbfgs"))  # fmt: skip
     per, top = s["per_template_s"], fast["gap_vs_linearsvc"]["max"]
@@ -217,7 +218,7 @@ def case_markdown(r: dict) -> str:
         gap = "0" if gap is None else _rel(gap)
         load = f"{t['load_average_start'][0]:.1f}"
         rows.append([label, wall, wall0 / wall, cpu, cpu0 / cpu, gap, load])
-    timing = h.table([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
+    timing = ([*TIMING, "max gap vs LinearSVC", "load avg at start"], rows)
     few, every = f"{s['sampled']} sampled", f"all {r['p']}"
     comparisons = (
         ("Newton 0.1 % vs LinearSVC", few, fast["gap_vs_linearsvc"]),
@@ -226,19 +227,18 @@ def case_markdown(r: dict) -> str:
         ("Newton 0.1 % vs Newton tight", every, fast["gap_vs_tight"]),
         ("L-BFGS vs Newton tight", every, lb["gap_vs_tight"]),
     )
-    gaps = h.table(GAPS, [[what, n, *(_rel(g[k]) for k in ("max", "median", "min"))]
-                          for what, n, g in comparisons])  # fmt: skip
+    gaps = (GAPS, [[what, n, *(_rel(g[k]) for k in ("max", "median", "min"))]
+                   for what, n, g in comparisons])  # fmt: skip
     errs = (r["candidates"], *(t["training_error"] for t in (fast, tight, lb)))
-    errors = h.table(["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
-                     [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
+    errors = (["candidate period", "Newton 0.1 %", "Newton tight", "L-BFGS"],
+              [list(row) for row in zip(*errs, strict=True)])  # fmt: skip
     sampled = [[t["period"], t["phase"], t["seconds"], t["n_iter"],
                 "yes" if t["converged"] else "no", t["objective"],
                 *(_rel(t[k]) for k in ("fast_gap", "tight_gap", "lbfgs_gap"))]
                for t in s["templates"]]  # fmt: skip
-    sampled = h.table([*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"],
-                      sampled)  # fmt: skip
+    heads = [*SAMPLED, "Newton 0.1 % gap", "Newton tight gap", "L-BFGS gap"]
     lo, hi = s["extrapolated_range_s"]
-    return "\n\n".join([
+    return [
         f"## {r['name']}: n = {r['n']}, d = {r['d']}",
         f"Candidates {r['candidates']} (p = {r['p']} templates), C = log N ="
         f" {r['c']:.4f}. The load changed between solvers: see each row.",
@@ -269,8 +269,8 @@ def case_markdown(r: dict) -> str:
         " phase is wrong):",
         errors,
         "Sampled templates:",
-        sampled,
-    ]) + "\n"  # fmt: skip
+        (heads, sampled),
+    ]  # fmt: skip
 
 
 def markdown_joint(report: dict) -> str:
@@ -278,27 +278,21 @@ def markdown_joint(report: dict) -> str:
     cos = v and ", ".join(f"{lag}: {c:.3f}" for lag, c in v["cosines"].items())
     return h.render(
         "Joint solve of all candidate templates: Newton-CG, L-BFGS, liblinear",
-        report, *(case_markdown(r) for r in report["cases"]),
+        report, *(b for r in report["cases"] for b in case_markdown(r)),
         v and f"Video-like features: AR(1) walk rho = {v['rho']}, noise {v['noise']},"
         f" seed {v['seed']}; mean cosine of frames lag apart: {cos}.",
     )  # fmt: skip
 
 
-def options_joint(ap) -> None:
-    ap.add_argument("--frames", type=int, default=3576, help="Nordland frames")
-    ap.add_argument("--video-frames", type=int, default=3705)
-    ap.add_argument("--video-dim", type=int, default=4096)
-    ap.add_argument("--samples", type=int, default=12, help="LinearSVC templates")
+OPTIONS_JOINT = dict(frames=(3576, "Nordland frames"), video_frames=3705,
+                     video_dim=4096, samples=(12, "LinearSVC templates"))  # fmt: skip
 
 
 def run_joint(args) -> dict:
     """Joint solve: Newton-CG, L-BFGS against LinearSVC (solver)."""
     cases, samples = [], args.samples
     if (args.root / "nordland_64x32").is_dir():
-        (x,) = h.nordland_features(
-            args.root, seasons=("summer",), progress=args.progress
-        )
-        name = "Nordland summer, patchnorm 64x32"
+        name, x = "Nordland summer, patchnorm 64x32", h.summer(args)
         cases.append(bench_case(name, x[: args.frames], samples, args.progress))
     else:
         h.log.warning("no Nordland data under %s: the real-frame case is left out",
@@ -324,19 +318,12 @@ class Record:
         return np.zeros(sum(self.cands), bool)
 
 
-def options_work(ap) -> None:
-    ap.add_argument("--frames", type=Path, default=None, help="(n, d) .npy")
-    ap.add_argument("--slack", type=float, default=0.005)
-    ap.add_argument("--after", type=int, default=4)
+OPTIONS_WORK = dict(frames=(Path, "(n, d) .npy"), slack=0.005, after=4)
 
 
 def run_work(args) -> dict:
     """Where the 0.1 % solve's work could be cut (solver_work)."""
-    if args.frames:
-        x = np.load(args.frames).astype(np.float32)
-    else:
-        (x,) = h.nordland_features(args.root, seasons=("summer",),
-                                   progress=args.progress)  # fmt: skip
+    x = np.load(args.frames).astype(np.float32) if args.frames else h.summer(args)
     if args.quick:
         x = x[:600]
     n, labels = len(x), np.arange(len(x))
@@ -438,17 +425,13 @@ def markdown_span(report: dict) -> str:
     )  # fmt: skip
 
 
-def options_span(ap) -> None:
-    ap.add_argument("--frames", type=int, default=3576)
-    ap.add_argument("--level", type=int, default=1)
-    ap.add_argument("--descriptor", default="efficientnet_lite0")
+OPTIONS_SPAN = dict(frames=3576, level=1, descriptor="efficientnet_lite0")
 
 
 def run_span(args) -> dict:
     """Wide frames: the solve in the frames' span against direct (span)."""
     desc = get_descriptor(args.descriptor)
-    (x,) = h.nordland_features(args.root, desc, ("summer",), progress=args.progress)
-    x = x[: args.frames]
+    x = h.summer(args, desc)[: args.frames]
     n, d = x.shape
     cands = candidate_periods(n, 2, args.level, 7)
     y, c = targets(np.arange(n), cands), default_c(n)
@@ -458,10 +441,7 @@ def run_span(args) -> dict:
         ("direct (d-dim)", dataclasses.replace(NewtonConfig(), span=False)),
     ):
         (params, info), wall, cpu = h.timed(newton_fit, x, y, c, cfg, False)
-        with jax.enable_x64(True):  # every template's objective, in float64
-            w, b = (np.asarray(v, np.float64) for v in params)
-            x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
-            answers[name] = np.asarray(objective(Templates(w, b), x64, y64, c))
+        answers[name] = objectives64(params.w, params.b, x, y, c)
         rows.append(dict(solver=name, wall_s=wall, cpu_s=cpu, steps=info.steps,
                          cg_iterations=sum(info.cg_iterations)))  # fmt: skip
         print(rows[-1], flush=True)
@@ -474,9 +454,9 @@ def run_span(args) -> dict:
 
 
 PARTS = {
-    "joint": h.Part(run_joint, markdown_joint, options_joint, "solver", QUICK_JOINT),
-    "work": h.Part(run_work, markdown_work, options_work, "solver_work"),
-    "span": h.Part(run_span, markdown_span, options_span, "span", QUICK_SPAN),
+    "joint": h.Part(run_joint, markdown_joint, OPTIONS_JOINT, "solver", QUICK_JOINT),
+    "work": h.Part(run_work, markdown_work, OPTIONS_WORK, "solver_work"),
+    "span": h.Part(run_span, markdown_span, OPTIONS_SPAN, "span", QUICK_SPAN),
 }
 
 if __name__ == "__main__":

@@ -611,11 +611,9 @@ def meta(run: Run, data, load_start, t0, preds: Path) -> dict:
                 predictions=str(preds))  # fmt: skip
 
 
-def options(ap) -> None:
-    ap.add_argument("--cache-dir", type=Path, default=h.MAP_CACHE, help="fitted maps")
-    ap.add_argument("--predictions", type=Path, default=None,
-                    help="npz of predictions (default: in --cache-dir)")  # fmt: skip
-    ap.add_argument("--threads", type=int, default=1, help="faiss OpenMP threads")
+options = dict(cache_dir=(h.MAP_CACHE, "fitted maps"),
+               predictions=(Path, "npz of predictions (default: in --cache-dir)"),
+               threads=(1, "faiss OpenMP threads"))  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

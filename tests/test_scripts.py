@@ -211,6 +211,30 @@ def test_parts_are_subcommands_with_their_own_options(tmp_path):
         _harness.main("Two.", parts, argv=["three", *out])
 
 
+def test_options_declared_as_data():
+    """Each option is a name and its default, type or help: the harness builds the
+    flag, its type and its form (False: a switch; a list: one or more values)."""
+    import argparse
+
+    import _harness
+
+    ap = argparse.ArgumentParser()
+    _harness.add_options(ap, dict(
+        n=3, rate=(0.5, "a rate"), base=(Path, "a folder"), skip=False,
+        sizes=[1, 2], mode=dict(default="a", choices=("a", "b")),
+    ))  # fmt: skip
+    args = ap.parse_args([])
+    assert (args.n, args.rate, args.base, args.skip, args.sizes) == (3, 0.5, None,
+                                                                     False, [1, 2])
+    args = ap.parse_args(["--n", "4", "--base", "/x", "--skip", "--sizes", "5", "6",
+                          "--mode", "b", "--rate", "2"])  # fmt: skip
+    assert (args.n, args.base, args.skip, args.sizes, args.mode) == (
+        4, Path("/x"), True, [5, 6], "b")  # fmt: skip
+    assert args.rate == 2.0 and "a rate" in ap.format_help()
+    with pytest.raises(SystemExit):
+        ap.parse_args(["--mode", "c"])
+
+
 def test_cached_fit_fits_once(tmp_path):
     import _harness
     import numpy as np
