@@ -111,6 +111,7 @@ COMPILE_NOTE = textwrap.fill(
     79,
 )
 
+
 class _Parser(argparse.ArgumentParser):
     """Usage errors in one line, like every other refusal (exit status 2)."""
 
