@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.fitting.places import checked_positions
 
 __all__ = [
     "GroundTruth",
@@ -144,8 +145,8 @@ def from_positions(
     """
     from scipy.spatial import cKDTree
 
-    ref = _xy(reference_xy, "reference positions")
-    qry = _xy(query_xy, "query positions")
+    ref = checked_positions(reference_xy, "reference")
+    qry = checked_positions(query_xy, "queries")
     if not tolerance_m > 0:
         raise InputError(f"{{opt:tolerance_m}} must be positive, got {tolerance_m}")
     labels = np.arange(len(ref)) if reference_labels is None else reference_labels
@@ -158,15 +159,6 @@ def from_positions(
     lists = [np.unique(labels[np.asarray(i, np.int64)]) for i in near]
     gt = from_lists(lists, int(labels.max()) + 1, source)
     return GroundTruth(gt.positives, gt.n_places, source, float(tolerance_m))
-
-
-def _xy(a, name: str) -> np.ndarray:
-    a = np.asarray(a, np.float64)
-    if a.ndim != 2 or a.shape[1] != 2 or not len(a):
-        raise InputError(f"{name} must have shape (n, 2), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise InputError(f"{name} has NaN or infinite entries")
-    return a
 
 
 def gt_accuracy(pred, gt: GroundTruth) -> float:

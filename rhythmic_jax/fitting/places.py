@@ -29,6 +29,7 @@ from rhythmic_jax.io.reader import load_npy, memory_budget, npy_header, read_tex
 from rhythmic_jax.validate import check_int
 
 __all__ = [
+    "checked_positions",
     "frame_places",
     "gps_places",
     "in_metres",
@@ -80,7 +81,7 @@ def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
     if not path.exists():
         raise InputError(f"{path}: positions file not found")
     if path.suffix.lower() == ".npy":
-        return _checked(_plain_npy(path), path), "metres"
+        return checked_positions(_plain_npy(path), path), "metres"
     # as a spreadsheet saves it too: a byte-order mark, CRLF ends, blank lines
     text = read_text(path, limit=memory_budget() // 8, encoding="utf-8-sig")
     rows = list(csv.reader(text.splitlines()))
@@ -95,12 +96,12 @@ def read_positions(path: str | Path) -> tuple[np.ndarray, str]:
     else:
         if len(head) != 2:
             raise InputError(f"{path}: {len(head)} unnamed columns; name them")
-        return _checked(_floats(rows, (0, 1), path), path), "metres"
+        return checked_positions(_floats(rows, (0, 1), path), path), "metres"
     named = [(m, "metres") for m in _METRES] + [(d, "degrees") for d in _DEGREES]
     for (a, b), unit in named:
         if a in head and b in head:
             xy = _floats(rows[1:], (head.index(a), head.index(b)), path)
-            return _checked(xy, path), unit
+            return checked_positions(xy, path), unit
     raise InputError(
         f"{path}: no easting,northing / x,y / latitude,longitude columns in {head}"
     )
@@ -125,12 +126,14 @@ def _floats(rows, cols: tuple[int, int], path: Path) -> np.ndarray:
         raise InputError(f"{path}: a row without two numbers in its columns") from None
 
 
-def _checked(xy: np.ndarray, path) -> np.ndarray:
+def checked_positions(xy, where) -> np.ndarray:
+    """Positions ``xy`` as (n, 2) float64, n >= 1, all finite, else one line
+    naming ``where`` they came from."""
     xy = np.asarray(xy, np.float64)
     if xy.ndim != 2 or xy.shape[1] != 2 or not len(xy):
-        raise InputError(f"{path}: positions must be (n, 2), got {xy.shape}")
+        raise InputError(f"{where}: positions must be (n, 2), got {xy.shape}")
     if not np.isfinite(xy).all():
-        raise InputError(f"{path}: positions hold NaN or infinite values")
+        raise InputError(f"{where}: positions hold NaN or infinite values")
     return xy
 
 
@@ -143,7 +146,7 @@ def positions_from_names(paths: Sequence[str | Path]) -> np.ndarray:
             out.append((float(parts[1]), float(parts[2])))
         except (IndexError, ValueError):
             raise InputError(f"{p}: no @easting@northing@ in the file name") from None
-    return _checked(np.array(out), paths[0] if paths else "file names")
+    return checked_positions(np.array(out), paths[0] if paths else "file names")
 
 
 def positions_of_sources(specs: Sequence[str], sources: Sequence[str]):
