@@ -244,12 +244,12 @@ class MapEstimator(EstimatorFace):
         return self._fitted()
 
     def _fitted(self) -> pytree.Map:
-        got = vars(self).get("map_")
-        if got is None:
+        try:
+            return self.__dict__["map_"]
+        except KeyError:
             raise not_fitted_error()(
                 "this map is not fitted yet: call fit() or load() first"
-            )
-        return got
+            ) from None
 
     n = _map_field("n", "Number of places.")
     d = _map_field("d", "Features of a frame (the map's input).")
@@ -322,15 +322,19 @@ class MapEstimator(EstimatorFace):
         (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, ``top``,
         ``sequence`` length, ``speeds``, ``threshold``); the queries taken by
         :func:`rhythmic_jax.estimator_inputs.query_rows` first."""
-        m = self._fitted()
+        try:  # a query's latency: no call where the map is held
+            m = self.map_
+        except AttributeError:
+            m = self._fitted()  # raises, in the estimator's words
         x = query_rows(X, m.d, m.extra)
         got = queries.predict(m, x, method, top=top, sequence=sequence,
                               speeds=speeds, threshold=threshold)  # fmt: skip
-        return self._labelled(got)
+        return got if "place_labels" not in m.extra else self._labelled(got, m)
 
-    def _labelled(self, index):
-        """Places (b,) of the map as the labels ``fit`` was given (-1 kept)."""
-        labels = self.map_.extra.get("place_labels")  # fitted: its caller checked
+    def _labelled(self, index, m: pytree.Map | None = None):
+        """Places (b,) of the map ``m`` (default the one held) as the labels
+        ``fit`` was given (-1 kept)."""
+        labels = (self.map_ if m is None else m).extra.get("place_labels")
         if labels is None:
             return index
         labels = np.asarray(labels)

@@ -213,7 +213,8 @@ def predict(
     thr = m.config.threshold
     if threshold is not None:
         thr = check_number(threshold, "{opt:threshold}")
-    sequence = check_sequence(sequence)
+    if sequence is not None:
+        sequence = check_sequence(sequence)
     idx, conf = way(m, method, thr, sequence)(m, q, method, top, sequence, speeds)
     idx = np.asarray(idx, np.int64)  # no copy of the single-query lane's places
     if thr is not None:
