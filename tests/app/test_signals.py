@@ -36,12 +36,15 @@ def _taken_over(pid: int, timeout: float = 60.0) -> None:
 
 
 def _start(*argv: str, cwd: Path) -> subprocess.Popen:
+    """The command, compiling its programs anew (no compile cache): with the
+    frames below its work lasts seconds even on an idle machine."""
     return subprocess.Popen(
         [sys.executable, "-m", "rhythmic_jax.app.cli", *argv, "--no-progress"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         cwd=cwd,
+        env={**os.environ, "RHYTHMIC_JAX_COMPILE_CACHE": "0"},
         # as a user's shell delivers it: a parallel test runner may start its
         # workers with SIGINT ignored, which a child would otherwise inherit
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
@@ -50,13 +53,14 @@ def _start(*argv: str, cwd: Path) -> subprocess.Popen:
 
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory) -> Path:
-    """120 small JPEGs: a plain image fit of a few seconds."""
+    """1,000 small JPEGs: a plain image fit of about 4-5 s on an idle machine
+    (120 had ended within 1.4 s once its programs were cached)."""
     folder = tmp_path_factory.mktemp("signals") / "frames"
     folder.mkdir()
     rng = np.random.default_rng(0)
-    for i in range(120):
+    for i in range(1000):
         pixels = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
-        Image.fromarray(pixels).save(folder / f"{i:03d}.jpg")
+        Image.fromarray(pixels).save(folder / f"{i:04d}.jpg")
     return folder
 
 
