@@ -139,16 +139,15 @@ def fit_map_files(
     in_memory = not stream and resident_bytes() + need + SLACK <= limit
     # every process must take the same path
     in_memory = allreduce(np.array([float(not in_memory)]))[0] == 0
-    cfg = config
     run = {"mode": "memory" if in_memory else "stream", "rows": stop - start}
     if in_memory and k == 1:  # the one-process fit of frames held whole
         x = frames.read(0, frames.n)
-        return fit(x, cfg, labels=labels_all, progress=progress), run
+        return fit(x, config, labels=labels_all, progress=progress), run
     _check_scale(frames, start, stop)  # as the in-memory fit does, before the solve
     if in_memory:
-        config = NewtonConfig(gap_tol=cfg.gap, span=False)
+        solver = NewtonConfig(gap_tol=config.gap, span=False)
         params, errors, info = fit_newton(
-            frames.read(start, stop), labels, frames.n, cands, c, config, progress
+            frames.read(start, stop), labels, frames.n, cands, c, solver, progress
         )
         run["steps"] = info.steps
     else:
@@ -158,9 +157,9 @@ def fit_map_files(
         if k > 1:  # the same block size and choice on every process
             rows = _min_over_processes(rows)
             keep = _min_over_processes(int(keep)) == 1
-        fast = cfg.gap >= 1e-4  # FAST's CG caps for a loose gap
-        config = StreamConfig(
-            gap_tol=cfg.gap,
+        fast = config.gap >= 1e-4  # FAST's CG caps for a loose gap
+        solver = StreamConfig(
+            gap_tol=config.gap,
             block_rows=rows,
             max_cg=8 if fast else 50,
             cg_start=3 if fast else None,
@@ -170,7 +169,7 @@ def fit_map_files(
             None if checkpoint is None else Path(checkpoint) / f"stream-{i}-of-{k}.npz"
         )
         params, info = streamed_newton_fit(
-            frames, labels, cands, c, config, (start, stop), allreduce, progress, state
+            frames, labels, cands, c, solver, (start, stop), allreduce, progress, state
         )
         errors = stream_errors(
             frames, labels, cands, params, (start, stop), rows, allreduce
@@ -180,9 +179,9 @@ def fit_map_files(
         run.update(line=info.line_passes)
         run.update(pass_seconds=info.pass_seconds)
         run["pass_median_s"] = float(np.median(info.pass_seconds))
-    kept = fit_plan.keep(params, np.asarray(errors), cfg.dtype)
+    kept = fit_plan.keep(params, np.asarray(errors), config.dtype)
     log.info("fit from files: %s", {k: v for k, v in run.items() if k[0] != "p"})
-    return Map.build(kept, d, cfg), run
+    return Map.build(kept, d, config), run
 
 
 def _check_layout(layout: str) -> None:
