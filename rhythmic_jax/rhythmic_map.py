@@ -376,7 +376,7 @@ class MapEstimator(EstimatorFace):
     # ------------------------------------------------------------ files
     def with_dtype(self, dtype: str) -> MapEstimator:
         """A copy storing its templates as ``dtype`` (from the values stored now)."""
-        return type(self)._holding(pytree.with_dtype(self._fitted(), dtype))
+        return type(self).from_map(pytree.with_dtype(self._fitted(), dtype))
 
     def save(self, path) -> None:
         """Save to the folder ``path`` (atomic; :mod:`rhythmic_jax.map.map_file`)."""
@@ -387,11 +387,12 @@ class MapEstimator(EstimatorFace):
         """Load a map; refuse it when it was built for another descriptor or d."""
         got = map_file.load(path, MapConfig, descriptor=descriptor,
                             descriptor_settings=descriptor_settings, d=d)  # fmt: skip
-        return cls._holding(got)
+        return cls.from_map(got)
 
     @classmethod
-    def _holding(cls, m: pytree.Map) -> MapEstimator:
-        """A fitted estimator holding ``m``, with the parameters it was built with."""
+    def from_map(cls, m: pytree.Map) -> MapEstimator:
+        """A fitted estimator holding the map ``m``, with the parameters it was
+        built with."""
         scale = "standardize" if "scale_mean" in m.extra else "refuse"
         self = cls.from_config(m.config, embedding=m.embedding, scale=scale)
         self.map = m

@@ -25,7 +25,6 @@ Nothing here prints: the command line shows what they return through
 from __future__ import annotations
 
 import contextlib
-import json
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -69,17 +68,17 @@ class Settled(NamedTuple):
 
     augmented: tuple[Any, Path] | None  # (AugmentedFit, checkpoint folder)
     learned: tuple[Any, dict] | None  # (embedding, meta) of fit --embedding
-    located: tuple[Any, str] | None  # the frames' positions (array, unit)
+    placed: tuple[Any, dict] | None  # (place labels or None, positions kept)
     reading: Reading  # with the embedding's descriptor for images naming none
-    reference: dict[str, Any]  # the map's provenance
+    reference: dict[str, Any]  # the map's provenance besides its sources
     fusion: float  # the map's share of a fused score
     plan: Any  # the FitPlan, or None where only reading the sources tells
 
 
 def _before_reading(job: FitJob) -> Settled:
     """What a fit's settings and its sources' headers decide, refused before
-    any source is read: the frames' positions
-    (:func:`rhythmic_jax.fitting.places.positions_of_sources`), the augmented
+    any source is read: the frames' positions and their places
+    (:func:`rhythmic_jax.fitting.places.frame_places`), the augmented
     fit's settings (and checkpoint folder), the embedding of ``fit
     --embedding`` and the reading of the sources it implies (its descriptor and
     weights, for images that name none), the fusion weight, the map's
@@ -91,7 +90,7 @@ def _before_reading(job: FitJob) -> Settled:
     embedding of another dimension: reading them says what is wrong).
     """
     from rhythmic_jax.fitting.fit_plan import plan as plan_fit
-    from rhythmic_jax.fitting.places import positions_of_sources
+    from rhythmic_jax.fitting.places import frame_places, positions_of_sources
     from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.descriptor_files import descriptor_shape
     from rhythmic_jax.map.embedding import (
@@ -100,10 +99,11 @@ def _before_reading(job: FitJob) -> Settled:
         load_embedding,
     )
 
-    augmented = learned = located = fit_plan = None
+    augmented = learned = placed = fit_plan = None
     read, sources = job.reading, job.sources
     if job.positions is not None:  # a bad file is refused before any frame is read
         located = positions_of_sources(job.positions, sources)
+        placed = frame_places(located, job.places)  # k-means: before reading too
     if job.augment:
         from rhythmic_jax.augment.kornia_ops import AugmentConfig
         from rhythmic_jax.augment.stream import AugmentedFit
@@ -122,11 +122,7 @@ def _before_reading(job: FitJob) -> Settled:
         if read.descriptor is None and name is not None and job.images:
             read = replace(read, descriptor=name, weights=read.weights or weights)
     fusion = fusion_of(job.fusion, job.config.codes, (learned or (None, None))[1])
-    ref = {
-        "sources": [str(Path(src).expanduser().absolute()) for src in job.sources],
-        "tile": read.tile,
-        "stride": read.stride,
-    }
+    ref = {"tile": read.tile, "stride": read.stride}
     if read.select is not None:
         ref["select"] = read.select  # brute force reads the same rows
     if job.embedding is not None:
@@ -149,7 +145,7 @@ def _before_reading(job: FitJob) -> Settled:
     if augmented is not None:
         check_place("checkpoint", augmented[1], inside=True)
     check_target(job.out)  # before the fit, not after it
-    return Settled(augmented, learned, located, read, ref, fusion["weight"], fit_plan)
+    return Settled(augmented, learned, placed, read, ref, fusion["weight"], fit_plan)
 
 
 def fit(job: FitJob, progress: bool = False):
@@ -171,13 +167,12 @@ def fit(job: FitJob, progress: bool = False):
 
     from rhythmic_jax.fitting.fit_map import fit as fit_map
     from rhythmic_jax.fitting.fit_plan import plan as plan_fit
-    from rhythmic_jax.fitting.places import frame_places
     from rhythmic_jax.frames.sources import load_sources
     from rhythmic_jax.io.checkpoint import check_space
     from rhythmic_jax.map import map_file
     from rhythmic_jax.rhythmic_map import MapEstimator
 
-    augmented, learned, located, read, ref, weight, fit_plan = _before_reading(job)
+    augmented, learned, placed, read, ref, weight, fit_plan = _before_reading(job)
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
@@ -196,8 +191,12 @@ def fit(job: FitJob, progress: bool = False):
             f"got {feats.x.shape[1]}"
         )
     labels, extra = feats.labels, feats.extra
-    if located is not None:
-        places, kept = frame_places(located, len(feats.x), job.places)
+    if placed is not None:
+        places, kept = placed
+        xy = kept["reference_positions"]
+        if len(xy) != len(feats.x):
+            raise InputError(f"{{opt:positions}}: {len(xy)} positions for "
+                             f"{len(feats.x)} reference frames")  # fmt: skip
         labels = labels if places is None else places
         extra = {**extra, **kept}
     if fit_plan is None:
@@ -213,14 +212,12 @@ def fit(job: FitJob, progress: bool = False):
         fitted = fit_map(feats.x, config, labels=labels, embedding=emb,
                          progress=progress, refine=refine, plan=fit_plan)  # fmt: skip
     fitted = replace(fitted, extra={**fitted.extra, **extra},
-                     reference=json.dumps(ref, sort_keys=True))  # fmt: skip
+                     reference=map_file.reference(job.sources, **ref))  # fmt: skip
     with write_errors("out", job.out):
         map_file.save(job.out, fitted)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
-    model = MapEstimator.from_config(config, embedding=emb)
-    model.map = fitted
-    return model
+    return MapEstimator.from_map(fitted)
 
 
 @contextlib.contextmanager

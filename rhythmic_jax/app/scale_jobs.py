@@ -218,14 +218,9 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         )  # fmt: skip
     if name == "features":
         settings = {"dim": fitted.d}
-    reference = {
-        "sources": [str(Path(src).expanduser().absolute()) for src in sources],
-        "tile": None,
-        "stride": None,
-    }
     fitted = replace(
         fitted, config=replace(fitted.config, descriptor_settings=settings),
-        reference=json.dumps(reference, sort_keys=True),
+        reference=map_file.reference(sources, tile=None, stride=None),
     )  # fmt: skip
     if jax.process_index() == 0:
         with write_errors("out", job.out):
@@ -238,6 +233,4 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         ckpt.rmdir()  # once every process has removed its file
     if jax.process_index() != 0:
         return None, None
-    model = MapEstimator.from_config(fitted.config)
-    model.map = fitted
-    return model, run
+    return MapEstimator.from_map(fitted), run

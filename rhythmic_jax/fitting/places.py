@@ -213,14 +213,14 @@ def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
 
 
 def frame_places(
-    located: tuple[np.ndarray, str], frames: int, places: int | None
+    located: tuple[np.ndarray, str], places: int | None
 ) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
-    """The positions of a fit's ``frames`` reference frames and their places.
+    """The positions a fit's map keeps for its reference frames, and their places.
 
     Args:
       located: the frames' positions ``(array (frames, 2), unit)``, as
-        :func:`positions_of_sources` reads them (before the frames are read).
-      frames: how many frames the sources gave.
+        :func:`positions_of_sources` reads them (before the frames are read;
+        the fit checks that there is one a frame).
       places: group the frames into this many places by k-means over their
         positions in metres (:func:`gps_places`); None keeps the sources' own.
 
@@ -231,10 +231,6 @@ def frame_places(
       latitude, longitude), plus ``reference_labels`` with ``places``.
     """
     xy, unit = located
-    if len(xy) != frames:
-        raise InputError(
-            f"{{opt:positions}}: {len(xy)} positions for {frames} reference frames"
-        )
     extra = {
         "reference_positions": xy,
         "reference_positions_degrees": np.asarray(int(unit == "degrees")),

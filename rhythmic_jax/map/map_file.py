@@ -25,9 +25,11 @@ load.
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -142,6 +144,14 @@ def save(path: str | os.PathLike, m) -> None:
     meta = describe(m)
     meta.update(dtype=m.config.dtype, package_version=__version__)
     save_map(path, arrays, meta)
+
+
+def reference(sources, **more) -> str:
+    """A map's provenance as ``Map.reference`` holds it: JSON of the sources'
+    absolute paths and ``more`` (the tiling, a selection, the embedding, ...),
+    so that brute force finds the reference frames again."""
+    paths = [str(Path(s).expanduser().absolute()) for s in sources]
+    return json.dumps({"sources": paths, **more}, sort_keys=True)
 
 
 def settings_now(saved: dict) -> dict:

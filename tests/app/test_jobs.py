@@ -6,6 +6,8 @@ import json
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -136,6 +138,27 @@ def test_descriptor_files_too_large_are_refused_from_the_header(tmp_path):
         FitJob(two.sources, out, positions=located, places=5),
     ):
         assert _before_reading(left).plan is None
+
+
+def test_positions_and_places_are_settled_before_the_frames_are_read(tmp_path):
+    """k-means over the positions runs (and is refused) before any frame is
+    read; one position a frame is checked once the frames are read."""
+    np.save(tmp_path / "ref.npy", np.zeros((100, 8), np.float32))
+    np.save(tmp_path / "xy.npy", np.arange(200.0).reshape(100, 2))
+    np.save(tmp_path / "short.npy", np.arange(198.0).reshape(99, 2))
+    out = str(tmp_path / "m.map")
+    absent = FitJob((str(tmp_path / "absent.npy"),), out,
+                    positions=(str(tmp_path / "xy.npy"),), places=101)  # fmt: skip
+    with pytest.raises(InputError, match=r"k must be an integer in \[1, 100\]"):
+        _before_reading(absent)  # the source is never looked at
+    labels, kept = _before_reading(replace(absent, places=4)).placed
+    assert labels.shape == (100,) and set(labels.tolist()) == {0, 1, 2, 3}
+    assert kept["reference_positions"].shape == (100, 2)
+    short = FitJob((str(tmp_path / "ref.npy"),), out,
+                   positions=(str(tmp_path / "short.npy"),))  # fmt: skip
+    with pytest.raises(InputError, match="99 positions for 100 reference frames"):
+        jobs.fit(short)
+    assert not Path(out).exists()
 
 
 @pytest.mark.parametrize("kind", ["npy", "images"])

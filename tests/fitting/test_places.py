@@ -93,15 +93,13 @@ def test_frame_places_keep_positions_and_group_them(tmp_path):
     np.save(tmp_path / "b.npy", coords[100:])
     specs, sources = [str(tmp_path / "a.npy"), str(tmp_path / "b.npy")], ["a", "b"]
     located = positions_of_sources(specs, sources)
-    labels, extra = frame_places(located, 200, None)
+    labels, extra = frame_places(located, None)
     assert labels is None and set(extra) == {
         "reference_positions", "reference_positions_degrees"
     }  # fmt: skip
     np.testing.assert_array_equal(extra["reference_positions"], coords)
-    labels, extra = frame_places(located, 200, 8)
+    labels, extra = frame_places(located, 8)
     np.testing.assert_array_equal(labels, gps_places(coords, 8))
     np.testing.assert_array_equal(extra["reference_labels"], labels)
-    with pytest.raises(InputError, match="200 positions for 199 reference frames"):
-        frame_places(located, 199, None)
     with pytest.raises(InputError, match="2 files for 1 sources"):
         positions_of_sources(specs, ["a"])
