@@ -19,7 +19,7 @@ the fit from files (:func:`rhythmic_jax.fitting.scale_fit.fit_map_files`) and th
 job
 (:func:`rhythmic_jax.app.jobs.fit`) share it.
 
-Names: n places, d features, p templates trained, k groups trained (candidates).
+Names: n places, d features, p templates trained, g groups trained (candidates).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ class Kept:
     ``stored``: ``w`` (d, p_kept), ``b`` (p_kept,) in the map's dtype (and
     ``scale`` (p_kept,) for int8, :func:`rhythmic_jax.map.quantize.quantize`);
     ``params``: their float32 values ``(w, b)``, which queries use;
-    ``candidate_errors`` (k,) per candidate period (empty for fixed groups);
+    ``candidate_errors`` (g,) per candidate period (empty for fixed groups);
     ``group_errors`` per kept group.
     """
 
@@ -132,7 +132,7 @@ class FitPlan:
 
     def keep(self, params, errors, dtype: str) -> Kept:
         """What the map keeps of trained ``params`` (``w`` (d, p), ``b`` (p,)),
-        stored as ``dtype``, from training ``errors`` (k,) per trained group:
+        stored as ``dtype``, from training ``errors`` (g,) per trained group:
         the ``r`` candidates of least summed error that are pairwise co-prime
         with a product >= n (:func:`rhythmic_jax.map.periods.choose_periods`), or
         every fixed group."""

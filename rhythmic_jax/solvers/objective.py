@@ -15,7 +15,7 @@ Both are :func:`margin_objective` (the same classifier written at its margins
 in step with the parameters (Newton-CG) differentiate :func:`margin_objectives`,
 its vmap, directly.
 
-Names: n frames, d features, p templates (sum of the periods), k periods.
+Names: n frames, d features, p templates (sum of the periods), g periods.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def targets(
     Args:
       labels: (n,) int place index of every frame (several traversals of one route
         share labels: multi-exemplar training).
-      periods: static tuple of k periods, or the map's groups.
+      periods: static tuple of g periods, or the map's groups.
 
     Returns:
       (n, p) float32 array of ±1: a NumPy array for host labels (no XLA program
@@ -215,7 +215,7 @@ def total_objective(
 
 
 def phase_predictions(s: jax.Array, periods: Sequence[int]) -> jax.Array:
-    """Per-period argmax phase ``f(x | tau_k)`` (paper Eq. 3): (n, p) -> (n, k)."""
+    """Per-period argmax phase ``f(x | tau_g)`` (paper Eq. 3): (n, p) -> (n, g)."""
     offs = period_offsets(periods)
     return jnp.stack(
         [
@@ -236,7 +236,7 @@ def period_errors(
       periods: the periods, or a map's groups (then the error of every group).
 
     Returns:
-      (k,) float32 error of each period (paper Sec. III-B, "training error
+      (g,) float32 error of each period (paper Sec. III-B, "training error
       e"): NumPy, computed on the host, unless ``s`` is traced (a JAX array);
       the same float32 values either way (a wrong count over n, rounded once).
     """

@@ -26,7 +26,7 @@ A pass may carry some templates only (``cols``), in kernel calls of one width,
 so that each kernel compiles for two shapes at most: every column, and that
 width.
 
-Names: B rows per block, q = d + 1, p templates, k periods.
+Names: B rows per block, q = d + 1, p templates, g periods.
 """
 
 from __future__ import annotations
@@ -179,7 +179,7 @@ def _line_pass(xa, labels, theta, s, t, c, periods, cols=None):
 
 @partial(jit, static_argnames=("periods",))
 def _wrong_pass(xa, labels, w, periods):
-    """(k,) frames of a block whose argmax phase is wrong, per period."""
+    """(g,) frames of a block whose argmax phase is wrong, per period."""
     s = jnp.matmul(xa, w, precision="highest")
     out = []
     for off, t in zip(period_offsets(periods), periods, strict=True):
@@ -254,7 +254,7 @@ class Passes:
         return self.run(_line_pass, theta, s, t, c, split=3, cols=cols)
 
     def wrong(self, w) -> np.ndarray:
-        """(k,) frames whose argmax phase is wrong, per period, for the
+        """(g,) frames whose argmax phase is wrong, per period, for the
         templates w (q, p) float32 (bias last)."""
         return self.run(_wrong_pass, w, split=1)
 
