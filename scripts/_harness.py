@@ -386,7 +386,8 @@ def figures(node: dict, level: int = 2) -> list:
         if (records := _records(value)) is not None:
             blocks += ["#" * level + f" {key}", records_table(records)]
         elif (flat := _flat(value)) is not None:
-            plain_rows += [[f"{key}.{k}" if k else key, v] for k, v in flat.items()]
+            plain_rows += [[f"{key}.{k}" if k else key, _value(v)]
+                           for k, v in flat.items()]  # fmt: skip
         elif isinstance(value, dict):
             blocks += ["#" * level + f" {key}", *figures(value, level + 1)]
         else:  # a list of sections
