@@ -477,7 +477,10 @@ def targets(rows: list) -> list:
 
 def document(title: str, report: dict, *blocks) -> str:
     """:func:`render` of ``blocks`` then of every figure of the report."""
-    body = {k: v for k, v in report.items() if k not in HEADER_KEYS}
+    shown = dict(environment="devices" in report.get("environment", {}),
+                 load_average=isinstance(report.get("load_average"), dict))
+    body = {k: v for k, v in report.items()
+            if k not in HEADER_KEYS or shown.get(k) is False}  # fmt: skip
     wall = report.get("wall_seconds")
     tail = [] if wall is None else [f"Wall seconds of the run: {_cell(wall)}."]
     return render(title, report, *blocks, *tail, *figures(body))
