@@ -379,11 +379,14 @@ NAMES = ("name", "method", "job", "op", "descriptor", "solver", "layout", "label
 
 def figures(node: dict, level: int = 2) -> list:
     """Blocks that show every figure of ``node``: its plain values (nested dicts
-    flattened to ``a.b``) as a key/value table, each list of records or dict of
-    records as a table under its key's heading, anything deeper a section."""
+    flattened to ``a.b``) as a key/value table, a long text as a paragraph, each
+    list of records or dict of records as a table under its key's heading, anything
+    deeper a section."""
     plain_rows, blocks = [], []
     for key, value in node.items():
-        if (records := _records(value)) is not None:
+        if isinstance(value, str) and len(value) > 120:  # a paragraph
+            blocks += [f"{key}: {value}"]
+        elif (records := _records(value)) is not None:
             blocks += ["#" * level + f" {key}", records_table(records)]
         elif (flat := _flat(value)) is not None:
             plain_rows += [[f"{key}.{k}" if k else key, _value(v)]
@@ -414,14 +417,18 @@ def _flat(value, prefix: str = "") -> dict | None:
 
 
 def _records(value) -> list[dict] | None:
-    """A list of flat records (each a dict of plain values), or a dict of them (the
-    key first, as ``""``), else None."""
+    """A list of flat records (each a dict of plain values, or a list: its items by
+    index), or a dict of them (the key first, as ``""``), else None."""
     if isinstance(value, dict) and len(value) > 1:
         if all(isinstance(v, dict) for v in value.values()):
             flat = [_flat(v) for v in value.values()]
             if all(f is not None for f in flat):
                 return [{"": k} | f for k, f in zip(value, flat, strict=True)]
-    if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+    if not isinstance(value, list) or not value:
+        return None
+    if all(isinstance(v, list | tuple) for v in value):
+        return [{str(i): x for i, x in enumerate(row)} for row in value]
+    if all(isinstance(v, dict) for v in value):
         flat = [_flat(v) for v in value]
         return flat if all(f is not None for f in flat) else None
     return None
