@@ -183,8 +183,6 @@ TARGETS = [
      lambda r, b: r["wall"] / b["wall"], 0.4, "{:.2f}x"),
     ("fit: wall, warm, imports included", "fit", "new warm",
      lambda r, b: r["wall"], 2.0, "{:.2f} s"),
-    ("(no target) imports and exit alone, warm", "imports", "new warm",
-     lambda r, b: r["wall"], None, "{:.2f} s"),
     ("Nordland: compiling / cold fit's wall", "nordland", "new cold",
      lambda r, b: r["compile_s"] / r["wall"], 0.15, "{:.1%}"),
     ("demo: wall, cold", "demo", "new cold", lambda r, b: r["wall"], 15.0, "{:.1f} s"),
@@ -192,25 +190,18 @@ TARGETS = [
 ]  # fmt: skip
 
 
-def targets(report: dict) -> list[list]:
-    """[target, limit, measured, met] for the targets this run's jobs answer; over
-    several rounds the median of the rounds (each against its round's baseline)."""
+def targets(report: dict) -> list:
+    """The targets this run's jobs answer; over several rounds the median of the
+    rounds (each against its round's baseline)."""
     rows, out = {}, []
     for r in report["rows"]:
         rows.setdefault((r["job"], r["variant"]), []).append(r)
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
             pairs = zip(rows[job, variant], rows[job, "base"], strict=True)
-            v = [measure(*p) for p in pairs]
-            value = float(np.median(v))
-            text = fmt.format(value)
-            if len(v) > 1:
-                text += f" (median of {len(v)}: {fmt.format(min(v))} to "
-                text += f"{fmt.format(max(v))})"
-            met = "" if limit is None else "met" if value <= limit else "not met"
-            limit = "" if limit is None else fmt.format(limit)  # None: a floor only
-            out.append([what, limit, text, met])
-    return out
+            value = float(np.median([measure(*p) for p in pairs]))
+            out.append(h.target(what, value, limit, False, fmt))
+    return h.targets(out)
 
 
 markdown_jobs = h.markdown(
@@ -221,9 +212,8 @@ markdown_jobs = h.markdown(
     " obtained; hits: of them, loaded from the persistent cache; load: the 1-minute"
     " load average after the job. agreement: the maps against the baseline's. The"
     " imports row is the floor under any fit's wall.",
-    lambda report: ["Targets:", (["target", "at most", "measured", ""],
-                                 targets(report), "l")],
-)  # fmt: skip
+    targets,
+)
 
 
 HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
