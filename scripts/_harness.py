@@ -1,12 +1,13 @@
 """The one harness of the benchmark scripts.
 
 A script groups the reports of one theme as :class:`Part` s (``run(args) -> dict``,
-the measurements; ``markdown(report) -> str`` through the one renderer,
-:func:`render`; ``options(ap)``), and ends with ``main(__doc__, PARTS)``: a
-subcommand a part, common options, threads pinned to one per core, the machine and
-load recorded, then ``<stem>.json`` and ``<stem>.md`` written (``--render [JSON]``:
-the Markdown again from a report). Also: the timer, a command in a fresh process, the
-Nordland and aerial features and the cache of fitted maps.
+the measurements; ``markdown(report) -> str``, mostly :func:`markdown`: every figure
+of the JSON through the one renderer, :func:`document`; ``options``), and ends with
+``main(__doc__, PARTS)``: a subcommand a part, common options, threads pinned to one
+per core, the machine and load recorded, then ``<stem>.json`` and ``<stem>.md``
+written (``--render [JSON]``: the Markdown again from a report, the JSON as it is).
+Also: the timer, a command in a fresh process, the Nordland and aerial features and
+the cache of fitted maps.
 """
 
 import argparse
@@ -372,6 +373,136 @@ def render(title: str, report: dict, *blocks) -> str:
     return "\n".join(header(title, report)) + "\n" + "\n\n".join(parts)
 
 
+HEADER_KEYS = ("command", "environment", "load_average", "wall_seconds")
+NAMES = ("name", "method", "job", "op", "descriptor", "solver", "layout", "label")
+
+
+def figures(node: dict, level: int = 2) -> list:
+    """Blocks that show every figure of ``node``: its plain values (nested dicts
+    flattened to ``a.b``) as a key/value table, a long text as a paragraph, each
+    list of records or dict of records as a table under its key's heading, anything
+    deeper a section."""
+    plain_rows, blocks = [], []
+    for key, value in node.items():
+        if isinstance(value, str) and len(value) > 120:  # a paragraph
+            blocks += [f"{key}: {value}"]
+        elif (records := _records(value)) is not None:
+            blocks += ["#" * level + f" {key}", records_table(records)]
+        elif (flat := _flat(value)) is not None:
+            plain_rows += [[f"{key}.{k}" if k else key, _value(v)]
+                           for k, v in flat.items()]  # fmt: skip
+        elif isinstance(value, dict):
+            blocks += ["#" * level + f" {key}", *figures(value, level + 1)]
+        else:  # a list of sections
+            for i, item in enumerate(value):
+                title = _section(item) or str(i)
+                blocks += ["#" * level + f" {key}: {title}", *figures(item, level + 1)]
+    head = [(["figure", "value"], plain_rows, "ll")] if plain_rows else []
+    return head + blocks
+
+
+def _flat(value, prefix: str = "") -> dict | None:
+    """``{dotted key: value}`` of a value without a list of records, else None."""
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            sub = _flat(v, f"{prefix}.{k}" if prefix else str(k))
+            if sub is None:
+                return None
+            out |= sub
+        return out
+    if isinstance(value, list | tuple) and any(isinstance(v, dict) for v in value):
+        return None
+    return {prefix: value}
+
+
+def _records(value) -> list[dict] | None:
+    """A list of flat records (each a dict of plain values, or a list: its items by
+    index), or a dict of them (the key first, as ``""``), else None."""
+    if isinstance(value, dict) and len(value) > 1:
+        if all(isinstance(v, dict) for v in value.values()):
+            flat = [_flat(v) for v in value.values()]
+            if all(f is not None for f in flat):
+                return [{"": k} | f for k, f in zip(value, flat, strict=True)]
+    if not isinstance(value, list) or not value:
+        return None
+    if all(isinstance(v, list | tuple) for v in value):
+        return [{str(i): x for i, x in enumerate(row)} for row in value]
+    if all(isinstance(v, dict) for v in value):
+        flat = [_flat(v) for v in value]
+        return flat if all(f is not None for f in flat) else None
+    return None
+
+
+def _label(item) -> str:
+    """The name of a section (its first naming key's value)."""
+    if not isinstance(item, dict):
+        return ""
+    return next((str(item[k]) for k in NAMES if isinstance(item.get(k), str)), "")
+
+
+def _section(item) -> str:
+    """A section's title: its first three plain values, ``key=value``."""
+    if not isinstance(item, dict):
+        return ""
+    named = [f"{k}={v}" for k, v in item.items()
+             if isinstance(v, str | int) and not isinstance(v, bool)]  # fmt: skip
+    return ", ".join(named[:3])
+
+
+def records_table(records: list[dict]) -> tuple:
+    """A table of records: a column per key, or a row per key where the records are
+    few and their keys many."""
+    keys = list(dict.fromkeys(k for r in records for k in r))
+    cells = [[_value(r.get(k, "-")) for k in keys] for r in records]
+    if len(keys) <= 12 or len(records) > 6:
+        return [k or "key" for k in keys], cells, "l" * len(keys)
+    names = [str(r.get("", "") or _label(r) or i) for i, r in enumerate(records)]
+    rows = [[k, *(c[i] for c in cells)] for i, k in enumerate(keys) if k]
+    return ["figure", *names], rows, "l" * (len(names) + 1)
+
+
+def _value(v) -> str:
+    """A table cell: a number by :func:`_cell`, a list as ``[a, b]``, None ``-``."""
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    return "-" if v is None else _cell(v).replace("|", "/").replace("\n", " ")
+
+
+def target(what: str, value: float, limit: float, at_least=True, fmt="{:.4g}"):
+    """A row of a targets table: what, the limit, the measured value, met or not."""
+    met = value >= limit if at_least else value <= limit
+    limit_text = (">= " if at_least else "<= ") + fmt.format(limit)
+    return [what, limit_text, fmt.format(value), "met" if met else "NOT met"]
+
+
+def targets(rows: list) -> list:
+    """The blocks of a targets table (none without rows)."""
+    heads = ["target", "limit", "measured", ""]
+    return ["Targets:", (heads, rows, "l")] if rows else []
+
+
+def document(title: str, report: dict, *blocks) -> str:
+    """:func:`render` of ``blocks`` then of every figure of the report."""
+    shown = dict(environment="devices" in report.get("environment", {}),
+                 load_average=isinstance(report.get("load_average"), dict))
+    body = {k: v for k, v in report.items()
+            if k not in HEADER_KEYS or shown.get(k) is False}  # fmt: skip
+    wall = report.get("wall_seconds")
+    tail = [] if wall is None else [f"Wall seconds of the run: {_cell(wall)}."]
+    return render(title, report, *blocks, *tail, *figures(body))
+
+
+def markdown(title: str, note: str = "", extra: Callable | None = None) -> Callable:
+    """A part's ``markdown``: :func:`document` of the title, a note on what was
+    measured and ``extra(report)``'s blocks (verdicts drawn from the figures)."""
+
+    def to_markdown(report: dict) -> str:
+        return document(title, report, note, *(extra(report) if extra else ()))
+
+    return to_markdown
+
+
 def _write(path: Path, text: str) -> None:
     from rhythmic_jax.io.atomic import write_file
 
@@ -452,6 +583,18 @@ def parser(doc: str, parts: dict[str, Part] | None = None):
     return ap
 
 
+def spelled_now(command: str, script: str, part: str) -> str:
+    """A report's command in today's spelling, ``python scripts/SCRIPT PART ...``
+    (an older report names the script it came from, and no part)."""
+    runs = []
+    for one in command.split(" ; "):
+        _, _, *rest = one.split(" ")
+        rest = rest[1:] if rest[:1] == [part] else rest
+        runs.append(" ".join(["python", f"scripts/{script}", *filter(None, [part]),
+                              *rest]))  # fmt: skip
+    return " ; ".join(runs)
+
+
 def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
          refresh=None, md_stem=None, quick=None):  # fmt: skip
     """Parse, record the machine, run the part, write and print its report; return
@@ -475,10 +618,13 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
         if not args.render.name:
             args.render = args.out / f"{args.stem}.json"
         report = json.loads(args.render.read_text())
+        script = Path(sys.modules[part.run.__module__].__file__ or "script").name
+        if report.get("command"):
+            report["command"] = spelled_now(report["command"], script, name)
         if part.refresh:
             part.refresh(report, args)
-        md = part.markdown(report)
-        write_report(args.render.parent, args.render.stem, report, md, md_stem)
+        md = part.markdown(report)  # the JSON stays as it is
+        _write(args.render.with_name(f"{md_stem or args.render.stem}.md"), md + "\n")
         return report
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter

@@ -14,7 +14,6 @@ and its imports count in its wall time.
 import json
 import runpy
 import shutil
-import statistics
 import sys
 import tempfile
 import time
@@ -22,9 +21,6 @@ from pathlib import Path
 
 import _harness as h
 import numpy as np
-
-HEAD_JOBS = ["job", "variant", "programs", "compiled", "hits", "compile s", "wall s",
-             "load"]  # fmt: skip
 
 
 def route(n: int, d: int, seed: int = 0) -> np.ndarray:
@@ -187,8 +183,6 @@ TARGETS = [
      lambda r, b: r["wall"] / b["wall"], 0.4, "{:.2f}x"),
     ("fit: wall, warm, imports included", "fit", "new warm",
      lambda r, b: r["wall"], 2.0, "{:.2f} s"),
-    ("(no target) imports and exit alone, warm", "imports", "new warm",
-     lambda r, b: r["wall"], None, "{:.2f} s"),
     ("Nordland: compiling / cold fit's wall", "nordland", "new cold",
      lambda r, b: r["compile_s"] / r["wall"], 0.15, "{:.1%}"),
     ("demo: wall, cold", "demo", "new cold", lambda r, b: r["wall"], 15.0, "{:.1f} s"),
@@ -196,50 +190,30 @@ TARGETS = [
 ]  # fmt: skip
 
 
-def targets(report: dict) -> list[list]:
-    """[target, limit, measured, met] for the targets this run's jobs answer; over
-    several rounds the median of the rounds (each against its round's baseline)."""
+def targets(report: dict) -> list:
+    """The targets this run's jobs answer; over several rounds the median of the
+    rounds (each against its round's baseline)."""
     rows, out = {}, []
     for r in report["rows"]:
         rows.setdefault((r["job"], r["variant"]), []).append(r)
     for what, job, variant, measure, limit, fmt in TARGETS:
         if (job, variant) in rows and (job, "base") in rows:
             pairs = zip(rows[job, variant], rows[job, "base"], strict=True)
-            v = [measure(*p) for p in pairs]
-            value = float(np.median(v))
-            text = fmt.format(value)
-            if len(v) > 1:
-                text += f" (median of {len(v)}: {fmt.format(min(v))} to "
-                text += f"{fmt.format(max(v))})"
-            met = "" if limit is None else "met" if value <= limit else "not met"
-            limit = "" if limit is None else fmt.format(limit)  # None: a floor only
-            out.append([what, limit, text, met])
-    return out
+            value = float(np.median([measure(*p) for p in pairs]))
+            out.append(h.target(what, value, limit, False, fmt))
+    return h.targets(out)
 
 
-def markdown_jobs(report: dict) -> str:
-    keys = "job variant programs compiled hits compile_s wall load".split()
-    agree = [[k, str(v["periods_equal"]), v["predictions_equal"]]
-             for k, v in report["agreement"].items()]  # fmt: skip
-    s = report["sizes"]
-    rows = [r | {"variant": f"{r['variant']}, round {r['round'] + 1}"} if "round" in r
-            else r for r in report["rows"]]  # fmt: skip
-    return h.render(
-        "Compiling: XLA programs, compile seconds and wall per job", report,
-        f"Baseline checkout {report['base']} (no compile cache) against this one, cold"
-        " (empty compile cache) and warm (the cache the cold run left). Each job is a"
-        " fresh process, both checkouts' Python bytecode compiled before the first."
-        " Programs: XLA programs the job obtained; hits: of them, loaded from the"
-        " persistent cache; compile s: their seconds (loads included); load: 1-minute"
-        f" load average after the job. Sizes: fit {s['fit'][0]} x {s['fit'][1]},"
-        f" Nordland patchnorm {s['nordland']} x 2048, {s['jpegs']} JPEGs (Lite0).",
-        (HEAD_JOBS, [[r[k] for k in keys] for r in rows]),
-        "Targets (the imports row is the floor under any fit's wall: a process that"
-        " imports what a fit needs and exits, doing no work):",
-        (["target", "at most", "measured", ""], targets(report)),
-        "Maps against the baseline's (same periods; share of equal predictions):",
-        (["fit", "periods equal", "predictions equal"], agree),
-    )  # fmt: skip
+markdown_jobs = h.markdown(
+    "Compiling: XLA programs, compile seconds and wall per job",
+    "The baseline checkout (no compile cache) against this one, cold (an empty"
+    " compile cache) and warm (the cache the cold run left); each job a fresh process,"
+    " both checkouts' bytecode compiled first. programs: XLA programs the job"
+    " obtained; hits: of them, loaded from the persistent cache; load: the 1-minute"
+    " load average after the job. agreement: the maps against the baseline's. The"
+    " imports row is the floor under any fit's wall.",
+    targets,
+)
 
 
 HEAVY = ("numpy", "jax", "faiss", "sklearn", "torch", "optax", "orbax")
@@ -278,24 +252,15 @@ def fit_map(folder: Path) -> Path:
     return folder / "route.map"
 
 
-def markdown_startup(report: dict) -> str:
-    versions, rows = report["versions"], []
-    text = (
-        f"Each command in a fresh process (each checkout compiled to bytecode first),"
-        f" wall seconds, median of "
-        f"{report['repeats']} runs taken in turns ({', '.join(versions)}). Targets "
-        "on an idle machine: `--help` under 1 s, `info` under 2 s."
-    )
-    for name, by_version in report["seconds"].items():
-        med = [statistics.median(by_version[v]) for v in versions]
-        ratio = [f"{med[0] / med[1]:.2f}x"] if len(versions) == 2 else []
-        heavy = [", ".join(report["loaded"][name][v]) or "-" for v in versions]
-        rows.append([name, *med, *ratio, *heavy])
-    heads = ["command", *(f"{v} (s)" for v in versions)]
-    if len(versions) == 2:
-        heads.append(f"{versions[0]} / {versions[1]}")
-    heads += [f"heavy packages loaded, {v}" for v in versions]
-    return h.render("Start-up time: import, --help, info", report, text, (heads, rows))
+markdown_startup = h.markdown(
+    "Start-up time: import, --help, info",
+    "Each command in a fresh process (each checkout compiled to bytecode first), wall"
+    " seconds of every run, taken in turns; loaded: the heavy packages each loads."
+    " Targets on an idle machine: `--help` under 1 s, `info` under 2 s.",
+    lambda r: ["Medians (s):", (["command", *r["versions"]], [
+        [name, *(float(np.median(by[v])) for v in r["versions"])]
+        for name, by in r["seconds"].items()])],
+)  # fmt: skip
 
 
 OPTIONS_STARTUP = dict(before=(Path, "checkout to compare"), repeats=5)

@@ -10,6 +10,7 @@ python scripts/bench_decode.py batch --render reports/decode.json  # Markdown ag
 """
 
 import functools
+import itertools
 import time
 from pathlib import Path
 
@@ -114,41 +115,12 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     )  # fmt: skip
 
 
-def case_markdown(c: dict) -> list:
-    """A case's heading, tables and paragraph."""
-    r, f = c["rhythmic"], c["faiss"]
-    rows = [[label, s["batch"]["queries_per_s"], 1e3 * s["single"]["median_s"],
-             1e3 * s["single"]["p95_s"]] for label, s in (
-             (f"rhythmic decode ({c['p']} templates)", r),
-             (f"faiss IndexFlatIP ({c['n']} references)", f))]  # fmt: skip
-    dev = [(f"rhythmic decode, device batch of {s['batch']['batch_size']}",
-            s["batch"]["queries_per_s"]) for s in
-           (c.get("rhythmic_device"), c.get("rhythmic_device_large")) if s]  # fmt: skip
-    return [
-        f"## {c['name']}: N = {c['n']}, d = {c['d']}, periods {c['periods']}",
-        (["method", f"queries/s (batch {c['batch_size']})", "single ms median",
-          "single ms p95"], rows),
-        dev and (["batch uploaded once", "queries/s"], dev),
-        f"Rhythmic / faiss: **{c['batch_speedup']:.1f}x** batch throughput,"
-        f" **{c['single_speedup_median']:.1f}x** single-query median latency"
-        f" ({c['single_speedup_p95']:.1f}x at p95); FLOP ratio N / p = {c['n']} /"
-        f" {c['p']} = **{c['flop_ratio']:.1f}**. Bytes read per single query: map"
-        f" {c['map_bytes'] / 2**20:.1f} MiB, database {c['database_bytes'] / 2**20:.1f}"
-        f" MiB. Threads: XLA {c['threads']['xla']}, faiss {c['threads']['faiss']}. Load"
-        f" average at the start of the case {c['load_average_start']}. Single queries"
-        f" timed: {c['single_queries']}; batch calls timed: {r['batch']['repeats']}"
-        " each. faiss top-1 = the query's own reference (same index) for"
-        f" {100 * c['faiss_top1_is_source']:.1f} % of queries.",
-    ]  # fmt: skip
-
-
-def markdown_batch(report: dict) -> str:
-    return h.render(
-        "Decoding: rhythmic map against exact search (faiss IndexFlatIP)", report,
-        "The map's templates are random (decoding cost does not depend on their"
-        " values); both decoders see the same references and queries.",
-        *(block for c in report["cases"] for block in case_markdown(c)),
-    )  # fmt: skip
+markdown_batch = h.markdown(
+    "Decoding: rhythmic map against exact search (faiss IndexFlatIP)",
+    "Random templates (decoding cost does not depend on their values); both decoders"
+    " see the same references and queries. Times in seconds; a device batch is"
+    " uploaded once, outside the timing.",
+)
 
 
 OPTIONS_BATCH = dict(repeats=(5, "timed batch calls"),
@@ -369,19 +341,12 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
                 n_held=len(hold.held), n_queries=len(qry), rows=rows)  # fmt: skip
 
 
-DECODING = ["method", "R@1 (±1)", "R@1 exact", "queries/s", "storage MiB",
-            "% of database"]  # fmt: skip
-OUTLIERS = ["method, confidence", "PR AUC", "R@100P", "threshold", "kept", "thr P",
-            "thr R", "outliers rejected"]  # fmt: skip
-TARGET = ["descriptor", "L", "map decode", "R@1", "SeqSLAM", "R@1", "points", "speed",
-          "storage", "met"]  # fmt: skip
-
-
-def target_table(blocks: list[dict]) -> str:
-    """The lead's target on Nordland at level 4, L = 10 and 20: recall within 5
-    points of the SeqSLAM-style reference at >= 10x its speed, <= 14 % storage."""
+def decoding_targets(report: dict) -> list:
+    """On Nordland at level 4, L = 10 and 20: the plain and the best map decode
+    within 5 points of SeqSLAM (without, with contrast), >= 10x its speed, <= 14 %
+    of its storage."""
     rows = []
-    for b in blocks:
+    for b in report["decoding"]:
         if b["dataset"] != "nordland" or b["level"] != 4:
             continue
         refs = {r["method"]: r for r in b["references"]}
@@ -389,72 +354,30 @@ def target_table(blocks: list[dict]) -> str:
             ours = [r for r in b["rows"] if r.get("L") == length]
             plain = next(r for r in ours if r["method"].endswith(f"L={length} v=1"))
             best = max(ours, key=lambda r: r["recall_at_1"])
-            for label in (
-                f"SeqSLAM L={length} v=1",
-                f"SeqSLAM L={length} v=1, contrast w={CONTRAST_WINDOW}",
-            ):
-                ref = refs[label]
-                for r in (plain, best) if best is not plain else (plain,):
-                    gap = 100 * (r["recall_at_1"] - ref["recall_at_1"])
-                    speed = r["queries_per_s"] / ref["queries_per_s"]
-                    store = 100 * r["storage_bytes"] / ref["storage_bytes"]
-                    met = gap >= -5 and speed >= 10 and store <= 14
-                    rows.append([
-                        b["descriptor"], length, r["method"], f"{r['recall_at_1']:.4f}",
-                        label, f"{ref['recall_at_1']:.4f}", f"{gap:+.1f}",
-                        f"{speed:.1f}x", f"{store:.1f} %", "yes" if met else "no",
-                    ])  # fmt: skip
-    return h.table(TARGET, rows, "lrlrlrrrrl") if rows else ""
+            for r, w in itertools.product({id(plain): plain, id(best): best}.values(),
+                                          ("", f", contrast w={CONTRAST_WINDOW}")):
+                ref = refs[f"SeqSLAM L={length} v=1{w}"]
+                what = f"{b['descriptor']}, {r['method']} against SeqSLAM{w}:"
+                gap = 100 * (r["recall_at_1"] - ref["recall_at_1"])
+                speed = r["queries_per_s"] / ref["queries_per_s"]
+                share = 100 * r["storage_bytes"] / ref["storage_bytes"]
+                rows += [
+                    h.target(f"{what} R@1 points", gap, -5, fmt="{:+.1f}"),
+                    h.target(f"{what} speed", speed, 10, fmt="{:.1f}x"),
+                    h.target(f"{what} storage %", share, 14, False, "{:.1f}"),
+                ]
+    return h.targets(rows)
 
 
-def markdown_decoders(report: dict) -> str:
-    env, blocks = report["environment"], []
-    for b in report["decoding"]:
-        rows = [[r["method"], f"{r['recall_at_1']:.4f}",
-                 f"{r['recall_at_1_exact']:.4f}", f"{r['queries_per_s']:,.0f}",
-                 f"{r['storage_bytes'] / 2**20:.2f}",
-                 f"{100 * r['storage_bytes'] / b['database_bytes']:.1f}"]
-                for r in b["rows"] + b["references"]]  # fmt: skip
-        blocks += [
-            f"## {b['dataset']}, {b['descriptor']} (d={b['d']}), level {b['level']}",
-            f"n = {b['n']} places, {b['n_queries']} queries, periods {b['periods']}"
-            f" ({100 * b['compression_ratio']:.1f} % of the database).",
-            (DECODING, rows, "lrrrrr"),
-        ]
-    if target := target_table(report["decoding"]):
-        blocks += [
-            "## Target: level 4, within 5 points of SeqSLAM, >= 10x its speed,"
-            " <= 14 % of its storage",
-            "Each map decode at L beside the SeqSLAM-style reference at the same L"
-            " (without and with contrast enhancement); the plain phase-domain"
-            " decode and the best map decode at that L.", target,
-        ]  # fmt: skip
-    for b in report["outliers"]:
-        rows = [[r["method"], f"{r['pr_auc']:.4f}",
-                 f"{r['recall_at_100_precision']:.4f}", f"{r['threshold']:.4g}",
-                 r["retrieved"], f"{r['precision_at_threshold']:.3f}",
-                 f"{r['recall_at_threshold']:.3f}", f"{r['outliers_rejected']:.3f}"]
-                for r in b["rows"]]  # fmt: skip
-        blocks += [
-            f"## Outliers: Nordland, {b['descriptor']}, level {b['level']}",
-            f"{b['n_held']} of {b['n_queries']} route frames held out of the summer map"
-            f" in blocks of {HOLDOUT['block']} (seed {HOLDOUT['seed']}); map of"
-            f" {b['n_map']} frames, periods {b['periods']}. PR AUC and recall at 100 %"
-            " precision on the second half of the route. Threshold: chosen on the first"
-            " half (largest recall at 100 % precision; inf when none reaches it, so"
-            " everything is rejected); kept, thr P, thr R: second-half queries kept at"
-            " that threshold, their precision and recall; outliers rejected: share of"
-            " held-out places' queries rejected. Margins exclude rivals within"
-            f" {EXCLUDE} places; recall within ±{TOLERANCE}.",
-            (OUTLIERS, rows, "lrrrrrrr"),
-        ]
-    return h.render(
-        "Decoders beyond the paper", report,
-        f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: whole batch from"
-        f" descriptors to indices on {env.get('cores', env.get('cpus'))} CPUs, after"
-        " one compiling call; descriptor extraction not included. Maps: r=2, Newton"
-        " solver, default C = log N.", *blocks,
-    )  # fmt: skip
+markdown_decoders = h.markdown(
+    "Decoders beyond the paper",
+    f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: the whole batch"
+    " from descriptors to indices after one compiling call. Maps: r = 2, Newton"
+    " solver, C = log N. Outliers: route frames held out of the summer map in blocks;"
+    " PR AUC and recall at 100 % precision on the second half of the route, the"
+    " threshold chosen on the first half.",
+    decoding_targets,
+)
 
 
 def run_decoders(args) -> dict:
@@ -577,46 +500,24 @@ def run_single(args) -> dict:
                 padded_rows=int(rows_p))  # fmt: skip
 
 
-def markdown_single(r: dict) -> str:
-    lat = [
-        [k, 1e6 * v["median_s"], 1e6 * v["p95_s"], v.get("calls", r["singles"])]
-        for k, v in r["single"].items()
-    ]
-    thr = r["batch"]
-    ratio = thr["jitted decode"]["queries_per_s"]
-    ratio /= thr["faiss IndexFlatIP"]["queries_per_s"]
-    locate, predict, faiss_one = (
-        next(1e6 * v["median_s"] for k, v in r["single"].items() if k.startswith(s))
-        for s in ("RhythmicMap.locate", "RhythmicMap.predict", "faiss")
-    )
-    p = sum(r["periods"])
-    met = "met" if locate <= 20 else "not met"
-    return h.render(
-        "One query to one place", r,
-        f"Map: N = {r['n']}, d = {r['d']}, periods {r['periods']}"
-        f" ({p} templates, {4 * r['d'] * p / 1e6:.2f} MB of float32, stored as"
-        f" {r.get('padded_rows', p)} rows).",
-        (["path", "median us", "p95 us", "calls"], lat),
-        f"Batches of 1000: jitted decode {thr['jitted decode']['queries_per_s']:,.0f}"
-        f" queries/s, faiss flat {thr['faiss IndexFlatIP']['queries_per_s']:,.0f}:"
-        f" **{ratio:.1f}x**. The numpy path gives the batch decode's place for every"
-        f" query: {r['same_as_batch_decode']} (SmallDecoder.place),"
-        f" {r.get('locate_same_as_batch_decode', 'not run')} (RhythmicMap.locate).",
-        f"Targets: one descriptor -> place <= 20 us median: {met} by RhythmicMap.locate"
-        f" ({locate:.1f} us; predict on one row {predict:.1f} us; faiss flat on one row"
-        f" {faiss_one:,.0f} us, {faiss_one / locate:,.0f}x longer); batch decoding >="
-        f" 40x faiss flat: {'met' if ratio >= 40 else 'not met'} ({ratio:.1f}x). A"
-        " query's cost is the templates' product with it: the rest (bias, one argmax"
-        " over both periods' blocks of rows, one look-up in the table of every phase"
-        " pair's place, the shape check) is a few microseconds. OpenBLAS runs that"
-        " sgemv on one thread below rows x cols = 460,800 and on its thread pool from"
-        " there; the map stores each period's templates in a block of equal rows (spare"
-        " rows zero, bias -inf) grown to that size, which shares the product between"
-        " the 2 cores (compare the first two rows). The batch decode multiplies numpy"
-        " queries by numpy's BLAS where they lie and runs the rest jitted. The numpy"
-        " paths are timed in turns, so the load falls on each alike; the thread pool's"
-        " p95 grows with the load (the other core is busy).",
-    )  # fmt: skip
+def single_targets(r: dict) -> list:
+    """One descriptor to its place <= 20 us (median); batches >= 40x faiss flat."""
+    locate = next(v["median_s"] for k, v in r["single"].items() if "locate" in k)
+    thr = [v["queries_per_s"] for v in r["batch"].values()]
+    return h.targets([
+        h.target("RhythmicMap.locate, median us", 1e6 * locate, 20, False, "{:.1f}"),
+        h.target("batches: decode / faiss flat", thr[0] / thr[1], 40, fmt="{:.1f}x"),
+    ])  # fmt: skip
+
+
+markdown_single = h.markdown(
+    "One query to one place",
+    "Seconds per call of each path on one descriptor, timed in turns; batches of"
+    " 1000 queries. The map stores each period's templates in a block of equal rows"
+    " (spare rows zero) so that OpenBLAS shares the product between the cores.",
+    single_targets,
+)
+
 
 
 PARTS = {

@@ -142,13 +142,9 @@ def run_frames(args) -> dict:
 
 
 # job -> (smallest new/base frames/s ratio asked for, how the target reads)
-TARGETS = {
-    "fit": (2.0, "fit frames/s >= 2x"),
-    "query": (3.0, "query frames/s >= 3x"),
-    "fit100": (1 / 1.15, "100-frame fit no slower than 1.15x"),
-    "augmented_none": (2.5, "augmented (none) frames/s >= 2.5x"),
-    "augmented_all": (2.5, "augmented (all) frames/s >= 2.5x"),
-}
+# job -> the smallest new / base frames/s ratio asked for
+TARGETS = dict(fit=2.0, query=3.0, fit100=1 / 1.15, augmented_none=2.5,
+               augmented_all=2.5)  # fmt: skip
 
 
 def summary_frames(report: dict) -> dict:
@@ -162,49 +158,21 @@ def summary_frames(report: dict) -> dict:
             med = {k: float(np.median([r[k] for r in rs])) for k in ("wall", "cpu")}
             row[variant] = med | dict(frames_per_s=float(np.median(fps)))
         speedup = row["new"]["frames_per_s"] / row["base"]["frames_per_s"]
-        need = TARGETS[job][0]
+        need = TARGETS[job]
         out[job] = row | dict(speedup=speedup, target=need, met=bool(speedup >= need))
     return out
 
 
-def markdown_frames(report: dict) -> str:
-    s = report["summary"]
-    rows = [
-        [job, s[job]["base"]["wall"], s[job]["new"]["wall"],
-         s[job]["base"]["frames_per_s"], s[job]["new"]["frames_per_s"],
-         s[job]["base"]["cpu"], s[job]["new"]["cpu"], f"{s[job]['speedup']:.2f}x",
-         f"{s[job]['base']['cpu'] / s[job]['new']['cpu']:.2f}x",
-         f"{TARGETS[job][1]}: {'met' if s[job]['met'] else 'not met'}"]
-        for job in s
-    ]  # fmt: skip
-    loads = [r["load"] for by in report["runs"].values() for rs in by.values()
-             for r in rs]  # fmt: skip
-    within = report["prediction_within_2"]  # query within 2 frames of the true place
-    return h.render(
-        "Frames per second from images, end to end", report,
-        f"Baseline checkout {report['base']} run interleaved with this one in"
-        " the same process tree (CPU seconds count the work). Medians of"
-        f" {report['repeats']} runs; every job starts with an empty descriptor"
-        " cache. The new checkout's are second jobs: the compiled network was"
-        f" built before (it took {report['build_compiled']['wall']:.0f} s wall in"
-        " this run, in a 100-frame `--compile always` fit) and a first 1000-frame"
-        " fit and query filled the compile cache; each job starts from a copy.",
-        (["job", "base wall s", "new wall s", "base frames/s", "new frames/s",
-          "base CPU s", "new CPU s", "new / base frames/s", "base / new CPU s",
-          "target (on frames/s)"], rows),
-        "Jobs: a fresh `python -m rhythmic_jax.app.cli` of each checkout; `fit` and "
-        "`query`"
-        f" on {report['frames']} 640x320 JPEG frames (efficientnet_lite0); `fit100` on"
-        f" 100; `augmented_*`: one epoch over {report['aug_frames']} Nordland frames,"
-        " frames/s over the epoch. Under load, CPU-second ratios are the figure to"
-        " expect on a quiet machine. The two query runs agree on"
-        f" {100 * report['prediction_agreement']:.1f} % of predictions; within 2 frames"
-        f" of the true place: base {100 * within['base']:.1f} %, new"
-        f" {100 * within['new']:.1f} % (each checkout fits its own map and may choose"
-        " other periods; winter queries on a summer map are the appearance change"
-        " reports/cross_condition.md is about). 1-minute load average at the end of"
-        f" each job: {min(loads):.1f} to {max(loads):.1f} (2 cores).",
-    )  # fmt: skip
+markdown_frames = h.markdown(
+    "Frames per second from images, end to end",
+    "The baseline checkout run interleaved with this one (CPU seconds count the"
+    " work); medians in the summary. Every job starts with an empty descriptor cache;"
+    " the new checkout's compiled network and compile cache were built before (in"
+    " build_compiled). fit and query: 640x320 JPEG frames, efficientnet_lite0, a"
+    " fresh `python -m rhythmic_jax.app.cli` of each checkout; fit100: 100 frames;"
+    " augmented_*: one epoch over aug_frames Nordland frames. prediction_within_2:"
+    " queries within 2 frames of the true place. The target is on frames/s.",
+)
 
 
 def library() -> tuple:
@@ -286,25 +254,15 @@ def run_pipeline(args) -> dict:
                 loadavg_end=h.load_average(), rows=rows)  # fmt: skip
 
 
-def markdown_pipeline(r: dict) -> str:
-    rows = [[x["augmentation"], round(x["frames_per_s"]), f"{x['ratio_to_plain']:.2f}",
-             f"{x['augment_s']:.2f}", f"{x['describe_s']:.2f}", f"{x['step_s']:.2f}"]
-            for x in r["rows"]]  # fmt: skip
-    return h.render(
-        "Augmented training pipeline", r,
-        f"{r['frames']} Nordland frames, {r['descriptor']['name']} at its native"
-        f" size, {r['templates']} templates, {r['torch_threads']} torch threads."
-        " Frames/s counts augmented frames through augmentation, descriptor, DLPack"
-        " and the optax step (the step time of the augmented half of each epoch"
-        " taken as half the epoch's step time).",
-        (["augmentation", "frames/s", "x plain", "augment s", "describe s",
-          "JAX step s"], rows),
-    )  # fmt: skip
+markdown_pipeline = h.markdown(
+    "Augmented training pipeline",
+    "Nordland frames, the descriptor at its native size. Frames/s counts augmented"
+    " frames through augmentation, descriptor, DLPack and the optax step (the step"
+    " time of the augmented half of each epoch taken as half the epoch's).",
+)
 
 
-HEAD_NETWORK = ["batch", "eager best f/s", "eager median f/s", "compiled best f/s",
-        "compiled median f/s", "compiled / eager", "compiled CPU / wall", "build s",
-        "max rel diff"]  # fmt: skip
+
 QUICK_NETWORK = dict(batches=[8], frames=64, repeats=1)  # --quick
 
 
@@ -354,40 +312,14 @@ def run_network(args) -> dict:
                 job_eager_batch=compiled.EAGER_BATCH, rows=rows)  # fmt: skip
 
 
-def markdown_network(report: dict) -> str:
-    s = report["settings"]
-    rows = [
-        [r["batch"], r["eager"]["best"], r["eager"]["median"],
-         r["compiled"]["best"], r["compiled"]["median"],
-         f"{r['compiled']['best'] / r['eager']['best']:.2f}x",
-         r["compiled"]["cpu_per_wall"], r["build_s"], f"{r['max_rel_diff']:.1e}"]
-        for r in report["rows"]
-    ]  # fmt: skip
-    best = max(report["rows"], key=lambda r: r["compiled"]["best"])
-    eager = max(report["rows"], key=lambda r: r["eager"]["best"])
-    by = {r["batch"]: r for r in report["rows"]}
-    job, job_eager = report["job_batch"], report.get("job_eager_batch")
-    jobs = job in by and (
-        f"Jobs run the compiled network in batches of {job}"
-        f" (`rhythmic_jax.frames.compiled.COMPILE_BATCH`,"
-        f" {by[job]['compiled']['best']:.0f} frames/s here)"
-        + (f" and the eager one in batches of {job_eager} (`EAGER_BATCH`,"
-           f" {by[job_eager]['eager']['best']:.0f} frames/s)" if job_eager in by
-           else "") + ".")  # fmt: skip
-    return h.render(
-        "The descriptor network's frames/s by batch size", report,
-        f"{report['descriptor']} block {s['block']} at {s['width']}x{s['height']},"
-        f" {report['frames']} Nordland frames prepared once (channels-last), each"
-        f" figure the best (and median) of {report['repeats']} passes after a"
-        " warm-up call. Compiled: an AOTInductor package built for that batch"
-        " (weights frozen), the last chunk padded; eager: the module called on"
-        " slices of that many frames. The rows are unit vectors, so the last"
-        " column is the largest relative difference of compiled against eager.",
-        (HEAD_NETWORK, rows),
-        f"Fastest compiled: batch {best['batch']} at"
-        f" {best['compiled']['best']:.0f} frames/s; fastest eager: batch"
-        f" {eager['batch']} at {eager['eager']['best']:.0f} frames/s.", jobs,
-    )  # fmt: skip
+markdown_network = h.markdown(
+    "The descriptor network's frames/s by batch size",
+    "Nordland frames prepared once (channels-last); best and median frames/s of the"
+    " passes after a warm-up call. compiled: an AOTInductor package built for that"
+    " batch (build_s); eager: the module on slices of that many frames. Rows are unit"
+    " vectors: max_rel_diff is the largest relative difference of compiled against"
+    " eager. Jobs run batches of job_batch (compiled) and job_eager_batch (eager).",
+)
 
 
 # (row label, registry name, settings)
@@ -456,22 +388,12 @@ def run_descriptors(args) -> dict:
                 torch_threads=args.threads, results=rows)  # fmt: skip
 
 
-def markdown_descriptors(report: dict) -> str:
-    rows = [[r["descriptor"], r["dim"], f"{r['recall_at_1']:.4f}",
-             f"{r['recall_at_1_tol1']:.4f}", f"{r['frames_per_s']:.1f}"]
-            for r in report["results"]]  # fmt: skip
-    title = "Descriptors on Nordland 64x32 (winter queries vs summer map)"
-    # a report older than the harness kept its torch threads in "environment"
-    threads = report.get("torch_threads") or report["environment"]["threads"]
-    frames = report.get("timing_frames")
-    timed = f" on {frames} frames" if frames else " (frames timed: not recorded)"
-    return h.render(
-        title, report,
-        "Brute-force cosine nearest neighbour; recall@1 counts the exact index,"
-        f" (±1) a neighbour within one index. Frames/s{timed}, {threads} torch"
-        " threads (other work on the machine slows these).",
-        (["descriptor", "dim", "recall@1", "recall@1 (±1)", "frames/s"], rows),
-    )  # fmt: skip
+markdown_descriptors = h.markdown(
+    "Descriptors on Nordland 64x32 (winter queries vs summer map)",
+    "Brute-force cosine nearest neighbour; recall_at_1 counts the exact index,"
+    " recall_at_1_tol1 a neighbour within one index. Frames/s on timing_frames frames"
+    " (other work on the machine slows these).",
+)
 
 
 OPTIONS_DESCRIPTORS = dict(cache_dir=Path, threads=os.cpu_count() or 1, batch_size=64,
@@ -533,22 +455,10 @@ def run_augment(args) -> dict:
                 rows=rows)  # fmt: skip
 
 
-def markdown_augment(report: dict) -> str:
-    """One table per thread count: a row per operation, a column per size."""
-    sizes = list(dict.fromkeys(r["size"] for r in report["rows"]))
-    ops = list(dict.fromkeys(r["op"] for r in report["rows"]))
-    cell = "{fps_best:.0f} ({fps_median:.0f})"
-    fps = {(r["threads"], r["op"], r["size"]): cell.format(**r) for r in report["rows"]}
-    blocks = [
-        block for threads in report["torch_threads"] for block in (
-            f"## {threads} torch thread{'s' if threads > 1 else ''}",
-            (["operation", *sizes], [[op, *(fps[threads, op, s] for s in sizes)]
-                                     for op in ops], ""))]  # fmt: skip
-    return h.render(
-        "Augmentation throughput (frames/s, CPU)", report,
-        f"Batch {report['batch']}, p = 1, best (median) of {report['repeats']} runs"
-        " of >= 0.2 s.", *blocks,
-    )  # fmt: skip
+markdown_augment = h.markdown(
+    "Augmentation throughput (frames/s, CPU)",
+    "p = 1; fps_best and fps_median of the repeats, each >= 0.2 s of calls.",
+)
 
 
 PARTS = {

@@ -95,49 +95,14 @@ def run_on(device, summer, winter, args) -> dict:
     return out
 
 
-def markdown(report: dict) -> str:
-    gpu, cpu = report["gpu"], report["cpu"]
-    name, n, d = gpu["kind"] if gpu else "no GPU", report["n"], report["d"]
-    synthetic = "walk_f16" in report["features"]  # --quick without --features
-
-    def row(label, key, *sub):
-        g, c = ("-" if not s else s[key] for s in (gpu, cpu))
-        for part in sub:
-            g, c = (v if v == "-" else v[str(part)] for v in (g, c))
-        return [label, g, c, c / g if gpu and isinstance(g, float) and g > 0 else "-"]
-
-    rows = [row("first fit, compile included (s)", "fit_first_s"),
-            row("second fit, same shapes (s)", "fit_second_s"),
-            *(row(f"predict {b} queries, first call (s)", "predict_s", b)
-              for b in report["batches"]),
-            row(f"decode {report['decode']:,} queries, warm (s)", "decode_s"),
-            row(f"soft sequence decode L = {report['length']}, warm (s)",
-                "sequence_s")]  # fmt: skip
-    for k in report["fit_sizes"]:
-        rows += [row(f"fit {k:,} x {d}, 3 candidates, {when} (s)", key, k)
-                 for when, key in (("first", "fits_first_s"), ("warm", "fits_s"))]
-    for run in ("cold", "warm"):
-        fresh = "fresh process, " + ("empty compile cache" if run == "cold" else
-                                     "compile cache warm")  # fmt: skip
-        rows += [row(f"{fresh}: first fit (s)", "fresh", run, "fit_first_s"),
-                 *(row(f"{fresh}: first predict {b} (s)", "fresh", run,
-                       "predict_first_s", b) for b in report["batches"]),
-                 row(f"{fresh}: `rhythmic-jax demo{report['demo']}` (s)", "fresh",
-                     run, "demo_s")]  # fmt: skip
-    return h.render(
-        "JAX on a GPU against the same machine's CPU", report,
-        not gpu and "**No GPU was found: a CPU rehearsal, not the GPU report.**",
-        f"{'Synthetic route frames' if synthetic else 'Nordland summer patchnorm'}"
-        f" {n} x {d} (`{report['features']}`); GPU: {name}; CPU: {cpu['device']}.",
-        f"Compile options: {report['compile_options']}. Fresh processes: one per"
-        " row group, JAX's persistent compile cache empty (cold) or filled by the"
-        " cold process (warm).",
-        (["step", f"GPU ({name})", "CPU", "CPU / GPU"], rows),
-        f"Predictions equal to the CPU's: self-query {report['equal_self']:.4f},"
-        f" winter {report['equal_winter']:.4f} (self-query recall@1"
-        f" {gpu['self_recall']:.3f} GPU, {cpu['self_recall']:.3f} CPU)." if gpu else
-        f"CPU self-query recall@1 {cpu['self_recall']:.3f}.",
-    )  # fmt: skip
+markdown = h.markdown(
+    "JAX on a GPU against the same machine's CPU",
+    "Seconds of each step on each device (gpu: null, none found: a CPU rehearsal);"
+    " *_first_s include compiling. fresh: each device's first calls in fresh"
+    " processes, with JAX's persistent compile cache empty (cold) or filled by the"
+    " cold process (warm); fits_s: fits of fit_sizes route-like frames, 3 candidates."
+    " equal_*: the share of GPU predictions equal to the CPU's.",
+)
 
 
 options = dict(

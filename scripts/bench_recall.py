@@ -43,7 +43,7 @@ from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
 from rhythmic_jax.frames.cache_files import default_cache_dir
 from rhythmic_jax.frames.features import describe, get_descriptor
 from rhythmic_jax.map import embedding as emb_files
-from rhythmic_jax.map.codes import code_bytes, fit_codebook, pack_bits
+from rhythmic_jax.map.codes import fit_codebook, pack_bits
 from rhythmic_jax.map.embedding import apply, embedding_bytes
 from rhythmic_jax.map.groups import Groups, parse_layout, resolve_layout
 from rhythmic_jax.map.periods import candidate_periods, choose_periods
@@ -56,7 +56,7 @@ RPB_BUDGETS = (0.03, 0.05, 0.08, 0.10, 0.15, 0.20, 0.25, 0.30)
 NS = tuple(10**k for k in range(4, 10))
 DS = (256, 2048, 4096, 10976)
 BITS = (64, 128, 256, 512)
-BUDGET = ["budget", "best", "map or hybrid", "ITQ", "own - ITQ"]
+
 QUICK_BYTES = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
@@ -85,88 +85,29 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
     return out
 
 
-def _span(until, since) -> str:
-    """Where the map is smaller: "<= 3e4 and >= 1.2e8", ">= 1e8", "never"."""
-    if until and until >= 10**12:
-        return "every N"
-    parts = [f"{op} {v:.2g}" for op, v in (("<=", until), (">=", since)) if v]
-    return " and ".join(parts) or "never <= 1e12"
-
-
-def _targets(rep: dict) -> list[str]:
-    """The hybrid at <= 20 % against the targets, and own - ITQ per length."""
+def hybrid_targets(rep: dict) -> list:
+    """The best hybrid within 20 % of the raw bytes: R@1 >= 0.27 single frame and
+    >= 0.88 at L = 10."""
     hyb = [r for r in rep["rows"] if r["kind"] == "hybrid" and r["share"] <= 0.20]
-    out = []
+    rows = []
     for length, goal in ((1, 0.27), (10, 0.88)):
         key = f"recall@1 L={length}"
-        if not hyb or key not in hyb[0]:
-            continue
-        best = max(hyb, key=lambda r: r[key])
-        met = "met" if best[key] >= goal else "not met"
-        out.append(
-            f"- Hybrid at <= 20 %, L = {length}: best {best[key]:.3f} "
-            f"({best['name']}, {100 * best['share']:.1f} %); target {goal}: {met}."
-        )
-    for length in rep["lengths"]:
-        b = rep["budgets"][str(length)]
-        none = [x for x in b if x["own"] is None]
-        short = [x for x in b if x["own"] is not None and x["own_minus_itq"] < 0]
-        line = f"- L = {length}: the map or a hybrid is at least ITQ's best at "
-        line += f"{len(b) - len(none) - len(short)} of {len(b)} budgets"
-        if none:
-            at = ", ".join(f"{100 * x['budget']:g} %" for x in none)
-            line += f"; none of them fits in {at}"
-        if short:
-            worst = min(short, key=lambda x: x["own_minus_itq"])
-            at = ", ".join(
-                f"{100 * x['budget']:g} % ({x['own_minus_itq']:+.3f})" for x in short
-            )
-            line += f"; behind at {at}, at most by {-worst['own_minus_itq']:.3f}"
-        out.append(line + ".")
-    return out
+        if hyb and key in hyb[0]:
+            best = max(hyb, key=lambda r: r[key])
+            what = f"hybrid <= 20 %, L = {length}: {best['name']}"
+            rows.append(h.target(what, best[key], goal, fmt="{:.3f}"))
+    return h.targets(rows)
 
 
-def markdown_bytes(rep: dict) -> str:
-    ls, heads = rep["lengths"], ["representation", "kind", "storage B", "share %"]
-    heads += [f"R@1 L={k}" for k in ls] + ["sequence scorer", "weight"]
-    keys = [f"recall@1 L={k}" for k in ls]
-    rows = [[r["name"], r["kind"], r["storage_bytes"], 100 * r["share"],
-             *("-" if r[k] is None else r[k] for k in keys),
-             r.get("sequence_scorer") or "-", r.get("weight", "-")]
-            for r in sorted(rep["rows"], key=lambda r: r["share"])]  # fmt: skip
-    blocks = [rep["protocol"],
-              f"Run time {rep['seconds']:.0f} s on the shared machine (fitted templates"
-              " and code books are kept in the cache folder, so a re-run of settings"
-              " already fitted only decodes).",
-              "### Targets", "\n".join(_targets(rep)), (heads, rows)]  # fmt: skip
-    for key in keys:
-        body = [[f"{100 * b['budget']:g} %",
-                 *(f"{x['name']} ({x[key]:.3f})" if x else "none fits"
-                   for x in (b["best"], b["own"], b["itq"])),
-                 round(b["own_minus_itq"], 3)]
-                for b in rep["budgets"][key.split("=")[1]]]  # fmt: skip
-        blocks += [f"### Budget by budget, L = {key.split('=')[1]}", (BUDGET, body)]
-    t = rep["timing"] or {"setting": "not measured in this run"}
-    body = [[k, v["seconds"], v["queries_per_s"], v["x map alone"]]
-            for k, v in t.items() if k != "setting"]  # fmt: skip
-    proj = rep["projections"]
-    keys = [k for k in proj[0] if k.startswith("map")]
-    spans = [[p["d"], p["r"], *(f"{p[k]:.3g}" for k in keys),
-              *(_span(p[f"until {b}"], p[f"since {b}"]) if b <= p["d"] else "bits > d"
-                for b in BITS)] for p in proj]  # fmt: skip
-    codes = [f"- ITQ {b}: " + ", ".join(f"{code_bytes(n, 10976, b)['total']:.3g}"
-                                        for n in NS) for b in BITS]  # fmt: skip
-    return h.render(
-        "Recall per byte: map, ITQ codes and hybrids", rep, *blocks,
-        f"### Decode speed ({t['setting']}, every test query at once)",
-        (["decode", "seconds", "queries/s", "time / map alone"], body),
-        "### Projected bytes (level 1) and the N from which the map is smaller than"
-        " each code",
-        "Map: `sum(tau) (d + 1) 4` with the least-sum pairwise co-prime periods from"
-        " `ceil(N^(1/r))` up; codes: `N ceil(bits/8) + (bits d + d) 4`.",
-        (["d", "r", *keys, *(f"map < ITQ {b}: N" for b in BITS)], spans),
-        "\n".join(["Codes at N = 1e4 .. 1e9 (bytes, d = 10,976): ", *codes]),
-    )  # fmt: skip
+markdown_bytes = h.markdown(
+    "Recall per byte: map, ITQ codes and hybrids",
+    "Fitted templates and code books are kept in the cache folder, so a rerun of"
+    " settings already fitted only decodes. budgets: per storage budget, the best"
+    " representation, the best map or hybrid (own) and the best ITQ code. timing:"
+    " batch decode of every test query. projections: bytes at level 1 against N,"
+    " and the N until / since which the map is smaller than each code.",
+    hybrid_targets,
+)
 
 
 def _ints(text: str) -> tuple:
@@ -507,10 +448,6 @@ def refresh(report: dict, args) -> None:
     draw(report, args.render.with_suffix(".png"))
 
 
-COLS = ("r1", "r1_exact", "r5", "L5", "L10", "L20", "self_r1")
-HEADS = ["method", "R@1", "exact", "R@5", "L=5", "L=10", "L=20", "self",
-         "storage B", "embedding B", "ratio", "sizes", "fit s"]  # fmt: skip
-
 
 def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
     """The ``where`` rows (default: the map's) that have ``key``, within ``budget``."""
@@ -585,54 +522,19 @@ def cross_targets(report: dict) -> list[tuple[str, str]]:
     return out
 
 
-def _fmt(v):
-    return round(v, 4) if isinstance(v, float) else v
-
-
-def markdown_cross(report: dict) -> str:
-    wall = f"Wall time of the whole run: {report.get('wall_seconds', 0) / 60:.1f} min"
-    if walls := report.get("wall_seconds_by_process"):
-        wall = "Data sets run in parallel processes (the commands above, joined by "
-        wall += "';'); wall time of each: "
-        wall += ", ".join(f"{k} {v / 60:.1f} min" for k, v in walls.items())
-    blocks = [wall + ".",
-              "Maps are fitted on one condition of the test places and queried with the"
-              " other; every embedding was learned on the training places only"
-              " (Nordland 0-1199, test 1220-3575; aerial: DSIFN pairs train, LEVIR"
-              " pairs test). R@1 and R@5 within +-1 place; `exact` without tolerance; L"
-              " = phase-domain sequence of the map's place scores, or SeqSLAM on the"
-              " raw descriptor; `self` = reference frames as queries (exact). storage"
-              " B: templates (with codes, the codes and their transform; brute force:"
-              " the database in float32); embedding B: its parameters, stored once, not"
-              " growing with N; ratio = both over the raw float32 database. `hybrid`:"
-              " the map's place scores and the ITQ code similarities, each z-scored per"
-              " query, summed (codes fitted on the embedded reference frames); `+ int8"
-              " codes`: the same with a byte per dimension of the embedded frame, fused"
-              " with the map's share w learned on the training places (the `chosen`"
-              " configuration the targets judge, fixed before any test place was"
-              " scored); `int8 codes alone`: those codes' own search, which shows what"
-              " the templates add. Budget rows take the largest pair of periods (t, t +"
-              " 1) that fits; their t/N says how far from sub-linear they are.",
-              "## Targets",
-              "\n".join(f"- {t}: **{v}**"
-                        for t, v in cross_targets(report))]  # fmt: skip
-    for name, ds in report["datasets"].items():
-        blocks.append(f"## {name} (N = {ds['n']}, d = {ds['d']}, level {ds['level']})")
-        learn = "; ".join(
-            f"{k}: {v['seconds']:.1f} s learning, k = {v['config']['k']}, "
-            f"{v['bytes']:,} B, kept step {v.get('kept_step', 0)} of "
-            f"{v.get('steps', 0)}{' (read from the cache)' if v.get('cached') else ''}"
-            for k, v in ds["learn"].items()
-        )
-        blocks.append(f"Embeddings: {learn}.")
-        for key, rows in ds["directions"].items():
-            body = [[r["method"], *(_fmt(r.get(c, "")) for c in COLS),
-                     r.get("storage_bytes", ""), r.get("embedding_bytes", 0),
-                     _fmt(r["ratio"]), str(tuple(r.get("sizes", ()))),
-                     _fmt(r.get("fit_seconds", ""))] for r in rows]  # fmt: skip
-            blocks += [f"### {key}", (HEADS, body)]
-    title = "Recognition under appearance change (split by place)"
-    return h.render(title, report, *blocks)
+markdown_cross = h.markdown(
+    "Recognition under appearance change (split by place)",
+    "Maps fitted on one condition of the test places, queried with the other;"
+    " embeddings learned on the training places only (Nordland 0-1199, test"
+    " 1220-3575; aerial: DSIFN pairs train, LEVIR pairs test). r1, r5: R@1 and R@5"
+    " within +-1 place; r1_exact without tolerance; L5, L10, L20: phase-domain"
+    " sequences of the map's place scores (SeqSLAM on the raw descriptor); self_r1:"
+    " reference frames as queries. storage_bytes: templates (and codes; brute force:"
+    " the float32 database); embedding_bytes: stored once; ratio: both over the raw"
+    " database. hybrid: map and ITQ code scores, z-scored and summed; + int8 codes:"
+    " a byte per embedded dimension, fused with the weight learned on the training"
+    " places (the chosen configuration the targets judge).",
+)
 
 
 def draw(report: dict, path: Path) -> None:
@@ -722,39 +624,15 @@ def brute(summer, winter, gt) -> dict:
     return row
 
 
-def markdown_digits(report: dict) -> str:
-    text = (
-        f"Nordland test places {report['places']} (N = {report['n']}), "
-        f"{report['descriptor']} d = {report['d']}: summer map, winter queries, "
-        f"recall@1 within ±{TOL} frame unless marked exact. One joint Newton solve "
-        f"of {report['templates_total']} templates, C = log N: "
-        f"{report['fit_wall_s']:.0f} s wall. Storage: sum of group sizes x (d + 1) "
-        f"float32 over the N x d float32 database."
-    )
-    cols = ["layout", "sizes", "storage %", "self hard", "hard", "soft", "soft exact",
-            "R@5", "L=5", "L=10", "L=20", "label acc. (chance)"]  # fmt: skip
-    rows = [[
-        r["layout"], r["sizes"], round(100 * r["ratio"], 1),
-        r.get("self_query_hard", "-"), r.get("hard", "-"), r["soft_raw"],
-        r["soft_raw_exact"], r["recall@5_raw"],
-        *(r[f"seq{length}_raw"] for length in LENGTHS),
-        " ".join(f"{a:.3f} ({c:.3f})" for a, c in zip(r.get("label_accuracy", ()),
-                 r.get("label_chance", ()), strict=True)) or "-",
-    ] for r in report["rows"]]  # fmt: skip
-    same = [r for r in report["rows"] if "calibrated_same_index" in r]
-    notes = (
-        "soft: argmax of the summed template scores of every group (a log-softmax "
-        "within every group, rhythmic_jax.decoding.soft.calibrate, shifts every "
-        "place of a query by the same constant: the same argmax, checked here); "
-        "sequences sum the place scores at speed 1 (brute force: cosine sums along the "
-        "diagonal); same index after calibration: "
-        + ", ".join(f"{r['calibrated_same_index']:.3f}" for r in same)
-        + ". label acc.: per group, the fraction of winter queries whose "
-        "argmax class is their place's label (most significant digit / segment "
-        "first), beside chance 1 / size."
-    )
-    title = "Digits that group frames that look alike (Nordland)"
-    return h.render(title, report, text, (cols, rows), notes)
+markdown_digits = h.markdown(
+    "Digits that group frames that look alike (Nordland)",
+    "Summer map, winter queries, recall@1 within the tolerance unless exact; one"
+    " joint Newton solve of every layout's templates (fit_wall_s). soft: argmax of"
+    " the summed template scores; calibrated: after a log-softmax within every group"
+    " (the same argmax: calibrated_same_index); seqL: sequences at speed 1;"
+    " label_accuracy: per group, winter queries whose argmax class is their place's"
+    " label, beside label_chance. ratio: storage over the float32 database.",
+)
 
 
 OPTIONS_DIGITS = dict(cache=Path("/work/cache"), descriptor="efficientnet_lite0",

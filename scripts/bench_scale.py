@@ -186,83 +186,36 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
     return [f"{stem}.png" for _, _, stem in plots]
 
 
-def _num(v, digits):
-    return "-" if v is None else round(v, digits)
-
-
-SLOPES = ["source", "d", "r", "rule", "points", "slope", "1/r", "within 0.05",
-          "slope N >= 10^4", "the rule allows"]  # fmt: skip
-
-
-def _allows(s: dict) -> str:
-    if "rule_low" not in s:
-        return "-"
-    if s["rule_low"] == s["rule_high"]:
-        return f"{s['rule_low']:.3f}"
-    return f"{s['rule_low']:.3f} .. {s['rule_high']:.3f}"
-
-
-def markdown_grid(report: dict) -> str:
-    blocks = [
-        "Every fit ran niced beside other jobs (load above): the times are pessimistic."
-        f" Niceness {report['nices']} (each cell's in the JSON; at 19 a fit takes only"
-        f" CPU no one else wants). Cells were measured between {report['cells_from']}"
-        f" and {report['cells_to']} at a 1-minute load average of"
-        f" {report['load_cells']} (each cell's in the JSON); a rerun reuses cells"
-        " already measured, so the command above may only have collected them.",
-    ]
-    head = ["source", "N", "d", "r", "K", "mode", "rule", "periods", "bytes", "B/place",
-            "fit s", "passes", "s/pass", "peak MiB", "acc f32", "acc f16",
-            "acc int8"]  # fmt: skip
-    rows = [
-        [r["source"], r["n"], r["d"], r["r"], r["processes"],
-         f"stream {r['memory']}" if r.get("memory") else r["mode"], _rule(r),
-         "x".join(map(str, r["periods"])), r["storage_bytes"],
-         round(r["bytes_per_place"], 2), round(r["fit_seconds"], 1),
-         "-" if r["passes"] is None else r["passes"], _num(r["pass_median_s"], 3),
-         round(r["peak_bytes"] / 2**20),
-         *(round(r["accuracy"][t], 4) for t in ("float32", "float16", "int8"))]
-        for r in report["rows"]
-    ]  # fmt: skip
-    blocks += [
-        (head, rows),
-        "Storage slopes (log bytes on log N; one process, in memory, or"
-        " streamed at an N the memory guard refuses in memory):",
-    ]
-    slopes = [
-        [s["source"], s["d"], s["r"], _rule(s), s["points"],
-         round(s["slope"], 4), round(s["target"], 4), str(s["within"]),
-         _num(s.get("slope_from_10k"), 4), _allows(s)]
-        for s in report["slopes"]
-    ]  # fmt: skip
-    blocks.append((SLOPES, slopes))
+def grid_notes(report: dict) -> list[str]:
+    """The chosen periods' product M against N along each series, and the full
+    fit's candidate search projected from its passes."""
+    notes = []
     for sl in report["slopes"]:
         pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
-        pts = [(r["n"], int(np.prod(r["periods"]))) for r in pts]
-        (n0, m0), (n1, m1) = pts[0], pts[-1]
-        blocks += [f"{sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
-                  f" the chosen periods' product M is {m0 / n0:.2f} N at N = {n0:,}"
-                  f" and {m1 / n1:.2f} N at N = {n1:,}."]  # fmt: skip
-    blocks += ["The candidate rule lets the training errors choose r co-prime"
-              " periods among ceil(N^(1/r)) + {0..6}: 'the rule allows' gives the"
-              " least and largest fitted slope any such choice gives over the series'"
-              " N; rule 'least' fixes the least-storage set before training, and the"
-              " column its slope (docs/SCALE.md)."]  # fmt: skip
-    acc = [r["accuracy"] for r in report["rows"]]
-    gaps = [100 * (a["float32"] - a["float16"]) for a in acc]
-    if gaps:
-        worst = max(np.abs(gaps))
-        blocks += [f"float16 against float32 self-query accuracy: at most "
-                  f"{worst:.2f} points apart over {len(gaps)} maps."]  # fmt: skip
-    if report.get("full"):
-        blocks += full_lines(report["full"], report.get("probe"))
-    if probe := report.get("probe"):
-        blocks += probe_lines(probe)
-    if report.get("missing"):
-        blocks += ["Not measured (time budget or --skip, or failed as said): "
-                  + ", ".join(report["missing"])]  # fmt: skip
-    blocks += ["Figures: " + ", ".join(report["figures"])]
-    return h.render("Growth from real fits (--gap 1e-3)", report, *blocks)
+        n0, n1 = pts[0]["n"], pts[-1]["n"]
+        m0, m1 = (math.prod(p["periods"]) for p in (pts[0], pts[-1]))
+        notes.append(f"- {sl['source']} d = {sl['d']}, r = {sl['r']}, {_rule(sl)}:"
+                     f" M = {m0 / n0:.2f} N at N = {n0:,}, {m1 / n1:.2f} N at N ="
+                     f" {n1:,}.")  # fmt: skip
+    if f := report.get("full"):
+        hours = search_hours(f, report.get("probe"))
+        notes.append(f"- The full fit's candidate search ({sum(f['candidates'])}"
+                     f" templates) projected at {hours:.2f} hours (a projection).")
+    return ["\n".join(notes)]
+
+
+markdown_grid = h.markdown(
+    "Growth from real fits (--gap 1e-3)",
+    "Every fit ran niced beside other jobs: the times are pessimistic; a rerun"
+    " reuses the cells already measured. K: processes; accuracy: self-query, per"
+    " storage type. Slopes: log bytes on log N, one process, in memory (or streamed"
+    " where the memory guard refuses); rule_low and rule_high: the least and largest"
+    " slope any choice of the candidate rule (r co-prime periods among"
+    " ceil(N^(1/r)) + {0..6}) gives over the series' N; rule 'least' fixes the"
+    " least-storage set (docs/SCALE.md). probe: one streamed pass of each kind;"
+    " full: the full streamed fit with fixed periods.",
+    grid_notes,
+)
 
 
 def grid(quick: bool, real: bool = True) -> list[tuple]:
@@ -374,47 +327,17 @@ def full(args) -> dict:
     return row
 
 
-def full_lines(f: dict, probe: dict | None = None) -> list[str]:
-    p, cands = sum(f["periods"]), sum(f["candidates"])
-    k, acc = f["kinds"], f["accuracy"]
-    search = f["pass_median_s"] * cands / p * f["passes"] / 3600
-    how = "this fit's median seconds per pass scaled by the templates"
-    if probe and probe["n"] == f["n"]:  # the candidate set's measured passes
-        sec = probe["sets"][-1]["seconds"]
-        steps, cg = len(f["cg"]), sum(f["cg"])
-        total = (steps + 1) * sec["gradient + bits"] + cg * sec["CG from bits"]
-        line = sum(f.get("line") or [2] * steps)
-        search = (total + line * sec["line search"]) / 3600
-        how = "the candidate set's measured pass of each kind (below)"
-    basis = f", the preconditioner's basis {k['basis']:.1f}" if "basis" in k else ""
-    errors = ", ".join(f"{e:.3f}" for e in f["group_errors"])
-    took = f"{search:.1f} hours" if search >= 1 else f"{search * 60:.0f} minutes"
-    tries = f"started {f['starts'][0]}"
-    if f["attempts"] > 1:
-        tries = (f"{f['attempts']} attempts started {', '.join(f['starts'])}, each"
-                 " resumed from the last one's checkpoint")  # fmt: skip
-    return [
-        f"Full streamed fit: N = {f['n']:,} route-like {f['d']}-d frames"
-        f" ({f['file_bytes'] / 2**30:.2f} GiB memory-mapped .npy), r = 3 with"
-        f" fixed periods {'x'.join(map(str, f['periods']))} ({p} templates, no"
-        f" candidate search), `--memory {f['memory']}`: **{f['wall_seconds']:.0f} s"
-        f" wall** ({tries}, at a 1-minute load average of"
-        f" {f['loads'][-1][0]:.1f} at its end, nice {f.get('nice', NICE)}),"
-        f" {f['steps']} Newton steps, {f['passes']} passes, {f['pass_median_s']:.1f}"
-        f" s per pass (median; gradient {k['gradient']:.1f}, CG {k['cg']:.1f}, line"
-        f" search {k['line']:.1f}{basis}), {f['block_rows']:,} rows per block, **peak"
-        f" resident {f['peak_bytes'] / 2**20:.0f} MiB** under the 1 GiB bound;"
-        f" per-period training errors {errors}; self-query accuracy on"
-        f" {f['sample']:,} frames spread along the route {acc['float32']:.4f}"
-        f" (float16 {acc['float16']:.4f}, int8 {acc['int8']:.4f}). Command:"
-        f" `{f['command']}`, with the streamed solver of commit"
-        f" {f.get('code', '?')}" + (f"; {f['note']}." if f.get("note") else "."),
-        f"The candidate search ({len(f['candidates'])} candidates {f['candidates'][0]}"
-        f" - {f['candidates'][-1]}, {cands} templates) would train {cands / p:.1f}x"
-        f" the templates per pass: with this fit's steps and passes, at {how}, it is"
-        f" projected at {took} (projection, not a measurement; the search may take"
-        " other steps).",
-    ]
+def search_hours(f: dict, probe: dict | None) -> float:
+    """Hours the candidate search would take with the full fit's steps and passes:
+    at the probe's measured pass of each kind (of the same N), else at the fit's
+    median pass scaled by the templates."""
+    if not probe or probe["n"] != f["n"]:
+        return f["pass_median_s"] * sum(f["candidates"]) / sum(f["periods"]) * (
+            f["passes"] / 3600
+        )
+    sec, steps = probe["sets"][-1]["seconds"], len(f["cg"])
+    total = (steps + 1) * sec["gradient + bits"] + sum(f["cg"]) * sec["CG from bits"]
+    return (total + sum(f.get("line") or [2] * steps) * sec["line search"]) / 3600
 
 
 def probe(args) -> dict:
@@ -464,30 +387,6 @@ def passes(path: str, memory: str, periods: str) -> dict:
         del st
     return dict(n=frames.n, d=frames.d, sets=sets)
 
-
-def _periods(ts) -> str:
-    """``100x101x103``, or a candidate set as ``100 .. 106 (7 candidates)``."""
-    if len(ts) <= 3:
-        return "x".join(map(str, ts))
-    return f"{ts[0]} .. {ts[-1]} ({len(ts)} candidates)"
-
-
-def probe_lines(p: dict) -> list[str]:
-    kinds = list(p["sets"][0]["seconds"])
-    rows = [
-        [_periods(s["periods"]), s["templates"], s["block_rows"],
-         *(round(s["seconds"][k], 1) for k in kinds)]
-        for s in p["sets"]
-    ]  # fmt: skip
-    return [
-        f"Seconds of one pass of each kind over N = {p['n']:,} route-like"
-        f" {p['d']}-d frames ({p['file_bytes'] / 2**30:.2f} GiB .npy) under"
-        f" `--memory {p['memory']}` (measured {p['measured']} at nice {p['nice']},"
-        f" load {p['load'][0]:.1f}; peak resident {p['peak_bytes'] / 2**20:.0f} MiB;"
-        " each includes its kernel's compilation). A CG pass from the kept"
-        " curvature makes one product with the frames instead of two:",
-        (["periods", "templates", "rows / block", *kinds], rows),
-    ]
 
 
 OPTIONS_GRID = dict(
@@ -596,48 +495,16 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
                 median_wall_s=med)  # fmt: skip
 
 
-def markdown_streamed(report: dict) -> str:
-    blocks = [
-        "Each case runs the streamed fit (`FAST_STREAM`: a template stops once its"
-        " estimated gap is <= 1e-3, CG capped at 3 rising to 8, at most 40 Newton"
-        f" steps; blocks of {BLOCK_ROWS} frames read from a memory-mapped `.npy`) in"
-        " three settings, in turns. Reached: templates whose estimated gap met 1e-3."
-        " True gap: (f - f*) / f* of the final objectives against the in-memory Newton"
-        " optimum (tight) of the same frames. Column-passes: templates carried, summed"
-        " over every pass (gradient, CG and line-search passes of every step).",
-    ]
-    rows, bullets = [], []
-    for case in report["cases"]:
-        for label, runs in case["runs"].items():
-            first = runs[-1]
-            rows.append([case["name"], f"{case['n']} x {case['d']}",
-                         ", ".join(map(str, case["periods"])), label,
-                         case["median_wall_s"][label],
-                         ", ".join(f"{r['wall_s']:.1f}" for r in runs), first["steps"],
-                         first["passes"], f"{first['reached']} / {case['templates']}",
-                         f"{first['true_gap_max']:.1e}",
-                         f"{first['true_gap_median']:.1e}", _widths(first["columns"]),
-                         first["column_passes"]])  # fmt: skip
-    heads = ["case", "frames", "periods", "setting", "median wall s", "runs s",
-             "steps", "passes", "reached", "true gap max", "true gap median",
-             "templates per step", "column-passes"]  # fmt: skip
-    blocks.append((heads, rows))
-    for case in report["cases"]:
-        old, spec, comp = (case["median_wall_s"][label] for label, _ in SETTINGS)
-        bullets.append(
-            f"- {case['name']}: the spectral preconditioner {old / spec:.2f}x"
-            f" ({spec:.1f} s against {old:.1f} s with Jacobi); compacted passes"
-            f" {spec / comp:.2f}x on top ({comp:.1f} s); the in-memory reference"
-            f" took {case['reference_s']:.1f} s."
-        )
-    title = "Streamed Newton-CG: preconditioner and compacted passes"
-    return h.render(title, report, *blocks, "\n".join(bullets))
+markdown_streamed = h.markdown(
+    "Streamed Newton-CG: preconditioner and compacted passes",
+    "Each case runs the streamed fit (FAST_STREAM: a template stops once its"
+    f" estimated gap is <= 1e-3; blocks of {BLOCK_ROWS} frames from a memory-mapped"
+    " .npy) in three settings, in turns. reached: templates whose estimated gap met"
+    " 1e-3; true_gap: (f - f*) / f* against the in-memory Newton optimum; columns:"
+    " templates carried at each step; column_passes: templates carried, summed over"
+    " every pass.",
+)
 
-
-def _widths(columns: list[int]) -> str:
-    """Templates per step, runs of equal widths shortened: '126 x 12, 8 x 2'."""
-    runs = [(w, len(list(same))) for w, same in itertools.groupby(columns)]
-    return ", ".join(f"{w} x {k}" if k > 1 else str(w) for w, k in runs)
 
 
 OPTIONS_STREAMED = dict(repeats=2, walk_frames=100_000, walk_periods="46,47,49")
@@ -662,10 +529,6 @@ def run_streamed(args) -> dict:
 
 SHAPES = ["1000x64", "3000x128", "2000x256", "800x800", "400x1024", "250x4096"]
 QUICK_MEMORY = dict(shapes=["600x32"], repeats=1)  # --quick
-MB = 1e6
-
-HEAD_MEMORY = ["n x d", "shape", "p", "estimate MB", "cold MB", "est / cold",
-               "arrays MB", "warm MB", "arrays / warm", "limit kept"]  # fmt: skip
 
 
 def fit_peak(x: np.ndarray) -> int:
@@ -693,29 +556,18 @@ def measure(repeats: int, shapes: list[str]) -> list[dict]:
     return rows
 
 
-def markdown_memory(report: dict) -> str:
-    rows = [[f"{r['n']} x {r['d']}", r["kind"], r["p"], r["estimate"] / MB,
-             r["cold"] / MB, r["estimate"] / r["cold"],
-             r["arrays"] / MB, max(r["warm"]) / MB, r["arrays"] / max(r["warm"]),
-             "yes" if r["admitted"] and r["cold"] <= r["estimate"] else "NO"]
-            for r in report["rows"]]  # fmt: skip
-    kept = all(r["cold"] <= r["estimate"] for r in report["rows"])
-    return h.render(
-            "Memory of a full-batch fit: estimate against measured peak", report,
-            "Random float32 frames, the default map (r = 2, 7 candidate periods: p"
-            " templates). Peaks are the growth of the process's resident memory during"
-            " the fit, sampled every ms, over a baseline taken after `malloc_trim(0)`"
-            " (glibc otherwise serves the fit from memory an earlier one freed, and the"
-            " growth undercounts). *Cold*: the shape's first fit in a process whose"
-            " runtime is loaded (its functions compile); *warm*: the largest of"
-            f" {report['repeats']} refits of the same frames after one unmeasured"
-            " (nothing compiles). *Estimate*: the sum of `fit_bytes`; *arrays*: the"
-            f" same without its `compile` part ({report['compile_bytes'] / MB:.0f} MB)."
-            " *Limit kept*: the guard with its limit set to the estimate (`--memory X`,"
-            " X = the estimate) admits the fit and the cold peak stays under X.",
-            (HEAD_MEMORY, rows),
-            f"The limit held on every shape: {'yes' if kept else 'NO'}.",
-    )  # fmt: skip
+markdown_memory = h.markdown(
+    "Memory of a full-batch fit: estimate against measured peak",
+    "Random float32 frames, the default map (r = 2, 7 candidate periods: p"
+    " templates). Peaks (bytes): the growth of the process's resident memory during"
+    " the fit over a baseline after `malloc_trim(0)`. cold: the shape's first fit in"
+    " the process (its functions compile); warm: refits after one unmeasured."
+    " estimate: the sum of `fit_bytes` (parts); arrays: without its compile part;"
+    " admitted: the guard with its limit at the estimate admits the fit.",
+    lambda r: h.targets([h.target(f"{x['n']} x {x['d']}: cold peak / estimate",
+                                  x["cold"] / x["estimate"], 1.0, False, "{:.3f}")
+                         for x in r["rows"]]),
+)  # fmt: skip
 
 
 OPTIONS_MEMORY = dict(shapes=(SHAPES, "NxD ..."), repeats=(2, "warm refits a shape"))

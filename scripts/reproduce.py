@@ -85,28 +85,6 @@ QUICK = Settings(frames=600, levels=(1, 2), aug_names=("hflip", "contrast"),
                  batch_queries=300)  # fmt: skip
 
 
-ACC = ["accuracy", "R@1", "R@5"]
-T1 = ["dataset", "N", "d", "periods", "sum tau", "original bytes", "compressed bytes",
-      "ratio (bytes)", "ratio printed", "note"]  # fmt: skip
-T2 = ["dataset", "N", "level", "candidates", "periods", "e (x10^-3)", "accuracy",
-      "paper dataset", "paper periods", "paper e (x10^-3)",
-      "paper accuracy"]  # fmt: skip
-T3 = ["method", *ACC, "single query median ms", "p95 ms", "batch queries/s",
-      "storage bytes", "% of database", "fit s", "note"]  # fmt: skip
-LEVELS = ["method", "level", "periods", "compression ratio", *ACC, "no match"]
-FIG3 = ["level", "candidates", "training error (%)", "chosen"]
-FIG4 = ["r", "candidates", "periods", "storage bytes", "compression ratio", "accuracy"]
-
-
-def joined(values, scale=None) -> str:
-    """A table cell: the items joined by commas (``scale``: times it, 2 decimals)."""
-    return ", ".join(str(v) if scale is None else f"{scale * v:.2f}" for v in values)
-
-
-def acc(r: dict) -> list[str]:
-    """The accuracy, R@1 and R@5 cells of a scored row."""
-    return [f"{r[k]:.4f}" for k in ("accuracy", "recall_at_1", "recall_at_5")]
-
 
 def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     """Bytes of the n x d float32 database and of a map with ``periods``."""
@@ -133,18 +111,6 @@ def table1_paper() -> list[dict[str, Any]]:
         rows.append(row)
     return rows
 
-
-def table1_markdown(paper: list[dict], here: list[dict]) -> str:
-    """Markdown of :func:`table1_paper` rows and of the rows run here."""
-    rows = []
-    for r in paper:
-        note = (r["flag"] or "agrees") + ("" if r["bytes_match"] else "; BYTES DIFFER")
-        rows.append((r, f"{r['printed_ratio']:.4f}", note))
-    rows += [(r, "-", f"run here; {r['ratio_d4096']:.4f} at d = 4096") for r in here]
-    return h.table(T1, [
-        [r["name"], r["n"], r["d"], joined(r["periods"]), r["sum_tau"],
-         f"{r['original_bytes']:,}", f"{r['compressed_bytes']:,}", f"{r['ratio']:.4f}",
-         printed, note] for r, printed, note in rows], "")  # fmt: skip
 
 
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
@@ -352,41 +318,6 @@ def aerial(run: Run, data, fits) -> dict[str, Any]:
     return dict(tolerance=0, n=len(xa), brute_force=bf, levels=levels)
 
 
-def table3_markdown(t3: dict) -> str:
-    out = []
-    for label in t3["query_sets"]:
-        rows = []
-        for row in t3["rows"]:
-            r = row | row[label]
-            fit = "cached" if r["fit_s"] is None else f"{r['fit_s']:.1f}"
-            pct = 100 * r["storage_bytes"] / t3["database_bytes"]
-            rows.append([r["method"], *acc(r), f"{1e3 * r['single_median_s']:.3f}",
-                         f"{1e3 * r['single_p95_s']:.3f}",
-                         f"{r['batch_queries_per_s']:,.0f}", f"{r['storage_bytes']:,}",
-                         f"{pct:.2f}", fit, r["note"]])  # fmt: skip
-        r = t3["rows"][0][label]
-        out += [f"**{label}**, tolerance ±{r['tolerance']} frames, {r['n_queries']}"
-                " queries:", "", h.table(T3, rows, ""), ""]  # fmt: skip
-    return "\n".join(out + [f"Not run: {x}\n" for x in t3["skipped"]])
-
-
-def levels_markdown(block: dict) -> str:
-    bf = block["brute_force"]
-    rows = [["brute force", "-", "-", "1.0000", *acc(bf), f"{bf['no_match']:.4f}"]]
-    rows += [["map", r["level"], joined(r["periods"]), f"{r['compression_ratio']:.4f}",
-              *acc(r), f"{r['no_match']:.4f}"] for r in block["levels"]]  # fmt: skip
-    return h.table(LEVELS, rows, "")
-
-
-def augmentation_markdown(sub: dict) -> str:
-    rows = [dict(sub["brute_force"], name="brute force (no training)", periods=["-"])]
-    rows += [dict(r, name=f"map, {r['name']}") for r in sub["rows"]]
-    cells = []
-    for r in rows:
-        fit = f"{r['fit_wall_s']:.0f}" if "fit_wall_s" in r else "-"
-        cells.append([r["name"], joined(r["periods"]), *acc(r), fit])
-    return h.table(["training frames", "periods", *ACC, "fit s"], cells, "")
-
 
 DEVIATIONS = """\
 - **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d). Here every
@@ -428,103 +359,49 @@ DEVIATIONS = """\
 """
 
 
-REPORT = """\
-# Reproduction of "Rhythmic Representations" on real data
+# (heading, what it shows, the results' key): the report's sections in order
+SECTIONS = (
+    ("Table 1: storage (r = 2, T = sqrt N, float32)",
+     "Bytes from `rhythmic_jax.storage_bytes` and `database_bytes`: sum tau x (d + 1)"
+     " x 4 against N x d x 4. Paper rows: d = 4096 with the paper's periods (its"
+     " Table 2), the printed bytes and ratio beside; flag: a printed ratio its own"
+     " bytes do not give. Rows run here: ratio_d4096, the ratio at d = 4096.",
+     "table1"),
+    ("Table 2: queries from the map (exact accuracy)",
+     "r = 2, seven candidates from c x ceil(sqrt N) at level c; period_errors: the"
+     " training error of each chosen period (the paper's e, x 10^-3 there), beside the"
+     " paper's figures.", "table2"),
+    ("Table 3: search time, storage and accuracy against the baselines",
+     "Nordland summer map, the same descriptors and queries for every method. Single"
+     " query: median and 95th percentile seconds of one-query calls after 10 warm-up"
+     " calls; batch: queries a call, median of 2 after an untimed call. Storage"
+     " counts all that search needs. Accuracy is the single answer (the map's hard"
+     " decode may answer no match); R@K ranks places. The paper's Table 3 (Aerial"
+     f" Brisbane, seconds per query): {PAPER_TABLE3}.", "table3"),
+    ("Fig. 3: training error against period length (Nordland summer)",
+     "![training error](fig3_training_error.png)\n\nPer level: the candidates, their"
+     " training errors, the periods chosen.", "fig3"),
+    ("Fig. 4: r = 2, 3, 5 (Nordland summer, level 1, queries from the map)",
+     "![r](fig4_r.png)\n\nThe paper: a larger r compresses more, but accuracy falls"
+     " sharply.", "fig4"),
+    ("Appearance change: summer map, winter queries (±1 frame)",
+     "full: the whole route, the map at each level (paper Fig. 8). augmentation"
+     " (paper Fig. 6): on the first frames of the route, each operation alone, then"
+     " the seven merged. The paper (Aerial Brisbane / RobotCar): brute force 0.9582 /"
+     " 0.236, the map alone 0.6835 / 0.183, all augmentations merged about +2 / +1"
+     " points.\n\n![augmentation](fig6_augmentation.png)"
+     " ![levels](fig8_levels.png)", "appearance"),
+    ("Aerial pairs (LEVIR-CD samples): A tiles the map, B tiles the queries",
+     "Exact index (tolerance 0).", "aerial"),
+)
+BEYOND = """\
+## Beyond the paper
 
-Command: `{m[command]}`; {m[date]}; rhythmic_jax {m[version]} (jax {m[jax]}, faiss
-{m[faiss]}, numpy {m[numpy]}, Python {m[python]}); {m[machine]}, {m[cpu_count]} cores,
-load average {m[load_start][0]:.1f} at the start and {m[load_end][0]:.1f} at the end
-(a shared machine: timings are pessimistic); {m[elapsed_min]:.1f} minutes, with
-{cached} of the {n_maps} maps loaded from the cache of an earlier run (a map's first
-fit time is in the JSON as fit_wall_s). Descriptor {m[descriptor]}
-{m[descriptor_settings]}, d = {m[d]}; Nordland: {m[frames]} frames per season. Every
-number is in `reproduction.json`; the predictions behind each accuracy are in
-`{m[predictions]}` under the key the JSON names.
-
-## Table 1: storage (r = 2, T = sqrt N, float32)
-
-Bytes from `rhythmic_jax.storage_bytes` and `database_bytes`: sum tau x (d + 1) x 4
-against N x d x 4. Paper rows: d = 4096 with the paper's periods (its Table 2), the
-printed ratio beside the one its printed bytes give.
-
-{table1}
-
-## Table 2: queries from the map (exact accuracy)
-
-r = 2, seven candidates from c x ceil(sqrt N) at level c; e: training error of each
-chosen period (x 10^-3, as the paper); every candidate's error is in the JSON.
-{solver_note}
-
-{table2}
-
-## Table 3: search time, storage and accuracy against the baselines
-
-Nordland summer map ({m[frames]} frames, d = {m[d]}), the same descriptors and queries
-for every method. Threads: faiss {threads[faiss]} (OpenMP, set per call), KD-tree 1
-(scikit-learn), JAX: {threads[jax]}. Single query: median and 95th percentile of
-{s[timing_queries]} one-query calls after 10 warm-up calls; batch: {s[batch_queries]}
-queries a call, median of 2 after an untimed call. Storage counts all that search
-needs (codes, rotation, codebooks, tree; the map: its templates). Accuracy is the
-single answer (the map's hard decode may answer "no match"); R@K ranks places.
-
-{table3}
-Paper Table 3 (Aerial Brisbane, seconds per query): {paper3}.
-
-## Fig. 3: training error against period length (Nordland summer)
-
-![training error](fig3_training_error.png)
-
-{fig3}
-
-## Fig. 4: r = 2, 3, 5 (Nordland summer, level 1, queries from the map)
-
-![r](fig4_r.png)
-
-{fig4}
-
-The paper: a larger r compresses more, but accuracy falls sharply.
-
-## Appearance change: summer map, winter queries (±1 frame)
-
-The whole route ({m[frames]} frames), the map at each level (paper Fig. 8):
-
-{levels}
-
-Augmentation (paper Fig. 6) on the first {sub[frames]} frames of the route (to fit the
-time budget), level {sub[level]}, {sub[epochs]} augmented epochs a fit; each operation
-alone, then the seven merged:
-
-{augmentation}
-
-![augmentation](fig6_augmentation.png) ![levels](fig8_levels.png)
-
-The paper (Aerial Brisbane / RobotCar): brute force 0.9582 / 0.236, the map alone
-0.6835 / 0.183, all augmentations merged about +2 / +1 points; longer periods raise
-accuracy (ratio 0.131 at T = 4 sqrt N on Aerial Brisbane).
-
-## Aerial pairs (LEVIR-CD samples): A tiles the map, B tiles the queries
-
-{ae[n]} places, exact index (tolerance 0):
-
-{aerial}
-
-## Beyond the paper: soft and sequence decoding
-
-Soft, top-m and phase-domain sequence decoding and outlier rejection on Nordland
-and the LEVIR pairs, against brute force and SeqSLAM, with patchnorm and
-EfficientNet-Lite0 descriptors at levels 1 and 4: [decoding.md](decoding.md),
-written by `python scripts/bench_decode.py decoders`.
-
-## Beyond the paper: recognition under appearance change, split by place
-
-Maps fitted on one condition of held-out places and queried with the other,
-embeddings learned on the training places only, against brute force and SeqSLAM,
-with the targets they are judged by: [cross_condition.md](cross_condition.md),
-written by `python scripts/bench_recall.py cross-condition`.
-
-## Deviations from the paper, and why
-
-{deviations}"""
+Soft, top-m and phase-domain sequence decoding and outlier rejection:
+[decoding.md](decoding.md), written by `python scripts/bench_decode.py decoders`.
+Recognition under appearance change, split by place:
+[cross_condition.md](cross_condition.md), written by
+`python scripts/bench_recall.py cross-condition`."""
 
 
 def _tree(node):
@@ -538,37 +415,30 @@ def _tree(node):
 
 
 def markdown(res: dict) -> str:
-    """The report: :data:`REPORT` filled from the results."""
-    t2, meta = res["table2"], res["meta"]
+    """The report: the run's record, then each of :data:`SECTIONS` with every figure
+    of its results, and the deviations from the paper."""
+    t2 = res["table2"]
     summer = next(r for r in t2 if r["dataset"] == "Nordland summer")
     e = summer["candidate_errors"]
     note = SOLVER_NOTE.format(summer["accuracy"], 100 * min(e), 100 * max(e))
-    note = note if summer["n"] == 3576 else ""
-    t2rows = [[r["dataset"], r["n"], r["level"],
-               f"{r['candidates'][0]}..{r['candidates'][6]}", joined(r["periods"]),
-               joined(r["period_errors"], 1000), f"{r['accuracy']:.4f}",
-               r["paper_dataset"], r["paper_periods"], r["paper_e"],
-               r["paper_accuracy"]] for r in t2]  # fmt: skip
-    fig3 = [[lv, joined(c), joined(e, 100), joined(p)]
-            for lv, (c, e, p) in res["fig3"].items()]  # fmt: skip
-    fig4 = [[r["r"], joined(r["candidates"]), joined(r["periods"]),
-             f"{r['storage_bytes']:,}", f"{r['compression_ratio']:.4f}",
-             f"{r['accuracy']:.4f}"] for r in res["fig4"]]  # fmt: skip
     maps = {r["map_path"]: r["cached"] for r in _tree(res) if "map_path" in r}
-    app, t1 = res["appearance"], res["table1"]
-    m = meta | dict(predictions=Path(meta["predictions"]).name,
-                    command=res.get("command", meta.get("command")))  # fmt: skip
-    return REPORT.format(
-        cached=sum(maps.values()), n_maps=len(maps), m=m, s=res["settings"],
-        solver_note=note, threads=res["table3"]["threads"],
-        sub=app["augmentation"], ae=res["aerial"],
-        table1=table1_markdown(t1["paper"], t1["here"]), table2=h.table(T2, t2rows, ""),
-        table3=table3_markdown(res["table3"]), paper3=PAPER_TABLE3,
-        fig3=h.table(FIG3, fig3, ""), fig4=h.table(FIG4, fig4, ""),
-        levels=levels_markdown(app["full"]),
-        augmentation=augmentation_markdown(app["augmentation"]),
-        aerial=levels_markdown(res["aerial"]), deviations=DEVIATIONS,
-    )  # fmt: skip
+    blocks = [
+        f"{sum(maps.values())} of the {len(maps)} maps loaded from the cache of an"
+        " earlier run (a map's first fit time is its fit_wall_s). The predictions"
+        " behind each accuracy are in the file meta.predictions names, under the key"
+        " the result names.",
+        *h.figures({k: res[k] for k in ("settings", "meta")}),
+    ]
+    for heading, text, key in SECTIONS:
+        value = res[key]
+        shown = h.figures(value, 3) if isinstance(value, dict) else h.figures(
+            {key: value})[1:]  # fmt: skip
+        blocks += [f"## {heading}", text, *shown]
+        blocks += [note] if key == "table2" and summer["n"] == 3576 else []
+    blocks += [BEYOND, "## Deviations from the paper, and why", DEVIATIONS.strip()]
+    command = res.get("command") or res["meta"].get("command")
+    title = 'Reproduction of "Rhythmic Representations" on real data'
+    return h.render(title, res | dict(command=command), *blocks)
 
 
 def draw(res: dict, out: Path) -> list[str]:
