@@ -25,7 +25,13 @@ from rhythmic_jax.app.options import option, part, settings
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import CompilePolicy
 from rhythmic_jax.map.config import DECODERS, MapConfig
-from rhythmic_jax.validate import Domain, int_option, is_number, number_option
+from rhythmic_jax.validate import (
+    Domain,
+    int_option,
+    is_number,
+    number_option,
+    parse_bytes,
+)
 
 __all__ = [
     "DemoJob", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob",
@@ -33,14 +39,6 @@ __all__ = [
     "OptionRefused", "QueryJob", "RECALL_OVER", "Reading", "Reported", "Rule",
     "ScaleJob", "check_paths", "learn_config",
 ]  # fmt: skip
-
-
-def memory_bytes(text: str) -> int:
-    """``--memory``'s text (``1GiB``, ``800M``) in bytes; ``ValueError`` when it
-    is no size (:func:`rhythmic_jax.fitting.scale_fit.parse_bytes`)."""
-    from rhythmic_jax.fitting.scale_fit import parse_bytes
-
-    return parse_bytes(text)
 
 
 # ground-truth formats (rhythmic_jax.eval.ground_truth_formats.FORMATS) and
@@ -209,7 +207,7 @@ class ScaleJob:
     memory: str | None = option(
         "bytes each process may use (1GiB, 800M); frames that do not fit are "
         "streamed from disk in blocks",
-        domain=Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"))
+        domain=Domain(True, 1, parse=parse_bytes, what="a size (1GiB, 800M)"))
     stream: bool = option("stream the frames from disk always", False)
     shards: str | None = option(
         "image sources: describe them into this folder of .npy shards as they are "
@@ -326,7 +324,6 @@ class FitJob(Job):
         *IGNORED,
     )  # fmt: skip
 
-
     @property
     def checkpoint_folder(self) -> Path:
         """The checkpoint folder (default ``OUT.ckpt``); refused when a file."""
@@ -387,7 +384,6 @@ class LearnJob(Job):
     )  # fmt: skip
 
 
-
 QUERIES = "query descriptors .npy, image folder or image"
 SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)"
 DECODE = ("how a query's place is read from the map's scores: hard (the best "
@@ -434,7 +430,6 @@ class QueryJob(Job):
              "sizes)", lambda j: j.json or j.csv is not None),
         *IGNORED,
     )  # fmt: skip
-
 
 
 GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds; "
@@ -494,7 +489,6 @@ class EvaluateJob(Job):
     )  # fmt: skip
 
 
-
 @dataclass(frozen=True)
 class DescribeJob(Job):
     """The frames of ``source`` described once and written to ``out``
@@ -507,7 +501,6 @@ class DescribeJob(Job):
     reading: Reading = part(Reading)
 
     RULES = (READS[0], IGNORED[0])
-
 
 
 @dataclass(frozen=True)
