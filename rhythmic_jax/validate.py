@@ -1,11 +1,12 @@
 """Checks on user input: one clear :class:`InputError` line for each bad value.
 
 Arrays (:func:`check_features`, :func:`check_labels`, and the scale a fit
-needs, :func:`check_fit_scale`) and single numbers
-(:func:`check_int`, :func:`check_number`). The command line parses every numeric
-option with a :class:`Domain` (:func:`int_option`, :func:`number_option`), an
-argparse type that states its domain in words, so a bad value ends where it is
-parsed and 0 or a negative number is never read as "unset".
+needs, :func:`check_fit_scale`), single numbers (:func:`check_int`,
+:func:`check_number`) and sizes in bytes (:func:`parse_bytes`). The command line
+parses every numeric option with a :class:`Domain` (:func:`int_option`,
+:func:`number_option`), an argparse type that states its domain in words, so a
+bad value ends where it is parsed and 0 or a negative number is never read as
+"unset".
 
 Importing this module does not import numpy (the command line builds its parser
 from it): the checks import it when a value is not a Python number or an array
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -38,8 +40,10 @@ __all__ = [
     "is_number",
     "is_sparse",
     "number_option",
+    "parse_bytes",
     "scale_sums",
 ]
+_UNITS = {"": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 
 
 def is_int(value) -> bool:
@@ -218,6 +222,16 @@ def number_option(
     """An argparse ``type``: the text of a finite number in (low, high), or in
     [low, high] when ``closed``."""
     return Domain(False, low, high, not closed, not closed)
+
+
+def parse_bytes(text: str) -> int:
+    """``"1GiB"``, ``"800M"``, ``"1.5g"``, ``"123456"`` -> bytes (``--memory``)."""
+    m = re.fullmatch(r"\s*([0-9.]+)\s*([kmgt]?)(i?b)?\s*", str(text).lower())
+    if not m:
+        raise InputError(
+            f"{{opt:memory}}: expected a size like 1GiB or 800M, got {text!r}"
+        )
+    return int(float(m.group(1)) * _UNITS[m.group(2)])
 
 
 def is_sparse(x) -> bool:

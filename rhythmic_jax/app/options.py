@@ -1,7 +1,8 @@
 """An option declared once: a field of a job's frozen dataclass, with metadata.
 
 A field is an option when its metadata holds ``help`` (:func:`option`; None: one
-a job offers only where it words it, by its part's ``helps``). Its default is
+a job offers only where it words it, by its part's ``helps``; :func:`like`: one
+declared by another job). Its default is
 the field's (none: a positional, or a ``required`` option); one of False is a
 flag. The metadata holds what ``add_argument`` takes (:data:`ARGPARSE`) and:
 ``domain``, the :class:`rhythmic_jax.validate.Domain` a number is parsed with,
@@ -22,7 +23,7 @@ import argparse
 from dataclasses import MISSING, Field, field, fields
 from typing import Any
 
-__all__ = ["add_options", "make", "option", "options", "part", "settings"]
+__all__ = ["add_options", "like", "make", "option", "options", "part", "settings"]
 
 ARGPARSE = ("nargs", "metavar", "choices", "required")
 
@@ -32,6 +33,14 @@ def option(help_: str | None, default: Any = None, **meta) -> Any:
     if meta.get("positional") or meta.get("required"):
         default = MISSING
     return field(default=default, metadata={"help": help_, **meta})
+
+
+def like(cls: type, name: str, help_: str | None = None) -> Any:
+    """A field offered as the option ``name`` of ``cls`` is (with ``help_`` where
+    given): an option declared once for jobs that share it."""
+    f = next(f for f in fields(cls) if f.name == name)
+    meta = {**f.metadata, "help": help_ or f.metadata["help"]}
+    return field(default=f.default, metadata=meta)
 
 
 def part(cls: type, default: Any = MISSING, **meta) -> Any:

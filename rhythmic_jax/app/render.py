@@ -83,6 +83,11 @@ def describe_summary(job, x: np.ndarray) -> str:
     )
 
 
+def _rows(rows: list[tuple[str, Any]]) -> str:
+    """``name: value`` lines, the names right-aligned in :data:`W` columns."""
+    return "\n".join(f"{name:>{W}}: {value}" for name, value in rows)
+
+
 def info_lines(info: dict[str, Any]) -> str:
     """The text form of :func:`rhythmic_jax.app.jobs.info`, one setting a line.
 
@@ -108,45 +113,36 @@ def info_lines(info: dict[str, Any]) -> str:
             if fusion
             else "none learned (saved before learn kept one): maps fuse at 0.5"
         )
-        return "\n".join([
-            f"{'embedding':>{W}}: {info['head']} {info['d']} -> {info['k']} dims{how}",
-            f"{'descriptor':>{W}}: {info['descriptor']} {uses}",
-            f"{'fusion':>{W}}: {weight}",
+        return _rows([
+            ("embedding", f"{info['head']} {info['d']} -> {info['k']} dims{how}"),
+            ("descriptor", f"{info['descriptor']} {uses}"),
+            ("fusion", weight),
         ])  # fmt: skip
     keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
             "compression_ratio", "c")  # fmt: skip
-    lines = [f"{key:>{W}}: {info[key]}" for key in keys]
+    rows = [(key, info[key]) for key in keys]
     if info.get("descriptor"):
-        lines.insert(3, f"{'descriptor':>{W}}: {info['descriptor']}")
-    ref = info.get("reference") or {}
+        rows.insert(3, ("descriptor", info["descriptor"]))
+    ref, st = info.get("reference") or {}, info["storage"]
     if ref.get("embedding"):
-        taken = (
-            f"; descriptor {info['descriptor']} taken from it"
-            if ref.get("descriptor_from_embedding")
-            else ""
-        )
-        lines.append(f"{'embedding from':>{W}}: {ref['embedding']}{taken}")
+        taken = ref.get("descriptor_from_embedding")
+        taken = f"; descriptor {info['descriptor']} taken from it" if taken else ""
+        rows.append(("embedding from", f"{ref['embedding']}{taken}"))
     if info.get("codes_bits"):
         w, fusion = (info.get("config") or {}).get("fusion"), ref.get("fusion")
         how = f" ({fusion['from']}: {fusion['note']})" if fusion else ""
-        lines.append(f"{'fusion':>{W}}: {fusion_words(w)}{how}")
-    st = info["storage"]
-    lines += [
-        f"{'storage fixed':>{W}}: {st['fixed']:,} B (code transform)",
-        f"{'per place':>{W}}: {st['per_place']:,} B (codes)",
+        rows.append(("fusion", f"{fusion_words(w)}{how}"))
+    rows += [
+        ("storage fixed", f"{st['fixed']:,} B (code transform)"),
+        ("per place", f"{st['per_place']:,} B (codes)"),
+        *((f"period {t}", f"{b:,} B (templates)") for t, b in st["per_period"].items()),
+        ("share", f"{st['share']:.4f} of the float32 database"),
     ]
-    lines += [
-        f"{'period ' + t:>{W}}: {b:,} B (templates)"
-        for t, b in st["per_period"].items()
-    ]
-    lines.append(f"{'share':>{W}}: {st['share']:.4f} of the float32 database")
     if info.get("checksums"):
-        lines.append(f"{'checksums':>{W}}: {info['checksums']}")
-    lines += [
-        f"{'period ' + str(t):>{W}}: training error {e:.4f}"
-        for t, e in zip(info["candidates"], info["candidate_errors"], strict=True)
-    ]
-    return "\n".join(lines + [f"{'compile options':>{W}}: {compile_options()}"])
+        rows.append(("checksums", info["checksums"]))
+    errors = zip(info["candidates"], info["candidate_errors"], strict=True)
+    rows += [(f"period {t}", f"training error {e:.4f}") for t, e in errors]
+    return _rows(rows + [("compile options", compile_options())])
 
 
 def evaluate_summary(result: dict[str, Any]) -> str:

@@ -21,11 +21,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from rhythmic_jax.app.options import option, part, settings
+from rhythmic_jax.app.options import like, option, part, settings
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import CompilePolicy
 from rhythmic_jax.map.config import DECODERS, MapConfig
-from rhythmic_jax.validate import Domain, int_option, is_number, number_option
+from rhythmic_jax.validate import (
+    Domain,
+    int_option,
+    is_number,
+    number_option,
+    parse_bytes,
+)
 
 __all__ = [
     "DemoJob", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob",
@@ -33,14 +39,6 @@ __all__ = [
     "OptionRefused", "QueryJob", "RECALL_OVER", "Reading", "Reported", "Rule",
     "ScaleJob", "check_paths", "learn_config",
 ]  # fmt: skip
-
-
-def memory_bytes(text: str) -> int:
-    """``--memory``'s text (``1GiB``, ``800M``) in bytes; ``ValueError`` when it
-    is no size (:func:`rhythmic_jax.fitting.scale_fit.parse_bytes`)."""
-    from rhythmic_jax.fitting.scale_fit import parse_bytes
-
-    return parse_bytes(text)
 
 
 # ground-truth formats (rhythmic_jax.eval.ground_truth_formats.FORMATS) and
@@ -209,7 +207,7 @@ class ScaleJob:
     memory: str | None = option(
         "bytes each process may use (1GiB, 800M); frames that do not fit are "
         "streamed from disk in blocks",
-        domain=Domain(True, 1, parse=memory_bytes, what="a size (1GiB, 800M)"))
+        domain=Domain(True, 1, parse=parse_bytes, what="a size (1GiB, 800M)"))
     stream: bool = option("stream the frames from disk always", False)
     shards: str | None = option(
         "image sources: describe them into this folder of .npy shards as they are "
@@ -326,7 +324,6 @@ class FitJob(Job):
         *IGNORED,
     )  # fmt: skip
 
-
     @property
     def checkpoint_folder(self) -> Path:
         """The checkpoint folder (default ``OUT.ckpt``); refused when a file."""
@@ -387,14 +384,7 @@ class LearnJob(Job):
     )  # fmt: skip
 
 
-
-QUERIES = "query descriptors .npy, image folder or image"
 SELECT = "only the queries of an hloc .h5 whose names start with PREFIX (query/)"
-DECODE = ("how a query's place is read from the map's scores: hard (the best "
-          "phase of each period, joined by the Chinese remainder; -1, no match, "
-          "when they name no place of the route), soft (the place of the highest "
-          "summed phase scores), topm (soft among the top best phases of each "
-          "period); default the map's own (fit: hard)")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -406,8 +396,14 @@ class QueryJob(Job):
     takes them (:func:`rhythmic_jax.app.jobs.query_results`: ``top``)."""
 
     map: str = option("map folder", positional=True, path="reads")
-    source: str = option(QUERIES, positional=True, path="frames")
-    decode: str | None = option(DECODE, choices=DECODERS)
+    source: str = option("query descriptors .npy, image folder or image",
+                         positional=True, path="frames")
+    decode: str | None = option(
+        "how a query's place is read from the map's scores: hard (the best phase of "
+        "each period, joined by the Chinese remainder; -1, no match, when they name "
+        "no place of the route), soft (the place of the highest summed phase "
+        "scores), topm (soft among the top best phases of each period); default the "
+        "map's own (fit: hard)", choices=DECODERS)
     sequence: int | None = option("sequence length L (at most the number of "
                                   "queries; default off: single frames)",
                                   domain=int_option(1))
@@ -436,27 +432,19 @@ class QueryJob(Job):
     )  # fmt: skip
 
 
-
-GT_FORMAT = ("the --ground-truth file's format (default: read from what it holds; "
-             "its name only breaks a tie)")  # fmt: skip
-RECALL = ("recall@K's denominator: the queries with a right place (matched, "
-          "VPR_Tutorial's; default) or every query (all, VPR-methods-evaluation's); "
-          "the table says which")  # fmt: skip
-
-
 @dataclass(frozen=True)
 class EvaluateJob(Job):
     """The map at ``map`` judged on the queries of ``source``, beside brute force
     (:func:`rhythmic_jax.app.jobs.evaluate`); ``ground_truth`` as
     :func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth` reads it."""
 
-    map: str = option("map folder", positional=True, path="reads")
-    source: str = option(QUERIES, positional=True, path="frames")
+    map: str = like(QueryJob, "map")
+    source: str = like(QueryJob, "source")
     reference: str | None = option(
         "reference source for the brute-force line (default: the sources the map "
         "was fitted on, when they are still there)", path="frames")
     tolerance: int = option("frame tolerance (default 0)", 0, domain=int_option(0))
-    decode: str | None = option(DECODE, choices=DECODERS)
+    decode: str | None = like(QueryJob, "decode")
     sequence: int | None = option(
         "sequence length L, at most the number of queries (accuracy, PR and "
         "recall@K use the sequence scores; default off)", domain=int_option(1))
@@ -465,11 +453,16 @@ class EvaluateJob(Job):
         "--positions); or REF_POSITIONS QUERY_POSITIONS; or 'names' "
         "(@easting@northing@ file names). Default: query i is place i",
         nargs="+", metavar="FILE", path="reads")
-    ground_truth_format: str | None = option(GT_FORMAT, choices=GROUND_TRUTH_FORMATS)
+    ground_truth_format: str | None = option(
+        "the --ground-truth file's format (default: read from what it holds; its "
+        "name only breaks a tie)", choices=GROUND_TRUTH_FORMATS)
     tolerance_m: float = option("radius of a right match for positions, metres "
                                 "(default %(default)g)", 25.0,
                                 domain=number_option(0))
-    recall_over: str = option(RECALL, "matched", choices=RECALL_OVER)
+    recall_over: str = option(
+        "recall@K's denominator: the queries with a right place (matched, "
+        "VPR_Tutorial's; default) or every query (all, VPR-methods-evaluation's); "
+        "the table says which", "matched", choices=RECALL_OVER)
     plot: str | None = option(
         "write PR curves, recall@N (N = 1..20) and the predicted place against "
         "query index along the route (.png)", path="writes")
@@ -494,7 +487,6 @@ class EvaluateJob(Job):
     )  # fmt: skip
 
 
-
 @dataclass(frozen=True)
 class DescribeJob(Job):
     """The frames of ``source`` described once and written to ``out``
@@ -509,13 +501,12 @@ class DescribeJob(Job):
     RULES = (READS[0], IGNORED[0])
 
 
-
 @dataclass(frozen=True)
 class InfoJob(Checked):
     """A map's or an embedding's info (:func:`rhythmic_jax.app.jobs.info`)."""
 
     map: str = option("map folder (or embedding folder)", positional=True)
-    json: bool = option("print JSON", False)
+    json: bool = like(EvaluateJob, "json")
 
 
 @dataclass(frozen=True)
@@ -539,14 +530,14 @@ class FrontierJob(Job):
         "the images of hloc .h5 files whose names start with REF_PREFIX, "
         "QUERY_PREFIX ('' takes all): one file split in two",
         nargs=2, metavar=("REF_PREFIX", "QUERY_PREFIX"))
-    ground_truth: tuple[str, ...] | None = option(
-        "as evaluate reads it (default: query i is place i)", nargs="+",
-        metavar="FILE", path="reads")
-    ground_truth_format: str | None = option(GT_FORMAT, choices=GROUND_TRUTH_FORMATS)
-    recall_over: str = option(RECALL, "matched", choices=RECALL_OVER)
-    tolerance: int = option("frame tolerance (default 0)", 0, domain=int_option(0))
-    tolerance_m: float = option("radius for positions, m (default %(default)g)", 25.0,
-                                domain=number_option(0))
+    ground_truth: tuple[str, ...] | None = like(
+        EvaluateJob, "ground_truth", "as evaluate reads it (default: query i is "
+        "place i)")
+    ground_truth_format: str | None = like(EvaluateJob, "ground_truth_format")
+    recall_over: str = like(EvaluateJob, "recall_over")
+    tolerance: int = like(EvaluateJob, "tolerance")
+    tolerance_m: float = like(EvaluateJob, "tolerance_m",
+                              "radius for positions, m (default %(default)g)")
     budget: float | None = option("name the best representation within this many "
                                   "bytes", metavar="BYTES_PER_PLACE",
                                   domain=number_option(0))
@@ -564,7 +555,7 @@ class FrontierJob(Job):
     cache: str = option("folder keeping fitted maps and codes (default none)", "")
     csv: str | None = option("write the rows as CSV", path="writes")
     plot: str | None = option("draw the frontier (.png)", path="writes")
-    json: bool = option("print JSON", False)
+    json: bool = like(EvaluateJob, "json")
 
 
 ROLES = {"map": "the map", "source": "the queries", "sources": "the source",

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -39,23 +38,12 @@ from rhythmic_jax.solvers.streamed import (
     stream_errors,
     streamed_newton_fit,
 )
-from rhythmic_jax.validate import check_fit_scale, scale_sums
+from rhythmic_jax.validate import check_fit_scale, parse_bytes, scale_sums
 
 __all__ = ["block_rows_for", "fit_map_files", "parse_bytes", "resident_bytes"]
 
 log = logging.getLogger(__name__)
-_UNITS = {"": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 SLACK = 160 * 2**20  # compilation and the runtime's buffers, beside the blocks
-
-
-def parse_bytes(text: str) -> int:
-    """``"1GiB"``, ``"800M"``, ``"1.5g"``, ``"123456"`` -> bytes."""
-    m = re.fullmatch(r"\s*([0-9.]+)\s*([kmgt]?)(i?b)?\s*", str(text).lower())
-    if not m:
-        raise InputError(
-            f"{{opt:memory}}: expected a size like 1GiB or 800M, got {text!r}"
-        )
-    return int(float(m.group(1)) * _UNITS[m.group(2)])
 
 
 def resident_bytes() -> int:

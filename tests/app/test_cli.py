@@ -338,6 +338,23 @@ def test_every_option_is_declared_once():
     assert added == ["--verbose", "--version"]
 
 
+def test_an_option_jobs_share_is_declared_once():
+    """frontier offers evaluate's options as evaluate declares them (its own help
+    where it words one), and evaluate query's map, queries and decoders."""
+    declared = _declared()
+    frontier, evaluate, query = (declared[c] for c in ("frontier", "evaluate", "query"))
+    for dest in ("tolerance", "ground_truth_format", "recall_over", "json"):
+        assert frontier[dest].metadata == evaluate[dest].metadata, dest
+    for dest in ("ground_truth", "tolerance_m"):
+        same = {k: v for k, v in frontier[dest].metadata.items() if k != "help"}
+        assert same == {k: v for k, v in evaluate[dest].metadata.items() if k != "help"}
+        assert frontier[dest].default == evaluate[dest].default
+        assert frontier[dest].metadata["help"] != evaluate[dest].metadata["help"]
+    for dest in ("map", "source", "decode"):
+        assert evaluate[dest].metadata == query[dest].metadata, dest
+    assert declared["info"]["json"].metadata == evaluate["json"].metadata
+
+
 def test_every_numeric_option_states_its_domain(capsys):
     """--help states the domain of every option that declares one."""
     stated = set()
