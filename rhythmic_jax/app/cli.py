@@ -22,7 +22,7 @@ import sys
 import textwrap
 
 from rhythmic_jax.app import specs
-from rhythmic_jax.app.options import add_options, make
+from rhythmic_jax.app.options import OptionRefused, add_options, check_paths, make
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import BUILD_MIN_FRAMES, LOAD_MIN_FRAMES
 from rhythmic_jax.version import __version__
@@ -258,9 +258,9 @@ def _checked_job(args, prog: str):
     or a path written over one read ends in one usage line (InputError)."""
     given = frozenset(_given_options(args.argv, args))
     job = make(JOBS[args.command][0], args, given=given)
-    line = specs.check_paths(job)
+    line = check_paths(job)
     if line is not None:
-        raise specs.OptionRefused(line)
+        raise OptionRefused(line)
     for warning in job.warnings:
         print(f"{prog}: warning: {InputError(warning).as_flag()}", file=sys.stderr)
     return job
@@ -335,7 +335,7 @@ def _main(args, prog: str) -> int:
     """The command of the parsed ``args``: its job made, run and printed."""
     try:
         job = _checked_job(args, prog)
-    except specs.OptionRefused as err:
+    except OptionRefused as err:
         _say(f"{prog}: error: {err.as_flag()} (see {prog} --help)")
         return 2
     except InputError as err:

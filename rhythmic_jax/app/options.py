@@ -2,28 +2,39 @@
 
 A field is an option when its metadata holds ``help`` (:func:`option`; None: one
 a job offers only where it words it, by its part's ``helps``; :func:`like`: one
-declared by another job). Its default is
-the field's (none: a positional, or a ``required`` option); one of False is a
-flag. The metadata holds what ``add_argument`` takes (:data:`ARGPARSE`) and:
-``domain``, the :class:`rhythmic_jax.validate.Domain` a number is parsed with,
-stated in ``--help`` and checked when a job is made; ``dest``, the option's name
-where it is not the field's; ``positional``; ``path``: what the job does with
-it (``reads``, ``writes``, ``frames``: reads frames from it;
-:func:`rhythmic_jax.app.specs.check_paths`). A field holding a part of the
-settings (:func:`part`) offers the part's options, titled ``group`` in ``--help``
-and made into its value by ``make`` (default: the part's class).
+declared by another job). Its default is the field's (none: a positional, or a
+``required`` option); one of False is a flag. The metadata holds what
+``add_argument`` takes (:data:`ARGPARSE`) and: ``domain``, the
+:class:`rhythmic_jax.validate.Domain` a number is parsed with, stated in
+``--help`` and checked when a job is made; ``dest``, the option's name where it
+is not the field's; ``positional``; ``path``: what the job does with it
+(``reads``, ``writes``, ``frames``: reads frames from it; :func:`check_paths`).
+A field holding a part of the settings (:func:`part`) offers the part's options,
+titled ``group`` in ``--help`` and made into its value by ``make`` (default: the
+part's class).
 
 A command's parser is rendered from its job's class (:func:`add_options`) and
-the job made from what it parsed (:func:`make`). Imports no numpy, JAX or torch.
+the job made from what it parsed (:func:`make`). A job checks itself when it is
+made (:class:`Checked`: each number in its domain, then the job's rules,
+:class:`Rule`), and :func:`check_paths` refuses a job whose outputs would
+overwrite what it reads. Imports no numpy, JAX or torch.
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import MISSING, Field, field, fields
-from typing import Any
+from collections.abc import Callable
+from dataclasses import MISSING, Field, dataclass, field, fields
+from pathlib import Path
+from typing import Any, ClassVar
 
-__all__ = ["add_options", "like", "make", "option", "options", "part", "settings"]
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.validate import is_number
+
+__all__ = [
+    "Checked", "OptionRefused", "Rule", "add_options", "check_paths", "like", "make",
+    "option", "options", "part", "settings",
+]  # fmt: skip
 
 ARGPARSE = ("nargs", "metavar", "choices", "required")
 
@@ -121,3 +132,113 @@ def settings(obj: Any, cls: type | None = None) -> dict[str, tuple[Any, Any, dic
         elif "help" in f.metadata:
             found[f.metadata.get("dest", f.name)] = (value, default_of(f), f.metadata)
     return found
+
+
+class OptionRefused(InputError):
+    """A setting given where it has no effect, or without one it needs."""
+
+
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Where a setting acts: given (away from its default, or named in the job's
+    ``given``) where ``holds(job)`` is false, each of ``options`` is refused with
+    the line ``{opt:OPTION} says``, or, for options that scripts pass always
+    (``warn``), named in one warning line and ignored."""
+
+    options: tuple[str, ...]
+    says: str
+    holds: Callable[[Any], bool]
+    warn: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class Checked:
+    """A job that checks itself when made: every numeric setting against its
+    option's domain, then every rule of ``RULES`` (:class:`Rule`); a refused
+    rule raises :class:`OptionRefused`, and ``warnings`` holds the lines naming
+    settings a warning rule ignores. ``given`` names settings given explicitly,
+    as the command line's options are: a rule refuses them even at their default.
+    """
+
+    RULES: ClassVar[tuple[Rule, ...]] = ()
+    given: frozenset[str] = frozenset()
+    warnings: tuple[str, ...] = field(default=(), init=False, compare=False)
+
+    def __post_init__(self):
+        values = settings(self)
+        for name, (value, _, meta) in values.items():
+            if meta.get("domain") is not None and is_number(value):
+                try:
+                    meta["domain"].check(value)
+                except InputError as err:
+                    raise InputError(f"{{opt:{name}}} {err}") from None
+        given = {k for k, (v, d, _) in values.items() if v != d} | set(self.given)
+        warned: dict[str, str] = {}
+        for rule in self.RULES:
+            named = [o for o in rule.options if o in given]
+            if not named or rule.holds(self):
+                continue
+            for option_ in named:
+                line = f"{{opt:{option_}}} {rule.says}"
+                if not rule.warn:
+                    raise OptionRefused(line)
+                warned.setdefault(option_, line)
+        object.__setattr__(self, "warnings", tuple(warned.values()))
+
+    def implied_writes(self) -> list[tuple[str, str]]:
+        """(option, path) of what the job writes where an option is left at its
+        default (checked by :func:`check_paths` too)."""
+        return []
+
+    @property
+    def images(self) -> bool:
+        """Whether a source of the job may be images (not only .npy descriptors)."""
+        return not all(p.lower().endswith(".npy") for _, p in _paths(self, "frames"))
+
+
+ROLES = {"map": "the map", "source": "the queries", "sources": "the source",
+         "queries": "the queries"}  # fmt: skip
+NAMES = ("names",)  # --positions / --ground-truth names: no file
+
+
+def _paths(job, *how: str) -> list[tuple[str, str]]:
+    """(option, path) of every path the job ``how`` (reads, writes; frames: reads
+    frames from)."""
+    found = []
+    for dest, (value, _, meta) in settings(job).items():
+        for v in value if isinstance(value, tuple) else [value]:
+            if meta.get("path") in how and v is not None and v not in NAMES:
+                found.append((dest, str(v)))
+    return found
+
+
+def _clash(w: Path, r: Path) -> str | None:
+    if w == r:
+        return "the same path as"
+    if r in w.parents and not r.is_file():  # under a file: no path (said later)
+        return "inside"
+    if w in r.parents:
+        return "holding"
+    return None
+
+
+def check_paths(job) -> str | None:
+    """The line refusing a path the job would write over something it reads
+    (or writes twice), compared resolved (through links and ``..``), or None:
+    no path written may be, hold or lie inside another the job reads or writes."""
+    writes, reads = _paths(job, "writes"), _paths(job, "reads", "frames")
+    writes += job.implied_writes()
+    for i, (dest, path) in enumerate(writes):
+        w = Path(path).expanduser().resolve()
+        others = [(d, p, "reads") for d, p in reads]
+        others += [(d, p, "writes") for d, p in writes[i + 1 :]]
+        for other, opath, verb in others:
+            how = _clash(w, Path(opath).expanduser().resolve())
+            if how is not None:
+                flag, oflag = (ROLES.get(d) or "--" + d.replace("_", "-")
+                               for d in (dest, other))  # fmt: skip
+                return (f"{flag} {path}: {how} {oflag} {opath}, which this job "
+                        f"{verb}; give another path")  # fmt: skip
+    return None

@@ -3,12 +3,11 @@
 A job is a frozen dataclass whose fields are the command's options
 (:mod:`rhythmic_jax.app.options`: help, default, choices, domain); the command
 line renders its parser from them and makes the job from what it parsed. A job
-checks itself when it is made, before any work: each numeric setting against
-its domain, and every setting against the others (the job's ``RULES``,
-:class:`Rule`: an option given where it has no effect, or without one it
-needs). :func:`check_paths` refuses a job whose outputs would overwrite what it
-reads. Running a job is :mod:`rhythmic_jax.app.jobs`; what it prints,
-:mod:`rhythmic_jax.app.render`.
+checks itself when it is made, before any work
+(:class:`~rhythmic_jax.app.options.Checked`): each numeric setting against its
+domain, and every setting against the others (the job's ``RULES``: an option
+given where it has no effect, or without one it needs). Running a job is
+:mod:`rhythmic_jax.app.jobs`; what it prints, :mod:`rhythmic_jax.app.render`.
 
 Errors name settings by parameter (``{opt:tile}``); the command line spells them
 as flags. Importing this module imports no numpy, JAX or torch.
@@ -16,19 +15,17 @@ as flags. Importing this module imports no numpy, JAX or torch.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
-from rhythmic_jax.app.options import like, option, part, settings
+from rhythmic_jax.app.options import Checked, Rule, like, option, part
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import CompilePolicy
 from rhythmic_jax.map.config import DECODERS, MapConfig
 from rhythmic_jax.validate import (
     Domain,
     int_option,
-    is_number,
     number_option,
     parse_bytes,
 )
@@ -36,8 +33,7 @@ from rhythmic_jax.validate import (
 __all__ = [
     "DemoJob", "DescribeJob", "EvaluateJob", "FitInterrupted", "FitJob",
     "FrontierJob", "GRIDS", "GROUND_TRUTH_FORMATS", "InfoJob", "LearnJob",
-    "OptionRefused", "QueryJob", "RECALL_OVER", "Reading", "Reported", "Rule",
-    "ScaleJob", "check_paths", "learn_config",
+    "QueryJob", "RECALL_OVER", "Reading", "Reported", "ScaleJob", "learn_config",
 ]  # fmt: skip
 
 
@@ -66,8 +62,6 @@ def grid_text(name: str) -> str:
             f"pq {','.join(map(str, g['pq']))}")  # fmt: skip
 
 
-class OptionRefused(InputError):
-    """A setting given where it has no effect, or without one it needs."""
 
 
 class FitInterrupted(KeyboardInterrupt):
@@ -87,57 +81,6 @@ class Reported(Exception):
         self.status = status
 
 
-@dataclass(frozen=True)
-class Rule:
-    """Where a setting acts: given (away from its default, or named in the job's
-    ``given``) where ``holds(job)`` is false, each of ``options`` is refused with
-    the line ``{opt:OPTION} says``, or, for options that scripts pass always
-    (``warn``), named in one warning line and ignored."""
-
-    options: tuple[str, ...]
-    says: str
-    holds: Callable[[Any], bool]
-    warn: bool = False
-
-
-@dataclass(frozen=True, kw_only=True)
-class Checked:
-    """A job that checks itself when made: every numeric setting against its
-    option's domain, then every rule of ``RULES`` (:class:`Rule`); a refused
-    rule raises :class:`OptionRefused`, and ``warnings`` holds the lines naming
-    settings a warning rule ignores. ``given`` names settings given explicitly,
-    as the command line's options are: a rule refuses them even at their default.
-    """
-
-    RULES: ClassVar[tuple[Rule, ...]] = ()
-    given: frozenset[str] = frozenset()
-    warnings: tuple[str, ...] = field(default=(), init=False, compare=False)
-
-    def __post_init__(self):
-        values = settings(self)
-        for name, (value, _, meta) in values.items():
-            if meta.get("domain") is not None and is_number(value):
-                try:
-                    meta["domain"].check(value)
-                except InputError as err:
-                    raise InputError(f"{{opt:{name}}} {err}") from None
-        given = {k for k, (v, d, _) in values.items() if v != d} | set(self.given)
-        warned: dict[str, str] = {}
-        for rule in self.RULES:
-            named = [o for o in rule.options if o in given]
-            if not named or rule.holds(self):
-                continue
-            for option_ in named:
-                line = f"{{opt:{option_}}} {rule.says}"
-                if not rule.warn:
-                    raise OptionRefused(line)
-                warned.setdefault(option_, line)
-        object.__setattr__(self, "warnings", tuple(warned.values()))
-
-    @property
-    def images(self) -> bool:
-        """Whether a source of the job may be images (not only .npy descriptors)."""
-        return not all(p.lower().endswith(".npy") for _, p in _paths(self, "frames"))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -323,6 +266,12 @@ class FitJob(Job):
              "runs one process)", lambda j: j.scale.coordinator is None),
         *IGNORED,
     )  # fmt: skip
+
+    def implied_writes(self) -> list[tuple[str, str]]:
+        """The checkpoint folder's default, ``OUT.ckpt``, when none is given."""
+        if self.checkpoint is not None:
+            return []
+        return [("checkpoint", str(self.out) + ".ckpt")]
 
     @property
     def checkpoint_folder(self) -> Path:
@@ -556,50 +505,3 @@ class FrontierJob(Job):
     csv: str | None = option("write the rows as CSV", path="writes")
     plot: str | None = option("draw the frontier (.png)", path="writes")
     json: bool = like(EvaluateJob, "json")
-
-
-ROLES = {"map": "the map", "source": "the queries", "sources": "the source",
-         "queries": "the queries"}  # fmt: skip
-NAMES = ("names",)  # --positions / --ground-truth names: no file
-
-
-def _paths(job, *how: str) -> list[tuple[str, str]]:
-    """(option, path) of every path the job ``how`` (reads, writes; frames: reads
-    frames from)."""
-    found = []
-    for dest, (value, _, meta) in settings(job).items():
-        for v in value if isinstance(value, tuple) else [value]:
-            if meta.get("path") in how and v is not None and v not in NAMES:
-                found.append((dest, str(v)))
-    return found
-
-
-def _clash(w: Path, r: Path) -> str | None:
-    if w == r:
-        return "the same path as"
-    if r in w.parents and not r.is_file():  # under a file: no path (said later)
-        return "inside"
-    if w in r.parents:
-        return "holding"
-    return None
-
-
-def check_paths(job) -> str | None:
-    """The line refusing a path the job would write over something it reads
-    (or writes twice), compared resolved (through links and ``..``), or None:
-    no path written may be, hold or lie inside another the job reads or writes."""
-    writes, reads = _paths(job, "writes"), _paths(job, "reads", "frames")
-    if isinstance(job, FitJob) and job.checkpoint is None:
-        writes.append(("checkpoint", str(job.out) + ".ckpt"))  # its default
-    for i, (dest, path) in enumerate(writes):
-        w = Path(path).expanduser().resolve()
-        others = [(d, p, "reads") for d, p in reads]
-        others += [(d, p, "writes") for d, p in writes[i + 1 :]]
-        for other, opath, verb in others:
-            how = _clash(w, Path(opath).expanduser().resolve())
-            if how is not None:
-                flag, oflag = (ROLES.get(d) or "--" + d.replace("_", "-")
-                               for d in (dest, other))  # fmt: skip
-                return (f"{flag} {path}: {how} {oflag} {opath}, which this job "
-                        f"{verb}; give another path")  # fmt: skip
-    return None

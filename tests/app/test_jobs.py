@@ -15,13 +15,8 @@ import pytest
 from rhythmic_jax import BruteForce, InputError, MapConfig, RhythmicMap
 from rhythmic_jax.app import jobs, render
 from rhythmic_jax.app.jobs import _before_reading
-from rhythmic_jax.app.specs import (
-    EvaluateJob,
-    FitJob,
-    OptionRefused,
-    QueryJob,
-    Reading,
-)
+from rhythmic_jax.app.options import OptionRefused
+from rhythmic_jax.app.specs import EvaluateJob, FitJob, QueryJob, Reading
 from rhythmic_jax.frames.compile_policy import CompilePolicy
 
 
