@@ -2,7 +2,7 @@
 
 A script groups the reports of one theme as :class:`Part` s (``run(args) -> dict``,
 the measurements; ``markdown(report) -> str``, mostly :func:`markdown`: every figure
-of the JSON through the one renderer, :func:`document`; ``options``), and ends with
+of the JSON through the one renderer, :func:`render`; ``options``), and ends with
 ``main(__doc__, PARTS)``: a subcommand a part, common options, threads pinned to one
 per core, the machine and load recorded, then ``<stem>.json`` and ``<stem>.md``
 written (``--render [JSON]``: the Markdown again from a report, the JSON as it is).
@@ -17,6 +17,7 @@ import json
 import logging
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -138,13 +139,25 @@ CLI = [sys.executable, "-c", f"import runpy; runpy.run_module({CLI_MODULE}, "
        "run_name='__main__', alter_sys=True)"]  # fmt: skip
 
 
-def bytecode(*checkouts: Path) -> None:
-    """Compile each checkout's package to bytecode before it is timed (without .pyc
-    files, or under PYTHONDONTWRITEBYTECODE, every job would compile Python)."""
+def checkouts(base: Path | None, names=("base", "new")) -> dict[str, Path]:
+    """The checkout ``base`` and this one by ``names`` (without ``base``: this one as
+    "this"), compiled to bytecode before they are timed (without .pyc files, or
+    under PYTHONDONTWRITEBYTECODE, every job would compile Python)."""
     import compileall
 
-    for tree in checkouts:
-        compileall.compile_dir(Path(tree) / "rhythmic_jax", quiet=1)
+    pair = {names[0]: Path(base).resolve(), names[1]: REPO} if base else {"this": REPO}
+    for tree in pair.values():
+        compileall.compile_dir(tree / "rhythmic_jax", quiet=1)
+    return pair
+
+
+def fresh_cache(tmp: Path, warm: Path | None = None, kept=("compiled",)) -> Path:
+    """A new cache folder under ``tmp``, holding the ``kept`` folders of ``warm``."""
+    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
+    for name in kept if warm else ():
+        if (warm / name).is_dir():
+            shutil.copytree(warm / name, cache / name)
+    return cache
 
 
 def job_env(compile_cache: str | None = None) -> dict[str, str]:
@@ -482,23 +495,20 @@ def targets(rows: list) -> list:
     return ["Targets:", (heads, rows, "l")] if rows else []
 
 
-def document(title: str, report: dict, *blocks) -> str:
-    """:func:`render` of ``blocks`` then of every figure of the report."""
-    shown = dict(environment="devices" in report.get("environment", {}),
-                 load_average=isinstance(report.get("load_average"), dict))
-    body = {k: v for k, v in report.items()
-            if k not in HEADER_KEYS or shown.get(k) is False}  # fmt: skip
-    wall = report.get("wall_seconds")
-    tail = [] if wall is None else [f"Wall seconds of the run: {_cell(wall)}."]
-    return render(title, report, *blocks, *tail, *figures(body))
-
-
 def markdown(title: str, note: str = "", extra: Callable | None = None) -> Callable:
-    """A part's ``markdown``: :func:`document` of the title, a note on what was
-    measured and ``extra(report)``'s blocks (verdicts drawn from the figures)."""
+    """A part's ``markdown``: :func:`render` of the title, a note on what was
+    measured, ``extra(report)``'s blocks (verdicts drawn from the figures), the run's
+    wall seconds and then every figure of the report."""
 
     def to_markdown(report: dict) -> str:
-        return document(title, report, note, *(extra(report) if extra else ()))
+        shown = dict(environment="devices" in report.get("environment", {}),
+                     load_average=isinstance(report.get("load_average"), dict))
+        body = {k: v for k, v in report.items()
+                if k not in HEADER_KEYS or shown.get(k) is False}  # fmt: skip
+        wall = report.get("wall_seconds")
+        tail = [] if wall is None else [f"Wall seconds of the run: {_cell(wall)}."]
+        blocks = extra(report) if extra else ()
+        return render(title, report, note, *blocks, *tail, *figures(body))
 
     return to_markdown
 
@@ -595,15 +605,12 @@ def spelled_now(command: str, script: str, part: str) -> str:
     return " ; ".join(runs)
 
 
-def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
-         refresh=None, md_stem=None, quick=None):  # fmt: skip
+def main(doc: str, parts: dict[str, Part], argv=None):
     """Parse, record the machine, run the part, write and print its report; return
-    it. ``run``: a dict of :class:`Part` by subcommand, or one part's ``run`` (the
-    other arguments: its fields). ``--quick`` sets the options in ``quick`` left at
-    their defaults and names the report ``<stem>_quick``. ``run`` may set
-    ``args.stem`` (the report's name) and return None (nothing to write)."""
-    parts = run if isinstance(run, dict) else {
-        "": Part(run, markdown, options, stem, quick, refresh, md_stem)}  # fmt: skip
+    it. ``parts``: :class:`Part` s by subcommand ("": a script of one part).
+    ``--quick`` sets the options in the part's ``quick`` left at their defaults and
+    names the report ``<stem>_quick``. ``run`` may set ``args.stem`` (the report's
+    name) and return None (nothing to write)."""
     ap = parser(doc, parts)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
@@ -614,11 +621,11 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     for key, value in (part.quick or {}).items() if args.quick else ():
         if getattr(args, key) == own.get_default(key):
             setattr(args, key, value)
+    script = Path(sys.modules[part.run.__module__].__file__ or "script").name
     if args.render is not None:
         if not args.render.name:
             args.render = args.out / f"{args.stem}.json"
         report = json.loads(args.render.read_text())
-        script = Path(sys.modules[part.run.__module__].__file__ or "script").name
         if report.get("command"):
             report["command"] = spelled_now(report["command"], script, name)
         if part.refresh:
@@ -630,7 +637,6 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
     env, load0, t0 = machine(set_threads(cores())), load_average(), time.time()
     log.info("environment %s", env)
-    script = Path(sys.modules[part.run.__module__].__file__ or "script").name
     out = part.run(args)
     if out is None:
         return None

@@ -116,7 +116,7 @@ def run_jobs(args) -> dict:
             np.save(inputs["nordland"], h.summer(args)[:n_nord])
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
-        h.bytecode(args.base, h.REPO)
+        h.checkouts(args.base)
         # base, new cold, new warm (the warm run reuses the cold run's compile cache)
         common = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
         old = {**common, "PYTHONPATH": str(args.base.resolve())}
@@ -129,9 +129,7 @@ def run_jobs(args) -> dict:
             if name == "new cold":
                 shutil.rmtree(network, ignore_errors=True)
             for job in jobs:
-                cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
-                if side == "new" and (network / "compiled").is_dir():
-                    shutil.copytree(network / "compiled", cache / "compiled")
+                cache = h.fresh_cache(tmp, network if side == "new" else None)
                 env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
                 tag = f"{name.replace(' ', '_')}-{k}"
                 pred, jpeg_map = tmp / f"{job}-{tag}.npy", str(tmp / f"jpeg-{tag}.map")
@@ -164,12 +162,9 @@ def run_jobs(args) -> dict:
             for name in ("new cold", "new warm"):
                 pred, periods = runs[name]
                 equal = float((np.load(pred) == np.load(base_pred)).mean())
-                key = f"{job}, {name}"
-                was = same.get(key, {"periods_equal": True, "predictions_equal": 1.0})
-                same[key] = {
-                    "periods_equal": was["periods_equal"] and periods == base_periods,
-                    "predictions_equal": min(was["predictions_equal"], equal),
-                }
+                was = same.setdefault(f"{job}, {name}", {"periods_equal": True})
+                was["periods_equal"] &= periods == base_periods
+                was["predictions_equal"] = min(was.get("predictions_equal", 1.0), equal)
     sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
@@ -268,10 +263,7 @@ OPTIONS_STARTUP = dict(before=(Path, "checkout to compare"), repeats=5)
 
 def run_startup(args) -> dict:
     """Start-up time: import, --help, info (startup)."""
-    checkouts = {"this": h.REPO}
-    if args.before is not None:
-        checkouts = {"before": args.before.resolve(), "after": h.REPO}
-    h.bytecode(*checkouts.values())
+    checkouts = h.checkouts(args.before, ("before", "after"))
     with tempfile.TemporaryDirectory() as tmp:
         route = fit_map(Path(tmp))
         cmds = {

@@ -519,7 +519,6 @@ markdown_single = h.markdown(
 )
 
 
-
 PARTS = {
     "batch": h.Part(run_batch, markdown_batch, OPTIONS_BATCH, "decode", QUICK_BATCH),
     "decoders": h.Part(run_decoders, markdown_decoders, OPTIONS_DECODERS, "decoding",

@@ -77,10 +77,7 @@ def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]
     if job.startswith("augmented"):
         root = str(args.root / "nordland_64x32")
         return h.command(augmented, root, args.aug_frames, job[10:])
-    exe, out_map = (
-        h.CLI,
-        tmp / f"{variant}.map",
-    )
+    exe, out_map = h.CLI, tmp / f"{variant}.map"
     if job == "query":
         out = str(tmp / f"{variant}.npy")
         return [*exe, "query", str(out_map), str(folders["q"]), "--out", out,
@@ -97,8 +94,7 @@ def run_frames(args) -> dict:
     """Frames/s from images end to end against a baseline (frames)."""
     if args.base is None:
         raise SystemExit("--base (a baseline checkout) is needed to measure")
-    paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
-    h.bytecode(*paths.values())
+    paths = {k: str(v) for k, v in h.checkouts(args.base).items()}
     jobs = ["fit", "query", "fit100"]
     jobs += [] if args.skip_augmented else ["augmented_none", "augmented_all"]
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
@@ -116,10 +112,8 @@ def run_frames(args) -> dict:
                 for job in jobs:
                     # an empty descriptor cache; the new checkout's holds the warm
                     # one's network and compiled programs (a second job)
-                    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
-                    for kept in ("compiled", "jax") if variant == "new" else ():
-                        if (warm / kept).is_dir():
-                            shutil.copytree(warm / kept, cache / kept)
+                    new = warm if variant == "new" else None
+                    cache = h.fresh_cache(tmp, new, ("compiled", "jax"))
                     cmd = job_cmd(job, variant, tmp, folders, args)
                     r = timed_run(cmd, paths[variant], cache)
                     if job.startswith("augmented"):
@@ -141,7 +135,6 @@ def run_frames(args) -> dict:
     return report
 
 
-# job -> (smallest new/base frames/s ratio asked for, how the target reads)
 # job -> the smallest new / base frames/s ratio asked for
 TARGETS = dict(fit=2.0, query=3.0, fit100=1 / 1.15, augmented_none=2.5,
                augmented_all=2.5)  # fmt: skip
@@ -260,7 +253,6 @@ markdown_pipeline = h.markdown(
     " frames through augmentation, descriptor, DLPack and the optax step (the step"
     " time of the augmented half of each epoch taken as half the epoch's).",
 )
-
 
 
 QUICK_NETWORK = dict(batches=[8], frames=64, repeats=1)  # --quick

@@ -448,7 +448,6 @@ def refresh(report: dict, args) -> None:
     draw(report, args.render.with_suffix(".png"))
 
 
-
 def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
     """The ``where`` rows (default: the map's) that have ``key``, within ``budget``."""
     return [r for r in rows if where(r) and key in r
@@ -539,14 +538,11 @@ markdown_cross = h.markdown(
 
 def draw(report: dict, path: Path) -> None:
     """R@1 (+-1) and L = 10 of every row, one panel per data set (first direction)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from rhythmic_jax.eval.figures import new_figure, save_figure
 
     sets = report["datasets"]
-    fig, axes = plt.subplots(1, len(sets), figsize=(7 * len(sets), 6), squeeze=False)
-    for ax, (name, ds) in zip(axes[0], sets.items(), strict=True):
+    fig, axes = new_figure(len(sets), 7, 6)
+    for ax, (name, ds) in zip(axes, sets.items(), strict=True):
         key, rows = next(iter(ds["directions"].items()))
         y = list(range(len(rows)))
         ax.barh([v - 0.2 for v in y], [r.get("r1", 0) for r in rows], 0.4,
@@ -558,10 +554,8 @@ def draw(report: dict, path: Path) -> None:
         ax.set_xlim(0, 1)
         ax.set_title(f"{name}, {key}", fontsize=9)
         ax.tick_params(labelsize=7)
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    axes[0].legend(fontsize=7)
+    save_figure(fig, path, 110)
 
 
 QUICK_DIGITS = dict(levels="1")  # --quick

@@ -85,7 +85,6 @@ QUICK = Settings(frames=600, levels=(1, 2), aug_names=("hflip", "contrast"),
                  batch_queries=300)  # fmt: skip
 
 
-
 def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     """Bytes of the n x d float32 database and of a map with ``periods``."""
     periods = [int(t) for t in periods]
@@ -110,7 +109,6 @@ def table1_paper() -> list[dict[str, Any]]:
                    printed_ratio=printed, bytes_match=same, flag=flag)  # fmt: skip
         rows.append(row)
     return rows
-
 
 
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
@@ -318,7 +316,6 @@ def aerial(run: Run, data, fits) -> dict[str, Any]:
     return dict(tolerance=0, n=len(xa), brute_force=bf, levels=levels)
 
 
-
 DEVIATIONS = """\
 - **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d). Here every
   method, the baselines included, uses SeqSLAM's patch-normalised 64x32 grey
@@ -486,12 +483,6 @@ options = dict(cache_dir=(h.MAP_CACHE, "fitted maps"),
                threads=(1, "faiss OpenMP threads"))  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Run or render reproduction.json and REPRODUCTION.md (``_quick`` if --quick)."""
-    return h.main(__doc__, run, markdown, options, "reproduction", argv,
-                  md_stem="REPRODUCTION")  # fmt: skip
-
-
 def run(args) -> dict[str, Any]:
     settings = dataclasses.replace(QUICK if args.quick else FULL, threads=args.threads)
     preds = args.predictions or args.cache_dir / f"{args.stem}.npz"
@@ -539,6 +530,14 @@ def run(args) -> dict[str, Any]:
     with atomic_path(preds) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **run.preds)
     return res
+
+
+PARTS = {"": h.Part(run, markdown, options, "reproduction", md_stem="REPRODUCTION")}
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run or render reproduction.json and REPRODUCTION.md (``_quick`` if --quick)."""
+    return h.main(__doc__, PARTS, argv)
 
 
 if __name__ == "__main__":
