@@ -33,11 +33,8 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
 
 
 def job(out: str, *argv: str) -> dict | None:
-    """A job's process, its XLA programs counted into ``out`` at exit: ``imports``
-    (the floor under any fit: the interpreter, importing JAX and the fit's modules,
-    exiting), ``library FEATURES PREDICTIONS`` (a library user's fit; the new
-    checkout's one call turns the compile cache on), or a command line's
-    arguments (``--no-progress`` added)."""
+    """A job's process, its programs counted into ``out``: ``imports`` (the floor
+    under any fit), ``library FEATURES PREDICTIONS`` or a command line."""
     h.compile_counter(out)
     if argv[0] == "imports":
         import jax.numpy  # noqa: F401
@@ -69,8 +66,7 @@ def run_job(argv: list[str], env: dict, tmp: Path) -> dict:
 
 
 def count_fit(n: int = 1000, d: int = 256) -> dict:
-    """The library job alone on :func:`route` frames afresh, this checkout, no compile
-    cache: its programs (``names``: by name), hits, compile and trace s, periods."""
+    """The library job alone, afresh, no compile cache: its compile counts."""
     with tempfile.TemporaryDirectory() as tmp:
         x, out = Path(tmp) / "x.npy", Path(tmp) / "count.json"
         np.save(x, route(n, d))
@@ -186,8 +182,7 @@ TARGETS = [
 
 
 def targets(report: dict) -> list:
-    """The targets this run's jobs answer; over several rounds the median of the
-    rounds (each against its round's baseline)."""
+    """The targets this run's jobs answer (the median over rounds)."""
     rows, out = {}, []
     for r in report["rows"]:
         rows.setdefault((r["job"], r["variant"]), []).append(r)
@@ -201,12 +196,9 @@ def targets(report: dict) -> list:
 
 markdown_jobs = h.markdown(
     "Compiling: XLA programs, compile seconds and wall per job",
-    "The baseline checkout (no compile cache) against this one, cold (an empty"
-    " compile cache) and warm (the cache the cold run left); each job a fresh process,"
-    " both checkouts' bytecode compiled first. programs: XLA programs the job"
-    " obtained; hits: of them, loaded from the persistent cache; load: the 1-minute"
-    " load average after the job. agreement: the maps against the baseline's. The"
-    " imports row is the floor under any fit's wall.",
+    "The baseline checkout against this one, cold (an empty compile cache) and warm;"
+    " each job a fresh process. hits: programs loaded from the cache; agreement: the"
+    " maps against the baseline's; imports: the floor under any fit.",
     targets,
 )
 
@@ -249,8 +241,7 @@ def fit_map(folder: Path) -> Path:
 
 markdown_startup = h.markdown(
     "Start-up time: import, --help, info",
-    "Each command in a fresh process (each checkout compiled to bytecode first), wall"
-    " seconds of every run, taken in turns; loaded: the heavy packages each loads."
+    "Each command in a fresh process, in turns; loaded: the heavy packages it loads."
     " Targets on an idle machine: `--help` under 1 s, `info` under 2 s.",
     lambda r: ["Medians (s):", (["command", *r["versions"]], [
         [name, *(float(np.median(by[v])) for v in r["versions"])]

@@ -28,8 +28,7 @@ QUICK_FRAMES = dict(frames=100, repeats=1, aug_frames=130)  # --quick
 
 
 def augmented(root: str, frames: int, names: str) -> dict:
-    """An augmented job's process, in either checkout: one epoch over ``frames``
-    Nordland frames with Lite0 (``none``: no augmentation) and its frames/s."""
+    """An augmented job's process, in either checkout: one Lite0 epoch, frames/s."""
     _, features, images, _ = library()
     x = images.nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
     desc = features.get_descriptor("efficientnet_lite0")
@@ -72,8 +71,7 @@ OPTIONS_FRAMES = dict(base=(Path, "baseline checkout (to measure)"), frames=1000
 
 
 def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]:
-    """One job's command line: each checkout's own command-line module
-    (the installed script imports this checkout's)."""
+    """One job's command line (each checkout's own command-line module)."""
     if job.startswith("augmented"):
         root = str(args.root / "nordland_64x32")
         return h.command(augmented, root, args.aug_frames, job[10:])
@@ -158,19 +156,14 @@ def summary_frames(report: dict) -> dict:
 
 markdown_frames = h.markdown(
     "Frames per second from images, end to end",
-    "The baseline checkout run interleaved with this one (CPU seconds count the"
-    " work); medians in the summary. Every job starts with an empty descriptor cache;"
-    " the new checkout's compiled network and compile cache were built before (in"
-    " build_compiled). fit and query: 640x320 JPEG frames, efficientnet_lite0, a"
-    " fresh `python -m rhythmic_jax.app.cli` of each checkout; fit100: 100 frames;"
-    " augmented_*: one epoch over aug_frames Nordland frames. prediction_within_2:"
-    " queries within 2 frames of the true place. The target is on frames/s.",
+    "The baseline checkout interleaved with this one, each job a fresh process with an"
+    " empty descriptor cache (the new one's compiled network built before:"
+    " build_compiled); medians in the summary; the target is on frames/s.",
 )
 
 
 def library() -> tuple:
-    """The augmented fit's modules (stream, features, images, newton) here, or in a
-    baseline checkout's flat layout (``bench_frames.py`` runs them in either)."""
+    """The augmented fit's modules here, or in a baseline checkout's flat layout."""
     try:
         from rhythmic_jax.augment import stream
         from rhythmic_jax.frames import features
@@ -184,9 +177,8 @@ def library() -> tuple:
 
 
 def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
-    """One augmented epoch over ``images`` per variant (augmentation names; ``none``:
-    describe and step only) from the clean fit, after a warm-up epoch (it compiles
-    the optax step): each epoch's seconds by part, and its wall."""
+    """Per variant, one augmented epoch from the clean fit after a compiling one:
+    its seconds by part and its wall."""
     from rhythmic_jax.map.periods import candidate_periods
     from rhythmic_jax.solvers.objective import default_c, targets
 
@@ -249,9 +241,8 @@ def run_pipeline(args) -> dict:
 
 markdown_pipeline = h.markdown(
     "Augmented training pipeline",
-    "Nordland frames, the descriptor at its native size. Frames/s counts augmented"
-    " frames through augmentation, descriptor, DLPack and the optax step (the step"
-    " time of the augmented half of each epoch taken as half the epoch's).",
+    "Augmented frames through augmentation, descriptor, DLPack and the optax step (half"
+    " the epoch's step time).",
 )
 
 
@@ -306,11 +297,8 @@ def run_network(args) -> dict:
 
 markdown_network = h.markdown(
     "The descriptor network's frames/s by batch size",
-    "Nordland frames prepared once (channels-last); best and median frames/s of the"
-    " passes after a warm-up call. compiled: an AOTInductor package built for that"
-    " batch (build_s); eager: the module on slices of that many frames. Rows are unit"
-    " vectors: max_rel_diff is the largest relative difference of compiled against"
-    " eager. Jobs run batches of job_batch (compiled) and job_eager_batch (eager).",
+    "Best and median frames/s after a warm-up. compiled: an AOTInductor package per"
+    " batch (build_s); eager: the module on slices; max_rel_diff: compiled vs eager.",
 )
 
 
@@ -382,9 +370,7 @@ def run_descriptors(args) -> dict:
 
 markdown_descriptors = h.markdown(
     "Descriptors on Nordland 64x32 (winter queries vs summer map)",
-    "Brute-force cosine nearest neighbour; recall_at_1 counts the exact index,"
-    " recall_at_1_tol1 a neighbour within one index. Frames/s on timing_frames frames"
-    " (other work on the machine slows these).",
+    "Brute-force cosine nearest neighbour; recall_at_1_tol1 within one index.",
 )
 
 
