@@ -2,7 +2,7 @@
 
 A script groups the reports of one theme as :class:`Part` s (``run(args) -> dict``,
 the measurements; ``markdown(report) -> str``, mostly :func:`markdown`: every figure
-of the JSON through the one renderer, :func:`document`; ``options``), and ends with
+of the JSON through the one renderer, :func:`render`; ``options``), and ends with
 ``main(__doc__, PARTS)``: a subcommand a part, common options, threads pinned to one
 per core, the machine and load recorded, then ``<stem>.json`` and ``<stem>.md``
 written (``--render [JSON]``: the Markdown again from a report, the JSON as it is).
@@ -17,6 +17,7 @@ import json
 import logging
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -87,8 +88,7 @@ def machine(threads: dict[str, int] | None = None) -> dict:
 
 
 def timed(fn, *args, **kwargs):
-    """(``fn(*args, **kwargs)``, wall s, CPU s of all this process's threads: the work,
-    less sensitive to other processes' load than the wall), JAX results waited for."""
+    """(``fn(*args, **kwargs)``, wall s, this process's CPU s), JAX results ready."""
     import jax
 
     wall, cpu = time.perf_counter(), time.process_time()
@@ -97,17 +97,15 @@ def timed(fn, *args, **kwargs):
 
 
 def fastest(fn: Callable[[], object], repeats: int):
-    """(first output, fastest wall seconds of ``repeats`` calls after an untimed one
-    that compiles): on a shared machine the minimum is the least disturbed."""
+    """(first output, fastest wall s of ``repeats`` calls after a compiling one)."""
     import jax
 
     return jax.block_until_ready(fn()), min(timed(fn)[1] for _ in range(repeats))
 
 
 def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
-    """``cmd`` in a fresh process (``checkout`` first on the path, JAX on the CPU
-    unless said, ``extra`` in its environment): rc, wall and CPU seconds, peak
-    resident bytes (its process tree), stdout, stderr, the 1-minute load after."""
+    """``cmd`` in a fresh process (``checkout`` on the path, JAX on the CPU unless
+    said): rc, wall and CPU s, peak resident bytes, stdout, stderr, load after."""
     env = dict(os.environ if env is None else env, TF_CPP_MIN_LOG_LEVEL="3", **extra)
     env.setdefault("JAX_PLATFORMS", "cpu")
     if checkout is not None:
@@ -138,19 +136,29 @@ CLI = [sys.executable, "-c", f"import runpy; runpy.run_module({CLI_MODULE}, "
        "run_name='__main__', alter_sys=True)"]  # fmt: skip
 
 
-def bytecode(*checkouts: Path) -> None:
-    """Compile each checkout's package to bytecode before it is timed (without .pyc
-    files, or under PYTHONDONTWRITEBYTECODE, every job would compile Python)."""
+def checkouts(base: Path | None, names=("base", "new")) -> dict[str, Path]:
+    """``base`` and this checkout by ``names`` (no ``base``: "this"), compiled to
+    bytecode first (else every timed job would compile Python)."""
     import compileall
 
-    for tree in checkouts:
-        compileall.compile_dir(Path(tree) / "rhythmic_jax", quiet=1)
+    pair = {names[0]: Path(base).resolve(), names[1]: REPO} if base else {"this": REPO}
+    for tree in pair.values():
+        compileall.compile_dir(tree / "rhythmic_jax", quiet=1)
+    return pair
+
+
+def fresh_cache(tmp: Path, warm: Path | None = None, kept=("compiled",)) -> Path:
+    """A new cache folder under ``tmp``, holding the ``kept`` folders of ``warm``."""
+    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
+    for name in kept if warm else ():
+        if (warm / name).is_dir():
+            shutil.copytree(warm / name, cache / name)
+    return cache
 
 
 def job_env(compile_cache: str | None = None) -> dict[str, str]:
-    """This environment less its compile-cache settings (``JAX_COMPILATION_CACHE_*``,
-    ``RHYTHMIC_JAX_COMPILE_CACHE``): a job's programs go to ``compile_cache`` (a
-    folder, "0": none), by default under the job's ``RHYTHMIC_JAX_CACHE``."""
+    """This environment, its programs compiled to ``compile_cache`` ("0": none;
+    default: under the job's ``RHYTHMIC_JAX_CACHE``)."""
     own = ("JAX_COMPIL", "RHYTHMIC_JAX_COMPILE_CACHE")
     env = {k: v for k, v in os.environ.items() if not k.startswith(own)}
     if compile_cache is not None:
@@ -173,9 +181,8 @@ def call(fn, *args, checkout=None, **kw) -> dict:
 
 
 def compile_counter(out=None) -> dict:
-    """This process's XLA ``programs`` from now (JAX's compile log), of them cache
-    ``hits``, ``compile_s`` (loads included), ``trace_s`` (tracing, lowering) and
-    ``names`` (programs by name); written as JSON to ``out`` at exit if given."""
+    """This process's XLA ``programs`` from now (JAX's compile log), cache ``hits``,
+    ``compile_s``, ``trace_s`` and ``names``; written as JSON to ``out`` at exit."""
     import atexit
     import collections
     import re
@@ -234,8 +241,7 @@ def nordland_images(root: Path, seasons=("summer", "winter"), progress=False):
 
 def nordland_features(root: Path, descriptor="patchnorm", seasons=("summer", "winter"),
                       key="nordland64x32-", progress=False, **kw):  # fmt: skip
-    """Each season's descriptors (n, d), cached as ``key + season`` (``kw``:
-    ``cached_describe``'s)."""
+    """Each season's descriptors (n, d), cached as ``key + season``."""
     from rhythmic_jax.frames.features import cached_describe, get_descriptor
 
     desc = get_descriptor(descriptor) if isinstance(descriptor, str) else descriptor
@@ -285,9 +291,8 @@ def digest(ident, *arrays) -> str:
 
 def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=(),
                tag="", progress=False):  # fmt: skip
-    """(map, record): ``model`` fitted on ``x`` (``fit(model)``, default its fit), or
-    loaded from ``folder`` if saved with the same settings (and ``extra``) and
-    features (and ``arrays``); the record: path, ``cached``, the first fit's times."""
+    """(map, record): ``model`` fitted on ``x`` (by ``fit(model)``), or loaded from
+    ``folder`` if fitted with the same settings, ``extra`` and arrays before."""
     from rhythmic_jax.rhythmic_map import RhythmicMap
 
     x = np.ascontiguousarray(x, np.float32)
@@ -318,8 +323,7 @@ def plain(obj):
 
 
 def table(headers: Sequence[str], rows: Sequence[Sequence[object]], align=None) -> str:
-    """A Markdown table; numbers right-aligned, text left-aligned, unless ``align``
-    says: ``l`` or ``r`` per column, ``l`` where it stops."""
+    """A Markdown table; numbers right-aligned unless ``align`` says (l, r each)."""
     if align is None:
         align = "".join("r" if all(isinstance(r[i], int | float | np.number)
                                    for r in rows) else "l"
@@ -337,8 +341,7 @@ def _cell(v: object) -> str:
 
 
 def header(title: str, report: dict) -> list[str]:
-    """A report's title and its paragraph on the command, machine and load; a
-    report older than the harness's record of these says which it lacks."""
+    """A report's title and its paragraph on the command, machine and load."""
     env, load = report.get("environment") or {}, report.get("load_average")
     text, lacks = [], []
     if report.get("command"):
@@ -366,9 +369,8 @@ def header(title: str, report: dict) -> list[str]:
 
 
 def render(title: str, report: dict, *blocks) -> str:
-    """The one renderer of a report's JSON to Markdown: the title, the paragraph
-    of :func:`header`, then each block, a paragraph (str), a table ``(headers,
-    rows[, align])`` (:func:`table`) or nothing (None, ""), a blank line apart."""
+    """The one renderer: :func:`header`, then each block, a paragraph (str), a table
+    ``(headers, rows[, align])`` or nothing (None, ""), a blank line apart."""
     parts = [b if isinstance(b, str) else table(*b) for b in blocks if b]
     return "\n".join(header(title, report)) + "\n" + "\n\n".join(parts)
 
@@ -378,10 +380,8 @@ NAMES = ("name", "method", "job", "op", "descriptor", "solver", "layout", "label
 
 
 def figures(node: dict, level: int = 2) -> list:
-    """Blocks that show every figure of ``node``: its plain values (nested dicts
-    flattened to ``a.b``) as a key/value table, a long text as a paragraph, each
-    list of records or dict of records as a table under its key's heading, anything
-    deeper a section."""
+    """Blocks that show every figure of ``node``: plain values in a key/value table,
+    long texts as paragraphs, records as tables, anything deeper a section."""
     plain_rows, blocks = [], []
     for key, value in node.items():
         if isinstance(value, str) and len(value) > 120:  # a paragraph
@@ -417,8 +417,7 @@ def _flat(value, prefix: str = "") -> dict | None:
 
 
 def _records(value) -> list[dict] | None:
-    """A list of flat records (each a dict of plain values, or a list: its items by
-    index), or a dict of them (the key first, as ``""``), else None."""
+    """A list (or a dict, its key as ``""``) of flat records, else None."""
     if isinstance(value, dict) and len(value) > 1:
         if all(isinstance(v, dict) for v in value.values()):
             flat = [_flat(v) for v in value.values()]
@@ -451,8 +450,7 @@ def _section(item) -> str:
 
 
 def records_table(records: list[dict]) -> tuple:
-    """A table of records: a column per key, or a row per key where the records are
-    few and their keys many."""
+    """A table of records: a column per key (a row, for few records of many)."""
     keys = list(dict.fromkeys(k for r in records for k in r))
     cells = [[_value(r.get(k, "-")) for k in keys] for r in records]
     if len(keys) <= 12 or len(records) > 6:
@@ -482,23 +480,19 @@ def targets(rows: list) -> list:
     return ["Targets:", (heads, rows, "l")] if rows else []
 
 
-def document(title: str, report: dict, *blocks) -> str:
-    """:func:`render` of ``blocks`` then of every figure of the report."""
-    shown = dict(environment="devices" in report.get("environment", {}),
-                 load_average=isinstance(report.get("load_average"), dict))
-    body = {k: v for k, v in report.items()
-            if k not in HEADER_KEYS or shown.get(k) is False}  # fmt: skip
-    wall = report.get("wall_seconds")
-    tail = [] if wall is None else [f"Wall seconds of the run: {_cell(wall)}."]
-    return render(title, report, *blocks, *tail, *figures(body))
-
-
 def markdown(title: str, note: str = "", extra: Callable | None = None) -> Callable:
-    """A part's ``markdown``: :func:`document` of the title, a note on what was
-    measured and ``extra(report)``'s blocks (verdicts drawn from the figures)."""
+    """A part's ``markdown``: the title, a note, ``extra(report)``'s blocks, the
+    run's wall seconds, then every figure of the report."""
 
     def to_markdown(report: dict) -> str:
-        return document(title, report, note, *(extra(report) if extra else ()))
+        shown = dict(environment="devices" in report.get("environment", {}),
+                     load_average=isinstance(report.get("load_average"), dict))
+        body = {k: v for k, v in report.items()
+                if k not in HEADER_KEYS or shown.get(k) is False}  # fmt: skip
+        wall = report.get("wall_seconds")
+        tail = [] if wall is None else [f"Wall seconds of the run: {_cell(wall)}."]
+        blocks = extra(report) if extra else ()
+        return render(title, report, note, *blocks, *tail, *figures(body))
 
     return to_markdown
 
@@ -519,11 +513,9 @@ def write_report(out: Path, stem: str, report: dict, md: str, md_stem=None) -> N
 
 @dataclasses.dataclass(frozen=True)
 class Part:
-    """One report a script measures: ``run(args) -> dict`` (the measurements),
-    ``markdown(report) -> str`` (by :func:`render`), ``options``
-    (:func:`add_options`), the report's ``stem``, the options ``--quick`` sets,
-    ``refresh(report, args)`` (brings a report read by ``--render`` up to date) and
-    the Markdown's own stem."""
+    """One report: ``run(args) -> dict``, ``markdown(report) -> str``, ``options``
+    (:func:`add_options`), ``stem``, the options ``--quick`` sets, ``refresh(report,
+    args)`` (for ``--render``) and the Markdown's own stem."""
 
     run: Callable
     markdown: Callable
@@ -567,8 +559,7 @@ def add_options(ap: argparse.ArgumentParser, options) -> None:
 
 
 def parser(doc: str, parts: dict[str, Part] | None = None):
-    """The options every script takes; with several ``parts``, one subcommand
-    each (``script.py PART [options]``), with its own options too."""
+    """The common options; with several ``parts``, a subcommand each."""
     ap = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
     if not parts or len(parts) == 1:
         for part in (parts or {}).values():
@@ -595,15 +586,10 @@ def spelled_now(command: str, script: str, part: str) -> str:
     return " ; ".join(runs)
 
 
-def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
-         refresh=None, md_stem=None, quick=None):  # fmt: skip
-    """Parse, record the machine, run the part, write and print its report; return
-    it. ``run``: a dict of :class:`Part` by subcommand, or one part's ``run`` (the
-    other arguments: its fields). ``--quick`` sets the options in ``quick`` left at
-    their defaults and names the report ``<stem>_quick``. ``run`` may set
-    ``args.stem`` (the report's name) and return None (nothing to write)."""
-    parts = run if isinstance(run, dict) else {
-        "": Part(run, markdown, options, stem, quick, refresh, md_stem)}  # fmt: skip
+def main(doc: str, parts: dict[str, Part], argv=None):
+    """Parse, record the machine, run the part, write and print its report. ``parts``:
+    by subcommand ("": one part). ``--quick``: the part's ``quick`` options where
+    left at their defaults, the report ``<stem>_quick``."""
     ap = parser(doc, parts)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
@@ -614,11 +600,11 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     for key, value in (part.quick or {}).items() if args.quick else ():
         if getattr(args, key) == own.get_default(key):
             setattr(args, key, value)
+    script = Path(sys.modules[part.run.__module__].__file__ or "script").name
     if args.render is not None:
         if not args.render.name:
             args.render = args.out / f"{args.stem}.json"
         report = json.loads(args.render.read_text())
-        script = Path(sys.modules[part.run.__module__].__file__ or "script").name
         if report.get("command"):
             report["command"] = spelled_now(report["command"], script, name)
         if part.refresh:
@@ -630,7 +616,6 @@ def main(doc: str, run, markdown=None, options=None, stem="report", argv=None,
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax chatter
     env, load0, t0 = machine(set_threads(cores())), load_average(), time.time()
     log.info("environment %s", env)
-    script = Path(sys.modules[part.run.__module__].__file__ or "script").name
     out = part.run(args)
     if out is None:
         return None

@@ -33,11 +33,8 @@ def route(n: int, d: int, seed: int = 0) -> np.ndarray:
 
 
 def job(out: str, *argv: str) -> dict | None:
-    """A job's process, its XLA programs counted into ``out`` at exit: ``imports``
-    (the floor under any fit: the interpreter, importing JAX and the fit's modules,
-    exiting), ``library FEATURES PREDICTIONS`` (a library user's fit; the new
-    checkout's one call turns the compile cache on), or a command line's
-    arguments (``--no-progress`` added)."""
+    """A job's process, its programs counted into ``out``: ``imports`` (the floor
+    under any fit), ``library FEATURES PREDICTIONS`` or a command line."""
     h.compile_counter(out)
     if argv[0] == "imports":
         import jax.numpy  # noqa: F401
@@ -69,8 +66,7 @@ def run_job(argv: list[str], env: dict, tmp: Path) -> dict:
 
 
 def count_fit(n: int = 1000, d: int = 256) -> dict:
-    """The library job alone on :func:`route` frames afresh, this checkout, no compile
-    cache: its programs (``names``: by name), hits, compile and trace s, periods."""
+    """The library job alone, afresh, no compile cache: its compile counts."""
     with tempfile.TemporaryDirectory() as tmp:
         x, out = Path(tmp) / "x.npy", Path(tmp) / "count.json"
         np.save(x, route(n, d))
@@ -116,7 +112,7 @@ def run_jobs(args) -> dict:
             np.save(inputs["nordland"], h.summer(args)[:n_nord])
         folders = make_folders(args.root, tmp, n_jpeg, 0) if "jpeg" in jobs else {}
         network = tmp / "network"  # the new checkout's cache folder: network
-        h.bytecode(args.base, h.REPO)
+        h.checkouts(args.base)
         # base, new cold, new warm (the warm run reuses the cold run's compile cache)
         common = h.job_env() | dict(JAX_PLATFORMS="cpu", RHYTHMIC_JAX_NETWORK_BUILD="1")
         old = {**common, "PYTHONPATH": str(args.base.resolve())}
@@ -129,9 +125,7 @@ def run_jobs(args) -> dict:
             if name == "new cold":
                 shutil.rmtree(network, ignore_errors=True)
             for job in jobs:
-                cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
-                if side == "new" and (network / "compiled").is_dir():
-                    shutil.copytree(network / "compiled", cache / "compiled")
+                cache = h.fresh_cache(tmp, network if side == "new" else None)
                 env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
                 tag = f"{name.replace(' ', '_')}-{k}"
                 pred, jpeg_map = tmp / f"{job}-{tag}.npy", str(tmp / f"jpeg-{tag}.map")
@@ -164,12 +158,9 @@ def run_jobs(args) -> dict:
             for name in ("new cold", "new warm"):
                 pred, periods = runs[name]
                 equal = float((np.load(pred) == np.load(base_pred)).mean())
-                key = f"{job}, {name}"
-                was = same.get(key, {"periods_equal": True, "predictions_equal": 1.0})
-                same[key] = {
-                    "periods_equal": was["periods_equal"] and periods == base_periods,
-                    "predictions_equal": min(was["predictions_equal"], equal),
-                }
+                was = same.setdefault(f"{job}, {name}", {"periods_equal": True})
+                was["periods_equal"] &= periods == base_periods
+                was["predictions_equal"] = min(was.get("predictions_equal", 1.0), equal)
     sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
@@ -191,8 +182,7 @@ TARGETS = [
 
 
 def targets(report: dict) -> list:
-    """The targets this run's jobs answer; over several rounds the median of the
-    rounds (each against its round's baseline)."""
+    """The targets this run's jobs answer (the median over rounds)."""
     rows, out = {}, []
     for r in report["rows"]:
         rows.setdefault((r["job"], r["variant"]), []).append(r)
@@ -206,12 +196,9 @@ def targets(report: dict) -> list:
 
 markdown_jobs = h.markdown(
     "Compiling: XLA programs, compile seconds and wall per job",
-    "The baseline checkout (no compile cache) against this one, cold (an empty"
-    " compile cache) and warm (the cache the cold run left); each job a fresh process,"
-    " both checkouts' bytecode compiled first. programs: XLA programs the job"
-    " obtained; hits: of them, loaded from the persistent cache; load: the 1-minute"
-    " load average after the job. agreement: the maps against the baseline's. The"
-    " imports row is the floor under any fit's wall.",
+    "The baseline checkout against this one, cold (an empty compile cache) and warm;"
+    " each job a fresh process. hits: programs loaded from the cache; agreement: the"
+    " maps against the baseline's; imports: the floor under any fit.",
     targets,
 )
 
@@ -254,8 +241,7 @@ def fit_map(folder: Path) -> Path:
 
 markdown_startup = h.markdown(
     "Start-up time: import, --help, info",
-    "Each command in a fresh process (each checkout compiled to bytecode first), wall"
-    " seconds of every run, taken in turns; loaded: the heavy packages each loads."
+    "Each command in a fresh process, in turns; loaded: the heavy packages it loads."
     " Targets on an idle machine: `--help` under 1 s, `info` under 2 s.",
     lambda r: ["Medians (s):", (["command", *r["versions"]], [
         [name, *(float(np.median(by[v])) for v in r["versions"])]
@@ -268,10 +254,7 @@ OPTIONS_STARTUP = dict(before=(Path, "checkout to compare"), repeats=5)
 
 def run_startup(args) -> dict:
     """Start-up time: import, --help, info (startup)."""
-    checkouts = {"this": h.REPO}
-    if args.before is not None:
-        checkouts = {"before": args.before.resolve(), "after": h.REPO}
-    h.bytecode(*checkouts.values())
+    checkouts = h.checkouts(args.before, ("before", "after"))
     with tempfile.TemporaryDirectory() as tmp:
         route = fit_map(Path(tmp))
         cmds = {

@@ -117,9 +117,8 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
 
 markdown_batch = h.markdown(
     "Decoding: rhythmic map against exact search (faiss IndexFlatIP)",
-    "Random templates (decoding cost does not depend on their values); both decoders"
-    " see the same references and queries. Times in seconds; a device batch is"
-    " uploaded once, outside the timing.",
+    "Random templates; both decoders see the same queries. A device batch is uploaded"
+    " once, outside the timing.",
 )
 
 
@@ -204,8 +203,7 @@ def _spread(b: jax.Array) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("periods", "window"))
 def centre_templates(scores: jax.Array, periods=(), window=CENTRE_WINDOW) -> jax.Array:
-    """(T, p) -> (T, p): each template's score minus its mean over the last ``window``
-    query frames (causal; frame t uses frames max(0, t-window+1)..t)."""
+    """Each template's score minus its causal mean over the last ``window`` frames."""
     zero = jnp.zeros((1, scores.shape[1]), scores.dtype)
     c = jnp.concatenate([zero, jnp.cumsum(scores, axis=0)])
     t = jnp.arange(1, scores.shape[0] + 1)
@@ -225,8 +223,7 @@ TRANSFORMS = {
 
 @functools.partial(jax.jit, static_argnums=(1, 2, 3, 4))
 def place_sequence_decode(scores, periods, n, length, window) -> jax.Array:
-    """SeqSLAM's recipe on the map's place scores at speed 1: (T, p) -> index (T,);
-    periods, places, length and contrast window are static."""
+    """SeqSLAM's recipe on the map's place scores at speed 1: index (T,)."""
     i, offsets = np.arange(n), period_offsets(periods)
     cols = np.stack([o + i % t for o, t in zip(offsets, periods, strict=True)])
     sim = sq.enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
@@ -342,9 +339,8 @@ def outlier_rows(ref, qry, level: int, descriptor: str, progress: bool):
 
 
 def decoding_targets(report: dict) -> list:
-    """On Nordland at level 4, L = 10 and 20: the plain and the best map decode
-    within 5 points of SeqSLAM (without, with contrast), >= 10x its speed, <= 14 %
-    of its storage."""
+    """Nordland, level 4, L = 10 and 20: the plain and the best map decode against
+    SeqSLAM: within 5 points, >= 10x its speed, <= 14 % of its storage."""
     rows = []
     for b in report["decoding"]:
         if b["dataset"] != "nordland" or b["level"] != 4:
@@ -371,11 +367,9 @@ def decoding_targets(report: dict) -> list:
 
 markdown_decoders = h.markdown(
     "Decoders beyond the paper",
-    f"Recall@1 within ±{TOLERANCE} index (also exact). Queries/s: the whole batch"
-    " from descriptors to indices after one compiling call. Maps: r = 2, Newton"
-    " solver, C = log N. Outliers: route frames held out of the summer map in blocks;"
-    " PR AUC and recall at 100 % precision on the second half of the route, the"
-    " threshold chosen on the first half.",
+    f"Recall@1 within ±{TOLERANCE} (also exact); queries/s after a compiling call."
+    " Outliers: frames held out of the map; PR AUC and recall at 100 % precision on"
+    " the route's second half, the threshold chosen on its first.",
     decoding_targets,
 )
 
@@ -432,8 +426,7 @@ QUICK_SINGLE = dict(n=2000, singles=200, exact=20)  # --quick
 
 
 def latencies(cases: dict, queries: np.ndarray, calls: dict, block: int = 100):
-    """Median and p95 seconds of ``calls[name]`` calls ``fn(q)`` of each case on
-    rows of ``queries`` (after 50 of warm-up), in turns of ``block`` calls."""
+    """Median and p95 s of each case's calls on single queries, in turns."""
     for fn in cases.values():
         for q in queries[:50]:
             fn(q)
@@ -512,12 +505,10 @@ def single_targets(r: dict) -> list:
 
 markdown_single = h.markdown(
     "One query to one place",
-    "Seconds per call of each path on one descriptor, timed in turns; batches of"
-    " 1000 queries. The map stores each period's templates in a block of equal rows"
-    " (spare rows zero) so that OpenBLAS shares the product between the cores.",
+    "Seconds per call on one descriptor, in turns; batches of 1000 queries. Each"
+    " period's templates fill a block of equal rows so OpenBLAS shares the product.",
     single_targets,
 )
-
 
 
 PARTS = {

@@ -28,8 +28,7 @@ QUICK_FRAMES = dict(frames=100, repeats=1, aug_frames=130)  # --quick
 
 
 def augmented(root: str, frames: int, names: str) -> dict:
-    """An augmented job's process, in either checkout: one epoch over ``frames``
-    Nordland frames with Lite0 (``none``: no augmentation) and its frames/s."""
+    """An augmented job's process, in either checkout: one Lite0 epoch, frames/s."""
     _, features, images, _ = library()
     x = images.nordland(root, seasons=("summer",), progress=False)[0].images[:frames]
     desc = features.get_descriptor("efficientnet_lite0")
@@ -72,15 +71,11 @@ OPTIONS_FRAMES = dict(base=(Path, "baseline checkout (to measure)"), frames=1000
 
 
 def job_cmd(job: str, variant: str, tmp: Path, folders: dict, args) -> list[str]:
-    """One job's command line: each checkout's own command-line module
-    (the installed script imports this checkout's)."""
+    """One job's command line (each checkout's own command-line module)."""
     if job.startswith("augmented"):
         root = str(args.root / "nordland_64x32")
         return h.command(augmented, root, args.aug_frames, job[10:])
-    exe, out_map = (
-        h.CLI,
-        tmp / f"{variant}.map",
-    )
+    exe, out_map = h.CLI, tmp / f"{variant}.map"
     if job == "query":
         out = str(tmp / f"{variant}.npy")
         return [*exe, "query", str(out_map), str(folders["q"]), "--out", out,
@@ -97,8 +92,7 @@ def run_frames(args) -> dict:
     """Frames/s from images end to end against a baseline (frames)."""
     if args.base is None:
         raise SystemExit("--base (a baseline checkout) is needed to measure")
-    paths = {"base": str(args.base.resolve()), "new": str(h.REPO)}
-    h.bytecode(*paths.values())
+    paths = {k: str(v) for k, v in h.checkouts(args.base).items()}
     jobs = ["fit", "query", "fit100"]
     jobs += [] if args.skip_augmented else ["augmented_none", "augmented_all"]
     with tempfile.TemporaryDirectory(prefix="bench_frames") as tmpdir:
@@ -116,10 +110,8 @@ def run_frames(args) -> dict:
                 for job in jobs:
                     # an empty descriptor cache; the new checkout's holds the warm
                     # one's network and compiled programs (a second job)
-                    cache = Path(tempfile.mkdtemp(dir=tmp, prefix="cache"))
-                    for kept in ("compiled", "jax") if variant == "new" else ():
-                        if (warm / kept).is_dir():
-                            shutil.copytree(warm / kept, cache / kept)
+                    new = warm if variant == "new" else None
+                    cache = h.fresh_cache(tmp, new, ("compiled", "jax"))
                     cmd = job_cmd(job, variant, tmp, folders, args)
                     r = timed_run(cmd, paths[variant], cache)
                     if job.startswith("augmented"):
@@ -141,7 +133,6 @@ def run_frames(args) -> dict:
     return report
 
 
-# job -> (smallest new/base frames/s ratio asked for, how the target reads)
 # job -> the smallest new / base frames/s ratio asked for
 TARGETS = dict(fit=2.0, query=3.0, fit100=1 / 1.15, augmented_none=2.5,
                augmented_all=2.5)  # fmt: skip
@@ -165,19 +156,14 @@ def summary_frames(report: dict) -> dict:
 
 markdown_frames = h.markdown(
     "Frames per second from images, end to end",
-    "The baseline checkout run interleaved with this one (CPU seconds count the"
-    " work); medians in the summary. Every job starts with an empty descriptor cache;"
-    " the new checkout's compiled network and compile cache were built before (in"
-    " build_compiled). fit and query: 640x320 JPEG frames, efficientnet_lite0, a"
-    " fresh `python -m rhythmic_jax.app.cli` of each checkout; fit100: 100 frames;"
-    " augmented_*: one epoch over aug_frames Nordland frames. prediction_within_2:"
-    " queries within 2 frames of the true place. The target is on frames/s.",
+    "The baseline checkout interleaved with this one, each job a fresh process with an"
+    " empty descriptor cache (the new one's compiled network built before:"
+    " build_compiled); medians in the summary; the target is on frames/s.",
 )
 
 
 def library() -> tuple:
-    """The augmented fit's modules (stream, features, images, newton) here, or in a
-    baseline checkout's flat layout (``bench_frames.py`` runs them in either)."""
+    """The augmented fit's modules here, or in a baseline checkout's flat layout."""
     try:
         from rhythmic_jax.augment import stream
         from rhythmic_jax.frames import features
@@ -191,9 +177,8 @@ def library() -> tuple:
 
 
 def epochs(images, desc, key: str, variants, elastic="coarse") -> list[dict]:
-    """One augmented epoch over ``images`` per variant (augmentation names; ``none``:
-    describe and step only) from the clean fit, after a warm-up epoch (it compiles
-    the optax step): each epoch's seconds by part, and its wall."""
+    """Per variant, one augmented epoch from the clean fit after a compiling one:
+    its seconds by part and its wall."""
     from rhythmic_jax.map.periods import candidate_periods
     from rhythmic_jax.solvers.objective import default_c, targets
 
@@ -256,11 +241,9 @@ def run_pipeline(args) -> dict:
 
 markdown_pipeline = h.markdown(
     "Augmented training pipeline",
-    "Nordland frames, the descriptor at its native size. Frames/s counts augmented"
-    " frames through augmentation, descriptor, DLPack and the optax step (the step"
-    " time of the augmented half of each epoch taken as half the epoch's).",
+    "Augmented frames through augmentation, descriptor, DLPack and the optax step (half"
+    " the epoch's step time).",
 )
-
 
 
 QUICK_NETWORK = dict(batches=[8], frames=64, repeats=1)  # --quick
@@ -314,11 +297,8 @@ def run_network(args) -> dict:
 
 markdown_network = h.markdown(
     "The descriptor network's frames/s by batch size",
-    "Nordland frames prepared once (channels-last); best and median frames/s of the"
-    " passes after a warm-up call. compiled: an AOTInductor package built for that"
-    " batch (build_s); eager: the module on slices of that many frames. Rows are unit"
-    " vectors: max_rel_diff is the largest relative difference of compiled against"
-    " eager. Jobs run batches of job_batch (compiled) and job_eager_batch (eager).",
+    "Best and median frames/s after a warm-up. compiled: an AOTInductor package per"
+    " batch (build_s); eager: the module on slices; max_rel_diff: compiled vs eager.",
 )
 
 
@@ -390,9 +370,7 @@ def run_descriptors(args) -> dict:
 
 markdown_descriptors = h.markdown(
     "Descriptors on Nordland 64x32 (winter queries vs summer map)",
-    "Brute-force cosine nearest neighbour; recall_at_1 counts the exact index,"
-    " recall_at_1_tol1 a neighbour within one index. Frames/s on timing_frames frames"
-    " (other work on the machine slows these).",
+    "Brute-force cosine nearest neighbour; recall_at_1_tol1 within one index.",
 )
 
 

@@ -27,8 +27,7 @@ QUICK = dict(rows=600, batches=[100], decode=2000, fit_sizes=[2000])  # --quick
 
 
 def first_calls(features: str, rows: int | None, batches: list[int]) -> dict:
-    """In this (fresh) process: wall seconds of the first fit and of the first
-    predict of each batch size, compile included, and the backend's name."""
+    """Wall s of a fresh process's first fit and first predict of each batch."""
     from rhythmic_jax.jit_cache import enable_compile_cache
 
     enable_compile_cache()  # the folder $RHYTHMIC_JAX_COMPILE_CACHE names
@@ -42,8 +41,7 @@ def first_calls(features: str, rows: int | None, batches: list[int]) -> dict:
 
 
 def fresh(platform: str, args) -> dict:
-    """:func:`first_calls` and the demo on ``platform`` ("cuda", "cpu"), each in a
-    fresh process: cold (an empty compile cache), then warm (the cache it filled)."""
+    """:func:`first_calls` and the demo on ``platform``, cold then warm cache."""
     out: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         env = h.job_env(compile_cache=str(Path(tmp) / "jax"))
@@ -97,11 +95,9 @@ def run_on(device, summer, winter, args) -> dict:
 
 markdown = h.markdown(
     "JAX on a GPU against the same machine's CPU",
-    "Seconds of each step on each device (gpu: null, none found: a CPU rehearsal);"
-    " *_first_s include compiling. fresh: each device's first calls in fresh"
-    " processes, with JAX's persistent compile cache empty (cold) or filled by the"
-    " cold process (warm); fits_s: fits of fit_sizes route-like frames, 3 candidates."
-    " equal_*: the share of GPU predictions equal to the CPU's.",
+    "Seconds per step and device (gpu: null, a CPU rehearsal); *_first_s compile."
+    " fresh: first calls in fresh processes, compile cache empty (cold) or filled"
+    " (warm); equal_*: GPU predictions equal to the CPU's.",
 )
 
 

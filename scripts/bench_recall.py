@@ -61,8 +61,7 @@ QUICK_BYTES = dict(maps=((2, 1), (3, 2)), bits=(64, 128))  # --quick
 
 
 def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
-    """Batch decode of every query: map alone, hybrid, codes alone (JAX) and
-    faiss IndexBinaryFlat on the same codes; best of 5 after a compiling call."""
+    """Batch decode: map, hybrid, codes (JAX and faiss), best of 5."""
     w, b, per = fr.fitted_map(ref, r, level, gap, cache)
     book, n = fr.fitted_codes(ref, bits, cache), len(ref)
     wj, bj, qj = (jax.numpy.asarray(v) for v in (w, b, q))
@@ -86,8 +85,7 @@ def timing(ref, q, cache, bits=64, r=2, level=4, gap=5e-4) -> dict:
 
 
 def hybrid_targets(rep: dict) -> list:
-    """The best hybrid within 20 % of the raw bytes: R@1 >= 0.27 single frame and
-    >= 0.88 at L = 10."""
+    """The best hybrid within 20 %: R@1 >= 0.27 single frame, >= 0.88 at L = 10."""
     hyb = [r for r in rep["rows"] if r["kind"] == "hybrid" and r["share"] <= 0.20]
     rows = []
     for length, goal in ((1, 0.27), (10, 0.88)):
@@ -101,11 +99,8 @@ def hybrid_targets(rep: dict) -> list:
 
 markdown_bytes = h.markdown(
     "Recall per byte: map, ITQ codes and hybrids",
-    "Fitted templates and code books are kept in the cache folder, so a rerun of"
-    " settings already fitted only decodes. budgets: per storage budget, the best"
-    " representation, the best map or hybrid (own) and the best ITQ code. timing:"
-    " batch decode of every test query. projections: bytes at level 1 against N,"
-    " and the N until / since which the map is smaller than each code.",
+    "Fitted maps and code books are cached. budgets: the best representation, map or"
+    " hybrid and code per storage budget; projections: bytes at level 1 against N.",
     hybrid_targets,
 )
 
@@ -249,8 +244,7 @@ def fit_map(ref, *, labels=None, emb=None, **kw) -> tuple[RhythmicMap, float]:
 
 
 def with_codes(m: RhythmicMap, ref, codes, fusion: float = 0.5) -> RhythmicMap:
-    """A fitted map plus ``codes`` of its (embedded) reference frames: what
-    ``RhythmicMap(..., codes=codes, fusion=fusion).fit`` stores, with no new solve."""
+    """A fitted map plus ``codes`` of its reference frames, with no new solve."""
     hy = copy.copy(m)
     hy.config = replace(m.config, codes=codes, fusion=fusion)
     x = ref if m.embedding is None else apply(m.embedding, ref)
@@ -293,8 +287,7 @@ def map_row(ref, qry, label, *, labels=None, emb=None, **kw) -> dict:
 
 
 def budget_periods(n, d_raw, k, budget, fixed=0, per_place=0):
-    """The largest pair (t, t + 1), t <= ``MAX_LEVEL`` ceil(sqrt n), whose k-dim map
-    plus ``fixed`` and ``per_place`` bytes fits ``budget`` of the raw database."""
+    """The largest periods (t, t + 1) whose map and codes fit ``budget``."""
     room = budget * database_bytes(n, d_raw, 4) - fixed - n * per_place
     cap = MAX_LEVEL * (math.isqrt(n - 1) + 1)
     t = min(int((room / (4 * (k + 1)) - 1) // 2), cap, n - 1)
@@ -302,8 +295,7 @@ def budget_periods(n, d_raw, k, budget, fixed=0, per_place=0):
 
 
 def budget_rows(ref, qry, label, emb, n, d_raw, train) -> list[dict]:
-    """The map of the largest periods within 15 % and its hybrids with ITQ codes and
-    with 8-bit codes (weight learned on ``train``), every byte counted."""
+    """The largest map within 15 % and its hybrids with ITQ and 8-bit codes."""
     k, eb = emb.k, embedding_bytes(emb)
     bits = min(k, 256)
     code = eb + (bits * k + k) * 4
@@ -448,7 +440,6 @@ def refresh(report: dict, args) -> None:
     draw(report, args.render.with_suffix(".png"))
 
 
-
 def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
     """The ``where`` rows (default: the map's) that have ``key``, within ``budget``."""
     return [r for r in rows if where(r) and key in r
@@ -456,8 +447,7 @@ def within(rows, key, budget=None, where=lambda r: "layout" in r) -> list[dict]:
 
 
 def chosen(rows, key, budget=None) -> dict | None:
-    """The configuration fixed before scoring (the 8-bit hybrid on the first lever)
-    within ``budget``; else the best map row (older reports)."""
+    """The row chosen before scoring within ``budget``; else the best map row."""
     picks = within(rows, key, budget, lambda r: r.get("chosen"))
     best = max(within(rows, key, budget), key=lambda r: r[key], default=None)
     return picks[0] if picks else best
@@ -524,29 +514,20 @@ def cross_targets(report: dict) -> list[tuple[str, str]]:
 
 markdown_cross = h.markdown(
     "Recognition under appearance change (split by place)",
-    "Maps fitted on one condition of the test places, queried with the other;"
-    " embeddings learned on the training places only (Nordland 0-1199, test"
-    " 1220-3575; aerial: DSIFN pairs train, LEVIR pairs test). r1, r5: R@1 and R@5"
-    " within +-1 place; r1_exact without tolerance; L5, L10, L20: phase-domain"
-    " sequences of the map's place scores (SeqSLAM on the raw descriptor); self_r1:"
-    " reference frames as queries. storage_bytes: templates (and codes; brute force:"
-    " the float32 database); embedding_bytes: stored once; ratio: both over the raw"
-    " database. hybrid: map and ITQ code scores, z-scored and summed; + int8 codes:"
-    " a byte per embedded dimension, fused with the weight learned on the training"
-    " places (the chosen configuration the targets judge).",
+    "Maps on one condition of the test places, queried with the other; embeddings"
+    " learned on the training places only. r1, r5: within +-1 place; L5-L20: sequences;"
+    " self_r1: reference frames as queries; ratio: bytes over the raw database; chosen:"
+    " the int8 hybrid the targets judge (weight learned on the training places).",
 )
 
 
 def draw(report: dict, path: Path) -> None:
     """R@1 (+-1) and L = 10 of every row, one panel per data set (first direction)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from rhythmic_jax.eval.figures import new_figure, save_figure
 
     sets = report["datasets"]
-    fig, axes = plt.subplots(1, len(sets), figsize=(7 * len(sets), 6), squeeze=False)
-    for ax, (name, ds) in zip(axes[0], sets.items(), strict=True):
+    fig, axes = new_figure(len(sets), 7, 6)
+    for ax, (name, ds) in zip(axes, sets.items(), strict=True):
         key, rows = next(iter(ds["directions"].items()))
         y = list(range(len(rows)))
         ax.barh([v - 0.2 for v in y], [r.get("r1", 0) for r in rows], 0.4,
@@ -558,10 +539,8 @@ def draw(report: dict, path: Path) -> None:
         ax.set_xlim(0, 1)
         ax.set_title(f"{name}, {key}", fontsize=9)
         ax.tick_params(labelsize=7)
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    axes[0].legend(fontsize=7)
+    save_figure(fig, path, 110)
 
 
 QUICK_DIGITS = dict(levels="1")  # --quick
@@ -626,12 +605,8 @@ def brute(summer, winter, gt) -> dict:
 
 markdown_digits = h.markdown(
     "Digits that group frames that look alike (Nordland)",
-    "Summer map, winter queries, recall@1 within the tolerance unless exact; one"
-    " joint Newton solve of every layout's templates (fit_wall_s). soft: argmax of"
-    " the summed template scores; calibrated: after a log-softmax within every group"
-    " (the same argmax: calibrated_same_index); seqL: sequences at speed 1;"
-    " label_accuracy: per group, winter queries whose argmax class is their place's"
-    " label, beside label_chance. ratio: storage over the float32 database.",
+    "Summer map, winter queries; one joint solve of every layout. calibrated: after a"
+    " log-softmax per group; label_accuracy: per group, beside label_chance.",
 )
 
 

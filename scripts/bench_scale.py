@@ -117,8 +117,7 @@ def rule_sums(n: int, r: int) -> tuple[int, int]:
 
 
 def rule_range(ns: list[int], r: int) -> tuple[float, float]:
-    """Least and largest storage slope (log bytes on log N) the candidate rule
-    allows over ``ns``: the slope is ``sum_i w_i log S_i`` (docs/SCALE.md)."""
+    """Least and largest storage slope the candidate rule allows over ``ns``."""
     lx = np.log(np.asarray(ns, float))
     w = (lx - lx.mean()) / np.sum((lx - lx.mean()) ** 2)
     sums = np.log([rule_sums(int(n), r) for n in ns])  # (points, 2): least, largest
@@ -187,8 +186,7 @@ def figures(rows: list[dict], out_dir: Path) -> list[str]:
 
 
 def grid_notes(report: dict) -> list[str]:
-    """The chosen periods' product M against N along each series, and the full
-    fit's candidate search projected from its passes."""
+    """Each series' periods' product M against N; the full fit's search projected."""
     notes = []
     for sl in report["slopes"]:
         pts = series(report["rows"], sl["source"], sl["d"], sl["r"], _rule(sl))
@@ -206,14 +204,10 @@ def grid_notes(report: dict) -> list[str]:
 
 markdown_grid = h.markdown(
     "Growth from real fits (--gap 1e-3)",
-    "Every fit ran niced beside other jobs: the times are pessimistic; a rerun"
-    " reuses the cells already measured. K: processes; accuracy: self-query, per"
-    " storage type. Slopes: log bytes on log N, one process, in memory (or streamed"
-    " where the memory guard refuses); rule_low and rule_high: the least and largest"
-    " slope any choice of the candidate rule (r co-prime periods among"
-    " ceil(N^(1/r)) + {0..6}) gives over the series' N; rule 'least' fixes the"
-    " least-storage set (docs/SCALE.md). probe: one streamed pass of each kind;"
-    " full: the full streamed fit with fixed periods.",
+    "Every fit ran niced beside other jobs (pessimistic times). K: processes;"
+    " accuracy: self-query per storage type. Slopes: log bytes on log N;"
+    " rule_low/rule_high: the least and largest slope the candidate rule allows;"
+    " rule 'least': the least-storage periods (docs/SCALE.md).",
     grid_notes,
 )
 
@@ -244,13 +238,11 @@ def grid(quick: bool, real: bool = True) -> list[tuple]:
 
 
 def _key(cell: tuple) -> str:
-    """A cell's file name: its fields, the rule unless ``errors``."""
     return "-".join(map(str, cell[:6] if cell[6:] in ((), ("errors",)) else cell))
 
 
 def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> Path:
-    """n frames in a ``.npy`` at ``path`` (kept): route-like d-dim ones written
-    through a memory map, or (``root``) the first of Nordland summer's."""
+    """n route-like frames (or Nordland summer's under ``root``) kept at ``path``."""
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name("partial.npy")
@@ -264,9 +256,8 @@ def frames_file(path: Path, n: int, d: int = 256, root: Path | None = None) -> P
 
 
 def pass_kinds(cg: list[int], seconds: list[float], line=None) -> dict:
-    """Seconds of every pass of a streamed fit by kind: basis, then per Newton step
-    gradient, CG and line-search passes (``line`` per step; a fit recorded without
-    it took two), then a last gradient pass."""
+    """A streamed fit's pass seconds by kind: basis, then per Newton step gradient,
+    CG and line-search passes (default two a step), then a last gradient pass."""
     line = [2] * len(cg) if line is None else line
     at = len(seconds) - (sum(cg) + sum(line) + len(cg) + 1)
     kinds = {"basis": list(seconds[:at]), "gradient": [], "cg": [], "line": [],
@@ -281,8 +272,7 @@ def pass_kinds(cg: list[int], seconds: list[float], line=None) -> dict:
 
 
 def full(args) -> dict:
-    """The streamed r = 3 fit of ``--full`` route-like 256-d frames (``--full-work``),
-    fixed periods, ``--full-memory``: wall, passes, peak memory, accuracy."""
+    """The streamed fit of ``--full`` route-like frames with fixed periods."""
     n, periods, memory = args.full, args.full_periods, args.full_memory
     saved = args.cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
     if saved.exists():
@@ -328,9 +318,8 @@ def full(args) -> dict:
 
 
 def search_hours(f: dict, probe: dict | None) -> float:
-    """Hours the candidate search would take with the full fit's steps and passes:
-    at the probe's measured pass of each kind (of the same N), else at the fit's
-    median pass scaled by the templates."""
+    """Hours of the candidate search with the full fit's steps and passes, at the
+    probe's pass seconds (same N), else the fit's median pass times the templates."""
     if not probe or probe["n"] != f["n"]:
         return f["pass_median_s"] * sum(f["candidates"]) / sum(f["periods"]) * (
             f["passes"] / 3600
@@ -341,8 +330,7 @@ def search_hours(f: dict, probe: dict | None) -> float:
 
 
 def probe(args) -> dict:
-    """Seconds of one streamed pass of each kind over ``--probe`` 256-d frames under
-    ``--probe-memory``, fixed periods and r = 3 candidates; peak memory (afresh)."""
+    """One streamed pass of each kind over ``--probe`` frames, in a fresh process."""
     n, memory, periods = args.probe, args.probe_memory, args.full_periods
     saved = args.cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
     if saved.exists():
@@ -386,7 +374,6 @@ def passes(path: str, memory: str, periods: str) -> dict:
         sets.append(dict(periods=periods, templates=p, block_rows=rows, seconds=sec))
         del st
     return dict(n=frames.n, d=frames.d, sets=sets)
-
 
 
 OPTIONS_GRID = dict(
@@ -497,14 +484,10 @@ def run_case(name, path: Path, periods, repeats: int) -> dict:
 
 markdown_streamed = h.markdown(
     "Streamed Newton-CG: preconditioner and compacted passes",
-    "Each case runs the streamed fit (FAST_STREAM: a template stops once its"
-    f" estimated gap is <= 1e-3; blocks of {BLOCK_ROWS} frames from a memory-mapped"
-    " .npy) in three settings, in turns. reached: templates whose estimated gap met"
-    " 1e-3; true_gap: (f - f*) / f* against the in-memory Newton optimum; columns:"
-    " templates carried at each step; column_passes: templates carried, summed over"
-    " every pass.",
+    f"FAST_STREAM, blocks of {BLOCK_ROWS} frames of a memory-mapped .npy, the three"
+    " settings in turns. reached: templates whose estimated gap met 1e-3; true_gap:"
+    " against the in-memory optimum; column_passes: templates carried, over passes.",
 )
-
 
 
 OPTIONS_STREAMED = dict(repeats=2, walk_frames=100_000, walk_periods="46,47,49")
@@ -558,12 +541,9 @@ def measure(repeats: int, shapes: list[str]) -> list[dict]:
 
 markdown_memory = h.markdown(
     "Memory of a full-batch fit: estimate against measured peak",
-    "Random float32 frames, the default map (r = 2, 7 candidate periods: p"
-    " templates). Peaks (bytes): the growth of the process's resident memory during"
-    " the fit over a baseline after `malloc_trim(0)`. cold: the shape's first fit in"
-    " the process (its functions compile); warm: refits after one unmeasured."
-    " estimate: the sum of `fit_bytes` (parts); arrays: without its compile part;"
-    " admitted: the guard with its limit at the estimate admits the fit.",
+    "Random float32 frames, the default map. Peaks: resident memory's growth during"
+    " the fit (cold: the shape's first fit, compiling; warm: refits). estimate: the"
+    " sum of `fit_bytes`; admitted: the guard admits the fit at that limit.",
     lambda r: h.targets([h.target(f"{x['n']} x {x['d']}: cold peak / estimate",
                                   x["cold"] / x["estimate"], 1.0, False, "{:.3f}")
                          for x in r["rows"]]),

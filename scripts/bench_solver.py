@@ -173,8 +173,7 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
 
 
 def aim(report: dict) -> list:
-    """The aim of each case: the 0.1 % gap solve >= 100x LinearSVC's extrapolated
-    wall time at <= 0.1 % objective gap."""
+    """Each case: the 0.1 % solve >= 100x LinearSVC's time at <= 0.1 % gap."""
     rows = []
     for case in report["cases"]:
         fast = case["newton_fast"]
@@ -189,12 +188,9 @@ def aim(report: dict) -> list:
 
 markdown_joint = h.markdown(
     "Joint solve of all candidate templates: Newton-CG, L-BFGS, liblinear",
-    "LinearSVC (squared hinge, dual, C = log N, tol 1e-4) runs on a few sampled"
-    " templates on one thread; its time for all p templates is extrapolated. The JAX"
-    " solvers run on XLA's pool: CPU seconds count the work, wall seconds what a user"
-    " waits; Newton's first call (it compiles) is timed apart. Gaps: (f_solver -"
-    " f_ref) / f_ref of liblinear's primal in float64. Training error: the fraction"
-    " of frames whose argmax phase is wrong.",
+    "LinearSVC runs a few sampled templates on one thread, its time for all p"
+    " extrapolated; Newton's compiling call is timed apart. Gaps: against liblinear's"
+    " primal in float64. Training error: frames whose argmax phase is wrong.",
     aim,
 )
 
@@ -282,10 +278,8 @@ def run_work(args) -> dict:
 
 markdown_work = h.markdown(
     "The 0.1 % solve's work: losing candidates and idle frames",
-    "Nordland summer, patchnorm, Newton FAST (0.1 % gap): every candidate solved to"
-    " the end against losers stopped once behind by the slack; work = columns x CG"
-    " iterations. step_errors: every candidate's training error after each step."
-    " active_per_frame: templates whose margin is < 1 at the end, per frame.",
+    "Newton FAST: every candidate to the end against losers stopped once behind by"
+    " the slack; work = columns x CG iterations.",
 )
 
 
@@ -294,9 +288,7 @@ QUICK_SPAN = dict(frames=400)  # --quick
 
 markdown_span = h.markdown(
     "Wide frames: solve in the frames' span vs directly",
-    "Nordland summer, both solves to the optimum (default NewtonConfig), each time"
-    " with its compilation; the gap: span minus direct, relative, over all"
-    " templates.",
+    "Both solves to the optimum, compiling included; the gap: span minus direct.",
 )
 
 

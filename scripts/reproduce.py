@@ -85,7 +85,6 @@ QUICK = Settings(frames=600, levels=(1, 2), aug_names=("hflip", "contrast"),
                  batch_queries=300)  # fmt: skip
 
 
-
 def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
     """Bytes of the n x d float32 database and of a map with ``periods``."""
     periods = [int(t) for t in periods]
@@ -96,8 +95,7 @@ def storage_row(name: str, n: int, d: int, periods) -> dict[str, Any]:
 
 
 def table1_paper() -> list[dict[str, Any]]:
-    """Paper Table 1 recomputed by the library, beside the printed bytes and ratio;
-    ``flag`` names a printed ratio its own bytes do not give."""
+    """Paper Table 1 by the library; ``flag``: a printed ratio its bytes miss."""
     rows = []
     for name, n, periods, orig, comp, printed in PAPER_TABLE1:
         row = storage_row(name, n, PAPER_D, periods)
@@ -112,10 +110,8 @@ def table1_paper() -> list[dict[str, Any]]:
     return rows
 
 
-
 def min_count(n: int, r: int, level: int, count: int = 7) -> int:
-    """Fewest candidates (at least ``count``) among which r periods are pairwise
-    co-prime with product >= n (r = 5 at level 1 on 3576 frames needs 8)."""
+    """Fewest candidates (>= ``count``) holding r co-prime periods of product >= n."""
     while True:
         try:
             nominal_periods(n, r, level, count)
@@ -170,8 +166,7 @@ class Run:
         return fit_s
 
     def score(self, key: str, pred, tol: int, ranked) -> dict[str, Any]:
-        """Accuracy of the single answer and recall@K of the ranked list, against
-        ground truth ``arange`` (query i is place i); keeps the predictions."""
+        """Accuracy and recall@K (query i is place i); keeps the predictions."""
         pred, gt = np.asarray(pred, np.int64), np.arange(len(pred))
         self.preds[key], self.preds[key + "_gt"] = pred.astype(np.int32), gt
         rec = metrics.recall_at_k(ranked, gt, KS, tolerance=tol)
@@ -283,8 +278,7 @@ def by_level(run: Run, fits, key: str, q, tol: int) -> list[dict]:
 
 
 def appearance(run: Run, data, fits) -> dict[str, Any]:
-    """Summer map, winter queries (±1): brute force and the map at each level on the
-    whole route; the augmentation study on its first ``aug_frames`` frames."""
+    """Summer map, winter queries (±1): each level; augmentations on a part."""
     from rhythmic_jax.augment.kornia_ops import NAMES
     from rhythmic_jax.augment.stream import AugmentedFit
     from rhythmic_jax.eval.baselines import BruteForce
@@ -318,65 +312,45 @@ def aerial(run: Run, data, fits) -> dict[str, Any]:
     return dict(tolerance=0, n=len(xa), brute_force=bf, levels=levels)
 
 
-
 DEVIATIONS = """\
-- **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d). Here every
-  method, the baselines included, uses SeqSLAM's patch-normalised 64x32 grey
-  thumbnail (`get_descriptor("patchnorm")`: 8x8 patches, 2048-d, L2-normalised):
-  the frames at hand are 64x32 pixels, too small for an ImageNet network, and no
-  VGG16 weights ship with the data. Table 1 is still computed at d = 4096 from the
-  paper's own periods; the rows run here are at d = 2048 (with the ratio their
-  periods would give at d = 4096).
-- **Resolution and datasets.** Nordland is the 64x32 version, every 10th frame of
-  the 1 fps videos: 3576 frames in summer and in winter (the paper: 7403 / 7276
-  keyframes chosen by optical flow, plus spring and fall, not available here).
-  Aerial Brisbane and Oxford RobotCar are not available: the aerial protocol (tile
-  one date as the map, query with the tiles of another) runs on the 12 LEVIR-CD
-  sample pairs cut into 64-pixel tiles every 32 pixels (`load_aerial_route`), 769
-  places, instead of 224 / 112 on a 7526x6562 mosaic (3705 places).
-  Multi-reference training (paper Fig. 7) needs more traversals of the map than the
-  two seasons and is not reproduced.
+- **Descriptor.** The paper describes frames by VGG16 fc7 (4096-d); here every
+  method uses SeqSLAM's patch-normalised 64x32 grey thumbnail (2048-d): the frames
+  at hand are 64x32 pixels and no VGG16 weights ship with the data. Table 1 is
+  still computed at d = 4096 from the paper's own periods.
+- **Datasets.** Nordland is the 64x32 version, every 10th frame: 3576 frames in
+  summer and in winter (the paper: 7403 / 7276 keyframes, plus spring and fall).
+  Aerial Brisbane and Oxford RobotCar are not available: the aerial protocol runs
+  on the 12 LEVIR-CD sample pairs cut into 64-pixel tiles every 32 pixels (769
+  places). Multi-reference training (paper Fig. 7) needs more traversals.
 - **Solver.** The same objective (a squared-hinge L2-SVM per template, the bias
-  regularised as a feature, C = log N) is solved to its optimum by active-set
-  Newton-CG in JAX (`rhythmic_jax.solvers.newton`), every template of every candidate at
-  once, instead of liblinear's coordinate descent per template. The period choice
-  keeps the r pairwise co-prime candidates with product >= N and the least summed
-  training error (ties: least storage).
+  regularised, C = log N) is solved to its optimum by active-set Newton-CG in JAX,
+  every template at once, instead of liblinear per template. The periods: the r
+  pairwise co-prime candidates with product >= N and the least training error.
 - **Decoding** uses Chinese-remainder lookup tables (O(r) per query) instead of
-  intersecting sorted candidate sets: the same answer, "no match" included when
-  the phases point past N.
-- **r = 5** needs 8 candidates at level 1 here: no five of the seven consecutive
-  candidates 6..12 are pairwise co-prime.
-- **Augmentation** uses kornia versions of the seven operations, drawn afresh each
-  epoch (p = 0.5 each), trained by Adam minibatch steps from the exact optimum on
-  the clean frames, which stay in every epoch as a second exemplar of each place
-  (`rhythmic_jax.augment.stream`). Each fit takes minutes on this machine, so the study
-  runs on a contiguous part of the route, stated with its table.
-- **Timing**: Python 3.11 with faiss, scikit-learn and JAX on a shared 2-core
-  machine (the paper: an i7-7700K, Python 3.6), whole calls from a (b, d) float32
-  array to indices, input checks included. The paper timed Aerial Brisbane; here
-  Nordland.
+  intersecting candidate sets: the same answer, "no match" included.
+- **r = 5** needs 8 candidates at level 1 here: no five of 6..12 are co-prime.
+- **Augmentation** uses kornia versions of the seven operations (p = 0.5 each,
+  drawn afresh each epoch), trained by Adam steps from the clean optimum, the clean
+  frames kept as a second exemplar; it runs on a part of the route, for time.
+- **Timing**: Python 3.11, faiss, scikit-learn and JAX on a shared 2-core machine
+  (the paper: an i7-7700K, Python 3.6), whole calls from a (b, d) float32 array to
+  indices, input checks included, on Nordland (the paper: Aerial Brisbane).
 """
 
 
 # (heading, what it shows, the results' key): the report's sections in order
 SECTIONS = (
     ("Table 1: storage (r = 2, T = sqrt N, float32)",
-     "Bytes from `rhythmic_jax.storage_bytes` and `database_bytes`: sum tau x (d + 1)"
-     " x 4 against N x d x 4. Paper rows: d = 4096 with the paper's periods (its"
-     " Table 2), the printed bytes and ratio beside; flag: a printed ratio its own"
-     " bytes do not give. Rows run here: ratio_d4096, the ratio at d = 4096.",
-     "table1"),
+     "sum tau x (d + 1) x 4 bytes against N x d x 4. Paper rows: d = 4096 with the"
+     " paper's periods, its printed bytes and ratio beside (flag: a printed ratio its"
+     " bytes do not give); ratio_d4096: the rows run here at d = 4096.", "table1"),
     ("Table 2: queries from the map (exact accuracy)",
-     "r = 2, seven candidates from c x ceil(sqrt N) at level c; period_errors: the"
-     " training error of each chosen period (the paper's e, x 10^-3 there), beside the"
-     " paper's figures.", "table2"),
+     "r = 2, seven candidates from c x ceil(sqrt N) at level c; period_errors: each"
+     " chosen period's training error (the paper's e), beside the paper's.", "table2"),
     ("Table 3: search time, storage and accuracy against the baselines",
      "Nordland summer map, the same descriptors and queries for every method. Single"
-     " query: median and 95th percentile seconds of one-query calls after 10 warm-up"
-     " calls; batch: queries a call, median of 2 after an untimed call. Storage"
-     " counts all that search needs. Accuracy is the single answer (the map's hard"
-     " decode may answer no match); R@K ranks places. The paper's Table 3 (Aerial"
+     " query: median and p95 s after 10 warm-up calls; batch: median of 2. Storage:"
+     " all that search needs. R@K ranks places. The paper's Table 3 (Aerial"
      f" Brisbane, seconds per query): {PAPER_TABLE3}.", "table3"),
     ("Fig. 3: training error against period length (Nordland summer)",
      "![training error](fig3_training_error.png)\n\nPer level: the candidates, their"
@@ -385,11 +359,10 @@ SECTIONS = (
      "![r](fig4_r.png)\n\nThe paper: a larger r compresses more, but accuracy falls"
      " sharply.", "fig4"),
     ("Appearance change: summer map, winter queries (±1 frame)",
-     "full: the whole route, the map at each level (paper Fig. 8). augmentation"
-     " (paper Fig. 6): on the first frames of the route, each operation alone, then"
-     " the seven merged. The paper (Aerial Brisbane / RobotCar): brute force 0.9582 /"
-     " 0.236, the map alone 0.6835 / 0.183, all augmentations merged about +2 / +1"
-     " points.\n\n![augmentation](fig6_augmentation.png)"
+     "full: the map at each level (paper Fig. 8); augmentation (paper Fig. 6): each"
+     " operation alone, then the seven merged. The paper (Aerial Brisbane /"
+     " RobotCar): brute force 0.9582 / 0.236, the map 0.6835 / 0.183, augmentations"
+     " about +2 / +1 points.\n\n![augmentation](fig6_augmentation.png)"
      " ![levels](fig8_levels.png)", "appearance"),
     ("Aerial pairs (LEVIR-CD samples): A tiles the map, B tiles the queries",
      "Exact index (tolerance 0).", "aerial"),
@@ -415,8 +388,7 @@ def _tree(node):
 
 
 def markdown(res: dict) -> str:
-    """The report: the run's record, then each of :data:`SECTIONS` with every figure
-    of its results, and the deviations from the paper."""
+    """The run's record, each of :data:`SECTIONS`, the deviations from the paper."""
     t2 = res["table2"]
     summer = next(r for r in t2 if r["dataset"] == "Nordland summer")
     e = summer["candidate_errors"]
@@ -486,12 +458,6 @@ options = dict(cache_dir=(h.MAP_CACHE, "fitted maps"),
                threads=(1, "faiss OpenMP threads"))  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Run or render reproduction.json and REPRODUCTION.md (``_quick`` if --quick)."""
-    return h.main(__doc__, run, markdown, options, "reproduction", argv,
-                  md_stem="REPRODUCTION")  # fmt: skip
-
-
 def run(args) -> dict[str, Any]:
     settings = dataclasses.replace(QUICK if args.quick else FULL, threads=args.threads)
     preds = args.predictions or args.cache_dir / f"{args.stem}.npz"
@@ -539,6 +505,14 @@ def run(args) -> dict[str, Any]:
     with atomic_path(preds) as tmp, open(tmp, "wb") as f:
         np.savez_compressed(f, **run.preds)
     return res
+
+
+PARTS = {"": h.Part(run, markdown, options, "reproduction", md_stem="REPRODUCTION")}
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Run or render reproduction.json and REPRODUCTION.md (``_quick`` if --quick)."""
+    return h.main(__doc__, PARTS, argv)
 
 
 if __name__ == "__main__":

@@ -170,7 +170,8 @@ def test_main_runs_run_then_writes_and_renders(tmp_path, capsys):
         ap.add_argument("--n", type=int, default=3)
 
     argv = ["--out", str(tmp_path), "--quick", "--n", "5"]
-    report = _harness.main("Tiny.", run, markdown, options, "tiny", argv)
+    parts = {"": _harness.Part(run, markdown, options, "tiny")}
+    report = _harness.main("Tiny.", parts, argv)
     assert report["command"].endswith("--quick --n 5")
     assert {"environment", "load_average", "wall_seconds"} <= set(report)
     saved = json.loads((tmp_path / "tiny_quick.json").read_text())
@@ -178,8 +179,7 @@ def test_main_runs_run_then_writes_and_renders(tmp_path, capsys):
     md = (tmp_path / "tiny_quick.md").read_text()
     assert "value 0.25 n 5" in md and "Command: `python scripts/" in md
     (tmp_path / "tiny_quick.md").unlink()
-    _harness.main("Tiny.", run, markdown, options, "tiny",
-                  ["--render", str(tmp_path / "tiny_quick.json")])  # fmt: skip
+    _harness.main("Tiny.", parts, ["--render", str(tmp_path / "tiny_quick.json")])
     assert "value 0.25 n 5" in (tmp_path / "tiny_quick.md").read_text()
 
 
