@@ -103,6 +103,20 @@ def fastest(fn: Callable[[], object], repeats: int):
     return jax.block_until_ready(fn()), min(timed(fn)[1] for _ in range(repeats))
 
 
+def walls(fn: Callable[[], object], repeats: int, calls: int = 1) -> dict:
+    """Best and median wall s per call of ``fn()`` over ``repeats`` runs of ``calls``
+    calls, and the best run's CPU s over its wall."""
+
+    def run():
+        for _ in range(calls):
+            fn()
+
+    wall, cpu = np.array([timed(run)[1:] for _ in range(repeats)]).T / calls
+    best = int(np.argmin(wall))
+    return dict(best=float(wall[best]), median=float(np.median(wall)),
+                cpu_per_wall=float(cpu[best] / wall[best]))  # fmt: skip
+
+
 def child(cmd, checkout=None, cwd=None, check=True, env=None, **extra) -> dict:
     """``cmd`` in a fresh process (``checkout`` on the path, JAX on the CPU unless
     said): rc, wall and CPU s, peak resident bytes, stdout, stderr, load after."""
@@ -309,6 +323,14 @@ def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=
     timing = dict(fit_wall_s=wall, fit_cpu_s=cpu)
     _write(side, json.dumps(timing))
     return model, dict(map_path=str(path), cached=False, **timing)
+
+
+def kept(path: Path, make: Callable[[], dict]) -> dict:
+    """``make()``'s record saved as JSON at ``path`` and read back; read alone when
+    saved before."""
+    if not path.exists():
+        path.write_text(json.dumps(plain(make())))
+    return json.loads(path.read_text())
 
 
 def plain(obj):

@@ -25,26 +25,13 @@ from rhythmic_jax.decoding.host import SmallDecoder
 from rhythmic_jax.decoding.queries import decode_queries as decode
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
 from rhythmic_jax.decoding.soft import calibrate
+from rhythmic_jax.eval import metrics
 from rhythmic_jax.eval import outliers as ol
 from rhythmic_jax.eval import seqslam as sq
 from rhythmic_jax.eval.baselines import BruteForce
-from rhythmic_jax.eval.metrics import (
-    accuracy,
-    pr_auc,
-    recall_at_100_precision,
-    time_batch,
-    time_single_queries,
-)
 from rhythmic_jax.frames.features import get_descriptor
+from rhythmic_jax.map import periods as rp
 from rhythmic_jax.map.groups import Groups
-from rhythmic_jax.map.periods import (
-    candidate_periods,
-    choose_periods,
-    database_bytes,
-    nominal_periods,
-    period_offsets,
-    storage_bytes,
-)
 from rhythmic_jax.map.pytree import Map
 from rhythmic_jax.solvers.objective import Templates
 
@@ -82,8 +69,8 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
                faiss=lambda q: flat.search(q, 1))  # fmt: skip
     load, out = h.load_average(), {}
     for label, fn in fns.items():
-        batch = time_batch(fn, queries, repeats=repeats)
-        single = time_single_queries(fn, queries[:singles], warmup=10)
+        batch = metrics.time_batch(fn, queries, repeats=repeats)
+        single = metrics.time_single_queries(fn, queries[:singles], warmup=10)
         out[label] = dict(batch=batch, single=single)
         h.log.info("  %s: %.0f queries/s, single median %.3f ms", label,
                    batch["queries_per_s"], 1e3 * single["median_s"])  # fmt: skip
@@ -93,7 +80,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
     big = np.resize(queries, (rows, d))
     for label, batch in (("rhythmic_device", queries), ("rhythmic_device_large", big)):
         dev = jax.device_put(batch)
-        out[label] = dict(batch=time_batch(
+        out[label] = dict(batch=metrics.time_batch(
             lambda _, dev=dev: decode(params, dev, periods, n), batch, repeats=repeats
         ))  # fmt: skip
         del dev
@@ -105,7 +92,7 @@ def bench_case(name, refs, queries, src, periods, repeats: int, singles: int) ->
         name=name, n=n, d=d, periods=list(periods), p=p, batch_size=len(queries),
         single_queries=singles, load_average_start=load,
         threads=dict(xla=h.cores(), faiss=flat.n_threads),
-        map_bytes=storage_bytes(periods, d), database_bytes=database_bytes(n, d),
+        map_bytes=rp.storage_bytes(periods, d), database_bytes=rp.database_bytes(n, d),
         flop_ratio=n / p, faiss_top1_is_source=float(np.mean(top[:, 0] == src)),
         rhythmic=r, faiss=f, rhythmic_device=out["rhythmic_device"],
         rhythmic_device_large=out["rhythmic_device_large"],
@@ -134,7 +121,7 @@ def run_batch(args) -> dict:
         bench_case("random, Nordland spring size", refs, qry, src, (105, 106), **kw)
     ]
     del refs, qry
-    periods = nominal_periods(3576, 2, 1, 7)
+    periods = rp.nominal_periods(3576, 2, 1, 7)
     if (args.root / "nordland_64x32").is_dir():
         name = "Nordland summer map, winter queries, patchnorm"
         refs, qry = h.nordland_features(args.root, progress=args.progress)
@@ -171,9 +158,10 @@ def fitted_map(x: np.ndarray, level: int, descriptor: str, progress: bool):
 def _row(method, out, gt, seconds, storage, **extra) -> dict:
     """``out``: a decode's indices, or a tuple that starts with them."""
     pred, inmap = np.asarray(out[0] if isinstance(out, tuple) else out), gt >= 0
+    pred, gt_in = pred[inmap], gt[inmap]
     return dict(
-        method=method, **extra, recall_at_1=accuracy(pred[inmap], gt[inmap], TOLERANCE),
-        recall_at_1_exact=accuracy(pred[inmap], gt[inmap], 0),
+        method=method, **extra, recall_at_1=metrics.accuracy(pred, gt_in, TOLERANCE),
+        recall_at_1_exact=metrics.accuracy(pred, gt_in, 0),
         queries_per_s=len(pred) / max(seconds, 1e-12), storage_bytes=int(storage),
     )  # fmt: skip
 
@@ -224,7 +212,7 @@ TRANSFORMS = {
 @functools.partial(jax.jit, static_argnums=(1, 2, 3, 4))
 def place_sequence_decode(scores, periods, n, length, window) -> jax.Array:
     """SeqSLAM's recipe on the map's place scores at speed 1: index (T,)."""
-    i, offsets = np.arange(n), period_offsets(periods)
+    i, offsets = np.arange(n), rp.period_offsets(periods)
     cols = np.stack([o + i % t for o, t in zip(offsets, periods, strict=True)])
     sim = sq.enhance_contrast(jnp.sum(scores[:, cols], axis=1), window)  # (T, n)
     return jnp.argmax(sq.sequence_similarity(sim, length, 1.0), axis=1)
@@ -295,8 +283,8 @@ def _threshold_metrics(pred, conf, gt, first: np.ndarray) -> dict:
     kept = ol.reject(p2, c2, thr)
     ok = (kept >= 0) & (g2 >= 0) & (np.abs(kept - g2) <= TOLERANCE)
     return dict(
-        pr_auc=pr_auc(p2, c2, g2, TOLERANCE),
-        recall_at_100_precision=recall_at_100_precision(p2, c2, g2, TOLERANCE),
+        pr_auc=metrics.pr_auc(p2, c2, g2, TOLERANCE),
+        recall_at_100_precision=metrics.recall_at_100_precision(p2, c2, g2, TOLERANCE),
         threshold=thr,
         precision_at_threshold=float(ok.sum() / max((kept >= 0).sum(), 1)),
         recall_at_threshold=float(ok.sum() / (g2 >= 0).sum()),
@@ -449,8 +437,8 @@ OPTIONS_SINGLE = dict(n=10_000, d=2048, singles=2000,
 def run_single(args) -> dict:
     """One descriptor to its place: numpy lane, jitted decode, faiss (single_query)."""
     n, d = args.n, args.d
-    cands = candidate_periods(n, 2, 1, 7)
-    periods = choose_periods(cands, [0.0] * len(cands), n, 2)
+    cands = rp.candidate_periods(n, 2, 1, 7)
+    periods = rp.choose_periods(cands, [0.0] * len(cands), n, 2)
     refs, queries, _ = random_features(n, d, args.singles, seed=0)
     params, p = random_map(d, periods, seed=1), sum(periods)
     model = RhythmicMap(r=2)
@@ -484,9 +472,10 @@ def run_single(args) -> dict:
     for name, row in rows.items():
         h.log.info("%s: %.1f us", name, 1e6 * row["median_s"])
     batch = queries[:1000]
-    throughput = {"jitted decode": time_batch(jit, batch, repeats=5),
-                  "faiss IndexFlatIP": time_batch(lambda q: flat.search(q, 1), batch,
-                                                 repeats=3)}  # fmt: skip
+    throughput = {
+        "jitted decode": metrics.time_batch(jit, batch, repeats=5),
+        "faiss IndexFlatIP": metrics.time_batch(lambda q: flat.search(q, 1), batch, 3),
+    }
     return dict(n=n, d=d, periods=list(periods), singles=args.singles, single=rows,
                 batch=throughput, same_as_batch_decode=bool(same),
                 locate_same_as_batch_decode=bool(same_locate),

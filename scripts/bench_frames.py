@@ -12,12 +12,11 @@ The package is imported inside the functions: ``end-to-end`` runs this module's
 :func:`augmented` in a baseline checkout too, whose layout may differ.
 """
 
+import itertools
 import json
 import os
 import shutil
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import _harness as h
@@ -252,10 +251,9 @@ QUICK_NETWORK = dict(batches=[8], frames=64, repeats=1)  # --quick
 def frames_per_s(run, x, repeats: int) -> dict:
     """Best and median frames/s of ``run`` over ``x`` (m, 3, h, w), and CPU/wall."""
     run(x[: 2 * max(1, len(x) // 64)])  # warm-up
-    walls, cpus = zip(*(h.timed(run, x)[1:] for _ in range(repeats)), strict=True)
-    best = int(np.argmin(walls))
-    return dict(best=len(x) / walls[best], median=len(x) / float(np.median(walls)),
-                cpu_per_wall=cpus[best] / walls[best])  # fmt: skip
+    t = h.walls(lambda: run(x), repeats)
+    return dict(best=len(x) / t["best"], median=len(x) / t["median"],
+                cpu_per_wall=t["cpu_per_wall"])  # fmt: skip
 
 
 OPTIONS_NETWORK = dict(batches=[1, 2, 4, 8, 16, 32, 64], frames=512, repeats=3,
@@ -394,20 +392,14 @@ def augment_cases() -> list[tuple]:
     ]
 
 
-def time_augment(batch, config, repeats: int, min_s=0.2) -> list[float]:
-    """Seconds per call of ``augment`` on ``batch``, one per repeat."""
+def time_augment(batch, config, repeats: int, min_s=0.2) -> dict:
+    """Best and median seconds per call of ``augment`` on ``batch``."""
     from rhythmic_jax.augment.kornia_ops import augment
 
-    start = time.perf_counter()
-    augment(batch, config, seed=0)  # warm-up, also sizes the inner loop
-    calls = max(1, round(min_s / (time.perf_counter() - start)))
-    times = []
-    for r in range(repeats):
-        start = time.perf_counter()
-        for i in range(calls):
-            augment(batch, config, seed=1 + r * calls + i)
-        times.append((time.perf_counter() - start) / calls)
-    return times
+    seeds = itertools.count()  # a new draw each call
+    _, first, _ = h.timed(augment, batch, config, seed=next(seeds))  # warm-up
+    calls = max(1, round(min_s / first))  # each repeat's calls take >= min_s
+    return h.walls(lambda: augment(batch, config, seed=next(seeds)), repeats, calls)
 
 
 OPTIONS_AUGMENT = dict(batch=64, repeats=5, threads=[2])
@@ -423,11 +415,10 @@ def run_augment(args) -> dict:
         for height, w in SIZES[:1] if args.quick else SIZES:
             batch = torch.rand(args.batch, 3, height, w, generator=generator)
             for label, config in augment_cases():
-                times = time_augment(batch, config, args.repeats)
-                fps, median = args.batch / min(times), statistics.median(times)
-                row = dict(op=label, size=f"{w}x{height}", threads=threads,
-                           fps_best=fps)  # fmt: skip
-                rows.append(row | dict(fps_median=args.batch / median))
+                t = time_augment(batch, config, args.repeats)
+                fps = args.batch / t["best"]
+                rows.append(dict(op=label, size=f"{w}x{height}", threads=threads,
+                                 fps_best=fps, fps_median=args.batch / t["median"]))
                 print(f"{threads}t {w}x{height:<4} {label:<28} {fps:9.0f} frames/s")
     return dict(batch=args.batch, repeats=args.repeats, torch_threads=args.threads,
                 rows=rows)  # fmt: skip

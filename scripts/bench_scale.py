@@ -22,15 +22,11 @@ from pathlib import Path
 import _harness as h
 import numpy as np
 
-from rhythmic_jax import RhythmicMap
+from rhythmic_jax import RhythmicMap, candidate_periods, pairwise_coprime
 from rhythmic_jax.fitting.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.map.config import MapConfig
-from rhythmic_jax.map.periods import (
-    candidate_periods,
-    nominal_periods,
-    pairwise_coprime,
-)
+from rhythmic_jax.map.periods import nominal_periods
 from rhythmic_jax.solvers.memory import check_memory, fit_bytes, peak_growth
 from rhythmic_jax.solvers.newton import newton_fit
 from rhythmic_jax.solvers.objective import default_c, targets
@@ -80,10 +76,12 @@ def dtypes(model: RhythmicMap) -> dict[str, RhythmicMap]:
     return {t: model if t == "float32" else model.with_dtype(t) for t in DTYPES}
 
 
-def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
+def one(cell: tuple, args) -> dict:
     """Fit one cell (source, n, d, r, processes, mode, rule) afresh; measure it."""
     source, n, d, r, procs, mode, rule = cell
-    out = tmp / f"{_key(cell)}.map"
+    root = args.root if source == "nordland" else None
+    x_path = frames_file(args.cells / f"{source}-{n}-{d}.npy", n, d, root)
+    out, memory = args.cells / f"{_key(cell)}.map", args.memory
     if rule == "least":  # fixed periods imply r
         options = ["--layout", "periods:" + ",".join(map(str, nominal_periods(n, r)))]
     else:
@@ -104,6 +102,7 @@ def one(cell: tuple, x_path: Path, tmp: Path, memory: str) -> dict:
         passes=run.get("passes"), pass_median_s=run.get("pass_median_s"),
         block_rows=run.get("block_rows"), nice=os.nice(0),
         accuracy={t: accuracy(m, frames, n) for t, m in models.items()},
+        measured=time.strftime("%H:%M UTC", time.gmtime()), load=h.load_average(),
     )  # fmt: skip
     h.log.info("%s", row)
     return row
@@ -274,9 +273,6 @@ def pass_kinds(cg: list[int], seconds: list[float], line=None) -> dict:
 def full(args) -> dict:
     """The streamed fit of ``--full`` route-like frames with fixed periods."""
     n, periods, memory = args.full, args.full_periods, args.full_memory
-    saved = args.cells / f"full-{n}-{periods.replace(',', 'x')}-{memory}.json"
-    if saved.exists():
-        return json.loads(saved.read_text())
     work = args.full_work
     path = frames_file(work / f"walk-{n}-256.npy", n)
     out, attempts = work / f"walk-{n}.map", work / "attempts.jsonl"
@@ -313,7 +309,6 @@ def full(args) -> dict:
                group_errors=info["group_errors"], accuracy=acc, sample=len(picks),
                candidates=list(plan(MapConfig(r=3), n, 1).candidates),
                code=h.git_commit())  # fmt: skip
-    saved.write_text(json.dumps(h.plain(row)))
     return row
 
 
@@ -332,18 +327,13 @@ def search_hours(f: dict, probe: dict | None) -> float:
 def probe(args) -> dict:
     """One streamed pass of each kind over ``--probe`` frames, in a fresh process."""
     n, memory, periods = args.probe, args.probe_memory, args.full_periods
-    saved = args.cells / f"passes-{n}-{memory}-{periods.replace(',', 'x')}.json"
-    if saved.exists():
-        return json.loads(saved.read_text())
     path = frames_file(args.full_work / f"walk-{n}-256.npy", n)
     res = h.call(passes, str(path), memory, periods)
-    out = res["result"] | dict(
+    return res["result"] | dict(
         peak_bytes=res["peak"], memory=memory, file_bytes=path.stat().st_size,
         load=h.load_average(), nice=NICE,
         measured=time.strftime("%H:%M UTC", time.gmtime()),
     )  # fmt: skip
-    saved.write_text(json.dumps(out))
-    return out
 
 
 def passes(path: str, memory: str, periods: str) -> dict:
@@ -392,41 +382,30 @@ def run_grid(args) -> dict:
     args.cells.mkdir(parents=True, exist_ok=True)
     rows, missing, t0 = [], [], time.perf_counter()
     for cell in grid(args.quick, (args.root / "nordland_64x32" / "summer").is_dir()):
-        saved = args.cells / f"{_key(cell)}.json"
-        if saved.exists():
-            rows.append(json.loads(saved.read_text()))
-            continue
         name = "{} N={} d={} r={} K={} {} {}".format(*cell)
-        failed = args.cells / f"{_key(cell)}.failed"
-        if failed.exists():
+        saved, failed = (args.cells / (_key(cell) + e) for e in (".json", ".failed"))
+        if failed.exists() and not saved.exists():
             missing.append(f"{name} (failed: {failed.read_text().strip()})")
-            continue
-        if time.perf_counter() - t0 > args.budget:
+        elif not saved.exists() and time.perf_counter() - t0 > args.budget:
             missing.append(name)
-            continue
-        source, n, d = cell[:3]
-        root = args.root if source == "nordland" else None
-        x_path = frames_file(args.cells / f"{source}-{n}-{d}.npy", n, d, root)
-        try:
-            row = one(cell, x_path, args.cells, args.memory)
-        except RuntimeError as err:
-            h.log.warning("%s failed: %s", name, err)
-            reason = str(err).strip().splitlines()[-1][-300:]
-            failed.write_text(reason)
-            missing.append(f"{name} (failed: {reason})")
-            continue
-        row.update(measured=time.strftime("%H:%M UTC", time.gmtime()),
-                   load=h.load_average())  # fmt: skip
-        saved.write_text(json.dumps(h.plain(row)))
-        rows.append(row)
+        else:
+            try:
+                rows.append(h.kept(saved, lambda cell=cell: one(cell, args)))
+            except RuntimeError as err:
+                h.log.warning("%s failed: %s", name, err)
+                reason = str(err).strip().splitlines()[-1][-300:]
+                failed.write_text(reason)
+                missing.append(f"{name} (failed: {reason})")
     report, stamps = {}, [r["measured"] for r in rows]
-    for what, n, measure in (
-        ("probe", args.probe, probe),
-        ("full fit", args.full, full),
+    fixed = args.full_periods.replace(",", "x")
+    for what, n, measure, saved in (  # each kept under the settings it ran with
+        ("probe", args.probe, probe, "passes-{probe}-{probe_memory}-{fixed}"),
+        ("full fit", args.full, full, "full-{full}-{fixed}-{full_memory}"),
     ):
         try:
             if n:
-                report[what.split()[0]] = measure(args)
+                path = args.cells / (saved.format(**vars(args), fixed=fixed) + ".json")
+                report[what.split()[0]] = h.kept(path, lambda m=measure: m(args))
         except RuntimeError as err:
             h.log.warning("%s failed: %s", what, err)
             missing.append(f"{what} N={n} (failed)")

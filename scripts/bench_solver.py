@@ -21,16 +21,9 @@ from sklearn.svm import LinearSVC
 
 from rhythmic_jax.frames.features import get_descriptor
 from rhythmic_jax.map.periods import candidate_periods, choose_periods, period_offsets
+from rhythmic_jax.solvers import objective as svm
 from rhythmic_jax.solvers.candidates import DropLosers
 from rhythmic_jax.solvers.newton import FAST, NewtonConfig, newton_fit
-from rhythmic_jax.solvers.objective import (
-    Templates,
-    default_c,
-    objective,
-    period_errors,
-    scores,
-    targets,
-)
 from rhythmic_jax.solvers.optax_loops import fit_full_batch
 from rhythmic_jax.solvers.precision import resolve_hessian_dtype
 
@@ -57,9 +50,9 @@ def objectives64(w, b, x, y, c: float) -> np.ndarray:
     """(p,) every template's objective (liblinear's primal) in float64: w (d, p)."""
     with jax.enable_x64(True):
         w = np.asarray(w, np.float64).reshape(x.shape[1], -1)
-        params = Templates(w, np.asarray(b, np.float64).reshape(-1))
+        params = svm.Templates(w, np.asarray(b, np.float64).reshape(-1))
         x64, y64 = np.asarray(x, np.float64), np.asarray(y, np.float64)
-        return np.asarray(objective(params, x64, y64, c))
+        return np.asarray(svm.objective(params, x64, y64, c))
 
 
 def sampled_columns(periods: tuple[int, ...], samples: int) -> list[dict]:
@@ -115,8 +108,8 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
     """All three solvers on features ``x`` (n, d); returns the case's record."""
     n, d = x.shape
     cands = candidate_periods(n, 2, 1, 7)
-    p, c, labels = sum(cands), default_c(n), np.arange(n)
-    y = np.asarray(targets(labels, cands))
+    p, c, labels = sum(cands), svm.default_c(n), np.arange(n)
+    y = np.asarray(svm.targets(labels, cands))
     x64, y64 = x.astype(np.float64), y.astype(np.float64)
     h.log.info("%s: n=%d d=%d candidates %s (p=%d), C=%.4f", name, n, d, cands, p, c)
     load_svc = h.load_average()
@@ -152,7 +145,7 @@ def bench_case(name: str, x: np.ndarray, samples: int, progress: bool) -> dict:
         load_average_start=load_svc, templates=svc,
     )  # fmt: skip
     for rec, w, f in ((fast, w_f, f_f), (tight, w_t, f_t), (lbfgs, w_l, f_l)):
-        errors = np.asarray(period_errors(scores(w, x), labels, cands))
+        errors = np.asarray(svm.period_errors(svm.scores(w, x), labels, cands))
         rec.update(
             gap_vs_linearsvc=h.stats(_gap(f[cols], f_svc)),
             gap_vs_tight=h.stats(_gap(f, f_t)), training_error=errors,
@@ -224,7 +217,7 @@ class Record:
         self.labels, self.cands, self.errors = labels, cands, []
 
     def __call__(self, step, margins):
-        errs = np.asarray(period_errors(margins, self.labels, self.cands))
+        errs = np.asarray(svm.period_errors(margins, self.labels, self.cands))
         self.errors.append(errs.tolist())
         return np.zeros(sum(self.cands), bool)
 
@@ -239,7 +232,7 @@ def run_work(args) -> dict:
         x = x[:600]
     n, labels = len(x), np.arange(len(x))
     cands = candidate_periods(n, 2, 1, 7)
-    y, c = np.asarray(targets(labels, cands)), default_c(n)
+    y, c = np.asarray(svm.targets(labels, cands)), svm.default_c(n)
     runs = {}
     for name, make in (
         ("full", lambda: Record(labels, cands)),
@@ -248,8 +241,8 @@ def run_work(args) -> dict:
         newton_fit(x, y, c, FAST, stop=make())  # compiles
         stop = make()
         (params, info), seconds, _ = h.timed(newton_fit, x, y, c, FAST, stop=stop)
-        s = scores(params, x)
-        errors = np.asarray(period_errors(s, labels, cands))
+        s = svm.scores(params, x)
+        errors = np.asarray(svm.period_errors(s, labels, cands))
         chosen = choose_periods(cands, errors, n, 2)
         runs[name] = dict(
             seconds=seconds, steps=info.steps, cg_iterations=list(info.cg_iterations),
@@ -301,7 +294,7 @@ def run_span(args) -> dict:
     x = h.summer(args, desc)[: args.frames]
     n, d = x.shape
     cands = candidate_periods(n, 2, args.level, 7)
-    y, c = targets(np.arange(n), cands), default_c(n)
+    y, c = svm.targets(np.arange(n), cands), svm.default_c(n)
     rows, answers = [], {}
     for name, cfg in (
         ("span (n-dim)", NewtonConfig()),
