@@ -90,6 +90,35 @@ OPTIONS_JOBS = dict(base=(Path, "baseline checkout (to measure)"),
                             " median of the rounds"))  # fmt: skip
 
 
+def steps(job: str, tmp: Path, tag: str, inputs: dict, folders: dict) -> list:
+    """(label, argv) of each process of ``job``; a library job's argv[2]: its
+    predictions."""
+    jpeg_map, library = str(tmp / f"jpeg-{tag}.map"), str(tmp / f"{job}-{tag}.npy")
+    return {
+        "imports": [("imports", ["imports"])],
+        "demo": [("demo", ["demo", "--out", str(tmp / f"demo-{tag}")])],
+        "jpeg": [("jpeg fit", ["fit", str(folders.get("ref")), "--out", jpeg_map,
+                               "--descriptor", "efficientnet_lite0"]),
+                 ("jpeg query", ["query", jpeg_map, str(folders.get("q")), "--out",
+                                 str(tmp / f"q-{tag}.npy")])],
+    }.get(job, [(job, ["library", str(inputs.get(job)), library])])  # fmt: skip
+
+
+def agreement(maps: dict) -> dict:
+    """Per job and new variant, against the baseline over every round: periods
+    equal in all, the lowest share of equal predictions."""
+    same = {}
+    for (job, _), runs in maps.items():
+        base_pred, base_periods = runs["base"]
+        for name in ("new cold", "new warm"):
+            pred, periods = runs[name]
+            equal = float((np.load(pred) == np.load(base_pred)).mean())
+            was = same.setdefault(f"{job}, {name}", {"periods_equal": True})
+            was["periods_equal"] &= periods == base_periods
+            was["predictions_equal"] = min(was.get("predictions_equal", 1.0), equal)
+    return same
+
+
 def run_jobs(args) -> dict:
     """XLA programs, compile and wall seconds per job (compile)."""
     if args.base is None:
@@ -128,22 +157,11 @@ def run_jobs(args) -> dict:
                 cache = h.fresh_cache(tmp, network if side == "new" else None)
                 env_job = {**env, "RHYTHMIC_JAX_CACHE": str(cache)}
                 tag = f"{name.replace(' ', '_')}-{k}"
-                pred, jpeg_map = tmp / f"{job}-{tag}.npy", str(tmp / f"jpeg-{tag}.map")
-                ref, q = folders.get("ref"), folders.get("q")
-                library = [(job, ["library", str(inputs.get(job)), str(pred)])]
-                steps = {
-                    "imports": [("imports", ["imports"])],
-                    "demo": [("demo", ["demo", "--out", str(tmp / f"demo-{tag}")])],
-                    "jpeg": [("jpeg fit", ["fit", str(ref), "--out", jpeg_map,
-                                           "--descriptor", "efficientnet_lite0"]),
-                             ("jpeg query", ["query", jpeg_map, str(q), "--out",
-                                             str(tmp / f"q-{tag}.npy")])],
-                }.get(job, library)  # fmt: skip
-                for label, argv in steps:
+                for label, argv in steps(job, tmp, tag, inputs, folders):
                     r, out = run_job(argv, env_job, tmp)
                     if argv[0] == "library":  # fit, nordland: the maps compared
-                        r["periods"] = periods = json.loads(out.splitlines()[-1])
-                        agree.setdefault((job, k), {})[name] = pred, periods["periods"]
+                        r["periods"] = found = json.loads(out.splitlines()[-1])
+                        agree.setdefault((job, k), {})[name] = argv[2], found["periods"]
                     more = dict(round=k) if args.rounds > 1 else {}
                     rows.append(dict(job=label, variant=name, **more, **r))
                     if label == "jpeg fit" and side == "new":
@@ -152,15 +170,7 @@ def run_jobs(args) -> dict:
                             shutil.rmtree(network, ignore_errors=True)
                             shutil.copytree(cache / "compiled", network / "compiled")
                 print(json.dumps(rows[-1]), flush=True)
-        same = {}  # every round's maps: periods equal in all, the lowest share
-        for (job, _), runs in agree.items():
-            base_pred, base_periods = runs["base"]
-            for name in ("new cold", "new warm"):
-                pred, periods = runs[name]
-                equal = float((np.load(pred) == np.load(base_pred)).mean())
-                was = same.setdefault(f"{job}, {name}", {"periods_equal": True})
-                was["periods_equal"] &= periods == base_periods
-                was["predictions_equal"] = min(was.get("predictions_equal", 1.0), equal)
+        same = agreement(agree)
     sizes = dict(fit=[n_fit, d_fit], nordland=n_nord or 3576, jpegs=n_jpeg)
     return dict(base=str(args.base), sizes=sizes, rows=rows, agreement=same)
 
