@@ -326,11 +326,13 @@ def cached_fit(model, x, folder: Path = MAP_CACHE, fit=None, extra=None, arrays=
 
 
 def kept(path: Path, make: Callable[[], dict]) -> dict:
-    """``make()``'s record saved as JSON at ``path`` and read back; read alone when
-    saved before."""
+    """``make()``'s record saved as JSON at ``path`` (atomically: a killed run
+    leaves none) and read back; read alone when saved before."""
+    from rhythmic_jax.io.reader import read_json
+
     if not path.exists():
-        path.write_text(json.dumps(plain(make())))
-    return json.loads(path.read_text())
+        _write(path, json.dumps(plain(make())))
+    return read_json(path, "saved record")
 
 
 def plain(obj):
