@@ -138,8 +138,6 @@ class OptionRefused(InputError):
     """A setting given where it has no effect, or without one it needs."""
 
 
-
-
 @dataclass(frozen=True)
 class Rule:
     """Where a setting acts: given (away from its default, or named in the job's

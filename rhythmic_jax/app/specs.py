@@ -62,8 +62,6 @@ def grid_text(name: str) -> str:
             f"pq {','.join(map(str, g['pq']))}")  # fmt: skip
 
 
-
-
 class FitInterrupted(KeyboardInterrupt):
     """Ctrl-C during an augmented fit; ``note`` says where its checkpoint is kept."""
 
@@ -79,8 +77,6 @@ class Reported(Exception):
     def __init__(self, status: int):
         super().__init__(status)
         self.status = status
-
-
 
 
 @dataclass(frozen=True, kw_only=True)
