@@ -44,8 +44,10 @@ COMPILE_BYTES = 192 * 2**20
 
 # What a fit touches whatever its size: the threads' stacks and scratch, the
 # allocator's arenas, the small arrays of the period choice. Fits of 120 x 512
-# (6.4 MB of arrays) peaked at 5.4-7.9 MB.
-SCRATCH_BYTES = 8 * 2**20
+# (6.4 MB of arrays) peaked at 5.4-7.9 MB on an idle machine; on a busy one (two
+# other processes on its two cores) refits of 400 x 1024 (30 MB of arrays) grew
+# the process by up to 55.7 MB, 18 MB beyond the arrays and their quarter.
+SCRATCH_BYTES = 24 * 2**20
 
 
 def fit_bytes(n: int, d: int, p: int, itemsize: int = 4) -> dict[str, int]:
