@@ -376,3 +376,32 @@ def time_batch(fn: Callable, queries, repeats: int = 5) -> dict[str, float | int
         "batch_size": int(queries.shape[0]),
         "repeats": int(repeats),
     }
+
+
+WARMUP = 20  # untimed calls of one query before the latency is timed
+
+
+def query_latency(fn: Callable, queries) -> dict[str, float]:
+    """The one timing every method's row uses: ``fn`` maps query descriptors
+    (b, d) to places, so a map's time includes its template product (and any
+    dequantisation), a code's its encoding.
+
+    One query alone (the median of up to 200 calls, after :data:`WARMUP`
+    untimed ones) and the whole batch in one call (its throughput, median of
+    3), timed on a warm program: both shapes are compiled before any clock
+    starts.
+
+    Returns:
+      ``latency_median_s``, ``latency_p95_s`` (seconds per single-query call),
+      ``queries_per_s`` and ``batch_s`` (the whole batch's call).
+    """
+    jax.block_until_ready(fn(queries[:1]))
+    jax.block_until_ready(fn(queries))  # compiled (or loaded) here, not timed
+    single = time_single_queries(fn, queries[: min(len(queries), 200)], WARMUP)
+    batch = time_batch(fn, queries, repeats=3)
+    return {
+        "latency_median_s": single["median_s"],
+        "latency_p95_s": single["p95_s"],
+        "queries_per_s": batch["queries_per_s"],
+        "batch_s": batch["median_s"],
+    }

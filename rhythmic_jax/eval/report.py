@@ -18,7 +18,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval.metrics import recall_line, time_batch, time_single_queries
+from rhythmic_jax.eval.metrics import WARMUP, query_latency, recall_line
 from rhythmic_jax.eval.outliers import finite_confidence
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.checks import check_decode
@@ -52,24 +52,6 @@ def ranked_places(scores, periods, n: int, k: int = 10) -> np.ndarray:
     periods = tuple(int(t) for t in getattr(periods, "sizes", periods))
     scores = scores if isinstance(scores, jax.Array) else jax.device_put(scores)
     return np.asarray(_ranked(scores, periods, int(n), min(k, n)))
-
-
-WARMUP = 20  # untimed calls of one query before the latency is timed
-
-
-def _latency(fn, queries) -> dict[str, float]:
-    """One query alone (the median of up to 200 calls, after :data:`WARMUP`
-    untimed ones) and the whole batch in one call (its throughput), timed on
-    a warm program: both shapes are compiled before any clock starts."""
-    fn(queries[:1]), fn(queries)  # compiled (or loaded) here, not while timed
-    single = time_single_queries(fn, queries[: min(len(queries), 200)], WARMUP)
-    batch = time_batch(fn, queries, repeats=3)
-    return {
-        "latency_median_s": single["median_s"],
-        "latency_p95_s": single["p95_s"],
-        "queries_per_s": batch["queries_per_s"],
-        "batch_s": batch["median_s"],
-    }
 
 
 def _code_similarity(model, queries) -> np.ndarray:
@@ -298,7 +280,7 @@ def evaluate_map(
         }
     }
     if timing:
-        rows["map"].update(_latency(lambda q: model.predict(q, method), queries))
+        rows["map"].update(query_latency(lambda q: model.predict(q, method), queries))
     brute = None
     if reference is not None and sequence is not None and sequence > 1:
         rows.update(
@@ -329,7 +311,7 @@ def evaluate_map(
         }
         if timing:
             rows["brute force"].update(
-                _latency(lambda q: flat.search(q, 1)[1], queries)
+                query_latency(lambda q: flat.search(q, 1)[1], queries)
             )
     for row in rows.values():
         row["recall_line"] = recall_line(row, ks)
@@ -410,7 +392,7 @@ def sequence_peers(
         "ranks": f"SeqSLAM (L={length}, speed 1), one match per query",
     }
     if timing:
-        rows["brute force"].update(_latency(lambda q: flat.search(q, 1)[1], queries))
+        rows["brute force"].update(query_latency(lambda q: flat.search(q, 1)[1], queries))
     return rows
 
 
