@@ -18,6 +18,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
+from rhythmic_jax.eval import budget_peers
 from rhythmic_jax.eval.metrics import WARMUP, query_latency, recall_line
 from rhythmic_jax.eval.outliers import finite_confidence
 from rhythmic_jax.jit_options import jit
@@ -159,7 +160,15 @@ def _scores_of(
     return row
 
 
-def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
+def _codes_name(book) -> str:
+    """A code book as the figures name it: "int8 per place" or "ITQ B bits"."""
+    if getattr(book, "kind", None) == "int8":
+        return "int8 per place"
+    return f"ITQ {book.bits} bits"
+
+
+def model_frontier(model, queries, pred, truth, sequence=None, brute=None,
+                   db=None):
     """Recall@1 against bytes for a fitted map with codes, as ``evaluate`` reports it.
 
     Rows as :func:`rhythmic_jax.eval.frontier.frontier_rows` gives them, for one
@@ -184,12 +193,13 @@ def model_frontier(model, queries, pred, truth, sequence=None, brute=None):
         coded = code_sequence_scores(sims, length)
     else:
         alone, coded = soft_decode(s, model.periods, n).index, sims
-    st, db = model.storage(), database_bytes(n, d, 4)
+    st = model.storage()
+    db = database_bytes(n, d, 4) if db is None else int(db)
     w = float(model.config.fusion)
     fused = "codes alone (fusion 0)" if w == 0 else f"map + codes (fused, w={w:g})"
     parts = [
         ("map", "templates alone" + plus, sum(st["per_period"].values()) + emb, alone),
-        ("codes", f"ITQ {model.codebook.bits} bits alone" + plus,
+        ("codes", _codes_name(model.codebook) + " alone" + plus,
          model.codebook.storage()["total"] + emb,
          np.argmax(coded, axis=1)),
         ("hybrid", fused + plus, model.storage_bytes + emb, pred),
@@ -263,6 +273,11 @@ def evaluate_map(
             f"{len(truth)}"
         )
     check_decode(model.value, "soft", len(queries), at_once=True)  # the ranking
+    # one database for every share: the frames brute force searches (all the
+    # traversals), else one float32 frame per place
+    frames = model.n if reference is None else len(reference)
+    db = database_bytes(frames, model.d, 4)
+    ratio = (model.storage_bytes + model.embedding_bytes) / db
     pred, conf, ranked, which = _map_decisions(model, queries, method, sequence)
     ks = tuple(k for k in KS if k <= ranked.shape[1])
     rows: dict[str, Any] = {
@@ -271,8 +286,7 @@ def evaluate_map(
             "label": map_label(model),
             "storage_bytes": model.storage_bytes,
             # what a query needs: the templates, the codes and the embedding
-            "storage_share": (model.storage_bytes + model.embedding_bytes)
-            / database_bytes(model.n, model.d, 4),
+            "storage_share": ratio,
             "codes_bits": model.codebook.bits if model.codebook is not None else None,
             "embedding_bytes": model.embedding_bytes,
             "periods": list(model.periods),
@@ -313,6 +327,21 @@ def evaluate_map(
             rows["brute force"].update(
                 query_latency(lambda q: flat.search(q, 1)[1], queries)
             )
+    notes = []
+    if reference is not None:
+        budget = model.storage_bytes + model.embedding_bytes
+        peers = [budget_peers.at_bytes(reference, budget)]
+        if model.embedding is not None:
+            peers.append(budget_peers.on_embedding(model, reference))
+        for peer in peers:
+            if isinstance(peer, str):  # none fits the map's bytes
+                notes.append(peer)
+                continue
+            notes.append(peer.note)
+            rows[peer.name] = peer_row(
+                peer, queries, reference_labels, model.n, sequence, truth, exact,
+                ks, recall_over, timing,
+            )  # fmt: skip
     for row in rows.values():
         row["recall_line"] = recall_line(row, ks)
         precision, recall = row.pop("_pr")
@@ -334,16 +363,63 @@ def evaluate_map(
         "recall_ranks": which,
         "recall_over": recall_over,
         "recall_queries": rows["map"]["recall_queries"],
-        "database_bytes": database_bytes(model.n, model.d, 4),
-        "compression_ratio": model.compression_ratio,
+        "database_bytes": db,
+        "database_frames": frames,
+        "compression_ratio": ratio,
         "methods": rows,
+        "peer_notes": notes,
     }
     if curves:  # the right places of each query, for the route's figures
         out["right_places"] = [np.asarray(p).astype(int).tolist()
                                for p in truth.positives]  # fmt: skip
     if curves and model.codebook is not None:  # recall per byte, for the plot
-        out["frontier"] = model_frontier(model, queries, pred, truth, sequence, brute)
+        out["frontier"] = model_frontier(model, queries, pred, truth, sequence, brute,
+                                         db)
     return out
+
+
+def place_similarities(sims, labels, n: int) -> np.ndarray:
+    """(b, m) similarities to reference frames -> (b, n), each place's best
+    frame (``labels``: (m,) place of each frame, default ``arange(m)``)."""
+    sims = np.asarray(sims, np.float32)
+    if labels is None and sims.shape[1] == n:
+        return sims
+    labels = np.arange(sims.shape[1]) if labels is None else np.asarray(labels)
+    place = np.full((len(sims), n), -np.inf, np.float32)
+    np.maximum.at(place.T, labels, sims.T)
+    place[~np.isfinite(place)] = sims.min()
+    return place
+
+
+def peer_row(peer, queries, labels, n, sequence, truth, exact, ks, over="matched",
+             timing=True) -> dict[str, Any]:  # fmt: skip
+    """The row of a :class:`~rhythmic_jax.eval.budget_peers.Peer`: places ranked
+    by their best frame's similarity (summed along the diagonal over L frames
+    for a sequence, as :func:`sequence_peers` sums brute force's), the best
+    place its answer and that place's score its confidence; timed from the
+    query descriptors to a place."""
+    from rhythmic_jax.decoding.fusion import code_sequence_scores
+
+    place = place_similarities(peer.similarity(queries), labels, n)
+    if sequence is not None and sequence > 1:
+        place = np.asarray(code_sequence_scores(place, sequence))
+    ranked = np.argsort(-place, axis=1, kind="stable")[:, : max(ks)]
+    best = ranked[:, 0]
+    row = {
+        **_scores_of(best, place[np.arange(len(place)), best], ranked, truth,
+                     exact, ks, over),  # fmt: skip
+        "storage_bytes": int(peer.storage_bytes),
+    }
+    if timing:
+        lab = None if labels is None else jnp.asarray(np.asarray(labels))
+
+        @jit
+        def find(q):  # one program: encoding, similarities, best frame, place
+            top = jnp.argmax(peer.similarity(q), axis=1)
+            return top if lab is None else lab[top]
+
+        row.update(query_latency(find, jnp.asarray(queries)))
+    return row
 
 
 def sequence_peers(
@@ -370,9 +446,7 @@ def sequence_peers(
     sims = np.asarray(
         jnp.matmul(jnp.asarray(queries), jnp.asarray(reference).T, precision="highest")
     )
-    place = np.full((len(queries), n), -np.inf, np.float32)
-    np.maximum.at(place.T, labels, sims.T)  # best frame of each place
-    place[~np.isfinite(place)] = sims.min()
+    place = place_similarities(sims, labels, n)  # best frame of each place
     acc = np.asarray(code_sequence_scores(place, length))  # (b, n)
     ranked = np.argsort(-acc, axis=1, kind="stable")[:, : max(ks)]
     best = ranked[:, 0]
@@ -394,6 +468,13 @@ def sequence_peers(
     if timing:
         rows["brute force"].update(query_latency(lambda q: flat.search(q, 1)[1], queries))
     return rows
+
+
+def _database_words(result: dict[str, Any]) -> str:
+    """The database every bytes share is over, in words."""
+    frames = result.get("database_frames", result["n"])
+    return (f"{frames} x {result['d']} float32, {result['database_bytes']:,} B, "
+            "the frames brute force searches")  # fmt: skip
 
 
 def _truth_line(result: dict[str, Any]) -> str:
@@ -436,7 +517,8 @@ def format_evaluation(result: dict[str, Any]) -> str:
     seq = result["sequence"]
     head = (
         f"n={result['n']} d={result['d']} queries={result['n_queries']}; "
-        f"compression ratio {result['compression_ratio']:.4f}\n"
+        f"compression ratio {result['compression_ratio']:.4f} of "
+        f"{_database_words(result)}\n"
         f"decode={result['decode']} sequence={seq if seq else 'off'}; recall@K "
         f"ranks {result.get('recall_ranks', 'single-frame scores')} "
         + (f"(peers at the same L={seq})" if seq and seq > 1 else "(single frames)")
@@ -491,8 +573,11 @@ def legend(result: dict[str, Any]) -> list[str]:
     if any(r.get("embedding_bytes") for r in rows):
         lines.append("bytes: what a query needs, the embedding included (the "
                      "compression ratio counts it too)")  # fmt: skip
+    lines += result.get("peer_notes") or []
     if any("latency_median_s" in r for r in rows):
-        lines.append(f"latency: one query alone, median after {WARMUP} warm calls; "
-                     f"queries/s: all {result.get('n_queries')} queries in one "
-                     "call (batched: not 1/latency)")  # fmt: skip
+        lines.append("latency: one query alone, from its descriptor to a place (a "
+                     "map's template product, a code's encoding and an embedding "
+                     f"included), median of up to 200 calls after {WARMUP} warm "
+                     f"ones; queries/s: all {result.get('n_queries')} queries in "
+                     "one call (batched: not 1/latency)")  # fmt: skip
     return lines
