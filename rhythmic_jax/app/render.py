@@ -118,9 +118,16 @@ def info_lines(info: dict[str, Any]) -> str:
             ("descriptor", f"{info['descriptor']} {uses}"),
             ("fusion", weight),
         ])  # fmt: skip
-    keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
-            "compression_ratio", "c")  # fmt: skip
-    rows = [(key, info[key]) for key in keys]
+    rows = [(key, info[key]) for key in ("n", "d", "layout")]
+    rows += [
+        ("storage_bytes", f"{info['storage_bytes']:,}"),
+        ("embedding_bytes", f"{info['embedding_bytes']:,}"),
+        ("embedding", info["embedding"]),
+        ("compression_ratio", f"{info['compression_ratio']:.4f} of "
+                              f"{info['database_bytes']:,} B ({info['n']} x "
+                              f"{info['d']} float32, one frame a place)"),
+        ("C", _penalty(info)),
+    ]  # fmt: skip
     if info.get("descriptor"):
         rows.insert(3, ("descriptor", info["descriptor"]))
     ref, st = info.get("reference") or {}, info["storage"]
@@ -134,15 +141,64 @@ def info_lines(info: dict[str, Any]) -> str:
         rows.append(("fusion", f"{fusion_words(w)}{how}"))
     rows += [
         ("storage fixed", f"{st['fixed']:,} B (code transform)"),
-        ("per place", f"{st['per_place']:,} B (codes)"),
-        *((f"period {t}", f"{b:,} B (templates)") for t, b in st["per_period"].items()),
+        ("per place", _per_place(info)),
+        *_period_rows(info),
         ("share", f"{st['share']:.4f} of the float32 database"),
     ]
     if info.get("checksums"):
         rows.append(("checksums", info["checksums"]))
-    errors = zip(info["candidates"], info["candidate_errors"], strict=True)
-    rows += [(f"period {t}", f"training error {e:.4f}") for t, e in errors]
-    return _rows(rows + [("compile options", compile_options())])
+    return _rows(rows + [("compile options", _compile_options())])
+
+
+def _penalty(info: dict[str, Any]) -> str:
+    """The SVM penalty C, and whether it is the default C = log N."""
+    import math
+
+    c, n = float(info["c"]), int(info["n"])
+    if (info.get("config") or {}).get("c") is None and math.isclose(c, math.log(n)):
+        return f"{c:.4f} (SVM penalty C = log N, N = {n})"
+    return f"{c:.4f} (SVM penalty C, set by the fit; log N = {math.log(n):.4f})"
+
+
+def _per_place(info: dict[str, Any]) -> str:
+    """The codes' bytes of one place (and of all of them)."""
+    total, n = int(info["storage"]["per_place"]), int(info["n"])
+    if not total:
+        return "0 B (no codes)"
+    return f"{total / n:,.0f} B (codes; {total:,} B for {n} places)"
+
+
+def _period_rows(info: dict[str, Any]) -> list[tuple[str, str]]:
+    """One line per candidate period: its templates' bytes when the map keeps
+    it, and its training error; other layouts' groups a line each."""
+    per = info["storage"]["per_period"]
+    rows = []
+    for t, e in zip(info["candidates"], info["candidate_errors"], strict=True):
+        kept = per.get(str(t))
+        bytes_ = f"{kept:,} B (templates), " if kept is not None else "not kept, "
+        rows.append((f"period {t}", f"{bytes_}training error {e:.4f}"))
+    named = {str(t) for t in info["candidates"]}
+    rows += [(f"group {g}", f"{b:,} B (templates)")
+             for g, b in per.items() if g not in named]  # fmt: skip
+    return rows
+
+
+def _compile_options() -> str:
+    """The compile options of the backend JAX would use here, told without
+    starting JAX when the environment or the installed plugins say which."""
+    import importlib.util
+    import os
+
+    chosen = os.environ.get("JAX_PLATFORMS", "").split(",")[0].strip().lower()
+    if not chosen:
+        plugins = ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm60_plugin")
+        if any(importlib.util.find_spec(p) for p in plugins):
+            import jax
+
+            chosen = jax.default_backend()
+        else:
+            chosen = "cpu"
+    return compile_options("gpu" if chosen in ("cuda", "rocm") else chosen)
 
 
 def evaluate_summary(result: dict[str, Any]) -> str:

@@ -18,7 +18,7 @@ import numpy as np
 
 from rhythmic_jax.decoding.group_decode import place_scores
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval import budget_peers
+from rhythmic_jax.eval.budget_peers import at_bytes, on_embedding
 from rhythmic_jax.eval.metrics import WARMUP, query_latency, recall_line
 from rhythmic_jax.eval.outliers import finite_confidence
 from rhythmic_jax.jit_options import jit
@@ -330,9 +330,9 @@ def evaluate_map(
     notes = []
     if reference is not None:
         budget = model.storage_bytes + model.embedding_bytes
-        peers = [budget_peers.at_bytes(reference, budget)]
+        peers = [at_bytes(reference, budget)]
         if model.embedding is not None:
-            peers.append(budget_peers.on_embedding(model, reference))
+            peers.append(on_embedding(model, reference))
         for peer in peers:
             if isinstance(peer, str):  # none fits the map's bytes
                 notes.append(peer)
@@ -380,11 +380,12 @@ def evaluate_map(
 
 def place_similarities(sims, labels, n: int) -> np.ndarray:
     """(b, m) similarities to reference frames -> (b, n), each place's best
-    frame (``labels``: (m,) place of each frame, default ``arange(m)``)."""
+    frame (``labels``: (m,) place of each frame; None: frame i is place i, as
+    brute force's row reads them, and the (b, m) come back as they are)."""
     sims = np.asarray(sims, np.float32)
-    if labels is None and sims.shape[1] == n:
+    if labels is None:
         return sims
-    labels = np.arange(sims.shape[1]) if labels is None else np.asarray(labels)
+    labels = np.asarray(labels)
     place = np.full((len(sims), n), -np.inf, np.float32)
     np.maximum.at(place.T, labels, sims.T)
     place[~np.isfinite(place)] = sims.min()
@@ -472,9 +473,11 @@ def sequence_peers(
 
 def _database_words(result: dict[str, Any]) -> str:
     """The database every bytes share is over, in words."""
+    if "database_bytes" not in result:
+        return ""
     frames = result.get("database_frames", result["n"])
-    return (f"{frames} x {result['d']} float32, {result['database_bytes']:,} B, "
-            "the frames brute force searches")  # fmt: skip
+    return (f" of {frames} x {result['d']} float32, {result['database_bytes']:,} "
+            "B, the frames brute force searches")  # fmt: skip
 
 
 def _truth_line(result: dict[str, Any]) -> str:
@@ -517,7 +520,7 @@ def format_evaluation(result: dict[str, Any]) -> str:
     seq = result["sequence"]
     head = (
         f"n={result['n']} d={result['d']} queries={result['n_queries']}; "
-        f"compression ratio {result['compression_ratio']:.4f} of "
+        f"compression ratio {result['compression_ratio']:.4f}"
         f"{_database_words(result)}\n"
         f"decode={result['decode']} sequence={seq if seq else 'off'}; recall@K "
         f"ranks {result.get('recall_ranks', 'single-frame scores')} "

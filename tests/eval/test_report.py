@@ -204,7 +204,7 @@ def test_brute_force_row_matches_sklearn_cosine(case, tol):
     assert row["storage_bytes"] == N * D * 4
     assert row["tolerance"] == tol and row["n_queries"] == N
     assert 0 < row["accuracy"] < 1  # the noise makes the case non-trivial
-    assert list(res["methods"]) == ["map", "brute force"]
+    assert list(res["methods"])[:2] == ["map", "brute force"]
 
 
 def test_brute_force_row_with_reference_labels(case):
@@ -257,22 +257,26 @@ def test_format_evaluation_prints_every_row_and_column(case):
     res = evaluate_map(model, q, reference=x, tolerance=2, timing=False)
     text = format_evaluation(res)
     lines = text.split("\n")
-    assert len(lines) == 11  # and the legend: accuracy, recall@K
-    assert lines[9].startswith("accuracy: the hard decode's place (a -1, no match,")
-    assert lines[10].startswith("recall@K: a right place (within the tolerance) among")
+    rows = ["map", "brute force", "int8/place"]  # int8 fits the map's bytes here
+    assert list(res["methods"]) == rows
+    assert len(lines) == 14  # and the legend: accuracy, recall@K, the int8 row
+    assert lines[11].startswith("accuracy: the hard decode's place (a -1, no match,")
+    assert lines[12].startswith("recall@K: a right place (within the tolerance) among")
+    assert lines[13].startswith("int8 per place: 60 frames x 16 bytes + the range")
     assert lines[:4] == [
-        f"n={N} d={D} queries={N}; compression ratio {res['compression_ratio']:.4f}",
+        f"n={N} d={D} queries={N}; compression ratio {res['compression_ratio']:.4f}"
+        f" of {N} x {D} float32, {N * D * 4:,} B, the frames brute force searches",
         "decode=hard sequence=off; recall@K ranks single-frame scores (single frames)",
         "ground truth: index-aligned (query i is place i), tolerance ±2 frames",
         f"recall@K over all {N} queries, each with a right place (VPR_Tutorial's "
         "and VPR-methods-evaluation's conventions agree)",
     ]
     assert lines[4] == f"{'method':<12}" + "".join(f"{c:>{W}}" for c in HEAD)
-    for line, name in zip(lines[7:9], ["map", "brute force"], strict=True):
+    for line, name in zip(lines[8:11], rows, strict=True):
         r = res["methods"][name]
         want = ", ".join(f"R@{k}: {100 * r[f'recall@{k}']:.1f}" for k in (1, 5, 10, 20))
         assert line == f"{name}: {want} (over {N} queries with a right place)"
-    for line, name in zip(lines[5:7], ["map", "brute force"], strict=True):
+    for line, name in zip(lines[5:8], rows, strict=True):
         row = res["methods"][name]
         assert line.startswith(f"{name:<12}")
         cells = line[12:]
@@ -324,9 +328,11 @@ def test_format_evaluation_hand_case():
     assert lines[5] == f"{'kd':<12}{'0.3333':>{W}}" + dash * 9 + f"{'55.5000':>{W}}"
     assert lines[6:8] == ["map: R@1: 50.0, R@5: 100.0", "kd: "]
     assert lines[8].startswith("accuracy: the topm decode's place is the right")
-    assert lines[10] == ("latency: one query alone, median after 20 warm calls; "
-                         "queries/s: all 3 queries in one call (batched: not "
-                         "1/latency)")  # fmt: skip
+    assert lines[10] == ("latency: one query alone, from its descriptor to a "
+                         "place (a map's template product, a code's encoding and "
+                         "an embedding included), median of up to 200 calls after "
+                         "20 warm ones; queries/s: all 3 queries in one call "
+                         "(batched: not 1/latency)")  # fmt: skip
 
 
 def test_sequence_peers_sum_brute_force_along_the_diagonal(case):
@@ -337,7 +343,7 @@ def test_sequence_peers_sum_brute_force_along_the_diagonal(case):
     model, x, q = case
     L = 4
     res = evaluate_map(model, q, reference=x, sequence=L, tolerance=1, timing=False)
-    assert set(res["methods"]) == {"map", "brute force", "SeqSLAM"}
+    assert set(res["methods"]) == {"map", "brute force", "SeqSLAM", "int8/place"}
     sims = q.astype(np.float64) @ x.astype(np.float64).T
     z = (sims - sims.mean(1, keepdims=True)) / sims.std(1, keepdims=True)
     acc = np.zeros_like(z)
