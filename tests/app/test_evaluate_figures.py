@@ -74,3 +74,20 @@ def test_matches_of_descriptor_files_are_refused_in_one_line(folders, capsys,
                        str(folders / "qry"), "--descriptor", "patchnorm",
                        "--matches", str(tmp_path / "m.png"))  # fmt: skip
     assert code == 2 and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("codes", ["int8", 16])
+def test_the_recall_per_byte_rows_name_the_codes_by_their_kind(codes):
+    """An int8 hybrid's codes are "int8 per place" in the plot, not ITQ bits."""
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.eval.report import evaluate_map
+
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((50, 24)).astype(np.float32)
+    q = x + 0.1 * rng.standard_normal(x.shape).astype(np.float32)
+    model = RhythmicMap(r=2, level=1, codes=codes).fit(x)
+    res = evaluate_map(model, q, reference=x, timing=False, curves=True)
+    names = {r["kind"]: r["name"] for r in res["frontier"]}
+    want = "int8 per place alone" if codes == "int8" else "ITQ 16 bits alone"
+    assert names["codes"] == want
+    assert "ITQ" not in " ".join(names.values()) or codes != "int8"

@@ -250,3 +250,44 @@ def test_a_job_checks_its_rules_when_made():
         "--compile-min-frames acts only with --compile auto; ignored",
         "--compile applies to images; .npy files are descriptors; ignored",
     ]
+
+
+def _info_rows(text: str) -> list[tuple[str, str]]:
+    return [tuple(s.strip() for s in line.split(": ", 1)) for line in text.split("\n")]
+
+
+@pytest.mark.parametrize("codes", [None, "int8", 32])
+def test_info_lines_state_units_per_place_per_period_and_c(tmp_path, codes):
+    """per place is one place's bytes; one line per period with its templates'
+    bytes and training error; C named as log N; ratios rounded; the compile
+    options of the backend in use only, all recomputed from the map."""
+    import math
+
+    import jax
+
+    from rhythmic_jax.jit_options import describe
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((500, 32)).astype(np.float32)
+    model = RhythmicMap(r=2, level=1, codes=codes).fit(x)
+    model.save(str(tmp_path / "m.map"))
+    info = jobs.info(str(tmp_path / "m.map"))
+    rows = _info_rows(render.info_lines(info))
+    names = [name for name, _ in rows]
+    assert len(names) == len(set(names))  # one line per period, no repeats
+    got = dict(rows)
+    each = {None: 0, "int8": 32, 32: 4}[codes]  # bytes of one place's code
+    if each:
+        assert got["per place"] == (f"{each} B (codes; {500 * each:,} B for 500 "
+                                    "places)")  # fmt: skip
+    else:
+        assert got["per place"] == "0 B (no codes)"
+    for t, e in zip(model.candidates, model.candidate_errors, strict=True):
+        kept = f"{t * (32 + 1) * 4:,} B (templates), "  # w (d, t), b (t) float32
+        where = kept if t in model.periods else "not kept, "
+        assert got[f"period {t}"] == f"{where}training error {e:.4f}"
+    assert got["C"] == f"{math.log(500):.4f} (SVM penalty C = log N, N = 500)"
+    ratio = model.compression_ratio
+    assert got["compression_ratio"].startswith(f"{ratio:.4f} of 64,000 B")
+    assert got["storage_bytes"] == f"{model.storage_bytes:,}"
+    assert got["compile options"] == describe(jax.default_backend())
+    assert "gpu:" not in got["compile options"]  # these tests run on the CPU
