@@ -34,7 +34,7 @@ import numpy as np
 
 from rhythmic_jax.jit_options import jit
 
-__all__ = ["Peer", "at_bytes", "on_embedding", "pca_dims"]
+__all__ = ["Peer", "at_bytes", "on_embedding", "pca_dims", "principal_axes"]
 
 _F32 = 4
 
@@ -72,6 +72,25 @@ def _cosine(q, ref) -> jax.Array:
     return jnp.matmul(q, ref.T, precision="highest")
 
 
+def principal_axes(xc: np.ndarray, k: int) -> np.ndarray:
+    """The k leading right singular vectors (d, k) float32 of centred rows xc
+    (m, d): the top eigenvectors of the smaller of ``xc xc^T`` (m, m) and
+    ``xc^T xc`` (d, d), in float64 (only k of them computed; one LAPACK
+    thread, as on a busy machine more only wait, and a full SVD took seconds)."""
+    from scipy.linalg import eigh
+    from threadpoolctl import threadpool_limits
+
+    x = np.asarray(xc, np.float64)
+    m, d = x.shape
+    with threadpool_limits(limits=1):
+        if m < d:  # the Gram matrix: v = xc^T u / sqrt(lambda)
+            lam, u = eigh(x @ x.T, subset_by_index=[m - k, m - 1])
+            v = (x.T @ u[:, ::-1]) / np.sqrt(np.maximum(lam[::-1], 1e-30))[None, :]
+        else:
+            v = eigh(x.T @ x, subset_by_index=[d - k, d - 1])[1][:, ::-1]
+    return np.ascontiguousarray(v, np.float32)
+
+
 def at_bytes(reference: np.ndarray, budget: int) -> Peer | str:
     """int8 per place when its bytes fit ``budget``, else PCA to the most dims
     that fit; a string saying why when neither does. ``reference``: (m, d)."""
@@ -90,8 +109,7 @@ def at_bytes(reference: np.ndarray, budget: int) -> Peer | str:
         return (f"no baseline at the map's {budget:,} B: int8 per place takes "
                 f"{int8:,} B and PCA to 1 dim {4 * (2 * d + m):,} B")  # fmt: skip
     mean = reference.mean(axis=0)
-    _, _, vt = np.linalg.svd(reference - mean, full_matrices=False)
-    proj = np.ascontiguousarray(vt[:k].T)  # (d, k)
+    proj = principal_axes(reference - mean, k)  # (d, k)
     coords = (reference - mean) @ proj  # (m, k)
     size = _F32 * (d + d * k + m * k)
     args = tuple(jnp.asarray(a, jnp.float32) for a in (mean, proj, coords))

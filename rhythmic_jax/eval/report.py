@@ -583,4 +583,7 @@ def legend(result: dict[str, Any]) -> list[str]:
                      f"included), median of up to 200 calls after {WARMUP} warm "
                      f"ones; queries/s: all {result.get('n_queries')} queries in "
                      "one call (batched: not 1/latency)")  # fmt: skip
+        if (result.get("sequence") or 1) > 1:
+            lines.append("latency and queries/s time single frames (the sequence's "
+                         "sums are not timed), alike for every row")  # fmt: skip
     return lines
