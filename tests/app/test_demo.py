@@ -33,3 +33,30 @@ def test_demo_reports_what_the_saved_map_holds(tmp_path, capsys):
     assert (tmp_path / "report.png").stat().st_size > 1000
     assert "report.png" in (tmp_path / "report.md").read_text()
     assert "report:" in printed
+
+
+def test_demo_prints_a_baseline_at_the_maps_bytes_recomputed(tmp_path, capsys):
+    """Beside brute force, the row at the map's own bytes; its bytes fit the
+    map's, and the printed cells are those of report.json (the row's figures
+    are recomputed in numpy in tests/eval/test_budget_peers.py)."""
+    from rhythmic_jax.eval.budget_peers import pca_dims
+
+    cfg = DemoConfig(grid=2, photo=128, tile=32, stride=16)
+    result = run_demo(tmp_path, config=cfg, progress=False)
+    printed = capsys.readouterr().out
+    model = RhythmicMap.load(tmp_path / "map")
+    changed = result["changed_appearance"]
+    names = [k for k in changed["methods"] if k not in ("map", "brute force")]
+    assert len(names) == 1
+    row = changed["methods"][names[0]]
+    n, d = model.n, model.d
+    int8 = n * d + 2 * d * 4
+    if int8 <= model.storage_bytes:
+        assert names[0] == "int8/place" and row["storage_bytes"] == int8
+    else:
+        k = pca_dims(n, d, model.storage_bytes)
+        assert names[0] == f"PCA {k}" and row["storage_bytes"] == 4 * (d + d * k + n * k)
+    assert row["storage_bytes"] <= model.storage_bytes
+    line = next(s for s in printed.split("\n")[::-1] if s.startswith(names[0] + " "))
+    assert f"{row['accuracy']:.4f}" in line and f"{row['storage_bytes']:,}" in line
+    assert row["latency_median_s"] > 0  # timed like the other rows
