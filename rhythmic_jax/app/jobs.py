@@ -394,9 +394,11 @@ def _loaded_info(map_path: str) -> dict[str, Any]:
 
 
 def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
-    """Judge the map on the queries of ``job`` beside brute force
-    (:func:`rhythmic_jax.eval.report.evaluate_map`); ``reference_note`` says
-    which frames brute force searched, or why there is no brute-force line."""
+    """Judge the map on the queries of ``job`` beside brute force, a baseline at
+    the map's bytes and, for an embedded map, brute force on the embedding
+    (:func:`rhythmic_jax.eval.report.evaluate_map`: every row timed from the
+    query descriptors to a place); ``reference_note`` says which frames they
+    searched, or why there are no such lines."""
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.frames.sources import reference_features
 

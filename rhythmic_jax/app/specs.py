@@ -379,15 +379,18 @@ class QueryJob(Job):
 
 @dataclass(frozen=True)
 class EvaluateJob(Job):
-    """The map at ``map`` judged on the queries of ``source``, beside brute force
+    """The map at ``map`` judged on the queries of ``source``, beside brute force,
+    a baseline at the map's own bytes (int8 per place, else PCA) and, for an
+    embedded map, brute force on its embedding, all over the reference frames
     (:func:`rhythmic_jax.app.jobs.evaluate`); ``ground_truth`` as
     :func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth` reads it."""
 
     map: str = like(QueryJob, "map")
     source: str = like(QueryJob, "source")
     reference: str | None = option(
-        "reference source for the brute-force line (default: the sources the map "
-        "was fitted on, when they are still there)", path="frames")
+        "reference source for the brute-force line and the baselines at the "
+        "map's bytes (default: the sources the map was fitted on, when they are "
+        "still there)", path="frames")
     tolerance: int = option("frame tolerance (default 0)", 0, domain=int_option(0))
     decode: str | None = like(QueryJob, "decode")
     sequence: int | None = option(

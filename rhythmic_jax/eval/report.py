@@ -1,9 +1,15 @@
 """A map judged on queries, beside exact brute-force search on the same descriptors.
 
 :func:`evaluate_map` gives what ``rhythmic-jax evaluate`` prints: accuracy (exact
-and within a frame tolerance), recall@1/5/10 (the map ranks places by their summed
-phase scores), storage and compression, single-query latency and batch throughput,
-and the same for faiss ``IndexFlatIP`` when the reference descriptors are at hand.
+and within a frame tolerance), recall@1/5/10/20 (the map ranks places by their
+summed phase scores), PR-AUC and recall at 100 % precision, storage and
+compression, single-query latency and batch throughput; and the same, when the
+reference descriptors are at hand, for faiss ``IndexFlatIP`` (brute force), for
+a representation at the map's own bytes and, for an embedded map, for brute
+force on the embedding (:mod:`rhythmic_jax.eval.budget_peers`). Every row is
+timed alike by :func:`rhythmic_jax.eval.metrics.query_latency`, from the query
+descriptors to a place, and every share is over one database: the reference
+frames brute force searches (all traversals), else one float32 frame a place.
 Ground truth is index-aligned (query i is place i) unless given.
 """
 
@@ -167,15 +173,15 @@ def _codes_name(book) -> str:
     return f"ITQ {book.bits} bits"
 
 
-def model_frontier(model, queries, pred, truth, sequence=None, brute=None,
-                   db=None):
+def model_frontier(model, queries, pred, truth, sequence=None, brute=None, db=None):
     """Recall@1 against bytes for a fitted map with codes, as ``evaluate`` reports it.
 
     Rows as :func:`rhythmic_jax.eval.frontier.frontier_rows` gives them, for one
     length L = ``sequence`` or 1: the map's templates alone (soft decode), its
     codes alone (similarities summed along the diagonal for sequences), the
     hybrid (``pred``, the map's own decode) and, for single frames, brute force
-    (``brute``: its predictions).
+    (``brute``: its predictions). ``db``: the bytes every share is over (the
+    frames brute force searches; default one float32 frame a place).
     ``truth`` is a :class:`~rhythmic_jax.eval.ground_truth.GroundTruth`.
     """
     from rhythmic_jax.decoding.fusion import code_sequence_scores
@@ -373,8 +379,9 @@ def evaluate_map(
         out["right_places"] = [np.asarray(p).astype(int).tolist()
                                for p in truth.positives]  # fmt: skip
     if curves and model.codebook is not None:  # recall per byte, for the plot
-        out["frontier"] = model_frontier(model, queries, pred, truth, sequence, brute,
-                                         db)
+        out["frontier"] = model_frontier(
+            model, queries, pred, truth, sequence, brute, db
+        )
     return out
 
 
@@ -407,8 +414,9 @@ def peer_row(peer, queries, labels, n, sequence, truth, exact, ks, over="matched
     ranked = np.argsort(-place, axis=1, kind="stable")[:, : max(ks)]
     best = ranked[:, 0]
     row = {
-        **_scores_of(best, place[np.arange(len(place)), best], ranked, truth,
-                     exact, ks, over),  # fmt: skip
+        **_scores_of(
+            best, place[np.arange(len(place)), best], ranked, truth, exact, ks, over
+        ),
         "storage_bytes": int(peer.storage_bytes),
     }
     if timing:
@@ -467,7 +475,9 @@ def sequence_peers(
         "ranks": f"SeqSLAM (L={length}, speed 1), one match per query",
     }
     if timing:
-        rows["brute force"].update(query_latency(lambda q: flat.search(q, 1)[1], queries))
+        rows["brute force"].update(
+            query_latency(lambda q: flat.search(q, 1)[1], queries)
+        )
     return rows
 
 

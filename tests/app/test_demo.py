@@ -55,7 +55,8 @@ def test_demo_prints_a_baseline_at_the_maps_bytes_recomputed(tmp_path, capsys):
         assert names[0] == "int8/place" and row["storage_bytes"] == int8
     else:
         k = pca_dims(n, d, model.storage_bytes)
-        assert names[0] == f"PCA {k}" and row["storage_bytes"] == 4 * (d + d * k + n * k)
+        assert names[0] == f"PCA {k}"
+        assert row["storage_bytes"] == 4 * (d + d * k + n * k)
     assert row["storage_bytes"] <= model.storage_bytes
     line = next(s for s in printed.split("\n")[::-1] if s.startswith(names[0] + " "))
     assert f"{row['accuracy']:.4f}" in line and f"{row['storage_bytes']:,}" in line
