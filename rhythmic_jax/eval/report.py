@@ -331,7 +331,7 @@ def evaluate_map(
         }
         if timing:
             rows["brute force"].update(
-                query_latency(lambda q: flat.search(q, 1)[1], queries)
+                query_latency(_brute_places(flat, reference_labels), queries)
             )
     notes = []
     if reference is not None:
@@ -383,6 +383,18 @@ def evaluate_map(
             model, queries, pred, truth, sequence, brute, db
         )
     return out
+
+
+def _brute_places(flat, labels):
+    """Brute force's timed function: query descriptors (b, d) -> places (b,),
+    each the place of its nearest reference frame."""
+    lab = None if labels is None else np.asarray(labels)
+
+    def find(q):
+        top = flat.search(q, 1)[1][:, 0]
+        return top if lab is None else lab[top]
+
+    return find
 
 
 def place_similarities(sims, labels, n: int) -> np.ndarray:
@@ -476,7 +488,7 @@ def sequence_peers(
     }
     if timing:
         rows["brute force"].update(
-            query_latency(lambda q: flat.search(q, 1)[1], queries)
+            query_latency(_brute_places(flat, labels), queries)
         )
     return rows
 

@@ -388,3 +388,40 @@ def test_the_embedding_is_counted_and_a_fusion_of_zero_is_the_codes_alone(case):
     assert evaluate_map(plain, q, timing=False)["methods"]["map"]["label"] == (
         "map + codes"
     )
+
+
+def test_every_timed_function_maps_query_descriptors_to_that_rows_places(
+    case, monkeypatch
+):
+    """What each row's latency times: a function of the raw query descriptors
+    (the very array evaluate_map was given) that returns the row's own places,
+    so a map's time includes its template product and embedding, a code's its
+    encoding, brute force's its label lookup."""
+    from rhythmic_jax.eval import report
+    from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
+
+    _, x, q = case
+    rng = np.random.default_rng(8)
+    second = unit(x + 0.1 * rng.standard_normal((N, D)))
+    emb, _ = learn_embedding([x, q], LearnConfig(method="pca", k=8))
+    timed = []
+
+    def record(fn, queries):
+        timed.append((fn, queries))
+        return {"latency_median_s": 1.0, "queries_per_s": 1.0}
+
+    monkeypatch.setattr(report, "query_latency", record)
+    for model in (RhythmicMap(r=2, level=1, codes="int8").fit(x),
+                  RhythmicMap(r=2, level=1, embedding=emb).fit(x)):  # fmt: skip
+        timed.clear()
+        res = evaluate_map(model, q, reference=np.concatenate([x, second]),
+                           reference_labels=np.r_[np.arange(N), np.arange(N)],
+                           curves=True)  # fmt: skip
+        rows = res["methods"]
+        assert len(timed) == len(rows) >= 3
+        for (fn, got), (name, row) in zip(timed, rows.items(), strict=True):
+            assert np.array_equal(np.asarray(got), q), name  # raw descriptors
+            places = np.asarray(fn(got)).reshape(-1)
+            np.testing.assert_array_equal(places, row["predictions"], err_msg=name)
+        if model.embedding is not None:
+            assert "embedded BF" in rows
