@@ -145,3 +145,23 @@ def test_two_traversals_one_database_for_every_share():
     sims = int8_cosine(ref, q)
     place = np.maximum(sims[:, :n], sims[:, n:])
     check_row(res["methods"]["int8/place"], place, 0, 2 * n * d + 2 * d * 4)
+
+
+def test_int8_with_a_sequence_sums_z_scores_along_the_diagonal():
+    """With --sequence L, the row at the map's bytes ranks its similarities
+    summed over L frames, as brute force's do (a float64 loop here)."""
+    n, d, L = 60, 16, 3
+    x, q = route(n, d, 0.9, seed=5)
+    model = RhythmicMap(r=2, level=1).fit(x)
+    res = evaluate_map(model, q, reference=x, sequence=L, tolerance=1, timing=False)
+    sims = int8_cosine(x, q)
+    z = (sims - sims.mean(1, keepdims=True)) / sims.std(1, keepdims=True)
+    acc = np.zeros_like(z)
+    for t in range(n):
+        for lag in range(min(L, t + 1)):
+            acc[t, lag:] += z[t - lag, : n - lag]
+    row = res["methods"]["int8/place"]
+    for k in (1, 5):
+        top = np.argsort(-acc, axis=1)[:, :k]
+        want = np.mean([(np.abs(top[i] - i) <= 1).any() for i in range(n)])
+        assert row[f"recall@{k}"] == pytest.approx(want), k
