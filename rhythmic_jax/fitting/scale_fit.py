@@ -24,7 +24,7 @@ import jax
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.fitting.fit_map import fit
+from rhythmic_jax.fitting.fit_map import check_length, fit
 from rhythmic_jax.fitting.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.map.config import MapConfig
@@ -194,7 +194,9 @@ def _check_scale(frames, start: int, stop: int, block: int = 65536) -> None:
     k = jax.process_count()
     onehot = np.zeros(k)
     onehot[jax.process_index()] = largest
-    check_fit_scale(allreduce(sums), float(allreduce(onehot).max()))
+    total = allreduce(sums)
+    check_fit_scale(total, float(allreduce(onehot).max()))
+    check_length(total)
 
 
 def _min_over_processes(value: int) -> int:
