@@ -290,8 +290,14 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     traversals = np.split(feats.x, len(job.sources))
     emb, info = learn_embedding(traversals, config, codes=job.codes or "int8")
     if job.codes is not None:  # on the learning places only, as the embedding
+        import warnings
+
+        from rhythmic_jax.solvers.newton import FitWarning
+
         learning = [t[: info["learn_places"]] for t in traversals]
-        info["fusion"] = learn_fusion(learning, emb, job.codes)
+        with warnings.catch_warnings():  # its maps are a means: their fits unsaid
+            warnings.simplefilter("ignore", FitWarning)
+            info["fusion"] = learn_fusion(learning, emb, job.codes)
     meta = dict(
         descriptor=feats.descriptor,
         descriptor_settings=feats.settings,

@@ -26,7 +26,8 @@ def _fusion_learned(fusion: dict[str, Any]) -> str:
     """A fusion weight an embedding learned, in words (its R@1 and codes)."""
     return (
         f"{fusion['weight']:g} for {fusion['codes']} codes (R@1 "
-        f"{fusion['recall']:.3f} on the {fusion['places']} places it learned from"
+        f"{fusion['recall']:.3f} on the training places it learned from, "
+        f"{fusion['places']}, in-sample"
     )
 
 
