@@ -103,3 +103,18 @@ def test_a_map_that_cannot_place_its_own_frames_says_so(monkeypatch):
     x += np.random.default_rng(0).normal(scale=1e-3, size=x.shape).astype(np.float32)
     with pytest.warns(FitWarning, match=r"places at most \d+% of its own frames"):
         fit(x, MapConfig(gap=1e-3))
+
+
+def test_a_streamed_solve_stopped_at_its_cap_warns_alike(tmp_path, monkeypatch):
+    import rhythmic_jax.fitting.scale_fit as scale_fit
+
+    x = np.random.default_rng(1).normal(size=(200, 48)).astype(np.float32)
+    np.save(tmp_path / "ref.npy", x)
+    stream = scale_fit.StreamConfig
+    monkeypatch.setattr(scale_fit, "StreamConfig",
+                        lambda **kw: stream(**{**kw, "max_iter": 2}))  # fmt: skip
+    with pytest.warns(FitWarning, match=r"cap of 2 Newton steps .* target gap 1e-07"):
+        _, run = scale_fit.fit_map_files(
+            MapConfig(), [str(tmp_path / "ref.npy")], stream=True, progress=False
+        )
+    assert run["steps"] == 2
