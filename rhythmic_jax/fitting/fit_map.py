@@ -67,10 +67,10 @@ def check_length(sums, name: str = "reference features") -> None:
     if lo <= length <= hi or not np.isfinite(length) or length == 0.0:
         return  # zero or non-finite frames: the features' own checks say so
     raise InputError(
-        f"{name}: frames of RMS length {length:.1e}, outside [{lo:g}, {hi:g}] where "
-        "the solver fits them (its penalty C = log N takes frames of length about "
-        f"1); multiply them by about {1 / length:.0e} (or L2-normalise each frame) "
-        "and scale queries alike"
+        f"{name}: frames of RMS length {length:.1e}, outside [{lo:g}, {hi:g}]: the "
+        "solvers expect features of order one (the penalty C = log N takes frames "
+        f"of length about 1); multiply them by about {1 / length:.0e} (or "
+        "L2-normalise each frame) and scale queries alike"
     )
 
 
