@@ -115,7 +115,8 @@ def info_lines(info: dict[str, Any]) -> str:
     if info.get("kind") == "embedding":
         learned = info.get("learn") or {}
         method = (learned.get("config") or {}).get("method")
-        how = f", {method} on {learned.get('places')} places" if method else ""
+        places = learned.get("learn_places", learned.get("places"))
+        how = f", {method} on {places} places" if method else ""
         uses = (
             "(descriptor files: fit --embedding takes .npy)"
             if info["descriptor"] == "features"
@@ -127,10 +128,12 @@ def info_lines(info: dict[str, Any]) -> str:
             if fusion
             else "none learned (saved before learn kept one): maps fuse at 0.5"
         )
+        held = learned.get("held_out")
         return _rows([
             ("embedding", f"{info['head']} {info['d']} -> {info['k']} dims{how}"),
             ("descriptor", f"{info['descriptor']} {uses}"),
             ("fusion", weight),
+            *([("held out", held_out_words(held))] if held else []),
         ])  # fmt: skip
     keys = ("n", "d", "layout", "storage_bytes", "embedding_bytes", "embedding",
             "compression_ratio", "c")  # fmt: skip

@@ -126,12 +126,13 @@ def _learned(tmp_path, capsys, k: int):
     got = capsys.readouterr()
     assert status == 0, got.err
     warned = [line for line in got.err.splitlines() if ": warning: " in line]
-    return got.out, warned, load_embedding(out)[1]["learn"]["held_out"]
+    held = load_embedding(out)[1]["learn"]["held_out"]
+    assert main(["info", str(out)]) == 0
+    assert f"held out: R@1 {held['embedded']:.3f} on 40" in capsys.readouterr().out
+    return got.out, warned, held
 
 
-def test_learn_prints_recall_on_held_out_places_and_warns_in_one_line(
-    tmp_path, capsys
-):
+def test_learn_prints_recall_on_held_out_places_and_warns_in_one_line(tmp_path, capsys):
     """200 places: the last 40 held out after a gap of 10, 150 learned from.
     k = 40 is 3.75 learning places a dimension: one warning line; k = 8 is
     plenty and the embedding beats the raw codes there: no warning."""
