@@ -29,6 +29,7 @@ from rhythmic_jax.validate import check_features, check_fit_scale, is_sparse, sc
 
 __all__ = [
     "SCALES",
+    "check_settings",
     "SCALE_KEYS",
     "NotNumbersError",
     "not_of_order_one",
@@ -100,14 +101,41 @@ def place_labels(y, n: int) -> np.ndarray:
 
 
 def not_of_order_one(x: np.ndarray) -> bool:
-    """True for frames x (n, d) that a fit refuses as not of order one
-    (:func:`rhythmic_jax.validate.check_fit_scale`: a mean frame far from the
-    origin, as unscaled 8-bit descriptors have)."""
+    """True for frames x (n, d) that a fit refuses as not of order one: a mean
+    frame far from the origin, as unscaled 8-bit descriptors have
+    (:func:`rhythmic_jax.validate.check_fit_scale`), or frames far longer or
+    shorter than the solver fits (:func:`rhythmic_jax.fitting.fit_map.check_length`,
+    frames multiplied by 1e30 or 1e-30)."""
+    from rhythmic_jax.fitting.fit_map import check_length
+
+    sums = scale_sums(x)
     try:
-        check_fit_scale(scale_sums(x), float(np.abs(x).max()))
+        check_fit_scale(sums, float(np.abs(x).max()))
+        check_length(sums)
     except InputError:
         return True
     return False
+
+
+def check_settings(config) -> None:
+    """The estimator's parameters as the command line checks its options: each
+    :class:`~rhythmic_jax.map.config.MapConfig` field that ``fit`` offers against
+    its declared domain (``r`` an integer >= 2, ``gap`` in (0, 1), ...), and what
+    a map's reader checks of its settings (``top``, the phases top-m keeps, an
+    integer >= 1); else one :class:`InputError` line naming the parameter."""
+    from dataclasses import fields
+
+    from rhythmic_jax.map.checks import _check_config as map_settings
+
+    for f in fields(config):
+        domain, value = f.metadata.get("domain"), getattr(config, f.name)
+        if domain is None or value is None or value in domain.words:
+            continue
+        try:
+            domain.check(value)
+        except InputError as err:
+            raise InputError(f"{f.name} {err}") from None
+    map_settings(config)
 
 
 def standardize(x: np.ndarray) -> dict[str, np.ndarray]:

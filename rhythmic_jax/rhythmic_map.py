@@ -37,6 +37,7 @@ from rhythmic_jax.estimator_face import EstimatorFace, not_fitted_error
 from rhythmic_jax.estimator_inputs import (
     SCALE_KEYS,
     SCALES,
+    check_settings,
     not_of_order_one,
     place_labels,
     query_rows,
@@ -183,6 +184,7 @@ class MapEstimator(EstimatorFace):
         label of ``y`` (n_frames,) (integers >= 0)
         (:func:`rhythmic_jax.fitting.fit_map.fit`). Returns self."""
         cfg, name = self._settings(), "reference features"
+        check_settings(cfg)  # as the command line checks its options
         x = check_features(shape_checked(X, name), name)
         if self.scale not in SCALES:
             raise InputError(f"scale must be one of {SCALES}, got {self.scale!r}")

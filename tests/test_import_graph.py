@@ -53,7 +53,7 @@ LAYERS = [
     ["decoding.dispatch", "decoding.sequence"],
     ["decoding.fusion"],
     ["decoding.queries"],
-    ["fitting.closed_form", "fitting.fit_plan", "fitting.places"],
+    ["fitting.closed_form", "fitting.fit_plan", "fitting.holdout", "fitting.places"],
     ["fitting.fit_map", "fitting.learn"],
     ["fitting.scale_fit"],
     ["estimator_face", "estimator_inputs"],

@@ -331,3 +331,36 @@ def test_the_methods_are_defined_in_the_class_with_their_parameters():
         assert name in vars(MapEstimator)
         assert list(inspect.signature(method).parameters) == params, name
         assert method.__doc__
+
+
+def test_fit_checks_the_parameters_as_the_command_line_does():
+    """Parameters set after construction are checked at fit, one line naming
+    the parameter: the option domains of fit, and top-m's phases."""
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.errors import InputError
+
+    x = np.random.default_rng(0).normal(size=(40, 8)).astype(np.float32)
+    for params, name in (({"method": "topm", "top": 0}, "top"), ({"r": 1}, "r"),
+                         ({"count": 1}, "count")):  # fmt: skip
+        with pytest.raises(InputError, match=rf"^{name} .*must be") as err:
+            RhythmicMap().set_params(**params).fit(x)
+        assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("scale", [1e-30, 1e30])
+def test_scale_auto_standardises_frames_of_extreme_length(scale):
+    """scale='auto' turns frames multiplied by 1e-30 or 1e30 into a usable map
+    (per-feature standardisation by their measured scale); 'refuse' refuses."""
+    from rhythmic_jax import RhythmicMap
+    from rhythmic_jax.errors import InputError
+
+    x = np.random.default_rng(0).normal(size=(120, 64)).astype(np.float32)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    plain = RhythmicMap().fit(x).predict(x)
+    far = x * np.float32(scale)
+    got = RhythmicMap(scale="auto").fit(far).predict(far)
+    right = np.arange(len(x))
+    assert np.mean(got == right) >= np.mean(plain == right) - 0.05
+    assert np.mean(got == right) > 0.5
+    with pytest.raises(InputError, match="RMS length"):
+        RhythmicMap(scale="refuse").fit(far)

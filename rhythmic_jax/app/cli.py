@@ -14,6 +14,7 @@ numpy, JAX or torch. What a job needs is imported when it runs.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import logging
@@ -331,6 +332,26 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+@contextlib.contextmanager
+def _warning_lines(prog: str):
+    """The library's warnings about a result (a solve stopped at its step cap,
+    an embedding worse on held-out places) as one line each on stderr, once the
+    command's work is done; other warnings shown as Python shows them."""
+    import warnings
+
+    caught: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("default")
+            yield
+    finally:
+        for w in caught:
+            if hasattr(w.message, "as_flag"):
+                _say(f"{prog}: warning: {w.message.as_flag()}")
+            else:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+
+
 def _main(args, prog: str) -> int:
     """The command of the parsed ``args``: its job made, run and printed."""
     try:
@@ -347,7 +368,8 @@ def _main(args, prog: str) -> int:
 
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
-        text = COMMANDS[args.command](args, job, not getattr(job, "no_progress", 0))
+        with _warning_lines(prog):
+            text = COMMANDS[args.command](args, job, not getattr(job, "no_progress", 0))
         if text is not None:
             from rhythmic_jax.app.signals import readable
 

@@ -256,7 +256,10 @@ def _augmenting(augmented, feats, labels, read: Reading, progress: bool):
 
 def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     """Learn, save and return ``(embedding, info)`` of ``job``; with ``job.codes``
-    also the fusion weight for them (``info["fusion"]``, saved beside it)."""
+    also the fusion weight for them (``info["fusion"]``, saved beside it), on
+    the learning places. ``info["held_out"]``: the codes' recall on the places
+    held out of learning (:func:`rhythmic_jax.fitting.learn.learn_embedding`,
+    which warns when the embedding does worse there than the raw descriptors)."""
     import numpy as np
 
     from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
@@ -285,9 +288,16 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
         weights=read.weights, compile=read.compile, keep_images=False,
     )  # fmt: skip
     traversals = np.split(feats.x, len(job.sources))
-    emb, info = learn_embedding(traversals, config)
-    if job.codes is not None:
-        info["fusion"] = learn_fusion(traversals, emb, job.codes)
+    emb, info = learn_embedding(traversals, config, codes=job.codes or "int8")
+    if job.codes is not None:  # on the learning places only, as the embedding
+        import warnings
+
+        from rhythmic_jax.solvers.newton import FitWarning
+
+        learning = [t[: info["learn_places"]] for t in traversals]
+        with warnings.catch_warnings():  # its maps are a means: their fits unsaid
+            warnings.simplefilter("ignore", FitWarning)
+            info["fusion"] = learn_fusion(learning, emb, job.codes)
     meta = dict(
         descriptor=feats.descriptor,
         descriptor_settings=feats.settings,

@@ -26,20 +26,34 @@ def _fusion_learned(fusion: dict[str, Any]) -> str:
     """A fusion weight an embedding learned, in words (its R@1 and codes)."""
     return (
         f"{fusion['weight']:g} for {fusion['codes']} codes (R@1 "
-        f"{fusion['recall']:.3f} on the training places"
+        f"{fusion['recall']:.3f} on the training places it learned from, "
+        f"{fusion['places']}, in-sample"
+    )
+
+
+def held_out_words(held: dict[str, Any]) -> str:
+    """The embedding's recall on the places held out of learning, named so."""
+    return (
+        f"R@1 {held['embedded']:.3f} on {held['places']} held-out places of the "
+        f"training route (not used to learn; {held['codes']} codes, within "
+        f"{held['tolerance']} place; raw descriptors' codes {held['raw']:.3f})"
     )
 
 
 def learn_summary(out: str, emb, info: dict[str, Any]) -> str:
-    """One line about a saved embedding (and the fusion weight learned with it)."""
+    """Lines about a saved embedding: its shape and the places it learned from,
+    its recall on the held-out places, the fusion weight learned with it."""
     line = (
         f"embedding {out}: {emb.kind} {emb.d} -> {emb.k} dims, "
-        f"{info['seconds']:.1f} s on {info['places']} places x "
-        f"{info['traversals']} traversals"
+        f"{info['seconds']:.1f} s on {info.get('learn_places', info['places'])} "
+        f"places x {info['traversals']} traversals"
     )
+    held = info.get("held_out")
+    if held:
+        line += f"\n  {held_out_words(held)}"
     fusion = info.get("fusion")
     if fusion:
-        line += f"; fusion {_fusion_learned(fusion)}, {fusion['seconds']:.1f} s)"
+        line += f"\n  fusion {_fusion_learned(fusion)}, {fusion['seconds']:.1f} s)"
     return line
 
 
@@ -101,7 +115,8 @@ def info_lines(info: dict[str, Any]) -> str:
     if info.get("kind") == "embedding":
         learned = info.get("learn") or {}
         method = (learned.get("config") or {}).get("method")
-        how = f", {method} on {learned.get('places')} places" if method else ""
+        places = learned.get("learn_places", learned.get("places"))
+        how = f", {method} on {places} places" if method else ""
         uses = (
             "(descriptor files: fit --embedding takes .npy)"
             if info["descriptor"] == "features"
@@ -113,10 +128,12 @@ def info_lines(info: dict[str, Any]) -> str:
             if fusion
             else "none learned (saved before learn kept one): maps fuse at 0.5"
         )
+        held = learned.get("held_out")
         return _rows([
             ("embedding", f"{info['head']} {info['d']} -> {info['k']} dims{how}"),
             ("descriptor", f"{info['descriptor']} {uses}"),
             ("fusion", weight),
+            *([("held out", held_out_words(held))] if held else []),
         ])  # fmt: skip
     rows = [(key, info[key]) for key in ("n", "d", "layout")]
     rows += [

@@ -291,12 +291,16 @@ class LearnSettings:
                        "k) or mlp (plus a residual ReLU layer)", "linear",
                        choices=("linear", "mlp"))
     k: int = option("output dimensions", 256, domain=int_option(1))
+    holdout: float = option(
+        "share of the route's places (its end, after a gap) never learned from, "
+        "where the embedding's codes are measured against the raw descriptors'",
+        0.2, domain=number_option(0, 0.5, closed=True))
     steps: int = option("gradient steps", 300, domain=int_option(1))
     seed: int = option("PRNG seed", 0, domain=int_option(0, 2**32 - 1))
 
 
 def learn_config(**settings) -> Any:
-    """A :class:`rhythmic_jax.LearnConfig` (method, head, k, steps, seed)."""
+    """A :class:`rhythmic_jax.LearnConfig` (method, head, k, holdout, steps, seed)."""
     from rhythmic_jax.fitting.learn import LearnConfig
 
     return LearnConfig(**settings)

@@ -24,6 +24,15 @@ ReLU layer (started at zero). The last ``val_fraction`` of the training places
 (after a gap) is held out of the steps: the head with the lowest loss there is
 kept (early stopping). The result folds into one :class:`Embedding`.
 
+Before any of that, the last ``holdout`` share of the route's places (after a
+gap) is set aside and never learned from (:mod:`rhythmic_jax.fitting.holdout`):
+the embedding's codes are measured there against the raw descriptors' codes,
+and a :class:`~rhythmic_jax.solvers.newton.FitWarning` says when the embedding
+does worse there or learned from few places per dimension. The default method
+is ``invariant``, for Python and the command line alike: the closed form takes
+a twelfth of the time of ``map`` on 280 Nordland places, and ``map`` started
+from it did no better on held-out places (R@1 0.152).
+
 Shapes: n places, d input features, k dimensions, h hidden units, w window.
 """
 
@@ -31,6 +40,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from dataclasses import asdict, dataclass
 
 import jax
@@ -44,9 +54,11 @@ from rhythmic_jax.fitting.closed_form import (
     ridge_templates,
     window_periods,
 )
+from rhythmic_jax.fitting.holdout import held_out_notes, held_out_recall, split_places
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.embedding import Embedding, fit_invariant, linear
 from rhythmic_jax.map.projection import fit_pca
+from rhythmic_jax.solvers.newton import FitWarning
 from rhythmic_jax.solvers.objective import targets
 
 __all__ = ["LearnConfig", "learn_embedding", "map_episode_loss"]
@@ -68,12 +80,14 @@ class LearnConfig:
       ridge: relative ridge of the closed-form templates.
       steps, lr, weight_decay: optax AdamW over the head.
       temperature: InfoNCE temperature (its batch is the episode's window).
-      val_fraction: share of the training places held out for early stopping.
+      holdout: share of the route's places (its end, after a gap) never learned
+        from, where the embedding is measured (0: none).
+      val_fraction: share of the learning places held out for early stopping.
       eval_every: steps between early-stopping checks.
       seed: PRNG seed of the episodes and the head.
     """
 
-    method: str = "map"
+    method: str = "invariant"
     head: str = "linear"
     k: int = 256
     p: int = 512
@@ -87,6 +101,7 @@ class LearnConfig:
     weight_decay: float = 1e-2
     hidden: int = 64
     temperature: float = 0.05
+    holdout: float = 0.2
     val_fraction: float = 0.2
     eval_every: int = 25
     seed: int = 0
@@ -99,6 +114,8 @@ class LearnConfig:
         for name in ("k", "p", "window", "steps", "hidden", "eval_every"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.holdout <= 0.5:
+            raise InputError(f"holdout must lie in [0, 0.5], got {self.holdout}")
         if not 0 <= self.val_fraction < 0.9:
             raise InputError(
                 f"val_fraction must lie in [0, 0.9), got {self.val_fraction}"
@@ -187,15 +204,44 @@ def _check_traversals(traversals) -> list[np.ndarray]:
 
 
 def learn_embedding(
-    traversals, config: LearnConfig | None = None
+    traversals, config: LearnConfig | None = None, *, codes="int8"
 ) -> tuple[Embedding, dict]:
     """Learn an embedding from aligned traversals [(n, d), ...] -> (embedding, info).
 
-    ``info`` holds the method, the seconds spent, the steps run, the step kept by
-    early stopping and the validation losses.
+    The last ``config.holdout`` share of the places is never learned from
+    (:func:`rhythmic_jax.fitting.holdout.split_places`); ``info["held_out"]``
+    holds the recall@1 of ``codes`` (int8, or a number of ITQ bits) there, of
+    the embedded and of the raw descriptors
+    (:func:`~rhythmic_jax.fitting.holdout.held_out_recall`), and a
+    :class:`~rhythmic_jax.solvers.newton.FitWarning` says when the embedding is
+    the worse of the two there, or learned from few places per dimension.
+    ``info`` also holds the method, the places (``places`` in all,
+    ``learn_places`` learned from), the seconds spent, the steps run, the step
+    kept by early stopping and the validation losses.
     """
     cfg = config or LearnConfig()
     xs = _check_traversals(traversals)
+    n = xs[0].shape[0]
+    n_learn, start = split_places(n, cfg.holdout)
+    if n - start and (n - start < 4 or n_learn < 4):
+        raise InputError(
+            f"learn: {n} places are too few to hold {n - start} out and learn from "
+            f"the rest; give more places or {{opt:holdout}} 0"
+        )
+    emb, info = _learn([x[:n_learn] for x in xs], cfg)
+    info.update(places=n, learn_places=n_learn)
+    if start < n:
+        t0 = time.perf_counter()
+        info["held_out"] = held_out_recall(emb, [x[start:] for x in xs], codes)
+        info["held_out"]["seconds"] = time.perf_counter() - t0
+    info["notes"] = held_out_notes(info, emb.k)
+    for note in info["notes"]:
+        warnings.warn(FitWarning(note), stacklevel=2)
+    return emb, info
+
+
+def _learn(xs: list[np.ndarray], cfg: LearnConfig) -> tuple[Embedding, dict]:
+    """:func:`learn_embedding` on the learning places xs [(n, d), ...]."""
     n = xs[0].shape[0]
     t0 = time.perf_counter()
     if cfg.method == "pca":

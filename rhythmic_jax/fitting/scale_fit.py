@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,7 +25,7 @@ import jax
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.fitting.fit_map import fit
+from rhythmic_jax.fitting.fit_map import check_length, fit
 from rhythmic_jax.fitting.fit_plan import plan
 from rhythmic_jax.io.frame_files import open_frames
 from rhythmic_jax.map.config import MapConfig
@@ -32,7 +33,12 @@ from rhythmic_jax.map.groups import parse_layout
 from rhythmic_jax.map.pytree import Map
 from rhythmic_jax.solvers.distributed import allreduce, fit_newton, row_block
 from rhythmic_jax.solvers.memory import available_memory, fit_bytes
-from rhythmic_jax.solvers.newton import NewtonConfig
+from rhythmic_jax.solvers.newton import (
+    FitWarning,
+    NewtonConfig,
+    NewtonInfo,
+    step_cap_line,
+)
 from rhythmic_jax.solvers.streamed import (
     StreamConfig,
     stream_errors,
@@ -138,6 +144,7 @@ def fit_map_files(
             frames.read(start, stop), labels, frames.n, cands, c, solver, progress
         )
         run["steps"] = info.steps
+        _say_capped(info.gap_estimate, info.steps, solver.max_iter, config.gap)
     else:
         bits = (stop - start) * -(-p // 8)  # the kept active sets, one bit each
         keep = bits <= limit // 8
@@ -162,6 +169,7 @@ def fit_map_files(
         errors = stream_errors(
             frames, labels, cands, params, (start, stop), rows, allreduce
         )
+        _say_capped(info.gap_estimate, info.steps, solver.max_iter, config.gap)
         run.update(block_rows=rows, steps=info.steps, passes=len(info.pass_seconds))
         run.update(kept_active_bytes=bits if keep else 0, cg=info.cg_iterations)
         run.update(line=info.line_passes)
@@ -170,6 +178,17 @@ def fit_map_files(
     kept = fit_plan.keep(params, np.asarray(errors), config.dtype)
     log.info("fit from files: %s", {k: v for k, v in run.items() if k[0] != "p"})
     return Map.build(kept, d, config), run
+
+
+def _say_capped(gap, steps: int, max_iter: int, gap_tol: float) -> None:
+    """The fit's warning when its solve stopped at the step cap
+    (:func:`rhythmic_jax.solvers.newton.step_cap_line`), as the in-memory fit's."""
+    gap = np.asarray(gap if gap is not None else [], np.float64)
+    capped = int(np.sum(gap > gap_tol)) if steps >= max_iter else 0
+    info = NewtonInfo(steps, (), (), np.zeros(gap.size), gap, capped)
+    line = step_cap_line(info, gap_tol, max_iter)
+    if line is not None:
+        warnings.warn(FitWarning(line), stacklevel=3)
 
 
 def _check_layout(layout: str) -> None:
@@ -194,7 +213,9 @@ def _check_scale(frames, start: int, stop: int, block: int = 65536) -> None:
     k = jax.process_count()
     onehot = np.zeros(k)
     onehot[jax.process_index()] = largest
-    check_fit_scale(allreduce(sums), float(allreduce(onehot).max()))
+    total = allreduce(sums)
+    check_fit_scale(total, float(allreduce(onehot).max()))
+    check_length(total)
 
 
 def _min_over_processes(value: int) -> int:

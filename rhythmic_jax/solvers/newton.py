@@ -73,7 +73,10 @@ from rhythmic_jax.solvers.precision import check_hessian_dtype, resolve_hessian_
 from rhythmic_jax.solvers.precondition import spectral_setup
 from rhythmic_jax.solvers.span import in_span, lift, row_factor
 
-__all__ = ["FAST", "NewtonConfig", "NewtonInfo", "chunk_width", "chunks", "newton_fit"]
+__all__ = [
+    "FAST", "FitWarning", "NewtonConfig", "NewtonInfo", "chunk_width", "chunks",
+    "newton_fit", "step_cap_line",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -161,6 +164,8 @@ class NewtonInfo:
       objective: (p,) objective of each template at the end (float64).
       gap_estimate: (p,) each template's last Newton decrement relative to its
         objective: the estimated gap before its last step.
+      capped: templates still short of ``gap_tol`` when the solve reached
+        ``max_iter`` steps (0: every template stopped on its own).
     """
 
     steps: int
@@ -168,6 +173,61 @@ class NewtonInfo:
     columns: tuple[int, ...]
     objective: np.ndarray
     gap_estimate: np.ndarray
+    capped: int = 0
+
+
+class FitWarning(UserWarning):
+    """A fit that ended but not as asked (a solve stopped at its step cap, an
+    embedding that generalises worse than the raw descriptors): one line.
+    ``{opt:NAME}`` in it names a setting as :class:`rhythmic_jax.errors.InputError`
+    does (``str``: the parameter's name; :meth:`as_flag`: the command-line flag)."""
+
+    def __init__(self, message: str):
+        from rhythmic_jax.errors import InputError
+
+        self.line = InputError(message)
+        super().__init__(str(self.line))
+
+    def as_flag(self) -> str:
+        return self.line.as_flag()
+
+
+def step_cap_line(info: NewtonInfo, gap_tol: float, max_iter: int) -> str | None:
+    """One line saying that a solve stopped at its step cap (None when it did
+    not): how many templates, the largest gap reached, the target, what to do."""
+    if not info.capped:
+        return None
+    gap = np.asarray(info.gap_estimate, np.float64)
+    short = gap[gap > gap_tol]
+    reached = float(np.max(short, initial=gap_tol))
+    head = (
+        f"the solver stopped at its cap of {max_iter} Newton steps with "
+        f"{info.capped} of {gap.size} templates short of the target gap "
+        f"{gap_tol:.0e}"
+    )
+    if not np.isfinite(reached):
+        return (
+            f"{head} (a gap estimate not finite: the solve did not settle): the map "
+            "may place frames poorly; check the frames' scale (features of order one)"
+        )
+    return (
+        f"{head} (largest estimated relative gap {reached:.1e}): the map is usable "
+        f"but its templates are not at the optimum; {{opt:gap}} "
+        f"{_round_up(reached):.0e} accepts this solve and stops there sooner "
+        "(frames with no structure for the templates to find, random ones say, "
+        "may never reach the target)"
+    )
+
+
+def _round_up(gap: float) -> float:
+    """The smallest 1, 2 or 5 times a power of ten at or above ``gap``."""
+    if not np.isfinite(gap) or gap <= 0:
+        return 1e-3
+    exp = np.floor(np.log10(gap))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        if m * 10**exp >= gap:
+            return float(min(m * 10**exp, 0.5))
+    return 0.5
 
 
 # ------------------------------------------------------------------ pieces
@@ -442,6 +502,7 @@ def newton_fit(
             columns=tuple(widths),
             objective=objective,
             gap_estimate=gap,
+            capped=int(len(todo)) if len(cg_its) == config.max_iter else 0,
         )
     log.debug("newton: %d steps, CG %s, columns %s", info.steps, cg_its, widths)
     return Templates(w=w, b=b), info

@@ -109,3 +109,40 @@ def test_fit_takes_the_descriptor_and_fusion_weight_from_the_embedding(
         "--fusion", "0.8", "--out", str(tmp_path / "m2"))  # fmt: skip
     assert RhythmicMap.load(tmp_path / "m2").config.fusion == 0.8
     assert "fusion: 0.8 (option" in cli("info", str(tmp_path / "m2"))
+
+
+def _learned(tmp_path, capsys, k: int):
+    """``learn`` of two synthetic conditions of 200 places: (stdout, the
+    warning lines on stderr, the saved held-out figures)."""
+    from rhythmic_jax.app.cli import main
+    from rhythmic_jax.map.embedding import load_embedding
+
+    a, b = two_conditions(n=200, strength=4.0, seed=11)
+    np.save(tmp_path / "a.npy", a)
+    np.save(tmp_path / "b.npy", b)
+    out = tmp_path / f"k{k}.emb"
+    status = main(["learn", str(tmp_path / "a.npy"), str(tmp_path / "b.npy"),
+                   "--out", str(out), "--k", str(k), "--no-progress"])  # fmt: skip
+    got = capsys.readouterr()
+    assert status == 0, got.err
+    warned = [line for line in got.err.splitlines() if ": warning: " in line]
+    held = load_embedding(out)[1]["learn"]["held_out"]
+    assert main(["info", str(out)]) == 0
+    assert f"held out: R@1 {held['embedded']:.3f} on 40" in capsys.readouterr().out
+    return got.out, warned, held
+
+
+def test_learn_prints_recall_on_held_out_places_and_warns_in_one_line(tmp_path, capsys):
+    """200 places: the last 40 held out after a gap of 10, 150 learned from.
+    k = 40 is 3.75 learning places a dimension: one warning line; k = 8 is
+    plenty and the embedding beats the raw codes there: no warning."""
+    text, warned, held = _learned(tmp_path, capsys, 40)
+    assert held["places"] == 40
+    assert (f"R@1 {held['embedded']:.3f} on 40 held-out places of the training "
+            "route (not used to learn") in text  # fmt: skip
+    assert "150 places x 2 traversals" in text
+    assert any("150 learning places for 40 embedded dimensions" in w and "--k" in w
+               for w in warned), warned  # fmt: skip
+    assert len(warned) == len(set(warned)) and all("\n" not in w for w in warned)
+    text, warned, held = _learned(tmp_path, capsys, 8)
+    assert held["embedded"] >= held["raw"] and warned == [], (held, warned)

@@ -25,7 +25,8 @@ def map_accuracy(ref, qry, embedding=None):
 def test_learned_embedding_raises_the_maps_cross_condition_accuracy(method):
     a, b = two_conditions(n=560, strength=4.0, seed=3)
     train, test = slice(0, 280), slice(300, 560)
-    cfg = LearnConfig(method=method, k=40, p=46, window=60, steps=40, eval_every=10)
+    cfg = LearnConfig(method=method, k=40, p=46, window=60, steps=40, eval_every=10,
+                      holdout=0)  # its own test places below  # fmt: skip
     emb, info = learn_embedding([a[train], b[train]], cfg)
     before = map_accuracy(a[test], b[test])
     after = map_accuracy(a[test], b[test], emb)
@@ -69,7 +70,7 @@ def test_pca_method_is_the_principal_axes_of_every_traversal():
     from rhythmic_jax.map.embedding import apply
 
     a, b = two_conditions(n=120, seed=4)
-    emb, info = learn_embedding([a, b], LearnConfig(method="pca", k=8))
+    emb, info = learn_embedding([a, b], LearnConfig(method="pca", k=8, holdout=0))
     assert info["steps"] == 0 and emb.k == 8 and emb.kind == "linear"
     ref = PCA(8).fit(np.concatenate([a, b]))
     z = ref.transform(a)
@@ -111,3 +112,75 @@ def test_fusion_weight_is_the_best_recall_of_the_fused_map_on_the_traversals():
             pred = m.fit(ref, progress=False).predict(qry, "soft")
             both.append(np.mean(np.abs(pred - gt) <= 1))
         assert table[w] == pytest.approx(np.mean(both)), w
+
+
+def _int8_recall(refs, tolerance=1):
+    """Recall@1 of int8 codes recomputed in numpy from their documented formula
+    (per-dimension min-max, floor(255 t), decoded at the bin's centre, cosine),
+    every traversal as the reference and every other as the queries."""
+    hits = []
+    for a, ref in enumerate(refs):
+        ref = np.asarray(ref, np.float64)
+        vmin, vdiff = ref.min(axis=0), ref.max(axis=0) - ref.min(axis=0)
+        vdiff = np.where(vdiff > 0, vdiff, 1.0)
+        code = np.floor(255 * np.clip((ref - vmin) / vdiff, 0, 1))
+        dec = vmin + (code + 0.5) / 255 * vdiff
+        dec /= np.linalg.norm(dec, axis=1, keepdims=True)
+        for b, qry in enumerate(refs):
+            if a != b:
+                q = np.asarray(qry, np.float64)
+                best = np.argmax(q @ dec.T, axis=1)
+                hits.append(np.abs(best - np.arange(len(q))) <= tolerance)
+    return float(np.mean(np.concatenate(hits)))
+
+
+def test_held_out_places_are_never_learned_from_and_their_recall_is_numpys():
+    """The embedding is the one learned from the learning places alone (the
+    held-out ones could change nothing), the two sets are disjoint, and the
+    recall reported on the held-out places is numpy's."""
+    from rhythmic_jax.fitting.holdout import split_places
+    from rhythmic_jax.map.embedding import apply
+
+    a, b = two_conditions(n=300, strength=4.0, seed=7)
+    cfg = LearnConfig(method="invariant", k=16, p=40)
+    emb, info = learn_embedding([a, b], cfg)
+    learn, start = split_places(300, cfg.holdout)
+    assert info["learn_places"] == learn and info["held_out"]["places"] == 300 - start
+    assert learn < start and set(range(learn)).isdisjoint(range(start, 300))
+    alone, _ = learn_embedding(
+        [a[:learn], b[:learn]], dataclasses.replace(cfg, holdout=0)
+    )
+    np.testing.assert_array_equal(np.asarray(emb.proj), np.asarray(alone.proj))
+    changed = [a.copy(), b.copy()]
+    for x in changed:
+        x[start:] = np.random.default_rng(0).normal(size=x[start:].shape)
+    moved, _ = learn_embedding(changed, cfg)
+    np.testing.assert_array_equal(np.asarray(emb.proj), np.asarray(moved.proj))
+    held = [x[start:] for x in (a, b)]
+    # float64 here, float32 there: a near tie may flip one of 2 x 60 queries
+    assert info["held_out"]["raw"] == pytest.approx(_int8_recall(held), abs=0.01)
+    embedded = [apply(emb, x) for x in held]
+    assert info["held_out"]["embedded"] == pytest.approx(
+        _int8_recall(embedded), abs=0.01
+    )
+
+
+@pytest.mark.slow  # the closed form on 2 x 1,500 real frames: about 2 min
+def test_learning_from_few_real_places_warns_and_from_many_does_not(
+    nordland_patchnorm,
+):
+    import warnings
+
+    from rhythmic_jax.solvers.newton import FitWarning
+
+    summer, winter = (np.asarray(x)[::2] for x in nordland_patchnorm)
+    with pytest.warns(FitWarning) as record:
+        _, info = learn_embedding([summer[:350], winter[:350]])
+    lines = [str(w.message) for w in record if w.category is FitWarning]
+    assert any("worse on 70 held-out places" in line for line in lines), lines
+    assert any("a dimension, fewer than 4" in line for line in lines), lines
+    assert info["held_out"]["embedded"] < info["held_out"]["raw"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FitWarning)
+        _, info = learn_embedding([summer[:1500], winter[:1500]])
+    assert info["held_out"]["embedded"] > info["held_out"]["raw"]
