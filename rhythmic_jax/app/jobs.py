@@ -120,7 +120,8 @@ def _before_reading(job: FitJob) -> Settled:
         learned = load_embedding(job.embedding)
         name, weights = embedding_descriptor(learned[1])
         if read.descriptor is None and name is not None and job.images:
-            read = replace(read, descriptor=name, weights=read.weights or weights)
+            read = replace(read, descriptor=name, weights=read.weights or weights,
+                           input_size=read.input_size or _size_of(learned[1]))
     fusion = fusion_of(job.fusion, job.config.codes, (learned or (None, None))[1])
     ref = {"tile": read.tile, "stride": read.stride}
     if read.select is not None:
@@ -177,6 +178,7 @@ def fit(job: FitJob, progress: bool = False):
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
         compile=read.compile, keep_images=augmented is not None, select=read.select,
+        input_size=_input_size(read),
     )  # fmt: skip
     emb, meta = learned or (None, None)
     if meta is not None and meta.get("descriptor") != feats.descriptor:
@@ -184,6 +186,11 @@ def fit(job: FitJob, progress: bool = False):
             f"{{opt:embedding}} {job.embedding}: learned on "
             f"{meta.get('descriptor')!r} descriptors, the map's are "
             f"{feats.descriptor!r}"
+        )
+    if meta is not None and _size_of(meta) not in (None, _size_of(feats.settings)):
+        raise InputError(
+            f"{{opt:embedding}} {job.embedding}: learned on frames described at "
+            f"{_size_of(meta)}, the map's at {_size_of(feats.settings)}"
         )
     if emb is not None and emb.d != feats.x.shape[1]:
         raise InputError(
@@ -218,6 +225,22 @@ def fit(job: FitJob, progress: bool = False):
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     return MapEstimator.from_map(fitted)
+
+
+def _input_size(read: Reading) -> tuple[int, int] | None:
+    """``--input-size`` as (width, height), or None (the descriptor's own)."""
+    from rhythmic_jax.frames.sources import parse_input_size
+
+    return parse_input_size(read.input_size)
+
+
+def _size_of(record: dict | None) -> str | None:
+    """``"WxH"`` recorded in descriptor settings (or an embedding's meta, under
+    ``descriptor_settings``), or None where none is recorded."""
+    settings = (record or {}).get("descriptor_settings", record) or {}
+    if settings.get("width") is None:
+        return None
+    return f"{settings['width']}x{settings['height']}"
 
 
 @contextlib.contextmanager
@@ -283,6 +306,7 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, keep_images=False,
+        input_size=_input_size(read),
     )  # fmt: skip
     traversals = np.split(feats.x, len(job.sources))
     emb, info = learn_embedding(traversals, config)
@@ -310,6 +334,7 @@ def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
     return describe_frames(
         job.source, read.descriptor, weights=read.weights, tile=read.tile,
         stride=read.stride, out=job.out, progress=progress, compile=read.compile,
+        input_size=_input_size(read),
     )  # fmt: skip
 
 
@@ -321,6 +346,7 @@ def _load_queries(job, progress: bool):
     feats = load_query_source(
         job.source, model, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, select=read.select,
+        input_size=_input_size(read),
     )  # fmt: skip
     return model, feats
 
@@ -411,14 +437,13 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     if job.matches:
         from rhythmic_jax.app import matches
 
-        drawn = matches.image_files(job.source)
-        if drawn is None:
-            raise InputError(
-                f"{{opt:matches}} draws the query frames: give the queries as an "
-                f"image folder ({job.source} holds descriptors)"
-            )
+        drawn = matches.query_frames(job.source, job.query_images)
     model, feats = _load_queries(job, progress)
-    places = None if drawn is None else matches.reference_folder(model, reference)
+    if drawn is not None and len(drawn) != len(feats.x):
+        raise InputError(f"{{opt:matches}}: {len(drawn)} query frames for "
+                         f"{len(feats.x)} queries")  # fmt: skip
+    places = None if drawn is None else matches.reference_folder(
+        model, reference, job.reference_images)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile,

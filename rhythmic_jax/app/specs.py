@@ -89,9 +89,16 @@ class Job(Checked):
 READS = (
     Rule(("stride",), "needs {opt:tile} (it is the step between tiles)",
          lambda j: j.reading.tile is not None),
-    Rule(("descriptor", "weights"), "applies to images; .npy files are descriptors",
-         lambda j: j.images),
+    Rule(("weights",), "applies to images, or with {opt:descriptor} to .npy files "
+         "it declares", lambda j: j.images or j.reading.descriptor is not None),
+    Rule(("input_size",), "must be WIDTHxHEIGHT in pixels, such as 224x112",
+         lambda j: _size_ok(j.reading.input_size)),
 )  # fmt: skip
+
+
+def _size_ok(text: str | None) -> bool:
+    w, sep, h = str(text).lower().partition("x")
+    return bool(sep) and w.isdigit() and h.isdigit() and int(w) > 0 and int(h) > 0
 SELECTS = (  # fit, query, evaluate
     Rule(("select",), "picks the images of hloc .h5 files by name; give .h5 "
          "files", lambda j: _named_rows(j)),
@@ -121,7 +128,13 @@ class Reading:
 
     descriptor: str | None = option(
         "descriptor for image sources (patchnorm, hog, efficientnet_lite0, "
-        "vgg16_fc7; default patchnorm, or an --embedding's); a map remembers its own")
+        "vgg16_fc7; default patchnorm, or an --embedding's); for a .npy without "
+        "describe's record, the descriptor that made it; a map remembers its own")
+    input_size: str | None = option(
+        "the descriptor's input in pixels, width x height, frames resized to it "
+        "(default: patchnorm and hog 64x32 grey, efficientnet_lite0 224x112, "
+        "vgg16_fc7 224x224); maps, embeddings and described files record it, and "
+        "a map takes queries described at its own", metavar="WxH")
     weights: str | None = option(
         "weights file of vgg16_fc7 (a state dict); when querying a map, a moved "
         "copy of the file it was fitted with (its sha256 is checked)", path="reads")
@@ -414,7 +427,14 @@ class EvaluateJob(Job):
     matches: str | None = option(
         "draw queries beside the place chosen and the right place, 4 successes and "
         "the 4 most confident failures (.png; the queries and the reference as "
-        "image folders)", path="writes")
+        "image folders, or descriptor files describe wrote, which name their "
+        "frames)", path="writes")
+    reference_images: str | None = option(
+        "with --matches: the reference frames' image folder (default: the map's "
+        "reference, or the folder its descriptor file's record names)", path="reads")
+    query_images: str | None = option(
+        "with --matches: the query frames' image folder (default: the queries, or "
+        "the folder their descriptor file's record names)", path="reads")
     json: bool = option("print JSON", False)
     reading: Reading = part(Reading, helps={
         "select": SELECT + " (an .h5 reference: the map's prefix)"})  # fmt: skip
@@ -428,6 +448,8 @@ class EvaluateJob(Job):
              "their radius of a right match)", lambda j: j.ground_truth is not None),
         Rule(("ground_truth_format",), "needs {opt:ground_truth} (it names that "
              "file's format)", lambda j: j.ground_truth is not None),
+        Rule(("reference_images", "query_images"), "needs {opt:matches} (it names "
+             "the frames drawn)", lambda j: j.matches is not None),
         *IGNORED,
     )  # fmt: skip
 
@@ -443,7 +465,7 @@ class DescribeJob(Job):
                       required=True, path="writes")
     reading: Reading = part(Reading)
 
-    RULES = (READS[0], IGNORED[0])
+    RULES = (READS[0], READS[2], IGNORED[0])
 
 
 @dataclass(frozen=True)
