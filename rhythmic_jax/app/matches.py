@@ -80,8 +80,9 @@ def reference_folder(model, reference: str | None, images: str | None = None):
     ``images``, else ``reference`` or the first source the map was fitted on,
     an image folder of ``model.n`` frames or a descriptor file naming them;
     refused in one line otherwise."""
-    source = images or reference or next(
-        iter(model.reference.get("sources") or []), None)
+    source = (
+        images or reference or next(iter(model.reference.get("sources") or []), None)
+    )
     files = None if source is None else image_files(source)
     if files is None or "reference_labels" in model.extra:
         what = source or "the map names no source"
@@ -103,8 +104,13 @@ def _caption(what: str, place: int, names: list[Path], extra: str = "") -> str:
     return f"{what}: place {place}{extra}\n{names[place].name}"
 
 
-def match_rows(result: dict[str, Any], queries: list[Path], places: list[Path],
-               successes: int = 4, failures: int = 4) -> list[dict[str, Any]]:
+def match_rows(
+    result: dict[str, Any],
+    queries: list[Path],
+    places: list[Path],
+    successes: int = 4,
+    failures: int = 4,
+) -> list[dict[str, Any]]:
     """Rows for :func:`rhythmic_jax.eval.figures.plot_matches` from an
     evaluation kept with curves (``evaluate_map(..., curves=True)``): the map's
     picked queries, right ones first, each with its chosen and right place
@@ -118,8 +124,11 @@ def match_rows(result: dict[str, Any], queries: list[Path], places: list[Path],
     out = []
     for q, verdict in [(q, "right") for q in good] + [(q, "wrong") for q in bad]:
         # the right place drawn: the one chosen when it is right, else the middle
-        truth = pred[q] if pred[q] in right[q] else (
-            right[q][len(right[q]) // 2] if right[q] else -1)
+        truth = (
+            pred[q]
+            if pred[q] in right[q]
+            else (right[q][len(right[q]) // 2] if right[q] else -1)
+        )
         c = conf[q]
         how = "" if c is None else f", confidence {c:.3g}"
         out.append({

@@ -95,7 +95,9 @@ def provenance(source: Path, feats, tile: int | None, stride: int | None) -> dic
     from rhythmic_jax.io.images import list_images
 
     folder = source.expanduser().absolute()
-    frames = [f.name for f in list_images(source, "traversal")] if source.is_dir() else []
+    frames = (
+        [f.name for f in list_images(source, "traversal")] if source.is_dir() else []
+    )
     record = {"descriptor": feats.descriptor, "settings": feats.settings,
               "input_size": [feats.settings.get("width"), feats.settings.get("height")],
               "folder": str(folder), "frames": frames}  # fmt: skip

@@ -118,7 +118,8 @@ def _files_descriptor(paths, descriptor, weights, input_size):
                 f"says), not {descriptor}"
             )
         if input_size is not None and size_settings(input_size) != {
-            "width": settings.get("width"), "height": settings.get("height")
+            "width": settings.get("width"),
+            "height": settings.get("height"),
         }:
             raise InputError(
                 f"{next(iter(made.values()))}: described at {size_text(settings)}, "
@@ -462,7 +463,8 @@ def _same_make(path: Path, kind: str, name: str, settings: dict, input_size) -> 
         return
     size = size_text(settings)
     if input_size is not None and size_settings(input_size) != {
-        "width": settings.get("width"), "height": settings.get("height")
+        "width": settings.get("width"),
+        "height": settings.get("height"),
     }:
         raise InputError(
             f"{{opt:input_size}} {input_size[0]}x{input_size[1]}: the map's frames "

@@ -160,10 +160,9 @@ def read_record(path: str | os.PathLike) -> dict[str, Any] | None:
     if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
         raise InputError(f"{side}: not a descriptor record (describe writes them)")
     shape = descriptor_shape(path)
-    if (
-        tuple(shape) != (record.get("rows"), record.get("dim"))
-        or record.get("sha256") != _sha256(path)
-    ):
+    if tuple(shape) != (record.get("rows"), record.get("dim")) or record.get(
+        "sha256"
+    ) != _sha256(path):
         raise InputError(
             f"{side}: the record of another file than {path} (its rows or digest "
             "differ); describe the frames again, or remove the record"
