@@ -51,7 +51,7 @@ EXAMPLES = {
         """,
     "learn": """
       rhythmic-jax learn summer_train.npy winter_train.npy --out route.emb
-      rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \
+      rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \\
           --method invariant
       rhythmic-jax info route.emb    (its descriptor and learned fusion weight)
       rhythmic-jax fit summer_test.npy --embedding route.emb --out route.map
@@ -64,6 +64,10 @@ EXAMPLES = {
       rhythmic-jax query route.map winter/ --top 5 --csv results.csv
         (per query: its file name, the place chosen and its name, score,
         confidence, and the 5 best places with their scores)
+      rhythmic-jax query route.map winter/ --csv results.csv --ground-truth names
+        (and a 'correct' column)
+      rhythmic-jax query route.map DATASET/query --pairs pairs.txt --top 20
+        (hloc's retrieval pairs, for its local matching)
     """,
     "info": """
       rhythmic-jax info route.map --json
@@ -75,8 +79,10 @@ EXAMPLES = {
       rhythmic-jax evaluate ref.map DATASET/query --ground-truth \\
           DATASET/ground_truth_new.npy --plot pr.png
       rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
-      rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot frontier.png
+      rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot hybrid.png
       rhythmic-jax evaluate route.map winter/ --tolerance 1 --matches matches.png
+      rhythmic-jax evaluate route.map winter.npy --tolerance 1 --per-query q.csv \
+          --num-preds 10 --recall-values 1,5,10,25
     """,
     "demo": """
       rhythmic-jax demo
@@ -141,7 +147,7 @@ def _parser() -> argparse.ArgumentParser:
         "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it\n\n"
         + COMPILE_NOTE,
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    _verbose(parser, False)
     parser.add_argument("--version", action="version",
                         version=f"%(prog)s {__version__}")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -153,7 +159,14 @@ def _parser() -> argparse.ArgumentParser:
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )  # fmt: skip
         add_options(parser.commands[name], job)
+        _verbose(parser.commands[name], argparse.SUPPRESS)  # keeps one given before
     return parser
+
+
+def _verbose(parser: argparse.ArgumentParser, default) -> None:
+    """``-v/--verbose``, offered before the command's name and after it."""
+    parser.add_argument("-v", "--verbose", action="store_true", default=default,
+                        help="log progress (before or after the command's name)")  # fmt: skip
 
 
 def _fit(args, job, progress: bool) -> str | None:
@@ -179,12 +192,16 @@ def _query(args, job, progress: bool) -> str:
 
     from rhythmic_jax.app import jobs, render
 
-    if job.json or job.csv:
+    if job.json or job.csv or job.pairs:
         result = jobs.query_results(job, progress=progress)
         if job.json:
             return json.dumps(result, indent=1)
         pred = np.asarray(result["predictions"])
-        return render.query_summary(pred, job.out, job.csv)
+        line = render.query_summary(pred, job.out, job.csv)
+        if job.pairs:  # "-> " alone when only the pairs are written
+            line += "" if line.endswith("-> ") else " and "
+            line += f"{job.pairs} (hloc retrieval pairs, {job.top} per query)"
+        return line
     pred = jobs.query(job, progress=progress)
     if not job.out:
         return "\n".join(str(int(v)) for v in pred)

@@ -140,13 +140,14 @@ def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
 
 
 def run_demo(
-    out: str | Path = "rhythmic_demo",
+    out: str | Path | None = None,
     *,
     quick: bool = False,
     config: DemoConfig | None = None,
     progress: bool = False,
 ) -> dict:
-    """Build the route, fit, query, compare with brute force, write the report.
+    """Build the route, fit, query, compare with brute force, write the report
+    in ``out`` (None: a fresh folder under the system's temporary folder).
 
     Turns on the compile cache (:func:`rhythmic_jax.enable_compile_cache`), so a
     second demo loads its programs instead of compiling them."""
@@ -159,6 +160,10 @@ def run_demo(
     enable_compile_cache()
 
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
+    if out is None:  # the checkout stays clean; the report line says where
+        import tempfile
+
+        out = tempfile.mkdtemp(prefix="rhythmic_demo-")
     out = check_place("out", Path(out) / "report.md").parent  # a file there: refused
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -367,16 +367,42 @@ def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
     model, feats, pred = _queried(job, progress)
     result = qr.per_query(model, feats.x, pred, method=job.decode,
                           sequence=job.sequence, top=job.top)  # fmt: skip
-    rows = qr.records(
-        result, qr.source_names(job.source, job.reading.select), qr.place_names(model)
-    )
+    queries = qr.source_names(job.source, job.reading.select)
+    rows = qr.records(result, queries, qr.place_names(model))
+    extra: tuple[str, ...] = ()
+    truth = _ground_truth(job, model, len(pred))
+    if truth is not None:
+        for r, ok in zip(rows, truth.hits(pred).tolist(), strict=True):
+            r["correct"] = bool(ok)
+        extra = ("correct",)
+    if job.pairs:
+        _write_pairs(job, model, queries, result["top"])
     if job.csv:
         from rhythmic_jax.io.atomic import write_file
 
         with write_errors("csv", job.csv):
-            write_file(job.csv, qr.csv_text(rows))
+            write_file(job.csv, qr.csv_text(rows, extra=extra))
     return {"predictions": pred.tolist(), "queries": rows, "ranks": result["ranks"],
             "decode": job.decode or model.config.decode, "sequence": job.sequence}
+
+
+def _write_pairs(job: QueryJob, model, queries, top) -> None:
+    """``query --pairs``: hloc's retrieval pairs of the K best places
+    (:func:`rhythmic_jax.eval.per_query.pairs_text`); queries and places must
+    have names."""
+    from rhythmic_jax.app import query_results as qr
+    from rhythmic_jax.eval.per_query import pairs_text
+    from rhythmic_jax.io.atomic import write_file
+
+    places = qr.place_names(model)
+    if queries is None or places is None:
+        what = "queries" if queries is None else "map's places"
+        raise InputError(
+            f"{{opt:pairs}}: the {what} have no names (hloc's pairs name images); "
+            "give image folders, hloc .h5 files or .npy files describe wrote"
+        )
+    with write_errors("pairs", job.pairs):
+        write_file(job.pairs, pairs_text(queries, top, places))
 
 
 def _queried(job: QueryJob, progress: bool):
@@ -384,7 +410,7 @@ def _queried(job: QueryJob, progress: bool):
     predictions written to ``job.out`` (``.npy``) when given."""
     import numpy as np
 
-    for opt in ("out", "csv"):  # a folder there: refused before work
+    for opt in ("out", "csv", "pairs"):  # a folder there: refused before work
         check_file_place(opt, getattr(job, opt))
     out = job.out
     model, feats = _load_queries(job, progress)
@@ -419,14 +445,63 @@ def _loaded_info(map_path: str) -> dict[str, Any]:
     return MapEstimator.load(map_path).info()
 
 
+def _ground_truth(job, model, b: int, reference: str | None = None):
+    """The GroundTruth of ``job.ground_truth`` for ``b`` queries of ``model``
+    (None without one); ``--tolerance-m`` given for a file that lists the right
+    places itself (it would act on nothing) is refused."""
+    if job.ground_truth is None:
+        return None
+    from rhythmic_jax.eval.ground_truth_files import load_ground_truth
+
+    refs = [reference] if reference else model.reference.get("sources") or []
+    truth = load_ground_truth(
+        job.ground_truth, n_queries=b, n_places=model.n,
+        query_source=job.source, reference_sources=refs, map_extra=model.extra,
+        tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
+    )  # fmt: skip
+    if truth.tolerance_m is None and "tolerance_m" in job.given:
+        raise InputError(
+            f"{{opt:tolerance_m}} acts on positions; {truth.source} lists the right "
+            "places itself, so it would act on nothing"
+        )
+    return truth
+
+
+def _write_per_query(job: EvaluateJob, model, x, result: dict) -> None:
+    """``evaluate --per-query``: each query's answer judged as the evaluation
+    judged it (:mod:`rhythmic_jax.eval.per_query`), written atomically."""
+    from rhythmic_jax.app import query_results as qr
+    from rhythmic_jax.eval.per_query import judged, write_records
+
+    row = result["methods"]["map"]
+    pred = row["predictions"]
+    scored = qr.per_query(model, x, pred, method=job.decode, sequence=job.sequence,
+                          top=job.num_preds)  # fmt: skip
+    names = qr.source_names(job.source, job.reading.select)
+    rows = judged(qr.records(scored, names, qr.place_names(model)),
+                  result["right_places"], row["correct"])  # fmt: skip
+    about = {k: result[k] for k in ("ground_truth", "decode", "sequence",
+                                    "tolerance")}  # fmt: skip
+    about["ranks"] = scored["ranks"]
+    with write_errors("per_query", job.per_query):
+        write_records(job.per_query, rows, about)
+    result["per_query"] = str(job.per_query)
+
+
 def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     """Judge the map on the queries of ``job`` beside brute force
     (:func:`rhythmic_jax.eval.report.evaluate_map`); ``reference_note`` says
     which frames brute force searched, or why there is no brute-force line."""
+    from rhythmic_jax.app.specs import recall_values
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.frames.sources import reference_features
 
     plot, reference, read = job.plot, job.reference, job.reading
+    if job.per_query:
+        from rhythmic_jax.eval.per_query import check_suffix
+
+        check_suffix("per_query", job.per_query)
+        check_place("per_query", job.per_query, file=True)
     for opt in ("plot", "matches"):
         path = getattr(job, opt)
         if path and not str(path).lower().endswith(".png"):
@@ -450,22 +525,16 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     )  # fmt: skip
     if ref is not None and reference is None and "reference_labels" in model.extra:
         labels = model.extra["reference_labels"]  # frames grouped into places
-    truth = None
-    if job.ground_truth is not None:
-        from rhythmic_jax.eval.ground_truth_files import load_ground_truth
-
-        refs = [reference] if reference else model.reference.get("sources") or []
-        truth = load_ground_truth(
-            job.ground_truth, n_queries=len(feats.x), n_places=model.n,
-            query_source=job.source, reference_sources=refs, map_extra=model.extra,
-            tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
-        )  # fmt: skip
+    truth = _ground_truth(job, model, len(feats.x), reference)
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,
         method=job.decode, sequence=job.sequence, ground_truth=truth,
-        curves=bool(plot or drawn), recall_over=job.recall_over,
+        curves=bool(plot or drawn or job.per_query), recall_over=job.recall_over,
+        recall_values=recall_values(job.recall_values),
     )  # fmt: skip
     result["reference_note"] = note
+    if job.per_query:
+        _write_per_query(job, model, feats.x, result)
     if plot:
         from rhythmic_jax.eval.figures import plot_evaluation
 

@@ -221,7 +221,7 @@ def test_every_option_has_help_and_states_its_default():
             text = " ".join(formatter._expand_help(action).split())
             default = action.default
             if action.option_strings and not (default is None or default is False
-                                              or default == ""):
+                                              or default in ("", argparse.SUPPRESS)):
                 assert "default" in text, where
                 assert any(form in text for form in _stated(default)), where
             if action.choices:
@@ -320,7 +320,8 @@ def test_every_option_is_declared_once():
 
     for name, declared in _declared().items():
         actions = [a for a in _commands()[name]._actions
-                   if not isinstance(a, argparse._HelpAction)]  # fmt: skip
+                   if not isinstance(a, argparse._HelpAction)
+                   and a.dest != "verbose"]  # fmt: skip
         assert sorted(a.dest for a in actions) == sorted(declared), name
         for action in actions:
             f = declared[action.dest]
