@@ -165,8 +165,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def _verbose(parser: argparse.ArgumentParser, default) -> None:
     """``-v/--verbose``, offered before the command's name and after it."""
+    says = "log progress (before or after the command's name)"
     parser.add_argument("-v", "--verbose", action="store_true", default=default,
-                        help="log progress (before or after the command's name)")  # fmt: skip
+                        help=says)  # fmt: skip
 
 
 def _fit(args, job, progress: bool) -> str | None:
