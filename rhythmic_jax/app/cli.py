@@ -181,11 +181,46 @@ def _fit(args, job, progress: bool) -> str | None:
     else:
         model = jobs.fit(job, progress=progress)
     info = model.info()
+    note = worth_note(info, job.sources)
+    if note is not None:
+        _say(f"rhythmic-jax fit: note: {note}")
     if run is not None:
         info["fit"] = dict(run)
         if "pass_seconds" in run:  # every pass, to the millisecond
             info["fit"]["pass_seconds"] = [round(t, 3) for t in run["pass_seconds"]]
     return json.dumps(info, indent=2) if job.json else render.fit_summary(job.out, info)
+
+
+#: ``fit`` says so when the map holds more than this share of the database's
+#: bytes, or a chosen period's classifiers miss more than this share of their
+#: own training frames.
+WORTH_SHARE, WORTH_ERROR = 0.15, 0.10
+
+
+def worth_note(info: dict, sources) -> str | None:
+    """The line ``fit`` adds when the map may buy nothing: its share of the
+    database's bytes (templates, codes and embedding) above
+    :data:`WORTH_SHARE`, or the training error of its periods (the largest of
+    the chosen periods' ``candidate_errors``) above :data:`WORTH_ERROR`;
+    None otherwise."""
+    share = (info["storage_bytes"] + (info.get("embedding_bytes") or 0)) / max(
+        info["database_bytes"], 1
+    )
+    errors = dict(zip(info.get("candidates") or [], info.get("candidate_errors") or [],
+                      strict=False))  # fmt: skip
+    chosen = [errors[p] for p in info.get("periods") or [] if p in errors]
+    error = max(chosen, default=0.0)
+    why = []
+    if share > WORTH_SHARE:
+        why.append(f"holds {100 * share:.1f} % of the database's bytes (above "
+                   f"{100 * WORTH_SHARE:g} %)")  # fmt: skip
+    if error > WORTH_ERROR:
+        why.append(f"its periods miss {100 * error:.1f} % of their training frames")
+    if not why:
+        return None
+    ref = " ".join(sources) if len(sources) == 1 else "REF"
+    return (f"this map {' and '.join(why)}; 'rhythmic-jax frontier {ref} QUERIES' "
+            "shows which representation fits this route")  # fmt: skip
 
 
 def _query(args, job, progress: bool) -> str:

@@ -277,3 +277,32 @@ def test_input_size_is_recorded_and_held_to(corridor, capsys, monkeypatch):
         "--out",
         str(c / "y.npy"),
     )
+
+
+def test_fit_says_when_a_map_buys_nothing(corridor, capsys, monkeypatch):
+    """fit adds one line naming frontier when the map's share of the database's
+    bytes is above 15 % (60 places: the share recomputed from the map's own
+    arrays), or its periods' training error is high; none otherwise."""
+    from rhythmic_jax.app.cli import worth_note
+
+    monkeypatch.setenv("RHYTHMIC_JAX_CACHE", str(corridor / "cache"))
+    c = corridor
+    code, out, err = run(capsys, "fit", str(c / "ref"), "--out", str(c / "m.map"),
+                         "--no-progress")  # fmt: skip
+    assert code == 0, err
+    model = rj.RhythmicMap.load(c / "m.map")
+    share = model.storage_bytes / (60 * 2048 * 4)
+    assert share > 0.15
+    notes = [line for line in err.splitlines() if ": note: " in line]
+    assert len(notes) == 1 and f"{100 * share:.1f} %" in notes[0]
+    assert f"rhythmic-jax frontier {c / 'ref'} QUERIES" in notes[0]
+    info = {
+        "storage_bytes": 10,
+        "database_bytes": 100,
+        "periods": [5, 7],
+        "candidates": [5, 6, 7],
+        "candidate_errors": [0.0, 0.9, 0.05],
+    }
+    assert worth_note(info, ["r.npy"]) is None  # 10 %, and 6 was not chosen
+    assert "miss 20.0 %" in worth_note({**info, "candidate_errors": [0.2, 0, 0]},
+                                       ["r.npy"])  # fmt: skip
