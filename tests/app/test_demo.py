@@ -33,3 +33,21 @@ def test_demo_reports_what_the_saved_map_holds(tmp_path, capsys):
     assert (tmp_path / "report.png").stat().st_size > 1000
     assert "report.png" in (tmp_path / "report.md").read_text()
     assert "report:" in printed
+
+
+def test_the_demo_writes_into_a_fresh_temporary_folder(tmp_path, monkeypatch):
+    """Without --out the demo's folder is a new one under the system's temporary
+    folder, never an existing one, and never the current folder."""
+    from rhythmic_jax.app.demo import fresh_folder
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)  # TMPDIR read again
+    (tmp_path / "rhythmic_demo-1").mkdir()
+    first, second = fresh_folder("rhythmic_demo"), fresh_folder("rhythmic_demo")
+    assert (first, second) == (
+        tmp_path / "rhythmic_demo-2",
+        tmp_path / "rhythmic_demo-3",
+    )
+    assert first.is_dir() and not any(first.iterdir())
