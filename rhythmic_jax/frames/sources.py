@@ -34,6 +34,7 @@ __all__ = [
     "Features",
     "apply_projection",
     "describe_images",
+    "files_descriptor",
     "INPUT_SIZES",
     "parse_input_size",
     "size_settings",
@@ -93,7 +94,7 @@ def size_text(settings: dict) -> str:
     return f"{settings.get('width')}x{settings.get('height')}"
 
 
-def _files_descriptor(paths, descriptor, weights, input_size):
+def files_descriptor(paths, descriptor, weights, input_size):
     """``(name, settings, declared)`` of descriptor files: their records' (which
     must agree with each other and with ``descriptor`` and ``input_size`` where
     given), else ``descriptor``'s as declared (``declared``: that descriptor,
@@ -323,7 +324,7 @@ def load_sources(
     kind = kinds.pop()
     declared = None  # the descriptor a .npy without a record is declared to hold
     if kind == "npy":
-        name, settings, declared = _files_descriptor(
+        name, settings, declared = files_descriptor(
             paths, descriptor, weights, input_size
         )
         desc = None

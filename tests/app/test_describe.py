@@ -148,8 +148,10 @@ def test_a_described_file_goes_through_every_command(corridor, capsys, monkeypat
 
     assert record["sha256"] == hashlib.sha256((c / "ref.npy").read_bytes()).hexdigest()
     ok(capsys, "fit", str(c / "ref.npy"), "--out", str(c / "m.map"))
+    ok(capsys, "fit", str(c / "ref.npy"), "--stream", "--out", str(c / "s.map"))
     model = rj.RhythmicMap.load(c / "m.map")
     assert model.config.descriptor == "patchnorm"
+    assert rj.RhythmicMap.load(c / "s.map").config.descriptor == "patchnorm"
     assert model.config.descriptor_settings["width"] == 64
     preds = [
         json.loads(ok(capsys, "query", str(c / "m.map"), q, "--json"))["predictions"]
@@ -268,6 +270,15 @@ def test_input_size_is_recorded_and_held_to(corridor, capsys, monkeypatch):
     big = rj.RhythmicMap.load(c / "big.map")
     assert (big.d, big.config.descriptor_settings["width"]) == (8192, 128)
     ok(capsys, "query", str(c / "big.map"), str(c / "q128.npy"))
+    ok(capsys, "learn", str(c / "ref"), str(c / "query"), "--input-size", "128x64",
+       "--k", "8", "--out", str(c / "e128.emb"))  # fmt: skip
+    ok(capsys, "fit", str(c / "ref"), "--embedding", str(c / "e128.emb"), "--out",
+       str(c / "e.map"))  # fmt: skip
+    assert rj.RhythmicMap.load(c / "e.map").config.descriptor_settings["width"] == 128
+    ok(capsys, "describe", str(c / "ref"), "--out", str(c / "ref.npy"))
+    err = refused(capsys, "fit", str(c / "ref.npy"), "--embedding",
+                  str(c / "e128.emb"), "--out", str(c / "f.map"))  # fmt: skip
+    assert "learned on frames described at 128x64, the map's at 64x32" in err
     assert "WIDTHxHEIGHT" in refused(
         capsys,
         "describe",
