@@ -81,7 +81,7 @@ EXAMPLES = {
       rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
       rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot hybrid.png
       rhythmic-jax evaluate route.map winter/ --tolerance 1 --matches matches.png
-      rhythmic-jax evaluate route.map winter.npy --tolerance 1 --per-query q.csv \
+      rhythmic-jax evaluate route.map winter.npy --tolerance 1 --per-query q.csv \\
           --num-preds 10 --recall-values 1,5,10,25
     """,
     "demo": """

@@ -468,3 +468,20 @@ def test_an_option_at_its_default_given_is_still_refused(npy_route, capsys):
     code, _, err = run(capsys, "fit", ref, "--out", out, "--epochs=3", "--no-progress")
     assert code == 2 and "--epochs needs --augment" in err
     assert not (npy_route / "m.map").exists()
+
+
+def test_help_examples_keep_their_lines(capsys):
+    """A continued example ends its line with a backslash, the next line
+    indented: no example line runs two commands' options together, and
+    evaluate's examples name their plots for what they draw."""
+    import re
+
+    from rhythmic_jax.app.cli import EXAMPLES
+
+    for name, text in EXAMPLES.items():
+        for line in text.splitlines():
+            assert not re.search(r"\S {4,}--", line), (name, line)
+    assert "frontier.png" not in EXAMPLES["evaluate"]
+    assert main(["learn", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--out route.emb \\\n    --method invariant" in out
