@@ -388,10 +388,10 @@ def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
 
 def _write_pairs(job: QueryJob, model, queries, top) -> None:
     """``query --pairs``: hloc's retrieval pairs of the K best places
-    (:func:`rhythmic_jax.eval.per_query.pairs_text`); queries and places must
+    (:func:`rhythmic_jax.app.per_query.pairs_text`); queries and places must
     have names."""
     from rhythmic_jax.app import query_results as qr
-    from rhythmic_jax.eval.per_query import pairs_text
+    from rhythmic_jax.app.per_query import pairs_text
     from rhythmic_jax.io.atomic import write_file
 
     places = qr.place_names(model)
@@ -469,9 +469,9 @@ def _ground_truth(job, model, b: int, reference: str | None = None):
 
 def _write_per_query(job: EvaluateJob, model, x, result: dict) -> None:
     """``evaluate --per-query``: each query's answer judged as the evaluation
-    judged it (:mod:`rhythmic_jax.eval.per_query`), written atomically."""
+    judged it (:mod:`rhythmic_jax.app.per_query`), written atomically."""
     from rhythmic_jax.app import query_results as qr
-    from rhythmic_jax.eval.per_query import judged, write_records
+    from rhythmic_jax.app.per_query import judged, write_records
 
     row = result["methods"]["map"]
     pred = row["predictions"]
@@ -498,7 +498,7 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
 
     plot, reference, read = job.plot, job.reference, job.reading
     if job.per_query:
-        from rhythmic_jax.eval.per_query import check_suffix
+        from rhythmic_jax.app.per_query import check_suffix
 
         check_suffix("per_query", job.per_query)
         check_place("per_query", job.per_query, file=True)
