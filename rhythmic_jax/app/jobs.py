@@ -358,10 +358,12 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
 
 def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
     """``job``'s queries one by one (:mod:`rhythmic_jax.app.query_results`):
-    ``{"predictions" (b,), "queries": [{"query", "place", "place_name",
-    "score", "confidence", "top": [{"place", "name", "score"}] * top}],
-    "ranks", "decode", "sequence"}``; with ``job.csv`` the records are also
-    written there as CSV (atomically)."""
+    ``{"predictions" (b,), "queries": [{"query" (its name, a string),
+    "index", "place", "place_name", "score", "confidence", "top": [{"place",
+    "name", "score"}] * top}], "ranks", "decode", "sequence"}``, each record
+    with ``"correct"`` under ``job.ground_truth``; with ``job.csv`` the records
+    are also written there as CSV, with ``job.pairs`` hloc's retrieval pairs
+    (atomically)."""
     from rhythmic_jax.app import query_results as qr
 
     model, feats, pred = _queried(job, progress)
