@@ -186,6 +186,8 @@ def fit(job: FitJob, progress: bool = False):
             f"{{opt:embedding}} {job.embedding}: learned on "
             f"{meta.get('descriptor')!r} descriptors, the map's are "
             f"{feats.descriptor!r}"
+            + ("; files that name no descriptor: declare it with {opt:descriptor}"
+               if feats.descriptor == "features" else "")
         )
     if meta is not None and _size_of(meta) not in (None, _size_of(feats.settings)):
         raise InputError(
