@@ -261,7 +261,12 @@ def _evaluate(args, job, progress: bool) -> str:
     from rhythmic_jax.app import jobs, render
 
     result = jobs.evaluate(job, progress=progress)
-    return json.dumps(result, indent=2) if job.json else render.evaluate_summary(result)
+    if job.json:
+        return json.dumps(result, indent=2)
+    text = render.evaluate_summary(result)
+    if result.get("per_query"):
+        text += f"\neach query's result and its {job.num_preds} best -> {job.per_query}"
+    return text
 
 
 def _describe(args, job, progress: bool) -> str:

@@ -52,7 +52,10 @@ def test_evaluate_writes_each_querys_answer(corridor, capsys, monkeypatch):
     base = ["evaluate", str(c / "m.map"), str(c / "query"), "--tolerance", "1",
             "--num-preds", "7", "--recall-values", "1,2,7"]  # fmt: skip
     result = json.loads(ok(capsys, *base, "--per-query", str(c / "pq.json"), "--json"))
-    ok(capsys, *base, "--per-query", str(c / "pq.csv"))
+    out = ok(capsys, *base, "--per-query", str(c / "pq.csv"))
+    assert out.rstrip().endswith(
+        f"each query's result and its 7 best -> {c / 'pq.csv'}"
+    )
     assert result["recall_values"] == [1, 2, 7]
     assert "recall@5" not in result["methods"]["map"]
     rows = json.loads((c / "pq.json").read_text())["queries"]
