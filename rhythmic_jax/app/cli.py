@@ -109,9 +109,10 @@ COMPILE_NOTE = textwrap.fill(
     "frames/s of the eager network, but building it costs up to a minute once per "
     "machine and settings (kept in the cache folder) and loading it about 0.2 s per "
     f"job. auto (default): a job of >= {LOAD_MIN_FRAMES} frames loads the compiled "
-    "network; the first such job on a machine runs eagerly and pays only for a "
-    "background build (a niced process, about a minute of CPU beside it), so the "
-    f"next job runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
+    "network; the first such job on a machine runs eagerly, at the eager network's "
+    "speed, and a background build (a niced process, about a minute of CPU) starts "
+    "once it is over, so the next job runs compiled; a job of >= "
+    f"{BUILD_MIN_FRAMES} frames builds it first "
     "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; never (the eager "
     "reference). Without a C++ compiler the job runs eagerly and says so.",
     79,
