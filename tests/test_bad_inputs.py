@@ -415,7 +415,8 @@ CLI_CASES = [
     Case(
         "descriptor-option-on-npy",
         fit(ok, extra=["--descriptor", "hog"]),
-        r"--descriptor applies to images; \.npy files are descriptors",
+        r"ok\.npy: \d+-d rows, but hog at 64x32 gives 756-d; --descriptor names "
+        r"what described the file",
     ),
     Case(
         "text-named-npy",
@@ -503,7 +504,8 @@ CLI_CASES = [
     Case(
         "query-images-on-npy-map",
         query(npy_map, lambda s: frames(s / "f", 3)),
-        r"f: the map was built from descriptor files; give queries as \.npy",
+        r"f: the map was fitted on descriptor files that name no descriptor; give "
+        r"queries as \.npy",
     ),
     Case(
         "query-other-descriptor",
@@ -844,7 +846,8 @@ CLI_CASES += [  # an option that has no effect in the combination given
     Case(
         "fit-weights-on-descriptor-files",
         fit(ok, extra=["--weights", __file__]),
-        r"^--weights applies to images; \.npy files are descriptors",
+        r"^--weights applies to images, or with --descriptor to \.npy files it "
+        r"declares",
     ),
     Case(
         "fit-codes-at-scale",
@@ -859,7 +862,7 @@ CLI_CASES += [  # an option that has no effect in the combination given
     Case(
         "query-descriptor-on-descriptor-files",
         query(npy_map, ok, extra=["--descriptor", "hog"]),
-        r"^--descriptor applies to images; \.npy files are descriptors",
+        r"^the map was built with descriptor 'features', not 'hog'",
     ),
     Case(
         "evaluate-tolerance-with-ground-truth",

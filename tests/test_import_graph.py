@@ -70,6 +70,7 @@ LAYERS = [
     ["app.specs"],
     ["app.demo", "app.frontier", "app.fusion", "app.matches", "app.query_results",
      "app.render", "app.scale_jobs"],
+    ["app.per_query"],
     ["app.jobs"],
     ["app.cli"],
     [""],  # the public face, rhythmic_jax/__init__.py: nothing imports it

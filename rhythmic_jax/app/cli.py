@@ -52,7 +52,7 @@ EXAMPLES = {
         """,
     "learn": """
       rhythmic-jax learn summer_train.npy winter_train.npy --out route.emb
-      rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \
+      rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \\
           --method invariant
       rhythmic-jax info route.emb    (its descriptor and learned fusion weight)
       rhythmic-jax fit summer_test.npy --embedding route.emb --out route.map
@@ -65,6 +65,10 @@ EXAMPLES = {
       rhythmic-jax query route.map winter/ --top 5 --csv results.csv
         (per query: its file name, the place chosen and its name, score,
         confidence, and the 5 best places with their scores)
+      rhythmic-jax query route.map winter/ --csv results.csv --ground-truth names
+        (and a 'correct' column)
+      rhythmic-jax query route.map DATASET/query --pairs pairs.txt --top 20
+        (hloc's retrieval pairs, for its local matching)
     """,
     "info": """
       rhythmic-jax info route.map --json
@@ -76,8 +80,10 @@ EXAMPLES = {
       rhythmic-jax evaluate ref.map DATASET/query --ground-truth \\
           DATASET/ground_truth_new.npy --plot pr.png
       rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
-      rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot frontier.png
+      rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot hybrid.png
       rhythmic-jax evaluate route.map winter/ --tolerance 1 --matches matches.png
+      rhythmic-jax evaluate route.map winter.npy --tolerance 1 --per-query q.csv \\
+          --num-preds 10 --recall-values 1,5,10,25
     """,
     "demo": """
       rhythmic-jax demo
@@ -104,9 +110,10 @@ COMPILE_NOTE = textwrap.fill(
     "frames/s of the eager network, but building it costs up to a minute once per "
     "machine and settings (kept in the cache folder) and loading it about 0.2 s per "
     f"job. auto (default): a job of >= {LOAD_MIN_FRAMES} frames loads the compiled "
-    "network; the first such job on a machine runs eagerly and pays only for a "
-    "background build (a niced process, about a minute of CPU beside it), so the "
-    f"next job runs compiled; a job of >= {BUILD_MIN_FRAMES} frames builds it first "
+    "network; the first such job on a machine runs eagerly, at the eager network's "
+    "speed, and a background build (a niced process, about a minute of CPU) starts "
+    "once it is over, so the next job runs compiled; a job of >= "
+    f"{BUILD_MIN_FRAMES} frames builds it first "
     "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; never (the eager "
     "reference). Without a C++ compiler the job runs eagerly and says so.",
     79,
@@ -142,7 +149,7 @@ def _parser() -> argparse.ArgumentParser:
         "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it\n\n"
         + COMPILE_NOTE,
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    _verbose(parser, False)
     parser.add_argument("--version", action="version",
                         version=f"%(prog)s {__version__}")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -154,7 +161,15 @@ def _parser() -> argparse.ArgumentParser:
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )  # fmt: skip
         add_options(parser.commands[name], job)
+        _verbose(parser.commands[name], argparse.SUPPRESS)  # keeps one given before
     return parser
+
+
+def _verbose(parser: argparse.ArgumentParser, default) -> None:
+    """``-v/--verbose``, offered before the command's name and after it."""
+    says = "log progress (before or after the command's name)"
+    parser.add_argument("-v", "--verbose", action="store_true", default=default,
+                        help=says)  # fmt: skip
 
 
 def _fit(args, job, progress: bool) -> str | None:
@@ -168,6 +183,9 @@ def _fit(args, job, progress: bool) -> str | None:
     else:
         model = jobs.fit(job, progress=progress)
     info = model.info()
+    note = worth_note(info, job.sources)
+    if note is not None:
+        _say(f"rhythmic-jax fit: note: {note}")
     if run is not None:
         info["fit"] = dict(run)
         if "pass_seconds" in run:  # every pass, to the millisecond
@@ -175,17 +193,53 @@ def _fit(args, job, progress: bool) -> str | None:
     return json.dumps(info, indent=2) if job.json else render.fit_summary(job.out, info)
 
 
+#: ``fit`` says so when the map holds more than this share of the database's
+#: bytes, or a chosen period's classifiers miss more than this share of their
+#: own training frames.
+WORTH_SHARE, WORTH_ERROR = 0.15, 0.10
+
+
+def worth_note(info: dict, sources) -> str | None:
+    """The line ``fit`` adds when the map may buy nothing: its share of the
+    database's bytes (templates, codes and embedding) above
+    :data:`WORTH_SHARE`, or the training error of its periods (the largest of
+    the chosen periods' ``candidate_errors``) above :data:`WORTH_ERROR`;
+    None otherwise."""
+    share = (info["storage_bytes"] + (info.get("embedding_bytes") or 0)) / max(
+        info["database_bytes"], 1
+    )
+    errors = dict(zip(info.get("candidates") or [], info.get("candidate_errors") or [],
+                      strict=False))  # fmt: skip
+    chosen = [errors[p] for p in info.get("periods") or [] if p in errors]
+    error = max(chosen, default=0.0)
+    why = []
+    if share > WORTH_SHARE:
+        why.append(f"holds {100 * share:.1f} % of the database's bytes (above "
+                   f"{100 * WORTH_SHARE:g} %)")  # fmt: skip
+    if error > WORTH_ERROR:
+        why.append(f"its periods miss {100 * error:.1f} % of their training frames")
+    if not why:
+        return None
+    ref = " ".join(sources) if len(sources) == 1 else "REF"
+    return (f"this map {' and '.join(why)}; 'rhythmic-jax frontier {ref} QUERIES' "
+            "shows which representation fits this route")  # fmt: skip
+
+
 def _query(args, job, progress: bool) -> str:
     import numpy as np
 
     from rhythmic_jax.app import jobs, render
 
-    if job.json or job.csv:
+    if job.json or job.csv or job.pairs:
         result = jobs.query_results(job, progress=progress)
         if job.json:
             return json.dumps(result, indent=1)
         pred = np.asarray(result["predictions"])
-        return render.query_summary(pred, job.out, job.csv)
+        line = render.query_summary(pred, job.out, job.csv)
+        if job.pairs:  # "-> " alone when only the pairs are written
+            line += "" if line.endswith("-> ") else " and "
+            line += f"{job.pairs} (hloc retrieval pairs, {job.top} per query)"
+        return line
     pred = jobs.query(job, progress=progress)
     if not job.out:
         return "\n".join(str(int(v)) for v in pred)
@@ -209,7 +263,12 @@ def _evaluate(args, job, progress: bool) -> str:
     from rhythmic_jax.app import jobs, render
 
     result = jobs.evaluate(job, progress=progress)
-    return json.dumps(result, indent=2) if job.json else render.evaluate_summary(result)
+    if job.json:
+        return json.dumps(result, indent=2)
+    text = render.evaluate_summary(result)
+    if result.get("per_query"):
+        text += f"\neach query's result and its {job.num_preds} best -> {job.per_query}"
+    return text
 
 
 def _describe(args, job, progress: bool) -> str:

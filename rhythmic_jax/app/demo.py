@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import atomic_path, write_file
 from rhythmic_jax.io.outputs import check_place
 
@@ -140,14 +141,30 @@ def _report_plot(path: Path, d: int, r: int, level: int, bars: dict) -> None:
         fig.savefig(tmp, dpi=110, format="png")
 
 
+def fresh_folder(stem: str) -> Path:
+    """A new folder ``STEM-K`` under the system's temporary folder, K the first
+    number whose folder does not exist yet (made here, so never another's)."""
+    import tempfile
+
+    base = Path(tempfile.gettempdir())
+    for k in range(1, 1_000_000):
+        try:
+            (base / f"{stem}-{k}").mkdir(mode=0o700)
+        except FileExistsError:
+            continue
+        return base / f"{stem}-{k}"
+    raise InputError(f"{base}: no fresh {stem}-K folder left; give {{opt:out}}")
+
+
 def run_demo(
-    out: str | Path = "rhythmic_demo",
+    out: str | Path | None = None,
     *,
     quick: bool = False,
     config: DemoConfig | None = None,
     progress: bool = False,
 ) -> dict:
-    """Build the route, fit, query, compare with brute force, write the report.
+    """Build the route, fit, query, compare with brute force, write the report
+    in ``out`` (None: a fresh folder under the system's temporary folder).
 
     Turns on the compile cache (:func:`rhythmic_jax.enable_compile_cache`), so a
     second demo loads its programs instead of compiling them."""
@@ -160,6 +177,8 @@ def run_demo(
     enable_compile_cache()
 
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
+    if out is None:  # the checkout stays clean; the report line says where
+        out = fresh_folder("rhythmic_demo")
     out = check_place("out", Path(out) / "report.md").parent  # a file there: refused
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

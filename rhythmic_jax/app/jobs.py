@@ -120,7 +120,8 @@ def _before_reading(job: FitJob) -> Settled:
         learned = load_embedding(job.embedding)
         name, weights = embedding_descriptor(learned[1])
         if read.descriptor is None and name is not None and job.images:
-            read = replace(read, descriptor=name, weights=read.weights or weights)
+            read = replace(read, descriptor=name, weights=read.weights or weights,
+                           input_size=read.input_size or _size_of(learned[1]))
     fusion = fusion_of(job.fusion, job.config.codes, (learned or (None, None))[1])
     ref = {"tile": read.tile, "stride": read.stride}
     if read.select is not None:
@@ -177,6 +178,7 @@ def fit(job: FitJob, progress: bool = False):
         job.sources, read.descriptor, read.tile, read.stride, progress,
         pca=job.pca, weights=read.weights, same_length=job.places is None,
         compile=read.compile, keep_images=augmented is not None, select=read.select,
+        input_size=_input_size(read),
     )  # fmt: skip
     emb, meta = learned or (None, None)
     if meta is not None and meta.get("descriptor") != feats.descriptor:
@@ -184,6 +186,13 @@ def fit(job: FitJob, progress: bool = False):
             f"{{opt:embedding}} {job.embedding}: learned on "
             f"{meta.get('descriptor')!r} descriptors, the map's are "
             f"{feats.descriptor!r}"
+            + ("; files that name no descriptor: declare it with {opt:descriptor}"
+               if feats.descriptor == "features" else "")
+        )
+    if meta is not None and _size_of(meta) not in (None, _size_of(feats.settings)):
+        raise InputError(
+            f"{{opt:embedding}} {job.embedding}: learned on frames described at "
+            f"{_size_of(meta)}, the map's at {_size_of(feats.settings)}"
         )
     if emb is not None and emb.d != feats.x.shape[1]:
         raise InputError(
@@ -218,6 +227,22 @@ def fit(job: FitJob, progress: bool = False):
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     return MapEstimator.from_map(fitted)
+
+
+def _input_size(read: Reading) -> tuple[int, int] | None:
+    """``--input-size`` as (width, height), or None (the descriptor's own)."""
+    from rhythmic_jax.frames.sources import parse_input_size
+
+    return parse_input_size(read.input_size)
+
+
+def _size_of(record: dict | None) -> str | None:
+    """``"WxH"`` recorded in descriptor settings (or an embedding's meta, under
+    ``descriptor_settings``), or None where none is recorded."""
+    settings = (record or {}).get("descriptor_settings", record) or {}
+    if settings.get("width") is None:
+        return None
+    return f"{settings['width']}x{settings['height']}"
 
 
 @contextlib.contextmanager
@@ -286,6 +311,7 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
     feats = load_sources(
         job.sources, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, keep_images=False,
+        input_size=_input_size(read),
     )  # fmt: skip
     traversals = np.split(feats.x, len(job.sources))
     emb, info = learn_embedding(traversals, config, codes=job.codes or "int8")
@@ -320,6 +346,7 @@ def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
     return describe_frames(
         job.source, read.descriptor, weights=read.weights, tile=read.tile,
         stride=read.stride, out=job.out, progress=progress, compile=read.compile,
+        input_size=_input_size(read),
     )  # fmt: skip
 
 
@@ -331,6 +358,7 @@ def _load_queries(job, progress: bool):
     feats = load_query_source(
         job.source, model, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, select=read.select,
+        input_size=_input_size(read),
     )  # fmt: skip
     return model, feats
 
@@ -342,25 +370,53 @@ def query(job: QueryJob, progress: bool = False) -> np.ndarray:
 
 def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
     """``job``'s queries one by one (:mod:`rhythmic_jax.app.query_results`):
-    ``{"predictions" (b,), "queries": [{"query", "place", "place_name",
-    "score", "confidence", "top": [{"place", "name", "score"}] * top}],
-    "ranks", "decode", "sequence"}``; with ``job.csv`` the records are also
-    written there as CSV (atomically)."""
+    ``{"predictions" (b,), "queries": [{"query" (its name, a string),
+    "index", "place", "place_name", "score", "confidence", "top": [{"place",
+    "name", "score"}] * top}], "ranks", "decode", "sequence"}``, each record
+    with ``"correct"`` under ``job.ground_truth``; with ``job.csv`` the records
+    are also written there as CSV, with ``job.pairs`` hloc's retrieval pairs
+    (atomically)."""
     from rhythmic_jax.app import query_results as qr
 
     model, feats, pred = _queried(job, progress)
     result = qr.per_query(model, feats.x, pred, method=job.decode,
                           sequence=job.sequence, top=job.top)  # fmt: skip
-    rows = qr.records(
-        result, qr.source_names(job.source, job.reading.select), qr.place_names(model)
-    )
+    queries = qr.source_names(job.source, job.reading.select)
+    rows = qr.records(result, queries, qr.place_names(model))
+    extra: tuple[str, ...] = ()
+    truth = _ground_truth(job, model, len(pred))
+    if truth is not None:
+        for r, ok in zip(rows, truth.hits(pred).tolist(), strict=True):
+            r["correct"] = bool(ok)
+        extra = ("correct",)
+    if job.pairs:
+        _write_pairs(job, model, queries, result["top"])
     if job.csv:
         from rhythmic_jax.io.atomic import write_file
 
         with write_errors("csv", job.csv):
-            write_file(job.csv, qr.csv_text(rows))
+            write_file(job.csv, qr.csv_text(rows, extra=extra))
     return {"predictions": pred.tolist(), "queries": rows, "ranks": result["ranks"],
             "decode": job.decode or model.config.decode, "sequence": job.sequence}
+
+
+def _write_pairs(job: QueryJob, model, queries, top) -> None:
+    """``query --pairs``: hloc's retrieval pairs of the K best places
+    (:func:`rhythmic_jax.app.per_query.pairs_text`); queries and places must
+    have names."""
+    from rhythmic_jax.app import query_results as qr
+    from rhythmic_jax.app.per_query import pairs_text
+    from rhythmic_jax.io.atomic import write_file
+
+    places = qr.place_names(model)
+    if queries is None or places is None:
+        what = "queries" if queries is None else "map's places"
+        raise InputError(
+            f"{{opt:pairs}}: the {what} have no names (hloc's pairs name images); "
+            "give image folders, hloc .h5 files or .npy files describe wrote"
+        )
+    with write_errors("pairs", job.pairs):
+        write_file(job.pairs, pairs_text(queries, top, places))
 
 
 def _queried(job: QueryJob, progress: bool):
@@ -368,7 +424,7 @@ def _queried(job: QueryJob, progress: bool):
     predictions written to ``job.out`` (``.npy``) when given."""
     import numpy as np
 
-    for opt in ("out", "csv"):  # a folder there: refused before work
+    for opt in ("out", "csv", "pairs"):  # a folder there: refused before work
         check_file_place(opt, getattr(job, opt))
     out = job.out
     model, feats = _load_queries(job, progress)
@@ -403,16 +459,65 @@ def _loaded_info(map_path: str) -> dict[str, Any]:
     return MapEstimator.load(map_path).info()
 
 
+def _ground_truth(job, model, b: int, reference: str | None = None):
+    """The GroundTruth of ``job.ground_truth`` for ``b`` queries of ``model``
+    (None without one); ``--tolerance-m`` given for a file that lists the right
+    places itself (it would act on nothing) is refused."""
+    if job.ground_truth is None:
+        return None
+    from rhythmic_jax.eval.ground_truth_files import load_ground_truth
+
+    refs = [reference] if reference else model.reference.get("sources") or []
+    truth = load_ground_truth(
+        job.ground_truth, n_queries=b, n_places=model.n,
+        query_source=job.source, reference_sources=refs, map_extra=model.extra,
+        tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
+    )  # fmt: skip
+    if truth.tolerance_m is None and "tolerance_m" in job.given:
+        raise InputError(
+            f"{{opt:tolerance_m}} acts on positions; {truth.source} lists the right "
+            "places itself, so it would act on nothing"
+        )
+    return truth
+
+
+def _write_per_query(job: EvaluateJob, model, x, result: dict) -> None:
+    """``evaluate --per-query``: each query's answer judged as the evaluation
+    judged it (:mod:`rhythmic_jax.app.per_query`), written atomically."""
+    from rhythmic_jax.app import query_results as qr
+    from rhythmic_jax.app.per_query import judged, write_records
+
+    row = result["methods"]["map"]
+    pred = row["predictions"]
+    scored = qr.per_query(model, x, pred, method=job.decode, sequence=job.sequence,
+                          top=job.num_preds)  # fmt: skip
+    names = qr.source_names(job.source, job.reading.select)
+    rows = judged(qr.records(scored, names, qr.place_names(model)),
+                  result["right_places"], row["correct"])  # fmt: skip
+    about = {k: result[k] for k in ("ground_truth", "decode", "sequence",
+                                    "tolerance")}  # fmt: skip
+    about["ranks"] = scored["ranks"]
+    with write_errors("per_query", job.per_query):
+        write_records(job.per_query, rows, about)
+    result["per_query"] = str(job.per_query)
+
+
 def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     """Judge the map on the queries of ``job`` beside brute force, a baseline at
     the map's bytes and, for an embedded map, brute force on the embedding
     (:func:`rhythmic_jax.eval.report.evaluate_map`: every row timed from the
     query descriptors to a place); ``reference_note`` says which frames they
     searched, or why there are no such lines."""
+    from rhythmic_jax.app.specs import recall_values
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.frames.sources import reference_features
 
     plot, reference, read = job.plot, job.reference, job.reading
+    if job.per_query:
+        from rhythmic_jax.app.per_query import check_suffix
+
+        check_suffix("per_query", job.per_query)
+        check_place("per_query", job.per_query, file=True)
     for opt in ("plot", "matches"):
         path = getattr(job, opt)
         if path and not str(path).lower().endswith(".png"):
@@ -423,36 +528,29 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     if job.matches:
         from rhythmic_jax.app import matches
 
-        drawn = matches.image_files(job.source)
-        if drawn is None:
-            raise InputError(
-                f"{{opt:matches}} draws the query frames: give the queries as an "
-                f"image folder ({job.source} holds descriptors)"
-            )
+        drawn = matches.query_frames(job.source, job.query_images)
     model, feats = _load_queries(job, progress)
-    places = None if drawn is None else matches.reference_folder(model, reference)
+    if drawn is not None and len(drawn) != len(feats.x):
+        raise InputError(f"{{opt:matches}}: {len(drawn)} query frames for "
+                         f"{len(feats.x)} queries")  # fmt: skip
+    places = None if drawn is None else matches.reference_folder(
+        model, reference, job.reference_images)
     ref, labels, note = reference_features(
         model, reference, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile,
     )  # fmt: skip
     if ref is not None and reference is None and "reference_labels" in model.extra:
         labels = model.extra["reference_labels"]  # frames grouped into places
-    truth = None
-    if job.ground_truth is not None:
-        from rhythmic_jax.eval.ground_truth_files import load_ground_truth
-
-        refs = [reference] if reference else model.reference.get("sources") or []
-        truth = load_ground_truth(
-            job.ground_truth, n_queries=len(feats.x), n_places=model.n,
-            query_source=job.source, reference_sources=refs, map_extra=model.extra,
-            tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
-        )  # fmt: skip
+    truth = _ground_truth(job, model, len(feats.x), reference)
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,
         method=job.decode, sequence=job.sequence, ground_truth=truth,
-        curves=bool(plot or drawn), recall_over=job.recall_over,
+        curves=bool(plot or drawn or job.per_query), recall_over=job.recall_over,
+        recall_values=recall_values(job.recall_values),
     )  # fmt: skip
     result["reference_note"] = note
+    if job.per_query:
+        _write_per_query(job, model, feats.x, result)
     if plot:
         from rhythmic_jax.eval.figures import plot_evaluation
 

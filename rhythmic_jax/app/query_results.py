@@ -29,13 +29,19 @@ HDF5 = (".h5", ".hdf5")
 def source_names(source: str | Path, select: str | None = None) -> list[str] | None:
     """The names of a source's rows: an image folder's file names (in the order
     frames are read), an hloc ``.h5`` file's image names (those starting with
-    ``select`` when given, as the rows were read); None for a ``.npy`` file or a
-    tiled image (rows are then numbered)."""
+    ``select`` when given, as the rows were read), the frames a described
+    ``.npy`` file's record names; None for another ``.npy`` file or a tiled
+    image (rows are then numbered)."""
     from rhythmic_jax.io.images import list_images
 
     path = Path(source)
     if path.is_dir():
         return [p.name for p in list_images(path, "query")]
+    if path.suffix.lower() == ".npy" and path.is_file():
+        from rhythmic_jax.io.descriptor_files import read_record
+
+        record = read_record(path)
+        return list(record["frames"]) if record and record.get("frames") else None
     if path.suffix.lower() in HDF5 and path.is_file():
         from rhythmic_jax.io.vpr_files import read_hloc_descriptors
 
@@ -115,10 +121,11 @@ def _number(v) -> float | None:
 
 
 def records(result, queries: list[str] | None, places: list[str] | None) -> list:
-    """One dict per query: ``{"query", "place", "place_name", "score",
-    "confidence", "top": [{"place", "name", "score"}, ...]}``; a query is named
-    by its file where it has one, else by its row; a place's name is None
-    where the map names none (and for no match)."""
+    """One dict per query: ``{"query", "index", "place", "place_name", "score",
+    "confidence", "top": [{"place", "name", "score"}, ...]}``; ``"query"`` is
+    its name, a string always (its file's where it has one, else its row
+    number), ``"index"`` its row; a place's name is None where the map names
+    none (and for no match)."""
 
     def name(i: int):
         return None if places is None or i < 0 else places[i]
@@ -126,7 +133,7 @@ def records(result, queries: list[str] | None, places: list[str] | None) -> list
     out: list[dict[str, Any]] = []
     for q, p in enumerate(result["place"].tolist()):
         out.append({
-            "query": queries[q] if queries is not None else q,
+            "query": queries[q] if queries is not None else str(q), "index": q,
             "place": p, "place_name": name(p),
             "score": _number(result["score"][q]),
             "confidence": _number(result["confidence"][q]),
@@ -137,11 +144,12 @@ def records(result, queries: list[str] | None, places: list[str] | None) -> list
     return out
 
 
-def csv_text(rows: list[dict[str, Any]]) -> str:
-    """The records as CSV: query, place, place_name, score, confidence, then
-    top{k}, top{k}_name, top{k}_score for k = 1..K; empty cells for none."""
+def csv_text(rows: list[dict[str, Any]], extra: tuple[str, ...] = ()) -> str:
+    """The records as CSV: query, place, place_name, score, confidence, the
+    ``extra`` fields of each record (``correct``...), then top{k},
+    top{k}_name, top{k}_score for k = 1..K; empty cells for none."""
     k = max((len(r["top"]) for r in rows), default=0)
-    head = ["query", "place", "place_name", "score", "confidence"]
+    head = ["query", "place", "place_name", "score", "confidence", *extra]
     for i in range(1, k + 1):
         head += [f"top{i}", f"top{i}_name", f"top{i}_score"]
     buf = io.StringIO()
@@ -149,6 +157,7 @@ def csv_text(rows: list[dict[str, Any]]) -> str:
     out.writerow(head)
     for r in rows:
         cells = [r["query"], r["place"], r["place_name"], r["score"], r["confidence"]]
+        cells += [r[e] for e in extra]
         for t in r["top"]:
             cells += [t["place"], t["name"], t["score"]]
         out.writerow(["" if c is None else c for c in cells])

@@ -84,10 +84,12 @@ def _describe_to_shards(job, progress: bool) -> list[str]:
         raise InputError("{opt:shards} describes image folders; these are descriptors")
     if job.reading.tile is not None:
         raise InputError("{opt:shards} takes image folders, not {opt:tile}")
+    from rhythmic_jax.frames.sources import parse_input_size, size_settings
+
     name = job.reading.descriptor or "patchnorm"
-    settings = {}
+    settings = size_settings(parse_input_size(job.reading.input_size))
     if job.reading.weights is not None:
-        settings = {"weights": str(Path(job.reading.weights).expanduser().absolute())}
+        settings["weights"] = str(Path(job.reading.weights).expanduser().absolute())
     for src in job.sources:
         if not Path(src).is_dir():
             raise InputError(f"{src}: {{opt:shards}} needs image folders")
@@ -209,6 +211,23 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     from rhythmic_jax.rhythmic_map import MapEstimator
 
     name, settings = shard_descriptor(sources[0])
+    declared = None
+    if name == "features" and all(str(s).lower().endswith(".npy") for s in sources):
+        from rhythmic_jax.frames.sources import files_descriptor, parse_input_size
+
+        read = job.reading  # describe's records, or --descriptor declaring them
+        name, settings, declared = files_descriptor(
+            [Path(s) for s in sources], read.descriptor, read.weights,
+            parse_input_size(read.input_size),
+        )  # fmt: skip
+        from rhythmic_jax.io.descriptor_files import descriptor_shape
+
+        d = descriptor_shape(sources[0])[-1]
+        if declared is not None and declared.dim != d:
+            raise InputError(
+                f"{sources[0]}: {d}-d rows, but {name} gives {declared.dim}-d; "
+                "{opt:descriptor} names what described the file"
+            )
     config = replace(job.config, descriptor=name, descriptor_settings=settings)
     ckpt = job.checkpoint_folder
     with write_errors("checkpoint", ckpt):
@@ -218,6 +237,7 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         )  # fmt: skip
     if name == "features":
         settings = {"dim": fitted.d}
+
     fitted = replace(
         fitted, config=replace(fitted.config, descriptor_settings=settings),
         reference=map_file.reference(sources, tile=None, stride=None),

@@ -89,9 +89,24 @@ class Job(Checked):
 READS = (
     Rule(("stride",), "needs {opt:tile} (it is the step between tiles)",
          lambda j: j.reading.tile is not None),
-    Rule(("descriptor", "weights"), "applies to images; .npy files are descriptors",
-         lambda j: j.images),
+    Rule(("weights",), "applies to images, or with {opt:descriptor} to .npy files "
+         "it declares", lambda j: j.images or j.reading.descriptor is not None),
+    Rule(("input_size",), "must be WIDTHxHEIGHT in pixels, such as 224x112",
+         lambda j: _size_ok(j.reading.input_size)),
 )  # fmt: skip
+
+
+def recall_values(text: str) -> tuple[int, ...] | None:
+    """``"1,5,10"`` -> ``(1, 5, 10)`` sorted and unique; None for other text."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if not parts or not all(p.isdigit() and int(p) >= 1 for p in parts):
+        return None
+    return tuple(sorted({int(p) for p in parts}))
+
+
+def _size_ok(text: str | None) -> bool:
+    w, sep, h = str(text).lower().partition("x")
+    return bool(sep) and w.isdigit() and h.isdigit() and int(w) > 0 and int(h) > 0
 SELECTS = (  # fit, query, evaluate
     Rule(("select",), "picks the images of hloc .h5 files by name; give .h5 "
          "files", lambda j: _named_rows(j)),
@@ -121,7 +136,13 @@ class Reading:
 
     descriptor: str | None = option(
         "descriptor for image sources (patchnorm, hog, efficientnet_lite0, "
-        "vgg16_fc7; default patchnorm, or an --embedding's); a map remembers its own")
+        "vgg16_fc7; default patchnorm, or an --embedding's); for a .npy without "
+        "describe's record, the descriptor that made it; a map remembers its own")
+    input_size: str | None = option(
+        "the descriptor's input in pixels, width x height, frames resized to it "
+        "(default: patchnorm and hog 64x32 grey, efficientnet_lite0 224x112, "
+        "vgg16_fc7 224x224); maps, embeddings and described files record it, and "
+        "a map takes queries described at its own", metavar="WxH")
     weights: str | None = option(
         "weights file of vgg16_fc7 (a state dict); when querying a map, a moved "
         "copy of the file it was fitted with (its sha256 is checked)", path="reads")
@@ -367,16 +388,39 @@ class QueryJob(Job):
         "confidence, top1, top1_name, top1_score, ...)", path="writes")
     json: bool = option(
         "print JSON: the predictions, and per query its name (file name, else "
-        "row), the place chosen (and its name where the map's reference names "
-        "it), its score and confidence, and the --top best places with their "
-        "scores", False)
+        "row number, as a string) and index (row), the place chosen (and its name "
+        "where the map's reference names it), its score and confidence, and the "
+        "--top best places with their scores", False)
+    pairs: str | None = option(
+        "write hloc's retrieval pairs: 'query_name reference_name' per line, the "
+        "--top best places of each query in rank order (as hloc's "
+        "pairs_from_retrieval writes them), for hloc's local matching; the queries "
+        "and places must have names (image folders, hloc .h5, or described .npy)",
+        path="writes")
+    ground_truth: tuple[str, ...] | None = option(
+        "with --csv or --json: add whether each answer is right ('correct'), "
+        "the ground truth read as evaluate reads it", nargs="+", metavar="FILE",
+        path="reads")
+    ground_truth_format: str | None = option(
+        "the --ground-truth file's format (default: read from what it holds)",
+        choices=GROUND_TRUTH_FORMATS)
+    tolerance_m: float = option("radius of a right match for positions, metres "
+                                "(default %(default)g)", 25.0,
+                                domain=number_option(0))
     reading: Reading = part(Reading, helps={"select": SELECT})
 
     RULES = (
         *READS,
         *SELECTS,
-        Rule(("top",), "needs {opt:json} or {opt:csv} (the results per query it "
-             "sizes)", lambda j: j.json or j.csv is not None),
+        Rule(("top",), "needs {opt:json}, {opt:csv} or {opt:pairs} (the results "
+             "per query it sizes)",
+             lambda j: j.json or j.csv is not None or j.pairs is not None),
+        Rule(("ground_truth",), "needs {opt:json} or {opt:csv} (it adds their "
+             "'correct')", lambda j: j.json or j.csv is not None),
+        Rule(("ground_truth_format",), "needs {opt:ground_truth} (it names that "
+             "file's format)", lambda j: j.ground_truth is not None),
+        Rule(("tolerance_m",), "needs {opt:ground_truth} (positions or names: it "
+             "is their radius of a right match)", lambda j: j.ground_truth is not None),
         *IGNORED,
     )  # fmt: skip
 
@@ -421,7 +465,22 @@ class EvaluateJob(Job):
     matches: str | None = option(
         "draw queries beside the place chosen and the right place, 4 successes and "
         "the 4 most confident failures (.png; the queries and the reference as "
-        "image folders)", path="writes")
+        "image folders, or descriptor files describe wrote, which name their "
+        "frames)", path="writes")
+    reference_images: str | None = option(
+        "with --matches: the reference frames' image folder (default: the map's "
+        "reference, or the folder its descriptor file's record names)", path="reads")
+    query_images: str | None = option(
+        "with --matches: the query frames' image folder (default: the queries, or "
+        "the folder their descriptor file's record names)", path="reads")
+    per_query: str | None = option(
+        "write each query's result (.csv or .json by the suffix): its name and "
+        "index, the place chosen and its name, the right places, correct or not, "
+        "score, confidence and its --num-preds best places", path="writes")
+    num_preds: int = option("best places kept per query in --per-query "
+                            "(default %(default)s)", 5, domain=int_option(1))
+    recall_values: str = option("the K of recall@K, comma-separated (default "
+                                "%(default)s)", "1,5,10,20", metavar="K,K,...")
     json: bool = option("print JSON", False)
     reading: Reading = part(Reading, helps={
         "select": SELECT + " (an .h5 reference: the map's prefix)"})  # fmt: skip
@@ -435,6 +494,12 @@ class EvaluateJob(Job):
              "their radius of a right match)", lambda j: j.ground_truth is not None),
         Rule(("ground_truth_format",), "needs {opt:ground_truth} (it names that "
              "file's format)", lambda j: j.ground_truth is not None),
+        Rule(("reference_images", "query_images"), "needs {opt:matches} (it names "
+             "the frames drawn)", lambda j: j.matches is not None),
+        Rule(("num_preds",), "needs {opt:per_query} (the records it sizes)",
+             lambda j: j.per_query is not None),
+        Rule(("recall_values",), "must be integers >= 1, comma-separated (1,5,10)",
+             lambda j: recall_values(j.recall_values) is not None),
         *IGNORED,
     )  # fmt: skip
 
@@ -450,7 +515,7 @@ class DescribeJob(Job):
                       required=True, path="writes")
     reading: Reading = part(Reading)
 
-    RULES = (READS[0], IGNORED[0])
+    RULES = (READS[0], READS[2], IGNORED[0])
 
 
 @dataclass(frozen=True)
@@ -465,7 +530,8 @@ class InfoJob(Checked):
 class DemoJob(Job):
     """The demo (:func:`rhythmic_jax.app.demo.run_demo`)."""
 
-    out: str = option("report folder", "rhythmic_demo")
+    out: str | None = option("report folder (default: a fresh folder under the "
+                             "system's temporary folder; the report line names it)")
     quick: bool = option("a smaller route (CI)", False)
 
 

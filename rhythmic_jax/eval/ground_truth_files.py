@@ -124,6 +124,7 @@ def load_ground_truth(
         raise InputError(
             f"{{opt:ground_truth_format}} {fmt}: one file, not {' '.join(specs)}"
         )
+    given = fmt
     if fmt is None and len(specs) == 1 and specs != ["names"]:
         fmt = detect_format(specs[0])
     if specs == ["names"]:
@@ -134,6 +135,7 @@ def load_ground_truth(
         read = _READERS[fmt]
         return read(specs[0], n_queries=n_queries, n_places=n_places)
     else:
+        qry = _query_positions(specs[-1], guessed=len(specs) == 1 and given is None)
         if len(specs) == 2:
             ref = read_positions(specs[0])
         elif "reference_positions" in extra:
@@ -145,7 +147,6 @@ def load_ground_truth(
                 "positions (fit with {opt:positions}); give REF_POSITIONS "
                 "QUERY_POSITIONS"
             )
-        qry = read_positions(specs[-1])
         src = "positions " + " and ".join(str(Path(s).absolute()) for s in specs)
     ref_m, qry_m = in_metres(ref, qry)
     if len(qry_m) != n_queries:
@@ -161,6 +162,21 @@ def load_ground_truth(
             )
         labels = np.arange(len(ref_m)) % n_places  # traversals: row i is place i
     return from_positions(ref_m, qry_m, tolerance_m, labels, src)
+
+
+def _query_positions(path: str, guessed: bool):
+    """The query positions of ``path``; where its format was guessed (one
+    file, no ``--ground-truth-format``), a file that is not positions either
+    is refused as no ground-truth file at all."""
+    try:
+        return read_positions(path)
+    except InputError as err:
+        if not guessed:
+            raise
+        raise InputError(
+            f"{{opt:ground_truth}} {path}: not a ground-truth file (none of "
+            f"{', '.join(FORMATS)}; read as positions: {err})"
+        ) from None
 
 
 @dataclass(frozen=True, eq=False)

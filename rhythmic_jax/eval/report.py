@@ -102,13 +102,14 @@ def _hybrid_decisions(model, queries, method, sequence):
     return conf, np.asarray(total), f"fused sequence scores (L={sequence}, speed 1)"
 
 
-def _map_decisions(model, queries, method, sequence):
-    """(pred (b,), confidence (b,), ranked places (b, K), what recall@K ranks)."""
+def _map_decisions(model, queries, method, sequence, depth: int = max(KS)):
+    """(pred (b,), confidence (b,), ranked places (b, K), what recall@K ranks);
+    K = ``depth`` (at most the map's places)."""
     pred = model.predict(queries, method, sequence=sequence)
     method = method or model.config.decode
     if model.codebook is not None:
         conf, total, which = _hybrid_decisions(model, queries, method, sequence)
-        ranked = np.argsort(-total, axis=1, kind="stable")[:, : min(max(KS), model.n)]
+        ranked = np.argsort(-total, axis=1, kind="stable")[:, : min(depth, model.n)]
         return pred, finite_confidence(conf), ranked, which
     s = model.scores(queries)
     if sequence is not None and sequence > 1:
@@ -125,7 +126,7 @@ def _map_decisions(model, queries, method, sequence):
     else:
         conf = model.decode(queries, method).confidence
         which = "single-frame scores"
-    ranked = ranked_places(s, model.groups, model.n, max(KS))
+    ranked = ranked_places(s, model.groups, model.n, depth)
     return pred, finite_confidence(conf), ranked, which
 
 
@@ -233,6 +234,7 @@ def evaluate_map(
     ground_truth=None,
     curves: bool = False,
     recall_over: str = "matched",
+    recall_values: tuple[int, ...] = KS,
 ) -> dict[str, Any]:
     """Score a fitted :class:`~rhythmic_jax.RhythmicMap` on (b, d) queries.
 
@@ -262,6 +264,8 @@ def evaluate_map(
         VPR-methods-evaluation's); said in the result (``"recall_over"``,
         ``"recall_queries"``). The PR curve's recall is out of the matched
         queries either way (VPR_Tutorial's ``createPR``).
+      recall_values: the K of recall@K (those above the map's places left out;
+        ``result["recall_values"]`` says which).
     """
     from rhythmic_jax.eval.ground_truth import from_indices
 
@@ -284,8 +288,9 @@ def evaluate_map(
     frames = model.n if reference is None else len(reference)
     db = database_bytes(frames, model.d, 4)
     ratio = (model.storage_bytes + model.embedding_bytes) / db
-    pred, conf, ranked, which = _map_decisions(model, queries, method, sequence)
-    ks = tuple(k for k in KS if k <= ranked.shape[1])
+    depth = max(max(recall_values), max(KS))
+    pred, conf, ranked, which = _map_decisions(model, queries, method, sequence, depth)
+    ks = tuple(k for k in recall_values if k <= ranked.shape[1])
     rows: dict[str, Any] = {
         "map": {
             **_scores_of(pred, conf, ranked, truth, exact, ks, recall_over),
@@ -369,6 +374,7 @@ def evaluate_map(
         "recall_ranks": which,
         "recall_over": recall_over,
         "recall_queries": rows["map"]["recall_queries"],
+        "recall_values": list(ks),
         "database_bytes": db,
         "database_frames": frames,
         "compression_ratio": ratio,
@@ -551,8 +557,8 @@ def format_evaluation(result: dict[str, Any]) -> str:
         + _truth_line(result)
         + _denominator_line(result)
     )
-    cols = ["accuracy", "accuracy_tol", "recall@1", "recall@5", "recall@10"]
-    cols += ["recall@20"]
+    cols = ["accuracy", "accuracy_tol"]
+    cols += [f"recall@{k}" for k in result.get("recall_values", KS)]
     cols += ["pr_auc", "recall@100p", "storage_bytes", "latency_median_s"]
     cols += ["queries_per_s"]
     names = {"latency_median_s": "latency", "storage_bytes": "bytes"}

@@ -21,8 +21,11 @@ than a millisecond a frame (``reports/network.md``), so a job of
 yet, building it costs about :data:`BUILD_SECONDS`: a job of
 :data:`BUILD_MIN_FRAMES` frames or more builds it first; a smaller one runs
 eagerly and hands the build to a detached, niced background process
-(:func:`start_build`, :mod:`rhythmic_jax.frames.network_build`), so the next job on the
-machine runs compiled. One builder at a time holds ``<package>.lock``; the
+(:func:`start_build`, :mod:`rhythmic_jax.frames.network_build`) started when the
+job is over (:func:`build_after_jobs`: when the process exits, or at
+:func:`start_pending_builds`), so the build does not share a small machine's
+cores with the job that asked for it, and the next job on the machine runs
+compiled. One builder at a time holds ``<package>.lock``; the
 package appears whole or not at all (temporary file, ``os.replace``); a damaged
 package is deleted and built again, never loaded.
 ``RHYTHMIC_JAX_NETWORK_BUILD=0`` keeps builds out of the background. Where
@@ -33,6 +36,7 @@ one warning line and runs eagerly; a background build that failed leaves
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import functools
 import hashlib
@@ -52,6 +56,7 @@ from typing import TYPE_CHECKING
 from rhythmic_jax.frames.compile_policy import (
     AUTO,
     BUILD_MIN_FRAMES,
+    BUILD_SECONDS,
     COMPILE_MODES,
     LOAD_MIN_FRAMES,
     CompilePolicy,
@@ -60,6 +65,8 @@ from rhythmic_jax.frames.compile_policy import (
 __all__ = [
     "AUTO",
     "BUILD_MIN_FRAMES",
+    "build_after_jobs",
+    "start_pending_builds",
     "COMPILE_BATCH",
     "COMPILE_MODES",
     "EAGER_BATCH",
@@ -243,6 +250,42 @@ def start_build(descriptor, shape: tuple[int, ...], cache_dir=None):
     return _spawn([sys.executable, "-m", "rhythmic_jax.frames.network_build", spec])
 
 
+_PENDING: dict[str, tuple] = {}  # package -> (descriptor, shape, cache folder)
+
+
+def build_after_jobs(descriptor, shape: tuple[int, ...], cache_dir=None) -> None:
+    """Queue a background build of ``descriptor``'s package at ``shape``, started
+    when this process's jobs are over (at exit, or :func:`start_pending_builds`)
+    rather than beside the job: on two cores a builder beside the first job
+    halves its frames per second (``reports/network.md``)."""
+    key = str(package_path(descriptor, shape, cache_dir))
+    if not _PENDING:
+        atexit.register(start_pending_builds)  # once per queue filled
+    if key not in _PENDING:
+        log.info(
+            "the compiled %s is built in the background once this job is over "
+            "(about %d s of CPU, once per machine); this job runs eagerly",
+            descriptor.name, BUILD_SECONDS,
+        )  # fmt: skip
+    _PENDING.setdefault(key, (descriptor, shape, cache_dir))
+
+
+def start_pending_builds() -> list[subprocess.Popen]:
+    """Start the builds :func:`build_after_jobs` queued (each as
+    :func:`start_build` does: not while another builder holds its lock, nor
+    after a failure); the processes started."""
+    started = []
+    while _PENDING:
+        _, (descriptor, shape, cache_dir) = _PENDING.popitem()
+        try:
+            proc = start_build(descriptor, shape, cache_dir)
+        except OSError:  # a cache gone unwritable meanwhile: no build, no trace
+            proc = None
+        if proc is not None:
+            started.append(proc)
+    return started
+
+
 def _spawn(argv: list[str]) -> subprocess.Popen:
     """Start ``argv`` detached: its own session, no terminal, not waited for."""
     return subprocess.Popen(
@@ -383,7 +426,8 @@ def network_runner(
     ``(m, 3, h, w)`` (``descriptor.prepare``'s output) -> ``(m, dim)`` rows, the
     compiled package where :func:`plan` says it pays and it can be built, else
     the eager module (the reference); with ``"background"`` a builder process
-    is started for the next jobs.
+    is queued for the next jobs, started once this one is over
+    (:func:`build_after_jobs`).
     """
 
     if isinstance(descriptor, FastDescriptor):
@@ -398,7 +442,8 @@ def network_runner(
         if step == "load" and not package_ready(path):  # damaged: deleted
             step = plan(descriptor, frames, policy, False)
         if step == "background":
-            start_build(descriptor, shape, cache_dir)
+            lock_held(lock_path(path))  # an unreadable cache: said now, not at exit
+            build_after_jobs(descriptor, shape, cache_dir)
     except OSError as err:  # a cache that cannot be read or written: warn once
         from rhythmic_jax.frames.cache_files import cache_unusable
 

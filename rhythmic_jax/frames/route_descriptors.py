@@ -5,10 +5,14 @@ is :func:`describe_frames`: the frames of one image folder (in natural name
 order), or the tiles of one large image, described the way ``fit`` describes
 them (the same descriptor, weights and cache:
 :func:`rhythmic_jax.frames.sources.load_sources`) and written as one float32
-``.npy`` of shape (n, d), row i = frame i. ``fit``, ``query``, ``evaluate``,
-``learn`` and ``frontier`` then read the file instead of the images: a map
-fitted on it is the map the folder gives (same periods, same predictions), and
-nothing is described again.
+``.npy`` of shape (n, d), row i = frame i, with its provenance beside it
+(``summer.npy.json``: the descriptor and its settings, input size and weights'
+digest among them, the frames' folder and names;
+:func:`rhythmic_jax.io.descriptor_files.save_described`). ``fit``, ``query``,
+``evaluate``, ``learn`` and ``frontier`` then read the file instead of the
+images: a map fitted on it is the map the folder gives (same periods, same
+predictions, the same descriptor recorded, so image queries, ``--matches`` and
+embeddings learned on the folders work with it), and nothing is described again.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ def describe_frames(
     out: str | Path | None = None,
     progress: bool = False,
     compile: CompilePolicy = AUTO,
+    input_size: tuple[int, int] | None = None,
 ) -> np.ndarray:
     """Descriptors (n, d) float32 of the frames of ``source``, written to ``out``.
 
@@ -50,6 +55,8 @@ def describe_frames(
         nothing.
       progress: show a progress bar; compile: when a network runs compiled
         (:class:`rhythmic_jax.frames.compiled.CompilePolicy`).
+      input_size: (width, height) the frames are resized to (default the
+        descriptor's own: :data:`rhythmic_jax.frames.sources.INPUT_SIZES`).
 
     Returns the rows as ``fit`` would have described them, so ``fit(out)`` gives
     the map ``fit(source)`` gives. Frames already described with the same
@@ -69,16 +76,34 @@ def describe_frames(
         _check_out(Path(out))
     feats = load_sources(
         [str(path)], descriptor, tile, stride, progress, weights=weights,
-        compile=compile, keep_images=False,
+        compile=compile, keep_images=False, input_size=input_size,
     )  # fmt: skip
     x = np.ascontiguousarray(feats.x, np.float32)
     if out is not None:
-        from rhythmic_jax.io.atomic import save_npy
+        from rhythmic_jax.io.descriptor_files import save_described
         from rhythmic_jax.io.outputs import write_errors
 
         with write_errors("out", str(out)):
-            save_npy(out, x)
+            save_described(out, x, provenance(path, feats, tile, stride))
     return x
+
+
+def provenance(source: Path, feats, tile: int | None, stride: int | None) -> dict:
+    """What made the rows of ``feats`` from ``source``: the descriptor, its
+    settings (input size, weights' digest), the source's absolute path (the
+    frames' folder, or the tiled image) and its frames' names in row order."""
+    from rhythmic_jax.io.images import list_images
+
+    folder = source.expanduser().absolute()
+    frames = (
+        [f.name for f in list_images(source, "traversal")] if source.is_dir() else []
+    )
+    record = {"descriptor": feats.descriptor, "settings": feats.settings,
+              "input_size": [feats.settings.get("width"), feats.settings.get("height")],
+              "folder": str(folder), "frames": frames}  # fmt: skip
+    if tile is not None:
+        record["tile"] = [int(tile), int(stride or max(1, tile // 2))]
+    return record
 
 
 def _check_out(out: Path) -> None:

@@ -13,6 +13,7 @@ Several sources share place labels: row i of each is place i.
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compiled import AUTO, CompilePolicy
+from rhythmic_jax.io.descriptor_files import read_record
 from rhythmic_jax.io.vpr_files import HDF5_SUFFIXES
 from rhythmic_jax.validate import check_int
 
@@ -32,6 +34,11 @@ __all__ = [
     "Features",
     "apply_projection",
     "describe_images",
+    "files_descriptor",
+    "INPUT_SIZES",
+    "parse_input_size",
+    "size_settings",
+    "size_text",
     "load_query_source",
     "load_sources",
     "reference_features",
@@ -40,6 +47,10 @@ __all__ = [
 
 DEFAULT_DESCRIPTOR = "patchnorm"
 NPY_DESCRIPTOR = "features"
+#: Each descriptor's input (width, height) in pixels where --input-size gives none
+#: (frames are resized to it; patchnorm and hog read them grey).
+INPUT_SIZES = {"patchnorm": (64, 32), "hog": (64, 32),
+               "efficientnet_lite0": (224, 112), "vgg16_fc7": (224, 224)}  # fmt: skip
 STRIDE_NEEDS_TILE = "{opt:stride} needs {opt:tile} (it is the step between tiles)"
 
 
@@ -59,6 +70,70 @@ class Features:
     extra: dict = field(default_factory=dict)
     images: np.ndarray | None = None  # uint8 (n, H, W, 3) for image sources
     describer: Descriptor | None = field(default=None, compare=False)
+
+
+def parse_input_size(text: str | None) -> tuple[int, int] | None:
+    """``"224x112"`` -> ``(224, 112)`` (width, height); None stays None."""
+    if text is None:
+        return None
+    w, sep, h = str(text).lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit() and int(w) > 0 and int(h) > 0):
+        raise InputError(
+            f"{{opt:input_size}} must be WIDTHxHEIGHT in pixels (224x112), got {text!r}"
+        )
+    return int(w), int(h)
+
+
+def size_settings(size: tuple[int, int] | None) -> dict:
+    """A descriptor's settings for the input ``size`` (none: its default)."""
+    return {} if size is None else {"width": int(size[0]), "height": int(size[1])}
+
+
+def size_text(settings: dict) -> str:
+    """``"224x112"``: the input size a descriptor's settings record."""
+    return f"{settings.get('width')}x{settings.get('height')}"
+
+
+def files_descriptor(paths, descriptor, weights, input_size):
+    """``(name, settings, declared)`` of descriptor files: their records' (which
+    must agree with each other and with ``descriptor`` and ``input_size`` where
+    given), else ``descriptor``'s as declared (``declared``: that descriptor,
+    resolved, to check the files' dimension), else ``features``."""
+    records = [(p, read_record(p)) for p in paths if p.suffix.lower() == ".npy"]
+    made = {}
+    for p, r in records:
+        if r is not None:
+            made.setdefault(json.dumps([r["descriptor"], r["settings"]],
+                                       sort_keys=True), p)  # fmt: skip
+    if len(made) > 1:
+        first, other = list(made.values())[:2]
+        raise InputError(
+            f"{first} and {other} were described differently (their records "
+            "differ); describe the traversals alike"
+        )
+    if made:
+        name, settings = json.loads(next(iter(made)))
+        if descriptor is not None and descriptor != name:
+            raise InputError(
+                f"{next(iter(made.values()))}: described with {name} (its record "
+                f"says), not {descriptor}"
+            )
+        if input_size is not None and size_settings(input_size) != {
+            "width": settings.get("width"),
+            "height": settings.get("height"),
+        }:
+            raise InputError(
+                f"{next(iter(made.values()))}: described at {size_text(settings)}, "
+                f"not {input_size[0]}x{input_size[1]} ({{opt:input_size}})"
+            )
+        return name, settings, None
+    if descriptor is None:
+        return NPY_DESCRIPTOR, {}, None
+    settings = size_settings(input_size)
+    if weights is not None:
+        settings["weights"] = str(Path(weights).expanduser().absolute())
+    declared = _resolve(descriptor, settings)
+    return descriptor, declared.settings(), declared
 
 
 def _kind(path: Path, tile: int | None) -> str:
@@ -221,8 +296,16 @@ def load_sources(
     compile: CompilePolicy = AUTO,
     keep_images: bool = True,
     select: str | None = None,
+    input_size: tuple[int, int] | None = None,
 ) -> Features:
     """Reference features from one or several sources of the same kind.
+
+    A descriptor file names what described it through its record
+    (:func:`rhythmic_jax.io.descriptor_files.read_record`, written by
+    ``describe``), or ``descriptor`` (with ``weights`` and ``input_size``)
+    declares it for files without one; else it is ``features``, descriptors of
+    unknown make. ``input_size``: (width, height) the frames are resized to for
+    the descriptor (default its own, :data:`INPUT_SIZES`).
 
     ``same_length``: traversals must match frame for frame (row i of each is
     place i); False when places come from elsewhere (positions). ``compile``:
@@ -239,18 +322,17 @@ def load_sources(
     if len(kinds) > 1:
         raise InputError(f"mixed source kinds {sorted(kinds)}; give one kind at a time")
     kind = kinds.pop()
+    declared = None  # the descriptor a .npy without a record is declared to hold
     if kind == "npy":
-        if descriptor is not None:
-            raise InputError(
-                "{option} applies to images; .npy files are descriptors",
-                option="descriptor",
-            )
-        name, settings, desc = NPY_DESCRIPTOR, {}, None
+        name, settings, declared = files_descriptor(
+            paths, descriptor, weights, input_size
+        )
+        desc = None
     else:
         name, settings = descriptor or DEFAULT_DESCRIPTOR, {}
         if weights is not None:
             settings = {"weights": str(Path(weights).expanduser().absolute())}
-        desc = _resolve(name, settings)
+        desc = _resolve(name, settings | size_settings(input_size))
         settings = desc.settings()
     blocks, images = [], []
     for p in paths:
@@ -266,7 +348,12 @@ def load_sources(
                 f"{p}: {x.shape[0]} frames of {x.shape[1]}-d, but {paths[0]} has "
                 f"{n} of {d}-d; traversals of one route must match frame for frame"
             )
-    if kind == "npy":
+    if declared is not None and declared.dim != d:
+        raise InputError(
+            f"{paths[0]}: {d}-d rows, but {name} at {size_text(settings)} gives "
+            f"{declared.dim}-d; {{opt:descriptor}} names what described the file"
+        )
+    if kind == "npy" and name == NPY_DESCRIPTOR:
         settings = {"dim": d}
     labels = np.concatenate([np.arange(len(b)) for b in blocks])
     kept = kind != "npy" and all(im is not None for im in images)
@@ -330,12 +417,15 @@ def load_query_source(
     weights: str | None = None,
     compile: CompilePolicy = AUTO,
     select: str | None = None,
+    input_size: tuple[int, int] | None = None,
 ) -> Features:
     """Query features described the way ``model`` (a fitted map) was built.
 
     ``weights``: a copy of the descriptor's weights file at another path (checked
     against the sha256 the map recorded); ``compile``: when a descriptor network
     runs compiled; ``select``: an hloc ``.h5``'s rows whose names start with it.
+    A descriptor file's record (``describe``'s) must name the map's descriptor
+    and input size; ``input_size``, where given, must be the map's.
     """
     path = Path(source)
     tile, stride = _map_tiling(path, model, tile, stride)
@@ -350,8 +440,11 @@ def load_query_source(
         )
     if kind != "npy" and name == NPY_DESCRIPTOR:
         raise InputError(
-            f"{path}: the map was built from descriptor files; give queries as .npy"
+            f"{path}: the map was fitted on descriptor files that name no "
+            "descriptor; give queries as .npy, or fit from files describe wrote "
+            "(or with {opt:descriptor} NAME)"
         )
+    _same_make(path, kind, name, settings, input_size)
     desc = None if kind == "npy" else _resolve(name, settings)
     x, _ = _one(path, kind, desc, tile, stride, progress, compile, False, select)
     if kind != "npy" or "pca_components" in model.extra and x.shape[1] != model.d:
@@ -361,6 +454,36 @@ def load_query_source(
             f"{path}: {x.shape[1]}-d features but the map was built for {model.d}-d"
         )
     return Features(x, np.arange(len(x)), name, settings, describer=desc)
+
+
+def _same_make(path: Path, kind: str, name: str, settings: dict, input_size) -> None:
+    """Refuse queries described otherwise than the map's frames: another input
+    size given, or a descriptor file whose record names another descriptor or
+    size (a map of unknown make takes any)."""
+    if name == NPY_DESCRIPTOR:
+        return
+    size = size_text(settings)
+    if input_size is not None and size_settings(input_size) != {
+        "width": settings.get("width"),
+        "height": settings.get("height"),
+    }:
+        raise InputError(
+            f"{{opt:input_size}} {input_size[0]}x{input_size[1]}: the map's frames "
+            f"were described at {size}; queries must be described alike"
+        )
+    record = read_record(path) if kind == "npy" and path.suffix == ".npy" else None
+    if record is None:
+        return
+    if record["descriptor"] != name:
+        raise InputError(
+            f"{path}: described with {record['descriptor']}, the map's frames with "
+            f"{name}; describe the queries alike"
+        )
+    if size_text(record["settings"]) != size:
+        raise InputError(
+            f"{path}: described at {size_text(record['settings'])}, the map's frames "
+            f"at {size}; describe the queries with {{opt:input_size}} {size}"
+        )
 
 
 def _moved_weights(name: str, settings: dict, weights: str) -> dict:

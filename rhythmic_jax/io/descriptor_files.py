@@ -5,12 +5,23 @@ file per traversal, one row per frame in route order. The header is read and
 checked before any data (:func:`descriptor_shape`), so a file of Python objects
 is refused without being unpickled and a fit can be refused for its size before
 the file is read; writes are atomic (temporary file, then rename).
+
+A file ``describe`` writes keeps its provenance in a record beside it,
+``ref.npy.json`` (:func:`save_described`, :func:`read_record`): the descriptor
+and its settings (input size, the weights' digest), the frames' folder and
+names, the rows, dimension and sha256 of the ``.npy`` it belongs to. The record
+is written after the ``.npy`` and any older one removed before, so a file is
+never paired with a record of another; a reader checks the pairing (shape and
+digest) and refuses a record that does not belong to its file.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,8 +34,13 @@ __all__ = [
     "descriptor_shape",
     "load_descriptors",
     "read_npy_header",
+    "read_record",
+    "record_path",
+    "save_described",
     "save_descriptors",
 ]
+
+RECORD_FORMAT = "rhythmic_jax descriptor file"
 
 _HEADERS = {
     (1, 0): np.lib.format.read_array_header_1_0,
@@ -92,3 +108,67 @@ def save_descriptors(path: str | os.PathLike, x: np.ndarray) -> None:
         raise InputError(f"descriptor file must be .npy, got {path}")
     x = check_descriptors(np.asarray(x), "descriptors")
     save_npy(path, x)
+
+
+def record_path(path: str | os.PathLike) -> Path:
+    """The provenance record of the descriptor file ``path``: ``path`` + ``.json``."""
+    path = Path(path)
+    return path.with_name(path.name + ".json")
+
+
+def _sha256(path: Path) -> str:
+    from rhythmic_jax.io.reader import open_regular
+
+    digest = hashlib.sha256()
+    with open_regular(path) as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def save_described(path: str | os.PathLike, x: np.ndarray, record: dict) -> dict:
+    """Write float32 (n, d) ``x`` to ``path`` (.npy) and its provenance
+    ``record`` (JSON-able: descriptor, settings, folder, frames...) beside it
+    (:func:`record_path`), each atomically: an older record is removed first and
+    the new one, holding the file's rows, dimension and sha256, written last.
+    Returns the record as written."""
+    from rhythmic_jax.io.atomic import write_file
+
+    path = Path(path)
+    save_descriptors(path, x)  # the checks before anything is removed
+    side = record_path(path)
+    if side.is_file() or side.is_symlink():
+        side.unlink()
+    n, d = np.shape(x)
+    full = {"format": RECORD_FORMAT, **record, "rows": int(n), "dim": int(d),
+            "sha256": _sha256(path)}  # fmt: skip
+    write_file(side, json.dumps(full, indent=1, sort_keys=True) + "\n")
+    return full
+
+
+def read_record(path: str | os.PathLike) -> dict[str, Any] | None:
+    """The provenance record of the descriptor file ``path``, or None when it has
+    none (no ``path.json``). Refuses (:class:`InputError`, one line) a record that
+    is not one, or that belongs to another file (its rows, dimension or sha256
+    differ from the file's)."""
+    from rhythmic_jax.io.reader import read_json
+
+    path, side = Path(path), record_path(path)
+    if not side.exists():
+        return None
+    record = read_json(side, "descriptor record", limit=1 << 28)
+    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
+        raise InputError(f"{side}: not a descriptor record (describe writes them)")
+    shape = descriptor_shape(path)
+    if tuple(shape) != (record.get("rows"), record.get("dim")) or record.get(
+        "sha256"
+    ) != _sha256(path):
+        raise InputError(
+            f"{side}: the record of another file than {path} (its rows or digest "
+            "differ); describe the frames again, or remove the record"
+        )
+    if not isinstance(record.get("descriptor"), str) or not isinstance(
+        record.get("settings"), dict
+    ):
+        raise InputError(f"{side}: not a descriptor record (no descriptor named)")
+    return record

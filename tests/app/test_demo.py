@@ -61,3 +61,21 @@ def test_demo_prints_a_baseline_at_the_maps_bytes_recomputed(tmp_path, capsys):
     line = next(s for s in printed.split("\n")[::-1] if s.startswith(names[0] + " "))
     assert f"{row['accuracy']:.4f}" in line and f"{row['storage_bytes']:,}" in line
     assert row["latency_median_s"] > 0  # timed like the other rows
+
+
+def test_the_demo_writes_into_a_fresh_temporary_folder(tmp_path, monkeypatch):
+    """Without --out the demo's folder is a new one under the system's temporary
+    folder, never an existing one, and never the current folder."""
+    from rhythmic_jax.app.demo import fresh_folder
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)  # TMPDIR read again
+    (tmp_path / "rhythmic_demo-1").mkdir()
+    first, second = fresh_folder("rhythmic_demo"), fresh_folder("rhythmic_demo")
+    assert (first, second) == (
+        tmp_path / "rhythmic_demo-2",
+        tmp_path / "rhythmic_demo-3",
+    )
+    assert first.is_dir() and not any(first.iterdir())

@@ -105,7 +105,8 @@ def test_rows_of_a_npy_are_numbered_and_sequences_ranked_over_the_sequence(
     assert code == 0, err
     result = json.loads(out)
     rows = result["queries"]
-    assert [r["query"] for r in rows] == list(range(40))
+    assert [r["query"] for r in rows] == [str(i) for i in range(40)]  # one type
+    assert [r["index"] for r in rows] == list(range(40))
     assert all(r["place_name"] is None and len(r["top"]) == 5 for r in rows)
     assert result["ranks"] == "sequence scores (L=4, speed 1)"
     npy_map = RhythmicMap.load(tmp_path / "n.map")
@@ -118,7 +119,7 @@ def test_top_without_json_or_csv_is_refused(folders, capsys, tmp_path):
     root = folders
     code, _, err = run(capsys, "query", str(root / "m.map"), str(root / "qry"),
                        "--top", "3")  # fmt: skip
-    assert code == 2 and "--top needs --json or --csv" in err
+    assert code == 2 and "--top needs --json, --csv or --pairs" in err
     assert len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, "query", str(root / "m.map"), str(root / "qry"),
                        "--csv", str(tmp_path / "none" / "r.csv"))  # fmt: skip

@@ -266,13 +266,25 @@ def _dead_pid() -> int:
     return proc.pid
 
 
+def _job(desc, frames: int):
+    """A job's network, then the job over: the builds it queued start."""
+    run = network_runner(desc, frames, CompilePolicy())
+    compiled.start_pending_builds()
+    return run
+
+
 def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
+    """The first job runs eagerly beside no builder: the build it asks for
+    starts once the job is over (one, detached), not while it runs."""
     import json
     import os
 
     desc = get_descriptor("efficientnet_lite0")
     run = network_runner(desc, 100, CompilePolicy())
+    network_runner(desc, 100, CompilePolicy())  # the same package: queued once
     assert isinstance(run, compiled.Sliced)
+    assert spawned == []  # nothing beside the job
+    compiled.start_pending_builds()
     assert len(spawned) == 1
     argv = spawned[0]
     assert argv[1:3] == ["-m", "rhythmic_jax.frames.network_build"]
@@ -286,16 +298,16 @@ def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
     lock = package.with_suffix(".lock")
     package.parent.mkdir(parents=True)
     lock.write_text(f"{os.getpid()}\n")  # a builder at work: no second one
-    network_runner(desc, 100, CompilePolicy())
+    _job(desc, 100)
     assert len(spawned) == 1
     lock.write_text(f"{_dead_pid()}\n")  # its builder was killed: start again
-    network_runner(desc, 100, CompilePolicy())
+    _job(desc, 100)
     assert len(spawned) == 2
     lock.unlink()
     package.with_suffix(".failed").write_text("RuntimeError: no compiler\n")
-    network_runner(desc, 100, CompilePolicy())  # failed before: not again
+    _job(desc, 100)  # failed before: not again
     assert len(spawned) == 2
-    network_runner(desc, LOAD_MIN_FRAMES - 1, CompilePolicy())
+    _job(desc, LOAD_MIN_FRAMES - 1)
     assert len(spawned) == 2
 
 
@@ -330,7 +342,8 @@ def test_damaged_package_is_deleted_never_loaded_and_rows_match(spawned, caplog)
     np.testing.assert_array_equal(auto, eager)
     assert not package.exists()
     assert [r.getMessage() for r in caplog.records if "damaged" in r.getMessage()]
-    assert len(spawned) == 1  # built again, in the background
+    compiled.start_pending_builds()
+    assert len(spawned) == 1  # built again, in the background, after the job
 
     package.write_bytes(b"not a zip at all")  # a foreign file: the same
     assert not compiled.package_ready(package) and not package.exists()

@@ -96,3 +96,37 @@ def test_shape_comes_from_the_header_alone(tmp_path):
     (tmp_path / "obj.npy").write_bytes(pickle.dumps([1, 2]))
     with pytest.raises(InputError, match="Python objects; refusing to unpickle"):
         descriptor_shape(tmp_path / "obj.npy")
+
+
+def test_a_described_file_and_its_record_stay_paired(tmp_path):
+    """save_described writes the .npy and its record (rows, dimension and the
+    file's sha256, checked against hashlib); a record whose file was since
+    rewritten, or a JSON file that is no record, is refused in one line; a
+    file without one has none."""
+    import hashlib
+    import json
+
+    from rhythmic_jax.errors import InputError
+    from rhythmic_jax.io.descriptor_files import (
+        read_record,
+        record_path,
+        save_described,
+    )
+
+    x = np.arange(12, dtype=np.float32).reshape(3, 4)
+    path = tmp_path / "ref.npy"
+    save_described(path, x, {"descriptor": "patchnorm", "settings": {"width": 64}})
+    record = read_record(path)
+    assert record_path(path) == tmp_path / "ref.npy.json"
+    assert (record["rows"], record["dim"], record["descriptor"]) == (3, 4, "patchnorm")
+    assert record["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    np.save(path, x[::-1].copy())  # same shape, other rows: not its record
+    with pytest.raises(InputError, match="the record of another file"):
+        read_record(path)
+    save_described(path, x[:2], {"descriptor": "hog", "settings": {}})
+    assert read_record(path)["rows"] == 2  # the old record replaced
+    record_path(path).write_text(json.dumps({"format": "something else"}))
+    with pytest.raises(InputError, match="not a descriptor record"):
+        read_record(path)
+    np.save(tmp_path / "plain.npy", x)
+    assert read_record(tmp_path / "plain.npy") is None
