@@ -3,7 +3,8 @@
 :class:`RhythmicMap` is an unsupervised place index: ``fit(X, y=None)`` trains
 on reference frames X (n_frames, d), one place per row, or per label of ``y``
 (several traversals of one route sharing templates); ``predict(X)`` gives the
-place of every query (-1 for no match) and ``score(X, y=None)`` its recall@1.
+place of every query (-1 for no match) and ``score(X, y=None)`` its recall@1
+within the ``tolerance`` (places) the command line's ``--tolerance`` gives.
 Its parameters are those of :class:`~rhythmic_jax.map.config.MapConfig` (the
 default decode named ``method``), the ``embedding`` and ``scale``, given by
 name and kept as given (``get_params``, ``set_params``, ``sklearn.clone``,
@@ -49,7 +50,7 @@ from rhythmic_jax.fitting.fit_map import fit as fit_map
 from rhythmic_jax.map import map_file, pytree
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.embedding import embedding_bytes
-from rhythmic_jax.validate import check_features
+from rhythmic_jax.validate import check_features, check_int
 
 __all__ = ["MapConfig", "MapEstimator", "RhythmicMap"]  # noqa: F822 - RhythmicMap: made on first use
 
@@ -87,12 +88,17 @@ class MapEstimator(EstimatorFace):
     it) and applied by this estimator's methods, not by the pure functions of
     ``map_``.
 
+    ``tolerance`` (int >= 0, default 0): the places of slack ``score`` allows,
+    as ``evaluate --tolerance`` does (a prediction within ``tolerance`` of the
+    right place, by label, counts), so ``GridSearchCV`` ranks settings by the
+    figure the command line prints; it does not change the fit.
+
     ``fit(X, y=None)``: y, when given, are the place labels of the frames
     (integers >= 0; frames of one label share a place), and ``predict`` answers
-    with them; ``score(X, y=None)`` is recall@1 against y, or with y None the
-    self-recall of reference frames X (row i is place i). To cross-validate
-    (``GridSearchCV``), give y and folds that each hold every place, e.g. one
-    traversal of the route per fold.
+    with them; ``score(X, y=None)`` is recall@1 (within ``tolerance``) against
+    y, or with y None the self-recall of reference frames X (row i is place i).
+    To cross-validate (``GridSearchCV``), give y and folds that each hold every
+    place, e.g. one traversal of the route per fold.
 
     Fitted: ``map_`` (the :class:`~rhythmic_jax.map.pytree.Map`),
     ``n_features_in_`` (d). ``RhythmicMap.from_config(config)`` builds one
@@ -128,19 +134,23 @@ class MapEstimator(EstimatorFace):
         layout="periods",
         embedding=None,
         scale="auto",
+        tolerance=0,
     ):
         self.r, self.level, self.count, self.c = r, level, count, c
         self.solver, self.gap, self.method, self.top = solver, gap, method, top
         self.threshold, self.descriptor = threshold, descriptor
         self.descriptor_settings, self.dtype = descriptor_settings, dtype
         self.codes, self.fusion, self.layout = codes, fusion, layout
-        self.embedding, self.scale = embedding, scale
+        self.embedding, self.scale, self.tolerance = embedding, scale, tolerance
 
     # ------------------------------------------------------------ settings
     @classmethod
-    def from_config(cls, config: MapConfig, *, embedding=None, scale="refuse"):
+    def from_config(
+        cls, config: MapConfig, *, embedding=None, scale="refuse", tolerance=0
+    ):
         """An unfitted estimator whose parameters are ``config``'s fields."""
-        return cls(**_params_of(config), embedding=embedding, scale=scale)
+        return cls(**_params_of(config), embedding=embedding, scale=scale,
+                   tolerance=tolerance)  # fmt: skip
 
     @property
     def config(self) -> MapConfig:
@@ -346,7 +356,11 @@ class MapEstimator(EstimatorFace):
         """Recall@1 of queries X (b, d) against their places ``y`` (b,) (-1: a
         place not in the map, right when rejected); ``y`` None: X are the
         reference frames, one per place in order (self-recall, the paper's
-        Table 2 protocol)."""
+        Table 2 protocol). A prediction is right within ``tolerance`` places:
+        ``|predict(X)[i] - y[i]| <= tolerance`` (``evaluate --tolerance``'s
+        accuracy within the tolerance, of the map's default decode)."""
+        msg = f"tolerance must be an integer >= 0, got {self.tolerance!r}"
+        tol = check_int(self.tolerance, "tolerance", 0, msg=msg)
         pred = self.predict(X)
         truth = np.arange(len(pred)) if y is None else np.asarray(y)
         if truth.dtype.kind == "f" and np.array_equal(truth, np.round(truth)):
@@ -356,7 +370,8 @@ class MapEstimator(EstimatorFace):
                 f"y: expected {len(pred)} integer places (one per query), got "
                 f"shape {truth.shape} of dtype {truth.dtype}"
             )
-        right = np.where(truth >= 0, pred == truth, pred == -1)
+        near = (pred >= 0) & (np.abs(pred - truth) <= tol)
+        right = np.where(truth >= 0, near, pred == -1)
         return float(np.mean(right))
 
     def locate(self, q) -> int:

@@ -48,6 +48,9 @@ SHOWN = {
     "rhythmic-jax demo": r"^map: periods",
     "rhythmic-jax frontier summer.npy winter.npy": r"places of .*queries; ground",
 }
+# of those, the outputs whose figures (timings aside) a run must print as shown
+# (the frontier block is of other data: its figures come from a report)
+FIGURES = ("rhythmic-jax demo",)
 
 
 # --------------------------------------------------------------- the commands
@@ -210,8 +213,12 @@ def make_files(cwd: Path, nordland: Path, aerial: Path) -> None:
                                 for i, (e, u) in enumerate(ref_xy)])  # fmt: skip
     _link(w, cwd / "queries", [f"@{e:.0f}@{u:.0f}@q{i:03d}.png"
                                for i, (e, u) in enumerate(qry_xy)])  # fmt: skip
-    for name, xy in (("ref_positions.csv", ref_xy), ("query_positions.csv", qry_xy),
-                     ("db_positions.csv", ref_xy), ("q_positions.csv", qry_xy)):
+    for name, xy in (
+        ("ref_positions.csv", ref_xy),
+        ("query_positions.csv", qry_xy),
+        ("db_positions.csv", ref_xy),
+        ("q_positions.csv", qry_xy),
+    ):
         _positions(cwd / name, xy)  # fmt: skip
     # RobotCar-style runs of other lengths, positions apart by a few metres
     _link([summer[i] for i in RUNS], cwd / "run1")
@@ -322,6 +329,208 @@ def test_every_command_as_written(doc_folder):
             if doc == DOCUMENTS[0].name and cmd.startswith(prefix):
                 missing = unmatched_lines(lines, done.stdout)
                 if missing:
-                    failed.append(f"{doc}: {cmd}: printed no line shaped like "
-                                  f"{missing[0]!r}:\n{done.stdout[-1500:]}")
+                    failed.append(
+                        f"{doc}: {cmd}: printed no line shaped like "
+                        f"{missing[0]!r}:\n{done.stdout[-1500:]}"
+                    )
+                if cmd == prefix and prefix in FIGURES:
+                    failed.extend(figure_differences(lines, done.stdout))
     assert not failed, "\n".join(failed)
+
+
+# ------------------------------------------- the figures the documents quote
+
+# words of a printed line that say how long something took: never compared
+TIMING = (
+    re.compile(r"fitted in [\d.]+ s"),
+    re.compile(r"[\d.]+ ms\b"),
+    re.compile(r"\b\d+ s$"),
+)
+NUMBER = re.compile(r"[-+]?\d[\d,]*(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+def figures(line: str) -> list[str]:
+    """The numbers of a printed line as printed, its timings left out: the
+    ``fitted in`` seconds, every ``ms`` and, in a table row (a name, then ten
+    or more numbers), the last column (queries per second)."""
+    for pattern in TIMING:
+        line = pattern.sub("", line)
+    found = NUMBER.findall(line)
+    if re.match(r"^[a-z][a-z +]*\s{2,}\d", line) and len(found) >= 10:
+        found = found[:-1]
+    return found
+
+
+def figure_differences(shown: list[str], printed: str) -> list[str]:
+    """Lines of a shown output whose figures (timings aside) a printed line of
+    the same shape does not have: each shown line is paired with the next
+    printed line of its shape, in order."""
+    lines = printed.splitlines()
+    out, at = [], 0
+    for line in shown:
+        if not line.strip():
+            continue
+        for j in range(at, len(lines)):
+            if shape(lines[j]) == shape(line):
+                if figures(lines[j]) != figures(line):
+                    out.append(f"README: {line.strip()}\n  run: {lines[j].strip()}")
+                at = j + 1
+                break
+        else:
+            out.append(f"README: {line.strip()}\n  run: (no line of this shape)")
+    return out
+
+
+def test_figure_differences_see_a_changed_figure_and_not_a_timing():
+    shown = [
+        "map: periods (62, 63), 512,500 bytes = 0.1302 of the 3,936,256-byte "
+        "database; fitted in 3.2 s",
+        "map                0.1613       0.1644       0.2393       0.3850       "
+        "0.4495       0.5213       0.1150       0.0125      512,500     0.012 ms"
+        "      495,571",
+        "map: R@1: 23.9, R@5: 38.5, R@10: 45.0, R@20: 52.1 (over 961 queries)",
+    ]
+    timing_only = "\n".join(
+        [shown[0].replace("3.2 s", "4.7 s"),
+         shown[1].replace("0.012 ms", "0.020 ms").replace("495,571", "301,002"),
+         shown[2]]
+    )  # fmt: skip
+    assert figure_differences(shown, timing_only) == []
+    stale = timing_only.replace("0.5213", "0.5224").replace("52.1", "52.2")
+    assert len(figure_differences(shown, stale)) == 2
+    assert figure_differences(shown, "nothing printed")
+
+
+@pytest.mark.slow
+def test_the_demo_prints_the_figures_the_readme_shows(tmp_path):
+    """``rhythmic-jax demo`` as the README runs it prints the figures of its
+    "What the demo prints" block (accuracy, recall, PR-AUC, bytes, ratios;
+    timings aside): a difference fails."""
+    env = dict(os.environ)
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"
+    env["PYTHONPATH"] = os.pathsep.join(
+        p for p in (str(ROOT), env.get("PYTHONPATH")) if p
+    )
+    env["RHYTHMIC_JAX_CACHE"] = str(tmp_path / "cache")
+    done = subprocess.run(
+        ["bash", "-c", "rhythmic-jax demo --no-progress"], cwd=tmp_path, env=env,
+        capture_output=True, text=True, timeout=1800,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-1500:]
+    shown = shown_outputs()["rhythmic-jax demo"]
+    differences = figure_differences(shown, done.stdout)
+    assert not differences, "the README's demo block is not what a run prints:\n" + (
+        "\n".join(differences)
+    )
+
+
+# the README's figures quoted from a report's JSON: (report, the README line's
+# words, the figures as a function of the JSON, each formatted as the README
+# rounds it)
+def _row(rows, **match):
+    return next(r for r in rows if all(r.get(k) == v for k, v in match.items()))
+
+
+def _desc(d, name):
+    return _row(d["results"], name=name)["recall_at_1"]
+
+
+QUOTED = [
+    ("reproduction.json", "Table 2, Nordland summer self-query", lambda d: [
+        f"{_row(d['table2'], level=1, r=2)['accuracy']:.4f}",
+        f"{_row(d['table2'], level=2, r=2)['accuracy']:.4f}"]),
+    ("reproduction.json", "Table 3, summer self-query", lambda d: [
+        f"{_row(d['table3']['rows'], method='map level 1')['summer (self-query)']['batch_queries_per_s']:,.0f}",  # noqa: E501
+        f"{_row(d['table3']['rows'], method='brute force')['summer (self-query)']['batch_queries_per_s']:,.0f}",  # noqa: E501
+        f"{_row(d['table3']['rows'], method='map level 1')['summer (self-query)']['accuracy']:.3f}",  # noqa: E501
+        f"{_row(d['table3']['rows'], method='brute force')['summer (self-query)']['accuracy']:.3f}"]),  # noqa: E501
+    ("descriptors.json", "descriptors, Nordland winter -> summer", lambda d: [
+        f"{_desc(d, 'patchnorm'):.3f}", f"{_desc(d, 'hog'):.3f}",
+        f"{_desc(d, 'efficientnet_lite0'):.3f}"]),
+    ("span.json", "EfficientNet-Lite0 3576 x 10976, to the optimum", lambda d: [
+        f"{d['rows'][0]['wall_s']:.1f} s", f"{d['rows'][1]['wall_s']:.1f} s",
+        f"{d['speedup_wall']:.2f}x"]),
+    ("decode.json", "batch decoding vs faiss IndexFlatIP", lambda d: [
+        f"{d['cases'][0]['batch_speedup']:.1f}x",
+        f"FLOP ratio {d['cases'][0]['flop_ratio']:.1f}"]),
+]  # fmt: skip
+
+
+def readme_line(words: str) -> str:
+    lines = [x for x in DOCUMENTS[0].read_text().splitlines() if words in x]
+    assert len(lines) == 1, f"README lines with {words!r}: {len(lines)}"
+    return lines[0]
+
+
+@pytest.mark.parametrize("report, words, want", QUOTED, ids=[q[1] for q in QUOTED])
+def test_the_readme_shows_the_reports_figures(report, words, want):
+    """Each figure the README's results table quotes, read from the report's
+    JSON and rounded as the README shows it, is on the README's line."""
+    from rhythmic_jax.io.reader import read_json
+
+    data = read_json(ROOT / "reports" / report)
+    line = readme_line(words)
+    missing = [f for f in want(data) if f not in line]
+    assert not missing, f"reports/{report} gives {missing}; README: {line}"
+
+
+FRONTIER_COLUMNS = {  # README column -> the JSON row's key, the printed format
+    "B/place": ("bytes_per_place", "{:,.0f}"),
+    "share %": ("share", "{:.2f}"),
+    "R@1": ("recall@1 L=1", "{:.4f}"),
+    "R@100P": ("recall@100p", "{:.4f}"),
+    "R@1 L=5": ("recall@1 L=5", "{:.4f}"),
+    "R@1 L=10": ("recall@1 L=10", "{:.4f}"),
+}
+
+
+def readme_frontier() -> list[dict[str, str]]:
+    """The README's frontier table (the ``frontier`` block) as rows of
+    ``{column: cell}`` (cells right-aligned under their header)."""
+    lines = shown_outputs()["rhythmic-jax frontier summer.npy winter.npy"]
+    i = next(j for j, x in enumerate(lines) if x.lstrip().startswith("representation"))
+    head = lines[i]
+    ends = {c: head.index(c) + len(c) for c in FRONTIER_COLUMNS}
+    start = min(head.index(c) for c in FRONTIER_COLUMNS)
+    rows = []
+    for line in lines[i + 1 :]:
+        if not line.startswith(("*  ", "   ")):
+            break
+        row = {"name": line[3:start].strip()}
+        row.update({c: line[ends[c] - 9 : ends[c]].split()[-1] for c in ends})
+        rows.append(row)
+    return rows
+
+
+def test_the_readme_frontier_table_is_a_reports_rows():
+    """The README's frontier table is the rows of a report (the one in
+    ``reports/`` holding every row it names): each figure, as the table rounds
+    it, is the report's."""
+    from rhythmic_jax.io.reader import read_json
+
+    table = readme_frontier()
+    assert len(table) >= 5
+    names = {r["name"] for r in table}
+    best, rows = None, {}
+    for path in sorted((ROOT / "reports").glob("*.json")):
+        data = read_json(path)
+        got = data.get("rows") if isinstance(data, dict) else None
+        if isinstance(got, list) and all(isinstance(r, dict) for r in got):
+            named = {r.get("name"): r for r in got}
+            if best is None or len(names & set(named)) > len(names & set(rows)):
+                best, rows = path, named
+    assert best is not None and names <= set(rows), (
+        f"rows of the README's frontier table in no report: {sorted(names - set(rows))}"
+    )
+    stale = []
+    for row in table:
+        for col, (key, fmt) in FRONTIER_COLUMNS.items():
+            value = rows[row["name"]].get(key)
+            if key == "share" and value is not None:
+                value = 100 * value
+            want = "-" if value is None else fmt.format(value)
+            if row[col] != want:
+                stale.append(
+                    f"{row['name']} {col}: README {row[col]}, {best.name} {want}"
+                )
+    assert not stale, "\n".join(stale)

@@ -364,3 +364,61 @@ def test_scale_auto_standardises_frames_of_extreme_length(scale):
     assert np.mean(got == right) > 0.5
     with pytest.raises(InputError, match="RMS length"):
         RhythmicMap(scale="refuse").fit(far)
+
+
+# ------------------------------------------------------- score's tolerance
+
+
+def test_tolerance_is_a_parameter_clone_and_set_params_keep():
+    """``tolerance`` round-trips through get_params / clone / set_params and
+    a grid over it, and changes no fit."""
+    est = RhythmicMap(r=3, tolerance=2)
+    assert est.get_params()["tolerance"] == 2
+    twin = clone(est)
+    assert twin.get_params() == est.get_params() and twin is not est
+    assert "tolerance=2" in repr(est) and "tolerance" not in repr(RhythmicMap())
+    assert clone(est.set_params(tolerance=1)).tolerance == 1
+    assert RhythmicMap.from_config(MapConfig(), tolerance=3).tolerance == 3
+    x = route(60, 32, seed=11)
+    a = RhythmicMap(tolerance=0).fit(x, progress=False)
+    b = RhythmicMap(tolerance=5).fit(x, progress=False)
+    np.testing.assert_array_equal(a.predict(x), b.predict(x))
+    assert pickle.loads(pickle.dumps(b)).tolerance == 5
+
+
+def test_score_counts_a_place_within_the_tolerance():
+    """score(X, y) against numpy: |predict - y| <= tolerance, an outlier (y -1)
+    right only when rejected; it grows with the tolerance."""
+    x = route(80, 32, seed=12)
+    rng = np.random.default_rng(13)
+    q = x + 0.9 * rng.normal(size=x.shape).astype("f4") / np.sqrt(32)
+    est = RhythmicMap().fit(x, progress=False)
+    pred = est.predict(q)
+    y = np.arange(80)
+    y[::9] = -1
+    got = []
+    for tol in (0, 1, 3, 10):
+        want = np.where(y >= 0, (pred >= 0) & (np.abs(pred - y) <= tol), pred == -1)
+        est.set_params(tolerance=tol)
+        got.append(est.score(q, y))
+        assert got[-1] == pytest.approx(want.mean())
+    assert got == sorted(got) and got[-1] > got[0]
+    with pytest.raises(InputError, match="tolerance"):
+        est.set_params(tolerance=-1).score(q, y)
+
+
+def test_grid_search_scores_within_the_tolerance():
+    """GridSearchCV's scores are the held-out recall@1 within the estimator's
+    tolerance: the same folds give higher or equal scores at ±3 than at 0."""
+    x = route(60, 32, seed=14)
+    rng = np.random.default_rng(15)
+    two = np.concatenate([x, x + 0.6 * rng.normal(size=x.shape).astype("f4") / 6])
+    y = np.tile(np.arange(60), 2)
+    scores = {}
+    for tol in (0, 3):
+        est = RhythmicMap(tolerance=tol)
+        grid = GridSearchCV(est, {"r": [2, 3]}, cv=KFold(2), error_score="raise")
+        grid.fit(two, y, progress=False)
+        scores[tol] = grid.cv_results_["mean_test_score"]
+        assert grid.best_estimator_.tolerance == tol
+    assert np.all(scores[3] >= scores[0])

@@ -6,10 +6,14 @@ Conventions (shared by every function here):
   "no match" (the query was rejected).
 - ``gt`` (b,) int: the true reference index of each query, or ``-1`` when the
   query's place is not in the map (an outlier that should be rejected). With
-  queries taken from the map itself ``gt = arange(b)``.
-- ``tolerance`` (int >= 0): a prediction is correct when ``|pred - gt| <=
-  tolerance`` frames (0 is the paper's exact accuracy). Reports should always
-  print it; :class:`RecallAtK` carries it with the numbers.
+  queries taken from the map itself ``gt = arange(b)``. Or a
+  :class:`~rhythmic_jax.eval.ground_truth.GroundTruth` (what
+  ``rj.load_ground_truth`` reads): several right places per query, none for a
+  query not in the map; "correct" is then "among the query's right places".
+- ``tolerance`` (int >= 0): with index ``gt``, a prediction is correct when
+  ``|pred - gt| <= tolerance`` frames (0 is the paper's exact accuracy). Reports
+  should always print it; :class:`RecallAtK` carries it with the numbers. A
+  ``GroundTruth`` holds its right places already, so it takes no tolerance.
 - ``over`` (:data:`RECALL_OVER`): recall@K's denominator. ``"matched"``: the
   queries that have a right place (VPR_Tutorial's ``recallAtK`` drops the
   others); ``"all"``: every query (VPR-methods-evaluation divides by
@@ -79,12 +83,40 @@ def _pred_gt(pred, gt) -> tuple[np.ndarray, np.ndarray]:
     return pred, gt
 
 
+def _ground_truth(gt, tolerance):
+    """``gt`` when it is a :class:`GroundTruth` (then ``tolerance`` must be None),
+    else None (index arrays: ``tolerance`` is theirs). Known by what it holds
+    (``positives``, ``in_map``, ``hits``): :mod:`rhythmic_jax.eval.ground_truth`
+    builds on this module, not the other way."""
+    if not all(hasattr(gt, a) for a in ("positives", "in_map", "hits", "source")):
+        return None
+    if tolerance is not None:
+        raise InputError(
+            f"tolerance {tolerance!r} with a GroundTruth ({gt.source}): its right "
+            "places are given; a tolerance acts on index arrays only"
+        )
+    return gt
+
+
+def _checked_pred(pred, gt) -> np.ndarray:
+    """``pred`` (b,) as int64, one per query of the GroundTruth ``gt``."""
+    pred = _indices(pred, "pred", 1)
+    if pred.shape[0] != len(gt):
+        raise InputError(
+            f"pred has {pred.shape[0]} entries but the ground truth ({gt.source}) "
+            f"covers {len(gt)} queries"
+        )
+    if pred.size == 0:
+        raise InputError("pred and gt are empty: no query to evaluate")
+    return pred
+
+
 def _correct(pred: np.ndarray, gt: np.ndarray, tolerance: int) -> np.ndarray:
     """(...) bool: a real match within ``tolerance`` of a place that is in the map."""
     return (pred >= 0) & (gt >= 0) & (np.abs(pred - gt) <= tolerance)
 
 
-def accuracy(pred, gt, tolerance: int = 0) -> float:
+def accuracy(pred, gt, tolerance: int | None = None) -> float:
     """Fraction of queries answered correctly.
 
     A query whose place is in the map (``gt[i] >= 0``) is correct when
@@ -92,13 +124,20 @@ def accuracy(pred, gt, tolerance: int = 0) -> float:
     (``gt[i] == -1``) is correct when it is rejected (``pred[i] == -1``).
     ``tolerance = 0`` is the paper's accuracy (Table 2: queries from the map).
 
+    With a ``GroundTruth``, a query with right places is correct when
+    ``pred[i]`` is one of them, one without when it is rejected.
+
     Args:
       pred: (b,) int predicted indices, -1 for no match.
-      gt: (b,) int true indices, -1 for a place not in the map.
-      tolerance: frames of slack, >= 0.
+      gt: (b,) int true indices, -1 for a place not in the map; or a GroundTruth.
+      tolerance: frames of slack, >= 0 (index ``gt`` only; default 0).
     """
+    truth = _ground_truth(gt, tolerance)
+    if truth is not None:
+        pred = _checked_pred(pred, truth)
+        return float(np.where(truth.in_map, truth.hits(pred), pred == -1).mean())
     pred, gt = _pred_gt(pred, gt)
-    tol = _tolerance(tolerance)
+    tol = _tolerance(0 if tolerance is None else tolerance)
     ok = np.where(gt >= 0, _correct(pred, gt, tol), pred == -1)
     return float(ok.mean())
 
@@ -107,15 +146,17 @@ def accuracy(pred, gt, tolerance: int = 0) -> float:
 class RecallAtK:
     """Recall@K for several K, with the tolerance and query count it was taken at.
 
-    ``r[k]`` is the recall at ``k``; ``str(r)`` prints the tolerance beside it.
+    ``r[k]`` is the recall at ``k``; ``str(r)`` prints the tolerance beside it
+    (or, for a ``GroundTruth`` without a frame tolerance, its source).
     ``n_queries`` is the denominator: the queries with a right place
     (``over="matched"``) or every query (``over="all"``).
     """
 
     recall: Mapping[int, float]
-    tolerance: int
+    tolerance: int | None
     n_queries: int
     over: str = "matched"
+    ground_truth: str | None = None
 
     def __getitem__(self, k: int) -> float:
         return self.recall[k]
@@ -133,10 +174,12 @@ class RecallAtK:
     def __str__(self) -> str:
         rs = "  ".join(f"R@{k} {v:.4f}" for k, v in self.recall.items())
         which = "with a right place" if self.over == "matched" else "in all"
-        return (
-            f"{rs}  (tolerance ±{self.tolerance} frames, over {self.n_queries} "
-            f"queries {which})"
+        judged = (
+            f"tolerance ±{self.tolerance} frames"
+            if self.tolerance is not None
+            else f"ground truth: {self.ground_truth}"
         )
+        return f"{rs}  ({judged}, over {self.n_queries} queries {which})"
 
 
 def recall_fractions(
@@ -162,7 +205,12 @@ def recall_fractions(
 
 
 def recall_at_k(
-    ranked, gt, ks: Sequence[int] = (1, 5, 10), *, tolerance: int, over="matched"
+    ranked,
+    gt,
+    ks: Sequence[int] = (1, 5, 10),
+    *,
+    tolerance: int | None = None,
+    over="matched",
 ) -> RecallAtK:
     """Recall@K: fraction of in-map queries with a correct match among the top K.
 
@@ -170,24 +218,36 @@ def recall_at_k(
     / #{i : gt[i] >= 0}``. Outlier queries (``gt == -1``) are left out, as in
     VPR_Tutorial's ``recallAtK``; with ``over="all"`` the denominator is every
     query, as in VPR-methods-evaluation. ``-1`` entries of ``ranked`` never count.
+    With a ``GroundTruth`` (several right places per query), a hit is a
+    candidate among the query's right places and the in-map queries are those
+    with at least one.
 
     Args:
       ranked: (b, K) int candidate indices, best first.
-      gt: (b,) int true indices, -1 for a place not in the map.
+      gt: (b,) int true indices, -1 for a place not in the map; or a GroundTruth.
       ks: the K values, each in ``[1, K]``.
-      tolerance: frames of slack, >= 0 (required, so that it is always stated).
+      tolerance: frames of slack, >= 0 (required with index ``gt``, so that it
+        is always stated; none with a GroundTruth, which holds its right places).
       over: ``"matched"`` or ``"all"`` (:data:`RECALL_OVER`).
     """
     ranked = _indices(ranked, "ranked", 2)
+    ks = tuple(int(k) for k in ks)
+    if not ks or min(ks) < 1 or max(ks) > ranked.shape[1]:
+        raise InputError(f"ks must lie in [1, {ranked.shape[1]}] (columns of ranked)")
+    truth = _ground_truth(gt, tolerance)
+    if truth is not None:
+        return _recall_of_sets(ranked, truth, ks, over)
+    if tolerance is None:
+        raise InputError(
+            "recall_at_k with index gt needs tolerance= (frames, >= 0), so that "
+            "it is stated"
+        )
     gt = _indices(gt, "gt", 1)
     tol = _tolerance(tolerance)
     if ranked.shape[0] != gt.shape[0]:
         raise InputError(
             f"ranked has {ranked.shape[0]} rows but gt has {gt.shape[0]} entries"
         )
-    ks = tuple(int(k) for k in ks)
-    if not ks or min(ks) < 1 or max(ks) > ranked.shape[1]:
-        raise InputError(f"ks must lie in [1, {ranked.shape[1]}] (columns of ranked)")
     inmap = gt >= 0
     if not inmap.any():
         raise InputError("gt has no query whose place is in the map (all -1)")
@@ -196,6 +256,24 @@ def recall_at_k(
     recall = recall_fractions(first, inmap, ks, over)
     n = int(inmap.sum()) if over == "matched" else len(gt)
     return RecallAtK(recall=recall, tolerance=tol, n_queries=n, over=over)
+
+
+def _recall_of_sets(ranked: np.ndarray, truth, ks, over: str) -> RecallAtK:
+    """:func:`recall_at_k` on a GroundTruth: a hit is among the right places."""
+    if ranked.shape[0] != len(truth):
+        raise InputError(
+            f"ranked has {ranked.shape[0]} rows but the ground truth "
+            f"({truth.source}) covers {len(truth)} queries"
+        )
+    inmap = truth.in_map
+    if not inmap.any():
+        raise InputError(f"{truth.source}: no query has a right place in the map")
+    hit = truth.hits(ranked)  # (b, K)
+    first = np.where(hit.any(1), hit.argmax(1), ranked.shape[1])  # (b,)
+    recall = recall_fractions(first, inmap, ks, over)
+    n = int(inmap.sum()) if over == "matched" else len(truth)
+    return RecallAtK(recall=recall, tolerance=truth.tolerance_frames, n_queries=n,
+                     over=over, ground_truth=truth.source)  # fmt: skip
 
 
 def recall_line(row: Mapping[str, float | None], ks=(1, 5, 10, 20)) -> str:
@@ -219,7 +297,7 @@ def recall_line(row: Mapping[str, float | None], ks=(1, 5, 10, 20)) -> str:
     return line
 
 
-def pr_curve(pred, score, gt, tolerance: int) -> tuple[np.ndarray, ...]:
+def pr_curve(pred, score, gt, tolerance: int | None = None) -> tuple[np.ndarray, ...]:
     """Precision-recall curve of single-best matches over a confidence threshold.
 
     A query is retrieved at threshold ``t`` when ``pred != -1`` and ``score >= t``
@@ -241,13 +319,26 @@ def pr_curve(pred, score, gt, tolerance: int) -> tuple[np.ndarray, ...]:
       pred: (b,) int best match per query, -1 for no match.
       score: (b,) float confidence of that match, higher is surer (for a
         distance, pass its negative).
-      gt: (b,) int true indices, -1 for a place not in the map.
-      tolerance: frames of slack, >= 0.
+      gt: (b,) int true indices, -1 for a place not in the map; or a
+        GroundTruth (correct: among the query's right places; recall out of
+        the queries that have one).
+      tolerance: frames of slack, >= 0 (required with index ``gt``; none with
+        a GroundTruth).
 
     Returns:
       precision (m + 1,), recall (m + 1,), thresholds (m,), m = distinct scores
       of the retrieved queries.
     """
+    truth = _ground_truth(gt, tolerance)
+    if truth is not None:
+        pred = _checked_pred(pred, truth)
+        score = np.asarray(score, dtype=np.float64)
+        if score.shape != pred.shape:
+            raise InputError(f"score has shape {score.shape} but pred has {pred.shape}")
+        keep = pred >= 0
+        return pr_points(score[keep], truth.hits(pred)[keep], int(truth.in_map.sum()))
+    if tolerance is None:
+        raise InputError("pr_curve with index gt needs a tolerance (frames, >= 0)")
     pred, gt = _pred_gt(pred, gt)
     tol = _tolerance(tolerance)
     score = np.asarray(score, dtype=np.float64)
@@ -283,20 +374,20 @@ def pr_points(s, ok, n_pos: int) -> tuple[np.ndarray, ...]:
     )
 
 
-def pr_auc(pred, score, gt, tolerance: int) -> float:
+def pr_auc(pred, score, gt, tolerance: int | None = None) -> float:
     """Area under :func:`pr_curve` by the trapezoidal rule (VPR_Tutorial's AUC).
 
-    Same arguments as :func:`pr_curve`; equals ``sklearn.metrics.auc(recall,
-    precision)`` on its points.
+    Same arguments as :func:`pr_curve` (a GroundTruth too); equals
+    ``sklearn.metrics.auc(recall, precision)`` on its points.
     """
     precision, recall, _ = pr_curve(pred, score, gt, tolerance)
     return float(np.trapezoid(precision[::-1], recall[::-1]))
 
 
-def recall_at_100_precision(pred, score, gt, tolerance: int) -> float:
+def recall_at_100_precision(pred, score, gt, tolerance: int | None = None) -> float:
     """Largest recall of :func:`pr_curve` at precision exactly 1 (0 if none).
 
-    Same arguments as :func:`pr_curve`.
+    Same arguments as :func:`pr_curve` (a GroundTruth too).
     """
     precision, recall, _ = pr_curve(pred, score, gt, tolerance)
     return float(recall[precision == 1.0].max())

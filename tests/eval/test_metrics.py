@@ -185,8 +185,10 @@ def test_bad_input_raises_input_error():
         pr_curve([0, 1], [0.1, 0.2], [-1, -1], tolerance=0)
     with pytest.raises(InputError, match="NaN"):
         pr_curve([0, 1], [np.nan, 0.2], [0, 1], tolerance=0)
-    with pytest.raises(TypeError):
+    with pytest.raises(InputError, match="needs tolerance"):
         recall_at_k(np.zeros((3, 2), int), [0, 1, 2], (1,))  # tolerance required
+    with pytest.raises(InputError, match="needs a tolerance"):
+        pr_auc([0, 1], [0.1, 0.2], [0, 1])
 
 
 # ------------------------------------------- recall's denominator, as the peers
@@ -299,3 +301,138 @@ def test_recall_at_k_over_all_counts_outliers_as_misses():
     assert every.as_dict()["recall_over"] == "all"
     with pytest.raises(InputError, match="recall_over must be one of"):
         recall_at_k(ranked, gt, (1,), tolerance=0, over="some")
+
+
+# ------------------------------------------- the public metrics on a GroundTruth
+
+
+def _sets_case(seed: int, b: int = 60, n: int = 40, k: int = 8):
+    """Ragged right places per query (some none), ranked candidates with -1s,
+    a hard answer per query and its confidence."""
+    rng = np.random.default_rng(seed)
+    lists = [
+        [] if rng.random() < 0.15 else rng.choice(n, rng.integers(1, 5), False).tolist()
+        for _ in range(b)
+    ]
+    ranked = np.stack([rng.permutation(n)[:k] for _ in range(b)])
+    first = np.array([row[0] if row else 0 for row in lists])
+    ranked[:, 0] = np.where(rng.random(b) < 0.4, first, ranked[:, 0])
+    ranked[rng.random(b) < 0.1, -1] = -1
+    pred = ranked[:, 0].copy()
+    pred[rng.random(b) < 0.1] = -1
+    score = rng.integers(0, 9, b) / 3.0
+    return lists, ranked, pred, score
+
+
+def _sets_reference(lists, ranked, pred, score, ks):
+    """The same figures by plain loops over the sets (no package code)."""
+    right = [set(r) for r in lists]
+    inmap = [i for i, r in enumerate(right) if r]
+    recall = {
+        k: sum(any(c in right[i] for c in ranked[i, :k] if c >= 0) for i in inmap)
+        / len(inmap)
+        for k in ks
+    }
+    acc = np.mean([(pred[i] in r) if r else pred[i] == -1 for i, r in enumerate(right)])
+    done = [i for i in range(len(pred)) if pred[i] >= 0]
+    points = [(1.0, 0.0)]  # (precision, recall), each distinct score a threshold
+    for t in sorted({score[i] for i in done}, reverse=True):
+        got = [i for i in done if score[i] >= t]
+        tp = sum(pred[i] in right[i] for i in got)
+        points.append((tp / len(got), tp / len(inmap)))
+    r100 = max(r for p, r in points if p == 1.0)
+    area = sum(
+        (r1 - r0) * (p0 + p1) / 2
+        for (p0, r0), (p1, r1) in zip(points, points[1:], strict=False)
+    )
+    return recall, acc, r100, area
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_public_metrics_take_a_ground_truth_with_several_right_places(seed):
+    """``recall_at_k``, ``accuracy``, R@100P and PR-AUC of a GroundTruth with
+    several right places per query agree with loops over the sets, and with
+    the package's multi-positive metrics the command line prints."""
+    from rhythmic_jax.eval.ground_truth import (
+        from_lists,
+        gt_accuracy,
+        gt_pr_curve,
+        gt_recall_at_k,
+    )
+
+    lists, ranked, pred, score = _sets_case(seed)
+    gt = from_lists(lists, 40, "test lists")
+    ks = (1, 5, 8)
+    recall, acc, r100, area = _sets_reference(lists, ranked, pred, score, ks)
+    got = recall_at_k(ranked, gt, ks)
+    assert got.n_queries == sum(bool(r) for r in lists)
+    for k in ks:
+        assert got[k] == pytest.approx(recall[k])
+    private = gt_recall_at_k(ranked, gt, ks)
+    assert all(private[f"recall@{k}"] == got[k] for k in ks)
+    assert accuracy(pred, gt) == pytest.approx(acc) == gt_accuracy(pred, gt)
+    assert recall_at_100_precision(pred, score, gt) == pytest.approx(r100)
+    assert pr_auc(pred, score, gt) == pytest.approx(area)
+    p, r, _ = gt_pr_curve(pred, score, gt)
+    np.testing.assert_array_equal(pr_curve(pred, score, gt)[0], p)
+    np.testing.assert_array_equal(pr_curve(pred, score, gt)[1], r)
+    assert "tolerance ±None" not in str(got) and "test lists" in str(got)
+    everyone = recall_at_k(ranked, gt, ks, over="all")
+    assert everyone[1] == pytest.approx(recall[1] * got.n_queries / len(lists))
+
+
+def test_a_ground_truth_from_indices_gives_the_index_arrays_figures():
+    """``from_indices(gt, n, tol)`` through the public metrics is the index
+    arrays' figure at that tolerance (the two conventions agree)."""
+    from rhythmic_jax.eval.ground_truth import from_indices
+
+    pred, score, gt = random_case(200, 30, seed=4, p_reject=0.1, p_outlier=0.1)
+    ranked = np.stack([pred, (pred + 3) % 30, (pred + 1) % 30], 1)
+    ranked[pred < 0] = -1
+    sets = from_indices(gt, 30, tolerance=1)
+    assert recall_at_k(ranked, sets, (1, 3)).recall == (
+        recall_at_k(ranked, gt, (1, 3), tolerance=1).recall
+    )
+    assert str(recall_at_k(ranked, sets, (1,))).count("±1 frames") == 1
+    assert accuracy(pred, sets) == accuracy(pred, gt, 1)
+    assert pr_auc(pred, score, sets) == pr_auc(pred, score, gt, 1)
+    assert recall_at_100_precision(pred, score, sets) == recall_at_100_precision(
+        pred, score, gt, 1
+    )
+
+
+def test_a_ground_truth_refuses_a_tolerance_and_a_wrong_count():
+    from rhythmic_jax.eval.ground_truth import from_lists
+
+    gt = from_lists([[0, 1], [2], []], 5, "three queries")
+    ranked = np.array([[1, 0], [0, 2], [3, 4]])
+    with pytest.raises(InputError, match="tolerance .*GroundTruth"):
+        recall_at_k(ranked, gt, (1,), tolerance=1)
+    with pytest.raises(InputError, match="tolerance .*GroundTruth"):
+        accuracy(ranked[:, 0], gt, 2)
+    with pytest.raises(InputError, match="covers 3 queries"):
+        recall_at_k(ranked[:2], gt, (1,))
+    with pytest.raises(InputError, match="covers 3 queries"):
+        accuracy(np.array([0, 1]), gt)
+    with pytest.raises(InputError, match="needs tolerance"):
+        recall_at_k(ranked, np.array([0, 2, -1]), (1,))
+    assert recall_at_k(ranked, gt, (1, 2))[2] == 1.0
+    assert recall_at_k(ranked, gt, (1, 2))[1] == 0.5
+
+
+def test_the_documented_call_on_loaded_ground_truth(tmp_path):
+    """``gt = rj.load_ground_truth(...)`` then ``rj.recall_at_k(ranked, gt, ks)``,
+    as a user writes it, on a VPR-Bench ground-truth file."""
+    import rhythmic_jax as rj
+
+    n = 6
+    rows = np.empty(n, dtype=object)
+    for i in range(n):
+        rows[i] = [i, list(range(max(0, i - 1), min(n, i + 2)))]
+    np.save(tmp_path / "ground_truth_new.npy", rows, allow_pickle=True)
+    gt = rj.load_ground_truth([str(tmp_path / "ground_truth_new.npy")],
+                              n_queries=n, n_places=n, query_source="q")  # fmt: skip
+    # right places: i-1..i+1; hits at 1: q0 q1 q3 q4, at 2: q2 too, q5 none
+    ranked = np.array([[1, 0], [1, 4], [0, 2], [3, 0], [4, 1], [0, 1]])
+    got = rj.recall_at_k(ranked, gt, (1, 2))
+    assert got[1] == pytest.approx(4 / 6) and got[2] == pytest.approx(5 / 6)
