@@ -399,6 +399,7 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     which frames brute force searched, or why there is no brute-force line."""
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.frames.sources import reference_features
+    from rhythmic_jax.validate import check_reference
 
     plot, reference, read = job.plot, job.reference, job.reading
     for opt in ("plot", "matches"):
@@ -423,8 +424,12 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
         model, reference, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile,
     )  # fmt: skip
-    if ref is not None and reference is None and "reference_labels" in model.extra:
-        labels = model.extra["reference_labels"]  # frames grouped into places
+    grouped = model.extra.get("reference_labels")  # frames grouped into places
+    if ref is not None and reference:
+        check_reference(len(ref), model.n if grouped is None else len(grouped),
+                        reference)  # fmt: skip
+    if ref is not None and grouped is not None:
+        labels = grouped
     truth = None
     if job.ground_truth is not None:
         from rhythmic_jax.eval.ground_truth_files import load_ground_truth

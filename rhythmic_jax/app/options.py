@@ -33,7 +33,7 @@ from rhythmic_jax.validate import is_number
 
 __all__ = [
     "Checked", "OptionRefused", "Rule", "add_options", "check_paths", "like", "make",
-    "option", "options", "part", "settings",
+    "option", "options", "part", "settings", "written",
 ]  # fmt: skip
 
 ARGPARSE = ("nargs", "metavar", "choices", "required")
@@ -210,6 +210,11 @@ def _paths(job, *how: str) -> list[tuple[str, str]]:
             if meta.get("path") in how and v is not None and v not in NAMES:
                 found.append((dest, str(v)))
     return found
+
+
+def written(job) -> list[tuple[str, str]]:
+    """(option, path) of every file or folder the job was told to write."""
+    return _paths(job, "writes")
 
 
 def _clash(w: Path, r: Path) -> str | None:
