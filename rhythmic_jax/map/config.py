@@ -128,7 +128,7 @@ class MapConfig:
         "help": "period level c (c*N^(1/r))", "domain": int_option(1)})  # fmt: skip
     count: int = field(default=7, metadata={
         "help": "candidate periods (each is fitted once to choose among them)",
-        "domain": int_option(2, 256)})  # fmt: skip
+        "domain": int_option(2, 64)})  # fmt: skip
     c: float | None = field(default=None, metadata={
         "help": "SVM penalty (default log N)", "domain": number_option(0)})  # fmt: skip
     solver: str = field(default="newton", metadata={
