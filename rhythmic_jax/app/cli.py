@@ -304,10 +304,10 @@ def main(argv: list[str] | None = None) -> int:
     The process's environment ends in a result or one line with status 2: a
     closed standard output is refused before any work where the command writes
     no file (what it prints would be lost; with ``--out`` the work is done and
-    only the printing dropped, :func:`_main`), a closed standard error is silent, non-ASCII and non-UTF-8
-    paths print on any stream, and memory running out (``ulimit -v`` below
-    ``signals.MIN_ADDRESS_SPACE``, a ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``)
-    says so."""
+    only the printing dropped, :func:`_main`), a closed standard error is
+    silent, non-ASCII and non-UTF-8 paths print on any stream, and memory
+    running out (``ulimit -v`` below ``signals.MIN_ADDRESS_SPACE``, a
+    ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``) says so."""
     from rhythmic_jax.app import signals
 
     stdout_open = signals.standard_streams()
