@@ -38,6 +38,7 @@ __all__ = [
     "check_number",
     "check_reference",
     "check_sequence",
+    "frames_digest",
     "int_option",
     "is_int",
     "is_number",
@@ -270,16 +271,38 @@ def parse_bytes(text: str) -> int:
     return int(float(m.group(1)) * _UNITS[m.group(2)])
 
 
-def check_reference(found: int, fitted: int, source: str) -> None:
+def frames_digest(x) -> str:
+    """The sha256 of frames x (n, d) as float32 rows, their shape included: what
+    a map fitted on descriptor files records of its database."""
+    import hashlib
+
+    import numpy as np
+
+    x = np.ascontiguousarray(np.asarray(x, np.float32))
+    return hashlib.sha256(repr(x.shape).encode() + x.tobytes()).hexdigest()
+
+
+def check_reference(
+    found: int, fitted: int, source: str, digest: str | None = None,
+    recorded: str | None = None,
+) -> None:  # fmt: skip
     """Refuse (one :class:`InputError` line naming ``{opt:reference}``) a
-    brute-force reference of ``found`` frames for a map fitted on ``fitted``:
-    brute force must search the map's own database, or the table would set
-    two different routes side by side as if they were one."""
+    brute-force reference of ``found`` frames for a map fitted on ``fitted``,
+    or, where the map recorded its frames' digest (``recorded``,
+    :func:`frames_digest`), frames of another ``digest``: brute force must
+    search the map's own database, or the table would set two different
+    routes side by side as if they were one."""
     if found != fitted:
         raise InputError(
             f"{{opt:reference}} {source}: {found} frames, but the map was fitted on "
             f"{fitted}; give the map's reference frames (its database) or leave "
             "{opt:reference} out"
+        )
+    if recorded is not None and digest is not None and digest != recorded:
+        raise InputError(
+            f"{{opt:reference}} {source}: not the frames the map was fitted on "
+            f"(the same count, {found}, other values); give the map's reference "
+            "frames (its database) or leave {opt:reference} out"
         )
 
 

@@ -1750,3 +1750,23 @@ def test_figure_text_fed_names_is_drawn_literally(tmp_path, usetex):
     bare.text(0, 0, MARKUP_NAMES[8])
     with pytest.raises(ValueError):
         bare.savefig(io.BytesIO(), format="png")
+
+
+def test_evaluate_reference_must_be_the_frames_the_map_was_fitted_on(tmp_path, capsys):
+    """A map fitted on descriptor files records their digest: a --reference of
+    the same count but other values is refused in one line, the same frames
+    (another copy) are brute force's database."""
+    ref, other, copy = (npy(tmp_path, name, v) for name, v in (
+        ("ref.npy", X), ("other.npy", X[::-1]), ("copy.npy", X)))  # fmt: skip
+    target = str(tmp_path / "m.map")
+    assert main(["fit", ref, "--out", target, "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", target, ref, "--reference", other, "--no-progress"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rhythmic-jax evaluate: error: "
+                                                   "--reference "), lines  # fmt: skip
+    assert "not the frames the map was fitted on (the same count, 40" in lines[0]
+    assert main(["evaluate", target, ref, "--reference", copy, "--json",
+                 "--no-progress"]) == 0  # fmt: skip
+    result = json.loads(capsys.readouterr().out)
+    assert result["methods"]["brute force"]["recall@1"] == 1.0
