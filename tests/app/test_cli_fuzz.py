@@ -449,3 +449,30 @@ def test_values_at_the_edges_of_numeric_domains_work_or_end_in_one_line(route, d
             else:
                 assert _finite(result["methods"]), result
     assert _snapshot(route) == before
+
+
+def test_refused_extremes_take_little_memory(route, tmp_path):
+    """Refused where parsed, a huge value allocates nothing: each command run
+    as the installed one, its peak resident memory well under 1 GiB (measured
+    by a fresh parent that starts only these children)."""
+    import subprocess
+    import sys
+
+    huge = [("evaluate", "--tolerance", "9223372036854775808"),
+            ("query", "--top", "18446744073709551616"),
+            ("fit", "--count", "2147483647"), ("fit", "--memory", "1e308"),
+            ("frontier", "--budget", "1e308"), ("learn", "--k", "-1")]  # fmt: skip
+    argvs = [[c, *_positionals(c, route, tmp_path), f"{flag}={value}", "--no-progress"]
+             for c, flag, value in huge]  # fmt: skip
+    parent = (
+        "import json, resource, subprocess, sys\n"
+        "codes = [subprocess.run([sys.executable, '-m', 'rhythmic_jax.app.cli', *a],"
+        " capture_output=True).returncode for a in json.loads(sys.argv[1])]\n"
+        "peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss\n"
+        "print(json.dumps([codes, peak]))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", parent, json.dumps(argvs)],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    codes, peak_kib = json.loads(done.stdout)
+    assert codes == [2] * len(argvs), done
+    assert peak_kib * 1024 < 2**30, peak_kib
