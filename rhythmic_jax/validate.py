@@ -6,7 +6,9 @@ needs, :func:`check_fit_scale`), single numbers (:func:`check_int`,
 parses every numeric option with a :class:`Domain` (:func:`int_option`,
 :func:`number_option`), an argparse type that states its domain in words, so a
 bad value ends where it is parsed and 0 or a negative number is never read as
-"unset".
+"unset"; every domain is bounded on both sides (:data:`INT_LIMIT`,
+:data:`FLOAT_LIMIT` where it names no bound), so a huge value never reaches the
+work. :func:`check_reference` keeps brute force on the map's own database.
 
 Importing this module does not import numpy (the command line builds its parser
 from it): the checks import it when a value is not a Python number or an array
