@@ -7,9 +7,10 @@ declared by another job). Its default is the field's (none: a positional, or a
 ``add_argument`` takes (:data:`ARGPARSE`) and: ``domain``, the
 :class:`rhythmic_jax.validate.Domain` a number is parsed with, stated in
 ``--help`` and checked when a job is made (a whole range: a bound it leaves out
-is the largest the number's kind takes, so a huge value is refused there); ``dest``, the option's name where it
-is not the field's; ``positional``; ``path``: what the job does with it
-(``reads``, ``writes``, ``frames``: reads frames from it; :func:`check_paths`).
+is the largest the number's kind takes, so a huge value is refused there);
+``dest``, the option's name where it is not the field's; ``positional``;
+``path``: what the job does with it (``reads``, ``writes``, ``frames``: reads
+frames from it; :func:`check_paths`; :func:`written`).
 A field holding a part of the settings (:func:`part`) offers the part's options,
 titled ``group`` in ``--help`` and made into its value by ``make`` (default: the
 part's class).
