@@ -6,7 +6,9 @@ needs, :func:`check_fit_scale`), single numbers (:func:`check_int`,
 parses every numeric option with a :class:`Domain` (:func:`int_option`,
 :func:`number_option`), an argparse type that states its domain in words, so a
 bad value ends where it is parsed and 0 or a negative number is never read as
-"unset".
+"unset"; every domain is bounded on both sides (:data:`INT_LIMIT`,
+:data:`FLOAT_LIMIT` where it names no bound), so a huge value never reaches the
+work. :func:`check_reference` keeps brute force on the map's own database.
 
 Importing this module does not import numpy (the command line builds its parser
 from it): the checks import it when a value is not a Python number or an array
@@ -28,13 +30,17 @@ if TYPE_CHECKING:
     import numpy as np
 
 __all__ = [
+    "FLOAT_LIMIT",
+    "INT_LIMIT",
     "Domain",
     "check_features",
     "check_fit_scale",
     "check_int",
     "check_labels",
     "check_number",
+    "check_reference",
     "check_sequence",
+    "frames_digest",
     "int_option",
     "is_int",
     "is_number",
@@ -117,9 +123,18 @@ def check_number(
     return value
 
 
+#: The largest integer an option takes where its domain names no other: the
+#: largest int32 (JAX's default integer), far from int64's overflow in the
+#: arithmetic a count goes through (a tolerance added to a place index).
+INT_LIMIT = 2**31 - 1
+#: The largest magnitude a number option takes where its domain names no
+#: other: beyond it float32, the maps' precision, holds only inf.
+FLOAT_LIMIT = 1e38
+
+
 def _g(v: float) -> str:
     """A bound in words: integers in full (4294967295), other numbers by ``g``."""
-    return str(int(v)) if float(v).is_integer() else f"{v:g}"
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e16 else f"{v:g}"
 
 
 @dataclass(frozen=True)
@@ -133,8 +148,14 @@ class Domain:
     raises ``ValueError`` on text it cannot read, and the value it returns is
     checked; the option's value stays the text then.
 
-    ``Domain(True, 2)`` is "an integer >= 2", ``Domain(False, 0, 1, True, True)``
-    "a number in (0, 1)", ``Domain(False, 0, 1)`` "a number in [0, 1]".
+    Every domain covers a whole range: a bound left out is :data:`INT_LIMIT`
+    for integers (above; below, an integer domain names its least value) and
+    :data:`FLOAT_LIMIT` for numbers (either side), so a huge value is refused
+    where it is parsed, never met as an overflow in the work.
+
+    ``Domain(True, 2)`` is "an integer in [2, 2147483647]", ``Domain(False, 0,
+    1, True, True)`` "a number in (0, 1)", ``Domain(False, 0, 1)`` "a number in
+    [0, 1]".
     """
 
     integer: bool
@@ -150,46 +171,64 @@ class Domain:
     def __name__(self) -> str:  # argparse names a type by it
         return self.what or ("an integer" if self.integer else "a number")
 
-    def bounds(self) -> str:
-        """``">= 2"``, ``"in (0, 1)"``, ``"in [0, 1]"``, or ``""`` when unbounded."""
-        lo, hi = self.low, self.high
+    def limits(self) -> tuple[float, float]:
+        """``(low, high)`` with the bounds left out filled in (:data:`INT_LIMIT`,
+        :data:`FLOAT_LIMIT`)."""
+        limit = INT_LIMIT if self.integer else FLOAT_LIMIT
+        low = -limit if self.low is None else self.low
+        return low, limit if self.high is None else self.high
+
+    def bounds(self, whole: bool = True) -> str:
+        """``"in [2, 2147483647]"``, ``"in (0, 1)"``; with ``whole`` False, the
+        declared bounds alone (``">= 2"``, ``""`` when unbounded)."""
+        lo, hi = self.limits() if whole else (self.low, self.high)
+        open_low = self.open_low and self.low is not None and not self.integer
+        open_high = self.open_high and self.high is not None and not self.integer
         if lo is not None and hi is not None:
-            left = "(" if self.open_low and not self.integer else "["
-            right = ")" if self.open_high and not self.integer else "]"
+            left, right = "(" if open_low else "[", ")" if open_high else "]"
             return f"in {left}{_g(lo)}, {_g(hi)}{right}"
         if lo is not None:
-            return f"{'>' if self.open_low and not self.integer else '>='} {_g(lo)}"
+            return f"{'>' if open_low else '>='} {_g(lo)}"
         if hi is not None:
-            return f"{'<' if self.open_high and not self.integer else '<='} {_g(hi)}"
+            return f"{'<' if open_high else '<='} {_g(hi)}"
         return ""
 
-    def text(self) -> str:
-        """The domain in words, as ``--help`` states it."""
+    def text(self, whole: bool = True) -> str:
+        """The domain in words, as ``--help`` states it (``whole`` False: its
+        declared bounds alone, as a value below them is told)."""
         kind = self.__name__
-        if not self.integer and not self.parse and not self.bounds():
+        if not self.integer and not self.parse and not self.bounds(whole):
             kind = "a finite number"
         words = "".join(f" or {w}" for w in self.words)
-        return " ".join(filter(None, (kind, self.bounds()))) + words
+        return " ".join(filter(None, (kind, self.bounds(whole)))) + words
 
     def check(self, value) -> float:
         """``value`` if it lies in the domain, else :class:`InputError` ("must be
-        ..., got ...")."""
+        ..., got ..."); a value past a bound left out is told the whole range."""
         if self.integer:
             if is_int(value) and self._inside(value):
                 return int(value)
-            raise InputError(f"must be {self.text()}, got {value}")
+            whole = not is_int(value) or value > self.limits()[1] or (
+                self.low is None and value < self.limits()[0])  # fmt: skip
+            raise InputError(f"must be {self.text(whole)}, got {value}")
         if not is_number(value) or not math.isfinite(value):
             raise InputError(f"must be a finite number, got {value}")
         if not self._inside(value):
-            raise InputError(f"must be {self.bounds()}, got {value:g}")
+            lo, hi = self.limits()
+            whole = value > hi or value < lo and self.low is None
+            if whole and self.low is None and self.high is None:
+                raise InputError(f"must be a finite number {self.bounds()}, got "
+                                 f"{value:g}")  # fmt: skip
+            raise InputError(f"must be {self.bounds(whole)}, got {value:g}")
         return float(value)
 
     def _inside(self, v) -> bool:
         shut = self.integer
-        above = self.low is None or v > self.low or (v == self.low and not (
-            self.open_low and not shut))  # fmt: skip
-        below = self.high is None or v < self.high or (v == self.high and not (
-            self.open_high and not shut))  # fmt: skip
+        lo, hi = self.limits()
+        above = v > lo or (v == lo and not (self.open_low and not shut and
+                                            self.low is not None))  # fmt: skip
+        below = v < hi or (v == hi and not (self.open_high and not shut and
+                                            self.high is not None))  # fmt: skip
         return above and below
 
     def __call__(self, text: str):
@@ -232,6 +271,41 @@ def parse_bytes(text: str) -> int:
             f"{{opt:memory}}: expected a size like 1GiB or 800M, got {text!r}"
         )
     return int(float(m.group(1)) * _UNITS[m.group(2)])
+
+
+def frames_digest(x) -> str:
+    """The sha256 of frames x (n, d) as float32 rows, their shape included: what
+    a map fitted on descriptor files records of its database."""
+    import hashlib
+
+    import numpy as np
+
+    x = np.ascontiguousarray(np.asarray(x, np.float32))
+    return hashlib.sha256(repr(x.shape).encode() + x.tobytes()).hexdigest()
+
+
+def check_reference(
+    found: int, fitted: int, source: str, digest: str | None = None,
+    recorded: str | None = None,
+) -> None:  # fmt: skip
+    """Refuse (one :class:`InputError` line naming ``{opt:reference}``) a
+    brute-force reference of ``found`` frames for a map fitted on ``fitted``,
+    or, where the map recorded its frames' digest (``recorded``,
+    :func:`frames_digest`), frames of another ``digest``: brute force must
+    search the map's own database, or the table would set two different
+    routes side by side as if they were one."""
+    if found != fitted:
+        raise InputError(
+            f"{{opt:reference}} {source}: {found} frames, but the map was fitted on "
+            f"{fitted}; give the map's reference frames (its database) or leave "
+            "{opt:reference} out"
+        )
+    if recorded is not None and digest is not None and digest != recorded:
+        raise InputError(
+            f"{{opt:reference}} {source}: not the frames the map was fitted on "
+            f"(the same count, {found}, other values); give the map's reference "
+            "frames (its database) or leave {opt:reference} out"
+        )
 
 
 def is_sparse(x) -> bool:

@@ -262,7 +262,9 @@ def tiled_map(src, maps):
 def evaluate(map_: Callable, source: Callable[[Path], str], extra=()) -> Callable:
     def argv(src, maps, out):
         args = [map_(src, maps), source(src), "--reference", source(src)]
-        return ["evaluate", *args, "--no-progress", *extra]
+        more = [rows(int(e[5:-1]))(src) if e.startswith("{rows") else e
+                for e in extra]  # fmt: skip
+        return ["evaluate", *args, "--no-progress", *more]
 
     return argv
 
@@ -333,7 +335,7 @@ CLI_CASES = [
     Case(
         "count-1",
         fit(ok, extra=["--count", "1"]),
-        r"argument --count: must be an integer >= 2, got 1",
+        r"argument --count: must be an integer in \[2, 64\], got 1",
     ),
     Case("c-zero", fit(ok, extra=["--c", "0"]), r"argument --c: must be > 0, got 0 "),
     Case(
@@ -699,6 +701,64 @@ CLI_CASES += [  # option values: each refused where it is parsed, 0 never "unset
         r"argument --tolerance: must be an integer >= 0, got -1",
     ),
 ]
+
+
+def rows(k: int) -> Callable[[Path], str]:
+    """A descriptor file of k rows (the map's 40, cut or repeated)."""
+    return lambda src: npy(src, f"rows{k}.npy", np.resize(X, (k, X.shape[1])))
+
+
+CLI_CASES += [  # numbers at their limits: refused where they are parsed
+    Case(
+        "evaluate-tolerance-past-int64",
+        evaluate(npy_map, ok, extra=["--tolerance", "9223372036854775808"]),
+        r"argument --tolerance: must be an integer in \[0, 2147483647\], got "
+        r"9223372036854775808 \(see",
+    ),
+    Case(
+        "evaluate-tolerance-int64-max",
+        evaluate(npy_map, ok, extra=["--tolerance", "9223372036854775807"]),
+        r"argument --tolerance: must be an integer in \[0, 2147483647\]",
+    ),
+    Case(
+        "fit-count-huge",
+        fit(ok, extra=["--count", "2147483648"]),
+        r"argument --count: must be an integer in \[2, 64\], got 2147483648",
+    ),
+    Case(
+        "fit-processes-huge",
+        fit(ok, extra=["--processes", "100000"]),
+        r"argument --processes: must be an integer in \[1, 256\], got 100000",
+    ),
+    Case(
+        "fit-c-past-float32",
+        fit(ok, extra=["--c", "1e39"]),
+        r"argument --c: must be in \(0, 1e\+38\], got 1e\+39",
+    ),
+    Case(
+        "query-threshold-past-float32",
+        query(npy_map, ok, extra=["--threshold=-1e300"]),
+        r"argument --threshold: must be a finite number in \[-1e\+38, 1e\+38\], got "
+        r"-1e\+300",
+    ),
+    Case(
+        "fit-memory-huge",
+        fit(ok, extra=["--memory", "99999999T"]),
+        r"argument --memory: must be a size \(1GiB, 800M\) in \[1, 1125899906842624\]",
+    ),
+    # a brute-force reference that is not the map's database (40 frames)
+    Case(
+        "evaluate-reference-longer",
+        evaluate(npy_map, ok, extra=["--reference", "{rows50}"]),
+        r"^--reference .*rows50\.npy: 50 frames, but the map was fitted on 40; give "
+        r"the map's reference frames",
+    ),
+    Case(
+        "evaluate-reference-shorter",
+        evaluate(npy_map, ok, extra=["--reference", "{rows30}"]),
+        r"^--reference .*rows30\.npy: 30 frames, but the map was fitted on 40",
+    ),
+]
 CLI_CASES += [  # files that cannot be read are errors, never dropped frames
     Case(
         "dangling-link-frame",
@@ -921,7 +981,7 @@ CLI_CASES += [  # a numeric option outside its domain (stated in --help)
     Case(
         "fit-processes-0",
         fit(ok, extra=["--processes", "0"]),
-        r"argument --processes: must be an integer >= 1, got 0",
+        r"argument --processes: must be an integer in \[1, 256\], got 0",
     ),
     Case(
         "fit-num-processes-0",
@@ -929,7 +989,7 @@ CLI_CASES += [  # a numeric option outside its domain (stated in --help)
             ok,
             extra=["--coordinator", "h:1", "--num-processes", "0", "--process-id", "0"],
         ),
-        r"argument --num-processes: must be an integer >= 1, got 0",
+        r"argument --num-processes: must be an integer in \[1, 65536\], got 0",
     ),
     Case(
         "fit-process-id-negative",
@@ -937,7 +997,7 @@ CLI_CASES += [  # a numeric option outside its domain (stated in --help)
             ok,
             extra=["--coordinator", "h:1", "--num-processes", "2", "--process-id=-1"],
         ),
-        r"argument --process-id: must be an integer >= 0, got -1",
+        r"argument --process-id: must be an integer in \[0, 65535\], got -1",
     ),
     Case(
         "fit-memory-not-a-size",
@@ -947,7 +1007,7 @@ CLI_CASES += [  # a numeric option outside its domain (stated in --help)
     Case(
         "fit-memory-0",
         fit(ok, extra=["--memory", "0"]),
-        r"argument --memory: must be a size \(1GiB, 800M\) >= 1, got 0",
+        r"argument --memory: must be a size \(1GiB, 800M\) in \[1, \d+\], got 0",
     ),
     Case(
         "learn-k-0",
@@ -1651,3 +1711,65 @@ def test_fit_on_any_array(maps, x):
         assert np.isfinite(np.asarray(model.params.b)).all()
         pred = model.predict(X)
         assert ((pred >= -1) & (pred < 40)).all()
+
+
+# ----------------------------------------------------- names in figures, literally
+MARKUP_NAMES = ["$x^2$", "$\\frac{a}{b}$", "a_b^c", "100%", "{braces}", "\\", "$",
+                "$$", "$\\undefinedcommand$", "\\$5 and $6"]  # fmt: skip
+
+
+@pytest.mark.parametrize("usetex", [False, True])
+def test_figure_text_fed_names_is_drawn_literally(tmp_path, usetex):
+    """Titles, captions and legends fed file names are drawn as written: no
+    mathtext (a ``$\\frac{a}{b}$`` or an odd ``$`` would end in a parse error),
+    no TeX even where the user's rcParams ask for it."""
+    import matplotlib
+    from matplotlib.text import Text
+
+    from rhythmic_jax.eval.figures import new_figure, plot_evaluation, plot_matches
+
+    image = np.zeros((6, 8, 3), np.uint8)
+    rows = [{"query": image, "chosen": image, "right": None,
+             "titles": (name, f"chosen: {name}", f"right: {name}")}
+            for name in MARKUP_NAMES]  # fmt: skip
+    curve = {"precision": [1.0, 0.5], "recall": [0.0, 1.0]}
+    result = {"methods": {name: {"pr_curve": curve, "pr_auc": 0.5, "recall@100p": 0.0,
+                                 "label": name, "recall@1": 0.5}
+                          for name in MARKUP_NAMES[:3]},
+              "ground_truth": {"source": MARKUP_NAMES[1]}}  # fmt: skip
+    with matplotlib.rc_context({"text.usetex": usetex}):
+        fig = plot_matches(rows, title=MARKUP_NAMES[8], path=tmp_path / "m.png")
+        shown = {t.get_text() for t in fig.findobj(Text)}
+        assert set(MARKUP_NAMES) <= shown and MARKUP_NAMES[8] in shown
+        for text in fig.findobj(Text):
+            if text.get_text() in MARKUP_NAMES:
+                assert not text.get_parse_math() and not text.get_usetex()
+        if not usetex:  # tick labels stay the formatters' (TeX would need LaTeX)
+            plot_evaluation(result, path=tmp_path / "e.png")
+            assert (tmp_path / "e.png").stat().st_size > 1000
+    assert (tmp_path / "m.png").stat().st_size > 1000
+    # without the literal drawing the same caption is markup, and fails to render
+    bare, _ = new_figure()
+    bare.text(0, 0, MARKUP_NAMES[8])
+    with pytest.raises(ValueError):
+        bare.savefig(io.BytesIO(), format="png")
+
+
+def test_evaluate_reference_must_be_the_frames_the_map_was_fitted_on(tmp_path, capsys):
+    """A map fitted on descriptor files records their digest: a --reference of
+    the same count but other values is refused in one line, the same frames
+    (another copy) are brute force's database."""
+    ref, other, copy = (npy(tmp_path, name, v) for name, v in (
+        ("ref.npy", X), ("other.npy", X[::-1]), ("copy.npy", X)))  # fmt: skip
+    target = str(tmp_path / "m.map")
+    assert main(["fit", ref, "--out", target, "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", target, ref, "--reference", other, "--no-progress"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rhythmic-jax evaluate: error: "
+                                                   "--reference "), lines  # fmt: skip
+    assert "not the frames the map was fitted on (the same count, 40" in lines[0]
+    assert main(["evaluate", target, ref, "--reference", copy, "--json",
+                 "--no-progress"]) == 0  # fmt: skip
+    result = json.loads(capsys.readouterr().out)
+    assert result["methods"]["brute force"]["recall@1"] == 1.0

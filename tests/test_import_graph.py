@@ -20,7 +20,7 @@ LAYERS = [
     ["errors", "version"],
     ["jit_options", "progress"],
     ["validate"],
-    ["io.names", "io.reader"],
+    ["io.csv_cells", "io.names", "io.reader"],
     ["io.outputs"],
     ["io.atomic", "io.checkpoint", "io.images"],
     ["io.descriptor_files", "io.tiles"],

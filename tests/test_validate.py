@@ -303,3 +303,45 @@ def test_a_large_offset_off_the_8_bit_range_is_told_to_scale_down():
 )
 def test_features_a_solver_fits_pass(x, why):
     _check_scale(x)
+
+
+# ------------------------------------------------------ every domain a whole range
+def test_a_domain_without_a_bound_has_the_whole_range_of_its_kind():
+    from rhythmic_jax.validate import FLOAT_LIMIT, INT_LIMIT, Domain
+
+    count, number, any_number = int_option(0), number_option(0), number_option()
+    assert count.limits() == (0, INT_LIMIT) and count.check(INT_LIMIT) == INT_LIMIT
+    assert count.text() == "an integer in [0, 2147483647]"
+    assert any_number.limits() == (-FLOAT_LIMIT, FLOAT_LIMIT)
+    for domain, value, match in [
+        (count, 2**63, r"^must be an integer in \[0, 2147483647\], got 92233720"),
+        (count, INT_LIMIT + 1, r"in \[0, 2147483647\], got 2147483648$"),
+        (count, -1, r"^must be an integer >= 0, got -1$"),  # the bound it names
+        (number, 1e39, r"^must be in \(0, 1e\+38\], got 1e\+39$"),
+        (number, 0.0, r"^must be > 0, got 0$"),
+        (any_number, -1e300, r"^must be a finite number in \[-1e\+38, 1e\+38\]"),
+        (any_number, float("inf"), r"^must be a finite number, got inf$"),
+        (Domain(True, 1, words=("int8",)), 2**40, r"2147483647\] or int8, got"),
+    ]:  # fmt: skip
+        with pytest.raises(InputError, match=match):
+            domain.check(value)
+    assert number.check(1e38) == 1e38 and any_number.check(-1e38) == -1e38
+
+
+@pytest.mark.parametrize("text", ["9223372036854775808", "9223372036854775807",
+                                  "2147483648", "-9223372036854775809"])  # fmt: skip
+def test_integers_past_the_range_are_refused_where_parsed(text):
+    parser = argparse.ArgumentParser(exit_on_error=False)
+    parser.add_argument("--n", type=int_option(0))
+    with pytest.raises(argparse.ArgumentError, match=r"argument --n: must be an "):
+        parser.parse_args(["--n", text])
+
+
+def test_a_reference_of_another_length_than_the_map_is_refused():
+    from rhythmic_jax.validate import check_reference
+
+    check_reference(300, 300, "ref.npy")
+    for found in (250, 350):
+        with pytest.raises(InputError, match=rf"^reference ref.npy: {found} frames, "
+                           r"but the map was fitted on 300; "):  # fmt: skip
+            check_reference(found, 300, "ref.npy")

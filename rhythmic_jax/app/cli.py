@@ -19,11 +19,18 @@ import gc
 import json
 import logging
 import os
+import re
 import sys
 import textwrap
 
 from rhythmic_jax.app import specs
-from rhythmic_jax.app.options import OptionRefused, add_options, check_paths, make
+from rhythmic_jax.app.options import (
+    OptionRefused,
+    add_options,
+    check_paths,
+    make,
+    written,
+)
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.frames.compile_policy import BUILD_MIN_FRAMES, LOAD_MIN_FRAMES
 from rhythmic_jax.version import __version__
@@ -355,11 +362,12 @@ def main(argv: list[str] | None = None) -> int:
     early, as by ``| head``: quietly, as a command killed by SIGPIPE).
 
     The process's environment ends in a result or one line with status 2: a
-    closed standard output is refused before any work (what the command prints
-    would be lost), a closed standard error is silent, non-ASCII and non-UTF-8
-    paths print on any stream, and memory running out (``ulimit -v`` below
-    ``signals.MIN_ADDRESS_SPACE``, a ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``)
-    says so."""
+    closed standard output is refused before any work where the command writes
+    no file (what it prints would be lost; with ``--out`` the work is done and
+    only the printing dropped, :func:`_main`), a closed standard error is
+    silent, non-ASCII and non-UTF-8 paths print on any stream, and memory
+    running out (``ulimit -v`` below ``signals.MIN_ADDRESS_SPACE``, a
+    ``MemoryError``, XLA's ``RESOURCE_EXHAUSTED``) says so."""
     from rhythmic_jax.app import signals
 
     stdout_open = signals.standard_streams()
@@ -369,10 +377,6 @@ def main(argv: list[str] | None = None) -> int:
         return int(done.code or 0)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     prog = f"rhythmic-jax {args.command}"
-    if not stdout_open:
-        _say(f"{prog}: error: standard output is closed; give it a place "
-             "(> FILE, or > /dev/null to drop what is printed)")  # fmt: skip
-        return 2
     signals.library_folders()
     limit = signals.memory_limit()
     if limit is not None and limit < signals.MIN_ADDRESS_SPACE:
@@ -381,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
              f"is {_gib(limit)}; the command needs at least {least}")  # fmt: skip
         return 2
     try:
-        return _main(args, prog)
+        return _main(args, prog, stdout_open)
     except Exception as err:  # noqa: BLE001 - only memory's failures are said here
         if not signals.out_of_memory(err):
             raise
@@ -411,8 +415,15 @@ def _warning_lines(prog: str):
                 warnings.showwarning(w.message, w.category, w.filename, w.lineno)
 
 
-def _main(args, prog: str) -> int:
-    """The command of the parsed ``args``: its job made, run and printed."""
+# standard output named as a path: written there, a file is dropped too
+_STDOUT_PATH = re.compile(r"^(?:/dev/stdout|/dev/fd/1|/proc/(?:self|\d+)/fd/1)$")
+
+
+def _main(args, prog: str, stdout_open: bool = True) -> int:
+    """The command of the parsed ``args``: its job made, run and printed. With
+    standard output closed, a job that writes a file (``--out``, ``--csv``)
+    runs and only what it prints is dropped (said in a note); one that writes
+    nothing is refused before any work, its results having nowhere to go."""
     try:
         job = _checked_job(args, prog)
     except OptionRefused as err:
@@ -421,6 +432,14 @@ def _main(args, prog: str) -> int:
     except InputError as err:
         _say(f"{prog}: error: {err.as_flag()}")
         return 2
+    if not stdout_open:
+        kept = [p for _, p in written(job) if not _STDOUT_PATH.match(str(p))]
+        if not kept:
+            _say(f"{prog}: error: standard output is closed; give it a place "
+                 "(> FILE, or > /dev/null to drop what is printed)")  # fmt: skip
+            return 2
+        _say(f"{prog}: note: standard output is closed: what the command prints "
+             f"is dropped; its files are written ({', '.join(kept)})")  # fmt: skip
     _quiet_logs(args.verbose)
     if args.command != "info":
         from rhythmic_jax.jit_cache import enable_compile_cache

@@ -21,7 +21,6 @@ gathered into one line of the result's ``notes``.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import time
@@ -249,14 +248,14 @@ def _over_line(result: dict[str, Any]) -> str:
 
 
 def write_csv(rows, path: str | Path) -> None:
-    """One line per representation, the columns of :data:`COLUMNS`."""
+    """One line per representation, the columns of :data:`COLUMNS` (names
+    inert, :mod:`rhythmic_jax.io.csv_cells`)."""
     from rhythmic_jax.io.atomic import atomic_path
+    from rhythmic_jax.io.csv_cells import csv_text
 
+    text = csv_text(COLUMNS, ([r.get(c) for c in COLUMNS] for r in rows))
     with atomic_path(Path(path)) as tmp, open(tmp, "w", newline="") as f:
-        out = csv.writer(f)
-        out.writerow(COLUMNS)
-        for r in rows:
-            out.writerow(["" if r.get(c) is None else r.get(c) for c in COLUMNS])
+        f.write(text)
 
 
 def main(args) -> int:

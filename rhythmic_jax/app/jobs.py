@@ -172,6 +172,7 @@ def fit(job: FitJob, progress: bool = False):
     from rhythmic_jax.io.checkpoint import check_space
     from rhythmic_jax.map import map_file
     from rhythmic_jax.rhythmic_map import MapEstimator
+    from rhythmic_jax.validate import frames_digest
 
     augmented, learned, placed, read, ref, weight, fit_plan = _before_reading(job)
     feats = load_sources(
@@ -220,6 +221,8 @@ def fit(job: FitJob, progress: bool = False):
     with _augmenting(augmented, feats, labels, read, progress) as refine:
         fitted = fit_map(feats.x, config, labels=labels, embedding=emb,
                          progress=progress, refine=refine, plan=fit_plan)  # fmt: skip
+    if job.pca is None and all(str(s).lower().endswith(".npy") for s in job.sources):
+        ref = {**ref, "frames_sha256": frames_digest(feats.x)}  # evaluate --reference
     fitted = replace(fitted, extra={**fitted.extra, **extra},
                      reference=map_file.reference(job.sources, **ref))  # fmt: skip
     with write_errors("out", job.out):
@@ -511,6 +514,7 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     from rhythmic_jax.app.specs import recall_values
     from rhythmic_jax.eval.report import evaluate_map
     from rhythmic_jax.frames.sources import reference_features
+    from rhythmic_jax.validate import check_reference, frames_digest
 
     plot, reference, read = job.plot, job.reference, job.reading
     if job.per_query:
@@ -539,8 +543,13 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
         model, reference, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile,
     )  # fmt: skip
-    if ref is not None and reference is None and "reference_labels" in model.extra:
-        labels = model.extra["reference_labels"]  # frames grouped into places
+    grouped = model.extra.get("reference_labels")  # frames grouped into places
+    if ref is not None and reference:
+        kept = model.reference.get("frames_sha256")  # fitted on descriptor files
+        check_reference(len(ref), model.n if grouped is None else len(grouped),
+                        reference, kept and frames_digest(ref), kept)  # fmt: skip
+    if ref is not None and grouped is not None:
+        labels = grouped
     truth = _ground_truth(job, model, len(feats.x), reference)
     result = evaluate_map(
         model, feats.x, reference=ref, reference_labels=labels, tolerance=job.tolerance,

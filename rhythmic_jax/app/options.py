@@ -6,9 +6,11 @@ declared by another job). Its default is the field's (none: a positional, or a
 ``required`` option); one of False is a flag. The metadata holds what
 ``add_argument`` takes (:data:`ARGPARSE`) and: ``domain``, the
 :class:`rhythmic_jax.validate.Domain` a number is parsed with, stated in
-``--help`` and checked when a job is made; ``dest``, the option's name where it
-is not the field's; ``positional``; ``path``: what the job does with it
-(``reads``, ``writes``, ``frames``: reads frames from it; :func:`check_paths`).
+``--help`` and checked when a job is made (a whole range: a bound it leaves out
+is the largest the number's kind takes, so a huge value is refused there);
+``dest``, the option's name where it is not the field's; ``positional``;
+``path``: what the job does with it (``reads``, ``writes``, ``frames``: reads
+frames from it; :func:`check_paths`; :func:`written`).
 A field holding a part of the settings (:func:`part`) offers the part's options,
 titled ``group`` in ``--help`` and made into its value by ``make`` (default: the
 part's class).
@@ -33,7 +35,7 @@ from rhythmic_jax.validate import is_number
 
 __all__ = [
     "Checked", "OptionRefused", "Rule", "add_options", "check_paths", "like", "make",
-    "option", "options", "part", "settings",
+    "option", "options", "part", "settings", "written",
 ]  # fmt: skip
 
 ARGPARSE = ("nargs", "metavar", "choices", "required")
@@ -210,6 +212,11 @@ def _paths(job, *how: str) -> list[tuple[str, str]]:
             if meta.get("path") in how and v is not None and v not in NAMES:
                 found.append((dest, str(v)))
     return found
+
+
+def written(job) -> list[tuple[str, str]]:
+    """(option, path) of every file or folder the job was told to write."""
+    return _paths(job, "writes")
 
 
 def _clash(w: Path, r: Path) -> str | None:

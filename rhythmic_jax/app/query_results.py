@@ -13,8 +13,6 @@ them, and :func:`csv_text` writes one line per query.
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 from typing import Any
 
@@ -147,18 +145,20 @@ def records(result, queries: list[str] | None, places: list[str] | None) -> list
 def csv_text(rows: list[dict[str, Any]], extra: tuple[str, ...] = ()) -> str:
     """The records as CSV: query, place, place_name, score, confidence, the
     ``extra`` fields of each record (``correct``...), then top{k},
-    top{k}_name, top{k}_score for k = 1..K; empty cells for none."""
+    top{k}_name, top{k}_score for k = 1..K; empty cells for none. Names are
+    written inert (:mod:`rhythmic_jax.io.csv_cells`: a name a spreadsheet
+    would evaluate gets a leading ``'``), numbers as numbers."""
+    from rhythmic_jax.io import csv_cells
+
     k = max((len(r["top"]) for r in rows), default=0)
     head = ["query", "place", "place_name", "score", "confidence", *extra]
     for i in range(1, k + 1):
         head += [f"top{i}", f"top{i}_name", f"top{i}_score"]
-    buf = io.StringIO()
-    out = csv.writer(buf, lineterminator="\n")
-    out.writerow(head)
+    lines = []
     for r in rows:
         cells = [r["query"], r["place"], r["place_name"], r["score"], r["confidence"]]
         cells += [r[e] for e in extra]
         for t in r["top"]:
             cells += [t["place"], t["name"], t["score"]]
-        out.writerow(["" if c is None else c for c in cells])
-    return buf.getvalue()
+        lines.append(cells)
+    return csv_cells.csv_text(head, lines)

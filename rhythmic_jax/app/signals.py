@@ -178,9 +178,10 @@ def standard_streams() -> bool:
 
     A closed descriptor 0, 1 or 2 (``>&-``) is opened on ``/dev/null``, so no
     file the command opens takes its number (a map written where a library
-    prints); a closed standard error stays silent. What the streams cannot
-    encode (non-ASCII paths in the C locale, ``PYTHONIOENCODING=ascii``) is
-    written as backslash escapes instead of failing after the work is done."""
+    prints, and ``sys.stdout`` writes there); a closed standard error stays
+    silent. What the streams cannot encode (non-ASCII paths in the C locale,
+    ``PYTHONIOENCODING=ascii``) is written as backslash escapes instead of
+    failing after the work is done."""
     was_open = _STDOUT_OPEN.get("open", True)
     for fd in (0, 1, 2):
         try:
@@ -193,10 +194,12 @@ def standard_streams() -> bool:
             was_open = was_open and fd != 1
     if sys.stderr is None:
         sys.stderr = open(2, "w", errors="backslashreplace", closefd=False)  # noqa: SIM115
+    _STDOUT_OPEN["open"] = was_open = was_open and sys.stdout is not None
+    if sys.stdout is None:  # closed at start: what is printed goes to /dev/null
+        sys.stdout = open(1, "w", closefd=False)  # noqa: SIM115
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(AttributeError, ValueError, OSError):
             stream.reconfigure(errors="backslashreplace")
-    _STDOUT_OPEN["open"] = was_open = was_open and sys.stdout is not None
     return was_open
 
 

@@ -160,14 +160,15 @@ class ScaleJob:
     :mod:`rhythmic_jax.app.scale_jobs`); checked with its :class:`FitJob`."""
 
     processes: int = option("start this many local processes for one fit (frames "
-                            "split by rows)", 1, domain=int_option(1))
+                            "split by rows)", 1, domain=int_option(1, 256))
     coordinator: str | None = option("HOST:PORT of process 0")
-    num_processes: int | None = option("K hosts", domain=int_option(1))
-    process_id: int | None = option("this one's i", domain=int_option(0))
+    num_processes: int | None = option("K hosts", domain=int_option(1, 65536))
+    process_id: int | None = option("this one's i", domain=int_option(0, 65535))
     memory: str | None = option(
         "bytes each process may use (1GiB, 800M); frames that do not fit are "
         "streamed from disk in blocks",
-        domain=Domain(True, 1, parse=parse_bytes, what="a size (1GiB, 800M)"))
+        domain=Domain(True, 1, 2**50, parse=parse_bytes,
+                      what="a size (1GiB, 800M)"))
     stream: bool = option("stream the frames from disk always", False)
     shards: str | None = option(
         "image sources: describe them into this folder of .npy shards as they are "

@@ -13,6 +13,11 @@ figure as it is. matplotlib is imported only when a function is called.
   beside the plain map and brute force (paper Fig. 6).
 - :func:`plot_levels`: accuracy against the period level T = c sqrt N, with
   brute force as a reference line and the compression ratio (paper Fig. 8).
+
+Text is shown as it is written: a file name such as ``$x^2$_{a}%`` in a title,
+a caption, a legend or an annotation is drawn literally, never as mathtext or
+TeX (:func:`literal`, applied to every figure before it is returned or saved);
+only the numbers the axes' formatters write keep their markup.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import atomic_path
 
 __all__ = [
+    "literal",
     "new_figure",
     "plot_augmentation",
     "plot_cost",
@@ -55,17 +61,38 @@ def new_figure(ncols: int = 1, width: float = 5.0, height: float = 3.6):
     return fig, list(axes)
 
 
+def literal(fig):
+    """``fig`` with every text but the axes' tick labels drawn literally
+    (``parse_math`` and ``usetex`` off): titles, captions, labels, legends and
+    annotations may hold file names, and a ``$``, ``\\``, ``_`` or ``^`` in
+    one is a character to show, not markup to parse. Tick labels and offsets
+    are the formatters' own (log axes write ``$10^{2}$``) and keep theirs."""
+    from matplotlib.axis import Axis, Tick
+    from matplotlib.text import Text
+
+    keep = {id(a.offsetText) for a in fig.findobj(Axis)}
+    keep |= {id(t) for tick in fig.findobj(Tick) for t in tick.get_children()}
+    for text in fig.findobj(Text):
+        if id(text) not in keep:
+            text.set_parse_math(False)
+            text.set_usetex(False)
+    return fig
+
+
 def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> Path:
-    """Write ``fig`` as a PNG at ``path`` atomically (temporary file, then rename)."""
+    """Write ``fig`` as a PNG at ``path`` atomically (temporary file, then
+    rename), its text drawn literally (:func:`literal`)."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise InputError(f"figure path {path} must end in .png")
+    literal(fig)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
     return path
 
 
 def _finish(fig, path):
+    literal(fig)
     if path is not None:
         save_figure(fig, path)
     return fig

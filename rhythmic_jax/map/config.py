@@ -127,7 +127,8 @@ class MapConfig:
     level: int = field(default=1, metadata={
         "help": "period level c (c*N^(1/r))", "domain": int_option(1)})  # fmt: skip
     count: int = field(default=7, metadata={
-        "help": "candidate periods", "domain": int_option(2)})  # fmt: skip
+        "help": "candidate periods (each is fitted once to choose among them)",
+        "domain": int_option(2, 64)})  # fmt: skip
     c: float | None = field(default=None, metadata={
         "help": "SVM penalty (default log N)", "domain": number_option(0)})  # fmt: skip
     solver: str = field(default="newton", metadata={

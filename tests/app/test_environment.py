@@ -113,13 +113,25 @@ def test_out_a_pipe_nobody_reads_is_one_line_not_a_hang(route, tmp_path):
 
 
 # --------------------------------------------------------- standard streams
-def test_a_closed_standard_output_is_refused_before_work(route, tmp_path):
-    out = tmp_path / "p.npy"
+def test_a_closed_standard_output_drops_only_what_is_printed(route, tmp_path):
+    """With ``--out`` the work is done and the file written (the same
+    predictions as with standard output open); only the summary line is
+    dropped, said in one note. A query that writes nothing, or writes to
+    standard output itself, is refused before any work."""
+    out, ref = tmp_path / "p.npy", tmp_path / "ref.npy"
     done = _command("query", route / "m.map", route / "q.npy", "--out", out,
                     shell="exec >&-")  # fmt: skip
-    assert done.returncode == 2
-    _one_line(done.stderr, "standard output is closed")
-    assert not out.exists()
+    assert done.returncode == 0, done.stderr
+    _one_line(done.stderr, "standard output is closed", str(out))
+    assert b"error" not in done.stderr
+    again = _command("query", route / "m.map", route / "q.npy", "--out", ref)
+    assert again.returncode == 0, again.stderr
+    np.testing.assert_array_equal(np.load(out), np.load(ref))
+    for extra in ([], ["--out", "/dev/stdout"]):
+        bad = _command("query", route / "m.map", route / "q.npy", *extra,
+                       shell="exec >&-")  # fmt: skip
+        assert bad.returncode == 2
+        _one_line(bad.stderr, "standard output is closed")
 
 
 def test_a_closed_standard_error_is_silent(route, tmp_path):

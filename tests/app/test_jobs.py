@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import subprocess
@@ -39,10 +40,13 @@ def test_fit_saves_the_map_with_its_provenance(route):
     assert (
         loaded.periods == model.periods == RhythmicMap().fit(x, progress=False).periods
     )
+    rows = np.ascontiguousarray(x, np.float32)  # the frames' digest, by hand
+    digest = hashlib.sha256(repr(rows.shape).encode() + rows.tobytes()).hexdigest()
     assert loaded.reference == {
         "sources": [str((folder / "ref.npy").absolute())],
         "tile": None,
         "stride": None,
+        "frames_sha256": digest,
     }
     checked = {"checksums": "sha256 of every stored array, checked"}
     assert jobs.info(str(folder / "m.map")) == loaded.info() | checked
