@@ -218,8 +218,8 @@ class Domain:
             whole = value > hi or value < lo and self.low is None
             if whole and self.low is None and self.high is None:
                 raise InputError(f"must be a finite number {self.bounds()}, got "
-                                 f"{value:g}")  # fmt: skip
-            raise InputError(f"must be {self.bounds(whole)}, got {value:g}")
+                                 f"{_told(value)}")  # fmt: skip
+            raise InputError(f"must be {self.bounds(whole)}, got {_told(value)}")
         return float(value)
 
     def _inside(self, v) -> bool:
@@ -246,6 +246,13 @@ class Domain:
         except InputError as err:
             raise argparse.ArgumentTypeError(str(err)) from None
         return text if self.parse else checked
+
+
+def _told(value: float) -> str:
+    """``value`` short (``1e+38``) where that reads back as it, else exactly
+    (``1.0000000000000002e+38``, just past a bound shown as ``1e+38``)."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
 
 
 def int_option(least: int = 1, most: int | None = None) -> Domain:

@@ -41,6 +41,7 @@ from rhythmic_jax.io import checkpoint
 from rhythmic_jax.io.images import read_rgb
 from rhythmic_jax.io.tiles import tile_image
 from rhythmic_jax.solvers.resumable import RunConfig, memmap_batches
+from rhythmic_jax.validate import FLOAT_LIMIT
 
 RNG = np.random.default_rng(0)
 X = RNG.normal(size=(40, 18)).astype(np.float32)
@@ -1675,7 +1676,7 @@ def test_query_on_any_array(maps, q, sequence, threshold, decode):
         good = (
             _valid(q, 18)
             and (sequence is None or 1 <= sequence <= len(q))
-            and (threshold is None or np.isfinite(threshold))
+            and (threshold is None or abs(threshold) <= FLOAT_LIMIT)
         )
         if not good:
             _refused(code, lines, "query")

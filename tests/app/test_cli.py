@@ -232,7 +232,7 @@ def test_every_option_has_help_and_states_its_default():
 def test_the_compile_note_is_said_once_at_the_top(capsys):
     """The long --compile paragraph is in the top-level epilog only; each
     command's --compile points there."""
-    note = "pays only for a background build"
+    note = "a background build (a niced process, about a minute of CPU) starts"
     assert main(["--help"]) == 0
     assert note in " ".join(capsys.readouterr().out.split())
     for cmd in ("fit", "learn", "query", "evaluate"):
