@@ -99,7 +99,7 @@ def _best_two(
     found = jnp.any(valid) & jnp.isfinite(best)
     top = jnp.where(found, top, -1).astype(jnp.int32)
     rival = (valid if rivals is None else rivals) & (jnp.abs(index - top) > exclude)
-    runner = jnp.max(jnp.where(rival, score, neg))
+    runner = jnp.where(found, jnp.max(jnp.where(rival, score, neg)), neg)
     return Decoded(top, jnp.where(found, best, neg), runner)
 
 
