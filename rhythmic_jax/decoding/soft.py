@@ -28,7 +28,8 @@ Both return the best score and the runner-up: the best score among the other pla
 neighbours of the match, which look alike along a route, do not count as rivals).
 Top-m seeks the runner-up among the combinations of the ``max(top, 2)`` best
 phases, so that ``top = 1`` (one candidate) still measures its answer against
-the combinations one phase away. ``confidence = best - runner_up``
+the combinations one phase away (places or not, as the hard decode: its
+confidence is the weakest phase margin). ``confidence = best - runner_up``
 (:func:`rhythmic_jax.decoding.hard.confidence`: finite; ``0`` for no match and
 for an answer without a rival). A query whose scores are not finite is no match.
 
@@ -153,12 +154,15 @@ def _topm_one(
     s: jax.Array, periods: tuple[int, ...], n: int, top: int, exclude: int
 ) -> Decoded:
     """One query: s (p,) -> scalars, the best of prod_g min(top, tau_g)
-    combinations, its rival among those of the max(top, 2) best phases."""
+    combinations, its rival among those of the max(top, 2) best phases (for
+    ``top = 1``, as the hard decode: every combination one phase away, a place
+    or not, so that the confidence is the weakest phase margin)."""
     wide = max(top, 2)
     score, index = topm_combinations(s, periods, wide)
     valid = index < n
     mask = valid & jnp.asarray(chosen(periods, top, wide))
-    return _best_two(score, index, mask, exclude, rivals=valid)
+    rivals = valid if top > 1 else jnp.ones_like(valid)
+    return _best_two(score, index, mask, exclude, rivals=rivals)
 
 
 def _batched(one, scores: jax.Array, batch_size: int, **static) -> Decoded:

@@ -58,7 +58,8 @@ def brute_soft(scores, periods, n, exclude=0):
 
 def brute_topm(scores, periods, n, top, exclude=0):
     """The best of the top-m combinations, its rival among those of the
-    max(top, 2) best phases of every period."""
+    max(top, 2) best phases of every period (every one for top 1, else the
+    places)."""
     out = []
     wide = max(top, 2)
     for s in scores:
@@ -71,9 +72,9 @@ def brute_topm(scores, periods, n, top, exclude=0):
                 for i in range(int(np.prod(periods)))
                 if all(i % t == j for t, j in zip(periods, phases, strict=True))
             )
-            if i < n:
+            if i < n or top == 1:  # top 1: rivals a place or not, as hard
                 rivals.append((i, _place_score(s, periods, i)))
-                if max(ranks) < top:
+                if max(ranks) < top and i < n:
                     cands.append(rivals[-1])
         out.append(_best_two(cands, exclude, rivals))
     return [np.array(x) for x in zip(*out, strict=True)]
