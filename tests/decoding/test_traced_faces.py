@@ -121,6 +121,7 @@ def test_a_sequence_with_a_nan_frame_is_no_match_while_it_is_in_the_window(
     assert np.isfinite(conf).all() and (conf[8:11] == 0).all()
 
 
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")
 def test_the_kernels_answer_non_finite_scores_with_no_match():
     """The decodes of scores, eagerly: a row with a NaN or inf is no match in
     every kernel (hard, its numpy lane, soft, top-m), never place 0."""
