@@ -235,8 +235,9 @@ def topm_decode(
     Scores the ``prod_g min(top, tau_g)`` places whose phases are among the ``top`` best
     of every period and keeps the best one below ``n`` (index -1 and score -inf when
     every combination is ``>= n``); the runner-up is the best other place among
-    the combinations of the ``max(top, 2)`` best phases. ``top = 1`` is the paper's hard decode; ``top >=
-    max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``top ** r``
+    the combinations of the ``max(top, 2)`` best phases. ``top = 1`` is the
+    paper's hard decode; ``top >= max(periods)`` equals :func:`soft_decode`
+    exactly. Cost per query ``top ** r``
     instead of ``n``. Needs ``prod(periods) < 2**30`` (int32 index arithmetic).
     """
     per, n = check_scores(scores, periods, n)

@@ -90,7 +90,9 @@ def test_a_bad_query_is_refused_at_trace_time_in_the_eager_words(maps, case):
 
 @pytest.mark.parametrize("kind", ["plain", "codes", "mixed"])
 @pytest.mark.parametrize("method", ["hard", "soft", "topm"])
-def test_non_finite_queries_decode_to_no_match_in_the_program(route, maps, kind, method):
+def test_non_finite_queries_decode_to_no_match_in_the_program(
+    route, maps, kind, method
+):
     _, q = route
     m = maps[kind]
     bad = q[:6].copy()
@@ -105,9 +107,7 @@ def test_non_finite_queries_decode_to_no_match_in_the_program(route, maps, kind,
     assert "NaN or inf" in _message(rj.decode, m, bad)
 
 
-def test_a_sequence_with_a_nan_frame_is_no_match_while_it_is_in_the_window(
-    route, maps
-):
+def test_a_sequence_with_a_nan_frame_is_no_match_while_it_is_in_the_window(route, maps):
     _, q = route
     m = maps["plain"]
     frames = q[:20].copy()
@@ -176,8 +176,11 @@ def test_traced_decode_fuzz(route, maps, rows, width, rank, dtype, poison, via_v
         fn = jax.jit(lambda y: rj.decode(m, y).index)
     one = x[0] if via_vmap else x
     try:
-        eager = np.asarray(rj.decode(m, np.where(np.isfinite(one), one, 0)
-                                     if one.dtype.kind == "f" else one).index)
+        eager = np.asarray(
+            rj.decode(
+                m, np.where(np.isfinite(one), one, 0) if one.dtype.kind == "f" else one
+            ).index
+        )
     except InputError as err:
         with pytest.raises(InputError) as got:
             fn(jnp.asarray(x))
