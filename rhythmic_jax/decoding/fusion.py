@@ -99,7 +99,7 @@ def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
     std_s = jnp.sqrt(var_s)
     mu, sd = jnp.mean(sim), jnp.std(sim)
     valid = index < n
-    mask = valid & jnp.asarray(keep)
+    mask = valid if top == wide else valid & jnp.asarray(keep)
     fused = weight * _z(score, mean_s, std_s)
     if codes:  # static: w < 1
         fused = fused + (1 - weight) * _z(sim[jnp.minimum(index, n - 1)], mu, sd)
@@ -113,6 +113,8 @@ def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
         # the answer among as many best-code places as top-m combinations
         first = np.arange(len(idx)) < min(int(keep.sum()), n)
         mask = jnp.concatenate([mask, jnp.asarray(first)])
+    if top == wide:  # every candidate may answer
+        return _best_two(fused, index, valid, exclude)
     return _best_two(fused, index, mask, exclude, rivals=valid)
 
 

@@ -160,9 +160,10 @@ def _topm_one(
     wide = max(top, 2)
     score, index = topm_combinations(s, periods, wide)
     valid = index < n
+    if top > 1:  # every combination is a candidate
+        return _best_two(score, index, valid, exclude)
     mask = valid & jnp.asarray(chosen(periods, top, wide))
-    rivals = valid if top > 1 else jnp.ones_like(valid)
-    return _best_two(score, index, mask, exclude, rivals=rivals)
+    return _best_two(score, index, mask, exclude, rivals=jnp.ones_like(valid))
 
 
 def _batched(one, scores: jax.Array, batch_size: int, **static) -> Decoded:
