@@ -30,6 +30,7 @@ import inspect
 import json
 from dataclasses import fields, replace
 
+import jax
 import numpy as np
 
 from rhythmic_jax.decoding import queries
@@ -325,6 +326,8 @@ class MapEstimator(EstimatorFace):
         to the map's. The index is the map's place row 0 .. n-1 (``predict``
         names it by the labels ``fit`` had)."""
         m = self._fitted()
+        if isinstance(X, jax.core.Tracer):  # checked at trace time by decode
+            return queries.decode(m, X, method, top)
         x = query_rows(X, m.d, m.extra)
         return queries.decode(m, x, method, top)
 
@@ -338,6 +341,7 @@ class MapEstimator(EstimatorFace):
             m = self.map_
         except AttributeError:
             m = self._fitted()  # raises, in the estimator's words
+        queries.refuse_trace(m, X)
         x = query_rows(X, m.d, m.extra)
         got = queries.predict(m, x, method, top=top, sequence=sequence,
                               speeds=speeds, threshold=threshold)  # fmt: skip

@@ -40,7 +40,7 @@ import numpy as np
 from rhythmic_jax.decoding.buckets import head, in_host_memory, pad_rows
 from rhythmic_jax.decoding.hard import Decoded, check_scores
 from rhythmic_jax.decoding.sequence import _sequence_scores_jit, frame_offsets
-from rhythmic_jax.decoding.soft import _best_two, topm_combinations
+from rhythmic_jax.decoding.soft import _best_two, chosen, topm_combinations
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.jit_options import jit
 from rhythmic_jax.map.config import check_weight
@@ -86,8 +86,12 @@ def _soft_one(s, sim, weight, periods, n, exclude) -> Decoded:
 
 
 def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
-    """One query, over the map's top-m places (and the codes' best when codes)."""
-    score, index = topm_combinations(s, periods, top)
+    """One query, over the map's top-m places (and the codes' best when codes);
+    the runner-up among the candidates of ``max(top, 2)`` (so that the hard
+    decode, ``top = 1``, has rivals to measure its answer against)."""
+    wide = max(top, 2)
+    keep = chosen(periods, top, wide)
+    score, index = topm_combinations(s, periods, wide)
     mean_s = var_s = 0.0
     for off, t in zip(period_offsets(periods), periods, strict=True):
         block = s[off : off + t]
@@ -95,6 +99,7 @@ def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
     std_s = jnp.sqrt(var_s)
     mu, sd = jnp.mean(sim), jnp.std(sim)
     valid = index < n
+    mask = valid if top == wide else valid & jnp.asarray(keep)
     fused = weight * _z(score, mean_s, std_s)
     if codes:  # static: w < 1
         fused = fused + (1 - weight) * _z(sim[jnp.minimum(index, n - 1)], mu, sd)
@@ -105,7 +110,12 @@ def _topm_one(s, sim, weight, periods, n, top, codes, exclude) -> Decoded:
         fused = jnp.concatenate([fused, extra])
         index = jnp.concatenate([index, idx.astype(index.dtype)])
         valid = jnp.concatenate([valid, jnp.ones(idx.shape, bool)])
-    return _best_two(fused, index, valid, exclude)
+        # the answer among as many best-code places as top-m combinations
+        first = np.arange(len(idx)) < min(int(keep.sum()), n)
+        mask = jnp.concatenate([mask, jnp.asarray(first)])
+    if top == wide:  # every candidate may answer
+        return _best_two(fused, index, valid, exclude)
+    return _best_two(fused, index, mask, exclude, rivals=valid)
 
 
 def _batched(one, s, sim, weight, batch_size, **static) -> Decoded:
@@ -178,7 +188,10 @@ def fused_decode(
     ``method``: "soft" (every place), "topm" (the map's combinations of the ``top``
     best phases of every period and as many best-code places) or "hard" (top-m
     with ``top = 1``). Returns
-    :class:`~rhythmic_jax.decoding.hard.Decoded` whose scores are fused z-scores.
+    :class:`~rhythmic_jax.decoding.hard.Decoded` whose scores are fused z-scores;
+    its confidence (:func:`rhythmic_jax.decoding.hard.confidence`) is the
+    answer's fused score minus the best rival's, in z-score units, the rival
+    sought among the candidates of ``max(top, 2)`` (finite; 0 for no match).
     Jit-compiled once per (periods, n, method, top, weight, exclude) and bucket
     of rows (:func:`~rhythmic_jax.decoding.buckets.bucket`: the rows are padded
     where they lie, host inputs on the host, and the results cut where they

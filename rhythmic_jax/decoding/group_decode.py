@@ -19,6 +19,10 @@ tau_g`` and this is soft decode (:mod:`rhythmic_jax.decoding.soft`)):
   the argmax segment, then its best place by the summed fine scores. Confidence
   is the smallest top-2 margin (of every digit; of the segment and of the place
   within it);
+- every decode's confidence is the answer's score minus its rival's
+  (:func:`rhythmic_jax.decoding.hard.confidence`: finite, 0 for no match); top-m
+  seeks the rival among the places whose labels are among the ``max(top, 2)``
+  best;
 - sequences: ``A_t(i) = sum_{l < L} S_{t-l}(i - o_l)`` with ``o_l = round(l v)``
   (frames before the first left out; a place shifted off the route scores the
   mean of its frame), decoded by its argmax over places for every speed ``v``, the
@@ -98,14 +102,22 @@ def _soft_one(s, groups: Groups, n: int, exclude: int) -> Decoded:
 
 
 def _topm_one(s, groups: Groups, n: int, top: int, exclude: int) -> Decoded:
+    """The best place whose labels are among the ``top`` best of every group;
+    its rival among those of the ``max(top, 2)`` best (``top = 1`` keeps one
+    candidate, measured against the places one label away)."""
     cols = _columns(groups, n)
+    wide = max(top, 2)
     valid = jnp.ones((n,), bool)
+    rivals = jnp.ones((n,), bool)
     for g, (off, t) in enumerate(zip(groups.offsets, groups.sizes, strict=True)):
-        _, best = jax.lax.top_k(s[off : off + t], min(top, t))
-        keep = jnp.zeros((t,), bool).at[best].set(True)
-        valid = valid & keep[cols[g] - off]
+        _, best = jax.lax.top_k(s[off : off + t], min(wide, t))
+        rank = jnp.full((t,), wide).at[best].set(jnp.arange(len(best)))
+        label = rank[cols[g] - off]
+        valid = valid & (label < top)
+        rivals = rivals & (label < wide)
     total = _place_sum(s, groups, n)
-    return _best_two(total, jnp.arange(n, dtype=jnp.int32), valid, exclude)
+    index = jnp.arange(n, dtype=jnp.int32)
+    return _best_two(total, index, valid, exclude, rivals=rivals)
 
 
 @functools.partial(jit, static_argnames=("groups", "n", "top", "exclude", "batch_size"))

@@ -14,11 +14,17 @@ fine scores. :func:`hard_decode` is that one kernel; the batch, sequence and
 grouped decodes all call it, and the host lanes
 (:mod:`rhythmic_jax.decoding.host`) are tested against it.
 
-The confidence of a hard decode is its weakest phase margin,
+Confidence, the one definition every decode shares (:func:`confidence`): the
+answer's score minus the best score of a rival place, ``score - runner_up``, in
+the decode's own score units, finite and >= 0. For the hard decode the rival is
+the best other phase combination, so the confidence is its weakest phase margin
 ``min_g (top1_g - top2_g)``: a query whose phases are all clear-cut scores high,
-and a threshold on it rejects queries (the paper's "lower bound of decision value").
-Soft and top-m decodes (:mod:`rhythmic_jax.decoding.soft`) share the :class:`Decoded`
-result and its confidence.
+and a threshold on it rejects queries (the paper's "lower bound of decision
+value"). A no match (-1) has confidence 0, as has an answer with no rival to
+measure it against (a one-place map); a query whose scores are not finite (a NaN
+or inf in it) is a no match. Soft and top-m decodes
+(:mod:`rhythmic_jax.decoding.soft`) share the :class:`Decoded` result and its
+confidence.
 
 Shapes: b queries, d features, p = sum(periods) templates, r periods (or
 groups), indexed by g in ``tau_g``, ``j_g``, ``off_g``.
@@ -52,6 +58,7 @@ from rhythmic_jax.validate import check_int
 
 __all__ = [
     "Decoded",
+    "confidence",
     "check_group_scores",
     "check_scores",
     "decode",
@@ -61,9 +68,24 @@ __all__ = [
 ]
 
 
-@jit
-def _confidence(index, score, runner_up):
-    return jnp.where(index >= 0, score - runner_up, 0.0).astype(score.dtype)
+def confidence(index, score, runner_up, xp=jnp):
+    """The confidence of decoded answers: ``score - runner_up`` where the answer
+    is a place and has a rival (``runner_up > -inf``), else 0; finite always
+    (a margin beyond the dtype's range is its largest number, a NaN is 0).
+
+    One meaning for every decode: how far, in the decode's own score units
+    (summed decision values; fused z-scores with codes; summed over the frames
+    of a sequence), the answer beats the best place it was compared with. It
+    grows with certainty, so ``confidence >= threshold`` keeps the surest
+    answers. ``xp``: ``jax.numpy`` (traced or on a device) or ``numpy``.
+    """
+    gap = score - runner_up
+    ok = (index >= 0) & (runner_up > -xp.inf) & ~xp.isnan(gap)
+    big = xp.finfo(score.dtype).max
+    return xp.where(ok, xp.minimum(gap, big), 0.0).astype(score.dtype)
+
+
+_confidence = jit(confidence)
 
 
 class Decoded(NamedTuple):
@@ -79,16 +101,15 @@ class Decoded(NamedTuple):
 
     @property
     def confidence(self) -> jax.Array | np.ndarray:
-        """``score - runner_up`` (``inf`` without a rival, ``0`` for no match),
-        computed where the fields lie: in host memory by numpy (a program per
-        batch size would cost more than the subtraction), on another device or
-        inside a trace by JAX."""
+        """:func:`confidence`: ``score - runner_up``, finite, ``0`` for no match
+        and for an answer without a rival; computed where the fields lie: in
+        host memory by numpy (a program per batch size would cost more than the
+        subtraction), on another device or inside a trace by JAX."""
         host = [in_host_memory(f) for f in self]
         if any(f is None for f in host):
             return _confidence(*self)
-        index, score, runner = host
-        with np.errstate(invalid="ignore"):  # -inf - -inf of a no match
-            return np.where(index >= 0, score - runner, 0.0).astype(score.dtype)
+        with np.errstate(invalid="ignore", over="ignore"):  # -inf - -inf
+            return confidence(*host, xp=np)
 
 
 def check_scores(
@@ -171,7 +192,12 @@ def _hard(scores: jax.Array, groups: Groups, n: int) -> Decoded:
         best, fine_top, fine_gap = _top_two(jnp.where(place < n, fine, -jnp.inf))
         total = seg_top + fine_top
         gap = jnp.minimum(seg_gap, fine_gap)
-        return Decoded((seg * s + best).astype(jnp.int32), total, total - gap)
+        found = jnp.isfinite(total)  # a NaN or inf in the query: no match
+        return Decoded(
+            jnp.where(found, seg * s + best, -1).astype(jnp.int32),
+            jnp.where(found, total, jnp.asarray(-jnp.inf, scores.dtype)),
+            total - gap,
+        )
     tables, big_m = place_tables(groups)
     index = jnp.zeros(lead, jnp.int32)
     total = jnp.zeros(lead, scores.dtype)
@@ -181,7 +207,7 @@ def _hard(scores: jax.Array, groups: Groups, n: int) -> Decoded:
         index = (index + jnp.asarray(table)[phase]) % big_m
         total = total + top
         gap = jnp.minimum(gap, margin)
-    found = index < n
+    found = (index < n) & jnp.isfinite(total)  # a NaN or inf: no match
     return Decoded(
         jnp.where(found, index, -1),
         jnp.where(found, total, jnp.asarray(-jnp.inf, scores.dtype)),
@@ -207,8 +233,10 @@ def hard_decode(
 
     Returns:
       :class:`Decoded` with the scores' leading shape: index int32 (-1 = no
-      match), score the sum of the per-group maxima (-inf for no match), and
-      runner_up such that ``confidence = min_g (top1_g - top2_g)``. Inside a trace
+      match, also for scores that are not finite), score the sum of the
+      per-group maxima (-inf for no match), and runner_up the best other phase
+      combination's, so that ``confidence = min_g (top1_g - top2_g)`` (0 for
+      no match). Inside a trace
       the kernel is traced in place (static layout and n); outside, one program
       per layout, n and shape.
     """

@@ -97,9 +97,9 @@ def host_decode(s: np.ndarray, groups: Groups, n: int) -> Decoded:
     On a CPU the kernel's strided reductions over a group's columns cost as
     much as a tenth of the product before them (``reports/decode.md``); numpy's
     argmax and max over the same columns cost a fraction of that. An argmax
-    is the first maximal phase, as the kernel's. The scores are finite (the
-    queries are checked before): a row with a NaN is not answered as the
-    kernel answers it.
+    is the first maximal phase, as the kernel's; a row whose summed top
+    score is not finite (a NaN or inf in its query) is no match, as in the
+    kernel.
     """
     tables, big_m = place_tables(groups)
     b = len(s)
@@ -117,7 +117,7 @@ def host_decode(s: np.ndarray, groups: Groups, n: int) -> Decoded:
         index += table[phase]
         total += top
     index %= big_m
-    found = index < n
+    found = (index < n) & np.isfinite(total)
     return Decoded(
         np.where(found, index, -1).astype(np.int32),
         np.where(found, total, np.asarray(-np.inf, s.dtype)),

@@ -82,8 +82,10 @@ __all__ = [
     "one_query",
     "place_scores",
     "predict",
+    "refuse_trace",
     "scores",
     "sequence_queries",
+    "traced_queries",
     "way",
 ]
 
@@ -93,11 +95,43 @@ _scores_jit = jit(decision_values)
 def queries(m: Map, q) -> np.ndarray | jax.Array:
     """Checked (b, d) queries of ``m``, embedded to (b, k) when it has an
     embedding; in host memory (the bucketed decodes pad them there). Inside a
-    trace they are taken as they are."""
+    trace the shape, rank and dtype are checked at trace time in the eager
+    words (:func:`traced_queries`); their values are read by the program (a
+    row holding a NaN or inf decodes to no match, -1)."""
     if isinstance(q, Tracer):
+        q = traced_queries(q, m.d)
         return q if m.embedding is None else embed(m.embedding, q)
     q = check_features(q, "queries", d=m.d)
     return q if m.embedding is None else apply_embedding(m.embedding, q)
+
+
+def traced_queries(q: Tracer, d: int) -> jax.Array:
+    """Traced queries (b, d) as float32, their shape, rank and dtype (static
+    under a trace) checked by :func:`rhythmic_jax.validate.check_features`
+    itself, on a stand-in of the same dtype: zeros of the traced shape, a
+    broadcast view that holds one number, cut to one row where the shape is
+    right (so the eager checks' finiteness test reads one row, not b)."""
+    shape = tuple(q.shape)
+    if len(shape) == 2 and shape[0] > 0:
+        shape = (1, shape[1])
+    try:
+        stand_in = np.broadcast_to(np.zeros((), q.dtype), shape)
+    except TypeError:  # a dtype numpy has no zeros of (a key type)
+        raise InputError(f"queries: expected numbers, got dtype {q.dtype}") from None
+    check_features(stand_in, "queries", d=d)
+    return q.astype(jnp.float32)
+
+
+def refuse_trace(m: Map, q, name: str = "predict") -> None:
+    """Refuse, in one line, a host-output face called inside a trace
+    (``jax.jit``, ``jax.vmap``): its places are numpy arrays, which a trace
+    cannot give; :func:`decode` is the function to trace."""
+    if isinstance(q, Tracer) or isinstance(m.w, Tracer):
+        raise InputError(
+            f"rhythmic_jax.{name} returns places in host memory and cannot be "
+            "traced (jax.jit, jax.vmap); trace rhythmic_jax.decode(map, queries)"
+            ".index instead"
+        )
 
 
 def scores(m: Map, q) -> jax.Array:
@@ -119,7 +153,15 @@ def place_scores(m: Map, q) -> jax.Array:
 def decode(m: Map, q, method: str | None = None, top: int | None = None) -> Decoded:
     """Decode queries (b, d): index (b,) (-1 no match), score, runner-up,
     confidence; ``method`` "hard", "soft" or "topm" (default: the map's), ``top``
-    the phases top-m keeps (default: the map's)."""
+    the phases top-m keeps (default: the map's).
+
+    ``confidence = score - runner_up`` (:func:`rhythmic_jax.decoding.hard.confidence`):
+    how far the answer beats its best rival in the decode's score units
+    (summed decision values; fused z-scores for a map with codes), finite,
+    0 for no match. The function to trace: under ``jax.jit`` or ``jax.vmap``
+    the queries' shape, rank and dtype are refused at trace time as eagerly,
+    and a query holding a NaN or inf decodes to no match (-1); eagerly such a
+    query is refused in one line."""
     method, top = method or m.config.decode, top or m.config.top
     x = queries(m, q)
     return by_method(method, lambda h: _decoded(m, x, h, top))
@@ -161,7 +203,9 @@ def decode_sequence(
 ) -> tuple[jax.Array, jax.Array]:
     """``(index, confidence)`` (T,) of consecutive query frames q (T, d), each
     decoded with the ``length - 1`` before it at ``speeds`` by ``method``
-    (:mod:`rhythmic_jax.decoding.sequence`)."""
+    (:mod:`rhythmic_jax.decoding.sequence`). The confidence is the winning
+    speed's ``score - runner_up`` over the summed evidence of the L frames
+    (:func:`rhythmic_jax.decoding.hard.confidence`: finite, 0 for no match)."""
     method, top = method or m.config.decode, top or m.config.top
     x = queries(m, q)
     return by_method(method, lambda h: _sequence(m, x, length, speeds, h, top))
@@ -207,8 +251,13 @@ def predict(
         frames; at most b.
       speeds: map frames per query frame tried by the sequence decode.
       threshold: reject queries whose confidence is below it (finite; default
-        the map's).
+        the map's): the decode's ``score - runner_up``
+        (:func:`rhythmic_jax.decoding.hard.confidence`), in its score units.
+
+    Not traceable (its places are numpy arrays): inside ``jax.jit`` or
+    ``jax.vmap`` it refuses in one line; trace :func:`decode` instead.
     """
+    refuse_trace(m, q)
     method, top = method or m.config.decode, top or m.config.top
     thr = m.config.threshold
     if threshold is not None:

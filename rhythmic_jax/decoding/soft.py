@@ -26,7 +26,12 @@ soft decode (same sums in the same order, ties to the smaller index).
 Both return the best score and the runner-up: the best score among the other places
 (with ``exclude = e``, among places more than ``e`` frames from the best one, so that
 neighbours of the match, which look alike along a route, do not count as rivals).
-``confidence = best - runner_up`` (``inf`` with no rival, ``0`` for no match).
+Top-m seeks the runner-up among the combinations of the ``max(top, 2)`` best
+phases, so that ``top = 1`` (one candidate) still measures its answer against
+the combinations one phase away (places or not, as the hard decode: its
+confidence is the weakest phase margin). ``confidence = best - runner_up``
+(:func:`rhythmic_jax.decoding.hard.confidence`: finite; ``0`` for no match and
+for an answer without a rival). A query whose scores are not finite is no match.
 
 Shapes: ``b`` queries, ``p = sum(periods)`` scores per query, ``n`` places.
 """
@@ -48,7 +53,7 @@ from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import crt_tables, period_offsets, place_columns
 from rhythmic_jax.validate import check_int
 
-__all__ = ["calibrate", "soft_decode", "topm_combinations", "topm_decode"]
+__all__ = ["calibrate", "chosen", "soft_decode", "topm_combinations", "topm_decode"]
 
 _INT32_SAFE = 2**30  # running CRT sums stay below 2 M < 2**31
 
@@ -75,21 +80,27 @@ def calibrate(scores: jax.Array, periods: Sequence[int] | Groups) -> jax.Array:
 
 
 def _best_two(
-    score: jax.Array, index: jax.Array, valid: jax.Array, exclude: int
+    score: jax.Array,
+    index: jax.Array,
+    valid: jax.Array,
+    exclude: int,
+    rivals: jax.Array | None = None,
 ) -> Decoded:
     """Best valid candidate (ties to the smaller index) and its best rival.
 
-    score, index, valid: (c,) candidates of one query.
+    score, index, valid: (c,) candidates of one query; ``rivals`` (c,) the
+    candidates the runner-up is sought among (default: ``valid``). No match
+    (-1) when no candidate is valid or the best score is not finite.
     """
     neg = jnp.asarray(-jnp.inf, score.dtype)
     masked = jnp.where(valid, score, neg)
     best = jnp.max(masked)
     big = jnp.iinfo(jnp.int32).max
     top = jnp.min(jnp.where(valid & (masked == best), index, big))
-    found = jnp.any(valid)
+    found = jnp.any(valid) & jnp.isfinite(best)
     top = jnp.where(found, top, -1).astype(jnp.int32)
-    rival = valid & (jnp.abs(index - top) > exclude)
-    runner = jnp.max(jnp.where(rival, score, neg))
+    rival = (valid if rivals is None else rivals) & (jnp.abs(index - top) > exclude)
+    runner = jnp.where(found, jnp.max(jnp.where(rival, score, neg)), neg)
     return Decoded(top, jnp.where(found, best, neg), runner)
 
 
@@ -128,12 +139,31 @@ def topm_combinations(
     return score, index
 
 
+def chosen(periods: tuple[int, ...], top: int, wide: int) -> np.ndarray:
+    """Which of :func:`topm_combinations` ``(s, periods, wide)``'s combinations
+    (c,) bool, in its order, are combinations of the ``top <= wide`` best phases
+    of every period (all of them when ``top == wide``)."""
+    keep = np.ones((1,), bool)
+    for t in periods:
+        rank = np.arange(min(wide, t)) < top
+        keep = (keep[:, None] & rank[None, :]).reshape(-1)
+    return keep
+
+
 def _topm_one(
     s: jax.Array, periods: tuple[int, ...], n: int, top: int, exclude: int
 ) -> Decoded:
-    """One query: s (p,) -> scalars, over prod_g min(top, tau_g) combinations."""
-    score, index = topm_combinations(s, periods, top)
-    return _best_two(score, index, index < n, exclude)
+    """One query: s (p,) -> scalars, the best of prod_g min(top, tau_g)
+    combinations, its rival among those of the max(top, 2) best phases (for
+    ``top = 1``, as the hard decode: every combination one phase away, a place
+    or not, so that the confidence is the weakest phase margin)."""
+    wide = max(top, 2)
+    score, index = topm_combinations(s, periods, wide)
+    valid = index < n
+    if top > 1:  # every combination is a candidate
+        return _best_two(score, index, valid, exclude)
+    mask = valid & jnp.asarray(chosen(periods, top, wide))
+    return _best_two(score, index, mask, exclude, rivals=jnp.ones_like(valid))
 
 
 def _batched(one, scores: jax.Array, batch_size: int, **static) -> Decoded:
@@ -205,8 +235,10 @@ def topm_decode(
 
     Scores the ``prod_g min(top, tau_g)`` places whose phases are among the ``top`` best
     of every period and keeps the best one below ``n`` (index -1 and score -inf when
-    every combination is ``>= n``). ``top = 1`` is the paper's hard decode; ``top >=
-    max(periods)`` equals :func:`soft_decode` exactly. Cost per query ``top ** r``
+    every combination is ``>= n``); the runner-up is the best other place among
+    the combinations of the ``max(top, 2)`` best phases. ``top = 1`` is the
+    paper's hard decode; ``top >= max(periods)`` equals :func:`soft_decode`
+    exactly. Cost per query ``top ** r``
     instead of ``n``. Needs ``prod(periods) < 2**30`` (int32 index arithmetic).
     """
     per, n = check_scores(scores, periods, n)

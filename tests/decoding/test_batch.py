@@ -135,7 +135,8 @@ def test_confidence_on_the_host_equals_the_device_formula():
     traced = jax.jit(lambda d: d.confidence)(out)
     np.testing.assert_array_equal(np.asarray(out.confidence), np.asarray(traced))
     assert out.confidence.dtype == jnp.float32
-    np.testing.assert_array_equal(np.asarray(out.confidence), [0.5, 0.0, np.inf])
+    # no match and no rival: 0, finite both
+    np.testing.assert_array_equal(np.asarray(out.confidence), [0.5, 0.0, 0.0])
 
 
 def test_predict_with_new_batch_sizes_compiles_nothing_within_a_bucket():

@@ -37,12 +37,14 @@ def _place_score(s, periods, i):
     )
 
 
-def _best_two(cands, exclude):
-    """cands: list of (index, score); best (ties: smaller index) and its rival."""
+def _best_two(cands, exclude, rivals=None):
+    """cands: list of (index, score); best (ties: smaller index) and its rival
+    among ``rivals`` (default: cands)."""
     if not cands:
         return -1, -np.inf, -np.inf
     best_i, best_s = min(cands, key=lambda c: (-c[1], c[0]))
-    rivals = [s for i, s in cands if abs(i - best_i) > exclude]
+    rivals = cands if rivals is None else rivals
+    rivals = [s for i, s in rivals if abs(i - best_i) > exclude]
     return best_i, best_s, max(rivals, default=-np.inf)
 
 
@@ -55,19 +57,26 @@ def brute_soft(scores, periods, n, exclude=0):
 
 
 def brute_topm(scores, periods, n, top, exclude=0):
+    """The best of the top-m combinations, its rival among those of the
+    max(top, 2) best phases of every period (every one for top 1, else the
+    places)."""
     out = []
+    wide = max(top, 2)
     for s in scores:
-        tops = [np.argsort(-b, kind="stable")[:top] for b in _blocks(s, periods)]
-        cands = []
-        for phases in itertools.product(*tops):
+        tops = [np.argsort(-b, kind="stable")[:wide] for b in _blocks(s, periods)]
+        cands, rivals = [], []
+        for ranks in itertools.product(*(range(len(t)) for t in tops)):
+            phases = [t[k] for t, k in zip(tops, ranks, strict=True)]
             i = next(
                 i
                 for i in range(int(np.prod(periods)))
                 if all(i % t == j for t, j in zip(periods, phases, strict=True))
             )
-            if i < n:
-                cands.append((i, _place_score(s, periods, i)))
-        out.append(_best_two(cands, exclude))
+            if i < n or top == 1:  # top 1: rivals a place or not, as hard
+                rivals.append((i, _place_score(s, periods, i)))
+                if max(ranks) < top and i < n:
+                    cands.append(rivals[-1])
+        out.append(_best_two(cands, exclude, rivals))
     return [np.array(x) for x in zip(*out, strict=True)]
 
 
@@ -190,13 +199,13 @@ def test_leading_dims_and_confidence():
     assert (conf >= 0).all()
 
 
-def test_no_match_confidence_is_zero_and_single_place_has_no_rival():
+def test_no_match_and_a_place_without_rival_have_confidence_zero():
     periods = (2, 3)
     scores = np.array([[0.0, 5.0, 0.0, 0.0, 9.0]], np.float32)  # argmax: place 5
     hard = topm_decode(scores, periods, 3, 1)
     assert int(hard.index[0]) == -1 and float(hard.confidence[0]) == 0.0
-    one = soft_decode(scores, periods, 1)
-    assert int(one.index[0]) == 0 and np.isinf(float(one.confidence[0]))
+    one = soft_decode(scores, periods, 1)  # one place: no rival, confidence 0
+    assert int(one.index[0]) == 0 and float(one.confidence[0]) == 0.0
 
 
 def test_calibrate_is_per_period_log_softmax():

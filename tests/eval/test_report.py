@@ -173,11 +173,14 @@ def test_map_row_with_given_gt_and_decode(case):
 
 
 def test_a_top_m_decode_without_rivals_is_scored(case):
-    """A top-m decode whose kept phases leave a query one candidate place has an
-    infinite confidence (no rival): the PR curve ranks it first, not an error."""
+    """A top-m decode whose kept phases leave a query one candidate place has
+    confidence 0 (no rival, finite): the PR curve ranks it last, not an error."""
     model, _, q = case
-    conf = np.asarray(model.decode(q, "topm").confidence)
-    assert np.isinf(conf).any()  # the case this covers
+    out = model.decode(q, "topm")
+    conf = np.asarray(out.confidence)
+    alone = (np.asarray(out.index) >= 0) & np.isneginf(np.asarray(out.runner_up))
+    assert alone.any() and (conf[alone] == 0).all()  # the case this covers
+    assert np.isfinite(conf).all()
     res = evaluate_map(model, q, method="topm", timing=False)
     row = res["methods"]["map"]
     assert row["accuracy"] == pytest.approx(
