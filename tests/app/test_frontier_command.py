@@ -165,12 +165,13 @@ def test_numeric_options_have_domains(route, capsys):
     folder, _, _ = route
     base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
             "--no-progress"]  # fmt: skip
-    for args, said in ((["--pq", "0"], "--pq: must be comma-separated integers >= 1"),
-                       (["--pq", "8,-1"], "got -1"),
-                       (["--lengths", "1,0"], "--lengths: must be"),
-                       (["--bits", "0"], "--bits: must be"),
-                       (["--lengths", str(N + 1)], f"longer than the {N} queries"),
-                       (["--lengths", "9223372036854775808"], "longer than")):  # fmt: skip
+    cases = [(["--pq", "0"], "--pq: must be comma-separated integers >= 1"),
+             (["--pq", "8,-1"], "got -1"),
+             (["--lengths", "1,0"], "--lengths: must be"),
+             (["--bits", "0"], "--bits: must be"),
+             (["--lengths", str(N + 1)], f"longer than the {N} queries"),
+             (["--lengths", "9223372036854775808"], "longer than")]  # fmt: skip
+    for args, said in cases:
         assert main([*base, *args]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and said in err, (args, err)

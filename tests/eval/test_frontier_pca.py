@@ -69,10 +69,12 @@ def test_pca_rows_recall_bytes_and_the_front(route):
             assert row["share"] == row["storage_bytes"] / (N * D * 4)
     front = dict(zip([r["name"] for r in rows], pareto_front(rows), strict=True))
     for r in rows:  # PCA rows judged on the front like every other row
-        beaten = any(o["storage_bytes"] <= r["storage_bytes"]
-                     and o["recall@1 L=1"] >= r["recall@1 L=1"]
-                     and (o["storage_bytes"] < r["storage_bytes"]
-                          or o["recall@1 L=1"] > r["recall@1 L=1"]) for o in rows)  # fmt: skip
+        key, size = "recall@1 L=1", "storage_bytes"
+        beaten = any(
+            o[size] <= r[size] and o[key] >= r[key]
+            and (o[size] < r[size] or o[key] > r[key])
+            for o in rows
+        )  # fmt: skip
         assert front[r["name"]] == (not beaten)
 
 
