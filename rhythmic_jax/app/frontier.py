@@ -3,8 +3,10 @@
 Every representation the library has is fitted on the reference descriptors and
 judged on the queries (:func:`rhythmic_jax.eval.frontier.frontier_rows`): maps at
 their levels and layouts stored as float32, float16 and int8, ITQ codes, int8
-per place, product quantisation (faiss), the map + code hybrids, exact brute
-force and, for sequences, SeqSLAM. Each row gives bytes per place, recall@1 (single
+per place, product quantisation (faiss), PCA codes (float32, int8), the map +
+code hybrids, exact brute force and, for sequences, SeqSLAM. Every row but
+SeqSLAM is timed alike, from query descriptors to a place
+(:data:`rhythmic_jax.eval.frontier.LATENCY`). Each row gives bytes per place, recall@1 (single
 frames and along sequences of L = 5 and 10), the sequence scorer (a map's phase
 domain, the diagonal sum of codes' and brute force's similarities, both fused
 for a hybrid, SeqSLAM), recall at 100 % precision and the query latency; the

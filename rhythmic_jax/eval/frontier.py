@@ -12,7 +12,16 @@ codes and brute force sum their per-frame z-scored similarities along the diagon
 (:func:`rhythmic_jax.decoding.fusion.code_sequence_scores`); a hybrid fuses the
 two; the SeqSLAM row is SeqSLAM on the raw descriptors. The hybrids' fusion
 weights are learned on *training* places (their own maps, codes and queries),
-never on the scored queries; without training places a fixed 0.5 is used.
+never on the scored queries; without training places a fixed 0.5 is used. PCA
+codes (:mod:`rhythmic_jax.eval.frontier_pca`, float32 and int8) are the field's
+usual compression baseline beside them.
+
+Every row but SeqSLAM is timed alike (:func:`latency`, :data:`LATENCY`): from
+the query descriptors (b, d) to a place, one query alone and the whole batch,
+by :func:`rhythmic_jax.eval.metrics.query_latency`. A map is timed as
+:func:`rhythmic_jax.decoding.queries.predict` answers (template product, then
+the soft decode), a hybrid with its codes' encoding and the fusion, codes with
+their encoding, brute force as faiss's exact search.
 
 :func:`projected_bytes` and :func:`crossover_n` give the same byte counts for any
 N: a map keeps r pairwise co-prime periods from ``level * ceil(N^(1/r))`` up
