@@ -678,7 +678,8 @@ def budget_table(
             c = [r for r in fit if r["kind"] in kinds]
             return max(c, key=lambda r: r[key]) if c else None
 
-        own, itq = best(("map", "hybrid")), best(("codes",))
+        own = best(("map", "hybrid"))
+        itq = best(("codes",), [r for r in fit if r["name"].startswith("ITQ")])
         out.append(
             {
                 "budget": b,

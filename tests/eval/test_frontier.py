@@ -50,13 +50,15 @@ def test_similarity_recalls_diagonal_by_hand():
 
 def test_budget_table_picks_the_best_within_each_budget():
     rows = [
-        {"kind": "codes", "name": "c", "share": 0.03, "recall@1 L=1": 0.2},
+        {"kind": "codes", "name": "ITQ c", "share": 0.03, "recall@1 L=1": 0.2},
+        {"kind": "codes", "name": "PCA 4 int8", "share": 0.02, "recall@1 L=1": 0.25},
         {"kind": "map", "name": "m", "share": 0.05, "recall@1 L=1": 0.1},
         {"kind": "hybrid", "name": "h", "share": 0.08, "recall@1 L=1": 0.3},
     ]
     b = budget_table(rows, (0.04, 0.06, 0.1))
     assert b[0]["own"] is None and b[0]["own_minus_itq"] == pytest.approx(-0.2)
-    assert b[1]["best"]["name"] == "c" and b[1]["own"]["name"] == "m"
+    assert b[1]["best"]["name"] == "PCA 4 int8" and b[1]["own"]["name"] == "m"
+    assert b[1]["itq"]["name"] == "ITQ c"  # ITQ's best, not any code's
     assert b[2]["best"]["name"] == "h" and b[2]["own_minus_itq"] == pytest.approx(0.1)
 
 
