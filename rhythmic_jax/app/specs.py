@@ -467,11 +467,10 @@ def int_list(least: int = 1, empty: bool = False) -> Domain:
     text kept; ``empty``: '' taken too, for none)."""
 
     def smallest(text: str) -> int:
-        if empty and not str(text).strip():
-            return least
         return min(int(v) for v in str(text).split(","))
 
-    return Domain(True, least, parse=smallest, what="comma-separated integers")
+    return Domain(True, least, words=("",) * empty, parse=smallest,
+                  what="comma-separated integers")  # fmt: skip
 
 
 @dataclass(frozen=True)
