@@ -3,8 +3,10 @@
 Every representation the library has is fitted on the reference descriptors and
 judged on the queries (:func:`rhythmic_jax.eval.frontier.frontier_rows`): maps at
 their levels and layouts stored as float32, float16 and int8, ITQ codes, int8
-per place, product quantisation (faiss), the map + code hybrids, exact brute
-force and, for sequences, SeqSLAM. Each row gives bytes per place, recall@1 (single
+per place, product quantisation (faiss), PCA codes (float32, int8), the map +
+code hybrids, exact brute force and, for sequences, SeqSLAM. Every row but
+SeqSLAM is timed alike, from query descriptors to a place
+(:data:`rhythmic_jax.eval.frontier.LATENCY`). Each row gives bytes per place, recall@1 (single
 frames and along sequences of L = 5 and 10), the sequence scorer (a map's phase
 domain, the diagonal sum of codes' and brute force's similarities, both fused
 for a hybrid, SeqSLAM), recall at 100 % precision and the query latency; the
@@ -35,7 +37,11 @@ __all__ = ["frontier", "frontier_lines", "main", "write_csv"]
 
 COLUMNS = ("name", "kind", "bytes_per_place", "storage_bytes", "share",
            "recall@1 L=1", "recall@100p", "recall@1 L=5", "recall@1 L=10",
-           "sequence_scorer", "latency_s", "pareto")  # fmt: skip
+           "sequence_scorer", "latency_s", "latency_p95_s", "queries_per_s",
+           "pareto")  # fmt: skip
+"""The CSV's columns: ``latency_s`` is one query alone from its descriptor to a
+place (median, :data:`rhythmic_jax.eval.frontier.LATENCY`), ``queries_per_s``
+the whole batch in one call."""
 
 
 def _ints(text: str, what: str) -> tuple:
@@ -80,7 +86,7 @@ def frontier(
       maps, bits, pq: maps as (r, level), ITQ code sizes, PQ sub-quantisers;
         None: those of ``grid`` (:data:`rhythmic_jax.app.specs.GRIDS`).
       lengths: sequence lengths (queries in route order); lengths longer than
-        the queries are left out.
+        the queries are left out (none left: refused).
       budget: bytes per place; the result's ``choice`` is the best row within.
       ground_truth_format: the ground truth file's format (None: read from
         what it holds).
@@ -103,6 +109,8 @@ def frontier(
 
     if grid not in GRIDS:
         raise InputError(f"{{opt:grid}} {grid!r}: one of {', '.join(GRIDS)}")
+    if cache:
+        check_cache(cache, [reference, queries, *(ground_truth or ())])
     maps = GRIDS[grid]["maps"] if maps is None else maps
     bits = GRIDS[grid]["bits"] if bits is None else bits
     pq = GRIDS[grid]["pq"] if pq is None else pq
@@ -131,9 +139,15 @@ def frontier(
             "{opt:ground_truth} query i is place i"
         )
     d = ref.shape[1]
+    kept = tuple(k for k in lengths if k <= len(qry))
+    if not kept:
+        raise InputError(
+            f"{{opt:lengths}} {','.join(map(str, lengths))}: longer than the "
+            f"{len(qry)} queries"
+        )
     cfg, skipped = fr.trainable(fr.FrontierConfig(
         maps=tuple(maps), bits=tuple(bits),
-        lengths=tuple(k for k in lengths if k <= len(qry)), tolerance=int(tolerance),
+        lengths=kept, tolerance=int(tolerance),
         dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
     ), len(ref), d)  # fmt: skip
     with gathered_stderr(KMEANS_WARNING) as warned:
@@ -175,6 +189,24 @@ def frontier(
     }
 
 
+def check_cache(cache: str, inputs) -> None:
+    """Refuse (:class:`InputError`) a ``--cache`` that is a file, or that is one
+    of ``inputs`` or lies inside one (an image folder: the cache writes its
+    entries there)."""
+    from pathlib import Path
+
+    place = Path(cache).expanduser().resolve()
+    if place.exists() and not place.is_dir():
+        raise InputError(f"{{opt:cache}} {cache}: a file, not a folder")
+    for given in inputs:
+        src = Path(given).expanduser().resolve()
+        if place == src or src in place.parents:
+            raise InputError(
+                f"{{opt:cache}} {cache}: the input {given} is there; give a folder "
+                "of its own"
+            )
+
+
 KMEANS_WARNING = r"WARNING clustering (\d+) points to (\d+) centroids"
 
 
@@ -203,27 +235,34 @@ def _cell(v) -> str:
 def frontier_lines(result: dict[str, Any]) -> str:
     """The table, fewest bytes first, Pareto rows marked ``*``, and the choice."""
     g = result["ground_truth"]
-    tol = (f"{g['tolerance_m']:g} m" if g.get("tolerance_m") is not None
-           else f"±{g.get('tolerance_frames')} frames")  # fmt: skip
+    if g.get("tolerance_m") is not None:
+        tol = f"tolerance {g['tolerance_m']:g} m"
+    elif g.get("tolerance_frames") is not None:
+        tol = f"tolerance ±{g['tolerance_frames']} frames"
+    else:  # a file listing each query's right places (VPR-Bench, .npy lists)
+        mean = g.get("positives_per_query_mean")
+        each = "" if mean is None else f", {mean:.1f} per query on average"
+        tol = f"the right places it lists{each}"
     lengths = result["config"]["lengths"]
     keys = ["recall@1 L=1", "recall@100p"] + [f"recall@1 L={k}" for k in lengths[1:]]
     heads = ["", "representation", "B/place", "share %", "R@1", "R@100P"]
-    heads += [f"R@1 L={k}" for k in lengths[1:]] + ["ms/query"]
+    heads += [f"R@1 L={k}" for k in lengths[1:]] + ["ms/query", "q/s batch"]
     heads += ["sequence scorer"] * bool(lengths[1:])
     body = []
     for r in sorted(result["rows"], key=lambda r: (r["storage_bytes"], r["name"])):
-        lat = r.get("latency_s")
+        lat, qps = r.get("latency_s"), r.get("queries_per_s")
         scorer = [_cell(r.get("sequence_scorer"))] if lengths[1:] else []
         body.append(["*" if r["pareto"] else "", r["name"],
                      f"{r['bytes_per_place']:,.0f}", f"{100 * r['share']:.2f}",
                      *(_cell(r.get(k)) for k in keys),
-                     "-" if lat is None else f"{1e3 * lat:.3f}", *scorer])  # fmt: skip
+                     "-" if lat is None else f"{1e3 * lat:.3f}",
+                     "-" if qps is None else f"{qps:,.0f}", *scorer])  # fmt: skip
     widths = [max(len(str(x)) for x in col) for col in zip(heads, *body, strict=True)]
     text = {0, 1, len(heads) - 1} if lengths[1:] else {0, 1}  # left-aligned
     fmt = [f"{{:<{w}}}" if i in text else f"{{:>{w}}}" for i, w in enumerate(widths)]
     lines = [
         f"{result['n']} places of {result['d']}-d, {result['n_queries']} queries; "
-        f"ground truth: {g['source']}, tolerance {tol}; {_over_line(result)}; "
+        f"ground truth: {g['source']}, {tol}; {_over_line(result)}; "
         f"{result['seconds']:.0f} s",
         "  ".join(f.format(h) for f, h in zip(fmt, heads, strict=True)).rstrip(),
     ]
@@ -231,12 +270,20 @@ def frontier_lines(result: dict[str, Any]) -> str:
               for row in body]  # fmt: skip
     lines.append("* Pareto front: no other row has at least its recall@1 (L=1) in "
                  "fewer bytes")  # fmt: skip
+    lines.append(f"ms/query: {fr_latency()}")
     lines += result.get("skipped", [])
     if result["budget_bytes_per_place"] is not None:
         b = result["budget_bytes_per_place"]
         pick = result["choice"] or f"nothing fits in {b:g} bytes per place"
         lines.append(f"within {b:g} bytes per place: {pick}")
     return "\n".join(lines + list(result.get("notes", ())))
+
+
+def fr_latency() -> str:
+    """:data:`rhythmic_jax.eval.frontier.LATENCY` (imported when printed)."""
+    from rhythmic_jax.eval.frontier import LATENCY
+
+    return LATENCY
 
 
 def _over_line(result: dict[str, Any]) -> str:

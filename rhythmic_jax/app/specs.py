@@ -536,6 +536,17 @@ class DemoJob(Job):
     quick: bool = option("a smaller route (CI)", False)
 
 
+def int_list(least: int = 1, empty: bool = False) -> Domain:
+    """An argparse ``type``: comma-separated integers, each >= ``least`` (the
+    text kept; ``empty``: '' taken too, for none)."""
+
+    def smallest(text: str) -> int:
+        return min(int(v) for v in str(text).split(","))
+
+    return Domain(True, least, words=("",) * empty, parse=smallest,
+                  what="comma-separated integers")  # fmt: skip
+
+
 @dataclass(frozen=True)
 class FrontierJob(Job):
     """The frontier's options; :func:`rhythmic_jax.app.frontier.main` reads them
@@ -566,9 +577,11 @@ class FrontierJob(Job):
         f"places), full ({grid_text('full')})", "small", choices=tuple(GRIDS))
     maps: str | None = option("maps as r:level,... (default: the --grid's)")
     bits: str | None = option("ITQ code sizes, comma-separated (default: the "
-                              "--grid's)")
-    pq: str | None = option("PQ sub-quantisers ('': none; default: the --grid's)")
-    lengths: str = option("sequence lengths L", "1,5,10")
+                              "--grid's)", domain=int_list(1))
+    pq: str | None = option("PQ sub-quantisers ('': none; default: the --grid's)",
+                            domain=int_list(1, empty=True))
+    lengths: str = option("sequence lengths L, each at most the queries", "1,5,10",
+                          domain=int_list(1))
     descriptor: str | None = option("descriptor for image folders (default "
                                     "patchnorm)")
     cache: str = option("folder keeping fitted maps and codes (default none)", "")

@@ -12,7 +12,16 @@ codes and brute force sum their per-frame z-scored similarities along the diagon
 (:func:`rhythmic_jax.decoding.fusion.code_sequence_scores`); a hybrid fuses the
 two; the SeqSLAM row is SeqSLAM on the raw descriptors. The hybrids' fusion
 weights are learned on *training* places (their own maps, codes and queries),
-never on the scored queries; without training places a fixed 0.5 is used.
+never on the scored queries; without training places a fixed 0.5 is used. PCA
+codes (:mod:`rhythmic_jax.eval.frontier_pca`, float32 and int8) are the field's
+usual compression baseline beside them.
+
+Every row but SeqSLAM is timed alike (:func:`latency`, :data:`LATENCY`): from
+the query descriptors (b, d) to a place, one query alone and the whole batch,
+by :func:`rhythmic_jax.eval.metrics.query_latency`. A map is timed as
+:func:`rhythmic_jax.decoding.queries.predict` answers (template product, then
+the soft decode), a hybrid with its codes' encoding and the fusion, codes with
+their encoding, brute force as faiss's exact search.
 
 :func:`projected_bytes` and :func:`crossover_n` give the same byte counts for any
 N: a map keeps r pairwise co-prime periods from ``level * ceil(N^(1/r))`` up
@@ -41,26 +50,30 @@ from rhythmic_jax.decoding.fusion import (
 )
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
-from rhythmic_jax.eval.metrics import pr_points
+from rhythmic_jax.errors import InputError
+from rhythmic_jax.eval.metrics import pr_points, query_latency
 from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.io.reader import load_npz
 from rhythmic_jax.map.codes import CodeBook, code_bytes
 from rhythmic_jax.map.periods import candidate_periods, choose_periods, database_bytes
 from rhythmic_jax.map.periods import storage_bytes as map_bytes
-from rhythmic_jax.map.quantize import dequantize, quantize, template_bytes
+from rhythmic_jax.map.quantize import template_bytes
 
 __all__ = [
     "FrontierConfig",
+    "LATENCY",
     "SEQUENCE_SCORERS",
     "budget_table",
     "trainable",
     "crossover_n",
     "fitted_codes",
     "fitted_map",
+    "fitted_model",
     "frontier_rows",
     "pareto_front",
     "choose",
     "projected_bytes",
+    "latency",
     "projection_rows",
     "recall_at_full_precision",
     "similarity_recalls",
@@ -99,6 +112,9 @@ class FrontierConfig:
     dtypes: tuple[str, ...] = ("float32", "int8")
     pq: tuple[int, ...] = ()  # faiss product quantisers: sub-vectors of 8 bits
     scalar: bool = False  # int8 per place (rhythmic_jax.map.scalar_codes)
+    # PCA axes kept (float32 and int8 codes each); None: a few spanning the
+    # maps' bytes (rhythmic_jax.eval.frontier_pca.pca_dims); (): no PCA rows
+    pca: tuple[int, ...] | None = None
 
 
 def pq_bits(n: int) -> int:
@@ -178,13 +194,27 @@ def recall_at_full_precision(idx, confidence, tol: int, truth=None) -> float:
     return float(recall[precision == 1.0].max())
 
 
-def _timed(fn, b: int):
-    """``(fn(), seconds per query)`` of a second call (the first compiles)."""
-    fn()
-    t = time.perf_counter()
-    out = fn()
-    jax.block_until_ready(out)
-    return out, (time.perf_counter() - t) / max(b, 1)
+LATENCY = (
+    "one query alone: the median of up to 200 one-query calls after 20 "
+    "untimed ones, from its descriptor to a place (a map's template product "
+    "and decode, a code's encoding and search); q/s: the whole batch in one "
+    "call (median of 3)"
+)
+"""What every row's ``latency_s`` and ``queries_per_s`` are, in words."""
+
+
+def latency(fn, queries) -> dict:
+    """The row's timing, :func:`rhythmic_jax.eval.metrics.query_latency` of
+    ``fn`` (query descriptors (b, d) -> places (b,)): ``latency_s`` (one query,
+    median), ``latency_p95_s``, ``queries_per_s`` (the batch in one call) and
+    ``batch_s``."""
+    got = query_latency(fn, np.asarray(queries, np.float32))
+    return {
+        "latency_s": got["latency_median_s"],
+        "latency_p95_s": got["latency_p95_s"],
+        "queries_per_s": got["queries_per_s"],
+        "batch_s": got["batch_s"],
+    }
 
 
 def similarity_recalls(sims, lengths, tol, truth=None) -> dict[int, float]:
@@ -197,90 +227,133 @@ def similarity_recalls(sims, lengths, tol, truth=None) -> dict[int, float]:
     return out
 
 
-def _similarity_extra(sims, tol, truth, search=None) -> dict:
-    """R@100p (top similarity as confidence) and the latency of ``search``."""
+def _similarity_extra(sims, tol, truth, search=None, queries=None) -> dict:
+    """R@100p (top similarity as confidence) and the :func:`latency` of
+    ``search`` (query descriptors -> places) on ``queries``."""
     sims = np.asarray(sims)
     idx = sims.argmax(1)
     conf = sims[np.arange(len(sims)), idx]
     out = {"recall@100p": recall_at_full_precision(idx, conf, tol, truth)}
     if search is not None:
-        out["latency_s"] = _timed(search, len(sims))[1]
+        out |= latency(search, queries)
     return out
 
 
 def _fit_map(x, r, level, gap):
-    """The (w (d, p), b (p,)) templates and periods of a soft-decode map of x."""
+    """The fitted :class:`~rhythmic_jax.map.pytree.Map` (soft decode) of x."""
     from rhythmic_jax.rhythmic_map import MapEstimator
 
-    m = MapEstimator(r=r, level=level, gap=gap, method="soft").fit(x, progress=False)
-    return np.asarray(m.params.w), np.asarray(m.params.b), tuple(m.periods)
+    est = MapEstimator(r=r, level=level, gap=gap, method="soft")
+    return est.fit(x, progress=False)._fitted()
 
 
 def _since(t: float) -> float:
     return time.perf_counter() - t
 
 
-def _cached(cache, key: str, make):
-    """``make()``'s dict of arrays, kept as ``cache/key.npz`` when cache is set."""
+def _cached(cache, key: str, make, read=None):
+    """``make()``'s dict of arrays, kept as ``cache/key.npz`` when cache is set;
+    an entry ``read`` (or :func:`load_npz`) refuses is made again and replaced."""
+    read = read or (lambda got: got)
     if cache is None:
-        return make()
+        return read(make())
     path = Path(cache) / f"{key}.npz"
     if path.exists():
-        return load_npz(path)
+        try:
+            return read(load_npz(path))
+        except (InputError, ValueError, KeyError, OSError) as err:
+            log.warning("%s: refused (%s); fitted again", path, err)
     out = make()
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # no temporary left
         np.savez(fh, **out)
-    return out
+    return read(out)
 
 
 def _fingerprint(x: np.ndarray) -> str:
     return hashlib.sha1(np.ascontiguousarray(x).tobytes()).hexdigest()[:16]
 
 
-def fitted_map(ref, r: int, level: int, gap: float, cache=None):
-    """``(w (d, p), b (p,), periods)`` of a soft-decode map of ref (n, d), kept in
-    the ``cache`` folder (when given) keyed by the data and settings."""
+def fitted_model(ref, r: int, level: int, gap: float, cache=None):
+    """The soft-decode :class:`~rhythmic_jax.map.pytree.Map` of ref (n, d), kept
+    in the ``cache`` folder (when given) as a map folder keyed by the data and
+    settings, and read back through the map's own reader and meaning checks
+    (:func:`rhythmic_jax.map.map_file.load`: digests, shapes, finite values): an
+    entry they refuse is fitted again and replaced, never used."""
+    from rhythmic_jax.map import map_file
+
     ref = np.asarray(ref, np.float32)
+    n, d = ref.shape
+    if cache is None:
+        return _fit_map(ref, r, level, gap)
+    path = Path(cache) / f"map-{_fingerprint(ref)}-r{r}-l{level}-g{gap:g}"
+    if path.exists():
+        try:
+            got = map_file.load(path, d=d)
+            if got.n != n:
+                raise InputError(f"a map of {got.n} places, not {n}")
+            return got
+        except InputError as err:
+            log.warning("%s: refused (%s); fitted again", path, err)
+    m = _fit_map(ref, r, level, gap)
+    try:
+        map_file.save(path, m)
+    except InputError as err:  # a damaged entry we may not replace: not kept
+        log.warning("%s: not kept (%s)", path, err)
+    return m
 
-    def make():
-        w, b, per = _fit_map(ref, r, level, gap)
-        return {"w": w, "b": b, "periods": np.asarray(per)}
 
-    got = _cached(cache, f"map-{_fingerprint(ref)}-r{r}-l{level}-g{gap:g}", make)
-    return got["w"], got["b"], tuple(int(t) for t in got["periods"])
+def fitted_map(ref, r: int, level: int, gap: float, cache=None):
+    """``(w (d, p), b (p,), periods)`` of :func:`fitted_model`."""
+    m = fitted_model(ref, r, level, gap, cache)
+    return np.asarray(m.w), np.asarray(m.b), tuple(int(t) for t in m.periods)
+
+
+def _checked_book(arrays, n: int, d: int, bits: int) -> CodeBook:
+    """:meth:`CodeBook.from_arrays` (shapes), every float array finite."""
+    for key, value in arrays.items():
+        value = np.asarray(value)
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise InputError(f"{key} holds NaN or infinite values")
+    return CodeBook.from_arrays(arrays, n, d, bits)
 
 
 def fitted_codes(ref, bits: int, cache=None, fit_on=None) -> CodeBook:
-    """:meth:`CodeBook.fit` of ref (n, d), kept in ``cache`` like :func:`fitted_map`."""
+    """:meth:`CodeBook.fit` of ref (n, d), kept in ``cache`` like
+    :func:`fitted_model` (a damaged entry is fitted again)."""
     ref = np.asarray(ref, np.float32)
     n, d = ref.shape
     tag = _fingerprint(ref)
     fit_tag = tag if fit_on is None else _fingerprint(np.asarray(fit_on, np.float32))
-    got = _cached(
+    return _cached(
         cache,
         f"itq-{tag}-{fit_tag}-b{bits}",
         lambda: CodeBook.fit(ref, bits, fit_on=fit_on).arrays(),
+        read=lambda got: _checked_book(got, n, d, bits),
     )
-    return CodeBook.from_arrays(got, n, d, bits)
 
 
 def _parts(ref, queries, cfg, cache=None, tick=None):
     """Maps' scores (per stored dtype) and codes' similarities of ``queries``.
 
-    Returns ``({(r, level, dtype): (periods, scores (b, p), bytes)},
-    {bits: (similarities (b, n), code book)})``.
+    Returns ``({(r, level, dtype): (periods, scores (b, p), bytes, Map)},
+    {bits: (similarities (b, n), code book)})``; each Map stores its templates
+    as ``dtype`` (:func:`rhythmic_jax.map.pytree.with_dtype`), and the scores are
+    its own.
     """
+    from rhythmic_jax.map.pytree import with_dtype
+
     d = ref.shape[1]
     maps = {}
     for r, level in cfg.maps:
         t = time.perf_counter()
-        w32, b32, per = fitted_map(ref, r, level, cfg.gap, cache)
+        m32 = fitted_model(ref, r, level, cfg.gap, cache)
+        per = tuple(int(t) for t in m32.periods)
         for dtype in cfg.dtypes:
-            w, b = dequantize(quantize(w32, b32, dtype))
+            m = m32 if dtype == "float32" else with_dtype(m32, dtype)
             s = np.asarray(
-                jax.numpy.matmul(queries, w, precision="highest") + b[None, :]
+                jax.numpy.matmul(queries, m.w, precision="highest") + m.b[None, :]
             )
-            maps[(r, level, dtype)] = (per, s, template_bytes(sum(per), d, dtype))
+            maps[(r, level, dtype)] = (per, s, template_bytes(sum(per), d, dtype), m)
         log.info("map r=%d level %d %s: %.1f s", r, level, per, _since(t))
         if tick is not None:
             tick(1)
@@ -293,6 +366,37 @@ def _parts(ref, queries, cfg, cache=None, tick=None):
         if tick is not None:
             tick(1)
     return maps, codes
+
+
+def _map_search(m):
+    """Query descriptors (b, d) -> places (b,) of the map ``m`` as the library
+    answers them (:func:`rhythmic_jax.decoding.queries.predict`, soft decode):
+    the template product, then the decode."""
+    from rhythmic_jax.decoding.queries import predict
+
+    return lambda q: predict(m, q, "soft")
+
+
+def _hybrid_search(m, book, n: int, weight: float):
+    """Query descriptors -> places of a map + code pair: the map's template
+    product, the queries' codes and their similarities, fused and decoded."""
+    per = tuple(int(t) for t in m.periods)
+
+    def search(q):
+        s = jax.numpy.matmul(q, m.w, precision="highest") + m.b[None, :]
+        return fused_decode(s, book.similarity(q), per, n, weight).index
+
+    return search
+
+
+def _brute_search(ref):
+    """Exact inner-product search of ``ref`` (faiss ``IndexFlatIP``, as
+    ``evaluate``'s brute force)."""
+    import faiss
+
+    index = faiss.IndexFlatIP(ref.shape[1])
+    index.add(np.ascontiguousarray(ref, np.float32))
+    return lambda q: index.search(np.ascontiguousarray(q, np.float32), 1)[1]
 
 
 def _map_name(r, level, per, dtype) -> str:
@@ -331,7 +435,13 @@ def frontier_rows(
     database), ``recall@1 L=<L>`` for every length of the config (None where not
     measured), ``sequence_scorer`` (:data:`SEQUENCE_SCORERS`; None without a
     length above 1), ``recall@100p`` (single frames, thresholded on the decode's
-    confidence) and ``latency_s`` (single-frame decode of every query, per query).
+    confidence), and for every row but SeqSLAM the timing of :func:`latency`
+    (:data:`LATENCY`): ``latency_s`` (one query alone, from its descriptor to a
+    place, median; a map's float16 and int8 copies, dequantised when loaded,
+    run the float32 map's program and share its timing), ``latency_p95_s``,
+    ``queries_per_s`` (the whole batch in one call) and ``batch_s``. PCA rows
+    (``PCA <k> <dtype>``, kind ``codes``, :mod:`rhythmic_jax.eval.frontier_pca`)
+    sit beside the other codes.
     """
     from rhythmic_jax.progress import bar
 
@@ -343,14 +453,14 @@ def frontier_rows(
     fits = len(config.maps) + len(config.bits)  # fitted first, then judged
     total = fits + 1 + seqslam + len(config.pq) + config.scalar
     total += len(config.maps) * len(config.dtypes) * (1 + len(config.bits))
-    total += len(config.bits)
+    total += len(config.bits) + 2 * (4 if config.pca is None else len(config.pca))
     ticks = bar(total=total, show=progress, desc="frontier", unit="step")
     maps, codes = _parts(ref, queries, config, cache=cache, tick=ticks.update)
     weights = {}
     if train is not None:
         tmaps, tcodes = _parts(*train, config, cache=cache)
         gt = np.arange(len(train[1]))
-        for key, (per, s, _) in tmaps.items():
+        for key, (per, s, _, _) in tmaps.items():
             for bits, (sims, _) in tcodes.items():
                 nt = len(train[0])
                 weights[key, bits] = learn_weight(s, sims, per, nt, gt, tol)[0]
@@ -367,17 +477,15 @@ def frontier_rows(
         ticks.update(1)
         return out
 
-    def decided(idx, conf, latency=None) -> dict:
-        out = {"recall@100p": recall_at_full_precision(idx, conf, tol, truth)}
-        return out if latency is None else {**out, "latency_s": latency}
+    def decided(idx, conf) -> dict:
+        return {"recall@100p": recall_at_full_precision(idx, conf, tol, truth)}
 
     qj, rj = jax.numpy.asarray(queries), jax.numpy.asarray(ref)
     brute = np.asarray(jax.numpy.matmul(qj, rj.T, precision="highest"))
-    search = lambda: jax.numpy.matmul(qj, rj.T).argmax(1)  # noqa: E731
     rows = [
         row("brute force", "brute force", db,
             similarity_recalls(brute, lengths, tol, truth),
-            **_similarity_extra(brute, tol, truth, search))
+            **_similarity_extra(brute, tol, truth, _brute_search(ref), queries))
     ]  # fmt: skip
     if seqslam:
         from rhythmic_jax.eval.seqslam import seqslam_decode
@@ -386,9 +494,12 @@ def frontier_rows(
             k: _recall(seqslam_decode(queries, ref, k)[0], tol, truth) for k in lengths
         }
         rows.append(row("SeqSLAM", "SeqSLAM (raw descriptors)", db, rec))
-    for (r, level, dtype), (per, s, size) in maps.items():
-        sj = jax.numpy.asarray(s)
-        one, sec = _timed(lambda sj=sj, per=per: soft_decode(sj, per, n), b)
+    # a map's templates stored as float16 or int8 are dequantised when it is
+    # loaded (rhythmic_jax.map.pytree.with_dtype): its queries run the float32
+    # map's program, so one timing per r and level (and code) serves every dtype
+    timed = {}
+    for (r, level, dtype), (per, s, size, m) in maps.items():
+        one = soft_decode(jax.numpy.asarray(s), per, n)
         rec = {1: _recall(one.index, tol, truth)}
         for k in lengths:
             if k > 1:
@@ -396,17 +507,22 @@ def frontier_rows(
                 rec[k] = _recall(seq, tol, truth)
         name = _map_name(r, level, per, dtype)
         extra = dict(r=r, level=level, periods=per, dtype=dtype)
-        extra |= decided(np.asarray(one.index), np.asarray(one.confidence), sec)
+        extra |= decided(np.asarray(one.index), np.asarray(one.confidence))
+        if (r, level) not in timed:  # one program whatever the dtype stored
+            timed[r, level] = latency(_map_search(m), queries)
+        extra |= timed[r, level]
         rows.append(row("map", name, size, rec, **extra))
     for bits, (sims, book) in codes.items():
         size = code_bytes(n, d, bits)["total"]
         rec = similarity_recalls(sims, lengths, tol, truth)
-        find = lambda book=book: book.similarity(qj).argmax(1)  # noqa: E731
-        extra = _similarity_extra(sims, tol, truth, find)
+        find = lambda q, book=book: book.similarity(q).argmax(1)  # noqa: E731
+        extra = _similarity_extra(sims, tol, truth, find, queries)
         rows.append(row("codes", f"ITQ {bits} bits", size, rec, bits=bits, **extra))
     rows += _other_codes(ref, queries, config, lengths, tol, truth, row)
-    for (r, level, dtype), (per, s, msize) in maps.items():
-        for bits, (sims, _) in codes.items():
+    sizes = [v[2] for v in maps.values()] or [r["storage_bytes"] for r in rows[1:]]
+    rows += _pca_rows(ref, queries, config.pca, sizes, lengths, tol, truth, row)
+    for (r, level, dtype), (per, s, msize, m) in maps.items():
+        for bits, (sims, book) in codes.items():
             w = weights.get(((r, level, dtype), bits), config.weight)
             one = fused_decode(s, sims, per, n, w)
             rec = {1: _recall(one.index, tol, truth)}
@@ -418,6 +534,9 @@ def frontier_rows(
             name = f"{_map_name(r, level, per, dtype)} + ITQ {bits}"
             extra = dict(r=r, level=level, periods=per, dtype=dtype, bits=bits)
             extra |= decided(np.asarray(one.index), np.asarray(one.confidence))
+            if (r, level, bits) not in timed:
+                timed[r, level, bits] = latency(_hybrid_search(m, book, n, w), queries)
+            extra |= timed[r, level, bits]
             rows.append(row("hybrid", name, size, rec, weight=w, **extra))
     ticks.close()
     return rows
@@ -441,8 +560,8 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
         sims = queries @ index.reconstruct_n(0, n).T  # the ADC inner products
         # codes, and the sub-quantisers' centroids (2^nbits of d/m floats each)
         size = n * index.code_size + 2**nbits * d * 4
-        find = lambda index=index: index.search(queries, 1)[1]  # noqa: E731
-        extra = _similarity_extra(sims, tol, truth, find)
+        find = lambda q, index=index: index.search(q, 1)[1]  # noqa: E731
+        extra = _similarity_extra(sims, tol, truth, find, queries)
         rec = similarity_recalls(sims, lengths, tol, truth)
         name = f"PQ {m}x{nbits} bits"
         out.append(row("codes", name, size, rec, bits=nbits * m, **extra))
@@ -452,11 +571,46 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
         book = ScalarCodeBook.fit(ref)
         qj = jax.numpy.asarray(queries)
         sims = np.asarray(book.similarity(qj))
-        find = lambda: book.similarity(qj).argmax(1)  # noqa: E731
-        extra = _similarity_extra(sims, tol, truth, find)
+        find = lambda q: book.similarity(q).argmax(1)  # noqa: E731
+        extra = _similarity_extra(sims, tol, truth, find, queries)
         rec = similarity_recalls(sims, lengths, tol, truth)
         size = scalar_code_bytes(n, d)["total"]
         out.append(row("codes", "int8 per place", size, rec, bits=8 * d, **extra))
+    return out
+
+
+def _pca_rows(ref, queries, ks, sizes, lengths, tol, truth, row) -> list[dict]:
+    """PCA codes (:mod:`rhythmic_jax.eval.frontier_pca`) of ``ks`` axes (None: a
+    few whose bytes span ``sizes``), each at float32 and int8, where smaller than
+    the float32 database itself."""
+    from rhythmic_jax.eval.frontier_pca import (
+        PcaCodes,
+        pca_bytes,
+        pca_dims,
+        principal_axes,
+    )
+
+    n, d = ref.shape
+    if ks is None:
+        ks = pca_dims(n, d, min(sizes, default=0), max(sizes, default=0))
+    ks = tuple(k for k in ks if 1 <= k <= min(n, d))
+    if not ks:
+        return []
+    t = time.perf_counter()
+    axes = principal_axes(ref, max(ks))
+    log.info("PCA axes of %d frames: %.1f s", n, _since(t))
+    out = []
+    for k in ks:
+        for dtype in ("float32", "int8"):
+            if pca_bytes(n, d, k, dtype) >= database_bytes(n, d, 4):
+                continue
+            book = PcaCodes.fit(ref, k, dtype, axes=axes)
+            sims = np.asarray(book.similarity(queries))
+            extra = _similarity_extra(sims, tol, truth, book.search, queries)
+            rec = similarity_recalls(sims, lengths, tol, truth)
+            bits = k * (32 if dtype == "float32" else 8)
+            out.append(row("codes", f"PCA {k} {dtype}", book.bytes(), rec,
+                           bits=bits, pca=k, dtype=dtype, **extra))  # fmt: skip
     return out
 
 
@@ -534,7 +688,8 @@ def budget_table(
             c = [r for r in fit if r["kind"] in kinds]
             return max(c, key=lambda r: r[key]) if c else None
 
-        own, itq = best(("map", "hybrid")), best(("codes",))
+        own = best(("map", "hybrid"))
+        itq = best(("codes",), [r for r in fit if r["name"].startswith("ITQ")])
         out.append(
             {
                 "budget": b,

@@ -115,7 +115,8 @@ def test_frontier_refuses_in_one_line(route, capsys):
     folder, _, _ = route
     base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy")]
     assert main([*base, "--bits", "a,b"]) == 2
-    assert "--bits 'a,b': give integers" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--bits: expected comma-separated integers, got 'a,b'" in err
     assert main([*base, "--plot", str(folder / "f.pdf")]) == 2
     assert "--plot" in capsys.readouterr().err
     np.save(folder / "wide.npy", np.zeros((5, D + 1), np.float32))
@@ -157,3 +158,65 @@ def test_installed_command_on_nordland_frames(nordland_root, tmp_path):
     best = max(r["recall@1 L=1"] for r in result["rows"])
     assert any(r["pareto"] and r["recall@1 L=1"] == best for r in result["rows"])
     assert rows["brute force"]["recall@1 L=1"] > 0.1  # winter against summer
+
+
+def test_numeric_options_have_domains(route, capsys):
+    """--pq 0, --lengths 0 and lengths beyond the queries: one line, exit 2."""
+    folder, _, _ = route
+    base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--no-progress"]  # fmt: skip
+    cases = [(["--pq", "0"], "--pq: must be comma-separated integers >= 1"),
+             (["--pq", "8,-1"], "got -1"),
+             (["--lengths", "1,0"], "--lengths: must be"),
+             (["--bits", "0"], "--bits: must be"),
+             (["--lengths", str(N + 1)], f"longer than the {N} queries"),
+             (["--lengths", "9223372036854775808"], "longer than")]  # fmt: skip
+    for args, said in cases:
+        assert main([*base, *args]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and said in err, (args, err)
+
+
+def test_cache_that_is_an_input_is_refused(route, capsys, tmp_path):
+    folder, _, _ = route
+    ref = str(folder / "ref.npy")
+    for cache in (ref, str(folder / "ref.npy" / "sub")):
+        code = main(["frontier", ref, str(folder / "qry.npy"), "--cache", cache,
+                     "--no-progress"])  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and "--cache" in err, err
+    images = tmp_path / "images"
+    images.mkdir()
+    from rhythmic_jax.app.frontier import check_cache
+    from rhythmic_jax.errors import InputError
+
+    with pytest.raises(InputError, match="is there"):
+        check_cache(str(images / "cache"), [str(images), ref])
+    check_cache(str(tmp_path / "cache"), [str(images), ref])  # a folder of its own
+
+
+def test_header_names_listed_ground_truth_and_bytes_share_one_database(route, capsys):
+    """A ground truth listing the right places: no 'None' in the header; every
+    row's share is its bytes over brute force's (the one database searched)."""
+    folder, _, _ = route
+    gt = np.empty((N, 2), object)
+    for j in range(N):
+        gt[j] = [j, [p for p in (j - 1, j, j + 1) if 0 <= p < N]]
+    np.save(folder / "gt.npy", gt, allow_pickle=True)
+    args = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--ground-truth", str(folder / "gt.npy"), "--ground-truth-format",
+            "vpr-bench", "--maps", "2:1", "--bits", "8", "--pq", "",
+            "--lengths", "1", "--no-progress"]  # fmt: skip
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    head = text.splitlines()[0]
+    assert "None" not in text and "the right places it lists" in head
+    assert "ms/query: one query alone" in text
+    assert main([*args, "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    brute = next(r for r in rows if r["kind"] == "brute force")
+    assert brute["storage_bytes"] == N * D * 4
+    for r in rows:
+        assert r["share"] == pytest.approx(r["storage_bytes"] / brute["storage_bytes"])
+        assert "ITQ" not in r["name"] or "int8" not in r["name"].split("+")[-1]
+    assert any(r["name"] == "int8 per place" for r in rows)
