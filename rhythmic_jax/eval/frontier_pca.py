@@ -24,6 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rhythmic_jax.jit_options import jit
+
 __all__ = ["PcaCodes", "pca_bytes", "pca_dims", "principal_axes"]
 
 
@@ -59,12 +61,12 @@ def principal_axes(x, k: int) -> tuple[np.ndarray, np.ndarray]:
     return mean, np.ascontiguousarray(vt[:k].T)
 
 
-@jax.jit
+@jit
 def _project(q, mean, axes):
     return jnp.matmul(q - mean[None, :], axes, precision="highest")
 
 
-@partial(jax.jit, static_argnames="int8")
+@partial(jit, static_argnames="int8")
 def _similarity(q, mean, axes, codes, lo, span, int8: bool):
     if int8:
         codes = codes.astype(jnp.float32) * (span / 255.0)[None, :] + lo[None, :]
