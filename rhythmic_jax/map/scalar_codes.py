@@ -22,6 +22,7 @@ Shapes: ``n`` places, ``b`` queries, ``d`` features.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -46,12 +47,31 @@ def scalar_code_bytes(n: int, d: int) -> dict[str, int]:
 
 
 @jit
-def _cosine(q, codes, vmin, vdiff) -> jax.Array:
-    """Cosine of queries (b, d) with the decoded codes (n, d) -> (b, n)."""
-    ref = vmin[None, :] + (codes.astype(jnp.float32) + 0.5) * (vdiff / LEVELS)[None, :]
-    ref = ref / jnp.maximum(jnp.linalg.norm(ref, axis=1, keepdims=True), 1e-12)
+def _cosine(q, codes, vmin, vdiff, inv_norm) -> jax.Array:
+    """Cosine of queries (b, d) with the decoded codes (n, d) -> (b, n), the
+    database never decoded: ``q . x'_i = (q * step) . code_i + q . (vmin +
+    step / 2)`` with ``step = vdiff / 255``, over ``|x'_i|`` (``inv_norm`` (n,)
+    holds ``1 / |x'_i|``). One product with the codes, as brute force's."""
+    step = vdiff / LEVELS
     q = q / jnp.maximum(jnp.linalg.norm(q, axis=1, keepdims=True), 1e-12)
-    return jnp.matmul(q, ref.T, precision="highest")
+    dots = jnp.matmul(q * step[None, :], codes.astype(jnp.float32).T,
+                      precision="highest")  # fmt: skip
+    dots = dots + jnp.matmul(q, vmin + 0.5 * step, precision="highest")[:, None]
+    return dots * inv_norm[None, :]
+
+
+def _inverse_norms(codes, vmin, vdiff, xp=jnp):
+    """``1 / |x'_i|`` (n,) of the decoded codes, a block of rows at a time on
+    the host (``xp`` numpy) or in one step inside a trace (``xp`` jax.numpy)."""
+    step = vdiff / LEVELS
+    if xp is jnp:
+        ref = vmin[None, :] + (codes.astype(jnp.float32) + 0.5) * step[None, :]
+        return 1.0 / jnp.maximum(jnp.linalg.norm(ref, axis=1), 1e-12)
+    out = np.empty(len(codes), np.float32)
+    for lo in range(0, len(codes), 8192):
+        ref = vmin[None, :] + (codes[lo : lo + 8192] + np.float32(0.5)) * step[None, :]
+        out[lo : lo + 8192] = 1.0 / np.maximum(np.linalg.norm(ref, axis=1), 1e-12)
+    return out
 
 
 @dataclass(frozen=True)
@@ -102,15 +122,25 @@ class ScalarCodeBook:
 
     def similarity(self, q) -> jax.Array:
         """Cosine of each query (b, d) with each decoded place: (b, n) float32
-        (inside a trace, q is taken as it is)."""
+        (inside a trace, q is taken as it is). The places' norms are computed
+        once per book (kept beside it), not per call."""
         if not isinstance(q, jax.core.Tracer):
             q = check_features(q, "queries for the codes", d=self.d)
-        return _cosine(
-            jnp.asarray(q, jnp.float32),
-            jnp.asarray(self.codes),
-            jnp.asarray(self.vmin),
-            jnp.asarray(self.vdiff),
-        )
+        if isinstance(self.codes, jax.core.Tracer):  # the book itself traced
+            book = (self.codes, self.vmin, self.vdiff,
+                    _inverse_norms(self.codes, self.vmin, self.vdiff))  # fmt: skip
+        else:
+            book = self._on_device
+        return _cosine(jnp.asarray(q, jnp.float32), *book)
+
+    @functools.cached_property
+    def _on_device(self) -> tuple[jax.Array, ...]:
+        """The codes, range and places' ``1 / |x'_i|`` put on the device once
+        per book: copying the codes to it on every call cost more than the
+        product (3.3 of 4.2 ms a query for 2,356 x 2,048 codes on a CPU)."""
+        codes, vmin, vdiff = (np.asarray(a) for a in (self.codes, self.vmin, self.vdiff))
+        inv = _inverse_norms(codes, vmin, vdiff, np)
+        return tuple(jax.device_put(a) for a in (codes, vmin, vdiff, inv))
 
     def storage(self) -> dict[str, int]:
         """:func:`scalar_code_bytes` of this book."""
