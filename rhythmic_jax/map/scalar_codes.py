@@ -37,6 +37,10 @@ __all__ = ["ScalarCodeBook", "scalar_code_bytes"]
 
 _F32 = 4
 LEVELS = 255
+# up to this many queries the codes are read by a fused multiply-and-sum a query
+# at a time (10 against 140 ms for one query of 2,356 x 10,976 codes on a CPU,
+# where making the codes float costs 30 ms); above, one product for the batch
+FUSED_QUERIES = 4
 
 
 def scalar_code_bytes(n: int, d: int) -> dict[str, int]:
@@ -54,8 +58,13 @@ def _cosine(q, codes, vmin, vdiff, inv_norm) -> jax.Array:
     holds ``1 / |x'_i|``). One product with the codes, as brute force's."""
     step = vdiff / LEVELS
     q = q / jnp.maximum(jnp.linalg.norm(q, axis=1, keepdims=True), 1e-12)
-    dots = jnp.matmul(q * step[None, :], codes.astype(jnp.float32).T,
-                      precision="highest")  # fmt: skip
+    qs = q * step[None, :]
+    if q.shape[0] <= FUSED_QUERIES:  # one fused pass over the codes, no float copy
+        # a query at a time: XLA reduces (n, d) rows fast, a (b, n, d) block slowly
+        dots = jnp.stack([(codes.astype(jnp.float32) * row).sum(1) for row in qs])
+    else:  # a batch: one product, the codes made float once for all its queries
+        dots = jax.lax.dot_general(qs, codes.astype(jnp.float32), (((1,), (1,)), ((), ())),
+                                   precision=jax.lax.Precision.HIGHEST)  # fmt: skip
     dots = dots + jnp.matmul(q, vmin + 0.5 * step, precision="highest")[:, None]
     return dots * inv_norm[None, :]
 
