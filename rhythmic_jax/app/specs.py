@@ -15,7 +15,8 @@ as flags. Importing this module imports no numpy, JAX or torch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import argparse
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -547,6 +548,29 @@ def int_list(least: int = 1, empty: bool = False) -> Domain:
                   what="comma-separated integers")  # fmt: skip
 
 
+def pair_list() -> Domain:
+    """An argparse ``type``: comma-separated ``r:level`` pairs, each ``r`` and
+    ``level`` in the domain ``fit`` gives ``--r`` and ``--level`` (the text
+    kept)."""
+    ranges = {f.name: f.metadata["domain"] for f in fields(MapConfig)
+              if f.name in ("r", "level")}  # fmt: skip
+
+    def pairs(text: str) -> int:
+        for part in str(text).split(","):
+            values = part.split(":")
+            if len(values) != 2:
+                raise ValueError(part)
+            for name, value in zip(ranges, map(int, values)):
+                try:
+                    ranges[name].check(value)
+                except InputError as err:
+                    raise argparse.ArgumentTypeError(
+                        f"{name} {err} (in {part!r})") from None
+        return 1
+
+    return Domain(True, 1, parse=pairs, what="comma-separated r:level pairs")
+
+
 @dataclass(frozen=True)
 class FrontierJob(Job):
     """The frontier's options; :func:`rhythmic_jax.app.frontier.main` reads them
@@ -575,7 +599,8 @@ class FrontierJob(Job):
         "the representations fitted unless --maps, --bits or --pq say otherwise: "
         f"small ({grid_text('small')}: a couple of minutes on a few thousand "
         f"places), full ({grid_text('full')})", "small", choices=tuple(GRIDS))
-    maps: str | None = option("maps as r:level,... (default: the --grid's)")
+    maps: str | None = option("maps as r:level,... (default: the --grid's)",
+                              domain=pair_list())
     bits: str | None = option("ITQ code sizes, comma-separated (default: the "
                               "--grid's)", domain=int_list(1))
     pq: str | None = option("PQ sub-quantisers ('': none; default: the --grid's)",

@@ -220,3 +220,29 @@ def test_header_names_listed_ground_truth_and_bytes_share_one_database(route, ca
         assert r["share"] == pytest.approx(r["storage_bytes"] / brute["storage_bytes"])
         assert "ITQ" not in r["name"] or "int8" not in r["name"].split("+")[-1]
     assert any(r["name"] == "int8 per place" for r in rows)
+
+
+def test_maps_option_has_a_domain(route, capsys):
+    """--maps pairs are read where the options are: r below 2, level below 1,
+    values past the integer limit and pairs that are not r:level end in one
+    line naming the option; r and level in range but beyond the route are
+    refused by the fit in one line too."""
+    folder, _, _ = route
+    base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--bits", "8", "--pq", "", "--lengths", "1", "--no-progress"]  # fmt: skip
+    cases = [("1:1", "r must be an integer >= 2, got 1"),
+             ("2:1,2:0", "level must be an integer >= 1, got 0"),
+             ("2:-3", "got -3"),
+             ("9223372036854775808:1", "r must be an integer in [2, 2147483647]"),
+             ("2:99999999999999999999", "level must be an integer in [1, 2147483647]"),
+             ("2", "expected comma-separated r:level pairs, got '2'"),
+             ("2:1:1", "expected comma-separated r:level pairs"),
+             ("a:b", "expected comma-separated r:level pairs"),
+             ("2:1,", "expected comma-separated r:level pairs"),
+             ("", "expected comma-separated r:level pairs"),
+             ("2147483647:1", "count must be an integer >= r=2147483647")]  # fmt: skip
+    for maps, said in cases:
+        assert main([*base, "--maps", maps]) == 2, maps
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and said in err, (maps, err)
+        assert "--maps" in err or "count" in err, (maps, err)
