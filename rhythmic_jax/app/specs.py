@@ -548,6 +548,17 @@ def int_list(least: int = 1, empty: bool = False) -> Domain:
                   what="comma-separated integers")  # fmt: skip
 
 
+@dataclass(frozen=True)
+class PairDomain(Domain):
+    """:func:`pair_list`'s domain: its words name both ranges (``--help``)."""
+
+    ranges: tuple[tuple[str, Domain], ...] = ()
+
+    def text(self, whole: bool = True) -> str:
+        each = ", ".join(f"{name} {d.bounds(whole)}" for name, d in self.ranges)
+        return f"{self.what} ({each})"
+
+
 def pair_list() -> Domain:
     """An argparse ``type``: comma-separated ``r:level`` pairs, each ``r`` and
     ``level`` in the domain ``fit`` gives ``--r`` and ``--level`` (the text
@@ -568,7 +579,8 @@ def pair_list() -> Domain:
                         f"{name} {err} (in {part!r})") from None
         return 1
 
-    return Domain(True, 1, parse=pairs, what="comma-separated r:level pairs")
+    return PairDomain(True, 1, parse=pairs, what="comma-separated r:level pairs",
+                      ranges=tuple(ranges.items()))
 
 
 @dataclass(frozen=True)
