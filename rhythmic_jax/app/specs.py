@@ -567,16 +567,16 @@ def pair_list() -> Domain:
               if f.name in ("r", "level")}  # fmt: skip
 
     def pairs(text: str) -> int:
-        for part in str(text).split(","):
-            values = part.split(":")
+        for pair in str(text).split(","):
+            values = pair.split(":")
             if len(values) != 2:
-                raise ValueError(part)
-            for name, value in zip(ranges, map(int, values)):
+                raise ValueError(pair)
+            for name, value in zip(ranges, map(int, values), strict=True):
                 try:
                     ranges[name].check(value)
                 except InputError as err:
                     raise argparse.ArgumentTypeError(
-                        f"{name} {err} (in {part!r})") from None
+                        f"{name} {err} (in {pair!r})") from None
         return 1
 
     return PairDomain(True, 1, parse=pairs, what="comma-separated r:level pairs",

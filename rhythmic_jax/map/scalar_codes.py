@@ -61,7 +61,8 @@ def _cosine(q, codes, vmin, vdiff, inv_norm) -> jax.Array:
     qs = q * step[None, :]
     if q.shape[0] <= FUSED_QUERIES:  # one fused pass over the codes, no float copy
         # a query at a time: XLA reduces (n, d) rows fast, a (b, n, d) block slowly
-        dots = jnp.stack([(codes.astype(jnp.float32) * row[None, :]).sum(1) for row in qs])
+        wide = codes.astype(jnp.float32)
+        dots = jnp.stack([(wide * row[None, :]).sum(1) for row in qs])
     else:  # a batch: one product, the codes made float once for all its queries
         dots = jax.lax.dot_general(qs, codes.astype(jnp.float32), (((1,), (1,)), ((), ())),
                                    precision=jax.lax.Precision.HIGHEST)  # fmt: skip
