@@ -8,9 +8,10 @@ estimator with ``scale="auto"`` likewise works or raises one line.
 
 Cache entries: one file of a filled ``frontier --cache`` folder drawn and
 damaged (cut short, bytes overwritten, an array set to NaN, deleted, JSON
-replaced by garbage); the rerun either gives the undamaged run's recall (the
-entry fitted again) or one line with exit 2; never a traceback, never recall
-figures from damaged data.
+replaced by garbage, a map entry saved again whole with an array all NaN);
+the rerun either gives the undamaged run's recall (the entry fitted again) or
+one line with exit 2; never a traceback, never recall figures from damaged
+data.
 """
 
 from __future__ import annotations
@@ -206,12 +207,30 @@ def filled(tmp_path_factory) -> dict:
     return {"root": root, "cache": cache, "files": files, "recalls": _recalls(result)}
 
 
-DAMAGES = ("truncate", "overwrite", "nan", "delete", "garbage")
+DAMAGES = ("truncate", "overwrite", "nan", "delete", "garbage", "nan map")
+
+
+def _nan_map(entry: Path, data: st.DataObject) -> None:
+    """The map folder ``entry`` saved again, whole and with fresh digests, with
+    one drawn float array of its stored ones all NaN."""
+    import dataclasses
+
+    from rhythmic_jax.map import map_file
+
+    m = map_file.load(entry)
+    floats = sorted(k for k, v in m.stored.items() if np.asarray(v).dtype.kind == "f")
+    key = data.draw(st.sampled_from(floats))
+    stored = {**m.stored, key: np.full_like(np.asarray(m.stored[key]), np.nan)}
+    map_file.save(entry, dataclasses.replace(m, stored=stored))
 
 
 def _damage(path: Path, how: str, data: st.DataObject) -> None:
-    """Damage one cached file in place."""
+    """Damage one cached file in place (``nan map``: a map entry's arrays)."""
     raw = path.read_bytes()
+    entry = next((p for p in path.parents if p.name.startswith("map-")), None)
+    if how == "nan map" and entry is not None:
+        _nan_map(entry, data)
+        return
     if how == "truncate":
         path.write_bytes(raw[: data.draw(st.integers(0, max(len(raw) - 1, 0)))])
     elif how == "overwrite":
@@ -242,7 +261,7 @@ def _damage(path: Path, how: str, data: st.DataObject) -> None:
             np.savez(f, **arrays)
 
 
-@settings(FUZZ, max_examples=10)
+@settings(FUZZ, max_examples=14)
 @given(data=st.data())
 def test_a_damaged_cache_entry_is_refitted_or_refused(filled, data):
     index = data.draw(st.integers(0, len(filled["files"]) - 1))
