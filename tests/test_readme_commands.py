@@ -424,6 +424,70 @@ def test_the_demo_prints_the_figures_the_readme_shows(tmp_path):
     )
 
 
+# a README line ``expression  # -> value`` whose value is a list or dict shown
+SHOWN_VALUE = re.compile(r"^(?P<expr>[^#]+?)\s+# -> (?P<value>[\[{].*)$")
+
+
+def python_script(text: str) -> tuple[str, list[str]]:
+    """The README's ```python blocks as one script, each line ``expression  #
+    -> [...]`` (or ``{...}``) printing its value; and those values, in order."""
+    import ast
+
+    lines, shown = [], []
+    for line in text.splitlines():
+        m = SHOWN_VALUE.match(line)
+        try:
+            alone = m is not None and isinstance(ast.parse(m["expr"]).body[0], ast.Expr)
+        except SyntaxError:
+            alone = False
+        if alone:
+            lines.append(f"print('SHOWN', {m['expr'].strip()})")
+            shown.append(m["value"])
+        else:
+            lines.append(line)
+    return "\n".join(lines) + "\n", shown
+
+
+def test_the_python_script_prints_the_shown_values():
+    """A line showing a list or dict is printed; others are kept as written."""
+    script, shown = python_script(
+        "x = [1]   # -> [1]\nx   # -> [1]   (a list)\nf(a,  # -> [2]\n"
+    )
+    assert script.splitlines() == [
+        "x = [1]   # -> [1]",
+        "print('SHOWN', x)",
+        "f(a,  # -> [2]",
+    ]
+    assert shown == ["[1]   (a list)"]
+
+
+@pytest.mark.slow
+def test_the_readme_python_runs_and_prints_what_it_shows(tmp_path):
+    """The README's ```python blocks, in order as one script in a fresh
+    interpreter, run; each ``expression  # -> [...]`` / ``{...}`` line prints
+    the value its comment shows (the comment may add words after it)."""
+    text = "\n".join(t for lang, t in fenced_blocks(DOCUMENTS[0]) if lang == "python")
+    script, shown = python_script(text)
+    assert len(shown) >= 4
+    (tmp_path / "readme.py").write_text(script)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(
+        p for p in (str(ROOT), env.get("PYTHONPATH")) if p
+    )
+    env["RHYTHMIC_JAX_CACHE"] = str(tmp_path / "cache")
+    done = subprocess.run(
+        [sys.executable, "readme.py"], cwd=tmp_path, env=env,
+        capture_output=True, text=True, timeout=1800,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-1500:]
+    printed = [
+        x[len("SHOWN ") :] for x in done.stdout.splitlines() if x.startswith("SHOWN ")
+    ]
+    assert len(printed) == len(shown)
+    wrong = [(p, s) for p, s in zip(printed, shown, strict=True) if not s.startswith(p)]
+    assert not wrong, f"printed, shown: {wrong}"
+
+
 # the README's figures quoted from a report's JSON: (report, the README line's
 # words, the figures as a function of the JSON, each formatted as the README
 # rounds it)
