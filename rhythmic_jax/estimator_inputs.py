@@ -105,7 +105,8 @@ def not_of_order_one(x: np.ndarray) -> bool:
     frame far from the origin, as unscaled 8-bit descriptors have
     (:func:`rhythmic_jax.validate.check_fit_scale`), or frames far longer or
     shorter than the solver fits (:func:`rhythmic_jax.fitting.fit_map.check_length`,
-    frames multiplied by 1e30 or 1e-30)."""
+    frames multiplied by 1e30 or 1e-30), or shorter than :data:`AUTO_SHORTEST`,
+    which a fit takes but places badly."""
     from rhythmic_jax.fitting.fit_map import check_length
 
     sums = scale_sums(x)
@@ -114,7 +115,14 @@ def not_of_order_one(x: np.ndarray) -> bool:
         check_length(sums)
     except InputError:
         return True
-    return False
+    length = float(np.sqrt(sums[-2] / max(float(sums[-1]), 1.0)))
+    return 0.0 < length < AUTO_SHORTEST
+
+
+# Frames shorter than this (RMS length) are standardised by scale='auto' though
+# a fit takes them: on 300 Nordland frames self-recall is 0.48 at lengths 1e-3 to
+# 1e-2 and 0.77 at 0.1, against 0.99 at 1 and 0.98 at 10 to 100.
+AUTO_SHORTEST = 0.3
 
 
 def check_settings(config) -> None:
