@@ -52,7 +52,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.outputs import committing
-from rhythmic_jax.io.reader import check_budget, inside, open_regular, read_json
+from rhythmic_jax.io.reader import check_budget, file_sha256, inside, read_json
 
 __all__ = [
     "FORMAT_VERSION",
@@ -302,18 +302,10 @@ def _write(tmp: Path, arrays: dict[str, np.ndarray], body: dict) -> None:
 # ------------------------------------------------------------------- checksums
 
 
-def _sha256_file(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open_regular(path) as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _file_digests(folder: Path) -> dict[str, str]:
     """sha256 of every file under ``folder``, by its path relative to it."""
     return {
-        p.relative_to(folder).as_posix(): _sha256_file(p)
+        p.relative_to(folder).as_posix(): file_sha256(p)
         for p in sorted(folder.rglob("*"))
         if p.is_file()
     }
@@ -363,7 +355,7 @@ def verify_files(folder: Path, meta: dict[str, Any], missing: bool = True) -> No
         if not missing and not os.path.lexists(path):
             continue
         try:
-            actual = _sha256_file(path)
+            actual = file_sha256(path)
         except InputError as err:
             raise InputError(
                 f"{folder}: arrays are missing or corrupt ({err})"

@@ -17,7 +17,6 @@ digest) and refuses a record that does not belong to its file.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -27,7 +26,7 @@ import numpy as np
 
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.io.atomic import save_npy
-from rhythmic_jax.io.reader import load_npy, npy_header
+from rhythmic_jax.io.reader import file_sha256, load_npy, npy_header
 
 __all__ = [
     "check_descriptors",
@@ -116,16 +115,6 @@ def record_path(path: str | os.PathLike) -> Path:
     return path.with_name(path.name + ".json")
 
 
-def _sha256(path: Path) -> str:
-    from rhythmic_jax.io.reader import open_regular
-
-    digest = hashlib.sha256()
-    with open_regular(path) as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def save_described(path: str | os.PathLike, x: np.ndarray, record: dict) -> dict:
     """Write float32 (n, d) ``x`` to ``path`` (.npy) and its provenance
     ``record`` (JSON-able: descriptor, settings, folder, frames...) beside it
@@ -141,7 +130,7 @@ def save_described(path: str | os.PathLike, x: np.ndarray, record: dict) -> dict
         side.unlink()
     n, d = np.shape(x)
     full = {"format": RECORD_FORMAT, **record, "rows": int(n), "dim": int(d),
-            "sha256": _sha256(path)}  # fmt: skip
+            "sha256": file_sha256(path)}  # fmt: skip
     write_file(side, json.dumps(full, indent=1, sort_keys=True) + "\n")
     return full
 
@@ -162,7 +151,7 @@ def read_record(path: str | os.PathLike) -> dict[str, Any] | None:
     shape = descriptor_shape(path)
     if tuple(shape) != (record.get("rows"), record.get("dim")) or record.get(
         "sha256"
-    ) != _sha256(path):
+    ) != file_sha256(path):
         raise InputError(
             f"{side}: the record of another file than {path} (its rows or digest "
             "differ); describe the frames again, or remove the record"

@@ -49,6 +49,7 @@ __all__ = [
     "NpyHeader",
     "available_memory",
     "check_budget",
+    "file_sha256",
     "inside",
     "load_npy",
     "load_npz",
@@ -163,6 +164,17 @@ def open_regular(path: str | os.PathLike) -> BinaryIO:
     fh.raw.name = os.fspath(path)  # as open() names it (image readers read it)
     return fh
 
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The sha256 (hex) of a regular file's bytes, read a MiB at a time."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open_regular(path) as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 def inside(folder: str | os.PathLike, name: str, what: str = "file") -> Path:
     """The path of ``name`` (a relative name a file gave) under ``folder``,
