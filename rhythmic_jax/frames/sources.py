@@ -94,6 +94,14 @@ def size_text(settings: dict) -> str:
     return f"{settings.get('width')}x{settings.get('height')}"
 
 
+def same_size(size: tuple[int, int] | None, settings: dict) -> bool:
+    """Whether the input ``size`` (None: any) is the one ``settings`` record."""
+    return size is None or size_settings(size) == {
+        "width": settings.get("width"),
+        "height": settings.get("height"),
+    }
+
+
 def files_descriptor(paths, descriptor, weights, input_size):
     """``(name, settings, declared)`` of descriptor files: their records' (which
     must agree with each other and with ``descriptor`` and ``input_size`` where
@@ -118,10 +126,7 @@ def files_descriptor(paths, descriptor, weights, input_size):
                 f"{next(iter(made.values()))}: described with {name} (its record "
                 f"says), not {descriptor}"
             )
-        if input_size is not None and size_settings(input_size) != {
-            "width": settings.get("width"),
-            "height": settings.get("height"),
-        }:
+        if not same_size(input_size, settings):
             raise InputError(
                 f"{next(iter(made.values()))}: described at {size_text(settings)}, "
                 f"not {input_size[0]}x{input_size[1]} ({{opt:input_size}})"
@@ -463,10 +468,7 @@ def _same_make(path: Path, kind: str, name: str, settings: dict, input_size) -> 
     if name == NPY_DESCRIPTOR:
         return
     size = size_text(settings)
-    if input_size is not None and size_settings(input_size) != {
-        "width": settings.get("width"),
-        "height": settings.get("height"),
-    }:
+    if not same_size(input_size, settings):
         raise InputError(
             f"{{opt:input_size}} {input_size[0]}x{input_size[1]}: the map's frames "
             f"were described at {size}; queries must be described alike"
