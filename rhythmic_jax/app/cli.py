@@ -293,7 +293,7 @@ def _demo(args, job, progress: bool) -> None:
 def _frontier(args, job, progress: bool) -> None:
     from rhythmic_jax.app.frontier import main as frontier
 
-    frontier(args)  # prints its table itself, before its files are written
+    frontier(args, job.given)  # prints its table itself, before its files are written
 
 
 # command -> what runs its job and returns the text it prints (None: nothing)

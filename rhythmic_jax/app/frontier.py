@@ -6,8 +6,10 @@ their levels and layouts stored as float32, float16 and int8, ITQ codes, int8
 per place, product quantisation (faiss), PCA codes (float32, int8), the map +
 code hybrids, exact brute force and, for sequences, SeqSLAM. Every row but
 SeqSLAM is timed alike, from query descriptors to a place
-(:data:`rhythmic_jax.eval.frontier.LATENCY`). Each row gives bytes per place, recall@1 (single
-frames and along sequences of L = 5 and 10), the sequence scorer (a map's phase
+(:data:`rhythmic_jax.eval.frontier.LATENCY`). Each row gives bytes per place,
+recall@1 (single frames and along sequences of L = 5 and 10), recall@K of the
+single frames' ranking (``--recall-values``; in the table only when given),
+the sequence scorer (a map's phase
 domain, the diagonal sum of codes' and brute force's similarities, both fused
 for a hybrid, SeqSLAM), recall at 100 % precision and the query latency; the
 rows no other row beats at fewer bytes form the Pareto front, and ``--budget``
@@ -74,6 +76,9 @@ def frontier(
     select: tuple[str, str] = ("", ""),
     ground_truth_format: str | None = None,
     recall_over: str = "matched",
+    recall_values: tuple[int, ...] = (1, 5, 10, 20),
+    input_size: tuple[int, int] | None = None,
+    given: frozenset[str] = frozenset(),
 ) -> dict[str, Any]:
     """Recall against bytes for every representation of ``reference``'s places.
 
@@ -93,6 +98,13 @@ def frontier(
       recall_over: recall@1's denominator, ``"matched"`` (the queries with a
         right place) or ``"all"`` (every query: a query without one is a
         miss); recall at 100 % precision is out of the matched ones either way.
+      recall_values: the K of every row's single-frame ``recall@K L=1`` (K > 1
+        up to the places; recall@1 is ``recall@1 L=1``).
+      input_size: (width, height) image folders are resized to for the
+        descriptor (None: its own); a descriptor file's record must agree.
+      given: the options given on the command line; ``tolerance_m`` among them
+        with a ground truth that lists the right places itself is refused
+        (:func:`rhythmic_jax.app.jobs.idle_tolerance`).
       select: (reference's, queries') prefixes of the image names kept from
         hloc ``.h5`` files (``""``: every row), so one file holds both.
 
@@ -103,6 +115,7 @@ def frontier(
     (:func:`rhythmic_jax.eval.frontier.trainable`: ITQ bits above the places or
     the dimensions, PQ that does not divide d).
     """
+    from rhythmic_jax.app.jobs import idle_tolerance
     from rhythmic_jax.app.native_stderr import gathered_stderr
     from rhythmic_jax.eval import frontier as fr
     from rhythmic_jax.frames.sources import load_sources
@@ -117,8 +130,9 @@ def frontier(
 
     t0 = time.perf_counter()
     ref_prefix, query_prefix = (p or None for p in select)
-    ref = load_sources([reference], descriptor, progress=progress, select=ref_prefix).x
-    qry = load_sources([queries], descriptor, progress=progress, select=query_prefix).x
+    reads = {"progress": progress, "input_size": input_size}
+    ref = load_sources([reference], descriptor, select=ref_prefix, **reads).x
+    qry = load_sources([queries], descriptor, select=query_prefix, **reads).x
     if ref.shape[1] != qry.shape[1]:
         raise InputError(
             f"{queries}: {qry.shape[1]}-d descriptors but {reference} has "
@@ -133,6 +147,7 @@ def frontier(
             query_source=queries, reference_sources=[reference],
             tolerance_m=tolerance_m, fmt=ground_truth_format,
         )  # fmt: skip
+        idle_tolerance(truth, given)
     elif len(qry) > len(ref):
         raise InputError(
             f"{queries}: {len(qry)} queries for {len(ref)} places; without "
@@ -149,6 +164,7 @@ def frontier(
         maps=tuple(maps), bits=tuple(bits),
         lengths=kept, tolerance=int(tolerance),
         dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
+        recall_values=tuple(recall_values),
     ), len(ref), d)  # fmt: skip
     with gathered_stderr(KMEANS_WARNING) as warned:
         rows = fr.frontier_rows(
@@ -158,9 +174,11 @@ def frontier(
     matched = len(qry) if truth is None else int(truth.in_map.sum())
     if recall_over == "all":  # the unmatched queries are misses: hits / b
         for row in rows:
-            for k in cfg.lengths:
-                if row.get(f"recall@1 L={k}") is not None:
-                    row[f"recall@1 L={k}"] *= matched / len(qry)
+            keys = [f"recall@1 L={k}" for k in cfg.lengths]
+            keys += [f"recall@{k} L=1" for k in cfg.recall_values if k > 1]
+            for key in keys:
+                if row.get(key) is not None:
+                    row[key] *= matched / len(qry)
     elif recall_over != "matched":
         raise InputError(f"{{opt:recall_over}} {recall_over!r}: matched or all")
     for row, front in zip(rows, fr.pareto_front(rows), strict=True):
@@ -232,8 +250,16 @@ def _cell(v) -> str:
     return f"{v:,}" if isinstance(v, int) else str(v)
 
 
-def frontier_lines(result: dict[str, Any]) -> str:
-    """The table, fewest bytes first, Pareto rows marked ``*``, and the choice."""
+def recall_keys(rows) -> list[str]:
+    """The rows' single-frame ``recall@K L=1`` keys of K > 1, K ascending."""
+    keys = {k for r in rows for k in r if k.startswith("recall@") and k.endswith("L=1")}
+    keys -= {"recall@1 L=1"}
+    return sorted(keys, key=lambda k: int(k.split("@")[1].split()[0]))
+
+
+def frontier_lines(result: dict[str, Any], recall_at: bool = False) -> str:
+    """The table, fewest bytes first, Pareto rows marked ``*``, and the choice;
+    ``recall_at``: with a column per ``recall@K L=1`` (K > 1) beside R@1."""
     g = result["ground_truth"]
     if g.get("tolerance_m") is not None:
         tol = f"tolerance {g['tolerance_m']:g} m"
@@ -244,8 +270,11 @@ def frontier_lines(result: dict[str, Any]) -> str:
         each = "" if mean is None else f", {mean:.1f} per query on average"
         tol = f"the right places it lists{each}"
     lengths = result["config"]["lengths"]
-    keys = ["recall@1 L=1", "recall@100p"] + [f"recall@1 L={k}" for k in lengths[1:]]
-    heads = ["", "representation", "B/place", "share %", "R@1", "R@100P"]
+    at = recall_keys(result["rows"]) if recall_at else []
+    keys = ["recall@1 L=1", *at, "recall@100p"]
+    keys += [f"recall@1 L={k}" for k in lengths[1:]]
+    heads = ["", "representation", "B/place", "share %", "R@1"]
+    heads += [k.replace("recall", "R").replace(" L=1", "") for k in at] + ["R@100P"]
     heads += [f"R@1 L={k}" for k in lengths[1:]] + ["ms/query", "q/s batch"]
     heads += ["sequence scorer"] * bool(lengths[1:])
     body = []
@@ -295,18 +324,25 @@ def _over_line(result: dict[str, Any]) -> str:
 
 
 def write_csv(rows, path: str | Path) -> None:
-    """One line per representation, the columns of :data:`COLUMNS` (names
-    inert, :mod:`rhythmic_jax.io.csv_cells`)."""
+    """One line per representation, the columns of :data:`COLUMNS` with the
+    rows' ``recall@K L=1`` after ``recall@1 L=1`` (names inert,
+    :mod:`rhythmic_jax.io.csv_cells`)."""
     from rhythmic_jax.io.atomic import atomic_path
     from rhythmic_jax.io.csv_cells import csv_text
 
-    text = csv_text(COLUMNS, ([r.get(c) for c in COLUMNS] for r in rows))
+    at = COLUMNS.index("recall@1 L=1") + 1
+    columns = (*COLUMNS[:at], *recall_keys(rows), *COLUMNS[at:])
+    text = csv_text(columns, ([r.get(c) for c in columns] for r in rows))
     with atomic_path(Path(path)) as tmp, open(tmp, "w", newline="") as f:
         f.write(text)
 
 
-def main(args) -> int:
-    """The ``frontier`` command: the table (or ``--json``), ``--csv``, ``--plot``."""
+def main(args, given: frozenset[str] = frozenset()) -> int:
+    """The ``frontier`` command: the table (or ``--json``), ``--csv``, ``--plot``;
+    ``given``: the options named on the command line."""
+    from rhythmic_jax.app.specs import recall_values
+    from rhythmic_jax.frames.sources import parse_input_size
+
     for opt in ("csv", "plot"):  # a folder there: refused before work
         check_file_place(opt, getattr(args, opt))
     if args.ground_truth_format and not args.ground_truth:
@@ -325,6 +361,8 @@ def main(args) -> int:
         cache=args.cache or None, descriptor=args.descriptor,
         progress=not args.no_progress, select=tuple(args.select or ("", "")),
         ground_truth_format=args.ground_truth_format, recall_over=args.recall_over,
+        recall_values=recall_values(args.recall_values) or (),
+        input_size=parse_input_size(args.input_size), given=given,
     )  # fmt: skip
     if args.csv:
         write_csv(result["rows"], args.csv)
@@ -334,5 +372,6 @@ def main(args) -> int:
         plot_frontier(result["rows"], args.plot, result["config"]["lengths"],
                       title=f"recall per byte, {result['n']} places",
                       per_place=True, budget=args.budget)  # fmt: skip
-    print(json.dumps(result, indent=2) if args.json else frontier_lines(result))
+    shown = "recall_values" in given
+    print(json.dumps(result, indent=2) if args.json else frontier_lines(result, shown))
     return 0

@@ -476,7 +476,13 @@ def _ground_truth(job, model, b: int, reference: str | None = None):
         query_source=job.source, reference_sources=refs, map_extra=model.extra,
         tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
     )  # fmt: skip
-    if truth.tolerance_m is None and "tolerance_m" in job.given:
+    return idle_tolerance(truth, job.given)
+
+
+def idle_tolerance(truth, given):
+    """``truth``, unless ``--tolerance-m`` is among the options ``given`` while
+    ``truth`` lists the right places itself (it would act on nothing): refused."""
+    if truth.tolerance_m is None and "tolerance_m" in given:
         raise InputError(
             f"{{opt:tolerance_m}} acts on positions; {truth.source} lists the right "
             "places itself, so it would act on nothing"

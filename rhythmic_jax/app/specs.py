@@ -621,7 +621,19 @@ class FrontierJob(Job):
                           domain=int_list(1))
     descriptor: str | None = option("descriptor for image folders (default "
                                     "patchnorm)")
+    input_size: str | None = like(Reading, "input_size")
+    recall_values: str = like(
+        EvaluateJob, "recall_values", "the K of each row's single-frame recall@K "
+        "(rows, --json, --csv: recall@K L=1), comma-separated; given, the table "
+        "shows them too (default %(default)s)")
     cache: str = option("folder keeping fitted maps and codes (default none)", "")
     csv: str | None = option("write the rows as CSV", path="writes")
     plot: str | None = option("draw the frontier (.png)", path="writes")
     json: bool = like(EvaluateJob, "json")
+
+    RULES = (
+        Rule(("input_size",), READS[2].says, lambda j: _size_ok(j.input_size)),
+        Rule(("recall_values",), next(r.says for r in EvaluateJob.RULES
+                                      if r.options == ("recall_values",)),
+             lambda j: recall_values(j.recall_values) is not None),
+    )  # fmt: skip

@@ -45,6 +45,7 @@ import numpy as np
 from rhythmic_jax.decoding.fusion import (
     code_sequence_scores,
     fused_decode,
+    fused_place_scores,
     fused_sequence_decode,
     learn_weight,
 )
@@ -75,6 +76,7 @@ __all__ = [
     "projected_bytes",
     "latency",
     "projection_rows",
+    "ranked_recalls",
     "recall_at_full_precision",
     "similarity_recalls",
 ]
@@ -115,6 +117,8 @@ class FrontierConfig:
     # PCA axes kept (float32 and int8 codes each); None: a few spanning the
     # maps' bytes (rhythmic_jax.eval.frontier_pca.pca_dims); (): no PCA rows
     pca: tuple[int, ...] | None = None
+    # the K of recall@K on single frames (rows' ``recall@K L=1``, K > 1)
+    recall_values: tuple[int, ...] = (1, 5, 10, 20)
 
 
 def pq_bits(n: int) -> int:
@@ -227,13 +231,36 @@ def similarity_recalls(sims, lengths, tol, truth=None) -> dict[int, float]:
     return out
 
 
-def _similarity_extra(sims, tol, truth, search=None, queries=None) -> dict:
-    """R@100p (top similarity as confidence) and the :func:`latency` of
-    ``search`` (query descriptors -> places) on ``queries``."""
+def ranked_recalls(total, ks, tol: int, truth=None) -> dict[str, float | None]:
+    """Recall@K of the places ranked by ``total`` (b, n) scores, best first, for
+    every K > 1 of ``ks`` up to n: ``{"recall@K L=1": ...}`` over the in-map
+    queries (``truth``: a GroundTruth; else query i is place i +- tol); None
+    where no query has a right place."""
+    from rhythmic_jax.eval.ground_truth import from_indices, gt_recall_at_k
+
+    total = jax.numpy.asarray(total)
+    b, n = total.shape
+    ks = tuple(k for k in ks if 1 < k <= n)
+    if not ks:
+        return {}
+    if truth is None:
+        truth = from_indices(np.arange(b), n, tol)
+    if not truth.in_map.any():
+        return {f"recall@{k} L=1": None for k in ks}
+    ranked = np.asarray(jax.lax.top_k(total, max(ks))[1])
+    got = gt_recall_at_k(ranked, truth, ks)
+    return {f"{key} L=1": v for key, v in got.items()}
+
+
+def _similarity_extra(sims, tol, truth, search=None, queries=None, ks=()) -> dict:
+    """R@100p (top similarity as confidence), recall@K of ``ks``
+    (:func:`ranked_recalls`) and the :func:`latency` of ``search`` (query
+    descriptors -> places) on ``queries``."""
     sims = np.asarray(sims)
     idx = sims.argmax(1)
     conf = sims[np.arange(len(sims)), idx]
     out = {"recall@100p": recall_at_full_precision(idx, conf, tol, truth)}
+    out |= ranked_recalls(sims, ks, tol, truth)
     if search is not None:
         out |= latency(search, queries)
     return out
@@ -449,6 +476,7 @@ def frontier_rows(
     n, d = ref.shape
     b = len(queries)
     db, tol, lengths = database_bytes(n, d, 4), config.tolerance, config.lengths
+    ks = config.recall_values
     lengths = tuple(k for k in lengths if k <= b)
     fits = len(config.maps) + len(config.bits)  # fitted first, then judged
     total = fits + 1 + seqslam + len(config.pq) + config.scalar
@@ -485,7 +513,7 @@ def frontier_rows(
     rows = [
         row("brute force", "brute force", db,
             similarity_recalls(brute, lengths, tol, truth),
-            **_similarity_extra(brute, tol, truth, _brute_search(ref), queries))
+            **_similarity_extra(brute, tol, truth, _brute_search(ref), queries, ks))
     ]  # fmt: skip
     if seqslam:
         from rhythmic_jax.eval.seqslam import seqslam_decode
@@ -508,6 +536,7 @@ def frontier_rows(
         name = _map_name(r, level, per, dtype)
         extra = dict(r=r, level=level, periods=per, dtype=dtype)
         extra |= decided(np.asarray(one.index), np.asarray(one.confidence))
+        extra |= ranked_recalls(fused_place_scores(s, None, per, n), ks, tol, truth)
         if (r, level) not in timed:  # one program whatever the dtype stored
             timed[r, level] = latency(_map_search(m), queries)
         extra |= timed[r, level]
@@ -516,11 +545,11 @@ def frontier_rows(
         size = code_bytes(n, d, bits)["total"]
         rec = similarity_recalls(sims, lengths, tol, truth)
         find = lambda q, book=book: book.similarity(q).argmax(1)  # noqa: E731
-        extra = _similarity_extra(sims, tol, truth, find, queries)
+        extra = _similarity_extra(sims, tol, truth, find, queries, ks)
         rows.append(row("codes", f"ITQ {bits} bits", size, rec, bits=bits, **extra))
     rows += _other_codes(ref, queries, config, lengths, tol, truth, row)
     sizes = [v[2] for v in maps.values()] or [r["storage_bytes"] for r in rows[1:]]
-    rows += _pca_rows(ref, queries, config.pca, sizes, lengths, tol, truth, row)
+    rows += _pca_rows(ref, queries, config.pca, sizes, lengths, tol, truth, row, ks)
     for (r, level, dtype), (per, s, msize, m) in maps.items():
         for bits, (sims, book) in codes.items():
             w = weights.get(((r, level, dtype), bits), config.weight)
@@ -534,6 +563,8 @@ def frontier_rows(
             name = f"{_map_name(r, level, per, dtype)} + ITQ {bits}"
             extra = dict(r=r, level=level, periods=per, dtype=dtype, bits=bits)
             extra |= decided(np.asarray(one.index), np.asarray(one.confidence))
+            fused = fused_place_scores(s, sims, per, n, w)
+            extra |= ranked_recalls(fused, ks, tol, truth)
             if (r, level, bits) not in timed:
                 timed[r, level, bits] = latency(_hybrid_search(m, book, n, w), queries)
             extra |= timed[r, level, bits]
@@ -546,7 +577,7 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
     """Product quantisation (faiss ``IndexPQ``, inner product) with
     ``config.pq`` sub-quantisers of 8 bits, and int8 per place."""
     n, d = ref.shape
-    out = []
+    out, ks = [], config.recall_values
     for m in config.pq:
         if d % m:
             log.info("PQ %d: d = %d is not a multiple; skipped", m, d)
@@ -561,7 +592,7 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
         # codes, and the sub-quantisers' centroids (2^nbits of d/m floats each)
         size = n * index.code_size + 2**nbits * d * 4
         find = lambda q, index=index: index.search(q, 1)[1]  # noqa: E731
-        extra = _similarity_extra(sims, tol, truth, find, queries)
+        extra = _similarity_extra(sims, tol, truth, find, queries, ks)
         rec = similarity_recalls(sims, lengths, tol, truth)
         name = f"PQ {m}x{nbits} bits"
         out.append(row("codes", name, size, rec, bits=nbits * m, **extra))
@@ -572,14 +603,16 @@ def _other_codes(ref, queries, config, lengths, tol, truth, row) -> list[dict]:
         qj = jax.numpy.asarray(queries)
         sims = np.asarray(book.similarity(qj))
         find = lambda q: book.similarity(q).argmax(1)  # noqa: E731
-        extra = _similarity_extra(sims, tol, truth, find, queries)
+        extra = _similarity_extra(sims, tol, truth, find, queries, ks)
         rec = similarity_recalls(sims, lengths, tol, truth)
         size = scalar_code_bytes(n, d)["total"]
         out.append(row("codes", "int8 per place", size, rec, bits=8 * d, **extra))
     return out
 
 
-def _pca_rows(ref, queries, ks, sizes, lengths, tol, truth, row) -> list[dict]:
+def _pca_rows(
+    ref, queries, ks, sizes, lengths, tol, truth, row, recall_values=()
+) -> list[dict]:
     """PCA codes (:mod:`rhythmic_jax.eval.frontier_pca`) of ``ks`` axes (None: a
     few whose bytes span ``sizes``), each at float32 and int8, where smaller than
     the float32 database itself."""
@@ -606,7 +639,8 @@ def _pca_rows(ref, queries, ks, sizes, lengths, tol, truth, row) -> list[dict]:
                 continue
             book = PcaCodes.fit(ref, k, dtype, axes=axes)
             sims = np.asarray(book.similarity(queries))
-            extra = _similarity_extra(sims, tol, truth, book.search, queries)
+            extra = _similarity_extra(sims, tol, truth, book.search, queries,
+                                      recall_values)  # fmt: skip
             rec = similarity_recalls(sims, lengths, tol, truth)
             bits = k * (32 if dtype == "float32" else 8)
             out.append(row("codes", f"PCA {k} {dtype}", book.bytes(), rec,
