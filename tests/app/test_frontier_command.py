@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import shutil
 import subprocess
 
@@ -246,3 +247,125 @@ def test_maps_option_has_a_domain(route, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and said in err, (maps, err)
         assert "--maps" in err or "count" in err, (maps, err)
+
+
+def _numpy_recall_at(ref, qry, right, k):
+    """Brute force's recall@k by float64 numpy: a right place among the k most
+    similar (``right[i]``: query i's right places)."""
+    sims = qry.astype(np.float64) @ ref.astype(np.float64).T
+    top = np.argsort(-sims, axis=1)[:, :k]
+    return np.mean([bool(set(t) & set(r)) for t, r in zip(top, right, strict=True)])
+
+
+def test_recall_values_on_every_ranking_row(route, capsys):
+    """recall@K of the single-frame ranking on every row but SeqSLAM, brute
+    force's against numpy (index-aligned within one frame, and a ground truth
+    listing the right places); recall@N is 1 for every row (every place is
+    among the N best), recall@K grows with K; the table shows R@K only when
+    --recall-values is given; the CSV has the columns."""
+    folder, ref, qry = route
+    base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--maps", "2:1", "--bits", "8", "--pq", "4", "--lengths", "1,5",
+            "--no-progress"]  # fmt: skip
+    csv_path = folder / "k.csv"
+    given = [*base, "--tolerance", "1", "--recall-values", f"1,5,10,{N},{N + 1}"]
+    assert main([*given, "--json", "--csv", str(csv_path)]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    near = [[p for p in (i - 1, i, i + 1) if 0 <= p < N] for i in range(N)]
+    brute = next(r for r in rows if r["kind"] == "brute force")
+    for k in (5, 10):
+        want = _numpy_recall_at(ref, qry, near, k)
+        assert brute[f"recall@{k} L=1"] == pytest.approx(want), k
+    kinds = set()
+    for r in rows:
+        if r["kind"] == "SeqSLAM":
+            assert "recall@5 L=1" not in r
+            continue
+        kinds.add(r["kind"])
+        got = [r["recall@1 L=1"], r["recall@5 L=1"], r["recall@10 L=1"]]
+        assert got == sorted(got), r["name"]
+        assert r[f"recall@{N} L=1"] == 1.0, r["name"]
+        assert f"recall@{N + 1} L=1" not in r  # more than the places: left out
+    assert kinds == {"brute force", "map", "codes", "hybrid"}
+    with csv_path.open() as f:
+        lines = list(csv.DictReader(f))
+    assert [float(x["recall@5 L=1"] or "nan") for x in lines[:1]] == [
+        pytest.approx(rows[0]["recall@5 L=1"])
+    ]
+    head = list(lines[0])
+    assert head.index("recall@5 L=1") == head.index("recall@1 L=1") + 1
+    assert main(given) == 0
+    heads = re.split(r"\s{2,}", capsys.readouterr().out.splitlines()[1].strip())
+    assert heads[3:8] == ["R@1", "R@5", "R@10", f"R@{N}", "R@100P"]
+    assert main([*base, "--tolerance", "1"]) == 0
+    heads = re.split(r"\s{2,}", capsys.readouterr().out.splitlines()[1].strip())
+    assert heads[3:6] == ["R@1", "R@100P", "R@1 L=5"]
+    # a ground truth that lists each query's right places (VPR-Bench)
+    lists = [[p for p in (j - 2, j, j + 3) if 0 <= p < N] for j in range(N)]
+    gt = np.empty((N, 2), object)
+    for j in range(N):
+        gt[j] = [j, lists[j]]
+    np.save(folder / "gt_k.npy", gt, allow_pickle=True)
+    assert main([*base, "--ground-truth", str(folder / "gt_k.npy"),
+                 "--recall-values", "5", "--json"]) == 0  # fmt: skip
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    brute = next(r for r in rows if r["kind"] == "brute force")
+    assert brute["recall@5 L=1"] == pytest.approx(_numpy_recall_at(ref, qry, lists, 5))
+    assert main([*base, "--recall-values", "0,5"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--recall-values" in err
+
+
+def test_tolerance_m_refused_where_it_acts_on_nothing(route, capsys):
+    """--tolerance-m with a ground truth that lists the right places itself
+    (VPR-Bench) is refused in one line, as evaluate and query refuse it."""
+    folder, _, _ = route
+    gt = np.empty((N, 2), object)
+    for j in range(N):
+        gt[j] = [j, [j]]
+    np.save(folder / "gt_m.npy", gt, allow_pickle=True)
+    base = ["frontier", str(folder / "ref.npy"), str(folder / "qry.npy"),
+            "--ground-truth", str(folder / "gt_m.npy"), "--maps", "2:1", "--bits",
+            "8", "--pq", "", "--lengths", "1", "--no-progress"]  # fmt: skip
+    assert main([*base, "--tolerance-m", "10"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--tolerance-m" in err
+    assert "would act on nothing" in err
+    assert main([*base, "--json"]) == 0
+    json.loads(capsys.readouterr().out)
+
+
+def test_input_size_of_image_folders(corridor, capsys):
+    """--input-size resizes image folders for the descriptor: patchnorm at
+    32x16 gives 512-d rows, and the rows are those describe writes at that size
+    (its files then frontier's: the same brute force); a described file of
+    another size is refused in one line, as is a malformed size."""
+    ref, query = corridor / "ref", corridor / "query"
+    base = ["--maps", "2:1", "--bits", "8", "--pq", "", "--lengths", "1",
+            "--no-progress", "--json"]  # fmt: skip
+    assert main(["frontier", str(ref), str(query), "--input-size", "32x16",
+                 *base]) == 0  # fmt: skip
+    got = json.loads(capsys.readouterr().out)
+    assert got["d"] == 32 * 16 and got["n"] == 60
+    for name, folder in (("r.npy", ref), ("q.npy", query)):
+        out = corridor / name
+        assert main(["describe", str(folder), "--out", str(out), "--input-size",
+                     "32x16"]) == 0  # fmt: skip
+    capsys.readouterr()
+    r, q = np.load(corridor / "r.npy"), np.load(corridor / "q.npy")
+    assert r.shape == (60, 512)
+    assert main(["frontier", str(corridor / "r.npy"), str(corridor / "q.npy"),
+                 *base]) == 0  # fmt: skip
+    files = json.loads(capsys.readouterr().out)
+    brute = [next(x for x in res["rows"] if x["kind"] == "brute force")
+             for res in (got, files)]  # fmt: skip
+    want = np.mean((q.astype(np.float64) @ r.astype(np.float64).T).argmax(1)
+                   == np.arange(60))  # fmt: skip
+    assert brute[0]["recall@1 L=1"] == brute[1]["recall@1 L=1"] == pytest.approx(want)
+    assert main(["frontier", str(corridor / "r.npy"), str(corridor / "q.npy"),
+                 "--input-size", "64x32", *base]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "32x16" in err
+    assert main(["frontier", str(ref), str(query), "--input-size", "64", *base]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--input-size" in err
