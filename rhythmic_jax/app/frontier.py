@@ -104,7 +104,7 @@ def frontier(
         descriptor (None: its own); a descriptor file's record must agree.
       given: the options given on the command line; ``tolerance_m`` among them
         with a ground truth that lists the right places itself is refused
-        (:func:`rhythmic_jax.app.jobs.idle_tolerance`).
+        (:func:`rhythmic_jax.eval.ground_truth_files.idle_tolerance`).
       select: (reference's, queries') prefixes of the image names kept from
         hloc ``.h5`` files (``""``: every row), so one file holds both.
 
@@ -115,9 +115,9 @@ def frontier(
     (:func:`rhythmic_jax.eval.frontier.trainable`: ITQ bits above the places or
     the dimensions, PQ that does not divide d).
     """
-    from rhythmic_jax.app.jobs import idle_tolerance
     from rhythmic_jax.app.native_stderr import gathered_stderr
     from rhythmic_jax.eval import frontier as fr
+    from rhythmic_jax.eval.ground_truth_files import idle_tolerance
     from rhythmic_jax.frames.sources import load_sources
 
     if grid not in GRIDS:

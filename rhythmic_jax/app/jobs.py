@@ -468,7 +468,7 @@ def _ground_truth(job, model, b: int, reference: str | None = None):
     places itself (it would act on nothing) is refused."""
     if job.ground_truth is None:
         return None
-    from rhythmic_jax.eval.ground_truth_files import load_ground_truth
+    from rhythmic_jax.eval.ground_truth_files import idle_tolerance, load_ground_truth
 
     refs = [reference] if reference else model.reference.get("sources") or []
     truth = load_ground_truth(
@@ -477,17 +477,6 @@ def _ground_truth(job, model, b: int, reference: str | None = None):
         tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
     )  # fmt: skip
     return idle_tolerance(truth, job.given)
-
-
-def idle_tolerance(truth, given):
-    """``truth``, unless ``--tolerance-m`` is among the options ``given`` while
-    ``truth`` lists the right places itself (it would act on nothing): refused."""
-    if truth.tolerance_m is None and "tolerance_m" in given:
-        raise InputError(
-            f"{{opt:tolerance_m}} acts on positions; {truth.source} lists the right "
-            "places itself, so it would act on nothing"
-        )
-    return truth
 
 
 def _write_per_query(job: EvaluateJob, model, x, result: dict) -> None:

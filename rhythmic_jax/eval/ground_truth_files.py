@@ -40,6 +40,7 @@ from rhythmic_jax.io.reader import npz_headers
 from rhythmic_jax.io.vpr_files import safe_object_npy
 
 __all__ = [
+    "idle_tolerance",
     "SoftGroundTruth",
     "load_ground_truth",
     "read_openvprlab",
@@ -276,3 +277,14 @@ _READERS = {
     "vpr-tutorial": read_tutorial_gt,
     "patch-netvlad": read_patchnetvlad_gt,
 }
+
+
+def idle_tolerance(truth, given):
+    """``truth``, unless ``--tolerance-m`` is among the options ``given`` while
+    ``truth`` lists the right places itself (it would act on nothing): refused."""
+    if truth.tolerance_m is None and "tolerance_m" in given:
+        raise InputError(
+            f"{{opt:tolerance_m}} acts on positions; {truth.source} lists the right "
+            "places itself, so it would act on nothing"
+        )
+    return truth

@@ -64,7 +64,8 @@ def _cosine(q, codes, vmin, vdiff, inv_norm) -> jax.Array:
         wide = codes.astype(jnp.float32)
         dots = jnp.stack([(wide * row[None, :]).sum(1) for row in qs])
     else:  # a batch: one product, the codes made float once for all its queries
-        dots = jax.lax.dot_general(qs, codes.astype(jnp.float32), (((1,), (1,)), ((), ())),
+        rows = (((1,), (1,)), ((), ()))  # q's features against each code's
+        dots = jax.lax.dot_general(qs, codes.astype(jnp.float32), rows,
                                    precision=jax.lax.Precision.HIGHEST)  # fmt: skip
     dots = dots + jnp.matmul(q, vmin + 0.5 * step, precision="highest")[:, None]
     return dots * inv_norm[None, :]
@@ -149,7 +150,8 @@ class ScalarCodeBook:
         per book: copying the codes to it on every call cost more than the
         product itself."""
         # 3.3 of 4.2 ms a query for 2,356 x 2,048 codes on a CPU
-        codes, vmin, vdiff = (np.asarray(a) for a in (self.codes, self.vmin, self.vdiff))
+        codes, vmin, vdiff = (np.asarray(a)
+                              for a in (self.codes, self.vmin, self.vdiff))  # fmt: skip
         inv = _inverse_norms(codes, vmin, vdiff, np)
         return tuple(jax.device_put(a) for a in (codes, vmin, vdiff, inv))
 
