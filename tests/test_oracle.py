@@ -382,9 +382,13 @@ def test_frontier_figures_recomputed(route):
     assert bf["recall@1 L=1"] == pytest.approx(correct(best, TOL).mean(), abs=1.5 / n)
     r100, _ = pr_figures(best, sims.max(1))
     assert bf["recall@100p"] == pytest.approx(r100, abs=1.5 / n)
-    (kept,) = (route["cwd"] / "fitted").glob("map-*-r2-l1-*.npz")
-    arrays = np.load(kept)
-    w, b, periods = arrays["w"], arrays["b"], tuple(arrays["periods"].tolist())
+    # the cache keeps each fitted map as a map folder
+    (kept,) = (route["cwd"] / "fitted").glob("map-*-r2-l1-*")
+    from rhythmic_jax.map import map_file
+
+    m = map_file.load(kept)
+    w, b = np.asarray(m.w, np.float32), np.asarray(m.b, np.float32)
+    periods = tuple(int(t) for t in m.periods)
     for dtype in ("float32", "float16", "int8"):
         name = f"map r=2 level 1 {periods}" + (
             "" if dtype == "float32" else f" {dtype}"
