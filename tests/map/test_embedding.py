@@ -108,7 +108,8 @@ def test_hybrid_map_on_an_embedding_counts_saves_and_describes_it(tmp_path):
     assert on_disk["storage_bytes"] == by_hand and on_disk["codes_bits"] == 16
     assert on_disk["embedding"] == {"kind": "linear", "k": 24}
     text = render.info_lines(on_disk)
-    assert f"{n * 2:,} B (codes)" in text and "embedding_bytes" in text
+    assert f"2 B (codes; {n * 2:,} B for {n} places)" in text  # per place, then all
+    assert "embedding_bytes" in text
     with pytest.raises(InputError, match="at most d=24"):
         jobs.fit(specs.FitJob(job.sources, str(tmp_path / "m2"),
                              config=MapConfig(codes=32),
