@@ -16,8 +16,6 @@ data.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 import tempfile
@@ -28,8 +26,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from rhythmic_jax.app.cli import main
+from test_fuzz_files import _main  # the command line run in this process
 
 N, D = 50, 24
 FUZZ = settings(
@@ -41,17 +38,6 @@ FUZZ = settings(
 )
 # None: scale 0.0; exponents near 0 drawn often too (most of [-40, 40] is refused)
 EXPONENTS = st.one_of(st.integers(-40, 40), st.integers(-4, 3), st.just(None))
-
-
-def _main(argv: list[str]) -> tuple[int, str, list[str]]:
-    """(status, stdout, stderr lines) of the command line, run in this process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = main(argv)
-        except SystemExit as done:
-            code = done.code if isinstance(done.code, int) else 1
-    return code, out.getvalue(), err.getvalue().splitlines()
 
 
 def _errors(lines: list[str]) -> list[str]:
