@@ -3,6 +3,7 @@ checkout, the augmented training pipeline, the descriptor network by batch size,
 the descriptors on Nordland, and the augmentations alone.
 
 python scripts/bench_frames.py end-to-end --base /tmp/base [--repeats 2]  # frames
+python scripts/bench_frames.py first-run [--base /tmp/base] [--frames 111]
 python scripts/bench_frames.py pipeline [--frames 1024] [--descriptor patchnorm]
 python scripts/bench_frames.py network [--batches 1 2 4 8 16 32 64] [--frames 512]
 python scripts/bench_frames.py descriptors      # reports/descriptors.*
@@ -424,6 +425,77 @@ def run_augment(args) -> dict:
                 rows=rows)  # fmt: skip
 
 
+OPTIONS_FIRST = dict(base=(Path, "baseline checkout (its first run, optional)"),
+                     frames=111, repeats=2, build_timeout=900.0)  # fmt: skip
+
+
+def wait_for_builder(cache: Path, timeout: float) -> dict:
+    """Wait for the background build a first job queued at its exit: seconds until
+    its lock under ``cache``/compiled is gone (at most ``timeout``) and whether the
+    package is there; no lock within 10 s: no build."""
+    import time
+
+    folder, t0 = cache / "compiled", time.perf_counter()
+    while not list(folder.glob("*.lock")) and time.perf_counter() - t0 < 10:
+        time.sleep(0.2)
+    while list(folder.glob("*.lock")):
+        if time.perf_counter() - t0 > timeout:
+            raise RuntimeError(f"the background build in {cache} ran past {timeout} s")
+        time.sleep(0.5)
+    built = [p for p in folder.glob("*.pt2") if ".tmp" not in p.name]
+    return dict(seconds=time.perf_counter() - t0, built=bool(built))
+
+
+def run_first(args) -> dict:
+    """A machine's first deep-descriptor job: eager alone, first and second run."""
+    paths = {k: str(v) for k, v in h.checkouts(args.base).items()}
+    runs: dict[str, list] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_first") as tmpdir:
+        tmp = Path(tmpdir)
+        src = make_folders(args.root, tmp, args.frames, small=0)["ref"]
+
+        def describe(checkout: str, cache: Path, *extra) -> dict:
+            out = tmp / "out.npy"
+            cmd = [*h.CLI, "describe", str(src), "--descriptor", "efficientnet_lite0",
+                   "--out", str(out), "--no-progress", *extra]  # fmt: skip
+            r = timed_run(cmd, checkout, cache)
+            return r | dict(frames_per_s=args.frames / r["wall"])
+
+        for rep in range(args.repeats):
+            order = list(paths.items()) if rep % 2 == 0 else list(paths.items())[::-1]
+            for variant, checkout in order:
+                cache = h.fresh_cache(tmp)
+                eager = describe(checkout, cache, "--compile", "never")
+                cache = h.fresh_cache(tmp)
+                first = describe(checkout, cache)
+                first["builder_after"] = wait_for_builder(cache, args.build_timeout)
+                # the next job: the compiled network and programs, no descriptors
+                second = describe(checkout, h.fresh_cache(tmp, cache, ("compiled", "jax")))
+                for name, r in (("eager", eager), ("first", first), ("second", second)):
+                    runs.setdefault(f"{variant}/{name}", []).append(r)
+                    print(variant, name, rep, round(r["wall"], 1), r["load"], flush=True)
+    summary = {}
+    for key, rs in runs.items():
+        summary[key] = dict(
+            wall=float(np.median([r["wall"] for r in rs])),
+            frames_per_s=float(np.median([r["frames_per_s"] for r in rs])),
+            load=[r["load"] for r in rs])  # fmt: skip
+    for variant in paths:
+        first, eager = summary[f"{variant}/first"], summary[f"{variant}/eager"]
+        first["of_eager"] = first["frames_per_s"] / eager["frames_per_s"]
+    return dict(frames=args.frames, repeats=args.repeats, base=paths.get("base"),
+                summary=summary, runs=runs)  # fmt: skip
+
+
+markdown_first = h.markdown(
+    "A machine's first deep-descriptor job (EfficientNet-Lite0, 640x320 JPEG)",
+    "Each run a fresh process. eager: --compile never, empty cache. first: the"
+    " default, empty cache (no compiled network yet). second: the default again, once"
+    " the build the first run asked for is over. of_eager: first frames/s over eager"
+    " frames/s in the same checkout; medians of the repeats, checkouts alternated.",
+)
+
+
 markdown_augment = h.markdown(
     "Augmentation throughput (frames/s, CPU)",
     "p = 1; fps_best and fps_median of the repeats, each >= 0.2 s of calls.",
@@ -433,6 +505,7 @@ markdown_augment = h.markdown(
 PARTS = {
     "end-to-end": h.Part(run_frames, markdown_frames, OPTIONS_FRAMES, "frames",
                          QUICK_FRAMES),  # fmt: skip
+    "first-run": h.Part(run_first, markdown_first, OPTIONS_FIRST, "first_run"),
     "pipeline": h.Part(run_pipeline, markdown_pipeline, OPTIONS_PIPELINE, "pipeline"),
     "network": h.Part(run_network, markdown_network, OPTIONS_NETWORK, "network",
                       QUICK_NETWORK),  # fmt: skip
