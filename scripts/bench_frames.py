@@ -483,8 +483,10 @@ def run_first(args) -> dict:
     for variant in paths:
         first, eager = summary[f"{variant}/first"], summary[f"{variant}/eager"]
         first["of_eager"] = first["frames_per_s"] / eager["frames_per_s"]
-    return dict(frames=args.frames, repeats=args.repeats, base=paths.get("base"),
-                summary=summary, runs=runs)  # fmt: skip
+    base = paths.get("base")
+    return dict(frames=args.frames, repeats=args.repeats, base=base,
+                base_commit=base and h.git_commit(Path(base)), summary=summary,
+                runs=runs)  # fmt: skip
 
 
 markdown_first = h.markdown(

@@ -40,6 +40,7 @@ REPORTS = {
     "solver_work": ("bench_solver", "work"),
     "span": ("bench_solver", "span"),
     "frames": ("bench_frames", "end-to-end"),
+    "first_run": ("bench_frames", "first-run"),
     "pipeline": ("bench_frames", "pipeline"),
     "pipeline_efficientnet_lite0": ("bench_frames", "pipeline"),
     "network": ("bench_frames", "network"),

@@ -112,7 +112,7 @@ def load_ground_truth(
 
     Positions give every place with a reference frame within ``tolerance_m``.
     """
-    from rhythmic_jax.io.images import list_images
+    from rhythmic_jax.io.descriptor_files import frame_names
 
     extra = map_extra or {}
     specs = list(specs)
@@ -130,7 +130,7 @@ def load_ground_truth(
         fmt = detect_format(specs[0])
     if specs == ["names"]:
         ref = positions_of_sources(["names"], reference_sources)
-        qry = positions_from_names(list_images(Path(query_source), "query")), "metres"
+        qry = positions_from_names(frame_names(query_source, "query")), "metres"
         src = f"@easting@northing@ names of {query_source} and the reference"
     elif fmt not in (None, "positions"):
         read = _READERS[fmt]

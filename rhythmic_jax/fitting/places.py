@@ -151,8 +151,9 @@ def positions_from_names(paths: Sequence[str | Path]) -> np.ndarray:
 
 def positions_of_sources(specs: Sequence[str], sources: Sequence[str]):
     """Reference positions ``(array, unit)`` for the map's sources: one file per
-    source, or ``["names"]`` to read ``@easting@northing@`` from its folders."""
-    from rhythmic_jax.io.images import list_images
+    source, or ``["names"]`` to read ``@easting@northing@`` from its frames' names
+    (an image folder's, or those a described ``.npy`` file's record names)."""
+    from rhythmic_jax.io.descriptor_files import frame_names
 
     if list(specs) != ["names"]:
         if len(specs) != len(sources):
@@ -166,8 +167,8 @@ def positions_of_sources(specs: Sequence[str], sources: Sequence[str]):
                 "{opt:positions} mix metres and latitude/longitude; use one"
             )
         return np.concatenate([a for a, _ in read]), read[0][1]
-    files = [f for s in sources for f in list_images(Path(s), "reference")]
-    return positions_from_names(files), "metres"
+    names = [f for s in sources for f in frame_names(s, "reference")]
+    return positions_from_names(names), "metres"
 
 
 def gps_places(coords: np.ndarray, k: int, seed: int = 0) -> np.ndarray:

@@ -31,6 +31,7 @@ from rhythmic_jax.io.reader import file_sha256, load_npy, npy_header
 __all__ = [
     "check_descriptors",
     "descriptor_shape",
+    "frame_names",
     "load_descriptors",
     "read_npy_header",
     "read_record",
@@ -161,3 +162,23 @@ def read_record(path: str | os.PathLike) -> dict[str, Any] | None:
     ):
         raise InputError(f"{side}: not a descriptor record (no descriptor named)")
     return record
+
+
+def frame_names(source: str | os.PathLike, what: str) -> list[str]:
+    """The names of ``source``'s frames in route order: an image folder's files, or
+    the frames a descriptor file's record names (``describe`` wrote it from a
+    folder; the images need not be there any more). Anything else is refused in
+    one line: ``what`` (e.g. "reference") names the source in it."""
+    from rhythmic_jax.io.images import list_images
+
+    path = Path(source)
+    if path.is_dir():
+        return [p.name for p in list_images(path, what)]
+    npy = path.suffix.lower() == ".npy" and path.is_file()
+    record = read_record(path) if npy else None
+    if record is None or not record.get("frames"):
+        raise InputError(
+            f"{what} {path}: no frame names to read (an image folder, or a .npy "
+            "describe wrote from one)"
+        )
+    return [str(name) for name in record["frames"]]

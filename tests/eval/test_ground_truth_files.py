@@ -179,6 +179,65 @@ def test_evaluate_with_positions_names_and_places(tmp_path, capsys):
     assert by_names["ground_truth"]["queries_in_map"] == len(qidx)
 
 
+def _xy_of_names(folder: Path) -> np.ndarray:
+    """Positions parsed here from ``@easting@northing@`` names, in natural order
+    (the frames' three-digit index decides it)."""
+    names = sorted(p.name for p in folder.iterdir())
+    return np.array([[float(n.split("@")[1]), float(n.split("@")[2])] for n in names])
+
+
+def test_names_ground_truth_from_described_files(tmp_path, capsys):
+    """``--positions names`` and ``--ground-truth names`` read the frames' names from
+    the records of descriptor files ``describe`` wrote: the images may be gone, and
+    the figures are those of the image folders, recomputed here from the names."""
+    rng = np.random.default_rng(5)
+    east = np.arange(N_REF) * 10.0 + 585_000
+    frames = [_frame(rng) for _ in range(N_REF)]
+    for i in range(N_REF):
+        name = f"@{east[i] + rng.uniform(-2, 2):.2f}@4477000.00@17@T@{i:03d}.png"
+        _save(tmp_path / "ref" / name, frames[i])
+    qidx = np.arange(1, N_REF, 3)
+    for k, i in enumerate(qidx):
+        im = np.clip(frames[i] + rng.normal(0, 8, frames[i].shape), 0, 255)
+        _save(tmp_path / "qry" / f"@{east[i] + 5:.2f}@4477000.00@17@T@{k:03d}.png",
+              im.astype(np.uint8))  # fmt: skip
+
+    def run(ref: str, qry: str, out: str) -> dict:
+        fit = ["fit", ref, "--out", str(tmp_path / out), "--positions", "names",
+               "--places", "10", "--no-progress"]  # fmt: skip
+        assert main(fit) == 0, capsys.readouterr().err
+        capsys.readouterr()
+        ev = ["evaluate", str(tmp_path / out), qry, "--json", "--no-progress",
+              "--tolerance-m", "12", "--ground-truth", "names"]  # fmt: skip
+        assert main(ev) == 0, capsys.readouterr().err
+        return json.loads(capsys.readouterr().out)
+
+    folders = run(str(tmp_path / "ref"), str(tmp_path / "qry"), "f.map")
+    for src in ("ref", "qry"):
+        described = ["describe", str(tmp_path / src), "--out",
+                     str(tmp_path / f"{src}.npy"), "--no-progress"]  # fmt: skip
+        assert main(described) == 0, capsys.readouterr().err
+    ref_xy, qry_xy = _xy_of_names(tmp_path / "ref"), _xy_of_names(tmp_path / "qry")
+    for src in ("ref", "qry"):
+        (tmp_path / src).rename(tmp_path / f"{src}_gone")
+    files = run(str(tmp_path / "ref.npy"), str(tmp_path / "qry.npy"), "d.map")
+    assert files["ground_truth"]["queries_in_map"] == len(qidx)
+    for key in ("recall@1", "recall@5"):
+        assert files["methods"]["map"][key] == folders["methods"]["map"][key]
+    model = RhythmicMap.load(tmp_path / "d.map")
+    truth = from_positions(ref_xy, qry_xy, 12.0, model.extra["reference_labels"])
+    q = np.load(tmp_path / "qry.npy")
+    want = evaluate_map(model, q, ground_truth=truth, timing=False)["methods"]["map"]
+    assert files["methods"]["map"]["recall@5"] == pytest.approx(want["recall@5"])
+    # a .npy without a record names no frames: refused in one line, saying so
+    np.save(tmp_path / "bare.npy", q)
+    ev = ["evaluate", str(tmp_path / "d.map"), str(tmp_path / "bare.npy"),
+          "--ground-truth", "names", "--no-progress"]  # fmt: skip
+    assert main(ev) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no frame names" in err[0], err
+
+
 def test_positions_of_aligned_traversals_name_places(tmp_path):
     from rhythmic_jax.eval.ground_truth_files import load_ground_truth
 

@@ -130,3 +130,23 @@ def test_a_described_file_and_its_record_stay_paired(tmp_path):
         read_record(path)
     np.save(tmp_path / "plain.npy", x)
     assert read_record(tmp_path / "plain.npy") is None
+
+
+def test_frame_names_of_a_folder_a_record_and_neither(tmp_path):
+    from rhythmic_jax.io.descriptor_files import frame_names, save_described
+
+    folder = tmp_path / "route"
+    folder.mkdir()
+    for name in ("img10.png", "img2.png", "img1.png"):
+        (folder / name).write_bytes(b"")
+    assert frame_names(folder, "reference") == ["img1.png", "img2.png", "img10.png"]
+    x = np.ones((3, 4), np.float32)
+    record = dict(
+        descriptor="patchnorm", settings={}, frames=["b.png", "a.png", "c.png"]
+    )
+    save_described(tmp_path / "d.npy", x, record)
+    assert frame_names(tmp_path / "d.npy", "query") == ["b.png", "a.png", "c.png"]
+    np.save(tmp_path / "bare.npy", x)
+    for path in (tmp_path / "bare.npy", tmp_path / "missing"):
+        with pytest.raises(InputError, match=r"^query .*: no frame names to read"):
+            frame_names(path, "query")
