@@ -21,6 +21,7 @@ Shapes: ``n`` places, ``b`` queries, ``d`` features, ``bits`` code length.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 from dataclasses import dataclass
 
@@ -101,6 +102,12 @@ def unpack_bits(packed: np.ndarray, bits: int) -> np.ndarray:
 @jit
 def _encode(mean: jax.Array, projection: jax.Array, x: jax.Array) -> jax.Array:
     return jnp.matmul(x - mean[None, :], projection.T, precision="highest") > 0
+
+
+@jit
+def _similarity(mean, projection, ref_signs, x) -> jax.Array:
+    """:func:`code_similarity` of x's codes, (b, d) -> (b, n), in one program."""
+    return _agreements(_encode(mean, projection, x), ref_signs)
 
 
 @jit
@@ -223,8 +230,24 @@ class CodeBook:
         return self.transform.bits
 
     def similarity(self, q) -> jax.Array:
-        """Bits each query (b, d) shares with each place: (b, n) float32."""
-        return code_similarity(self.transform.encode(q), self.codes)
+        """Bits each query (b, d) shares with each place: (b, n) float32 (inside a
+        trace, q is taken as it is). Encoding and comparing run as one program on
+        the book's arrays, put on the device once per book."""
+        traced = (self.codes, self.transform.mean, q)
+        if any(isinstance(a, jax.core.Tracer) for a in traced):
+            return code_similarity(self.transform.encode(q), self.codes)
+        q = check_features(q, "descriptors to encode", d=self.transform.d)
+        return _similarity(*self._on_device, jnp.asarray(q, jnp.float32))
+
+    @functools.cached_property
+    def _on_device(self) -> tuple[jax.Array, ...]:
+        """The mean, projection and the codes as ±1 signs, on the device once per
+        book: building the signs and copying the codes on every call cost four
+        times the comparison itself."""
+        # 1.4 against 0.27 ms a query for 2,356 codes of 256 bits on a CPU
+        signs = np.where(np.asarray(self.codes, bool), 1.0, -1.0).astype(np.float32)
+        arrays = (self.transform.mean, self.transform.projection, signs)
+        return tuple(jax.device_put(np.asarray(a, np.float32)) for a in arrays)
 
     def storage(self) -> dict[str, int]:
         """:func:`code_bytes` of this book."""
@@ -251,6 +274,11 @@ class CodeBook:
             )
         transform = CodeTransform(mean.astype(np.float32), proj.astype(np.float32))
         return cls(transform, unpack_bits(packed, bits))
+
+
+# pytrees of their arrays (nothing static: kind is a class name)
+jax.tree_util.register_dataclass(CodeTransform, ["mean", "projection"], [])
+jax.tree_util.register_dataclass(CodeBook, ["transform", "codes"], [])
 
 
 def check_codes(codes, d: int | None = None) -> int | str:

@@ -5,8 +5,9 @@ The arrays a decode reads are its leaves: the templates ``w`` (k, p) and biases
 (``stored``: ``w``, ``b`` in the map's dtype, ``scale`` for int8), the arrays
 kept beside the map (``extra``), the codes (a
 :class:`~rhythmic_jax.map.codes.CodeBook` or
-:class:`~rhythmic_jax.map.scalar_codes.ScalarCodeBook`, registered here as
-pytrees of their arrays) and the embedding (its arrays), None where absent.
+:class:`~rhythmic_jax.map.scalar_codes.ScalarCodeBook`, pytrees of their
+arrays, registered where they are defined) and the embedding (its arrays), None
+where absent.
 The fit's record (penalty, training errors) are leaves too, and so are the
 decode settings the map stores as its defaults (:data:`DECODE_SETTINGS`: the
 method, threshold and fusion weight, as 0-d arrays). Everything else is static
@@ -35,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.map.codes import CodeBook, CodeTransform
+from rhythmic_jax.map.codes import CodeBook
 from rhythmic_jax.map.config import DECODERS, MapConfig
 from rhythmic_jax.map.embedding import Embedding, embedding_bytes
 from rhythmic_jax.map.groups import Groups
@@ -79,11 +80,6 @@ def host_templates(params, x) -> Templates:
         )
     return params
 
-
-# the code books are pytrees of their arrays (nothing static: kind is a class name)
-jax.tree_util.register_dataclass(CodeTransform, ["mean", "projection"], [])
-jax.tree_util.register_dataclass(CodeBook, ["transform", "codes"], [])
-jax.tree_util.register_dataclass(ScalarCodeBook, ["vmin", "vdiff", "codes"], [])
 
 DECODE_SETTINGS = ("decode", "threshold", "fusion")
 """The :class:`~rhythmic_jax.map.config.MapConfig` fields a map carries as

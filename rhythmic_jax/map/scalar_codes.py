@@ -180,3 +180,7 @@ class ScalarCodeBook:
         if codes.dtype != np.uint8:
             raise InputError(f"8-bit codes stored as {codes.dtype}, not uint8")
         return cls(vmin.astype(np.float32), vdiff.astype(np.float32), codes)
+
+
+# a pytree of its arrays (nothing static: kind is a class name)
+jax.tree_util.register_dataclass(ScalarCodeBook, ["vmin", "vdiff", "codes"], [])

@@ -82,3 +82,20 @@ def test_encode_traces_and_equals_the_eager_codes():
     np.testing.assert_array_equal(np.asarray(traced), eager)
     sims = jax.jit(lambda b, q: b.similarity(q))(book, x[:50])
     np.testing.assert_array_equal(np.asarray(sims), np.asarray(book.similarity(x[:50])))
+
+
+def test_book_similarity_is_faiss_hamming_and_survives_pickling():
+    """The book's one-program similarity (its arrays kept on the device) is
+    ``bits`` minus faiss's Hamming distance between the codes, and a pickled book
+    answers the same."""
+    import pickle
+
+    x, q = _data(), _data(40, seed=3)
+    book = CodeBook.fit(x, 24)
+    index = faiss.IndexBinaryFlat(24)
+    index.add(pack_bits(book.codes))
+    dist, idx = index.search(pack_bits(book.transform.encode(q)), len(x))
+    sims = np.asarray(book.similarity(q))
+    assert np.array_equal(24 - np.take_along_axis(sims, idx, axis=1), dist)
+    again = pickle.loads(pickle.dumps(book))
+    assert np.array_equal(np.asarray(again.similarity(q.astype(np.float64))), sims)
