@@ -470,10 +470,11 @@ def run_first(args) -> dict:
                 first = describe(checkout, cache)
                 first["builder_after"] = wait_for_builder(cache, args.build_timeout)
                 # the next job: the compiled network and programs, no descriptors
-                second = describe(checkout, h.fresh_cache(tmp, cache, ("compiled", "jax")))
+                warm = h.fresh_cache(tmp, cache, ("compiled", "jax"))
+                second = describe(checkout, warm)
                 for name, r in (("eager", eager), ("first", first), ("second", second)):
                     runs.setdefault(f"{variant}/{name}", []).append(r)
-                    print(variant, name, rep, round(r["wall"], 1), r["load"], flush=True)
+                    print(variant, name, rep, round(r["wall"], 1), r["load"])
     summary = {}
     for key, rs in runs.items():
         summary[key] = dict(
