@@ -34,6 +34,7 @@ LAYERS = [
     ["map.checks"],
     ["map.map_file"],
     ["frames.cache_files", "frames.compile_policy", "frames.nets"],
+    ["frames.package_builds"],
     ["frames.compiled", "frames.weights"],
     ["frames.descriptors", "frames.pipeline"],
     ["frames.features"],
