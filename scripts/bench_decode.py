@@ -20,9 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from rhythmic_jax import RhythmicMap
+from rhythmic_jax.decoding.batch import decode_queries as decode
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.host import SmallDecoder
-from rhythmic_jax.decoding.queries import decode_queries as decode
 from rhythmic_jax.decoding.sequence import SPEEDS, sequence_decode, sequence_scores
 from rhythmic_jax.decoding.soft import calibrate
 from rhythmic_jax.eval import metrics

@@ -52,7 +52,8 @@ from rhythmic_jax.decoding.fusion import (
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.decoding.soft import soft_decode
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.eval.metrics import pr_points, query_latency
+from rhythmic_jax.eval.metrics import pr_points
+from rhythmic_jax.eval.timing import query_latency
 from rhythmic_jax.io.atomic import atomic_path
 from rhythmic_jax.io.reader import load_npz
 from rhythmic_jax.map.codes import CodeBook, code_bytes

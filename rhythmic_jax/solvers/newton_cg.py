@@ -33,6 +33,10 @@ frames read from disk in blocks (:mod:`rhythmic_jax.solvers.streamed`). Run by
 :func:`host_loop` over numpy arrays, CG and the line search are the same code in
 float64 numpy on the host, and compile no program.
 
+The iterate, the system and the host loop are defined in
+:mod:`rhythmic_jax.solvers.newton_system`, the line search in
+:mod:`rhythmic_jax.solvers.exact_linesearch`; both are importable from here.
+
 Names: n frames, q = d + 1 parameters, p templates.
 """
 
@@ -42,9 +46,18 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 
+from rhythmic_jax.solvers.exact_linesearch import (
+    ExactLinesearchState as ExactLinesearchState,
+)
+from rhythmic_jax.solvers.exact_linesearch import (
+    scale_by_exact_linesearch as scale_by_exact_linesearch,
+)
+from rhythmic_jax.solvers.newton_system import Iterate as Iterate
+from rhythmic_jax.solvers.newton_system import NewtonSystem as NewtonSystem
+from rhythmic_jax.solvers.newton_system import array_module, summed
+from rhythmic_jax.solvers.newton_system import host_loop as host_loop
 from rhythmic_jax.solvers.precondition import block_preconditioner
 
 __all__ = [
@@ -63,13 +76,6 @@ __all__ = [
 ]
 
 
-class Iterate(NamedTuple):
-    """Parameters ``theta`` (q, p), bias last, and their margins ``Xa theta`` (n, p)."""
-
-    theta: jax.Array
-    margins: jax.Array
-
-
 class NewtonCGState(NamedTuple):
     """Steps taken, each template's last Newton decrement (p,) (the model's
     predicted decrease ``-0.5 g . s``, an estimate of ``f - f*``) and the CG
@@ -80,15 +86,6 @@ class NewtonCGState(NamedTuple):
     cg_iterations: jax.Array
 
 
-class ExactLinesearchState(NamedTuple):
-    """The last step size of every template (1, p) and the objective before and
-    after it (p,)."""
-
-    step_size: jax.Array
-    value: jax.Array
-    new_value: jax.Array
-
-
 def bucket(live: int, p: int) -> int:
     """Columns to gather for ``live`` templates: p, or a power of two below it
     (few distinct shapes, so few compilations)."""
@@ -96,16 +93,6 @@ def bucket(live: int, p: int) -> int:
     while size < live:
         size *= 2
     return min(size, p)
-
-
-def _total(value_fn):
-    return lambda params: jnp.sum(value_fn(params))
-
-
-def _xp(a):
-    """The array module of ``a``: numpy for host arrays (a :func:`host_loop`'s
-    CG or line search), else jax.numpy (traced, or eager jax arrays)."""
-    return np if isinstance(a, np.ndarray) else jnp
 
 
 def _cg(hvp, precond, r0, eta, max_iter, loop=jax.lax.while_loop):
@@ -119,7 +106,7 @@ def _cg(hvp, precond, r0, eta, max_iter, loop=jax.lax.while_loop):
     (n, p) (accumulated from the products, no extra product; None without
     margins) and the number of iterations.
     """
-    xp = _xp(r0)
+    xp = array_module(r0)
     target = eta * xp.linalg.norm(r0, axis=0, keepdims=True)
     z = precond(r0)
     rz = xp.sum(r0 * z, axis=0, keepdims=True)
@@ -153,44 +140,6 @@ def _cg(hvp, precond, r0, eta, max_iter, loop=jax.lax.while_loop):
     init = (xp.zeros_like(r0), zero_u, r0, z, rz, xp.int32(0))
     s, u, *_, it = loop(cond, body, init)
     return s, u, it
-
-
-def host_loop(cond, body, init):
-    """``jax.lax.while_loop``'s contract run by Python, for bodies that cannot be
-    traced (a Hessian-vector product that reads its frames from disk): the loop
-    of a :class:`NewtonSystem` over numpy arrays."""
-    state = init
-    while bool(cond(state)):
-        state = body(state)
-    return state
-
-
-class NewtonSystem(NamedTuple):
-    """The Newton system ``H s = -g`` as :func:`newton_cg`'s CG takes it, and the
-    objective along a step as :func:`scale_by_exact_linesearch` takes it.
-
-    ``grad`` (q, p) the gradient in theta (the iterate's dtype); ``hvp``:
-    (q, p) -> ``(scale H v, Xa v or None)``; ``precond``: an approximate inverse
-    of ``scale H``; ``scale``: the factor the system is multiplied by before
-    CG (the step is the same); ``dtype`` CG's; ``loop`` runs CG and the line
-    search (``jax.lax.while_loop``, or :func:`host_loop` over numpy arrays).
-    ``value`` (p,): the objective of every template at the iterate; ``line``:
-    ``s`` (q, p) -> ``along``, with ``along(t)`` for step lengths t (1, p) giving
-    ``phi(t) - phi(0)`` (p,), ``phi'(t)`` and ``phi''(t)`` (1, p), ``phi_j(t)``
-    the objective of template j at ``theta + t s`` (None: the line search
-    differentiates ``value_fn``). :func:`in_memory_system` builds the first six
-    from the objective and the design; a streamed fit sums all of them over
-    blocks of frames (:mod:`rhythmic_jax.solvers.streamed`).
-    """
-
-    grad: jax.Array
-    hvp: Any
-    precond: Any
-    scale: Any
-    dtype: Any
-    loop: Any = jax.lax.while_loop
-    value: Any = None
-    line: Any = None
 
 
 def in_memory_system(
@@ -251,7 +200,7 @@ def newton_cg(
     """
 
     def init_fn(params: Iterate) -> NewtonCGState:
-        p, xp = params.theta.shape[-1], _xp(params.theta)
+        p, xp = params.theta.shape[-1], array_module(params.theta)
         return NewtonCGState(
             count=xp.zeros([], xp.int32),
             decrement=xp.full((p,), xp.inf, params.theta.dtype),
@@ -284,7 +233,7 @@ def newton_cg(
             u = jnp.matmul(design, s, precision="highest")
         s = s.astype(dtype)
         u = None if u is None else u.astype(dtype)
-        decrement = 0.5 * _xp(s).sum(-system.grad * s, axis=0)
+        decrement = 0.5 * array_module(s).sum(-system.grad * s, axis=0)
         new_state = NewtonCGState(state.count + 1, decrement, it)
         return Iterate(s, u), new_state
 
@@ -348,7 +297,7 @@ def derivatives(
         g = grad.theta + jnp.matmul(
             xa.T, grad.margins.astype(f32), precision="highest"
         ).astype(dtype)
-    _, hessian = jax.linearize(jax.grad(_total(value_fn)), params)
+    _, hessian = jax.linearize(jax.grad(summed(value_fn)), params)
     # The Hessian is block-diagonal in (theta, m) (a regulariser in theta, a
     # per-frame loss in m): applied to ones it gives both diagonals.
     curv = hessian(jax.tree.map(jnp.ones_like, params))
@@ -369,129 +318,6 @@ def derivatives(
         return hv, xv if rounded is None else None
 
     return g, hvp, curv.margins, jnp.mean(curv.theta)
-
-
-def _bracketed_root(
-    slope, t0, iters: int, rtol: float = 0.0, g0=None, loop=jax.lax.while_loop
-):
-    """Root over t >= 0 of a continuous, piecewise-linear, nondecreasing ``phi'``.
-
-    ``slope(t)`` returns ``phi'(t)`` and ``phi''(t)`` (1, p). From ``t0`` each
-    iteration takes Newton's step on the current piece when it stays inside the
-    bracket found so far, else the bracket's secant (Newton alone can cycle
-    between two pieces); on the root's piece either lands on it exactly.
-    A column also stops once ``|phi'(t)| <= rtol |phi'(0)|``: in floating point
-    Newton's step can creep towards the root by an ulp at a time from one side
-    (the bracket never closes), which would run every column to ``iters``.
-    ``g0``: ``phi'(0)`` where it is known (else ``slope`` at 0 gives it);
-    ``loop``: ``jax.lax.while_loop``, or :func:`host_loop` (numpy ``t0``).
-    Returns t (1, p) and ``phi'(0)``.
-    """
-    xp = _xp(t0)
-
-    def body(state):
-        t, lo, glo, hi, ghi, done, it = state
-        g, h = slope(t)
-        left = g < 0
-        lo, glo = xp.where(left, t, lo), xp.where(left, g, glo)
-        hi, ghi = xp.where(left, hi, t), xp.where(left, ghi, g)
-        newton = t - g / xp.maximum(h, 1e-300)
-        inside = (newton > lo) & (newton < hi)
-        secant = lo - glo * (hi - lo) / xp.where(ghi > glo, ghi - glo, 1.0)
-        new = xp.where(inside | xp.isinf(hi), newton, secant)
-        narrow = xp.isfinite(hi) & (hi - lo <= 1e-12 * hi)
-        flat = xp.abs(g) <= rtol * xp.abs(g0)
-        stop = done | (g == 0) | (new == t) | narrow | flat
-        return xp.where(stop, t, new), lo, glo, hi, ghi, stop, it + 1
-
-    def cond(state):
-        *_, done, it = state
-        return xp.logical_and(it < iters, ~xp.all(done))
-
-    zero = xp.zeros_like(t0)
-    if g0 is None:
-        g0, _ = slope(zero)
-    state = (t0, zero, g0, xp.full_like(t0, xp.inf), zero, g0 >= 0, 0)
-    t, *_ = loop(cond, body, state)
-    return xp.where(g0 < 0, t, 0.0), g0
-
-
-def scale_by_exact_linesearch(
-    max_iterations: int = 30, rtol: float = 1e-8
-) -> optax.GradientTransformationExtraArgs:
-    """Scale every template's step by its exact minimiser along the step.
-
-    ``update(updates, state, params, *, value_fn)``: ``value_fn(params)`` gives
-    one objective per template (p,), each depending on its own column only.
-    ``phi_j(t) = value_fn(params + t updates)_j`` is convex and piecewise
-    quadratic for the squared hinge; ``phi'`` and ``phi''`` are the gradient
-    and its ``jax.jvp`` along the step, dotted with the step per template (one
-    forward-over-reverse pass, cheaper than differentiating ``phi`` twice
-    forward). The minimiser is found by
-    :func:`_bracketed_root` from t = 1 (the Newton step); a step that does not
-    decrease ``phi`` becomes 0.
-
-    ``update(updates, state, params, *, system)`` takes ``phi`` from a
-    :class:`NewtonSystem`'s ``value`` and ``line`` instead (``phi'(0)`` is its
-    gradient along the step), and searches in its ``loop``.
-    """
-
-    def init_fn(params: Iterate) -> ExactLinesearchState:
-        p, xp = params.theta.shape[-1], _xp(params.theta)
-        zero = xp.zeros((p,), params.theta.dtype)
-        return ExactLinesearchState(xp.ones((1, p), params.theta.dtype), zero, zero)
-
-    def update_fn(updates, state, params, *, value_fn=None, system=None, **extra):
-        del state, extra
-        if system is not None and system.line is not None:
-            return _search_system(updates, system, max_iterations, rtol)
-        p = params.theta.shape[-1]
-        grad = jax.grad(_total(value_fn))
-
-        def at(t):  # (1, p) -> the iterate t along the step, per template
-            return jax.tree.map(lambda a, s: a + t * s, params, updates)
-
-        def along(tree):  # (p,) inner products with the step, per template
-            leaves = zip(jax.tree.leaves(tree), jax.tree.leaves(updates), strict=True)
-            return sum(jnp.sum(a * s, axis=tuple(range(a.ndim - 1))) for a, s in leaves)
-
-        def slope(t):  # phi' and phi'' from one jvp of the gradient along the step
-            g, hs = jax.jvp(grad, (at(t),), (updates,))
-            return along(g)[None, :], along(hs)[None, :]
-
-        def phi(t):
-            return value_fn(at(t))
-
-        t0 = jnp.ones((1, p), params.theta.dtype)
-        t, _ = _bracketed_root(slope, t0, max_iterations, rtol)
-        f0, f1 = phi(jnp.zeros_like(t)), phi(t)
-        worse = (f1 > f0)[None, :]
-        t = jnp.where(worse, 0.0, t)
-        f1 = jnp.where(worse[0], f0, f1)
-        scaled = jax.tree.map(lambda s: t * s, updates)
-        return scaled, ExactLinesearchState(t, f0, f1)
-
-    return optax.GradientTransformationExtraArgs(init_fn, update_fn)
-
-
-def _search_system(updates: Iterate, system: NewtonSystem, iters: int, rtol: float):
-    """:func:`scale_by_exact_linesearch`'s update along ``updates.theta`` (q, p)
-    with ``phi`` from ``system.line`` (one call of ``along`` per iteration)."""
-    s = updates.theta
-    xp = _xp(s)
-    along = system.line(s)
-    g0 = xp.sum(system.grad * s, axis=0, keepdims=True)
-    # from 1, or from 0 where the step does not descend (it stays there): the
-    # search then ends at the step lengths of its last call of ``along``
-    t0 = xp.where(g0 < 0, 1.0, 0.0).astype(g0.dtype)
-    t, _ = _bracketed_root(lambda t: along(t)[1:], t0, iters, rtol, g0, system.loop)
-    f0 = system.value
-    f1 = f0 + along(t)[0]
-    worse = (f1 > f0)[None, :]
-    t = xp.where(worse, 0.0, t)
-    f1 = xp.where(worse[0], f0, f1)
-    scaled = jax.tree.map(lambda a: t * a, updates)
-    return scaled, ExactLinesearchState(t, f0, f1)
 
 
 def newton_solver(

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import rhythmic_jax as rj
-from rhythmic_jax.decoding import buckets, hard, queries
+from rhythmic_jax.decoding import batch, buckets, hard
+from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.hard import Decoded, decode
-from rhythmic_jax.decoding.queries import decode_queries, sequence_queries
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.solvers.objective import Templates, scores
@@ -95,7 +95,7 @@ def test_batches_of_3_5_7_compile_one_program():
     params = _templates(11, 16, seed=5)
     groups = Groups("periods", periods)
     rng = np.random.default_rng(6)
-    queries._decode_jit.clear_cache()
+    batch._decode_jit.clear_cache()
     with compiles() as seen:
         decode_queries(params, rng.normal(size=(3, 11)), groups, n, "soft")
         first = len(seen)
@@ -104,9 +104,9 @@ def test_batches_of_3_5_7_compile_one_program():
             assert out.index.shape == (b,)
             out.confidence  # noqa: B018 (computed on the host: no program)
         assert len(seen) == first
-    assert queries._decode_jit._cache_size() == 1
+    assert batch._decode_jit._cache_size() == 1
     decode_queries(params, rng.normal(size=(17, 11)), groups, n, "soft")
-    assert queries._decode_jit._cache_size() == 2  # the next bucket: a program
+    assert batch._decode_jit._cache_size() == 2  # the next bucket: a program
 
 
 def test_jitted_hard_decode_pads_device_batches():

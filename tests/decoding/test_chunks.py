@@ -10,10 +10,10 @@ import pytest
 from test_batch import compiles
 
 import rhythmic_jax as rj
-from rhythmic_jax.decoding import buckets, fusion, hard, queries
+from rhythmic_jax.decoding import batch, buckets, fusion, hard, queries
+from rhythmic_jax.decoding.batch import decode_queries, sequence_queries
 from rhythmic_jax.decoding.dispatch import decode_scores
 from rhythmic_jax.decoding.hard import decode
-from rhythmic_jax.decoding.queries import decode_queries, sequence_queries
 from rhythmic_jax.decoding.sequence import sequence_decode
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.solvers.objective import Templates, scores
@@ -107,12 +107,12 @@ def test_one_program_per_bucket_of_chunks(small_chunks):
     groups, n = Groups("periods", (7, 11)), 70  # a layout no other test uses
     params = _templates(9, 18, seed=7)
     hard._localise.clear_cache()
-    queries._decode_jit.clear_cache()
+    batch._decode_jit.clear_cache()
     for b in (33, 40, 64):  # 2 chunks each: one bucket
         decode(params, jnp.asarray(_queries(b, 9, b)), groups, n)
         decode_queries(params, _queries(b, 9, b), groups, n, "soft")
     assert hard._localise._cache_size() == 1
-    assert queries._decode_jit._cache_size() == 1
+    assert batch._decode_jit._cache_size() == 1
     with compiles() as seen:
         for b in (65, 100, 128):  # 3-4 chunks: the next bucket, one program
             decode(params, jnp.asarray(_queries(b, 9, b)), groups, n)

@@ -13,6 +13,7 @@ import pytest
 
 from rhythmic_jax import RhythmicMap
 from rhythmic_jax.decoding import host, queries
+from rhythmic_jax.decoding.batch import decode_queries
 from rhythmic_jax.decoding.hard import decode, hard_decode
 from rhythmic_jax.decoding.host import (
     GEMV_THREADED,
@@ -23,7 +24,6 @@ from rhythmic_jax.decoding.host import (
     host_decode,
     lane,
 )
-from rhythmic_jax.decoding.queries import decode_queries
 from rhythmic_jax.errors import InputError
 from rhythmic_jax.map.groups import Groups
 from rhythmic_jax.map.periods import candidate_periods, choose_periods

@@ -5,7 +5,7 @@ import numpy as np
 
 import rhythmic_jax as rj
 from rhythmic_jax.eval.frontier import FrontierConfig, fitted_model, frontier_rows
-from rhythmic_jax.eval.metrics import query_latency
+from rhythmic_jax.eval.timing import query_latency
 
 
 def test_map_latency_is_predicts(tmp_path):

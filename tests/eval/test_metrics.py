@@ -14,8 +14,6 @@ from rhythmic_jax.eval.metrics import (
     pr_curve,
     recall_at_100_precision,
     recall_at_k,
-    time_batch,
-    time_single_queries,
 )
 from rhythmic_jax.map.periods import database_bytes, storage_bytes
 
@@ -153,23 +151,6 @@ def test_storage_reproduces_paper_table_1():
     got = (database_bytes(3705, 4096), storage_bytes([62, 63], 4096))
     assert got == (60_702_720, 2_048_500)
     assert storage_bytes((2, 5), 3, itemsize=2) == 7 * 4 * 2
-
-
-def test_timing_helpers_return_sane_structure():
-    Q = np.random.default_rng(8).standard_normal((6, 4)).astype(np.float32)
-    W = jnp.ones((4, 3))
-    calls = []
-
-    def fn(q):
-        calls.append(q.shape)
-        return jnp.argmax(q @ W, axis=1)
-
-    single = time_single_queries(fn, Q, warmup=2, repeats=2)
-    assert single["n_calls"] == 12 and all(s == (1, 4) for s in calls)
-    assert 0 < single["min_s"] <= single["median_s"] <= single["p95_s"]
-    batch = time_batch(lambda q: (q @ np.ones((4, 2)), q), Q, repeats=3)
-    assert batch["batch_size"] == 6 and batch["repeats"] == 3
-    assert batch["queries_per_s"] == pytest.approx(6 / batch["median_s"])
 
 
 def test_bad_input_raises_input_error():

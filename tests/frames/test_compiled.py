@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames import compiled
+from rhythmic_jax.frames import compiled, package_builds
 from rhythmic_jax.frames.compiled import (
     BUILD_MIN_FRAMES,
     LOAD_MIN_FRAMES,
@@ -65,15 +65,6 @@ def test_policy_refuses_bad_settings():
         CompilePolicy(min_frames=-1)
     assert re.search("--compile-min-frames", err.value.as_flag())
 
-
-def test_package_path_names_the_settings(tmp_path):
-    a = get_descriptor("efficientnet_lite0")
-    b = get_descriptor("efficientnet_lite0", block=9)
-    shape = (compiled.COMPILE_BATCH, 3, 112, 224)
-    assert package_path(a, shape, tmp_path).parent == tmp_path / "compiled"
-    assert package_path(a, shape, tmp_path) == package_path(a, shape, tmp_path)
-    assert package_path(a, shape, tmp_path) != package_path(b, shape, tmp_path)
-    assert package_path(a, shape, tmp_path) != package_path(a, (64, *shape[1:]))
 
 
 def test_chunks_pad_the_last_batch_to_the_fixed_shape():
@@ -255,7 +246,7 @@ def spawned(monkeypatch):
     """Background builds allowed; each one recorded instead of started."""
     monkeypatch.delenv(compiled.BUILD_ENV, raising=False)
     calls = []
-    monkeypatch.setattr(compiled, "_spawn", calls.append)
+    monkeypatch.setattr(package_builds, "_spawn", calls.append)
     return calls
 
 
@@ -310,19 +301,6 @@ def test_first_job_runs_eagerly_and_starts_one_detached_build(spawned):
     assert len(spawned) == 2
     _job(desc, LOAD_MIN_FRAMES - 1)
     assert len(spawned) == 2
-
-
-def test_builder_lock_is_exclusive_and_taken_over_when_stale(tmp_path):
-    from rhythmic_jax.frames.compiled import lock_held, take_lock
-
-    lock = tmp_path / "net.lock"
-    assert take_lock(lock) and lock_held(lock)
-    assert not take_lock(lock)
-    lock.write_text(f"{_dead_pid()}\n")
-    assert not lock_held(lock)
-    assert take_lock(lock) and lock_held(lock)
-    lock.write_text("")
-    assert not lock_held(lock)
 
 
 def test_damaged_package_is_deleted_never_loaded_and_rows_match(spawned, caplog):
