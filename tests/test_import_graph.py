@@ -74,9 +74,11 @@ LAYERS = [
     ["eval.frontier", "eval.ground_truth_files", "eval.report"],
     ["eval.ablation"],
     ["app.native_stderr", "app.options", "app.signals"],
+    ["app.parts"],
+    ["app.query_specs"],
     ["app.specs"],
-    ["app.demo", "app.frontier", "app.fusion", "app.matches", "app.query_results",
-     "app.render", "app.scale_jobs"],
+    ["app.demo", "app.frontier", "app.fusion", "app.matches", "app.parser",
+     "app.query_results", "app.render", "app.scale_jobs"],
     ["app.per_query"],
     ["app.jobs"],
     ["app.cli"],
@@ -145,8 +147,8 @@ def test_imports_point_down(path):
 
 
 # no numpy, JAX, torch at load (jit_cache is imported inside a function)
-PARSER = {"app.options", "app.specs", "errors", "map.config", "validate",
-          "frames.compile_policy", "version"}  # fmt: skip
+PARSER = {"app.options", "app.parser", "app.specs", "errors", "map.config",
+          "validate", "frames.compile_policy", "version"}  # fmt: skip
 
 
 def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():
@@ -160,8 +162,10 @@ def test_the_command_line_loads_only_its_parsers_modules_and_runs_jobs():
         "app.render",
         "app.scale_jobs",
         "app.signals",
+        "io.checkpoint",
+        "io.outputs",
         "jit_cache",
-    }  # in commands
+    }  # in commands, and the check of their outputs
     assert _imports(PACKAGE / "app" / "cli.py") <= PARSER | inside
 
 

@@ -1,10 +1,19 @@
-"""The ``rhythmic-jax`` command line: argparse over :mod:`rhythmic_jax.app.jobs`.
+"""The ``rhythmic-jax`` command line: the runner of its jobs.
 
-Every command parses its arguments, makes its job (:mod:`rhythmic_jax.app.specs`:
-it checks itself, each option in its domain and against the others, the job's
-rules), runs it (:mod:`rhythmic_jax.app.jobs`) and prints what it returns
+Every command parses its arguments (:mod:`rhythmic_jax.app.parser`), makes its
+job (:mod:`rhythmic_jax.app.specs`: it checks itself, each option in its domain
+and against the others, the job's rules), checks where it writes, runs it
+(:mod:`rhythmic_jax.app.jobs`) and prints what it returns
 (:mod:`rhythmic_jax.app.render`); bad input ends with one line on stderr
 (settings spelled as flags) and exit status 2, and nothing half-written on disk.
+
+Outputs are handled here in one step for every job (:func:`_outputs`): the place
+of each option declared ``path="writes"`` (and of the job's implied writes) is
+checked before the work, as its ``output`` says
+(:data:`rhythmic_jax.app.options.OUTPUTS`), and a write of any of them that
+fails during the work ends in one line naming it. What a job says beside its
+result (a warning on an option the input leaves idle, the library's warnings,
+notes) is held until it has succeeded: a refusal is exactly one line.
 
 The parser is built from light modules only (the jobs' settings and domains, the
 map's configuration, the compile policy): ``rhythmic-jax --help`` imports no
@@ -13,7 +22,6 @@ numpy, JAX or torch. What a job needs is imported when it runs.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import gc
 import json
@@ -21,162 +29,24 @@ import logging
 import os
 import re
 import sys
-import textwrap
+from collections.abc import Callable
+from pathlib import Path
 
 from rhythmic_jax.app import specs
-from rhythmic_jax.app.options import (
-    OptionRefused,
-    add_options,
-    check_paths,
-    make,
-    written,
-)
+from rhythmic_jax.app.options import OptionRefused, check_paths, make, outputs, written
+from rhythmic_jax.app.parser import JOBS, given_options
+from rhythmic_jax.app.parser import parser as _parser
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.frames.compile_policy import BUILD_MIN_FRAMES, LOAD_MIN_FRAMES
-from rhythmic_jax.version import __version__
 
 __all__ = ["main"]
 
-EXAMPLES = {
-    "fit": """
-      rhythmic-jax fit ref.npy --out route.map
-      rhythmic-jax fit ref.npy --out route.map --layout mixed:48,50
-      rhythmic-jax fit summer/ --out route.map --layout hierarchical:50
-      rhythmic-jax fit summer/ winter/ --out route.map --descriptor patchnorm
-      rhythmic-jax fit big_aerial.png --tile 224 --stride 112 --out aerial.map
-      rhythmic-jax fit run1/ run2/ --positions run1.csv run2.csv --places 500 \\
-          --out route.map
-      rhythmic-jax fit summer/ --descriptor efficientnet_lite0 --level 4 --codes 64 \\
-        --out hybrid.map      (a map plus a 64-bit code per place)
-      rhythmic-jax fit summer/ --out route.map --augment all --epochs 5
-        (killed or stopped with Ctrl-C? run the same command again to resume)
-      rhythmic-jax fit big.npy --out route.map --processes 2 --memory 1GiB
-      rhythmic-jax fit shards/ --out route.map --dtype float16
-      rhythmic-jax fit summer/ --out route.map --shards summer.shards --memory 2GiB
-      on each of K hosts (process 0's host is the coordinator):
-      rhythmic-jax fit ref.npy --out route.map --coordinator HOST:PORT
-        --num-processes K --process-id i
-        """,
-    "learn": """
-      rhythmic-jax learn summer_train.npy winter_train.npy --out route.emb
-      rhythmic-jax learn summer/ winter/ --descriptor patchnorm --out route.emb \\
-          --method invariant
-      rhythmic-jax info route.emb    (its descriptor and learned fusion weight)
-      rhythmic-jax fit summer_test.npy --embedding route.emb --out route.map
-      rhythmic-jax fit summer_test/ --embedding route.emb --codes int8 --out route.map
-        (the embedding's descriptor and the fusion weight it learned for int8)
-    """,
-    "query": """
-      rhythmic-jax query route.map queries.npy --out pred.npy
-      rhythmic-jax query route.map winter/ --decode soft --sequence 10 --json
-      rhythmic-jax query route.map winter/ --top 5 --csv results.csv
-        (per query: its file name, the place chosen and its name, score,
-        confidence, and the 5 best places with their scores)
-      rhythmic-jax query route.map winter/ --csv results.csv --ground-truth names
-        (and a 'correct' column)
-      rhythmic-jax query route.map DATASET/query --pairs pairs.txt --top 20
-        (hloc's retrieval pairs, for its local matching)
-    """,
-    "info": """
-      rhythmic-jax info route.map --json
-    """,
-    "evaluate": """
-      rhythmic-jax evaluate route.map winter/ --tolerance 1
-      rhythmic-jax evaluate route.map winter/ --reference summer/ --json
-      rhythmic-jax evaluate route.map queries.npy --json
-      rhythmic-jax evaluate ref.map DATASET/query --ground-truth \\
-          DATASET/ground_truth_new.npy --plot pr.png
-      rhythmic-jax evaluate route.map night/ --ground-truth night.csv --tolerance-m 25
-      rhythmic-jax evaluate hybrid.map winter/ --tolerance 1 --plot hybrid.png
-      rhythmic-jax evaluate route.map winter/ --tolerance 1 --matches matches.png
-      rhythmic-jax evaluate route.map winter.npy --tolerance 1 --per-query q.csv \\
-          --num-preds 10 --recall-values 1,5,10,25
-    """,
-    "demo": """
-      rhythmic-jax demo
-      rhythmic-jax demo --out demo_report --quick
-    """,
-    "describe": """
-      rhythmic-jax describe summer/ --descriptor efficientnet_lite0 --out summer.npy
-      rhythmic-jax describe winter/ --descriptor efficientnet_lite0 --out winter.npy
-      rhythmic-jax fit summer.npy --out route.map    (no image described again)
-      rhythmic-jax frontier summer.npy winter.npy --tolerance 1
-      rhythmic-jax describe city.png --tile 224 --stride 112 --out city.npy
-    """,
-    "frontier": """
-      rhythmic-jax frontier summer.npy winter.npy --tolerance 1 --budget 2000
-      rhythmic-jax frontier db.h5 q.h5 --ground-truth GT.npz --lengths 1 \\
-          --csv frontier.csv --plot frontier.png
-    """,
-}
+# what the command says beside its result, said once it has succeeded
+_HELD: list[Callable[[], None]] = []
 
 
-COMPILE_NOTE = textwrap.fill(
-    "--compile (fit, learn, query, evaluate): a network descriptor "
-    "(efficientnet_lite0, vgg16_fc7) compiled for this CPU gives about 1.5-1.8x the "
-    "frames/s of the eager network, but building it costs up to a minute once per "
-    "machine and settings (kept in the cache folder) and loading it about 0.2 s per "
-    f"job. auto (default): a job of >= {LOAD_MIN_FRAMES} frames loads the compiled "
-    "network; the first such job on a machine runs eagerly, at the eager network's "
-    "speed, and a background build (a niced process, about a minute of CPU) starts "
-    "once it is over, so the next job runs compiled; a job of >= "
-    f"{BUILD_MIN_FRAMES} frames builds it first "
-    "(RHYTHMIC_JAX_NETWORK_BUILD=0: no background builds); always; never (the eager "
-    "reference). Without a C++ compiler the job runs eagerly and says so.",
-    79,
-)
-
-
-class _Parser(argparse.ArgumentParser):
-    """Usage errors in one line, like every other refusal (exit status 2)."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def _given_options(argv: list[str], parsed: argparse.Namespace) -> set[str]:
-    """The destinations of the options ``argv`` gives (not left at a default)."""
-    parser = _parser()
-    for action in parser.commands[parsed.command]._actions:
-        action.default = argparse.SUPPRESS  # left out: not in the namespace
-    seen, _ = parser.parse_known_args(argv)
-    return set(vars(seen))
-
-
-def _parser() -> argparse.ArgumentParser:
-    """The parser: each command's options rendered from its job's fields
-    (:func:`rhythmic_jax.app.options.add_options`)."""
-    parser = _Parser(
-        prog="rhythmic-jax",
-        description="Sub-linear-storage place recognition with rhythmic templates.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="run 'rhythmic-jax COMMAND --help' for examples\n\n"
-        "compiled programs are kept in $RHYTHMIC_JAX_CACHE/jax (default\n"
-        "~/.cache/rhythmic_jax/jax): later runs load them instead of compiling;\n"
-        "RHYTHMIC_JAX_COMPILE_CACHE=0 turns that off, =FOLDER moves it\n\n"
-        + COMPILE_NOTE,
-    )
-    _verbose(parser, False)
-    parser.add_argument("--version", action="version",
-                        version=f"%(prog)s {__version__}")  # fmt: skip
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    parser.commands = {}
-    for name, (job, about) in JOBS.items():
-        parser.commands[name] = sub.add_parser(
-            name, help=about, description=about,
-            epilog="examples:" + textwrap.dedent(EXAMPLES[name]),
-            formatter_class=argparse.RawDescriptionHelpFormatter,
-        )  # fmt: skip
-        add_options(parser.commands[name], job)
-        _verbose(parser.commands[name], argparse.SUPPRESS)  # keeps one given before
-    return parser
-
-
-def _verbose(parser: argparse.ArgumentParser, default) -> None:
-    """``-v/--verbose``, offered before the command's name and after it."""
-    says = "log progress (before or after the command's name)"
-    parser.add_argument("-v", "--verbose", action="store_true", default=default,
-                        help=says)  # fmt: skip
+def _hold(line: str) -> None:
+    """``line`` said on stderr once the job has succeeded (dropped if refused)."""
+    _HELD.append(lambda: _say(line))
 
 
 def _fit(args, job, progress: bool) -> str | None:
@@ -192,7 +62,7 @@ def _fit(args, job, progress: bool) -> str | None:
     info = model.info()
     note = worth_note(info, job.sources)
     if note is not None:
-        _say(f"rhythmic-jax fit: note: {note}")
+        _hold(f"rhythmic-jax fit: note: {note}")
     if run is not None:
         info["fit"] = dict(run)
         if "pass_seconds" in run:  # every pass, to the millisecond
@@ -290,47 +160,56 @@ def _demo(args, job, progress: bool) -> None:
     run_demo(job.out, quick=job.quick, progress=progress)
 
 
-def _frontier(args, job, progress: bool) -> None:
-    from rhythmic_jax.app.frontier import main as frontier
+def _frontier(args, job, progress: bool) -> str:
+    from rhythmic_jax.app import frontier
 
-    frontier(args, job.given)  # prints its table itself, before its files are written
+    result = frontier.frontier(job, progress=progress)
+    if job.json:
+        return json.dumps(result, indent=2)
+    return frontier.frontier_lines(result, recall_at="recall_values" in job.given)
 
 
 # command -> what runs its job and returns the text it prints (None: nothing)
 COMMANDS = {"fit": _fit, "learn": _learn, "query": _query, "info": _info,
             "evaluate": _evaluate, "demo": _demo, "frontier": _frontier,
             "describe": _describe}  # fmt: skip
-# command -> (its job, whose fields are its options; what it does)
-JOBS = {
-    "fit": (specs.FitJob, "fit a map on reference frames (.npy, image folders, or "
-            "--tile)"),
-    "learn": (specs.LearnJob, "learn an embedding from two or more traversals of "
-              "a training route"),
-    "query": (specs.QueryJob, "localise queries against a map (-1 = no match)"),
-    "info": (specs.InfoJob, "describe a map (n, d, periods, storage, candidate "
-             "errors) or an embedding"),
-    "evaluate": (specs.EvaluateJob, "accuracy, recall@K, storage and latency "
-                 "beside brute force"),
-    "demo": (specs.DemoJob, "fit and query a map on built-in photographs; write a "
-             "report"),
-    "describe": (specs.DescribeJob, "describe a route's frames once into a .npy "
-                 "that fit, query, evaluate, learn and frontier read"),
-    "frontier": (specs.FrontierJob, "recall against bytes per place of every "
-                 "representation"),
-}  # fmt: skip
 
 
-def _checked_job(args, prog: str):
+def _checked_job(args):
     """The command's job, made (so checked) from the options; a refused option
     or a path written over one read ends in one usage line (InputError)."""
-    given = frozenset(_given_options(args.argv, args))
+    given = frozenset(given_options(args.argv, args))
     job = make(JOBS[args.command][0], args, given=given)
     line = check_paths(job)
     if line is not None:
         raise OptionRefused(line)
-    for warning in job.warnings:
-        print(f"{prog}: warning: {InputError(warning).as_flag()}", file=sys.stderr)
     return job
+
+
+@contextlib.contextmanager
+def _outputs(job):
+    """Every output of ``job`` (:func:`rhythmic_jax.app.options.outputs`) with
+    its place checked before the work (:mod:`rhythmic_jax.io.outputs`: a probe
+    file written and removed there; a map's folder may only replace a map,
+    :func:`rhythmic_jax.io.checkpoint.check_target`); within, a write of any of
+    them that fails is one line naming it, the first declared (``--out``)
+    taking a failure that names no path."""
+    from rhythmic_jax.io.outputs import check_file_place, check_place, write_errors
+
+    found = outputs(job)
+    for option, path, how in found:
+        if how == "map":
+            from rhythmic_jax.io.checkpoint import check_target
+
+            check_target(path)
+        if how == "file":
+            check_file_place(option, path)
+        elif how != "kept" or not Path(path).expanduser().exists():
+            check_place(option, path, inside=how == "into", file=how == "made")
+    with contextlib.ExitStack() as stack:
+        for option, path, _ in reversed(found):
+            stack.enter_context(write_errors(option, path))
+        yield
 
 
 def _quiet_logs(verbose: bool) -> None:
@@ -398,21 +277,20 @@ def main(argv: list[str] | None = None) -> int:
 @contextlib.contextmanager
 def _warning_lines(prog: str):
     """The library's warnings about a result (a solve stopped at its step cap,
-    an embedding worse on held-out places) as one line each on stderr, once the
-    command's work is done; other warnings shown as Python shows them."""
+    an embedding worse on held-out places) held as one line each, said once
+    the command's work is done; other warnings as Python shows them. A job that
+    fails says none."""
     import warnings
 
-    caught: list = []
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("default")
-            yield
-    finally:
-        for w in caught:
-            if hasattr(w.message, "as_flag"):
-                _say(f"{prog}: warning: {w.message.as_flag()}")
-            else:
-                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        yield
+    for w in caught:
+        if hasattr(w.message, "as_flag"):
+            _hold(f"{prog}: warning: {w.message.as_flag()}")
+        else:
+            _HELD.append(lambda w=w: warnings.showwarning(
+                w.message, w.category, w.filename, w.lineno))  # fmt: skip
 
 
 # standard output named as a path: written there, a file is dropped too
@@ -420,34 +298,41 @@ _STDOUT_PATH = re.compile(r"^(?:/dev/stdout|/dev/fd/1|/proc/(?:self|\d+)/fd/1)$"
 
 
 def _main(args, prog: str, stdout_open: bool = True) -> int:
-    """The command of the parsed ``args``: its job made, run and printed. With
-    standard output closed, a job that writes a file (``--out``, ``--csv``)
-    runs and only what it prints is dropped (said in a note); one that writes
-    nothing is refused before any work, its results having nowhere to go."""
+    """The command of the parsed ``args``: its job made, its outputs checked,
+    run and printed. With standard output closed, a job that writes a file
+    (``--out``, ``--csv``) runs and only what it prints is dropped (said in a
+    note); one that writes nothing is refused before any work, its results
+    having nowhere to go. Warnings and notes are said once the job has
+    succeeded, before what it prints; a refusal is its one error line."""
+    _HELD.clear()
     try:
-        job = _checked_job(args, prog)
+        job = _checked_job(args)
     except OptionRefused as err:
         _say(f"{prog}: error: {err.as_flag()} (see {prog} --help)")
         return 2
     except InputError as err:
         _say(f"{prog}: error: {err.as_flag()}")
         return 2
+    for warning in job.warnings:
+        _hold(f"{prog}: warning: {InputError(warning).as_flag()}")
     if not stdout_open:
         kept = [p for _, p in written(job) if not _STDOUT_PATH.match(str(p))]
         if not kept:
             _say(f"{prog}: error: standard output is closed; give it a place "
                  "(> FILE, or > /dev/null to drop what is printed)")  # fmt: skip
             return 2
-        _say(f"{prog}: note: standard output is closed: what the command prints "
-             f"is dropped; its files are written ({', '.join(kept)})")  # fmt: skip
+        _hold(f"{prog}: note: standard output is closed: what the command prints "
+              f"is dropped; its files are written ({', '.join(kept)})")  # fmt: skip
     _quiet_logs(args.verbose)
     if args.command != "info":
         from rhythmic_jax.jit_cache import enable_compile_cache
 
         enable_compile_cache()  # programs kept between runs; see the epilog
     try:
-        with _warning_lines(prog):
+        with _outputs(job), _warning_lines(prog):
             text = COMMANDS[args.command](args, job, not getattr(job, "no_progress", 0))
+        for said in _HELD:
+            said()
         if text is not None:
             from rhythmic_jax.app.signals import readable
 

@@ -26,16 +26,16 @@ gathered into one line of the result's ``notes``.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 from typing import Any
 
-from rhythmic_jax.app.specs import GRIDS
+from rhythmic_jax.app.specs import GRIDS, FrontierJob, recall_values
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.outputs import check_file_place
 
-__all__ = ["frontier", "frontier_lines", "main", "write_csv"]
+__all__ = ["frontier", "frontier_lines", "write_csv"]
+
+DTYPES = ("float32", "float16", "int8")  # how each map's templates are stored
 
 COLUMNS = ("name", "kind", "bytes_per_place", "storage_bytes", "share",
            "recall@1 L=1", "recall@100p", "recall@1 L=5", "recall@1 L=10",
@@ -56,54 +56,30 @@ def _ints(text: str, what: str) -> tuple:
     return tuple(p if len(p) > 1 else p[0] for p in parts)
 
 
-def frontier(
-    reference: str,
-    queries: str,
-    *,
-    ground_truth: tuple[str, ...] | None = None,
-    tolerance: int = 0,
-    tolerance_m: float = 25.0,
-    maps=None,
-    bits=None,
-    pq=None,
-    grid: str = "small",
-    dtypes=("float32", "float16", "int8"),
-    lengths=(1, 5, 10),
-    budget: float | None = None,
-    cache: str | None = None,
-    descriptor: str | None = None,
-    progress: bool = False,
-    select: tuple[str, str] = ("", ""),
-    ground_truth_format: str | None = None,
-    recall_over: str = "matched",
-    recall_values: tuple[int, ...] = (1, 5, 10, 20),
-    input_size: tuple[int, int] | None = None,
-    given: frozenset[str] = frozenset(),
-) -> dict[str, Any]:
-    """Recall against bytes for every representation of ``reference``'s places.
+def frontier(job: FrontierJob, progress: bool = False) -> dict[str, Any]:
+    """Recall against bytes for every representation of ``job.reference``'s
+    places, the rows written to ``job.csv`` and drawn in ``job.plot`` when given.
 
-    Args:
+    The job's settings (:class:`rhythmic_jax.app.specs.FrontierJob`):
       reference, queries: descriptor files (.npy, hloc .h5) or image folders;
         row i of the reference is place i.
       ground_truth, tolerance_m: as ``evaluate`` reads them
         (:func:`rhythmic_jax.eval.ground_truth_files.load_ground_truth`);
-        default: query i is place i within ``tolerance`` frames.
-      maps, bits, pq: maps as (r, level), ITQ code sizes, PQ sub-quantisers;
+        none: query i is place i within ``tolerance`` frames.
+      maps, bits, pq: maps as r:level, ITQ code sizes, PQ sub-quantisers;
         None: those of ``grid`` (:data:`rhythmic_jax.app.specs.GRIDS`).
       lengths: sequence lengths (queries in route order); lengths longer than
         the queries are left out (none left: refused).
       budget: bytes per place; the result's ``choice`` is the best row within.
-      ground_truth_format: the ground truth file's format (None: read from
-        what it holds).
       recall_over: recall@1's denominator, ``"matched"`` (the queries with a
         right place) or ``"all"`` (every query: a query without one is a
         miss); recall at 100 % precision is out of the matched ones either way.
       recall_values: the K of every row's single-frame ``recall@K L=1`` (K > 1
         up to the places; recall@1 is ``recall@1 L=1``).
-      input_size: (width, height) image folders are resized to for the
-        descriptor (None: its own); a descriptor file's record must agree.
-      given: the options given on the command line; ``tolerance_m`` among them
-        with a ground truth that lists the right places itself is refused
+      input_size: the size image folders are resized to for the descriptor
+        (None: its own); a descriptor file's record must agree.
+      given: ``tolerance_m`` among them with a ground truth that lists the
+        right places itself is refused
         (:func:`rhythmic_jax.eval.ground_truth_files.idle_tolerance`).
       select: (reference's, queries') prefixes of the image names kept from
         hloc ``.h5`` files (``""``: every row), so one file holds both.
@@ -118,36 +94,37 @@ def frontier(
     from rhythmic_jax.app.native_stderr import gathered_stderr
     from rhythmic_jax.eval import frontier as fr
     from rhythmic_jax.eval.ground_truth_files import idle_tolerance
-    from rhythmic_jax.frames.sources import load_sources
+    from rhythmic_jax.frames.sources import load_sources, parse_input_size
 
-    if grid not in GRIDS:
-        raise InputError(f"{{opt:grid}} {grid!r}: one of {', '.join(GRIDS)}")
+    reference, queries, cache = job.reference, job.queries, job.cache or None
     if cache:
-        check_cache(cache, [reference, queries, *(ground_truth or ())])
-    maps = GRIDS[grid]["maps"] if maps is None else maps
-    bits = GRIDS[grid]["bits"] if bits is None else bits
-    pq = GRIDS[grid]["pq"] if pq is None else pq
+        check_cache(cache, [reference, queries, *(job.ground_truth or ())])
+    grid = GRIDS[job.grid]
+    maps = grid["maps"] if job.maps is None else _ints(job.maps, "maps")
+    bits = grid["bits"] if job.bits is None else _ints(job.bits, "bits")
+    pq = grid["pq"] if job.pq is None else _ints(job.pq, "pq") if job.pq else ()
+    lengths = _ints(job.lengths, "lengths")
 
     t0 = time.perf_counter()
-    ref_prefix, query_prefix = (p or None for p in select)
-    reads = {"progress": progress, "input_size": input_size}
-    ref = load_sources([reference], descriptor, select=ref_prefix, **reads).x
-    qry = load_sources([queries], descriptor, select=query_prefix, **reads).x
+    ref_prefix, query_prefix = (p or None for p in job.select or ("", ""))
+    reads = {"progress": progress, "input_size": parse_input_size(job.input_size)}
+    ref = load_sources([reference], job.descriptor, select=ref_prefix, **reads).x
+    qry = load_sources([queries], job.descriptor, select=query_prefix, **reads).x
     if ref.shape[1] != qry.shape[1]:
         raise InputError(
             f"{queries}: {qry.shape[1]}-d descriptors but {reference} has "
             f"{ref.shape[1]}-d"
         )
     truth = None
-    if ground_truth:
+    if job.ground_truth:
         from rhythmic_jax.eval.ground_truth_files import load_ground_truth
 
         truth = load_ground_truth(
-            ground_truth, n_queries=len(qry), n_places=len(ref),
+            job.ground_truth, n_queries=len(qry), n_places=len(ref),
             query_source=queries, reference_sources=[reference],
-            tolerance_m=tolerance_m, fmt=ground_truth_format,
+            tolerance_m=job.tolerance_m, fmt=job.ground_truth_format,
         )  # fmt: skip
-        idle_tolerance(truth, given)
+        idle_tolerance(truth, job.given)
     elif len(qry) > len(ref):
         raise InputError(
             f"{queries}: {len(qry)} queries for {len(ref)} places; without "
@@ -162,9 +139,9 @@ def frontier(
         )
     cfg, skipped = fr.trainable(fr.FrontierConfig(
         maps=tuple(maps), bits=tuple(bits),
-        lengths=kept, tolerance=int(tolerance),
-        dtypes=tuple(dtypes), pq=tuple(pq), scalar=True,
-        recall_values=tuple(recall_values),
+        lengths=kept, tolerance=int(job.tolerance),
+        dtypes=DTYPES, pq=tuple(pq), scalar=True,
+        recall_values=recall_values(job.recall_values),
     ), len(ref), d)  # fmt: skip
     with gathered_stderr(KMEANS_WARNING) as warned:
         rows = fr.frontier_rows(
@@ -172,29 +149,28 @@ def frontier(
             seqslam=max(cfg.lengths) > 1,
         )  # fmt: skip
     matched = len(qry) if truth is None else int(truth.in_map.sum())
-    if recall_over == "all":  # the unmatched queries are misses: hits / b
+    if job.recall_over == "all":  # the unmatched queries are misses: hits / b
         for row in rows:
             keys = [f"recall@1 L={k}" for k in cfg.lengths]
             keys += [f"recall@{k} L=1" for k in cfg.recall_values if k > 1]
             for key in keys:
                 if row.get(key) is not None:
                     row[key] *= matched / len(qry)
-    elif recall_over != "matched":
-        raise InputError(f"{{opt:recall_over}} {recall_over!r}: matched or all")
     for row, front in zip(rows, fr.pareto_front(rows), strict=True):
         row["pareto"] = front
     if truth is not None:
         described = truth.describe()
     else:
         described = {"source": "index-aligned (query i is place i)",
-                     "tolerance_frames": int(tolerance)}  # fmt: skip
+                     "tolerance_frames": int(job.tolerance)}  # fmt: skip
+    budget = job.budget
     choice = None if budget is None else fr.choose(rows, float(budget))
-    return {
+    result = {
         "n": len(ref),
         "d": d,
         "n_queries": len(qry),
-        "recall_over": recall_over,
-        "recall_queries": matched if recall_over == "matched" else len(qry),
+        "recall_over": job.recall_over,
+        "recall_queries": matched if job.recall_over == "matched" else len(qry),
         "ground_truth": described,
         "config": dataclasses.asdict(cfg),
         "budget_bytes_per_place": budget,
@@ -205,6 +181,20 @@ def frontier(
         "notes": [kmeans_note(warned)] if warned else [],
         "seconds": time.perf_counter() - t0,
     }
+    _write(job, result)
+    return result
+
+
+def _write(job: FrontierJob, result: dict[str, Any]) -> None:
+    """``--csv``'s rows and ``--plot``'s frontier, where asked for."""
+    if job.csv:
+        write_csv(result["rows"], job.csv)
+    if job.plot:
+        from rhythmic_jax.eval.figures import plot_frontier
+
+        plot_frontier(result["rows"], job.plot, result["config"]["lengths"],
+                      title=f"recall per byte, {result['n']} places",
+                      per_place=True, budget=job.budget)  # fmt: skip
 
 
 def check_cache(cache: str, inputs) -> None:
@@ -335,43 +325,3 @@ def write_csv(rows, path: str | Path) -> None:
     text = csv_text(columns, ([r.get(c) for c in columns] for r in rows))
     with atomic_path(Path(path)) as tmp, open(tmp, "w", newline="") as f:
         f.write(text)
-
-
-def main(args, given: frozenset[str] = frozenset()) -> int:
-    """The ``frontier`` command: the table (or ``--json``), ``--csv``, ``--plot``;
-    ``given``: the options named on the command line."""
-    from rhythmic_jax.app.specs import recall_values
-    from rhythmic_jax.frames.sources import parse_input_size
-
-    for opt in ("csv", "plot"):  # a folder there: refused before work
-        check_file_place(opt, getattr(args, opt))
-    if args.ground_truth_format and not args.ground_truth:
-        raise InputError("{opt:ground_truth_format} needs {opt:ground_truth}")
-    if args.plot and not str(args.plot).lower().endswith(".png"):
-        raise InputError(f"{{opt:plot}} {args.plot}: give a .png file name")
-    result = frontier(
-        args.reference, args.queries,
-        ground_truth=tuple(args.ground_truth) if args.ground_truth else None,
-        tolerance=args.tolerance, tolerance_m=args.tolerance_m,
-        maps=None if args.maps is None else _ints(args.maps, "maps"),
-        bits=None if args.bits is None else _ints(args.bits, "bits"),
-        pq=None if args.pq is None else _ints(args.pq, "pq") if args.pq else (),
-        grid=args.grid,
-        lengths=_ints(args.lengths, "lengths"), budget=args.budget,
-        cache=args.cache or None, descriptor=args.descriptor,
-        progress=not args.no_progress, select=tuple(args.select or ("", "")),
-        ground_truth_format=args.ground_truth_format, recall_over=args.recall_over,
-        recall_values=recall_values(args.recall_values) or (),
-        input_size=parse_input_size(args.input_size), given=given,
-    )  # fmt: skip
-    if args.csv:
-        write_csv(result["rows"], args.csv)
-    if args.plot:
-        from rhythmic_jax.eval.figures import plot_frontier
-
-        plot_frontier(result["rows"], args.plot, result["config"]["lengths"],
-                      title=f"recall per byte, {result['n']} places",
-                      per_place=True, budget=args.budget)  # fmt: skip
-    shown = "recall_values" in given
-    print(json.dumps(result, indent=2) if args.json else frontier_lines(result, shown))
-    return 0

@@ -3,8 +3,8 @@
 Each function takes a job of :mod:`rhythmic_jax.app.specs` (which checked its
 settings when it was made) and does its work:
 
-- :func:`fit`: the map folder, the augmented fit's settings and checkpoint
-  folder and the fit's plan (from descriptor files' headers when it can, so a
+- :func:`fit`: the augmented fit's settings and checkpoint folder and the
+  fit's plan (from descriptor files' headers when it can, so a
   fit too large for memory ends before they are read) settled first, the
   sources read, the map fitted (plainly, or over frames augmented on the fly
   with a resumable checkpoint folder, default ``OUT.ckpt``, removed once the map
@@ -19,7 +19,8 @@ settings when it was made) and does its work:
   reference frames when they are still there).
 
 Nothing here prints: the command line shows what they return through
-:mod:`rhythmic_jax.app.render`.
+:mod:`rhythmic_jax.app.render`, and checks where a job writes before it runs
+(a failed write said there in one line, :mod:`rhythmic_jax.app.cli`).
 """
 
 from __future__ import annotations
@@ -41,7 +42,6 @@ from rhythmic_jax.app.specs import (
     Reading,
 )
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.outputs import check_file_place, check_place, write_errors
 
 if TYPE_CHECKING:
     import numpy as np
@@ -84,14 +84,13 @@ def _before_reading(job: FitJob) -> Settled:
     weights, for images that name none), the fusion weight, the map's
     provenance (the sources' absolute paths and tiling, so that
     :func:`evaluate` finds the reference frames again; the embedding and the
-    fusion weight), for descriptor files of one shape the plan and its memory,
-    and the map folder. The plan is None where only reading the sources tells
+    fusion weight), for descriptor files of one shape the plan and its
+    memory. The plan is None where only reading the sources tells
     (images, files missing or of other shapes, ``pca``, ``places``, an
     embedding of another dimension: reading them says what is wrong).
     """
     from rhythmic_jax.fitting.fit_plan import plan as plan_fit
     from rhythmic_jax.fitting.places import frame_places, positions_of_sources
-    from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.io.descriptor_files import descriptor_shape
     from rhythmic_jax.map.embedding import (
         embedding_descriptor,
@@ -112,10 +111,9 @@ def _before_reading(job: FitJob) -> Settled:
             raise InputError("{opt:augment} and {opt:pca} together are not supported")
         names = tuple(job.augment.split(","))
         AugmentConfig(names=names)  # unknown names end here, not after describing
-        augmented = AugmentedFit(
-            names=names, epochs=job.epochs or 3, batch_size=job.batch_size or 128,
-            checkpoint_every=job.checkpoint_every or 50,
-        ), job.checkpoint_folder  # fmt: skip
+        shape = ("epochs", "batch_size", "checkpoint_every")  # else AugmentedFit's
+        given = {k: getattr(job, k) for k in shape if getattr(job, k) is not None}
+        augmented = AugmentedFit(names=names, **given), job.checkpoint_folder
     if job.embedding is not None:
         learned = load_embedding(job.embedding)
         name, weights = embedding_descriptor(learned[1])
@@ -142,10 +140,6 @@ def _before_reading(job: FitJob) -> Settled:
     if n and (learned is None or learned[0].d == d):
         k = d if learned is None else learned[0].k
         fit_plan = plan_fit(job.config, n, k, n * len(sources))
-    check_place("out", job.out)
-    if augmented is not None:
-        check_place("checkpoint", augmented[1], inside=True)
-    check_target(job.out)  # before the fit, not after it
     return Settled(augmented, learned, placed, read, ref, fusion["weight"], fit_plan)
 
 
@@ -225,8 +219,7 @@ def fit(job: FitJob, progress: bool = False):
         ref = {**ref, "frames_sha256": frames_digest(feats.x)}  # evaluate --reference
     fitted = replace(fitted, extra={**fitted.extra, **extra},
                      reference=map_file.reference(job.sources, **ref))  # fmt: skip
-    with write_errors("out", job.out):
-        map_file.save(job.out, fitted)
+    map_file.save(job.out, fitted)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
     return MapEstimator.from_map(fitted)
@@ -276,8 +269,7 @@ def _augmenting(augmented, feats, labels, read: Reading, progress: bool):
         progress=progress, checkpoint=ckpt,
     )  # fmt: skip
     try:
-        with write_errors("checkpoint", ckpt):
-            yield refine
+        yield refine
     except KeyboardInterrupt:
         raise FitInterrupted(kept) from None
 
@@ -292,11 +284,8 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
 
     from rhythmic_jax.fitting.learn import LearnConfig, learn_embedding
     from rhythmic_jax.frames.sources import load_sources
-    from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.map.embedding import save_embedding
 
-    check_target(job.out)
-    check_place("out", job.out)
     if len(job.sources) < 2:
         raise InputError("learn needs two or more traversals of the training route")
     bits = isinstance(job.codes, int) and not isinstance(job.codes, bool)
@@ -334,8 +323,7 @@ def learn(job: LearnJob, progress: bool = True) -> tuple[Any, dict[str, Any]]:
         sources=[str(Path(s).expanduser().absolute()) for s in job.sources],
         fusion=info.get("fusion"),
     )
-    with write_errors("out", job.out):
-        save_embedding(job.out, emb, meta)
+    save_embedding(job.out, emb, meta)
     info["traversals"] = len(job.sources)
     return emb, info
 
@@ -397,8 +385,7 @@ def query_results(job: QueryJob, progress: bool = False) -> dict[str, Any]:
     if job.csv:
         from rhythmic_jax.io.atomic import write_file
 
-        with write_errors("csv", job.csv):
-            write_file(job.csv, qr.csv_text(rows, extra=extra))
+        write_file(job.csv, qr.csv_text(rows, extra=extra))
     return {"predictions": pred.tolist(), "queries": rows, "ranks": result["ranks"],
             "decode": job.decode or model.config.decode, "sequence": job.sequence}
 
@@ -418,8 +405,7 @@ def _write_pairs(job: QueryJob, model, queries, top) -> None:
             f"{{opt:pairs}}: the {what} have no names (hloc's pairs name images); "
             "give image folders, hloc .h5 files or .npy files describe wrote"
         )
-    with write_errors("pairs", job.pairs):
-        write_file(job.pairs, pairs_text(queries, top, places))
+    write_file(job.pairs, pairs_text(queries, top, places))
 
 
 def _queried(job: QueryJob, progress: bool):
@@ -427,8 +413,6 @@ def _queried(job: QueryJob, progress: bool):
     predictions written to ``job.out`` (``.npy``) when given."""
     import numpy as np
 
-    for opt in ("out", "csv", "pairs"):  # a folder there: refused before work
-        check_file_place(opt, getattr(job, opt))
     out = job.out
     model, feats = _load_queries(job, progress)
     pred = model.predict(
@@ -438,8 +422,7 @@ def _queried(job: QueryJob, progress: bool):
     if out:
         from rhythmic_jax.io.atomic import save_npy
 
-        with write_errors("out", out):
-            save_npy(out, pred)
+        save_npy(out, pred)
     return model, feats, pred
 
 
@@ -495,8 +478,7 @@ def _write_per_query(job: EvaluateJob, model, x, result: dict) -> None:
     about = {k: result[k] for k in ("ground_truth", "decode", "sequence",
                                     "tolerance")}  # fmt: skip
     about["ranks"] = scored["ranks"]
-    with write_errors("per_query", job.per_query):
-        write_records(job.per_query, rows, about)
+    write_records(job.per_query, rows, about)
     result["per_query"] = str(job.per_query)
 
 
@@ -512,17 +494,6 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     from rhythmic_jax.validate import check_reference, frames_digest
 
     plot, reference, read = job.plot, job.reference, job.reading
-    if job.per_query:
-        from rhythmic_jax.app.per_query import check_suffix
-
-        check_suffix("per_query", job.per_query)
-        check_place("per_query", job.per_query, file=True)
-    for opt in ("plot", "matches"):
-        path = getattr(job, opt)
-        if path and not str(path).lower().endswith(".png"):
-            raise InputError(f"{{opt:{opt}}} {path}: give a .png file name")
-        if path:
-            check_place(opt, path, file=True)
     drawn = None
     if job.matches:
         from rhythmic_jax.app import matches
@@ -558,15 +529,13 @@ def evaluate(job: EvaluateJob, progress: bool = False) -> dict[str, Any]:
     if plot:
         from rhythmic_jax.eval.figures import plot_evaluation
 
-        with write_errors("plot", plot):
-            plot_evaluation(result, path=plot)
+        plot_evaluation(result, path=plot)
         result["plot"] = str(plot)
     if drawn is not None:
         from rhythmic_jax.eval.figures import plot_matches
 
         rows = matches.match_rows(result, drawn, places)
-        with write_errors("matches", job.matches):
-            plot_matches(rows, path=job.matches)
+        plot_matches(rows, path=job.matches)
         result["matches"] = str(job.matches)
     for row in result["methods"].values():  # the figures' data, not the summary's
         for key in ("pr_curve", "recall_curve", "predictions", "confidence", "correct"):

@@ -10,7 +10,14 @@ declared by another job). Its default is the field's (none: a positional, or a
 is the largest the number's kind takes, so a huge value is refused there);
 ``dest``, the option's name where it is not the field's; ``positional``;
 ``path``: what the job does with it (``reads``, ``writes``, ``frames``: reads
-frames from it; :func:`check_paths`; :func:`written`).
+frames from it; :func:`check_paths`; :func:`written`); for an output,
+``output``, how its place is checked before the work (:data:`OUTPUTS`), and
+``suffix``, the file names it takes; ``show_default``: the default in words,
+where the field's own (None, '') is settled by the job, or words after a
+declared value; ``default_from``: the class whose field of the same name holds
+the default (``module.Class``, read without importing it).
+Every default is stated by :func:`add_options` from the declaration alone
+(:func:`default_phrase`); no help text words its own.
 A field holding a part of the settings (:func:`part`) offers the part's options,
 titled ``group`` in ``--help`` and made into its value by ``make`` (default: the
 part's class).
@@ -25,6 +32,8 @@ overwrite what it reads. Imports no numpy, JAX or torch.
 from __future__ import annotations
 
 import argparse
+import ast
+import importlib.util
 from collections.abc import Callable
 from dataclasses import MISSING, Field, dataclass, field, fields
 from pathlib import Path
@@ -34,8 +43,9 @@ from rhythmic_jax.errors import InputError
 from rhythmic_jax.validate import is_number
 
 __all__ = [
-    "Checked", "OptionRefused", "Rule", "add_options", "check_paths", "like", "make",
-    "option", "options", "part", "settings", "written",
+    "OUTPUTS", "Checked", "OptionRefused", "Rule", "add_options", "check_paths",
+    "declared_default", "default_phrase", "like", "make", "option", "options",
+    "outputs", "part", "settings", "written",
 ]  # fmt: skip
 
 ARGPARSE = ("nargs", "metavar", "choices", "required")
@@ -79,9 +89,38 @@ def options(cls: type, helps: dict | None = None, group: str | None = None):
             yield meta.get("dest", f.name), f, help_, group
 
 
+def declared_default(where: str, name: str) -> Any:
+    """The literal default of the field ``name`` of the class ``where``
+    (``module.Class``), read from the module's source: a class whose module
+    imports JAX states its defaults to ``--help`` without being imported."""
+    module, cls = where.rsplit(".", 1)
+    source = Path(importlib.util.find_spec(module).origin).read_text()
+    body = next(n for n in ast.parse(source).body
+                if isinstance(n, ast.ClassDef) and n.name == cls).body  # fmt: skip
+    return next(ast.literal_eval(n.value) for n in body
+                if isinstance(n, ast.AnnAssign) and n.target.id == name)  # fmt: skip
+
+
+def default_phrase(f: Field) -> str | None:
+    """How ``--help`` states the option's default, from its declaration alone:
+    ``(default V)`` for a value (not None, False or ''; a float as %g; from
+    ``default_from`` where declared there), ``(default V: WORDS)`` with its
+    ``show_default`` words, ``(default: WORDS)`` for words alone; None where
+    there is nothing to state."""
+    meta = f.metadata
+    value = default_of(f)
+    if "default_from" in meta:
+        value = declared_default(meta["default_from"], f.name)
+    words = meta.get("show_default")
+    if value is MISSING or value is None or value is False or value == "":
+        return None if words is None else f"(default: {words})"
+    shown = f"{value:g}" if isinstance(value, float) else str(value)
+    return f"(default {shown})" if words is None else f"(default {shown}: {words})"
+
+
 def add_options(parser: argparse.ArgumentParser, cls: type) -> None:
-    """Each option of ``cls`` added to ``parser``; a declared default (not None,
-    False or '') stated in its help unless the help says it, and a domain too."""
+    """Each option of ``cls`` added to ``parser``, its default stated in its
+    help (:func:`default_phrase`), and its domain too."""
     groups = {}
     for dest, f, help_, group in options(cls):
         meta = {k: v for k, v in f.metadata.items() if k in ARGPARSE}
@@ -93,9 +132,9 @@ def add_options(parser: argparse.ArgumentParser, cls: type) -> None:
             meta["default"] = None if default is MISSING else default
             if default is False:
                 meta["action"] = "store_true"
-            stated = default is not None and default is not False and default != ""
-            if stated and default is not MISSING and "default" not in help_:
-                help_ += " (default %(default)s)"
+            phrase = default_phrase(f)
+            if phrase is not None:  # argparse expands % in help
+                help_ += " " + phrase.replace("%", "%%")
         domain = f.metadata.get("domain")
         if domain is not None:
             meta["type"] = domain
@@ -174,6 +213,10 @@ class Checked:
                     meta["domain"].check(value)
                 except InputError as err:
                     raise InputError(f"{{opt:{name}}} {err}") from None
+            choices = meta.get("choices")
+            if choices and value is not None and value not in choices:
+                raise InputError(f"{{opt:{name}}} {value!r}: one of "
+                                 f"{', '.join(map(str, choices))}")  # fmt: skip
         given = {k for k, (v, d, _) in values.items() if v != d} | set(self.given)
         warned: dict[str, str] = {}
         for rule in self.RULES:
@@ -217,6 +260,30 @@ def _paths(job, *how: str) -> list[tuple[str, str]]:
 def written(job) -> list[tuple[str, str]]:
     """(option, path) of every file or folder the job was told to write."""
     return _paths(job, "writes")
+
+
+#: How an output's place is checked before the work (its option's ``output``):
+#: ``map``: a map or embedding folder, replaced whole; ``file``: one file in a
+#: folder that exists; ``made``: one file, its missing folders made; ``into``:
+#: a folder written into and kept (a checkpoint); ``kept``: a folder made once
+#: and reused when there (its place checked only when it is not); ``place``:
+#: a new file or folder, missing folders made.
+OUTPUTS = ("map", "file", "made", "into", "kept", "place")
+
+
+def outputs(job) -> list[tuple[str, str, str]]:
+    """(option, path, how its place is checked, :data:`OUTPUTS`) of every
+    output of ``job``: those it was told to write, then its implied ones; a
+    path its option's ``suffix`` does not end is refused (:class:`InputError`)."""
+    found, listed = settings(job), []
+    for dest, path in written(job) + job.implied_writes():
+        meta = found[dest][2]
+        suffix = meta.get("suffix")
+        if suffix and not path.lower().endswith(suffix):
+            raise InputError(f"{{opt:{dest}}} {path}: give a "
+                             f"{' or '.join(suffix)} file name")  # fmt: skip
+        listed.append((dest, path, meta.get("output", "place")))
+    return listed
 
 
 def _clash(w: Path, r: Path) -> str | None:

@@ -227,6 +227,8 @@ def evaluate_summary(result: dict[str, Any]) -> str:
     if result.get("plot"):
         lines += f"\nPR curves, recall@N and the route -> {result['plot']}"
     if result.get("matches"):
-        lines += f"\nqueries beside the places chosen and the right ones -> " \
+        lines += (
+            f"\nqueries beside the places chosen and the right ones -> "
             f"{result['matches']}"
+        )
     return lines

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from rhythmic_jax.app.specs import Reported
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.io.outputs import check_place, staged_folder, write_errors
+from rhythmic_jax.io.outputs import staged_folder
 from rhythmic_jax.io.reader import read_json
 
 __all__ = ["MANIFEST", "fit_scaled", "wants_scale"]
@@ -99,9 +99,8 @@ def _describe_to_shards(job, progress: bool) -> list[str]:
         _check_reusable(root, manifest)
         log.info("%s: the shards of these images are described already", root)
         return [str(root / folder) for folder in names]
-    check_place("shards", root)
     # staged whole: a failed or killed run leaves no folder that blocks the next
-    with write_errors("shards", root), staged_folder(root) as staged:
+    with staged_folder(root) as staged:
         for src, folder in zip(job.sources, names, strict=True):
             describe_to_shards(src, staged / folder, name, settings, progress=progress)
         (staged / MANIFEST).write_text(json.dumps(manifest, indent=2))
@@ -180,14 +179,9 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
     import numpy as np
 
     from rhythmic_jax.fitting.scale_fit import fit_map_files, parse_bytes
-    from rhythmic_jax.io.checkpoint import check_target
     from rhythmic_jax.solvers import distributed
 
     scale = job.scale
-    check_target(job.out)
-    check_place("out", job.out)
-    if job.checkpoint is not None:
-        check_place("checkpoint", job.checkpoint, inside=True)
     memory = parse_bytes(scale.memory) if scale.memory is not None else None
     sources = list(job.sources)
     shard_sources = None
@@ -230,11 +224,10 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
             )
     config = replace(job.config, descriptor=name, descriptor_settings=settings)
     ckpt = job.checkpoint_folder
-    with write_errors("checkpoint", ckpt):
-        fitted, run = fit_map_files(
-            config, sources, memory=memory, stream=scale.stream, progress=progress,
-            checkpoint=ckpt,
-        )  # fmt: skip
+    fitted, run = fit_map_files(
+        config, sources, memory=memory, stream=scale.stream, progress=progress,
+        checkpoint=ckpt,
+    )  # fmt: skip
     if name == "features":
         settings = {"dim": fitted.d}
 
@@ -243,8 +236,7 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         reference=map_file.reference(sources, tile=None, stride=None),
     )  # fmt: skip
     if jax.process_index() == 0:
-        with write_errors("out", job.out):
-            map_file.save(job.out, fitted)
+        map_file.save(job.out, fitted)
     distributed.allreduce(np.zeros(1))  # every process waits for the saved map
     (ckpt / f"stream-{jax.process_index()}-of-{jax.process_count()}.npz").unlink(
         missing_ok=True

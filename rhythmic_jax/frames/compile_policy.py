@@ -53,8 +53,8 @@ class CompilePolicy:
         "compiled for this CPU (see the main --help)",
         "choices": COMPILE_MODES, "dest": "compile"})  # fmt: skip
     min_frames: int | None = field(default=None, metadata={
-        "help": "with --compile auto, compile from N frames on (built or not; "
-        f"default {LOAD_MIN_FRAMES})", "metavar": "N", "domain": int_option(0),
+        "help": "with --compile auto, compile from N frames on (built or not)",
+        "show_default": f"{LOAD_MIN_FRAMES}", "metavar": "N", "domain": int_option(0),
         "dest": "compile_min_frames"})  # fmt: skip
 
     def __post_init__(self):

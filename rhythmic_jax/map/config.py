@@ -130,13 +130,14 @@ class MapConfig:
         "help": "candidate periods (each is fitted once to choose among them)",
         "domain": int_option(2, 64)})  # fmt: skip
     c: float | None = field(default=None, metadata={
-        "help": "SVM penalty (default log N)", "domain": number_option(0)})  # fmt: skip
+        "help": "SVM penalty", "show_default": "log N",
+        "domain": number_option(0)})  # fmt: skip
     solver: str = field(default="newton", metadata={
         "help": "how the SVMs are solved (newton: Newton-CG to --gap)",
         "choices": SOLVERS})  # fmt: skip
     gap: float = field(default=1e-7, metadata={
-        "help": "stop the solver at this estimated relative objective gap (default "
-        "%(default)g: the optimum; 1e-3 stops within about 0.1 %%, sooner)",
+        "help": "stop the solver at this estimated relative objective gap; 1e-3 "
+        "stops within about 0.1 %%, sooner", "show_default": "the optimum",
         "domain": number_option(0, 1)})  # fmt: skip
     decode: str = "hard"
     top: int = 3
@@ -154,8 +155,8 @@ class MapConfig:
     fusion: float = 0.5
 
     layout: str = field(default="periods", metadata={
-        "help": "how frames are labelled: periods (default, chosen by training "
-        "error), periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix digits, most "
+        "help": "how frames are labelled: periods (chosen by training error), "
+        "periods:T1,T2, mixed or mixed:B1,..,Br (mixed-radix digits, most "
         "significant first: it classifies contiguous segments), hierarchical, "
         "hierarchical:SEG or hierarchical:SEG:T1,T2 (segments of SEG frames plus "
         "co-prime fine periods); sizes left out match the storage of --r/--level"

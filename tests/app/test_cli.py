@@ -316,7 +316,7 @@ def test_every_option_is_declared_once():
     import ast
     from dataclasses import MISSING
 
-    from rhythmic_jax.app import cli
+    from rhythmic_jax.app import cli, parser
     from rhythmic_jax.app.options import default_of
 
     for name, declared in _declared().items():
@@ -330,10 +330,10 @@ def test_every_option_is_declared_once():
             assert action.default == (None if default is MISSING else default)
             assert action.choices == f.metadata.get("choices"), action.dest
             assert action.type is f.metadata.get("domain"), action.dest
-    tree = ast.parse(Path(cli.__file__).read_text())
     added = [
         node.args[-1].value
-        for node in ast.walk(tree)
+        for module in (cli, parser)
+        for node in ast.walk(ast.parse(Path(module.__file__).read_text()))
         if isinstance(node, ast.Call)
         and getattr(node.func, "attr", "") == "add_argument"
     ]
@@ -480,7 +480,7 @@ def test_help_examples_keep_their_lines(capsys):
     evaluate's examples name their plots for what they draw."""
     import re
 
-    from rhythmic_jax.app.cli import EXAMPLES
+    from rhythmic_jax.app.parser import EXAMPLES
 
     for name, text in EXAMPLES.items():
         for line in text.splitlines():

@@ -95,10 +95,8 @@ def _judge(command: str, code: int, lines: list[str]) -> bool:
         assert not any("Traceback" in line or "error" in line for line in lines), lines
         return True
     assert code == 2, (code, lines)
-    # one error line; warnings on options the input makes idle may precede it
-    said = [s for s in lines if not s.startswith(f"rhythmic-jax {command}: warning: ")]
-    assert len(said) == 1, lines
-    assert said[0].startswith(f"rhythmic-jax {command}: error: "), lines
+    assert len(lines) == 1, lines  # warnings and notes are said only on success
+    assert lines[0].startswith(f"rhythmic-jax {command}: error: "), lines
     return False
 
 
