@@ -318,3 +318,25 @@ def test_fit_frames_is_the_estimators_fit():
     np.testing.assert_array_equal(m.extra["scale_mean"], est.extra["scale_mean"])
     with pytest.raises(InputError, match="scale must be one of"):
         fit_frames(x, MapConfig(), scale="sometimes")
+
+
+def test_a_held_map_reads_as_the_estimator_does(fitted):
+    """What the reports and printers read of the command line's map
+    (:class:`~rhythmic_jax.decoding.held.HeldMap`) is what they read of the
+    estimator holding the same map."""
+    from rhythmic_jax.decoding.held import HeldMap
+
+    model, x = fitted
+    held = HeldMap(model.map_)
+    for name in ("n", "d", "periods", "candidates", "groups", "codebook",
+                 "storage_bytes", "compression_ratio", "embedding_bytes",
+                 "reference", "config"):  # fmt: skip
+        assert getattr(held, name) == getattr(model, name), name
+    assert held.storage_bytes == sum(model.periods) * 251 * 4
+    assert held.info() == model.info() and held.value is model.map_
+    for method in ("hard", "soft", "topm"):
+        np.testing.assert_array_equal(held.predict(x, method), np.arange(150))
+    assert held.locate(x[7]) == 7
+    np.testing.assert_array_equal(
+        np.asarray(held.decode(x[:9]).index), np.asarray(model.decode(x[:9]).index)
+    )
