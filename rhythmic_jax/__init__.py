@@ -5,8 +5,10 @@ co-prime periods; a query is localised by the argmax phase of each period and th
 Chinese-remainder intersection (Yu, Jacobson, Milford, "Rhythmic Representations").
 This module is the public face, generated from the one table ``_API`` (module ->
 the names it gives the package). It imports nothing heavy: each name loads its
-module on first use (``rhythmic_jax.RhythmicMap`` imports JAX, ``BruteForce``
-faiss), so ``import rhythmic_jax`` and ``rhythmic-jax --help`` start at once. No
+module on first use (``rhythmic_jax.RhythmicMap`` imports JAX and
+scikit-learn, ``BruteForce`` faiss), so ``import rhythmic_jax`` and
+``rhythmic-jax --help`` start at once, and a command, which works on ``Map``
+values, never loads scikit-learn. No
 public name is also a submodule's or folder's name (``rhythmic_jax.map`` is the
 folder of the map's modules, never a function).
 """
@@ -28,7 +30,7 @@ _API: dict[str, str] = {
     "decoding.queries": "decode decode_sequence place_scores predict scores",
     "decoding.hard": "Decoded",
     "map.map_file": "load save",
-    # the scikit-learn-style face over them
+    # the scikit-learn estimator over them (imports scikit-learn when asked for)
     "rhythmic_map": "RhythmicMap",
     # the paper's periods and storage arithmetic
     "map.periods": (

@@ -107,7 +107,7 @@ def not_of_order_one(x: np.ndarray) -> bool:
     shorter than the solver fits (:func:`rhythmic_jax.fitting.fit_map.check_length`,
     frames multiplied by 1e30 or 1e-30), or shorter than :data:`AUTO_SHORTEST`,
     which a fit takes but places badly."""
-    from rhythmic_jax.fitting.fit_map import check_length
+    from rhythmic_jax.solvers.frame_length import check_length
 
     sums = scale_sums(x)
     try:

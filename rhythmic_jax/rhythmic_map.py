@@ -16,46 +16,38 @@ attributes of a fitted estimator (``m.periods``, ``m.n``, ``m.codebook``, ...);
 before a fit they raise ``NotFittedMapError``, scikit-learn's ``NotFittedError``
 and this package's :class:`~rhythmic_jax.errors.InputError` at once.
 
-``RhythmicMap`` is :class:`MapEstimator` on scikit-learn's ``BaseEstimator`` as
-well, made when first asked for: importing scikit-learn would cost every
-command that holds a map, so the command line holds :class:`MapEstimator`,
-which answers scikit-learn's protocol without it
-(:mod:`rhythmic_jax.estimator_face`).
+The fit's preparation (settings, labels, scale) is
+:func:`rhythmic_jax.fitting.prepare.fit_frames` and the queries in the map's
+own terms (its scale, its labels) :mod:`rhythmic_jax.decoding.held`: the
+command line's jobs call the same functions on :class:`Map` values. scikit-learn
+is imported here, as any scikit-learn estimator imports it; ``import
+rhythmic_jax`` does not import this module until ``RhythmicMap`` is asked for.
 """
 
 from __future__ import annotations
 
-import functools
 import inspect
 import json
 from dataclasses import fields, replace
 
-import jax
 import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.exceptions import NotFittedError
 
-from rhythmic_jax.decoding import queries
+from rhythmic_jax.decoding import held
 from rhythmic_jax.errors import InputError
-from rhythmic_jax.estimator_face import EstimatorFace, not_fitted_error
-from rhythmic_jax.estimator_inputs import (
-    SCALE_KEYS,
-    SCALES,
-    check_settings,
-    not_of_order_one,
-    place_labels,
-    query_rows,
-    shape_checked,
-    standardize,
-    standardized,
-)
-from rhythmic_jax.fitting.fit_map import fit as fit_map
+from rhythmic_jax.fitting.prepare import fit_frames
 from rhythmic_jax.map import map_file, pytree
 from rhythmic_jax.map.config import MapConfig
 from rhythmic_jax.map.embedding import embedding_bytes
-from rhythmic_jax.validate import check_features, check_int
+from rhythmic_jax.validate import check_int
 
-__all__ = ["MapConfig", "MapEstimator", "RhythmicMap"]  # noqa: F822 - RhythmicMap: made on first use
+__all__ = ["MapConfig", "NotFittedMapError", "RhythmicMap"]
 
-_FIT_KEYS = (*SCALE_KEYS, "place_labels")  # extra arrays each fit makes anew
+
+class NotFittedMapError(InputError, NotFittedError):
+    """A fitted map's value asked of an estimator before ``fit`` or ``load``:
+    scikit-learn's ``NotFittedError`` and this package's one-line error."""
 
 
 def _map_field(name: str, doc: str) -> property:
@@ -67,7 +59,7 @@ def _map_field(name: str, doc: str) -> property:
     return property(lambda self: getattr(self._fitted(), name), set_, doc=doc)
 
 
-class MapEstimator(EstimatorFace):
+class RhythmicMap(BaseEstimator):
     """A place-recognition map stored as r groups of periodic linear templates.
 
     Parameters (by name only; checked by ``fit``): ``r``, ``level``, ``count``,
@@ -193,47 +185,13 @@ class MapEstimator(EstimatorFace):
     def fit(self, X, y=None, *, verbose=0, progress=None, refine=None, plan=None):
         """Train on reference frames X (n_frames, d): one place per row, or per
         label of ``y`` (n_frames,) (integers >= 0)
-        (:func:`rhythmic_jax.fitting.fit_map.fit`). Returns self."""
-        cfg, name = self._settings(), "reference features"
-        check_settings(cfg)  # as the command line checks its options
-        x = check_features(shape_checked(X, name), name)
-        if self.scale not in SCALES:
-            raise InputError(f"scale must be one of {SCALES}, got {self.scale!r}")
-        extra = {k: v for k, v in self.extra.items() if k not in _FIT_KEYS}
-        if self.scale == "standardize" and self.embedding is not None:
-            raise InputError(
-                "scale='standardize' with an embedding: the embedding takes "
-                "the descriptors as they are; use scale='refuse' or 'auto'"
-            )
-        unscaled = (
-            self.scale == "auto" and self.embedding is None and not_of_order_one(x)
-        )
-        if self.scale == "standardize" or unscaled:
-            extra.update(standardize(x))
-            x = standardized(x, extra)
-        labels = None
-        if y is not None:  # places numbered in the order of their labels
-            places, labels = np.unique(place_labels(y, len(x)), return_inverse=True)
-            if not np.array_equal(places, np.arange(len(places))):
-                extra["place_labels"] = places
-        n = len(x) if labels is None else int(labels.max()) + 1
-        if n < 2:
-            raise InputError(
-                f"{name}: {n} place (n_samples = {len(x)}); a map needs at least 2"
-            )
+        (:func:`rhythmic_jax.fitting.prepare.fit_frames`). Returns self."""
         progress = bool(verbose if progress is None else progress)
-        got = fit_map(x, cfg, labels=labels, embedding=self.embedding,
-                      progress=progress, refine=refine, plan=plan)  # fmt: skip
-        return self._take(got, extra=extra)
-
-    def _take(self, kept, d: int | None = None, extra=None) -> MapEstimator:
-        """Hold a fitted map, or a fit's ``kept`` templates of d-dim frames (a fit
-        from files), with this estimator's extra arrays and reference."""
-        extra = dict(self.extra if extra is None else extra)
-        ref = self._reference_text()
-        if d is not None:
-            kept = pytree.Map.build(kept, d, self._settings(), embedding=self.embedding)
-        self.map = replace(kept, extra=extra, reference=ref)
+        got = fit_frames(X, self._settings(), y, scale=self.scale,
+                         embedding=self.embedding, extra=self.extra,
+                         reference=self._reference_text(), progress=progress,
+                         refine=refine, plan=plan)  # fmt: skip
+        self.map = got
         return self
 
     # ------------------------------------------------------------ the map held
@@ -260,7 +218,7 @@ class MapEstimator(EstimatorFace):
         try:
             return self.__dict__["map_"]
         except KeyError:
-            raise not_fitted_error()(
+            raise NotFittedMapError(
                 "this map is not fitted yet: call fit() or load() first"
             ) from None
 
@@ -309,15 +267,11 @@ class MapEstimator(EstimatorFace):
     # ------------------------------------------------------------ queries
     def scores(self, X):
         """Decision values of queries X (b, d) -> (b, p)."""
-        m = self._fitted()
-        x = query_rows(X, m.d, m.extra)
-        return queries.scores(m, x)
+        return held.scores(self._fitted(), X)
 
     def place_scores(self, X):
         """Score of every place (b, n) for queries X (b, d); fused with codes."""
-        m = self._fitted()
-        x = query_rows(X, m.d, m.extra)
-        return queries.place_scores(m, x)
+        return held.place_scores(self._fitted(), X)
 
     def decode(self, X, method: str | None = None, top: int | None = None):
         """Decode queries X (b, d): :class:`~rhythmic_jax.decoding.hard.Decoded`
@@ -325,36 +279,20 @@ class MapEstimator(EstimatorFace):
         "soft" or "topm" and ``top`` (the phases per period top-m keeps) default
         to the map's. The index is the map's place row 0 .. n-1 (``predict``
         names it by the labels ``fit`` had)."""
-        m = self._fitted()
-        if isinstance(X, jax.core.Tracer):  # checked at trace time by decode
-            return queries.decode(m, X, method, top)
-        x = query_rows(X, m.d, m.extra)
-        return queries.decode(m, x, method, top)
+        return held.decode(self._fitted(), X, method, top)
 
     def predict(self, X, method=None, *, top=None, sequence=None, speeds=(1.0,),
                 threshold=None):  # fmt: skip
         """Place of every query X (b, d): (b,) int64, -1 for no match
-        (:func:`rhythmic_jax.decoding.queries.predict`: ``method``, ``top``,
-        ``sequence`` length, ``speeds``, ``threshold``); the queries taken by
-        :func:`rhythmic_jax.estimator_inputs.query_rows` first."""
+        (:func:`rhythmic_jax.decoding.held.predict`: ``method``, ``top``,
+        ``sequence`` length, ``speeds``, ``threshold``), by the labels ``fit``
+        had."""
         try:  # a query's latency: no call where the map is held
             m = self.map_
         except AttributeError:
             m = self._fitted()  # raises, in the estimator's words
-        queries.refuse_trace(m, X)
-        x = query_rows(X, m.d, m.extra)
-        got = queries.predict(m, x, method, top=top, sequence=sequence,
-                              speeds=speeds, threshold=threshold)  # fmt: skip
-        return got if "place_labels" not in m.extra else self._labelled(got, m)
-
-    def _labelled(self, index, m: pytree.Map | None = None):
-        """Places (b,) of the map ``m`` (default the one held) as the labels
-        ``fit`` was given (-1 kept)."""
-        labels = (self.map_ if m is None else m).extra.get("place_labels")
-        if labels is None:
-            return index
-        labels = np.asarray(labels)
-        return np.where(index >= 0, labels[np.maximum(index, 0)], -1)
+        return held.predict(m, X, method, top=top, sequence=sequence,
+                            speeds=speeds, threshold=threshold)  # fmt: skip
 
     def score(self, X, y=None) -> float:
         """Recall@1 of queries X (b, d) against their places ``y`` (b,) (-1: a
@@ -380,11 +318,7 @@ class MapEstimator(EstimatorFace):
 
     def locate(self, q) -> int:
         """Place of one descriptor q (d,), -1 for no match."""
-        m = self._fitted()
-        if "scale_mean" in m.extra:
-            q = query_rows(queries.one_query(q, m.d), m.d, m.extra, "query")[0]
-        got = queries.locate(m, q)
-        return got if "place_labels" not in m.extra else int(self._labelled(got))
+        return held.locate(self._fitted(), q)
 
     def storage(self) -> dict:
         """Bytes of templates, codes and embedding (:func:`pytree.storage`)."""
@@ -395,7 +329,7 @@ class MapEstimator(EstimatorFace):
         return map_file.describe(self._fitted())
 
     # ------------------------------------------------------------ files
-    def with_dtype(self, dtype: str) -> MapEstimator:
+    def with_dtype(self, dtype: str) -> RhythmicMap:
         """A copy storing its templates as ``dtype`` (from the values stored now)."""
         return type(self).from_map(pytree.with_dtype(self._fitted(), dtype))
 
@@ -411,7 +345,7 @@ class MapEstimator(EstimatorFace):
         return cls.from_map(got)
 
     @classmethod
-    def from_map(cls, m: pytree.Map) -> MapEstimator:
+    def from_map(cls, m: pytree.Map) -> RhythmicMap:
         """A fitted estimator holding the map ``m``, with the parameters it was
         built with."""
         scale = "standardize" if "scale_mean" in m.extra else "refuse"
@@ -421,34 +355,10 @@ class MapEstimator(EstimatorFace):
 
 
 # what inspect.signature(RhythmicMap) shows (else __new__'s *args, **kwargs)
-_INIT = inspect.signature(MapEstimator.__init__)
-MapEstimator.__signature__ = _INIT.replace(
+_INIT = inspect.signature(RhythmicMap.__init__)
+RhythmicMap.__signature__ = _INIT.replace(
     parameters=list(_INIT.parameters.values())[1:]
 )
-
-
-@functools.cache
-def _estimator_class() -> type:
-    """``RhythmicMap``: :class:`MapEstimator` on scikit-learn's ``BaseEstimator``
-    too, made on first use (importing scikit-learn costs every command that
-    holds a map; the command line holds :class:`MapEstimator` itself)."""
-    from sklearn.base import BaseEstimator
-
-    cls = type("RhythmicMap", (MapEstimator, BaseEstimator), {
-        "__doc__": MapEstimator.__doc__, "__module__": __name__,
-    })  # fmt: skip
-    cls.__signature__ = MapEstimator.__signature__
-    return cls
-
-
-def __getattr__(name: str):
-    """``RhythmicMap`` and ``NotFittedMapError``, made on first use (both import
-    scikit-learn)."""
-    if name == "RhythmicMap":
-        return _estimator_class()
-    if name == "NotFittedMapError":
-        return not_fitted_error()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _params_of(config: MapConfig) -> dict:

@@ -1296,9 +1296,7 @@ def test_a_map_too_large_for_the_disk_is_refused_before_the_solve(
     def solve(*args, **kwargs):
         raise AssertionError("the solve started on a disk that cannot hold the map")
 
-    from rhythmic_jax.rhythmic_map import MapEstimator  # what the command holds
-
-    monkeypatch.setattr(MapEstimator, "fit", solve)
+    monkeypatch.setattr("rhythmic_jax.fitting.fit_map.fit", solve)  # the solve
     code, lines = _fit(src, small_disk / "route.map", capsys)
     assert code == 2 and len(lines) == 1, lines
     found = re.fullmatch(

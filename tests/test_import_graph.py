@@ -41,14 +41,15 @@ LAYERS = [
     ["frames.describe_shards", "frames.network_build", "frames.sources"],
     ["frames.route_descriptors"],
     ["jit_cache"],
-    ["solvers.newton_system", "solvers.objective", "solvers.precision",
-     "solvers.precondition", "solvers.span"],
+    ["solvers.frame_length", "solvers.newton_system", "solvers.objective",
+     "solvers.precision", "solvers.precondition", "solvers.span"],
     ["solvers.exact_linesearch", "solvers.newton_config"],
     ["solvers.candidates", "solvers.memory", "solvers.newton_cg", "solvers.optax_loops",
      "solvers.passes"],
     ["solvers.newton", "solvers.resumable"],
     ["solvers.distributed", "solvers.streamed"],
     ["solvers.protocol"],
+    ["estimator_inputs"],
     ["decoding.buckets"],
     ["decoding.hard"],
     ["decoding.host", "decoding.soft"],
@@ -56,11 +57,10 @@ LAYERS = [
     ["decoding.dispatch", "decoding.sequence"],
     ["decoding.batch", "decoding.fusion"],
     ["decoding.queries"],
+    ["decoding.held"],
     ["fitting.closed_form", "fitting.fit_plan", "fitting.holdout", "fitting.places"],
     ["fitting.fit_map", "fitting.learn"],
-    ["fitting.scale_fit"],
-    ["estimator_face", "estimator_inputs"],
-    ["rhythmic_map"],
+    ["fitting.prepare", "fitting.scale_fit"],
     ["augment.kornia_ops"],
     ["augment.stream"],
     ["eval.baselines", "eval.budget_peers", "eval.figure_canvas", "eval.frontier_pca",
@@ -82,6 +82,7 @@ LAYERS = [
     ["app.per_query"],
     ["app.jobs"],
     ["app.cli"],
+    ["rhythmic_map"],  # the scikit-learn face: nothing in the package imports it
     [""],  # the public face, rhythmic_jax/__init__.py: nothing imports it
 ]  # fmt: skip
 RANK = {name: i for i, layer in enumerate(LAYERS) for name in layer}
@@ -183,6 +184,24 @@ def test_the_check_catches_an_upward_import(tmp_path):
     assert _imports(fake, top=True) == set()
     fake.write_text("from rhythmic_jax import RhythmicMap\n")
     assert _imports(fake) == {""}
+
+
+def test_the_estimator_is_imported_by_no_module_and_alone_imports_sklearn():
+    """``RhythmicMap`` is a face for scikit-learn's users: the command line and
+    the evaluations work on ``Map`` values, and only the estimator's module
+    imports scikit-learn at load (others import it inside what uses it)."""
+    users = [_name(p) for p in MODULES if "rhythmic_map" in _imports(p)]
+    assert users == []
+    at_load = []
+    for path in MODULES:
+        for node in ast.parse(path.read_text()).body:
+            names = [a.name for a in getattr(node, "names", [])]
+            module = getattr(node, "module", None) or ""
+            if module.startswith("sklearn") or any(
+                n.startswith("sklearn") for n in names
+            ):
+                at_load.append(_name(path))
+    assert sorted(set(at_load)) == ["rhythmic_map"]
 
 
 def test_each_folder_sits_on_consecutive_layers():

@@ -272,3 +272,71 @@ def test_complex_and_sparse_features_are_refused_naming_them(fitted, make, match
         with pytest.raises(InputError, match=match) as err:
             call()
         assert "\n" not in str(err.value)
+
+
+def test_the_command_line_queries_a_scaled_labelled_map_as_the_estimator(tmp_path):
+    """A map the estimator fitted on unscaled frames with place labels, saved,
+    is queried by the command line's job (a ``Map`` value, no estimator) to
+    the estimator's places, and both equal the map's own pure functions applied
+    by hand: queries standardized with numpy, place rows named by the labels."""
+    import rhythmic_jax as rj
+    from rhythmic_jax.app import jobs
+    from rhythmic_jax.app.specs import QueryJob
+    from rhythmic_jax.decoding import held
+
+    x = wide(120, 40, seed=3) * 200.0 + 50.0  # not of order one: standardized
+    labels = np.arange(120) * 3 + 7  # places named 7, 10, ... (not rows)
+    est = RhythmicMap(level=1).fit(x, labels)
+    assert {"scale_mean", "scale_std", "place_labels"} <= set(est.extra)
+    est.save(tmp_path / "m.map")
+    q = x + np.random.default_rng(4).normal(size=x.shape).astype(np.float32)
+    np.save(tmp_path / "q.npy", q.astype(np.float32))
+    mean = x.mean(axis=0, dtype=np.float64).astype(np.float32)
+    std = x.std(axis=0, dtype=np.float64).astype(np.float32)
+    m = rj.load(tmp_path / "m.map")
+    for method in ("hard", "soft", "topm"):
+        rows = np.asarray(rj.predict(m, (q - mean) / std, method))
+        by_hand = np.where(rows >= 0, labels[np.maximum(rows, 0)], -1)
+        np.testing.assert_array_equal(est.predict(q, method), by_hand)
+        np.testing.assert_array_equal(held.predict(m, q, method), by_hand)
+        job = QueryJob(str(tmp_path / "m.map"), str(tmp_path / "q.npy"), decode=method)
+        np.testing.assert_array_equal(jobs.query(job), by_hand)
+    assert (by_hand >= 7).mean() > 0.9  # most queries placed, by their labels
+    assert est.locate(q[5]) == held.locate(m, q[5]) == by_hand[5]
+
+
+def test_fit_frames_is_the_estimators_fit():
+    """``fit_frames`` (what the demo, the frontier and the ablation fit with) gives
+    the estimator's map: the same templates, periods and extra arrays."""
+    from rhythmic_jax.fitting.prepare import fit_frames
+
+    x = wide(90, 30, seed=5) * 100.0 + 30.0  # standardized by scale="auto"
+    est = RhythmicMap(r=2, level=2).fit(x)
+    m = fit_frames(x, MapConfig(r=2, level=2))
+    assert m.periods == est.periods and sorted(m.extra) == sorted(est.extra) != []
+    np.testing.assert_array_equal(np.asarray(m.w), np.asarray(est.map_.w))
+    np.testing.assert_array_equal(m.extra["scale_mean"], est.extra["scale_mean"])
+    with pytest.raises(InputError, match="scale must be one of"):
+        fit_frames(x, MapConfig(), scale="sometimes")
+
+
+def test_a_held_map_reads_as_the_estimator_does(fitted):
+    """What the reports and printers read of the command line's map
+    (:class:`~rhythmic_jax.decoding.held.HeldMap`) is what they read of the
+    estimator holding the same map."""
+    from rhythmic_jax.decoding.held import HeldMap
+
+    model, x = fitted
+    held = HeldMap(model.map_)
+    for name in ("n", "d", "periods", "candidates", "groups", "codebook",
+                 "storage_bytes", "compression_ratio", "embedding_bytes",
+                 "reference", "config"):  # fmt: skip
+        assert getattr(held, name) == getattr(model, name), name
+    assert held.storage_bytes == sum(model.periods) * 251 * 4
+    assert held.info() == model.info() and held.value is model.map_
+    for method in ("hard", "soft", "topm"):
+        np.testing.assert_array_equal(held.predict(x, method), np.arange(150))
+    assert held.locate(x[7]) == 7
+    np.testing.assert_array_equal(
+        np.asarray(held.decode(x[:9]).index), np.asarray(model.decode(x[:9]).index)
+    )

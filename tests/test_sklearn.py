@@ -285,21 +285,22 @@ def test_grid_search_as_written_fits_every_setting():
 
 
 def test_the_command_line_imports_no_scikit_learn():
-    """The command line's jobs hold maps as ``MapEstimator`` (the estimator's
-    logic and scikit-learn's protocol without its base class), so a command
-    loads no scikit-learn; ``RhythmicMap``, asked for, is a ``BaseEstimator``."""
+    """The command line's jobs and the evaluations hold ``Map`` values (the
+    estimator is imported by none of them), so they load no scikit-learn;
+    ``RhythmicMap``, asked for, is a plain ``BaseEstimator`` subclass."""
     import subprocess
     import sys
 
     code = (
-        "import sys, rhythmic_jax, rhythmic_jax.app.jobs\n"
-        "from rhythmic_jax.rhythmic_map import MapEstimator\n"
-        "m = MapEstimator(r=3)\n"
-        "assert repr(m) == 'MapEstimator(r=3)' and m.get_params()['r'] == 3\n"
+        "import sys, rhythmic_jax, rhythmic_jax.app.jobs, rhythmic_jax.app.demo\n"
+        "import rhythmic_jax.app.scale_jobs, rhythmic_jax.app.fusion\n"
+        "import rhythmic_jax.eval.frontier, rhythmic_jax.eval.ablation\n"
         "assert 'sklearn' not in sys.modules, 'imported'\n"
+        "assert 'rhythmic_jax.rhythmic_map' not in sys.modules, 'estimator'\n"
         "from sklearn.base import BaseEstimator\n"
-        "assert isinstance(rhythmic_jax.RhythmicMap(), BaseEstimator)\n"
-        "assert isinstance(rhythmic_jax.RhythmicMap(), MapEstimator)\n"
+        "cls = rhythmic_jax.RhythmicMap\n"
+        "assert cls.__mro__[1] is BaseEstimator, cls.__mro__\n"
+        "assert repr(cls(r=3)) == 'RhythmicMap(r=3)', repr(cls(r=3))\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -308,8 +309,6 @@ def test_the_command_line_imports_no_scikit_learn():
 def test_the_methods_are_defined_in_the_class_with_their_parameters():
     """What ``help(model.decode)`` shows: every method a function of the class
     body, named for it, with its parameters (none made by a loop)."""
-    from rhythmic_jax.rhythmic_map import MapEstimator
-
     named = {
         "fit": ["X", "y", "verbose", "progress", "refine", "plan"],
         "predict": ["X", "method", "top", "sequence", "speeds", "threshold"],
@@ -327,8 +326,8 @@ def test_the_methods_are_defined_in_the_class_with_their_parameters():
     model = RhythmicMap()
     for name, params in named.items():
         method = getattr(model, name)
-        assert method.__qualname__ == f"MapEstimator.{name}"
-        assert name in vars(MapEstimator)
+        assert method.__qualname__ == f"RhythmicMap.{name}"
+        assert name in vars(RhythmicMap)
         assert list(inspect.signature(method).parameters) == params, name
         assert method.__doc__
 

@@ -168,11 +168,14 @@ def run_demo(
 
     Turns on the compile cache (:func:`rhythmic_jax.enable_compile_cache`), so a
     second demo loads its programs instead of compiling them."""
+    from rhythmic_jax.decoding.held import HeldMap
     from rhythmic_jax.eval.report import evaluate_map, format_evaluation
+    from rhythmic_jax.fitting.prepare import fit_frames
     from rhythmic_jax.frames.sources import describe_images
     from rhythmic_jax.io.tiles import tile_image
     from rhythmic_jax.jit_cache import enable_compile_cache
-    from rhythmic_jax.rhythmic_map import MapEstimator
+    from rhythmic_jax.map import map_file
+    from rhythmic_jax.map.config import MapConfig
 
     enable_compile_cache()
 
@@ -193,11 +196,11 @@ def run_demo(
     print(f"route: {len(ref)} places ({cfg.tile}-pixel tiles of a {side}-pixel "
           f"mosaic), {x_ref.shape[1]}-d patchnorm descriptors")  # fmt: skip
     t1 = time.perf_counter()
-    model = MapEstimator(
-        level=cfg.level, descriptor="patchnorm", descriptor_settings=settings
-    ).fit(x_ref, progress=progress)
+    made = MapConfig(level=cfg.level, descriptor="patchnorm",
+                     descriptor_settings=settings)  # fmt: skip
+    model = HeldMap(fit_frames(x_ref, made, progress=progress))
     fit_s = time.perf_counter() - t1
-    model.save(out / "map")
+    map_file.save(out / "map", model.value)
     same = evaluate_map(model, x_ref, reference=x_ref, tolerance=cfg.tolerance)
     changed = evaluate_map(model, x_qry, reference=x_ref, tolerance=cfg.tolerance)
     decodes = {}

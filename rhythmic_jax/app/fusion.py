@@ -32,20 +32,27 @@ def learn_fusion(traversals, emb, codes="int8") -> dict[str, Any]:
 
     import numpy as np
 
+    from rhythmic_jax.decoding import queries
     from rhythmic_jax.decoding.fusion import learn_weight
+    from rhythmic_jax.fitting.prepare import fit_frames
+    from rhythmic_jax.map.config import MapConfig
     from rhythmic_jax.map.embedding import apply
-    from rhythmic_jax.rhythmic_map import MapEstimator
 
     t0 = time.perf_counter()
     n = len(traversals[0])
     gt, tables = np.arange(n), []
     for a, ref in enumerate(traversals):
-        m = MapEstimator(embedding=emb, codes=codes).fit(ref, progress=False)
+        m = fit_frames(ref, MapConfig(codes=codes), embedding=emb)
         for b, qry in enumerate(traversals):
             if a != b:
                 sims = m.codebook.similarity(apply(emb, qry))
                 _, table = learn_weight(
-                    m.scores(qry), sims, m.periods, m.n, gt, FUSION_TOLERANCE
+                    queries.scores(m, qry),
+                    sims,
+                    m.periods,
+                    m.n,
+                    gt,
+                    FUSION_TOLERANCE,
                 )
                 tables.append(table)
     mean = {w: float(np.mean([t[w] for t in tables])) for w in tables[0]}

@@ -145,7 +145,8 @@ def _before_reading(job: FitJob) -> Settled:
 
 def fit(job: FitJob, progress: bool = False):
     """Fit, record provenance and save the map of ``job``; returns the map
-    (a :class:`~rhythmic_jax.rhythmic_map.MapEstimator` holding it).
+    (a :class:`~rhythmic_jax.decoding.held.HeldMap` of the fitted
+    :class:`~rhythmic_jax.map.pytree.Map`).
 
     Everything the settings alone decide is refused before any source is read
     (:func:`_before_reading`: for descriptor files the fit's plan and the memory
@@ -160,12 +161,12 @@ def fit(job: FitJob, progress: bool = False):
     """
     import numpy as np
 
+    from rhythmic_jax.decoding.held import HeldMap
     from rhythmic_jax.fitting.fit_map import fit as fit_map
     from rhythmic_jax.fitting.fit_plan import plan as plan_fit
     from rhythmic_jax.frames.sources import load_sources
     from rhythmic_jax.io.checkpoint import check_space
     from rhythmic_jax.map import map_file
-    from rhythmic_jax.rhythmic_map import MapEstimator
     from rhythmic_jax.validate import frames_digest
 
     augmented, learned, placed, read, ref, weight, fit_plan = _before_reading(job)
@@ -222,7 +223,7 @@ def fit(job: FitJob, progress: bool = False):
     map_file.save(job.out, fitted)
     if augmented is not None and job.checkpoint is None:
         shutil.rmtree(augmented[1], ignore_errors=True)  # the map holds the result
-    return MapEstimator.from_map(fitted)
+    return HeldMap(fitted)
 
 
 def _input_size(read: Reading) -> tuple[int, int] | None:
@@ -342,10 +343,11 @@ def describe(job: DescribeJob, progress: bool = False) -> np.ndarray:
 
 
 def _load_queries(job, progress: bool):
+    from rhythmic_jax.decoding.held import HeldMap
     from rhythmic_jax.frames.sources import load_query_source
-    from rhythmic_jax.rhythmic_map import MapEstimator
+    from rhythmic_jax.map import map_file
 
-    model, read = MapEstimator.load(job.map), job.reading
+    model, read = HeldMap(map_file.load(job.map)), job.reading
     feats = load_query_source(
         job.source, model, read.descriptor, read.tile, read.stride, progress,
         weights=read.weights, compile=read.compile, select=read.select,
@@ -415,9 +417,12 @@ def _queried(job: QueryJob, progress: bool):
 
     out = job.out
     model, feats = _load_queries(job, progress)
-    pred = model.predict(
-        feats.x, job.decode, sequence=job.sequence, threshold=job.threshold
-    )
+    from rhythmic_jax.decoding import held
+
+    pred = held.predict(
+        model.value, feats.x, job.decode, sequence=job.sequence,
+        threshold=job.threshold,
+    )  # fmt: skip
     pred = np.asarray(pred).astype(np.int64)
     if out:
         from rhythmic_jax.io.atomic import save_npy
@@ -427,11 +432,11 @@ def _queried(job: QueryJob, progress: bool):
 
 
 def info(map_path: str) -> dict[str, Any]:
-    """What a map holds (:meth:`rhythmic_jax.RhythmicMap.info`), read from disk.
+    """What a map holds (:func:`rhythmic_jax.map.map_file.describe`), read from disk.
 
     A map whose metadata is complete and consistent, with its arrays listed as
     saved, is described from ``map.json`` alone (no JAX, no array data read); any
-    other goes through :meth:`rhythmic_jax.RhythmicMap.load`, which says what is
+    other goes through :func:`rhythmic_jax.map.map_file.load`, which says what is
     wrong with it (:func:`rhythmic_jax.map.map_file.info`).
     """
     from rhythmic_jax.map import map_file
@@ -440,9 +445,9 @@ def info(map_path: str) -> dict[str, Any]:
 
 
 def _loaded_info(map_path: str) -> dict[str, Any]:
-    from rhythmic_jax.rhythmic_map import MapEstimator
+    from rhythmic_jax.map import map_file
 
-    return MapEstimator.load(map_path).info()
+    return map_file.describe(map_file.load(map_path))
 
 
 def _ground_truth(job, model, b: int, reference: str | None = None):

@@ -200,9 +200,9 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         distributed.initialize(cluster)
     import jax
 
+    from rhythmic_jax.decoding.held import HeldMap
     from rhythmic_jax.io.frame_files import shard_descriptor
     from rhythmic_jax.map import map_file
-    from rhythmic_jax.rhythmic_map import MapEstimator
 
     name, settings = shard_descriptor(sources[0])
     declared = None
@@ -245,4 +245,4 @@ def fit_scaled(job, argv: list[str], progress: bool = True):
         ckpt.rmdir()  # once every process has removed its file
     if jax.process_index() != 0:
         return None, None
-    return MapEstimator.from_map(fitted), run
+    return HeldMap(fitted), run

@@ -10,10 +10,12 @@ import time
 
 import numpy as np
 
-from rhythmic_jax.augment.stream import AugmentedFit, fit_map_augmented
+from rhythmic_jax.augment.stream import AugmentedFit, refining
+from rhythmic_jax.decoding.held import HeldMap
 from rhythmic_jax.eval.report import evaluate_map
+from rhythmic_jax.fitting.prepare import fit_frames
 from rhythmic_jax.frames.features import cached_describe
-from rhythmic_jax.rhythmic_map import RhythmicMap
+from rhythmic_jax.map.config import MapConfig
 
 __all__ = ["augmentation_ablation"]
 
@@ -52,7 +54,7 @@ def augmentation_ablation(
             queries, descriptor, key=f"nb-{route}-qry", progress=False
         )
         t0 = time.perf_counter()
-        plain = RhythmicMap(level=level).fit(x_map, progress=False)
+        plain = HeldMap(fit_frames(x_map, MapConfig(level=level)))
         timings[route] = {"plain map": {"fit": time.perf_counter() - t0}}
         judged = evaluate_map(
             plain, x_qry, reference=x_map, tolerance=tol, timing=False
@@ -64,11 +66,11 @@ def augmentation_ablation(
         for label, names in variants.items():
             config = AugmentedFit(names=names, epochs=epochs, seed=seed)
             t0 = time.perf_counter()
-            model = fit_map_augmented(
-                RhythmicMap(level=level), frames, x_map, descriptor, config,
-                progress=False,
-            )  # fmt: skip
-            timings[route][label] = {**model.timings, "fit": time.perf_counter() - t0}
+            spent: dict[str, float] = {}
+            refine = refining(frames, x_map, np.arange(len(x_map)), descriptor,
+                              config, timings=spent)  # fmt: skip
+            model = HeldMap(fit_frames(x_map, MapConfig(level=level), refine=refine))
+            timings[route][label] = {**spent, "fit": time.perf_counter() - t0}
             judged = evaluate_map(model, x_qry, tolerance=tol, timing=False)
             results[route][label] = judged["methods"]["map"]
     return results, timings

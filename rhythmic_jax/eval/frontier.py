@@ -269,10 +269,10 @@ def _similarity_extra(sims, tol, truth, search=None, queries=None, ks=()) -> dic
 
 def _fit_map(x, r, level, gap):
     """The fitted :class:`~rhythmic_jax.map.pytree.Map` (soft decode) of x."""
-    from rhythmic_jax.rhythmic_map import MapEstimator
+    from rhythmic_jax.fitting.prepare import fit_frames
+    from rhythmic_jax.map.config import MapConfig
 
-    est = MapEstimator(r=r, level=level, gap=gap, method="soft")
-    return est.fit(x, progress=False)._fitted()
+    return fit_frames(x, MapConfig(r=r, level=level, gap=gap, decode="soft"))
 
 
 def _since(t: float) -> float:

@@ -28,6 +28,8 @@ from rhythmic_jax.map.embedding import Embedding
 from rhythmic_jax.map.embedding import apply as apply_embedding
 from rhythmic_jax.map.pytree import Map, host_templates
 from rhythmic_jax.map.scalar_codes import ScalarCodeBook
+from rhythmic_jax.solvers.frame_length import LENGTH_RANGE as LENGTH_RANGE
+from rhythmic_jax.solvers.frame_length import check_length
 from rhythmic_jax.solvers.newton import FitWarning, NewtonInfo, step_cap_line
 from rhythmic_jax.solvers.objective import period_errors, targets
 from rhythmic_jax.solvers.protocol import solver_for
@@ -42,36 +44,10 @@ __all__ = ["LENGTH_RANGE", "PLACED_AT_LEAST", "check_length", "fit"]
 
 log = logging.getLogger(__name__)
 
-# The RMS length of the frames (rows) the solver fits, C = log N taken as it is.
-# Measured on 300 Nordland summer frames (patch-normalised, length 1) scaled by
-# s, the default map's share of its own frames placed: s = 1e-30..1e-6: 0.003
-# (templates of zero: every frame answers place 0), 1e-4: 0.45, 1e-3..1e-2:
-# 0.48, 0.1: 0.77, 1: 0.99, 10..100: 0.98 (100: 37x the time of 1), 1e3 and
-# beyond: the solve ends in NaN; 1e30: 0.003. Inside the range a fit works,
-# outside it the frames are refused, and told by how much to scale them.
-LENGTH_RANGE = (1e-3, 1e2)
 # A period whose argmax misses more than half the frames it was trained on
 # leaves the map unable to place most of its own frames: said in one warning.
 # Fitted maps miss far fewer (Nordland's candidate errors 4-5 %, the README).
 PLACED_AT_LEAST = 0.5
-
-
-def check_length(sums, name: str = "reference features") -> None:
-    """Refuse (one :class:`InputError` line) frames whose RMS length (from
-    :func:`rhythmic_jax.validate.scale_sums`) lies outside :data:`LENGTH_RANGE`:
-    the solver's float32 products overflow above it, and below it the penalty
-    ``C = log N`` leaves templates of zero (every frame placed at 0)."""
-    sums = np.asarray(sums, np.float64)
-    length = float(np.sqrt(sums[-2] / max(float(sums[-1]), 1.0)))
-    lo, hi = LENGTH_RANGE
-    if lo <= length <= hi or not np.isfinite(length) or length == 0.0:
-        return  # zero or non-finite frames: the features' own checks say so
-    raise InputError(
-        f"{name}: frames of RMS length {length:.1e}, outside [{lo:g}, {hi:g}]: the "
-        "solvers expect features of order one (the penalty C = log N takes frames "
-        f"of length about 1); multiply them by about {1 / length:.0e} (or "
-        "L2-normalise each frame) and scale queries alike"
-    )
 
 
 def _placed_note(errors) -> str | None:

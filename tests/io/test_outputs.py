@@ -254,7 +254,7 @@ def test_every_output_on_a_read_only_place_is_refused_before_any_work(
         return real(dir=dir, prefix=prefix)
 
     _fail(monkeypatch, "rhythmic_jax.frames.sources.load_sources", AssertionError())
-    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.MapEstimator.load", AssertionError())
+    _fail(monkeypatch, "rhythmic_jax.map.map_file.load", AssertionError())
     monkeypatch.setattr(outputs.tempfile, "mkstemp", read_only)
     runs = {
         "--out": ["fit", ref, "--out", f"{ro}/x.map"],
@@ -473,7 +473,7 @@ def test_file_outputs_go_through_devices_and_folders_are_refused_before_work(
     capsys.readouterr()
     folder = tmp_path / "pr.png"
     folder.mkdir()
-    _fail(monkeypatch, "rhythmic_jax.rhythmic_map.MapEstimator.load", AssertionError())
+    _fail(monkeypatch, "rhythmic_jax.map.map_file.load", AssertionError())
     _fail(monkeypatch, "rhythmic_jax.app.frontier.frontier", AssertionError())
     assert main(["evaluate", m, ref, "--plot", str(folder), "--no-progress"]) == 2
     _one_line(capsys, f"--plot {folder}: is a folder; give a file name")
