@@ -265,7 +265,8 @@ def written(job) -> list[tuple[str, str]]:
 #: How an output's place is checked before the work (its option's ``output``):
 #: ``map``: a map or embedding folder, replaced whole; ``file``: one file in a
 #: folder that exists; ``made``: one file, its missing folders made; ``into``:
-#: a folder written into and kept (a checkpoint); ``kept``: a folder made once
+#: a folder written into and kept (a checkpoint, a report folder; a file there
+#: refused); ``kept``: a folder made once
 #: and reused when there (its place checked only when it is not); ``place``:
 #: a new file or folder, missing folders made.
 OUTPUTS = ("map", "file", "made", "into", "kept", "place")

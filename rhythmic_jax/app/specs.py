@@ -267,6 +267,8 @@ class DemoJob(Job):
 
     out: str | None = option(
         "report folder",
+        path="writes",
+        output="into",
         show_default="a fresh folder under "
         "the system's temporary folder; the report line names "
         "it",

@@ -212,13 +212,15 @@ def check_place(
     The folder that will hold ``path`` (its nearest existing parent, as missing
     ones are created) must be a folder where a file can be created and written:
     a one-byte probe file is written and removed there, so a read-only, full or
-    forbidden place is refused now, not at the job's end. ``inside``: an existing
-    folder at ``path`` is written into too (a checkpoint), so it is probed as well.
+    forbidden place is refused now, not at the job's end. ``inside``: ``path`` is
+    a folder written into (a checkpoint, a report's folder): an existing one is
+    probed as well, a file there refused.
 
     Args:
       option: the setting that names the output (``out``, ``plot``, ...).
       path: where the output goes (a file or a folder).
-      inside: probe an existing folder at ``path`` too.
+      inside: ``path`` is a folder: probe it too where it exists; a file there
+        is refused.
       file: the output is one file (:func:`output_target`): a folder there is
         refused, a device or a pipe checked for writing instead of its folder,
         and the folder probed is that of the file a link names.
@@ -233,6 +235,8 @@ def check_place(
             _check_through(option, path, named)
             return target
         target = named.path
+    if inside and target.exists() and not target.is_dir():
+        raise InputError(f"{{opt:{option}}} {path}: a file, not a folder")
     folder = target.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent

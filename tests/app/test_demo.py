@@ -79,3 +79,15 @@ def test_the_demo_writes_into_a_fresh_temporary_folder(tmp_path, monkeypatch):
         tmp_path / "rhythmic_demo-3",
     )
     assert first.is_dir() and not any(first.iterdir())
+
+
+def test_a_file_at_the_report_folder_is_refused_before_work(tmp_path, capsys):
+    from rhythmic_jax.app.cli import main
+
+    (tmp_path / "taken").write_text("x")
+    assert main(["demo", "--quick", "--out", str(tmp_path / "taken")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""  # refused before the route is drawn
+    err = captured.err.strip().splitlines()
+    assert err == [f"rhythmic-jax demo: error: --out {tmp_path / 'taken'}: a file, "
+                   "not a folder"]  # fmt: skip
